@@ -1,0 +1,8 @@
+"""ParticleSplat: object-centric latent particles that decode into 3D Gaussians."""
+
+from .camera import Camera
+from .gaussians import Gaussians
+from .render import RenderResult, render
+
+__all__ = ["Camera", "Gaussians", "RenderResult", "render"]
+__version__ = "0.1.0"

@@ -1,0 +1,157 @@
+"""Standard 3DGS ``.ply`` read/write.
+
+Layout (one ``vertex`` element, binary little endian, float32 unless noted)::
+
+    x y z  nx ny nz  f_dc_0..2  f_rest_0..(3(K-1)-1)  opacity  scale_0..2  rot_0..3  [owner:int]
+
+``opacity`` is a logit, ``scale_*`` are natural logs, ``rot_*`` is a wxyz quaternion and
+``f_rest`` is channel-major: ``f_rest[c * (K-1) + (k-1)]`` is coefficient ``k`` of channel ``c``.
+``owner`` is an extra integer property other tools ignore (absent means background, -1).
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .atomic import atomic_write
+from .gaussians import BACKGROUND_OWNER, Gaussians
+from .sh import sh_degree_from_bases
+
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+_EPS = 1e-7
+
+
+class PlyError(ValueError):
+    """A .ply file that cannot be read; the message names the file and the property."""
+
+
+def _read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]]]:
+    first = f.readline()
+    if first.strip() != b"ply":
+        raise PlyError(f"{path}: not a PLY file (first line is {first[:20]!r})")
+    fmt = None
+    elements: list[tuple[str, int, list[tuple[str, str]]]] = []
+    while True:
+        line = f.readline()
+        if not line:
+            raise PlyError(f"{path}: truncated header (no end_header)")
+        words = line.decode("ascii", errors="replace").split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        if words[0] == "end_header":
+            break
+        if words[0] == "format":
+            fmt = words[1]
+        elif words[0] == "element":
+            elements.append((words[1], int(words[2]), []))
+        elif words[0] == "property":
+            if not elements:
+                raise PlyError(f"{path}: property before any element")
+            if words[1] == "list":
+                raise PlyError(f"{path}: list property '{words[-1]}' in element '{elements[-1][0]}' "
+                               "is not supported in a Gaussian .ply")
+            if words[1] not in _PLY_TYPES:
+                raise PlyError(f"{path}: property '{words[2]}' has unknown type '{words[1]}'")
+            elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
+    if fmt not in ("binary_little_endian", "binary_big_endian"):
+        raise PlyError(f"{path}: format '{fmt}' is not supported (binary_little_endian or binary_big_endian)")
+    return fmt, elements
+
+
+def read_ply(path: str | PathLike) -> Gaussians:
+    """Read a 3DGS .ply into float32 :class:`Gaussians` on the CPU.
+
+    Raises :class:`PlyError` (naming the file and the property) for a missing property,
+    an ``f_rest`` count that is no SH degree, a truncated file, or a non-finite value.
+    """
+    path = Path(path)
+    with open(path, "rb") as f:
+        fmt, elements = _read_header(f, path)
+        order = "<" if fmt == "binary_little_endian" else ">"
+        if not elements or elements[0][0] != "vertex":
+            raise PlyError(f"{path}: the first element must be 'vertex'")
+        _, n, props = elements[0]
+        dtype = np.dtype([(name, order + t) for name, t in props])
+        raw = f.read(n * dtype.itemsize)
+    if len(raw) < n * dtype.itemsize:
+        got = len(raw) // dtype.itemsize
+        raise PlyError(f"{path}: truncated: header declares {n} vertices ({n * dtype.itemsize} bytes), "
+                       f"file holds {len(raw)} bytes (vertex {got}, property '{props[0][0]}' onwards missing)")
+    data = np.frombuffer(raw, dtype=dtype, count=n)
+    names = {name for name, _ in props}
+
+    def column(name: str) -> np.ndarray:
+        if name not in names:
+            raise PlyError(f"{path}: missing property '{name}' in element 'vertex'")
+        col = data[name].astype(np.float64)
+        bad = ~np.isfinite(col)
+        if bad.any():
+            raise PlyError(f"{path}: property '{name}' has a non-finite value at vertex {int(np.argmax(bad))}")
+        return col
+
+    def stack(prefix: str, count: int) -> np.ndarray:
+        return np.stack([column(f"{prefix}{i}") for i in range(count)], axis=-1) if count else np.zeros((n, 0))
+
+    n_rest = sum(1 for name in names if name.startswith("f_rest_"))
+    if n_rest % 3 != 0:
+        raise PlyError(f"{path}: property 'f_rest_*' count {n_rest} is not a multiple of 3")
+    try:
+        sh_degree_from_bases(n_rest // 3 + 1)
+    except ValueError:
+        raise PlyError(f"{path}: property 'f_rest_*' count {n_rest} is no SH degree "
+                       "(expected 0, 9, 24 or 45)") from None
+    k = n_rest // 3 + 1
+    means = np.stack([column("x"), column("y"), column("z")], axis=-1)
+    dc = stack("f_dc_", 3)
+    rest = stack("f_rest_", n_rest).reshape(n, 3, k - 1).transpose(0, 2, 1)
+    sh = np.concatenate([dc[:, None, :], rest], axis=1)
+    opacities = 1.0 / (1.0 + np.exp(-column("opacity")))
+    scales = np.exp(stack("scale_", 3))
+    quats = stack("rot_", 4)
+    if "owner" in names:
+        owner = data["owner"].astype(np.int64)
+    else:
+        owner = np.full(n, BACKGROUND_OWNER, dtype=np.int64)
+    f32 = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
+    return Gaussians(f32(means), f32(quats), f32(scales), f32(opacities), f32(sh), torch.from_numpy(owner))
+
+
+def write_ply(gaussians: Gaussians, path: str | PathLike) -> None:
+    """Write ``gaussians`` as a binary little-endian 3DGS .ply, atomically (temp file + rename).
+
+    Opacities are clamped to [1e-7, 1 - 1e-7] and scales to >= 1e-30 so that the logit and
+    the log stay finite.
+    """
+    path = Path(path)
+    g = gaussians.detach().to("cpu", torch.float64)
+    n, k = g.num, g.sh.shape[1]
+    sh = g.sh.numpy()
+    props: list[tuple[str, np.ndarray]] = [("x", g.means[:, 0].numpy()), ("y", g.means[:, 1].numpy()),
+                                           ("z", g.means[:, 2].numpy())]
+    props += [(f"n{a}", np.zeros(n)) for a in "xyz"]
+    props += [(f"f_dc_{c}", sh[:, 0, c]) for c in range(3)]
+    rest = sh[:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * (k - 1))
+    props += [(f"f_rest_{i}", rest[:, i]) for i in range(3 * (k - 1))]
+    o = np.clip(g.opacities.numpy(), _EPS, 1.0 - _EPS)
+    props.append(("opacity", np.log(o) - np.log1p(-o)))
+    log_s = np.log(np.maximum(g.scales.numpy(), 1e-30))
+    props += [(f"scale_{i}", log_s[:, i]) for i in range(3)]
+    props += [(f"rot_{i}", g.quats[:, i].numpy()) for i in range(4)]
+    dtype = np.dtype([(name, "<f4") for name, _ in props] + [("owner", "<i4")])
+    rec = np.empty(n, dtype=dtype)
+    for name, col in props:
+        rec[name] = col
+    rec["owner"] = g.owner.numpy()
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
+    header += [f"property float {name}" for name, _ in props] + ["property int owner", "end_header"]
+    with atomic_write(path, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(rec.tobytes())
