@@ -1,0 +1,75 @@
+"""Latent particles of one scene: the seam between the model, the edits and the viewer."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+
+import torch
+from torch import Tensor
+
+from ..camera import Camera
+
+# The attributes a user may edit, in the paper's order, with their widths.
+EDITABLE = {"z_p": 2, "z_s": 2, "z_d": 1, "z_e": 1, "z_t": 1}
+
+
+@dataclass
+class Particles:
+    """The L foreground particles of all context views of one scene, plus the background.
+
+    Particle ``i`` was encoded from context view ``view[i]`` and is lifted along that view's
+    rays; its Gaussians get ``owner = i``. All fields are posterior means (or samples).
+
+    Attributes:
+        z_p: (L, 2) image-plane position, normalised to [-1, 1] (x right, y down) in its view.
+        z_s: (L, 2) image-plane scale (pre-sigmoid; the decoder uses sigmoid(z_s)).
+        z_d: (L, 1) depth (pre-sigmoid; d = d_min + sigmoid(z_d) (d_max - d_min)).
+        z_e: (L, 1) depth extent (pre-sigmoid; Δ = ½ (d_max - d_min) sigmoid(z_e)).
+        z_t: (L, 1) transparency in [0, 1].
+        z_f: (L, D) appearance features.
+        view: (L,) int64 index of the context view each particle belongs to.
+        background: (V, C, h, w) per-view background latent maps the background decoder reads.
+        cameras: the V context cameras (OpenCV).
+    """
+
+    z_p: Tensor
+    z_s: Tensor
+    z_d: Tensor
+    z_e: Tensor
+    z_t: Tensor
+    z_f: Tensor
+    view: Tensor
+    background: Tensor
+    cameras: list[Camera] = field(default_factory=list)
+
+    @property
+    def num(self) -> int:
+        return self.z_p.shape[0]
+
+    def _map(self, fn) -> Particles:
+        out = {f.name: fn(getattr(self, f.name)) for f in fields(self) if f.name != "cameras"}
+        return Particles(**out, cameras=list(self.cameras))
+
+    def detach(self) -> Particles:
+        return self._map(lambda t: t.detach())
+
+    def clone(self) -> Particles:
+        return self._map(lambda t: t.clone())
+
+    def to(self, device: torch.device | str) -> Particles:
+        p = self._map(lambda t: t.to(device))
+        return replace(p, cameras=[c.to(device) for c in self.cameras])
+
+    def attribute(self, index: int, name: str) -> Tensor:
+        """Current value of an editable attribute of particle ``index``: (width,)."""
+        if name not in EDITABLE:
+            raise KeyError(f"'{name}' is not an editable particle attribute ({', '.join(EDITABLE)})")
+        return getattr(self, name)[index]
+
+    def with_attribute(self, index: int, name: str, value) -> Particles:
+        """A copy with attribute ``name`` of particle ``index`` set to ``value`` (width,)."""
+        current = self.attribute(index, name)
+        value_t = torch.as_tensor(value, dtype=current.dtype, device=current.device).reshape(current.shape)
+        new = getattr(self, name).clone()
+        new[index] = value_t
+        return replace(self, **{name: new})
