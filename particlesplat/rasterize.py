@@ -1,0 +1,250 @@
+"""Tile-based front-to-back alpha compositing with an analytic backward (pure torch).
+
+Screen is split into 8×8-pixel tiles. Each projected Gaussian is listed in every tile its
+α ≥ 1/255 footprint's bounding box touches; lists are sorted by depth (ties by index).
+Tiles are bucketed by list length, and each bucket is processed in chunks of about
+``CHUNK_ELEMENTS`` (tile, pixel, slot) entries, so memory stays bounded for any N and size.
+
+Per pixel and Gaussian, the exponent ``ln o - ½ dᵀ C d`` is one matmul of six pixel features
+``[x², xy, y², x, y, 1]`` (tile-centred coordinates) with six per-Gaussian coefficients.
+The backward recomputes α and T per chunk instead of storing them, and uses the suffix sum
+``S_i = Σ_{k>i} v_k w_k``: ∂L/∂α_i = v_i T_i − S_i / (1 − α_i).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .projection import ALPHA_MAX, ALPHA_MIN
+
+TILE = 8
+CHUNK_ELEMENTS = 1 << 20
+T_MIN = 1e-4  # a pixel stops before the Gaussian that would take T to <= T_MIN
+_EXP_FLOOR = -6.0  # exp(-6) < 1/255: clamping the exponent changes nothing and keeps exp() fast
+
+
+@dataclass
+class TileBins:
+    """Gaussian lists per tile.
+
+    Attributes:
+        tiles_x, tiles_y: the tile grid.
+        gauss: (P,) int64 Gaussian (row in the rasterizer's inputs) per list entry, grouped by
+            tile, front to back within a tile.
+        start: (T,) int64 offset of each tile's list in ``gauss``; count: (T,) int64 lengths.
+        chunks: list of (tile ids (Tb,), padded length L) processed together.
+    """
+
+    tiles_x: int
+    tiles_y: int
+    gauss: Tensor
+    start: Tensor
+    count: Tensor
+    chunks: list[tuple[Tensor, int]]
+
+
+def bin_gaussians(means2d: Tensor, radius: Tensor, depths: Tensor, width: int, height: int) -> TileBins:
+    """Assign Gaussians to tiles.
+
+    means2d: (M, 2) pixels; radius: (M, 2) half extents in pixels of the α ≥ 1/255 box (< 0
+    means no footprint); depths: (M,) camera z used for ordering (ties by index).
+    """
+    device = means2d.device
+    tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
+    n_tiles = tiles_x * tiles_y
+    with torch.no_grad():
+        m = means2d.detach().double()
+        r = radius.detach().double()
+        # pixel u is covered if its centre u + 0.5 lies within [m - r, m + r]
+        u0 = torch.ceil(m[:, 0] - r[:, 0] - 0.5).clamp(0, width - 1)
+        u1 = torch.floor(m[:, 0] + r[:, 0] - 0.5).clamp(-1, width - 1)
+        v0 = torch.ceil(m[:, 1] - r[:, 1] - 0.5).clamp(0, height - 1)
+        v1 = torch.floor(m[:, 1] + r[:, 1] - 0.5).clamp(-1, height - 1)
+        ok = (r[:, 0] >= 0) & (u1 >= u0) & (v1 >= v0) & torch.isfinite(m).all(-1)
+        tx0, tx1 = (u0 // TILE).long(), (u1 // TILE).long()
+        ty0, ty1 = (v0 // TILE).long(), (v1 // TILE).long()
+        nx = torch.where(ok, tx1 - tx0 + 1, 0)
+        ny = torch.where(ok, ty1 - ty0 + 1, 0)
+        order = torch.sort(depths.detach(), stable=True).indices  # front to back, ties by index
+        per = (nx * ny)[order]
+        total = int(per.sum())
+        g = torch.repeat_interleave(order, per)
+        offs = torch.arange(total, device=device) - torch.repeat_interleave(torch.cumsum(per, 0) - per, per)
+        gnx = nx[g]
+        tile = (ty0[g] + offs // gnx) * tiles_x + tx0[g] + offs % gnx
+        tile_sorted, perm = torch.sort(tile, stable=True)
+        gauss = g[perm]
+        count = torch.bincount(tile_sorted, minlength=n_tiles)
+        start = torch.cumsum(count, 0) - count
+        chunks = _make_chunks(count)
+    return TileBins(tiles_x, tiles_y, gauss, start, count, chunks)
+
+
+def _make_chunks(count: Tensor) -> list[tuple[Tensor, int]]:
+    """Bucket non-empty tiles by list length (padded to 1, 2, 3, 4, 6, 8, 12, 16, ... ) and chunk them."""
+    chunks: list[tuple[Tensor, int]] = []
+    nonempty = torch.nonzero(count > 0).squeeze(1)
+    if nonempty.numel() == 0:
+        return chunks
+    c = count[nonempty].double()
+    exp2 = torch.floor(torch.log2(c))
+    low = torch.pow(2.0, exp2)
+    padded = torch.where(c <= low, low, torch.where(c <= 1.5 * low, torch.ceil(1.5 * low), 2.0 * low)).long()
+    for length in torch.unique(padded).tolist():
+        tiles = nonempty[padded == length]
+        per_chunk = max(1, CHUNK_ELEMENTS // (TILE * TILE * length))
+        for i in range(0, tiles.numel(), per_chunk):
+            chunks.append((tiles[i:i + per_chunk], int(length)))
+    return chunks
+
+
+def _pixel_features(dtype: torch.dtype, device: torch.device) -> Tensor:
+    """(64, 6) features [x², xy, y², x, y, 1] of a tile's pixel centres relative to the tile centre."""
+    r = torch.arange(TILE, dtype=dtype, device=device) + 0.5 - TILE / 2
+    y, x = torch.meshgrid(r, r, indexing="ij")
+    x, y = x.reshape(-1), y.reshape(-1)
+    return torch.stack([x * x, x * y, y * y, x, y, torch.ones_like(x)], dim=-1)
+
+
+def _tile_centres(tiles: Tensor, tiles_x: int, dtype: torch.dtype) -> Tensor:
+    """(Tb, 2) pixel coordinates of the tile centres."""
+    return torch.stack([(tiles % tiles_x) * TILE, (tiles // tiles_x) * TILE], dim=-1).to(dtype) + TILE / 2
+
+
+def _gather(bins: TileBins, tiles: Tensor, length: int) -> tuple[Tensor, Tensor]:
+    """(Tb, L) Gaussian rows of the tiles' lists (padding repeats row 0) and (Tb, L) validity."""
+    slot = torch.arange(length, device=tiles.device)
+    valid = slot[None, :] < bins.count[tiles][:, None]
+    idx = (bins.start[tiles][:, None] + slot[None, :]).clamp(max=max(bins.gauss.numel() - 1, 0))
+    return bins.gauss[idx], valid
+
+
+def _coefficients(m: Tensor, conic: Tensor, log_o: Tensor) -> Tensor:
+    """Exponent coefficients (…, 6) for features [x², xy, y², x, y, 1].
+
+    m: (…, 2) tile-local centre; conic: (…, 3) (a, b, c); log_o: (…) ln opacity.
+    ln o − ½ (a dx² + 2b dx dy + c dy²) with d = pixel − m.
+    """
+    a, b, c = conic.unbind(-1)
+    mx, my = m.unbind(-1)
+    lx, ly = a * mx + b * my, b * mx + c * my
+    const = log_o - 0.5 * (mx * lx + my * ly)
+    return torch.stack([-0.5 * a, -b, -0.5 * c, lx, ly, const], dim=-1)
+
+
+class _ChunkState:
+    """α, T and weights of one chunk (recomputed in the backward)."""
+
+    def __init__(self, feats: Tensor, coef: Tensor):
+        expo = torch.matmul(feats, coef.transpose(1, 2))  # (Tb, 64, L)
+        raw = torch.exp(expo.clamp_min(_EXP_FLOOR))
+        self.live = (raw >= ALPHA_MIN) & (raw < ALPHA_MAX)  # where dα/dexponent = α
+        alpha = torch.where(raw >= ALPHA_MIN, raw.clamp_max(ALPHA_MAX), torch.zeros_like(raw))
+        self.alpha = alpha
+        self.one_minus = 1.0 - alpha
+        t_incl = torch.cumprod(self.one_minus, dim=-1)
+        self.keep = t_incl > T_MIN
+        self.t_excl = t_incl / self.one_minus
+        self.weights = alpha * self.t_excl * self.keep
+
+
+def _chunk_inputs(bins: TileBins, tiles: Tensor, length: int, means2d: Tensor, conics: Tensor,
+                  log_o: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    rows, valid = _gather(bins, tiles, length)
+    local = means2d[rows] - _tile_centres(tiles, bins.tiles_x, means2d.dtype)[:, None, :]
+    lo = torch.where(valid, log_o[rows], torch.full_like(log_o[rows], -30.0))
+    return rows, local, _coefficients(local, conics[rows], lo)
+
+
+def _tiles_to_image(tile_values: Tensor, bins: TileBins, width: int, height: int) -> Tensor:
+    """(n_tiles, 64, C) -> (H, W, C)."""
+    C = tile_values.shape[-1]
+    img = tile_values.reshape(bins.tiles_y, bins.tiles_x, TILE, TILE, C).permute(0, 2, 1, 3, 4)
+    return img.reshape(bins.tiles_y * TILE, bins.tiles_x * TILE, C)[:height, :width]
+
+
+def _image_to_tiles(img: Tensor, bins: TileBins) -> Tensor:
+    """(H, W, C) -> (n_tiles, 64, C), zero padded."""
+    H, W, C = img.shape
+    pad = img.new_zeros(bins.tiles_y * TILE, bins.tiles_x * TILE, C)
+    pad[:H, :W] = img
+    return pad.reshape(bins.tiles_y, TILE, bins.tiles_x, TILE, C).permute(0, 2, 1, 3, 4).reshape(-1, TILE * TILE, C)
+
+
+class RasterizeFunction(torch.autograd.Function):
+    """Composite features front to back. Returns (H, W, C) Σ w·feature and (H, W) Σ w."""
+
+    @staticmethod
+    def forward(ctx, means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor, bins: TileBins,
+                width: int, height: int) -> tuple[Tensor, Tensor]:
+        log_o = torch.log(opacities.clamp_min(1e-30))
+        feats = _pixel_features(means2d.dtype, means2d.device)
+        n_tiles = bins.tiles_x * bins.tiles_y
+        C = features.shape[1]
+        out = means2d.new_zeros(n_tiles, TILE * TILE, C + 1)
+        for tiles, length in bins.chunks:
+            rows, _, coef = _chunk_inputs(bins, tiles, length, means2d, conics, log_o)
+            st = _ChunkState(feats, coef)
+            f1 = torch.cat([features[rows], torch.ones_like(rows, dtype=features.dtype)[..., None]], dim=-1)
+            out[tiles] = torch.bmm(st.weights, f1)
+        ctx.save_for_backward(means2d, conics, opacities, features)
+        ctx.bins, ctx.size = bins, (width, height)
+        img = _tiles_to_image(out, bins, width, height)
+        return img[..., :C], img[..., C]
+
+    @staticmethod
+    def backward(ctx, grad_feat: Tensor, grad_alpha: Tensor):
+        means2d, conics, opacities, features = ctx.saved_tensors
+        bins = ctx.bins
+        log_o = torch.log(opacities.clamp_min(1e-30))
+        feats = _pixel_features(means2d.dtype, means2d.device)
+        g_tiles = _image_to_tiles(torch.cat([grad_feat, grad_alpha[..., None]], dim=-1), bins)  # (T, 64, C+1)
+        d_m = torch.zeros_like(means2d)
+        d_conic = torch.zeros_like(conics)
+        d_logo = torch.zeros_like(opacities)
+        d_f = torch.zeros(features.shape[0], features.shape[1] + 1, dtype=features.dtype, device=features.device)
+        for tiles, length in bins.chunks:
+            rows, local, coef = _chunk_inputs(bins, tiles, length, means2d, conics, log_o)
+            st = _ChunkState(feats, coef)
+            f1 = torch.cat([features[rows], torch.ones_like(rows, dtype=features.dtype)[..., None]], dim=-1)
+            G = g_tiles[tiles]  # (Tb, 64, C+1)
+            d_f.index_add_(0, rows.reshape(-1), torch.bmm(st.weights.transpose(1, 2), G).reshape(-1, f1.shape[-1]))
+            v = torch.bmm(G, f1.transpose(1, 2))  # (Tb, 64, L) upstream · feature
+            vw = v * st.weights
+            suffix = vw.sum(-1, keepdim=True) - torch.cumsum(vw, dim=-1)
+            d_alpha = (v * st.t_excl - suffix / st.one_minus) * st.keep
+            d_expo = torch.where(st.live, d_alpha * st.alpha, torch.zeros_like(d_alpha))
+            g = torch.matmul(d_expo.transpose(1, 2), feats)  # (Tb, L, 6) ∂L/∂coefficients
+            g0, g1, g2, g3, g4, g5 = g.unbind(-1)
+            a, b, c = conics[rows].unbind(-1)
+            mx, my = local.unbind(-1)
+            lx, ly = a * mx + b * my, b * mx + c * my
+            da = -0.5 * g0 + g3 * mx - 0.5 * g5 * mx * mx
+            db = -g1 + g3 * my + g4 * mx - g5 * mx * my
+            dc = -0.5 * g2 + g4 * my - 0.5 * g5 * my * my
+            dmx = g3 * a + g4 * b - g5 * lx
+            dmy = g3 * b + g4 * c - g5 * ly
+            flat = rows.reshape(-1)
+            d_m.index_add_(0, flat, torch.stack([dmx, dmy], dim=-1).reshape(-1, 2))
+            d_conic.index_add_(0, flat, torch.stack([da, db, dc], dim=-1).reshape(-1, 3))
+            d_logo.index_add_(0, flat, g5.reshape(-1))
+        d_o = d_logo / opacities.clamp_min(1e-30)
+        return d_m, d_conic, d_o, d_f[:, :-1], None, None, None
+
+
+def owner_weight_maps(means2d: Tensor, conics: Tensor, opacities: Tensor, owner_slot: Tensor, num_slots: int,
+                      bins: TileBins, width: int, height: int) -> Tensor:
+    """(H, W, num_slots) Σ T·α per owner slot (no gradient). owner_slot: (M,) int64 in [0, num_slots)."""
+    with torch.no_grad():
+        log_o = torch.log(opacities.clamp_min(1e-30))
+        feats = _pixel_features(means2d.dtype, means2d.device)
+        out = means2d.new_zeros(bins.tiles_x * bins.tiles_y, TILE * TILE, num_slots)
+        for tiles, length in bins.chunks:
+            rows, _, coef = _chunk_inputs(bins, tiles, length, means2d, conics, log_o)
+            st = _ChunkState(feats, coef)
+            onehot = torch.nn.functional.one_hot(owner_slot[rows], num_slots).to(means2d.dtype)
+            out[tiles] = torch.bmm(st.weights, onehot)
+        return _tiles_to_image(out, bins, width, height)
