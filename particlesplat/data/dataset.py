@@ -1,0 +1,140 @@
+"""A torch ``Dataset`` over a split folder of scene folders, with the paper's view sampler."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from collections import OrderedDict
+from os import PathLike
+from pathlib import Path
+
+import torch
+from torch import Tensor
+from torch.utils.data import Dataset
+
+from .scene import TRANSFORMS, RawScene, read_scene
+from .views import flip_horizontal, sample_views, supervision_mask
+
+
+class SceneDataset(Dataset):
+    """Scenes of one split (every sub-folder holding a ``transforms.json``, sorted by name).
+
+    Each item is one scene with views chosen by :func:`sample_views` at the current training
+    progress (:meth:`set_progress`; shared with DataLoader worker processes). An item is a dict
+    (C context views, T target views, H x W the resolution):
+
+    - ``context_rgb`` (C, 3, H, W), ``target_rgb`` (T, 3, H, W): float32 in [0, 1].
+    - ``context_depth`` (C, 1, H, W), ``target_depth`` (T, 1, H, W): planar metres, 0 = none
+      (all zeros for scenes without depth).
+    - ``context_K`` (C, 3, 3), ``target_K`` (T, 3, 3): intrinsics in pixels at H x W.
+    - ``context_c2w`` (C, 4, 4), ``target_c2w`` (T, 4, 4): OpenCV camera-to-world.
+    - ``context_masks`` (C, H, W), ``target_masks`` (T, H, W): int64 instance ids (0 = background);
+      only when the scenes have masks.
+    - ``target_supervision`` (T, 1, H, W): float32 {0, 1}; 1 where the target pixel is supervised.
+      Single-view mode with depth: the Splatt3R-style mask (:func:`supervision_mask`); otherwise ones.
+    - ``context_index`` (C,), ``target_index`` (T,): int64 frame indices; ``scene_index`` () int64;
+      ``flipped`` () bool.
+
+    With ``deterministic=True`` (validation/test), item ``i`` always picks the same views and flip,
+    from a generator seeded by ``(seed, i)``; otherwise each call draws fresh views from torch's
+    global RNG (per-worker seeded by the DataLoader).
+    """
+
+    def __init__(self, root_split_dir: str | PathLike, resolution: int | tuple[int, int] | None = None,
+                 mode: str = "multi", *, flip: bool = False, deterministic: bool = False, seed: int = 0,
+                 progress: float = 0.0, num_targets: int | None = None,
+                 schedule: tuple[tuple[int, int], tuple[int, int]] | None = None,
+                 cache_size: int = 256) -> None:
+        """
+        Args:
+            root_split_dir: folder of scene folders (e.g. ``data/tabletop/train``).
+            resolution: None (native), int S (S x S) or (W, H).
+            mode: "multi" or "single" (see :func:`sample_views`).
+            flip: mirror the world and flip all views of an item left-right with probability 1/2.
+            deterministic: fixed views per item (validation order).
+            seed: seed of the deterministic choices.
+            progress: initial training progress in [0, 1] (drives the view-gap schedule).
+            num_targets, schedule: passed to :func:`sample_views`.
+            cache_size: decoded scenes kept per process (about 2 MB each at 21 x 128 x 128).
+        """
+        root = Path(root_split_dir)
+        if not root.is_dir():
+            raise FileNotFoundError(f"{root}: no such split folder")
+        self.scenes = sorted(p for p in root.iterdir() if (p / TRANSFORMS).is_file())
+        if not self.scenes:
+            raise FileNotFoundError(f"{root}: no scene folders (sub-folders with {TRANSFORMS})")
+        if mode not in ("multi", "single"):
+            raise ValueError(f"mode must be 'multi' or 'single', got {mode!r}")
+        self.root = root
+        self.resolution = resolution
+        self.mode = mode
+        self.flip = flip
+        self.deterministic = deterministic
+        self.seed = seed
+        self.num_targets = num_targets
+        self.schedule = schedule
+        self.cache_size = cache_size
+        self._progress = mp.get_context().Value("d", float(progress), lock=False)
+        self._cache: OrderedDict[int, RawScene] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self.scenes)
+
+    @property
+    def progress(self) -> float:
+        return float(self._progress.value)
+
+    def set_progress(self, progress: float) -> None:
+        """Set the training progress in [0, 1]; worker processes see it (shared memory)."""
+        self._progress.value = min(max(float(progress), 0.0), 1.0)
+
+    def raw(self, index: int) -> RawScene:
+        """The decoded scene ``index`` (cached, least recently used evicted)."""
+        if index in self._cache:
+            self._cache.move_to_end(index)
+            return self._cache[index]
+        raw = read_scene(self.scenes[index])
+        if self.cache_size > 0:
+            self._cache[index] = raw
+            while len(self._cache) > self.cache_size:
+                self._cache.popitem(last=False)
+        return raw
+
+    def __getitem__(self, index: int) -> dict[str, Tensor]:
+        if not 0 <= index < len(self):
+            raise IndexError(f"index {index} out of range for {len(self)} scenes")
+        raw = self.raw(index)
+        gen = torch.Generator()
+        if self.deterministic:
+            gen.manual_seed(self.seed * 1_000_003 + index)
+        else:
+            gen.manual_seed(int(torch.randint(0, 2**62, (1,))))
+        ctx, tgt = sample_views(raw.num_frames, self.progress, self.mode, gen, num_targets=self.num_targets,
+                                schedule=self.schedule)
+        flipped = self.flip and bool(torch.rand((), generator=gen) < 0.5)
+        item: dict[str, Tensor] = {"scene_index": torch.tensor(index), "flipped": torch.tensor(flipped),
+                                   "context_index": ctx, "target_index": tgt}
+        views = {}
+        for role, idx in (("context", ctx), ("target", tgt)):
+            scene = raw.select(idx.tolist(), self.resolution)
+            depth = scene.depth if scene.depth is not None else torch.zeros_like(scene.rgb[:, :1])
+            views[role] = (scene, depth)
+        sup = torch.ones_like(views["target"][1])
+        if self.mode == "single" and raw.has_depth:
+            sup = supervision_mask(views["target"][1], views["target"][0].cameras, views["context"][1],
+                                   views["context"][0].cameras)
+        for role, (scene, depth) in views.items():
+            extra = [depth] + ([scene.masks] if scene.masks is not None else [])
+            if role == "target":
+                extra.append(sup)
+            rgb, cams = scene.rgb, scene.cameras
+            if flipped:
+                rgb, cams, extra = flip_horizontal(rgb, cams, *extra)
+            item[f"{role}_rgb"] = rgb
+            item[f"{role}_depth"] = extra[0]
+            item[f"{role}_K"] = torch.stack([c.K for c in cams])
+            item[f"{role}_c2w"] = torch.stack([c.c2w for c in cams])
+            if scene.masks is not None:
+                item[f"{role}_masks"] = extra[1]
+            if role == "target":
+                item["target_supervision"] = extra[-1]
+        return item
