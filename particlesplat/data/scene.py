@@ -122,7 +122,8 @@ class RawScene:
         rgb = torch.stack([_resize_rgb(self.rgb[i], size) for i in idx])
         depth = None
         if self.has_depth:
-            depth = torch.stack([_resize_nearest(self.depth[i], size, torch.float32) for i in idx])[:, None]
+            depth = torch.stack([torch.zeros(size[1], size[0]) if self.depth[i] is None
+                                 else _resize_nearest(self.depth[i], size, torch.float32) for i in idx])[:, None]
         masks = None
         if self.has_masks:
             masks = torch.stack([_resize_nearest(self.masks[i], size, torch.int64) for i in idx])
