@@ -136,19 +136,20 @@ def _coefficients(m: Tensor, conic: Tensor, log_o: Tensor) -> Tensor:
 
 
 class _ChunkState:
-    """α, T and weights of one chunk (recomputed in the backward)."""
+    """α, T and weights of one chunk (recomputed in the backward), each (Tb, 64, L)."""
 
     def __init__(self, feats: Tensor, coef: Tensor):
-        expo = torch.matmul(feats, coef.transpose(1, 2))  # (Tb, 64, L)
-        raw = torch.exp(expo.clamp_min(_EXP_FLOOR))
-        self.live = (raw >= ALPHA_MIN) & (raw < ALPHA_MAX)  # where dα/dexponent = α
-        alpha = torch.where(raw >= ALPHA_MIN, raw.clamp_max(ALPHA_MAX), torch.zeros_like(raw))
+        raw = torch.matmul(feats, coef.transpose(1, 2))  # exponent ln o − ½ dᵀCd
+        raw.clamp_min_(_EXP_FLOOR).exp_()
+        alpha = raw.clamp_max_(ALPHA_MAX)
+        alpha.masked_fill_(alpha < ALPHA_MIN, 0.0)
         self.alpha = alpha
         self.one_minus = 1.0 - alpha
         t_incl = torch.cumprod(self.one_minus, dim=-1)
-        self.keep = t_incl > T_MIN
         self.t_excl = t_incl / self.one_minus
-        self.weights = alpha * self.t_excl * self.keep
+        self.keep = t_incl > T_MIN
+        # w_i = α_i T_i = T_i − T_{i+1}, zero from the terminating Gaussian on
+        self.weights = torch.sub(self.t_excl, t_incl).masked_fill_(~self.keep, 0.0)
 
 
 def _chunk_inputs(bins: TileBins, tiles: Tensor, length: int, means2d: Tensor, conics: Tensor,
@@ -213,10 +214,12 @@ class RasterizeFunction(torch.autograd.Function):
             G = g_tiles[tiles]  # (Tb, 64, C+1)
             d_f.index_add_(0, rows.reshape(-1), torch.bmm(st.weights.transpose(1, 2), G).reshape(-1, f1.shape[-1]))
             v = torch.bmm(G, f1.transpose(1, 2))  # (Tb, 64, L) upstream · feature
-            vw = v * st.weights
-            suffix = vw.sum(-1, keepdim=True) - torch.cumsum(vw, dim=-1)
-            d_alpha = (v * st.t_excl - suffix / st.one_minus) * st.keep
-            d_expo = torch.where(st.live, d_alpha * st.alpha, torch.zeros_like(d_alpha))
+            vw = v.mul_(st.weights)
+            suffix = vw.sum(-1, keepdim=True) - torch.cumsum(vw, dim=-1)  # S_i = Σ_{k>i} v_k w_k
+            # ∂L/∂exponent = α ∂L/∂α = α (v T − S / (1 − α)) = v w − S α / (1 − α), where α is
+            # neither clamped at 0.99 nor past termination (α = 0 below 1/255 gives 0 by itself)
+            d_expo = vw.sub_(suffix.mul_(st.alpha).div_(st.one_minus))
+            d_expo.masked_fill_(~st.keep | (st.alpha >= ALPHA_MAX), 0.0)
             g = torch.matmul(d_expo.transpose(1, 2), feats)  # (Tb, L, 6) ∂L/∂coefficients
             g0, g1, g2, g3, g4, g5 = g.unbind(-1)
             a, b, c = conics[rows].unbind(-1)
