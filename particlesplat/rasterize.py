@@ -28,59 +28,73 @@ _EXP_FLOOR = -6.0  # exp(-6) < 1/255: clamping the exponent changes nothing and 
 
 @dataclass
 class TileBins:
-    """Gaussian lists per tile.
+    """Gaussian lists per tile, for one or several views (each view has its own tile grid).
 
     Attributes:
-        tiles_x, tiles_y: the tile grid.
+        grids: per view (tiles_x, tiles_y, first tile id).
         gauss: (P,) int64 Gaussian (row in the rasterizer's inputs) per list entry, grouped by
             tile, front to back within a tile.
         start: (T,) int64 offset of each tile's list in ``gauss``; count: (T,) int64 lengths.
+        tile_origin: (T, 2) pixel coordinates of each tile's centre in its view.
         chunks: list of (tile ids (Tb,), padded length L) processed together.
     """
 
-    tiles_x: int
-    tiles_y: int
+    grids: list[tuple[int, int, int]]
     gauss: Tensor
     start: Tensor
     count: Tensor
+    tile_origin: Tensor
     chunks: list[tuple[Tensor, int]]
 
+    @property
+    def num_tiles(self) -> int:
+        tx, ty, first = self.grids[-1]
+        return first + tx * ty
 
-def bin_gaussians(means2d: Tensor, radius: Tensor, depths: Tensor, width: int, height: int) -> TileBins:
-    """Assign Gaussians to tiles.
+
+def bin_gaussians(means2d: Tensor, radius: Tensor, depths: Tensor, view: Tensor,
+                  sizes: list[tuple[int, int]]) -> TileBins:
+    """Assign Gaussians to the tiles of their view.
 
     means2d: (M, 2) pixels; radius: (M, 2) half extents in pixels of the α ≥ 1/255 box (< 0
-    means no footprint); depths: (M,) camera z used for ordering (ties by index).
+    means no footprint); depths: (M,) camera z used for ordering (ties by row index);
+    view: (M,) int64 view of each row; sizes: (width, height) per view.
     """
     device = means2d.device
-    tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
-    n_tiles = tiles_x * tiles_y
+    grids, first = [], 0
+    for w, h in sizes:
+        tx, ty = -(-w // TILE), -(-h // TILE)
+        grids.append((tx, ty, first))
+        first += tx * ty
+    n_tiles = first
     with torch.no_grad():
+        wh = torch.tensor(sizes, dtype=torch.float64, device=device)[view]  # (M, 2)
+        g_tx = torch.tensor([g[0] for g in grids], device=device)[view]
+        g_first = torch.tensor([g[2] for g in grids], device=device)[view]
         m = means2d.detach().double()
         r = radius.detach().double()
         # pixel u is covered if its centre u + 0.5 lies within [m - r, m + r]
-        u0 = torch.ceil(m[:, 0] - r[:, 0] - 0.5).clamp(0, width - 1)
-        u1 = torch.floor(m[:, 0] + r[:, 0] - 0.5).clamp(-1, width - 1)
-        v0 = torch.ceil(m[:, 1] - r[:, 1] - 0.5).clamp(0, height - 1)
-        v1 = torch.floor(m[:, 1] + r[:, 1] - 0.5).clamp(-1, height - 1)
-        ok = (r[:, 0] >= 0) & (u1 >= u0) & (v1 >= v0) & torch.isfinite(m).all(-1)
-        tx0, tx1 = (u0 // TILE).long(), (u1 // TILE).long()
-        ty0, ty1 = (v0 // TILE).long(), (v1 // TILE).long()
-        nx = torch.where(ok, tx1 - tx0 + 1, 0)
-        ny = torch.where(ok, ty1 - ty0 + 1, 0)
+        lo = torch.maximum(torch.ceil(m - r - 0.5), torch.zeros_like(m))
+        hi = torch.minimum(torch.floor(m + r - 0.5), wh - 1)
+        ok = (r[:, 0] >= 0) & (hi >= lo).all(-1) & torch.isfinite(m).all(-1)
+        t0, t1 = (lo // TILE).long(), (hi // TILE).long()
+        nx = torch.where(ok, t1[:, 0] - t0[:, 0] + 1, 0)
+        ny = torch.where(ok, t1[:, 1] - t0[:, 1] + 1, 0)
         order = torch.sort(depths.detach(), stable=True).indices  # front to back, ties by index
         per = (nx * ny)[order]
         total = int(per.sum())
         g = torch.repeat_interleave(order, per)
         offs = torch.arange(total, device=device) - torch.repeat_interleave(torch.cumsum(per, 0) - per, per)
         gnx = nx[g]
-        tile = (ty0[g] + offs // gnx) * tiles_x + tx0[g] + offs % gnx
+        tile = g_first[g] + (t0[g, 1] + offs // gnx) * g_tx[g] + t0[g, 0] + offs % gnx
         tile_sorted, perm = torch.sort(tile, stable=True)
         gauss = g[perm]
         count = torch.bincount(tile_sorted, minlength=n_tiles)
         start = torch.cumsum(count, 0) - count
+        origin = torch.cat([torch.stack(torch.meshgrid(torch.arange(ty), torch.arange(tx), indexing="ij")[::-1],
+                                        dim=-1).reshape(-1, 2) for tx, ty, _ in grids]).to(device)
         chunks = _make_chunks(count)
-    return TileBins(tiles_x, tiles_y, gauss, start, count, chunks)
+    return TileBins(grids, gauss, start, count, origin * TILE + TILE / 2, chunks)
 
 
 def _make_chunks(count: Tensor) -> list[tuple[Tensor, int]]:
@@ -107,11 +121,6 @@ def _pixel_features(dtype: torch.dtype, device: torch.device) -> Tensor:
     y, x = torch.meshgrid(r, r, indexing="ij")
     x, y = x.reshape(-1), y.reshape(-1)
     return torch.stack([x * x, x * y, y * y, x, y, torch.ones_like(x)], dim=-1)
-
-
-def _tile_centres(tiles: Tensor, tiles_x: int, dtype: torch.dtype) -> Tensor:
-    """(Tb, 2) pixel coordinates of the tile centres."""
-    return torch.stack([(tiles % tiles_x) * TILE, (tiles // tiles_x) * TILE], dim=-1).to(dtype) + TILE / 2
 
 
 def _gather(bins: TileBins, tiles: Tensor, length: int) -> tuple[Tensor, Tensor]:
@@ -155,54 +164,44 @@ class _ChunkState:
 def _chunk_inputs(bins: TileBins, tiles: Tensor, length: int, means2d: Tensor, conics: Tensor,
                   log_o: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     rows, valid = _gather(bins, tiles, length)
-    local = means2d[rows] - _tile_centres(tiles, bins.tiles_x, means2d.dtype)[:, None, :]
+    local = means2d[rows] - bins.tile_origin[tiles].to(means2d.dtype)[:, None, :]
     lo = torch.where(valid, log_o[rows], torch.full_like(log_o[rows], -30.0))
     return rows, local, _coefficients(local, conics[rows], lo)
 
 
-def _tiles_to_image(tile_values: Tensor, bins: TileBins, width: int, height: int) -> Tensor:
-    """(n_tiles, 64, C) -> (H, W, C)."""
+def tiles_to_images(tile_values: Tensor, bins: TileBins, sizes: list[tuple[int, int]]) -> list[Tensor]:
+    """(T, 64, C) -> per view (H, W, C) (differentiable reshapes and slices)."""
     C = tile_values.shape[-1]
-    img = tile_values.reshape(bins.tiles_y, bins.tiles_x, TILE, TILE, C).permute(0, 2, 1, 3, 4)
-    return img.reshape(bins.tiles_y * TILE, bins.tiles_x * TILE, C)[:height, :width]
-
-
-def _image_to_tiles(img: Tensor, bins: TileBins) -> Tensor:
-    """(H, W, C) -> (n_tiles, 64, C), zero padded."""
-    H, W, C = img.shape
-    pad = img.new_zeros(bins.tiles_y * TILE, bins.tiles_x * TILE, C)
-    pad[:H, :W] = img
-    return pad.reshape(bins.tiles_y, TILE, bins.tiles_x, TILE, C).permute(0, 2, 1, 3, 4).reshape(-1, TILE * TILE, C)
+    images = []
+    for (tx, ty, first), (w, h) in zip(bins.grids, sizes):
+        img = tile_values[first:first + tx * ty].reshape(ty, tx, TILE, TILE, C).permute(0, 2, 1, 3, 4)
+        images.append(img.reshape(ty * TILE, tx * TILE, C)[:h, :w])
+    return images
 
 
 class RasterizeFunction(torch.autograd.Function):
-    """Composite features front to back. Returns (H, W, C) Σ w·feature and (H, W) Σ w."""
+    """Composite features front to back: (T, 64, C+1) per tile pixel Σ w·[feature, 1]."""
 
     @staticmethod
-    def forward(ctx, means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor, bins: TileBins,
-                width: int, height: int) -> tuple[Tensor, Tensor]:
+    def forward(ctx, means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,
+                bins: TileBins) -> Tensor:
         log_o = torch.log(opacities.clamp_min(1e-30))
         feats = _pixel_features(means2d.dtype, means2d.device)
-        n_tiles = bins.tiles_x * bins.tiles_y
-        C = features.shape[1]
-        out = means2d.new_zeros(n_tiles, TILE * TILE, C + 1)
+        out = means2d.new_zeros(bins.num_tiles, TILE * TILE, features.shape[1] + 1)
         for tiles, length in bins.chunks:
             rows, _, coef = _chunk_inputs(bins, tiles, length, means2d, conics, log_o)
             st = _ChunkState(feats, coef)
-            f1 = torch.cat([features[rows], torch.ones_like(rows, dtype=features.dtype)[..., None]], dim=-1)
-            out[tiles] = torch.bmm(st.weights, f1)
+            out[tiles] = torch.bmm(st.weights, _with_ones(features[rows]))
         ctx.save_for_backward(means2d, conics, opacities, features)
-        ctx.bins, ctx.size = bins, (width, height)
-        img = _tiles_to_image(out, bins, width, height)
-        return img[..., :C], img[..., C]
+        ctx.bins = bins
+        return out
 
     @staticmethod
-    def backward(ctx, grad_feat: Tensor, grad_alpha: Tensor):
+    def backward(ctx, grad_out: Tensor):
         means2d, conics, opacities, features = ctx.saved_tensors
         bins = ctx.bins
         log_o = torch.log(opacities.clamp_min(1e-30))
         feats = _pixel_features(means2d.dtype, means2d.device)
-        g_tiles = _image_to_tiles(torch.cat([grad_feat, grad_alpha[..., None]], dim=-1), bins)  # (T, 64, C+1)
         d_m = torch.zeros_like(means2d)
         d_conic = torch.zeros_like(conics)
         d_logo = torch.zeros_like(opacities)
@@ -210,9 +209,10 @@ class RasterizeFunction(torch.autograd.Function):
         for tiles, length in bins.chunks:
             rows, local, coef = _chunk_inputs(bins, tiles, length, means2d, conics, log_o)
             st = _ChunkState(feats, coef)
-            f1 = torch.cat([features[rows], torch.ones_like(rows, dtype=features.dtype)[..., None]], dim=-1)
-            G = g_tiles[tiles]  # (Tb, 64, C+1)
-            d_f.index_add_(0, rows.reshape(-1), torch.bmm(st.weights.transpose(1, 2), G).reshape(-1, f1.shape[-1]))
+            f1 = _with_ones(features[rows])
+            G = grad_out[tiles]  # (Tb, 64, C+1)
+            flat = rows.reshape(-1)
+            d_f.index_add_(0, flat, torch.bmm(st.weights.transpose(1, 2), G).reshape(-1, f1.shape[-1]))
             v = torch.bmm(G, f1.transpose(1, 2))  # (Tb, 64, L) upstream · feature
             vw = v.mul_(st.weights)
             suffix = vw.sum(-1, keepdim=True) - torch.cumsum(vw, dim=-1)  # S_i = Σ_{k>i} v_k w_k
@@ -228,26 +228,28 @@ class RasterizeFunction(torch.autograd.Function):
             da = -0.5 * g0 + g3 * mx - 0.5 * g5 * mx * mx
             db = -g1 + g3 * my + g4 * mx - g5 * mx * my
             dc = -0.5 * g2 + g4 * my - 0.5 * g5 * my * my
-            dmx = g3 * a + g4 * b - g5 * lx
-            dmy = g3 * b + g4 * c - g5 * ly
-            flat = rows.reshape(-1)
-            d_m.index_add_(0, flat, torch.stack([dmx, dmy], dim=-1).reshape(-1, 2))
+            d_m.index_add_(0, flat, torch.stack([g3 * a + g4 * b - g5 * lx, g3 * b + g4 * c - g5 * ly],
+                                                dim=-1).reshape(-1, 2))
             d_conic.index_add_(0, flat, torch.stack([da, db, dc], dim=-1).reshape(-1, 3))
             d_logo.index_add_(0, flat, g5.reshape(-1))
-        d_o = d_logo / opacities.clamp_min(1e-30)
-        return d_m, d_conic, d_o, d_f[:, :-1], None, None, None
+        return d_m, d_conic, d_logo / opacities.clamp_min(1e-30), d_f[:, :-1], None
 
 
-def owner_weight_maps(means2d: Tensor, conics: Tensor, opacities: Tensor, owner_slot: Tensor, num_slots: int,
-                      bins: TileBins, width: int, height: int) -> Tensor:
-    """(H, W, num_slots) Σ T·α per owner slot (no gradient). owner_slot: (M,) int64 in [0, num_slots)."""
+def _with_ones(features: Tensor) -> Tensor:
+    """(..., C) -> (..., C+1) with a trailing 1 (its weighted sum is alpha)."""
+    return torch.cat([features, torch.ones_like(features[..., :1])], dim=-1)
+
+
+def owner_weight_tiles(means2d: Tensor, conics: Tensor, opacities: Tensor, owner_slot: Tensor, num_slots: int,
+                       bins: TileBins) -> Tensor:
+    """(T, 64, num_slots) Σ T·α per owner slot (no gradient). owner_slot: (M,) int64 in [0, num_slots)."""
     with torch.no_grad():
         log_o = torch.log(opacities.clamp_min(1e-30))
         feats = _pixel_features(means2d.dtype, means2d.device)
-        out = means2d.new_zeros(bins.tiles_x * bins.tiles_y, TILE * TILE, num_slots)
+        out = means2d.new_zeros(bins.num_tiles, TILE * TILE, num_slots)
         for tiles, length in bins.chunks:
             rows, _, coef = _chunk_inputs(bins, tiles, length, means2d, conics, log_o)
             st = _ChunkState(feats, coef)
             onehot = torch.nn.functional.one_hot(owner_slot[rows], num_slots).to(means2d.dtype)
             out[tiles] = torch.bmm(st.weights, onehot)
-        return _tiles_to_image(out, bins, width, height)
+        return out

@@ -11,7 +11,7 @@ from torch import Tensor
 from .camera import Camera
 from .gaussians import Gaussians
 from .projection import footprint_radius_sq, project_gaussians
-from .rasterize import RasterizeFunction, bin_gaussians, owner_weight_maps
+from .rasterize import RasterizeFunction, bin_gaussians, owner_weight_tiles, tiles_to_images
 from .sh import eval_sh_colors
 
 
@@ -62,33 +62,67 @@ def render(gaussians: Gaussians, camera: Camera, *, background: Sequence[float] 
     Args:
         background: (3,) colour behind everything.
         owner_weights: also return per-owner weight maps (for masks and segmentation).
-        num_owners: P for the owner maps (default: max owner + 1).
+        num_owners: P for the owner maps (default: max owner + 1); owners outside 0..P-1
+            count as background.
     """
-    H, W = camera.height, camera.width
-    dtype, device = gaussians.means.dtype, gaussians.means.device
-    cam = camera.to(device=device, dtype=dtype)
+    return render_batch([(gaussians, camera)], background=background, near=near, far=far,
+                        owner_weights=owner_weights, num_owners=num_owners)[0]
+
+
+def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
+                 near: float = 0.01, far: float = 1e10, owner_weights: bool = False,
+                 num_owners: int | None = None) -> list[RenderResult]:
+    """Render several (Gaussians, camera) pairs in one pass; same rules and results as :func:`render`.
+
+    All views share one tile list and one set of rasterizer chunks, which amortises the
+    per-call overhead when training renders many small views. The Gaussians of all views must
+    share dtype, device and SH degree.
+    """
+    if not views:
+        return []
+    dtype, device = views[0][0].means.dtype, views[0][0].means.device
     bg = torch.as_tensor(background, dtype=dtype, device=device).reshape(3)
-    proj = project_gaussians(gaussians, cam, near, far)
-    opac = gaussians.opacities[proj.index]
-    r2 = footprint_radius_sq(opac.detach())
-    # half extents of the ellipse dᵀΣ⁻¹d <= r² are r·sqrt(Σ_xx), r·sqrt(Σ_yy); a hair of margin
-    # keeps float rounding from dropping a boundary pixel
-    radius = torch.where(r2[:, None] >= 0, torch.sqrt(r2.clamp_min(0))[:, None] * proj.cov2d_diag.detach().sqrt()
-                         * (1 + 1e-5) + 1e-3, torch.full_like(proj.cov2d_diag, -1.0))
-    bins = bin_gaussians(proj.means2d, radius, proj.depths, W, H)
-    sh = gaussians.sh[proj.index]
-    dirs = torch.nn.functional.normalize(gaussians.means[proj.index] - cam.center, dim=-1)
-    colors = eval_sh_colors(sh, dirs)
-    features = torch.cat([colors, proj.depths[:, None]], dim=-1)  # (M, 4)
-    acc, alpha = RasterizeFunction.apply(proj.means2d, proj.conics, opac, features, bins, W, H)
-    rgb = acc[..., :3] + (1.0 - alpha)[..., None] * bg
-    depth = torch.where(alpha > 0, acc[..., 3] / alpha.clamp_min(1e-12), torch.zeros_like(alpha))
-    result = RenderResult(rgb, alpha, depth)
+    parts: dict[str, list[Tensor]] = {k: [] for k in ("means2d", "conics", "opac", "features", "radius", "view",
+                                                       "owner")}
+    sizes = []
+    for v, (gaussians, camera) in enumerate(views):
+        cam = camera.to(device=device, dtype=dtype)
+        proj = project_gaussians(gaussians, cam, near, far)
+        opac = gaussians.opacities[proj.index]
+        r2 = footprint_radius_sq(opac.detach())
+        # half extents of the ellipse dᵀΣ⁻¹d <= r² are r·sqrt(Σ_xx), r·sqrt(Σ_yy); a hair of
+        # margin keeps float rounding from dropping a boundary pixel
+        radius = torch.where(r2[:, None] >= 0,
+                             torch.sqrt(r2.clamp_min(0))[:, None] * proj.cov2d_diag.detach().sqrt() * (1 + 1e-5) + 1e-3,
+                             torch.full_like(proj.cov2d_diag, -1.0))
+        dirs = torch.nn.functional.normalize(gaussians.means[proj.index] - cam.center, dim=-1)
+        colors = eval_sh_colors(gaussians.sh[proj.index], dirs)
+        parts["means2d"].append(proj.means2d)
+        parts["conics"].append(proj.conics)
+        parts["opac"].append(opac)
+        parts["features"].append(torch.cat([colors, proj.depths[:, None]], dim=-1))  # (M, 4)
+        parts["radius"].append(radius)
+        parts["view"].append(torch.full_like(proj.index, v))
+        parts["owner"].append(gaussians.owner[proj.index])
+        sizes.append((cam.width, cam.height))
+    cat = {k: torch.cat(v) for k, v in parts.items()}
+    bins = bin_gaussians(cat["means2d"], cat["radius"], cat["features"][:, 3], cat["view"], sizes)
+    tiles = RasterizeFunction.apply(cat["means2d"], cat["conics"], cat["opac"], cat["features"], bins)
+    results = []
+    for acc in tiles_to_images(tiles, bins, sizes):
+        alpha = acc[..., 4]
+        rgb = acc[..., :3] + (1.0 - alpha)[..., None] * bg
+        depth = torch.where(alpha > 0, acc[..., 3] / alpha.clamp_min(1e-12), torch.zeros_like(alpha))
+        results.append(RenderResult(rgb, alpha, depth))
     if owner_weights:
-        owners = gaussians.owner[proj.index]
-        P = int(num_owners if num_owners is not None else (int(gaussians.owner.max()) + 1 if len(gaussians) else 0))
+        owners = cat["owner"]
+        if num_owners is not None:
+            P = int(num_owners)
+        else:
+            P = max((int(g.owner.max()) + 1 for g, _ in views if len(g)), default=0)
         slot = torch.where((owners >= 0) & (owners < P), owners + 1, torch.zeros_like(owners))
-        maps = owner_weight_maps(proj.means2d, proj.conics, opac, slot, P + 1, bins, W, H)
-        result.owner_weights = maps[..., 1:].permute(2, 0, 1).contiguous()
-        result.background_weight = maps[..., 0]
-    return result
+        maps = owner_weight_tiles(cat["means2d"], cat["conics"], cat["opac"], slot, P + 1, bins)
+        for result, m in zip(results, tiles_to_images(maps, bins, sizes)):
+            result.owner_weights = m[..., 1:].permute(2, 0, 1).contiguous()
+            result.background_weight = m[..., 0]
+    return results
