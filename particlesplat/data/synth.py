@@ -154,7 +154,8 @@ def generate(out: Path, counts: dict[str, int], seed: int, res: int = 128, worke
                 times.append(_work(task))
                 bar.update(1)
         else:
-            with mp.get_context("spawn").Pool(workers, initializer=_init_worker) as pool:
+            method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"  # fork: no re-import
+            with mp.get_context(method).Pool(workers, initializer=_init_worker) as pool:
                 for seconds in pool.imap_unordered(_work, tasks):
                     times.append(seconds)
                     bar.update(1)

@@ -195,35 +195,55 @@ def _hit_cylinder(o: np.ndarray, d: np.ndarray, obj: TabletopObject) -> tuple[np
 _HITTERS = {"sphere": _hit_sphere, "box": _hit_box, "cylinder": _hit_cylinder}
 
 
-def trace(scene: TabletopScene, origin: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _bounding_radius(obj: TabletopObject) -> float:
+    """Radius of a sphere about ``obj.center`` that contains the object."""
+    if obj.shape == "box":
+        return float(np.linalg.norm(obj.size))
+    if obj.shape == "cylinder":
+        return math.hypot(obj.size[0], obj.size[2])
+    return obj.size[0]
+
+
+def trace(scene: TabletopScene, origin: np.ndarray, dirs: np.ndarray,
+          shade: bool = True) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
     """Cast rays from one origin.
+
+    Each object is intersected exactly, but only for the rays that hit its bounding sphere.
 
     Args:
         origin: (3,) camera centre, world metres.
         dirs: (N, 3) directions with camera-z component 1 (``t`` is planar depth).
+        shade: compute colours (else the first result is None).
 
     Returns:
         colour (N, 3) shaded in [0, 1]; depth (N,) planar metres, 0 where nothing is hit;
         instance (N,) int64: -1 nothing (background colour), 0 floor, k >= 1 object k.
     """
-    t_best, n_best = _hit_floor(origin, dirs)
-    n_best = n_best.copy()
+    t_best, n_floor = _hit_floor(origin, dirs)
+    n_best = np.array(n_floor)
     inst = np.where(np.isfinite(t_best), 0, -1)
+    dd = np.einsum("ij,ij->i", dirs, dirs)
     for k, obj in enumerate(scene.objects, start=1):
-        t, n = _HITTERS[obj.shape](origin, dirs, obj)
-        closer = t < t_best
-        t_best = np.where(closer, t, t_best)
-        n_best[closer] = n[closer]
-        inst = np.where(closer, k, inst)
-    p = origin + np.where(np.isfinite(t_best), t_best, 0.0)[:, None] * dirs
+        oc = origin - np.asarray(obj.center)
+        half_b = dirs @ oc
+        cand = np.flatnonzero(half_b * half_b - dd * (oc @ oc - _bounding_radius(obj) ** 2) > 0)
+        if cand.size == 0:
+            continue
+        t, n = _HITTERS[obj.shape](origin, dirs[cand], obj)
+        closer = t < t_best[cand]
+        sel = cand[closer]
+        t_best[sel], n_best[sel], inst[sel] = t[closer], n[closer], k
+    depth = np.where(inst >= 0, t_best, 0.0)
+    if not shade:
+        return None, depth, inst.astype(np.int64)
+    p = origin + depth[:, None] * dirs
     checker = (np.floor(p[:, 0] / CHECKER_CELL) + np.floor(p[:, 1] / CHECKER_CELL)).astype(np.int64) % 2
     albedo = np.asarray(FLOOR_GREYS)[checker][:, None].repeat(3, axis=1)
     for k, obj in enumerate(scene.objects, start=1):
         albedo[inst == k] = COLOURS[obj.colour]
-    shade = AMBIENT + DIFFUSE * np.maximum(0.0, n_best @ np.asarray(LIGHT))
-    colour = np.clip(albedo * shade[:, None], 0.0, 1.0)
+    lit = AMBIENT + DIFFUSE * np.maximum(0.0, n_best @ np.asarray(LIGHT))
+    colour = np.clip(albedo * lit[:, None], 0.0, 1.0)
     colour[inst < 0] = BACKGROUND
-    depth = np.where(inst >= 0, t_best, 0.0)
     return colour, depth, inst.astype(np.int64)
 
 
@@ -264,5 +284,5 @@ def render_view(scene: TabletopScene, K: np.ndarray, c2w: np.ndarray, width: int
     colour, _, _ = trace(scene, origin, sub.reshape(-1, 3))
     rgb = colour.reshape(height, 2, width, 2, 3).mean(axis=(1, 3))
     centre = pixel_rays(K, c2w, width, height, (0.5,))
-    _, depth, inst = trace(scene, origin, centre.reshape(-1, 3))
+    _, depth, inst = trace(scene, origin, centre.reshape(-1, 3), shade=False)
     return rgb, depth.reshape(height, width), np.maximum(inst, 0).reshape(height, width)
