@@ -90,7 +90,7 @@ def sample_views(num_frames: int, progress: float, mode: str = "multi", generato
 
 
 def supervision_mask(target_depth: Tensor, target_cams: list[Camera], context_depth: Tensor,
-                     context_cams: list[Camera], rel_tol: float = 0.03, abs_tol: float = 0.02) -> Tensor:
+                     context_cams: list[Camera], rel_tol: float = 0.01, abs_tol: float = 0.01) -> Tensor:
     """Splatt3R-style mask of target pixels that the context views can see.
 
     A target pixel is supervised (1) when its surface point, unprojected with the target depth,
