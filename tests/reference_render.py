@@ -49,13 +49,19 @@ _C3 = (-0.25 * math.sqrt(35.0 / (2.0 * _PI)), 0.5 * math.sqrt(105.0 / _PI), -0.2
 @dataclass
 class ReferenceResult:
     """Brute-force render. rgb (H, W, 3), alpha (H, W), depth (H, W), transmittance (H, W)
-    (final T), owner_weights (P, H, W)."""
+    (final T), owner_weights (P, H, W), background_weight (H, W) (Σ w of owner -1)."""
 
     rgb: Tensor
     alpha: Tensor
     depth: Tensor
     transmittance: Tensor
     owner_weights: Tensor
+    background_weight: Tensor
+
+    def segmentation(self) -> Tensor:
+        """(H, W) argmax owner; -1 where background Gaussians plus the empty remainder T weigh most."""
+        scores = torch.cat([(self.background_weight + self.transmittance)[None], self.owner_weights], dim=0)
+        return scores.argmax(0) - 1
 
 
 def sh_basis_reference(dirs: Tensor, degree: int) -> Tensor:
@@ -118,11 +124,12 @@ def project_reference(means: Tensor, quats: Tensor, scales: Tensor, K: Tensor, w
 
 
 def reference_render(gaussians, camera, *, background=(0.0, 0.0, 0.0), near: float = 0.01, far: float = 1e10,
-                     num_owners: int | None = None) -> ReferenceResult:
+                     num_owners: int | None = None, t_stop: float = T_STOP) -> ReferenceResult:
     """Render ``gaussians`` (any object with means/quats/scales/opacities/sh/owner tensors) seen by
     ``camera`` (any object with K (3,3), c2w (4,4), width, height) in float64 by brute force.
 
     The inputs are converted with ``.double()`` so autograd flows back to float64 leaves.
+    ``t_stop`` moves the termination threshold (only to bracket exact ties in tests).
     """
     dt = torch.float64
     means, quats, scales = gaussians.means.double(), gaussians.quats.double(), gaussians.scales.double()
@@ -134,14 +141,18 @@ def reference_render(gaussians, camera, *, background=(0.0, 0.0, 0.0), near: flo
     P = num_owners if num_owners is not None else (int(owner.max()) + 1 if owner.numel() else 0)
     P = max(P, 0)
 
-    mean2d, cov2d, z = project_reference(means, quats, scales, K, w2c, W, H)
-    kept = [i for i in range(means.shape[0]) if near < float(z[i]) < far]
-    kept.sort(key=lambda i: (float(z[i]), i))
+    # cull first (on z alone), so culled Gaussians never enter a division and keep zero gradients
+    zs = (means.detach() @ w2c[:3, :3].T + w2c[:3, 3])[:, 2].tolist()
+    kept = [i for i in range(means.shape[0]) if near < zs[i] < far]
+    kept.sort(key=lambda i: (zs[i], i))
+    idx = torch.tensor(kept, dtype=torch.long)
+    mean2d, cov2d, z = project_reference(means[idx], quats[idx], scales[idx], K, w2c, W, H)
 
     degree = int(round(math.sqrt(sh.shape[1]))) - 1
-    dirs = means - c2w[:3, 3]
-    dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-300)
-    colors = torch.clamp_min((sh_basis_reference(dirs, degree)[:, :, None] * sh).sum(1) + 0.5, 0.0)
+    dirs = means[idx] - c2w[:3, 3]
+    dirs = dirs / dirs.norm(dim=-1, keepdim=True)
+    colors = torch.clamp_min((sh_basis_reference(dirs, degree)[:, :, None] * sh[idx]).sum(1) + 0.5, 0.0)
+    opac, owner = opac[idx], owner[idx]
 
     v, u = torch.meshgrid(torch.arange(H, dtype=dt), torch.arange(W, dtype=dt), indexing="ij")
     pu, pv = (u + 0.5).reshape(-1), (v + 0.5).reshape(-1)
@@ -151,7 +162,8 @@ def reference_render(gaussians, camera, *, background=(0.0, 0.0, 0.0), near: flo
     acc = torch.zeros(H * W, dtype=dt)
     dep = torch.zeros(H * W, dtype=dt)
     own = [torch.zeros(H * W, dtype=dt) for _ in range(P)]
-    for i in kept:
+    own_bg = torch.zeros(H * W, dtype=dt)
+    for i in range(len(kept)):
         a, b, c = cov2d[i, 0, 0], cov2d[i, 0, 1], cov2d[i, 1, 1]
         det = a * c - b * b
         dx, dy = pu - mean2d[i, 0], pv - mean2d[i, 1]
@@ -159,7 +171,7 @@ def reference_render(gaussians, camera, *, background=(0.0, 0.0, 0.0), near: flo
         alpha = torch.clamp(opac[i] * torch.exp(power), max=ALPHA_MAX)
         use = (~done) & (alpha >= ALPHA_MIN)
         next_T = T * (1 - alpha)
-        stop = use & (next_T <= T_STOP)
+        stop = use & (next_T <= t_stop)
         done = done | stop
         use = use & ~stop
         w = torch.where(use, alpha * T, torch.zeros_like(T))
@@ -169,8 +181,11 @@ def reference_render(gaussians, camera, *, background=(0.0, 0.0, 0.0), near: flo
         dep = dep + w * z[i]
         if 0 <= int(owner[i]) < P:
             own[int(owner[i])] = own[int(owner[i])] + w
+        elif int(owner[i]) < 0:
+            own_bg = own_bg + w
     rgb = rgb + T[:, None] * bg
     has = acc > 0
     depth = torch.where(has, dep / torch.where(has, acc, torch.ones_like(acc)), torch.zeros_like(acc))
     owner_w = torch.stack(own).reshape(P, H, W) if P else torch.zeros(0, H, W, dtype=dt)
-    return ReferenceResult(rgb.reshape(H, W, 3), acc.reshape(H, W), depth.reshape(H, W), T.reshape(H, W), owner_w)
+    return ReferenceResult(rgb.reshape(H, W, 3), acc.reshape(H, W), depth.reshape(H, W), T.reshape(H, W), owner_w,
+                           own_bg.reshape(H, W))
