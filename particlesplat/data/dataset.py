@@ -59,7 +59,8 @@ class SceneDataset(Dataset):
         root = Path(root_split_dir)
         if not root.is_dir():
             raise FileNotFoundError(f"{root}: no such split folder")
-        self.scenes = sorted(p for p in root.iterdir() if (p / TRANSFORMS).is_file())
+        # hidden folders are the generator's unfinished temporaries
+        self.scenes = sorted(p for p in root.iterdir() if not p.name.startswith(".") and (p / TRANSFORMS).is_file())
         if not self.scenes:
             raise FileNotFoundError(f"{root}: no scene folders (sub-folders with {TRANSFORMS})")
         if mode not in ("multi", "single"):
