@@ -1,0 +1,21 @@
+#version 330
+// Presents the offscreen render (accumulated colour, transmittance T in alpha, negated once a
+// pixel stopped) over the background colour,
+// optionally tinting the pixels of a mask (weights of the selected particle, channel r).
+in vec2 v_uv;
+uniform sampler2D image;
+uniform sampler2D mask;
+uniform vec3 background;
+uniform int use_mask;
+uniform vec3 mask_color;
+out vec4 frag;
+
+void main() {
+    vec4 c = texture(image, v_uv);
+    vec3 rgb = c.rgb + abs(c.a) * background;
+    if (use_mask == 1) {
+        float m = clamp(texture(mask, v_uv).r, 0.0, 1.0);
+        rgb = mix(rgb, mask_color, 0.55 * m);
+    }
+    frag = vec4(clamp(rgb, 0.0, 1.0), 1.0);
+}

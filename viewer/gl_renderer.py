@@ -1,0 +1,515 @@
+"""The GL splat renderer: draws :class:`~particlesplat.gaussians.Gaussians` the way
+:func:`particlesplat.render` does, fast enough for an interactive viewer on llvmpipe.
+
+Design (see shaders/):
+
+* The Gaussians live in one static RGBA32F texture (``ROW`` Gaussians per texture row,
+  ``texels`` texels each: mean + opacity, 3D covariance, owner, SH). Only the rows of a
+  changed particle are re-uploaded.
+* A projection pass draws one fragment per Gaussian (``project.frag``): 2D centre, conic,
+  footprint radius, major axis and SH colour, computed once per Gaussian on all rasteriser
+  threads, and only when the camera or the data changed.
+* One global float32 sort of the visible Gaussians by camera z (numpy argsort) when the view,
+  the data or the filter changed; only the sorted index list is uploaded.
+* A splat pass draws one oriented quad (or point sprite) per Gaussian into an offscreen float
+  framebuffer, front to back, compositing in the fragment shader with framebuffer fetch
+  exactly like the torch renderer (alpha clamped at 0.99, footprint alpha >= 1/255, a pixel
+  stops before the splat that would take its transmittance to <= 1e-4).
+* An id pass writes per-owner weights ``sum T alpha`` (24 owners per pass, 8 float
+  attachments) for picking, masks and segmentation.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from importlib.resources import files
+
+import moderngl
+import numpy as np
+import torch
+
+from particlesplat.camera import Camera
+from particlesplat.gaussians import Gaussians
+
+ROW = 512  # Gaussians per row of the data and projection textures
+ID_ATTACHMENTS = 8  # float attachments of the id pass: 3 owners each
+OWNERS_PER_ID_PASS = 3 * ID_ATTACHMENTS
+DILATION = 0.3  # px^2 added to the 2D covariance diagonal, as in particlesplat.render
+FRUSTUM_MARGIN = 0.3  # the Jacobian's x/z, y/z are clamped to the frustum widened by 30%
+
+
+def load_shader(name: str, defines: dict[str, str | int] | None = None) -> str:
+    """Source of ``shaders/<name>`` with ``#define`` lines inserted after ``#version``."""
+    src = files("viewer.shaders").joinpath(name).read_text()
+    if not defines:
+        return src
+    first, rest = src.split("\n", 1)
+    lines = [f"#define {k} {v}" for k, v in defines.items()]
+    return "\n".join([first, *lines, rest])
+
+
+@dataclass
+class FrameTimes:
+    """Timings of one :meth:`SplatRenderer.render` call in milliseconds (CPU wall time;
+    ``draw_ms`` includes the GPU work only when ``render(..., finish=True)``)."""
+
+    sort_ms: float = 0.0
+    upload_ms: float = 0.0
+    draw_ms: float = 0.0
+    sorted: bool = False
+    drawn: int = 0
+
+
+def texels_for(sh_bases: int) -> int:
+    """Texels per Gaussian for ``sh_bases`` SH coefficients per channel."""
+    return 4 + (1 + 3 * sh_bases + 3) // 4
+
+
+def pack_gaussians(g: Gaussians, texels: int | None = None) -> np.ndarray:
+    """Pack Gaussians into texels: (N, texels, 4) float32 (layout in ``shaders/project.frag``).
+
+    Rotations come from :meth:`Gaussians.rotations` (the torch renderer's quaternion rules).
+    """
+    g = g.detach().to("cpu", torch.float64)
+    n, k = g.num, g.sh.shape[1]
+    texels = max(texels or 0, texels_for(k))
+    out = np.zeros((n, texels, 4), dtype=np.float32)
+    rot = g.rotations().numpy() if n else np.zeros((0, 3, 3))
+    out[:, 0, :3] = g.means.numpy()
+    out[:, 0, 3] = g.opacities.numpy()
+    out[:, 1:4, :3] = rot
+    out[:, 1:4, 3] = g.scales.numpy()
+    flat = np.zeros((n, (texels - 4) * 4), dtype=np.float32)
+    flat[:, 0] = g.owner.numpy().astype(np.float32)
+    flat[:, 1: 1 + 3 * k] = g.sh.numpy().reshape(n, 3 * k)
+    out[:, 4:] = flat.reshape(n, texels - 4, 4)
+    return out
+
+
+def camera_uniforms(camera: Camera) -> dict[str, tuple]:
+    """The projection uniforms of ``project.frag`` for ``camera`` (float64 maths, float32 out)."""
+    c2w = camera.c2w.detach().to("cpu", torch.float64).numpy()
+    w2c = np.linalg.inv(c2w)
+    K = camera.K.detach().to("cpu", torch.float64).numpy()
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    w, h = camera.width, camera.height
+    tan_x, tan_y = 0.5 * w / fx, 0.5 * h / fy
+    lim = (-(cx / fx + FRUSTUM_MARGIN * tan_x), (w - cx) / fx + FRUSTUM_MARGIN * tan_x,
+           -(cy / fy + FRUSTUM_MARGIN * tan_y), (h - cy) / fy + FRUSTUM_MARGIN * tan_y)
+    return {
+        "w2c": tuple(w2c.T.reshape(-1)),  # GLSL matrices are column-major
+        "cam_center": tuple(c2w[:3, 3]),
+        "intr": (fx, fy, cx, cy),
+        "lim": lim,
+        "size": (float(w), float(h)),
+    }
+
+
+class SplatRenderer:
+    """Draws a Gaussian set with moderngl; see the module docstring for the passes.
+
+    Args:
+        ctx: a moderngl context (a window's or a headless EGL one), GL >= 3.3.
+        primitive: ``"quads"`` (oriented rectangle per Gaussian, exact footprint) or
+            ``"points"`` (point sprites, clipped at the driver's maximum point size).
+        color_dtype: ``"f2"`` (half float, the app) or ``"f4"`` (float32, tests).
+        near, far: camera-z culling planes in metres, as in :func:`particlesplat.render`.
+    """
+
+    def __init__(self, ctx: moderngl.Context, *, primitive: str = "quads", color_dtype: str = "f2",
+                 near: float = 0.01, far: float = 1e10) -> None:
+        if primitive not in ("quads", "points"):
+            raise ValueError(f"primitive must be 'quads' or 'points', got {primitive!r}")
+        self.ctx = ctx
+        self.primitive = primitive
+        self.color_dtype = color_dtype
+        self.near, self.far = near, far
+        quads = {"QUADS": 1} if primitive == "quads" else {}
+        vert = load_shader("splat.vert", quads)
+        self._project = ctx.program(vertex_shader=load_shader("fullscreen.vert"),
+                                    fragment_shader=load_shader("project.frag"))
+        self._splat = ctx.program(vertex_shader=vert, fragment_shader=load_shader("splat.frag"))
+        self._id_progs = {n: ctx.program(vertex_shader=vert,
+                                         fragment_shader=load_shader("splat.frag", {"ID_PASS": 1, "ATTACH": n}))
+                          for n in (1, ID_ATTACHMENTS)}
+        self._blit = ctx.program(vertex_shader=load_shader("fullscreen.vert"),
+                                 fragment_shader=load_shader("blit.frag"))
+        self._empty_vao = ctx.vertex_array(self._project, [])
+        self._blit_vao = ctx.vertex_array(self._blit, [])
+        # data
+        self._packed = np.zeros((0, texels_for(1), 4), np.float32)
+        self._means = np.zeros((0, 3), np.float32)
+        self._opacity = np.zeros(0, np.float32)
+        self._owner = np.zeros(0, np.int64)
+        self._groups: dict[int, tuple[int, int]] = {}
+        self._data_tex: moderngl.Texture | None = None
+        self._proj_tex: list[moderngl.Texture] = []
+        self._proj_fbo: moderngl.Framebuffer | None = None
+        self._data_version = 0
+        # filter and sort
+        self._visible_owners: np.ndarray | None = None
+        self._min_opacity = 0.0
+        self._visible_idx = np.zeros(0, np.int64)
+        self._filter_version = 0
+        self._index_buf: moderngl.Buffer | None = None
+        self._order_tex: moderngl.Texture | None = None
+        self._vaos: dict[str, moderngl.VertexArray] = {}
+        self._drawn = 0
+        self._sort_key: tuple | None = None
+        self._proj_key: tuple | None = None
+        # targets
+        self._color_tex: moderngl.Texture | None = None
+        self._color_fbo: moderngl.Framebuffer | None = None
+        self._mask_tex: moderngl.Texture | None = None
+        self._mask_fbo: moderngl.Framebuffer | None = None
+        self._id_tex: list[moderngl.Texture] = []
+        self._id_fbo: moderngl.Framebuffer | None = None
+        self.size = (0, 0)
+
+    # ------------------------------------------------------------------ data
+    @property
+    def num(self) -> int:
+        """Number of Gaussians held (before filtering)."""
+        return self._means.shape[0]
+
+    @property
+    def visible_count(self) -> int:
+        """Gaussians passing the owner and opacity filter."""
+        return int(self._visible_idx.shape[0])
+
+    @property
+    def renderer_string(self) -> str:
+        return f"{self.ctx.info['GL_RENDERER']} / {self.ctx.info['GL_VERSION']}"
+
+    def set_gaussians(self, gaussians: Gaussians) -> None:
+        """Replace all Gaussians (full upload). Gaussians are regrouped by owner internally."""
+        owner = gaussians.owner.detach().cpu().numpy()
+        order = np.argsort(owner, kind="stable")
+        packed = pack_gaussians(gaussians)[order]
+        self._set_packed(packed, owner[order])
+
+    def _set_packed(self, packed: np.ndarray, owner: np.ndarray) -> None:
+        self._packed = packed
+        self._owner = owner
+        self._means = np.ascontiguousarray(packed[:, 0, :3])
+        self._opacity = np.ascontiguousarray(packed[:, 0, 3])
+        owners, starts, counts = np.unique(owner, return_index=True, return_counts=True)
+        self._groups = {int(o): (int(s), int(c)) for o, s, c in zip(owners, starts, counts)}
+        n, texels = packed.shape[0], packed.shape[1]
+        rows = max(1, math.ceil(n / ROW))
+        if (self._data_tex is None or self._data_tex.size != (ROW * texels, rows)):
+            for t in [self._data_tex, *self._proj_tex]:
+                if t is not None:
+                    t.release()
+            if self._proj_fbo is not None:
+                self._proj_fbo.release()
+            self._data_tex = self.ctx.texture((ROW * texels, rows), 4, dtype="f4")
+            self._data_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            self._proj_tex = [self.ctx.texture((ROW, rows), 4, dtype="f4") for _ in range(4)]
+            self._proj_fbo = self.ctx.framebuffer(color_attachments=self._proj_tex)
+        self._write_rows(0, rows)
+        self._data_version += 1
+        self._refilter()
+
+    def _write_rows(self, r0: int, r1: int) -> None:
+        """Upload texture rows [r0, r1) from the packed array."""
+        texels = self._packed.shape[1]
+        block = np.zeros(((r1 - r0) * ROW, texels, 4), np.float32)
+        part = self._packed[r0 * ROW: r1 * ROW]
+        block[: part.shape[0]] = part
+        self._data_tex.write(block.tobytes(), viewport=(0, r0, ROW * texels, r1 - r0))
+
+    def replace_owner(self, owner: int, gaussians: Gaussians) -> None:
+        """Replace the Gaussians of one owner; uploads only its rows when the count is unchanged."""
+        if (gaussians.owner != owner).any():
+            raise ValueError(f"replace_owner({owner}): all Gaussians must have owner {owner}")
+        packed = pack_gaussians(gaussians, self._packed.shape[1])
+        start, count = self._groups.get(owner, (self.num, 0))
+        if count == packed.shape[0] and packed.shape[1] == self._packed.shape[1] and count > 0:
+            self._packed[start: start + count] = packed
+            self._means[start: start + count] = packed[:, 0, :3]
+            self._opacity[start: start + count] = packed[:, 0, 3]
+            self._write_rows(start // ROW, (start + count - 1) // ROW + 1)
+            self._data_version += 1
+            self._refilter()
+            return
+        keep = self._owner != owner
+        if packed.shape[1] > self._packed.shape[1]:
+            grown = np.zeros((self.num, packed.shape[1], 4), np.float32)
+            grown[:, : self._packed.shape[1]] = self._packed
+            self._packed = grown
+        all_packed = np.concatenate([self._packed[keep], packed])
+        all_owner = np.concatenate([self._owner[keep], np.full(packed.shape[0], owner, np.int64)])
+        order = np.argsort(all_owner, kind="stable")
+        self._set_packed(all_packed[order], all_owner[order])
+
+    def set_filter(self, visible_owners: np.ndarray | list[int] | None = None, min_opacity: float = 0.0) -> None:
+        """Draw only Gaussians whose owner is in ``visible_owners`` (None = all; -1 = background)
+        and whose opacity is >= ``min_opacity``."""
+        owners = None if visible_owners is None else np.asarray(sorted(set(int(o) for o in visible_owners)),
+                                                                np.int64)
+        same = (owners is None and self._visible_owners is None) or (
+            owners is not None and self._visible_owners is not None and np.array_equal(owners, self._visible_owners))
+        if same and min_opacity == self._min_opacity:
+            return
+        self._visible_owners, self._min_opacity = owners, float(min_opacity)
+        self._refilter()
+
+    def _refilter(self) -> None:
+        mask = self._opacity >= self._min_opacity if self._min_opacity > 0 else np.ones(self.num, bool)
+        if self._visible_owners is not None:
+            mask &= np.isin(self._owner, self._visible_owners)
+        self._visible_idx = np.flatnonzero(mask)
+        self._filter_version += 1
+
+    # ------------------------------------------------------------------ targets
+    def _ensure_targets(self, width: int, height: int) -> None:
+        if self.size == (width, height):
+            return
+        for obj in [self._color_fbo, self._color_tex, self._mask_fbo, self._mask_tex, self._id_fbo, *self._id_tex]:
+            if obj is not None:
+                obj.release()
+        self._color_tex = self.ctx.texture((width, height), 4, dtype=self.color_dtype)
+        self._color_fbo = self.ctx.framebuffer(color_attachments=[self._color_tex])
+        self._mask_tex = self.ctx.texture((width, height), 4, dtype="f2")
+        self._mask_fbo = self.ctx.framebuffer(color_attachments=[self._mask_tex])
+        self._id_tex, self._id_fbo = [], None
+        self.size = (width, height)
+
+    def _ensure_id_targets(self) -> None:
+        if self._id_fbo is None:
+            self._id_tex = [self.ctx.texture(self.size, 4, dtype="f4") for _ in range(ID_ATTACHMENTS)]
+            self._id_fbo = self.ctx.framebuffer(color_attachments=self._id_tex)
+
+    # ------------------------------------------------------------------ passes
+    def _prepare(self, camera: Camera, times: FrameTimes) -> dict[str, tuple]:
+        """Projection pass and global sort, each only when its inputs changed."""
+        uni = camera_uniforms(camera)
+        self._ensure_targets(camera.width, camera.height)
+        view_key = (uni["w2c"], uni["intr"], uni["size"])
+        proj_key = (view_key, self._data_version)
+        if proj_key != self._proj_key and self.num:
+            p = self._project
+            p["gaussians"] = 0
+            p["num"] = self.num
+            p["row"] = ROW
+            p["texels"] = self._packed.shape[1]
+            p["sh_bases"] = self._sh_bases()
+            for name in ("w2c", "cam_center", "intr", "lim"):
+                p[name] = uni[name]
+            p["near_far"] = (self.near, self.far)
+            p["dilation"] = DILATION
+            self._data_tex.use(0)
+            self._proj_fbo.use()
+            self.ctx.disable(moderngl.BLEND)
+            self._empty_vao.render(moderngl.TRIANGLE_STRIP, vertices=4)
+            self._proj_key = proj_key
+        sort_key = (uni["w2c"], self._data_version, self._filter_version)
+        if sort_key != self._sort_key:
+            t0 = time.perf_counter()
+            idx = self._visible_idx
+            w2c = np.asarray(uni["w2c"], np.float64).reshape(4, 4).T
+            z = self._means[idx] @ w2c[2, :3].astype(np.float32) + np.float32(w2c[2, 3])
+            keep = (z > self.near) & (z < self.far)
+            idx, z = idx[keep], z[keep]
+            order = idx[np.argsort(z, kind="stable")].astype(np.int32)
+            t1 = time.perf_counter()
+            self._upload_indices(order)
+            t2 = time.perf_counter()
+            times.sort_ms, times.upload_ms, times.sorted = (t1 - t0) * 1e3, (t2 - t1) * 1e3, True
+            self._sort_key = sort_key
+        return uni
+
+    def _sh_bases(self) -> int:
+        """SH coefficients per channel held in the data texture (the largest K fitting the texels)."""
+        cap = ((self._packed.shape[1] - 4) * 4 - 1) // 3
+        return max(k for k in (1, 4, 9, 16) if k <= cap)
+
+    def _upload_indices(self, order: np.ndarray) -> None:
+        """Upload the sorted Gaussian indices (int32): as the point index buffer, or as the order
+        texture read by the quad vertex stage (plus a static quad element buffer)."""
+        n = order.shape[0]
+        self._drawn = n
+        if self.primitive == "points":
+            data = order.tobytes()
+            if self._index_buf is None or self._index_buf.size < max(4, len(data)):
+                self._release_vaos(also_buffer=True)
+                self._index_buf = self.ctx.buffer(reserve=max(4, 2 * len(data)))
+            if data:
+                self._index_buf.write(data)
+            return
+        rows = max(1, math.ceil(n / ROW))
+        if self._order_tex is None or self._order_tex.height < rows:
+            if self._order_tex is not None:
+                self._order_tex.release()
+            self._order_tex = self.ctx.texture((ROW, 2 * rows), 1, dtype="i4")
+            self._order_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        if n:
+            block = np.zeros(rows * ROW, np.int32)
+            block[:n] = order
+            self._order_tex.write(block.tobytes(), viewport=(0, 0, ROW, rows))
+        if self._index_buf is None or self._index_buf.size < 24 * max(n, 1):
+            self._release_vaos(also_buffer=True)
+            cap = max(2 * n, 1024)
+            corners = np.array([0, 1, 2, 2, 1, 3], np.uint32)
+            elems = (4 * np.arange(cap, dtype=np.uint32)[:, None] + corners).reshape(-1)
+            self._index_buf = self.ctx.buffer(elems.tobytes())
+
+    def _release_vaos(self, also_buffer: bool = False) -> None:
+        for vao in self._vaos.values():
+            vao.release()
+        self._vaos = {}
+        if also_buffer and self._index_buf is not None:
+            self._index_buf.release()
+            self._index_buf = None
+
+    def _vao(self, prog: moderngl.Program, key: str) -> moderngl.VertexArray:
+        if key not in self._vaos:
+            self._vaos[key] = self.ctx.vertex_array(prog, [], index_buffer=self._index_buf, index_element_size=4)
+        return self._vaos[key]
+
+    def _draw(self, prog: moderngl.Program, key: str, uni: dict, color_mode: int = 0) -> None:
+        for i, t in enumerate(self._proj_tex):
+            t.use(i)
+        for i, name in enumerate(("center_tex", "conic_tex", "color_tex", "axis_tex")):
+            if name in prog:
+                prog[name] = i
+        if self.primitive == "quads":
+            self._order_tex.use(4)
+            prog["order_tex"] = 4
+        prog["row"] = ROW
+        prog["size"] = uni["size"]
+        if "color_mode" in prog:
+            prog["color_mode"] = color_mode
+        self.ctx.disable(moderngl.BLEND)
+        if self.primitive == "points":
+            self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
+        if self._drawn:
+            vao = self._vao(prog, key)
+            if self.primitive == "quads":
+                vao.render(moderngl.TRIANGLES, vertices=6 * self._drawn)
+            else:
+                vao.render(moderngl.POINTS, vertices=self._drawn)
+
+    def render(self, camera: Camera, *, color_mode: int = 0, finish: bool = False) -> FrameTimes:
+        """Render into the offscreen colour target (premultiplied rgb, alpha) at the camera's size.
+
+        color_mode: 0 = SH colour, 1 = a colour per owner (segmentation view).
+        """
+        times = FrameTimes()
+        uni = self._prepare(camera, times)
+        t0 = time.perf_counter()
+        self._color_fbo.use()
+        self._color_fbo.clear(0.0, 0.0, 0.0, 1.0)
+        self._draw(self._splat, "splat", uni, color_mode)
+        if finish:
+            self.ctx.finish()
+        times.draw_ms = (time.perf_counter() - t0) * 1e3
+        times.drawn = self._drawn
+        return times
+
+    def render_mask(self, camera: Camera, owner: int) -> None:
+        """Render the weight sum T alpha of ``owner`` into the mask target (channel r)."""
+        uni = self._prepare(camera, FrameTimes())
+        prog = self._id_progs[1]
+        prog["owner_base"] = owner
+        self._mask_fbo.use()
+        self._mask_fbo.clear(0.0, 0.0, 0.0, 1.0)
+        self._draw(prog, "mask", uni)
+
+    def owner_weights(self, camera: Camera, num_owners: int,
+                      region: tuple[int, int, int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Per-owner weights sum_i T_i alpha_i for owners -1 (background) .. num_owners-1.
+
+        region: (x, y, w, h) in image pixels (y down), default the whole image.
+        Returns weights (num_owners + 1, h, w) (index 0 = background) and alpha (h, w).
+        """
+        uni = self._prepare(camera, FrameTimes())
+        self._ensure_id_targets()
+        width, height = self.size
+        x, y, w, h = region if region is not None else (0, 0, width, height)
+        gl_y = height - (y + h)
+        prog = self._id_progs[ID_ATTACHMENTS]
+        total = num_owners + 1
+        weights = np.zeros((total, h, w), np.float32)
+        alpha = np.zeros((h, w), np.float32)
+        for base in range(-1, num_owners, OWNERS_PER_ID_PASS):
+            prog["owner_base"] = base
+            self._id_fbo.use()
+            self.ctx.scissor = (x, gl_y, w, h)
+            self._id_fbo.clear(0.0, 0.0, 0.0, 1.0)
+            self._draw(prog, "id", uni)
+            self.ctx.scissor = None
+            for i, tex in enumerate(self._id_tex):
+                first = base + 1 + 3 * i  # row of weights for owner base + 3 i
+                if first >= total:
+                    break
+                raw = np.frombuffer(self._id_fbo.read(viewport=(x, gl_y, w, h), components=4, attachment=i,
+                                                      dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
+                n = min(3, total - first)
+                weights[first: first + n] = np.moveaxis(raw[..., :n], -1, 0)
+                if i == 0:
+                    alpha = 1.0 - np.abs(raw[..., 3])
+        return weights, alpha
+
+    def segmentation(self, camera: Camera, num_owners: int) -> np.ndarray:
+        """(H, W) int64 dominant owner per pixel: argmax over owners of sum T alpha, -1 where the
+        background weight plus the empty remainder (1 - alpha) is at least as large (the rule of
+        ``RenderResult.segmentation``)."""
+        weights, alpha = self.owner_weights(camera, num_owners)
+        return segmentation_from_weights(weights, alpha)
+
+    # ------------------------------------------------------------------ output
+    def read_rgba(self) -> np.ndarray:
+        """The last render: (H, W, 4) float32 premultiplied rgb and alpha, image rows top down."""
+        w, h = self.size
+        raw = np.frombuffer(self._color_fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
+        out = raw.copy()
+        out[..., 3] = 1.0 - np.abs(raw[..., 3])
+        return out
+
+    def read_rgb(self, background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+        """The last render composited over ``background``: (H, W, 3) float32."""
+        rgba = self.read_rgba()
+        return rgba[..., :3] + (1.0 - rgba[..., 3:]) * np.asarray(background, np.float32)
+
+    def blit(self, viewport: tuple[int, int, int, int], background: tuple[float, float, float],
+             mask_color: tuple[float, float, float] | None = None) -> None:
+        """Draw the last render over ``background`` into the bound framebuffer's ``viewport``
+        (x, y, w, h in GL pixels); with ``mask_color``, tint the last :meth:`render_mask`."""
+        self.ctx.viewport = viewport
+        self.ctx.disable(moderngl.BLEND)
+        linear = (moderngl.LINEAR, moderngl.LINEAR)
+        self._color_tex.filter = linear
+        self._color_tex.use(0)
+        self._mask_tex.filter = linear
+        self._mask_tex.use(1)
+        self._blit["image"] = 0
+        self._blit["mask"] = 1
+        self._blit["background"] = tuple(background)
+        self._blit["use_mask"] = int(mask_color is not None)
+        self._blit["mask_color"] = tuple(mask_color or (1.0, 1.0, 1.0))
+        self._blit_vao.render(moderngl.TRIANGLE_STRIP, vertices=4)
+
+    def release(self) -> None:
+        """Free the GL objects."""
+        objs = [self._data_tex, *self._proj_tex, self._proj_fbo, self._index_buf, self._order_tex, *self._vaos.values(),
+                self._color_fbo, self._color_tex, self._mask_fbo, self._mask_tex, self._id_fbo, *self._id_tex,
+                self._empty_vao, self._blit_vao, self._project, self._splat, self._blit, *self._id_progs.values()]
+        for obj in objs:
+            if obj is not None:
+                obj.release()
+
+
+def segmentation_from_weights(weights: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """weights: (P + 1, H, W) with the background first; alpha: (H, W) -> (H, W) int64 owner,
+    -1 where background weight + (1 - alpha) >= the best owner's weight."""
+    owners = weights[1:]
+    if owners.shape[0] == 0:
+        return np.full(alpha.shape, -1, np.int64)
+    best = owners.argmax(0)
+    best_w = np.take_along_axis(owners, best[None], 0)[0]
+    background = weights[0] + (1.0 - alpha)
+    return np.where(best_w > background, best, -1).astype(np.int64)
