@@ -4,6 +4,7 @@ gradcheck and the hard-case suite of issue 2."""
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 import textwrap
@@ -607,7 +608,7 @@ def test_memory_is_bounded_for_200k_gaussians() -> None:
         print((after - before) // 1024, float(r.alpha.mean()))
     """)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
-                         env={"OMP_NUM_THREADS": "2", **__import__("os").environ})
+                         env={"OMP_NUM_THREADS": "2", **os.environ})
     assert out.returncode == 0, out.stderr
     grew_mb, mean_alpha = out.stdout.split()
     assert float(mean_alpha) > 0.5
