@@ -13,6 +13,7 @@ The backward recomputes α and T per chunk instead of storing them, and uses the
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -52,13 +53,16 @@ class TileBins:
         return first + tx * ty
 
 
-def bin_gaussians(means2d: Tensor, radius: Tensor, depths: Tensor, view: Tensor,
-                  sizes: list[tuple[int, int]]) -> TileBins:
+def bin_gaussians(means2d: Tensor, conics: Tensor, opacities: Tensor, radius: Tensor, depths: Tensor,
+                  view: Tensor, sizes: list[tuple[int, int]]) -> TileBins:
     """Assign Gaussians to the tiles of their view.
 
-    means2d: (M, 2) pixels; radius: (M, 2) half extents in pixels of the α ≥ 1/255 box (< 0
-    means no footprint); depths: (M,) camera z used for ordering (ties by row index);
-    view: (M,) int64 view of each row; sizes: (width, height) per view.
+    A Gaussian is listed in a tile iff α ≥ 1/255 at one of the tile's pixel centres: candidate
+    tiles come from the bounding box of its footprint, then each candidate is tested exactly.
+
+    means2d: (M, 2) pixels; conics: (M, 3); opacities: (M,); radius: (M, 2) half extents in
+    pixels of the α ≥ 1/255 box (< 0 means no footprint); depths: (M,) camera z used for
+    ordering (ties by row index); view: (M,) int64 view of each row; sizes: (width, height) per view.
     """
     device = means2d.device
     grids, first = [], 0
@@ -87,26 +91,42 @@ def bin_gaussians(means2d: Tensor, radius: Tensor, depths: Tensor, view: Tensor,
         offs = torch.arange(total, device=device) - torch.repeat_interleave(torch.cumsum(per, 0) - per, per)
         gnx = nx[g]
         tile = g_first[g] + (t0[g, 1] + offs // gnx) * g_tx[g] + t0[g, 0] + offs % gnx
+        origin = torch.cat([torch.stack(torch.meshgrid(torch.arange(ty), torch.arange(tx), indexing="ij")[::-1],
+                                        dim=-1).reshape(-1, 2) for tx, ty, _ in grids]).to(device)
+        origin = origin * TILE + TILE / 2
+        hit = _tile_hits(g, tile, origin, means2d.detach(), conics.detach(), opacities.detach())
+        g, tile = g[hit], tile[hit]
         tile_sorted, perm = torch.sort(tile, stable=True)
         gauss = g[perm]
         count = torch.bincount(tile_sorted, minlength=n_tiles)
         start = torch.cumsum(count, 0) - count
-        origin = torch.cat([torch.stack(torch.meshgrid(torch.arange(ty), torch.arange(tx), indexing="ij")[::-1],
-                                        dim=-1).reshape(-1, 2) for tx, ty, _ in grids]).to(device)
         chunks = _make_chunks(count)
-    return TileBins(grids, gauss, start, count, origin * TILE + TILE / 2, chunks)
+    return TileBins(grids, gauss, start, count, origin, chunks)
+
+
+def _tile_hits(g: Tensor, tile: Tensor, origin: Tensor, means2d: Tensor, conics: Tensor, opacities: Tensor,
+               block: int = 1 << 16) -> Tensor:
+    """(P,) bool: does Gaussian g[i] reach α ≥ 1/255 at a pixel centre of tile[i]? (blocks of pairs)"""
+    feats = _pixel_features(means2d.dtype, means2d.device)
+    log_o = torch.log(opacities.clamp_min(1e-30))
+    thresh = math.log(ALPHA_MIN)
+    hit = torch.empty(g.shape[0], dtype=torch.bool, device=g.device)
+    for i in range(0, g.shape[0], block):
+        gi, ti = g[i:i + block], tile[i:i + block]
+        coef = _coefficients(means2d[gi] - origin[ti].to(means2d.dtype), conics[gi], log_o[gi])
+        hit[i:i + block] = (coef @ feats.T).amax(-1) >= thresh - 1e-3  # margin: the raster decides exactly
+    return hit
 
 
 def _make_chunks(count: Tensor) -> list[tuple[Tensor, int]]:
-    """Bucket non-empty tiles by list length (padded to 1, 2, 3, 4, 6, 8, 12, 16, ... ) and chunk them."""
+    """Bucket non-empty tiles by list length (padded to 1..8, 10, 12, 14, 16, 20, ...: quarter octaves) and chunk them."""
     chunks: list[tuple[Tensor, int]] = []
     nonempty = torch.nonzero(count > 0).squeeze(1)
     if nonempty.numel() == 0:
         return chunks
     c = count[nonempty].double()
-    exp2 = torch.floor(torch.log2(c))
-    low = torch.pow(2.0, exp2)
-    padded = torch.where(c <= low, low, torch.where(c <= 1.5 * low, torch.ceil(1.5 * low), 2.0 * low)).long()
+    step = torch.clamp(torch.pow(2.0, torch.floor(torch.log2(c))) / 4, min=1.0)  # quarter-octave steps
+    padded = (torch.ceil(c / step) * step).long()
     for length in torch.unique(padded).tolist():
         tiles = nonempty[padded == length]
         per_chunk = max(1, CHUNK_ELEMENTS // (TILE * TILE * length))

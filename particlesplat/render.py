@@ -106,7 +106,8 @@ def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Seque
         parts["owner"].append(gaussians.owner[proj.index])
         sizes.append((cam.width, cam.height))
     cat = {k: torch.cat(v) for k, v in parts.items()}
-    bins = bin_gaussians(cat["means2d"], cat["radius"], cat["features"][:, 3], cat["view"], sizes)
+    bins = bin_gaussians(cat["means2d"], cat["conics"], cat["opac"], cat["radius"], cat["features"][:, 3],
+                         cat["view"], sizes)
     tiles = RasterizeFunction.apply(cat["means2d"], cat["conics"], cat["opac"], cat["features"], bins)
     results = []
     for acc in tiles_to_images(tiles, bins, sizes):
