@@ -1,0 +1,198 @@
+"""``particlesplat eval``: reconstruction, depth and decomposition metrics of a model on a folder of scenes."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+from torch import Tensor
+from tqdm import tqdm
+
+from .atomic import atomic_path, atomic_write
+from .camera import Camera
+from .metrics import depth_abs_rel, fg_ari, matched_miou, psnr, ssim
+from .render import render
+
+PRUNE_Z_T = (0.0, 0.1, 0.3, 0.5)
+PRUNE_OPACITY = (0.0, 0.02, 0.05, 0.1)
+
+
+def _cameras(K: Tensor, c2w: Tensor, size: int) -> list[Camera]:
+    """K: (V, 3, 3), c2w: (V, 4, 4) -> V cameras of size x size."""
+    return [Camera(K[i], c2w[i], size, size) for i in range(K.shape[0])]
+
+
+def _ms(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1000.0
+
+
+def render_views(gaussians, cameras: list[Camera], num_owners: int) -> dict[str, Tensor]:
+    """Render ``gaussians`` in each camera: rgb (V, 3, H, W), depth (V, 1, H, W), seg (V, H, W) and ms per view."""
+    rgb, depth, seg = [], [], []
+    t0 = time.perf_counter()
+    for cam in cameras:
+        r = render(gaussians, cam, owner_weights=True, num_owners=num_owners)
+        rgb.append(r.rgb.permute(2, 0, 1))
+        depth.append(r.depth[None])
+        seg.append(r.segmentation())
+    ms = _ms(t0) / max(len(cameras), 1)
+    return {"rgb": torch.stack(rgb), "depth": torch.stack(depth), "seg": torch.stack(seg), "render_ms": ms}
+
+
+@torch.no_grad()
+def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune: bool = False) -> dict:
+    """Metrics of one dataset item (see :class:`particlesplat.data.SceneDataset`): encode its context
+    views, decode all particles and the background, render its target views.
+
+    Returns scalars (psnr, ssim, depth_abs_rel, fg_ari, miou, active_particles, gaussians, encode_ms,
+    decode_ms, render_ms), the renders under "renders", and "pruning" rows when ``prune``.
+    """
+    size = model.config.resolution
+    ctx_cams = _cameras(item["context_K"], item["context_c2w"], size)
+    tgt_cams = _cameras(item["target_K"], item["target_c2w"], size)
+    depth = item["context_depth"] if use_depth and bool((item["context_depth"] > 0).any()) else None
+    t0 = time.perf_counter()
+    particles = model.encode(item["context_rgb"], depth, ctx_cams)
+    enc_ms = _ms(t0)
+    t0 = time.perf_counter()
+    gaussians = model.decode(particles)
+    dec_ms = _ms(t0)
+    out = render_views(gaussians, tgt_cams, particles.num)
+    sup = item.get("target_supervision")
+    gt = item["target_rgb"]
+    res = {"psnr": psnr(out["rgb"], gt, sup), "ssim": ssim(out["rgb"], gt),
+           "depth_abs_rel": depth_abs_rel(out["depth"], item["target_depth"]),
+           "active_particles": int((particles.z_t[:, 0] > model.config.bg_mask_threshold).sum()),
+           "gaussians": len(gaussians), "encode_ms": enc_ms, "decode_ms": dec_ms, "render_ms": out["render_ms"]}
+    if "target_masks" in item:
+        masks = item["target_masks"]
+        res["fg_ari"] = float(np.nanmean([fg_ari(out["seg"][i], masks[i]) for i in range(len(masks))]))
+        res["miou"] = float(np.nanmean([matched_miou(out["seg"][i], masks[i]) for i in range(len(masks))]))
+    else:
+        res["fg_ari"] = res["miou"] = float("nan")
+    res["renders"] = out
+    res["particles"] = particles
+    if prune:
+        rows = []
+        for zt in PRUNE_Z_T:
+            for op in PRUNE_OPACITY:
+                g = model.decode(particles, z_t_threshold=zt, opacity_threshold=op)
+                r = render_views(g, tgt_cams, particles.num)
+                rows.append({"z_t_threshold": zt, "opacity_threshold": op, "psnr": psnr(r["rgb"], gt, sup),
+                             "gaussians": len(g), "render_ms": r["render_ms"]})
+        res["pruning"] = rows
+    return res
+
+
+SCALARS = ("psnr", "ssim", "depth_abs_rel", "fg_ari", "miou", "active_particles", "gaussians", "encode_ms",
+           "decode_ms", "render_ms")
+
+
+def _nanmean(values: list[float]) -> float:
+    v = [x for x in values if x is not None and not (isinstance(x, float) and math.isnan(x))]
+    return float(np.mean(v)) if v else float("nan")
+
+
+def _palette(n: int) -> np.ndarray:
+    rng = np.random.default_rng(7)
+    return rng.integers(40, 255, size=(max(n, 1), 3)).astype(np.uint8)
+
+
+def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
+    """PNG grid: row 1 context views, row 2 target ground truth, row 3 renders, row 4 depth, row 5 segmentation."""
+    def img(t: Tensor) -> np.ndarray:
+        return (t.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255).astype(np.uint8)
+
+    r = res["renders"]
+    T = r["rgb"].shape[0]
+    H = W = r["rgb"].shape[-1]
+    d = r["depth"][:, 0]
+    dmax = float(torch.quantile(d[d > 0], 0.98)) if bool((d > 0).any()) else 1.0
+    pal = _palette(int(r["seg"].max()) + 1)
+    cols = max(T, item["context_rgb"].shape[0])
+    grid = np.zeros((5 * H, cols * W, 3), np.uint8)
+    for i in range(item["context_rgb"].shape[0]):
+        grid[0:H, i * W:(i + 1) * W] = img(item["context_rgb"][i])
+    for i in range(T):
+        grid[H:2 * H, i * W:(i + 1) * W] = img(item["target_rgb"][i])
+        grid[2 * H:3 * H, i * W:(i + 1) * W] = img(r["rgb"][i])
+        grid[3 * H:4 * H, i * W:(i + 1) * W] = (np.clip(d[i].cpu().numpy() / dmax, 0, 1) * 255).astype(np.uint8)[
+            ..., None]
+        s = r["seg"][i].cpu().numpy()
+        grid[4 * H:5 * H, i * W:(i + 1) * W] = np.where(s[..., None] >= 0, pal[np.clip(s, 0, None)], 0)
+    with atomic_path(path) as tmp:
+        Image.fromarray(grid).save(tmp, format="PNG")
+
+
+def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int | None = None,
+                     figures: Path | None = None, num_figures: int = 4, prune: bool = False,
+                     use_depth: bool = True, seed: int = 0, progress_bar: bool = True) -> dict:
+    """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}."""
+    from .data import SceneDataset
+
+    ds = SceneDataset(data_dir, resolution=model.config.resolution, mode="multi" if context == 2 else "single",
+                      deterministic=True, seed=seed, progress=1.0)
+    n = len(ds) if limit is None else min(limit, len(ds))
+    scenes, prune_rows = [], []
+    for i in tqdm(range(n), desc="eval", disable=not progress_bar):
+        item = ds[i]
+        res = evaluate_item(model, item, use_depth=use_depth, prune=prune)
+        if figures is not None and i < num_figures:
+            save_figure(Path(figures) / f"{ds.scenes[i].name}.png", item, res)
+        row = {"scene": ds.scenes[i].name, **{k: res[k] for k in SCALARS}}
+        scenes.append(row)
+        if prune:
+            prune_rows.append(res["pruning"])
+    mean = {k: _nanmean([s[k] for s in scenes]) for k in SCALARS}
+    out = {"data": str(data_dir), "context": context, "depth": use_depth, "scenes": scenes, "mean": mean}
+    if prune:
+        table = []
+        for j, row in enumerate(prune_rows[0]):
+            table.append({"z_t_threshold": row["z_t_threshold"], "opacity_threshold": row["opacity_threshold"],
+                          **{k: _nanmean([rows[j][k] for rows in prune_rows]) for k in ("psnr", "gaussians",
+                                                                                         "render_ms")}})
+        out["pruning"] = table
+    return out
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped assets/model.pt)")
+    parser.add_argument("--data", required=True, help="folder of scene folders (e.g. data/tabletop/test)")
+    parser.add_argument("--context", type=int, choices=(1, 2), default=2, help="number of context views")
+    parser.add_argument("--no-depth", action="store_true", help="encode the context views without depth")
+    parser.add_argument("--json", default=None, help="write per-scene and mean metrics to this JSON file")
+    parser.add_argument("--figures", default=None, help="write PNG grids of a few scenes to this folder")
+    parser.add_argument("--num-figures", type=int, default=4, help="how many scenes get a figure")
+    parser.add_argument("--limit", type=int, default=None, help="evaluate only the first N scenes")
+    parser.add_argument("--prune", action="store_true",
+                        help="also report PSNR, Gaussian count and render time at several z_t/opacity thresholds")
+    parser.add_argument("--device", default="cpu", help="cpu or cuda")
+
+
+def run(args: argparse.Namespace) -> int:
+    from .model import load_model
+
+    model = load_model(args.checkpoint, device=args.device)
+    out = evaluate_dataset(model, args.data, context=args.context, limit=args.limit,
+                           figures=Path(args.figures) if args.figures else None, num_figures=args.num_figures,
+                           prune=args.prune, use_depth=not args.no_depth)
+    m = out["mean"]
+    print(f"{len(out['scenes'])} scenes, {args.context} context view(s): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, "
+          f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f}, "
+          f"active particles {m['active_particles']:.1f}, Gaussians {m['gaussians']:.0f}, "
+          f"encode {m['encode_ms']:.1f} ms, decode {m['decode_ms']:.1f} ms, render {m['render_ms']:.1f} ms/view")
+    if "pruning" in out:
+        print("z_t thr  opacity thr  PSNR   Gaussians  render ms")
+        for r in out["pruning"]:
+            print(f"{r['z_t_threshold']:7.2f}  {r['opacity_threshold']:11.2f}  {r['psnr']:5.2f}  {r['gaussians']:9.0f}"
+                  f"  {r['render_ms']:9.1f}")
+    if args.json:
+        with atomic_write(args.json, "w") as f:
+            json.dump(out, f, indent=2)
+    return 0

@@ -1,0 +1,106 @@
+"""Image, depth and decomposition metrics: PSNR, SSIM (kornia), depth AbsRel, FG-ARI, mIoU."""
+
+from __future__ import annotations
+
+import torch
+from kornia.metrics import ssim as kornia_ssim
+from torch import Tensor
+
+
+def psnr(pred: Tensor, target: Tensor, mask: Tensor | None = None) -> float:
+    """PSNR in dB of images in [0, 1]. pred, target: (..., 3, H, W) or (H, W, 3); mask broadcastable."""
+    err = (pred.clamp(0, 1) - target) ** 2
+    if mask is not None:
+        m = mask.expand_as(err).to(err.dtype)
+        mse = (err * m).sum() / m.sum().clamp_min(1.0)
+    else:
+        mse = err.mean()
+    return float(-10.0 * torch.log10(mse.clamp_min(1e-10)))
+
+
+def ssim(pred: Tensor, target: Tensor, window: int = 11) -> float:
+    """Mean SSIM (kornia, Gaussian window). pred, target: (B, 3, H, W) in [0, 1]."""
+    return float(kornia_ssim(pred.clamp(0, 1), target, window).mean())
+
+
+def depth_abs_rel(pred: Tensor, target: Tensor) -> float:
+    """Mean |pred − gt| / gt over pixels with ground truth (gt > 0). pred, target: (...) metres; NaN if none."""
+    valid = target > 0
+    if not bool(valid.any()):
+        return float("nan")
+    return float(((pred[valid] - target[valid]).abs() / target[valid]).mean())
+
+
+def _comb2(x: Tensor) -> Tensor:
+    return x * (x - 1) / 2.0
+
+
+def adjusted_rand_index(labels_true: Tensor, labels_pred: Tensor) -> float:
+    """ARI of two labelings (N,) int (Hubert & Arabie), as scikit-learn defines it.
+
+    Both labelings with a single cluster, or both with every point its own cluster, give 1.0.
+    """
+    if labels_true.numel() == 0:
+        return float("nan")
+    _, t = torch.unique(labels_true, return_inverse=True)
+    _, p = torch.unique(labels_pred, return_inverse=True)
+    nt, np_ = int(t.max()) + 1, int(p.max()) + 1
+    n = labels_true.numel()
+    if (nt == np_ == 1) or (nt == np_ == n):
+        return 1.0
+    table = torch.zeros(nt, np_, dtype=torch.float64)
+    table.index_put_((t, p), torch.ones(n, dtype=torch.float64), accumulate=True)
+    sum_comb = _comb2(table).sum()
+    a = _comb2(table.sum(1)).sum()
+    b = _comb2(table.sum(0)).sum()
+    expected = a * b / _comb2(torch.tensor(float(n), dtype=torch.float64))
+    max_index = 0.5 * (a + b)
+    denom = max_index - expected
+    if float(denom) == 0.0:
+        return 1.0
+    return float((sum_comb - expected) / denom)
+
+
+def fg_ari(pred_seg: Tensor, gt_masks: Tensor) -> float:
+    """FG-ARI: ARI restricted to ground-truth foreground pixels (gt > 0).
+
+    pred_seg: (..., H, W) int predicted owner (-1 background); gt_masks: same shape, 0 = background.
+    NaN when there is no foreground pixel.
+    """
+    fg = gt_masks > 0
+    if not bool(fg.any()):
+        return float("nan")
+    return adjusted_rand_index(gt_masks[fg], pred_seg[fg])
+
+
+def matched_miou(pred_seg: Tensor, gt_masks: Tensor) -> float:
+    """Mean IoU over ground-truth objects, each matched one-to-one to a predicted segment (owner >= 0)
+    greedily by descending IoU; an unmatched object scores 0. NaN when there is no object.
+
+    pred_seg, gt_masks: (..., H, W) int.
+    """
+    gt_ids = [int(i) for i in torch.unique(gt_masks) if int(i) > 0]
+    if not gt_ids:
+        return float("nan")
+    pred_ids = [int(i) for i in torch.unique(pred_seg) if int(i) >= 0]
+    if not pred_ids:
+        return 0.0
+    iou = torch.zeros(len(gt_ids), len(pred_ids), dtype=torch.float64)
+    for i, g in enumerate(gt_ids):
+        gm = gt_masks == g
+        for j, p in enumerate(pred_ids):
+            pm = pred_seg == p
+            inter = (gm & pm).sum()
+            union = (gm | pm).sum()
+            iou[i, j] = float(inter) / float(union) if int(union) else 0.0
+    scores = torch.zeros(len(gt_ids), dtype=torch.float64)
+    work = iou.clone()
+    for _ in range(min(len(gt_ids), len(pred_ids))):
+        flat = int(work.argmax())
+        i, j = divmod(flat, work.shape[1])
+        if float(work[i, j]) <= 0.0:
+            break
+        scores[i] = iou[i, j]
+        work[i, :] = -1.0
+        work[:, j] = -1.0
+    return float(scores.mean())

@@ -1,0 +1,192 @@
+"""Model and training configuration: dataclasses loaded from YAML with clear validation errors."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing, unknown or out of range."""
+
+
+@dataclass
+class ModelConfig:
+    """Architecture and renderer-side hyperparameters (documented in ``assets/model.yaml``)."""
+
+    resolution: int = 64
+    particles_per_view: int = 8
+    kp_patch: int = 4
+    glimpse_ratio: float = 0.25
+    glimpse_size: int = 16
+    channels: int = 32
+    d_obj: int = 16
+    d_bg: int = 4
+    bg_latent_stride: int = 4
+    bg_block: int = 2
+    patch_gaussians: int = 4
+    token_dim: int = 64
+    transformer_layers: int = 2
+    transformer_heads: int = 4
+    sh_degree: int = 0
+    d_min: float = 0.5
+    d_max: float = 8.0
+    s_min: float = 0.25
+    s_max: float = 1.5
+    bg_mask_threshold: float = 0.2
+    # priors (prior table, RLBench column)
+    prior_offset_std: float = 0.2
+    prior_scale_mean: float = 0.25
+    prior_scale_std: float = 0.3
+    prior_depth_mean: float = 0.0
+    prior_depth_std: float = 1.0
+    prior_extent_mean: float = 0.3
+    prior_extent_std: float = 0.3
+    prior_t_a: float = 0.01
+    prior_t_b: float = 0.01
+
+    def validate(self, where: str = "model") -> None:
+        def need(cond: bool, key: str, msg: str) -> None:
+            if not cond:
+                raise ConfigError(f"{where}.{key}: {msg} (got {getattr(self, key)!r})")
+
+        need(self.resolution >= 16 and self.resolution % 16 == 0, "resolution", "must be a multiple of 16, >= 16")
+        need(self.particles_per_view >= 1, "particles_per_view", "must be >= 1")
+        need(self.kp_patch >= 2 and self.resolution % self.kp_patch == 0, "kp_patch",
+             "must be >= 2 and divide the resolution")
+        need((self.resolution // self.kp_patch) ** 2 >= self.particles_per_view, "particles_per_view",
+             "must not exceed the number of keypoint proposals (resolution/kp_patch)^2")
+        need(0.0 < self.glimpse_ratio < 1.0, "glimpse_ratio", "must be in (0, 1)")
+        need(self.glimpse_size >= 4 and self.glimpse_size % 4 == 0, "glimpse_size", "must be a multiple of 4")
+        need(self.channels >= 4, "channels", "must be >= 4")
+        need(self.d_obj >= 1 and self.d_bg >= 1, "d_obj", "d_obj and d_bg must be >= 1")
+        for key in ("bg_latent_stride", "bg_block"):
+            v = getattr(self, key)
+            need(v >= 1 and self.resolution % v == 0, key, "must divide the resolution")
+        need(self.bg_latent_stride in (1, 2, 4, 8, 16), "bg_latent_stride", "must be 1, 2, 4, 8 or 16")
+        need(self.patch_gaussians >= 1, "patch_gaussians", "must be >= 1")
+        need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
+        need(self.transformer_layers >= 0, "transformer_layers", "must be >= 0")
+        need(self.sh_degree in (0, 1), "sh_degree", "must be 0 or 1")
+        need(0.0 < self.d_min < self.d_max, "d_min", "need 0 < d_min < d_max")
+        need(0.0 < self.s_min < self.s_max, "s_min", "need 0 < s_min < s_max")
+        need(0.0 <= self.bg_mask_threshold <= 1.0, "bg_mask_threshold", "must be in [0, 1]")
+        for key in ("prior_scale_mean", "prior_extent_mean"):
+            need(0.0 < getattr(self, key) < 1.0, key, "is a sigmoid-space mean, must be in (0, 1)")
+        for key in ("prior_offset_std", "prior_scale_std", "prior_depth_std", "prior_extent_std", "prior_t_a",
+                    "prior_t_b"):
+            need(getattr(self, key) > 0.0, key, "must be > 0")
+
+    @property
+    def logit_prior_scale(self) -> float:
+        return math.log(self.prior_scale_mean / (1.0 - self.prior_scale_mean))
+
+    @property
+    def logit_prior_extent(self) -> float:
+        return math.log(self.prior_extent_mean / (1.0 - self.prior_extent_mean))
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation, loss and data-sampling settings (documented in ``assets/model.yaml``)."""
+
+    batch_size: int = 4
+    context_views: list[int] = field(default_factory=lambda: [2])
+    target_views: int = 2
+    steps: int = 10000
+    lr: float = 3e-4
+    grad_clip: float = 1.0
+    beta_kl: float = 0.02
+    beta_f: float = 1.0
+    beta_reg: float = 0.02
+    beta_rec_ctx: float = 1.0
+    beta_rec_tgt: float = 1.0
+    lambda_depth: float = 0.1
+    depth_dropout: float = 0.0
+    bg_off_steps: int = 0
+    log_every: int = 20
+    val_every: int = 500
+    val_scenes: int = 16
+    ckpt_every: int = 250
+    seed: int = 0
+    num_threads: int = 0
+
+    def validate(self, where: str = "train") -> None:
+        def need(cond: bool, key: str, msg: str) -> None:
+            if not cond:
+                raise ConfigError(f"{where}.{key}: {msg} (got {getattr(self, key)!r})")
+
+        need(self.batch_size >= 1, "batch_size", "must be >= 1")
+        need(isinstance(self.context_views, list) and len(self.context_views) > 0
+             and all(v in (1, 2) for v in self.context_views), "context_views", "must be a list of 1s and 2s")
+        need(self.target_views >= 0, "target_views", "must be >= 0")
+        need(self.steps >= 1, "steps", "must be >= 1")
+        need(self.lr > 0, "lr", "must be > 0")
+        need(0.0 <= self.depth_dropout <= 1.0, "depth_dropout", "must be in [0, 1]")
+        for key in ("log_every", "val_every", "ckpt_every"):
+            need(getattr(self, key) >= 1, key, "must be >= 1")
+        for key in ("beta_kl", "beta_f", "beta_reg", "beta_rec_ctx", "beta_rec_tgt", "lambda_depth", "grad_clip"):
+            need(getattr(self, key) >= 0, key, "must be >= 0")
+
+
+def _from_dict(cls, data: Any, where: str):
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__}")
+    known = {f.name: f for f in fields(cls)}
+    unknown = sorted(set(data) - set(known))
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)} (known: {', '.join(known)})")
+    out = cls()
+    for k, v in data.items():
+        default = getattr(out, k)
+        if isinstance(default, bool) or isinstance(default, list):
+            ok = isinstance(v, type(default))
+        elif isinstance(default, float):
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool)
+            v = float(v) if ok else v
+        elif isinstance(default, int):
+            ok = isinstance(v, int) and not isinstance(v, bool)
+        else:
+            ok = True
+        if not ok:
+            raise ConfigError(f"{where}.{k}: expected {type(default).__name__}, got {v!r}")
+        setattr(out, k, v)
+    out.validate(where)
+    return out
+
+
+def model_config_from_dict(data: Any, where: str = "model") -> ModelConfig:
+    return _from_dict(ModelConfig, data, where)
+
+
+def train_config_from_dict(data: Any, where: str = "train") -> TrainConfig:
+    return _from_dict(TrainConfig, data, where)
+
+
+def load_config(path: str | PathLike) -> tuple[ModelConfig, TrainConfig]:
+    """Read a YAML file with top-level ``model:`` and ``train:`` mappings."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read config ({e.strerror})") from e
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{path}: invalid YAML ({e})") from e
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping with 'model' and 'train' keys")
+    unknown = sorted(set(data) - {"model", "train"})
+    if unknown:
+        raise ConfigError(f"{path}: unknown top-level key(s) {', '.join(unknown)} (known: model, train)")
+    return (model_config_from_dict(data.get("model"), f"{path}: model"),
+            train_config_from_dict(data.get("train"), f"{path}: train"))
+
+
+def config_to_dict(cfg) -> dict:
+    return asdict(cfg)

@@ -1,0 +1,168 @@
+"""Decoders: particles and background latents -> world-space 3D Gaussians (appendix steps 1-3)."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from ..sh import num_sh_bases
+from .config import ModelConfig
+from .geometry import (camera_covariance_factor, covariance_to_quat_scale, plucker_at, ray_dirs,
+                       rotate_sh_to_world)
+
+
+def gaussian_channels(sh_degree: int) -> int:
+    """Channels of a Gaussian head: SH colour 3K, offset 2, depth residual 1, quaternion 4, scales 3, opacity 1."""
+    return 3 * num_sh_bases(sh_degree) + 11
+
+
+def split_gaussian_params(raw: Tensor, sh_degree: int) -> dict[str, Tensor]:
+    """raw: (..., C) head output -> named parts (sh (..., K, 3), delta (..., 2), dd (..., 1), quat (..., 4),
+    scale (..., 3), opacity (..., 1))."""
+    k = num_sh_bases(sh_degree)
+    sh, delta, dd, quat, scale, opac = torch.split(raw, [3 * k, 2, 1, 4, 3, 1], dim=-1)
+    return {"sh": sh.reshape(*sh.shape[:-1], k, 3), "delta": delta, "dd": dd, "quat": quat, "scale": scale,
+            "opacity": opac}
+
+
+def init_gaussian_head(conv: nn.Conv2d, sh_degree: int, opacity_logit: float, depth_logit: float = 0.0) -> None:
+    """Small weights; biases: grey colour, identity rotation, mid scales, given opacity and depth logits."""
+    k = num_sh_bases(sh_degree)
+    nn.init.normal_(conv.weight, std=1e-3)
+    b = torch.zeros(conv.out_channels)
+    b[3 * k + 2] = depth_logit
+    b[3 * k + 3] = 1.0  # quaternion w
+    b[-1] = opacity_logit
+    with torch.no_grad():
+        conv.bias.copy_(b)
+
+
+class ForegroundDecoder(nn.Module):
+    """D_fg: z_f (…, D) -> canonical S×S patch of Gaussian parameters (…, S*S, C)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.S = cfg.patch_gaussians
+        self.sh_degree = cfg.sh_degree
+        c = cfg.channels
+        self.c = c
+        self.fc = nn.Sequential(nn.Linear(cfg.d_obj, 2 * c), nn.SiLU(), nn.Linear(2 * c, c * self.S * self.S))
+        self.conv = nn.Sequential(nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU())
+        self.head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
+        init_gaussian_head(self.head, cfg.sh_degree, opacity_logit=2.0)
+
+    def forward(self, z_f: Tensor) -> Tensor:
+        """z_f: (M, D) -> (M, S*S, C) with cells in row-major (y, x) order."""
+        h = self.fc(z_f).reshape(-1, self.c, self.S, self.S)
+        out = self.head(self.conv(h))
+        return out.flatten(2).transpose(1, 2)
+
+
+class BackgroundDecoder(nn.Module):
+    """D_bg: per-view background latent map + rays -> one Gaussian per k×k pixel block."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        c = cfg.channels
+        self.cfg = cfg
+        self.ray_proj = nn.Conv2d(6, c, 1)
+        self.inp = nn.Conv2d(cfg.d_bg, c, 3, padding=1)
+        self.body = nn.Sequential(nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU(),
+                                  nn.Conv2d(c, c, 3, padding=1), nn.SiLU())
+        self.head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
+        mid = (3.5 - cfg.d_min) / (cfg.d_max - cfg.d_min)
+        init_gaussian_head(self.head, cfg.sh_degree, opacity_logit=3.0,
+                           depth_logit=float(torch.logit(torch.tensor(min(max(mid, 0.05), 0.95)))))
+
+    def forward(self, latent: Tensor, rays: Tensor) -> Tensor:
+        """latent: (M, d_bg, h, w); rays: (M, 6, Hb, Wb) Plücker at block centres -> (M, Hb*Wb, C)."""
+        hb, wb = rays.shape[-2:]
+        z = F.interpolate(latent, size=(hb, wb), mode="bilinear", align_corners=False)
+        h = self.inp(z) + self.ray_proj(rays)
+        out = self.head(self.body(h))
+        return out.flatten(2).transpose(1, 2)
+
+
+def _finish(p: dict[str, Tensor], pix: Tensor, zeta: Tensor, jac_px: Tensor, K: Tensor, c2w: Tensor,
+            opacity: Tensor, cfg: ModelConfig) -> dict[str, Tensor]:
+    """Lift image-plane Gaussians to the world.
+
+    pix: (..., 2) pixel centres; zeta: (...) planar depth; jac_px: (..., 2) pixels per canonical unit;
+    K: (..., 3, 3), c2w: (..., 4, 4) broadcast per Gaussian; opacity: (...) final α.
+    """
+    dirs = ray_dirs(pix[..., None, :], K, c2w)[..., 0, :]
+    means = c2w[..., :3, 3] + zeta[..., None] * dirs
+    fx = K[..., 0, 0]
+    fy = K[..., 1, 1]
+    jac = torch.stack([jac_px[..., 0] * zeta / fx, jac_px[..., 1] * zeta / fy, zeta / fx], dim=-1)
+    s = cfg.s_min + (cfg.s_max - cfg.s_min) * torch.sigmoid(p["scale"])
+    M = camera_covariance_factor(p["quat"], s, jac)
+    M_world = c2w[..., :3, :3] @ M
+    quats, scales = covariance_to_quat_scale(M_world)
+    sh = rotate_sh_to_world(p["sh"], c2w[..., None, :3, :3])
+    return {"means": means, "quats": quats, "scales": scales, "opacities": opacity, "sh": sh}
+
+
+def foreground_gaussians(raw: Tensor, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor, z_t: Tensor, K: Tensor,
+                         c2w: Tensor, cfg: ModelConfig) -> dict[str, Tensor]:
+    """Steps 2-3 for M particles.
+
+    raw: (M, N, C) canonical patch parameters (N = S*S, row-major cells); z_p: (M, 2) in [-1, 1];
+    z_s: (M, 2), z_d: (M, 1), z_e: (M, 1) pre-sigmoid; z_t: (M, 1) in [0, 1]; K: (M, 3, 3) and
+    c2w: (M, 4, 4) of each particle's view. Returns Gaussian fields with leading dims (M, N).
+    """
+    S = cfg.patch_gaussians
+    H = W = cfg.resolution
+    p = split_gaussian_params(raw, cfg.sh_degree)
+    ar = (torch.arange(S, device=raw.device, dtype=raw.dtype) + 0.5) / S
+    gy, gx = torch.meshgrid(ar, ar, indexing="ij")
+    u = torch.stack([gx, gy], dim=-1).reshape(1, S * S, 2)
+    du = (torch.sigmoid(p["delta"]) - 0.5) / S
+    u_patch = 2.0 * (u + du) - 1.0
+    scale = torch.sigmoid(z_s)[:, None, :]
+    u_img = 0.5 * (scale * u_patch + z_p[:, None, :] + 1.0)
+    size = torch.tensor([W, H], device=raw.device, dtype=raw.dtype)
+    pix = u_img * size
+    d = cfg.d_min + torch.sigmoid(z_d) * (cfg.d_max - cfg.d_min)
+    half = 0.5 * (cfg.d_max - cfg.d_min) * torch.sigmoid(z_e)
+    zeta = d + half * torch.tanh(p["dd"][..., 0])
+    jac_px = scale * size / S  # s_x / (S_w / W): pixels per canonical cell
+    opacity = z_t * torch.sigmoid(p["opacity"][..., 0])
+    Kn = K[:, None].expand(-1, S * S, -1, -1)
+    cn = c2w[:, None].expand(-1, S * S, -1, -1)
+    return _finish(p, pix, zeta, jac_px.expand(-1, S * S, -1), Kn, cn, opacity, cfg)
+
+
+def block_centres(cfg: ModelConfig, device, dtype) -> Tensor:
+    """(Hb*Wb, 2) pixel centres of the k×k background blocks, row-major."""
+    k = cfg.bg_block
+    n = cfg.resolution // k
+    ar = (torch.arange(n, device=device, dtype=dtype) + 0.5) * k
+    gy, gx = torch.meshgrid(ar, ar, indexing="ij")
+    return torch.stack([gx, gy], dim=-1).reshape(-1, 2)
+
+
+def background_rays(K: Tensor, c2w: Tensor, cfg: ModelConfig) -> Tensor:
+    """K: (M, 3, 3), c2w: (M, 4, 4) -> (M, 6, Hb, Wb) Plücker rays at block centres."""
+    n = cfg.resolution // cfg.bg_block
+    pix = block_centres(cfg, K.device, K.dtype)[None].expand(K.shape[0], -1, -1)
+    return plucker_at(pix, K, c2w).transpose(1, 2).reshape(K.shape[0], 6, n, n)
+
+
+def background_gaussians(raw: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig) -> dict[str, Tensor]:
+    """raw: (M, Hb*Wb, C) per-block parameters; K: (M, 3, 3); c2w: (M, 4, 4) -> fields with dims (M, Hb*Wb).
+
+    Pixel-aligned: a block centre plus a bounded sub-block offset; depth ζ = d_min + σ(·)(d_max − d_min)
+    from the depth-residual channel; opacity σ(o) (no transparency gate).
+    """
+    k = cfg.bg_block
+    p = split_gaussian_params(raw, cfg.sh_degree)
+    n = raw.shape[1]
+    pix = block_centres(cfg, raw.device, raw.dtype)[None] + (torch.sigmoid(p["delta"]) - 0.5) * k
+    zeta = cfg.d_min + torch.sigmoid(p["dd"][..., 0]) * (cfg.d_max - cfg.d_min)
+    jac_px = torch.full_like(pix, float(k))
+    opacity = torch.sigmoid(p["opacity"][..., 0])
+    Kn = K[:, None].expand(-1, n, -1, -1)
+    cn = c2w[:, None].expand(-1, n, -1, -1)
+    return _finish(p, pix, zeta, jac_px, Kn, cn, opacity, cfg)

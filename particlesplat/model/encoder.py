@@ -1,0 +1,234 @@
+"""DLP-style view-aware encoder: keypoint proposals, STN glimpses, attribute heads, ray-FiLM transformer,
+and a per-view background encoder whose input has the boxes of active particles masked out."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from .config import ModelConfig
+from .geometry import plucker_at, plucker_map
+
+
+def _conv(cin: int, cout: int, stride: int = 1) -> nn.Module:
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, stride=stride, padding=1), nn.SiLU())
+
+
+def depth_input(depth: Tensor | None, like: Tensor, cfg: ModelConfig) -> Tensor:
+    """depth: (M, 1, H, W) metres (0 = missing) or None -> (M, 2, H, W) [depth / d_max, valid]."""
+    if depth is None:
+        return torch.zeros(like.shape[0], 2, *like.shape[-2:], device=like.device, dtype=like.dtype)
+    valid = (depth > 0).to(like.dtype)
+    return torch.cat([depth / cfg.d_max, valid], dim=1)
+
+
+class RayConditioning(nn.Module):
+    """h' = h + W φ(c̃) + b: Plücker map resampled to the feature size, unit directions, 1×1 conv."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.proj = nn.Conv2d(6, channels, 1)
+
+    def forward(self, h: Tensor, rays: Tensor) -> Tensor:
+        """h: (M, C, h, w); rays: (M, 6, H, W) -> (M, C, h, w)."""
+        r = F.interpolate(rays, size=h.shape[-2:], mode="bilinear", align_corners=False)
+        r = torch.cat([F.normalize(r[:, :3], dim=1), r[:, 3:]], dim=1)
+        return h + self.proj(torch.tanh(r))
+
+
+class FusedBackbone(nn.Module):
+    """Parallel RGB and depth CNNs (strides 1, 2, 4) with depth fused into RGB and rays added at every level."""
+
+    def __init__(self, cfg: ModelConfig, extra_in: int = 0):
+        super().__init__()
+        c = cfg.channels
+        widths = [c // 2, c, c]
+        self.rgb = nn.ModuleList([_conv(3 + extra_in, widths[0]), _conv(widths[0], widths[1], 2),
+                                  _conv(widths[1], widths[2], 2)])
+        self.dep = nn.ModuleList([_conv(2, widths[0]), _conv(widths[0], widths[1], 2), _conv(widths[1], widths[2], 2)])
+        self.fuse = nn.ModuleList([nn.Conv2d(w, w, 1) for w in widths])
+        self.rays = nn.ModuleList([RayConditioning(w) for w in widths])
+        self.out_channels = widths[-1]
+
+    def forward(self, rgb: Tensor, dep: Tensor, rays: Tensor) -> Tensor:
+        """rgb: (M, 3+extra, H, W); dep: (M, 2, H, W); rays: (M, 6, H, W) -> (M, C, H/4, W/4)."""
+        h, g = rgb, dep
+        for conv_r, conv_d, fuse, ray in zip(self.rgb, self.dep, self.fuse, self.rays):
+            h, g = conv_r(h), conv_d(g)
+            h = ray(h + fuse(g), rays)
+        return h
+
+
+class ParticleEncoder(nn.Module):
+    """q(z_fg | context views): proposals -> top-L -> glimpse heads -> ray-FiLM transformer refinement."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        c = cfg.channels
+        P = cfg.kp_patch
+        self.backbone = FusedBackbone(cfg)
+        self.heat = nn.Conv2d(self.backbone.out_channels, P * P, 1)
+        g = cfg.glimpse_size
+        self.glimpse_cnn = nn.Sequential(_conv(5, c // 2, 2), _conv(c // 2, c, 2), _conv(c, c, 2 if g >= 16 else 1))
+        gs = g // 8 if g >= 16 else g // 4
+        hid = 4 * c
+        self.glimpse_fc = nn.Sequential(nn.Linear(c * gs * gs + self.backbone.out_channels, hid), nn.SiLU())
+        D = cfg.d_obj
+        # heads: offset (2+2), scale (2+2), depth (1+1), extent (1+1), Beta (2), features (D+D)
+        self.head = nn.Linear(hid, 14 + 2 * D)
+        nn.init.normal_(self.head.weight, std=1e-3)
+        b = torch.zeros(14 + 2 * D)
+        b[2:4] = -4.0  # offset logvar
+        b[4:6] = float(torch.logit(torch.tensor(cfg.glimpse_ratio)))
+        b[6:8] = -4.0
+        b[9] = -4.0
+        b[10] = cfg.logit_prior_extent
+        b[11] = -4.0
+        b[12:14] = 1.0  # Beta a, b ≈ softplus(1) + … ≈ 1.3 each: z_t ≈ 0.5 at the start
+        b[14 + D:] = -4.0
+        with torch.no_grad():
+            self.head.bias.copy_(b)
+        T = cfg.token_dim
+        self.token = nn.Linear(hid + 7, T)
+        self.film = nn.Linear(6, 2 * T)
+        nn.init.zeros_(self.film.weight)
+        nn.init.zeros_(self.film.bias)
+        self.bg_token = nn.Linear(c, T)
+        layer = nn.TransformerEncoderLayer(T, cfg.transformer_heads, 2 * T, dropout=0.0, batch_first=True,
+                                           norm_first=True)
+        self.transformer = nn.TransformerEncoder(layer, cfg.transformer_layers, enable_nested_tensor=False) \
+            if cfg.transformer_layers > 0 else None
+        self.refine = nn.Linear(T, 1 + D)
+        nn.init.zeros_(self.refine.weight)
+        nn.init.zeros_(self.refine.bias)
+
+    def proposals(self, feats: Tensor) -> tuple[Tensor, Tensor]:
+        """feats: (M, C, h, w) -> keypoints (M, Q, 2) in [-1, 1] and their spatial variance (M, Q)."""
+        cfg = self.cfg
+        P = cfg.kp_patch
+        n = cfg.resolution // P
+        logits = self.heat(F.interpolate(feats, size=(n, n), mode="bilinear", align_corners=False))
+        prob = logits.flatten(2).transpose(1, 2).reshape(feats.shape[0], n * n, P * P).softmax(-1)
+        ar = torch.arange(P, device=feats.device, dtype=feats.dtype) + 0.5
+        gy, gx = torch.meshgrid(ar, ar, indexing="ij")
+        local = torch.stack([gx, gy], dim=-1).reshape(P * P, 2)  # pixels within a patch
+        mean = prob @ local
+        var = (prob * ((local[None, None] - mean[:, :, None]) ** 2).sum(-1)).sum(-1)
+        cy, cx = torch.meshgrid(torch.arange(n, device=feats.device, dtype=feats.dtype) * P,
+                                torch.arange(n, device=feats.device, dtype=feats.dtype) * P, indexing="ij")
+        origin = torch.stack([cx, cy], dim=-1).reshape(1, n * n, 2)
+        pix = origin + mean
+        return pix / cfg.resolution * 2.0 - 1.0, var
+
+    def attributes(self, rgb: Tensor, dep: Tensor, rays: Tensor) -> dict[str, Tensor]:
+        """Per-view particle posteriors before interaction.
+
+        rgb: (M, 3, H, W); dep: (M, 2, H, W); rays: (M, 6, H, W) -> dict of (M, L, ·) tensors
+        (kp, mu_/lv_ o s d e f, beta_a, beta_b, and the glimpse embedding h).
+        """
+        cfg = self.cfg
+        L, D = cfg.particles_per_view, cfg.d_obj
+        M = rgb.shape[0]
+        feats = self.backbone(rgb, dep, rays)
+        kp, var = self.proposals(feats)
+        idx = var.topk(L, dim=1, largest=False).indices  # lowest variance = most confident
+        kp = torch.gather(kp, 1, idx[..., None].expand(-1, -1, 2))  # (M, L, 2)
+        # glimpses of the RGB-D input around each keypoint (STN, bilinear)
+        g = cfg.glimpse_ratio
+        theta = torch.zeros(M * L, 2, 3, device=rgb.device, dtype=rgb.dtype)
+        theta[:, 0, 0] = g
+        theta[:, 1, 1] = g
+        theta[:, :, 2] = kp.reshape(M * L, 2)
+        src = torch.cat([rgb, dep], dim=1)
+        grid = F.affine_grid(theta, [M * L, 5, cfg.glimpse_size, cfg.glimpse_size], align_corners=False)
+        src_rep = src[:, None].expand(-1, L, -1, -1, -1).reshape(M * L, *src.shape[1:])
+        glimpses = F.grid_sample(src_rep, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        at_kp = F.grid_sample(feats, kp[:, :, None, :], mode="bilinear", align_corners=False)[..., 0]
+        h = torch.cat([self.glimpse_cnn(glimpses).flatten(1), at_kp.transpose(1, 2).reshape(M * L, -1)], dim=1)
+        h = self.glimpse_fc(h)
+        out = self.head(h).reshape(M, L, -1)
+        # depth: a residual on the observed depth at the keypoint, when there is one
+        obs = F.grid_sample(dep, kp[:, :, None, :], mode="nearest", align_corners=False)[..., 0].transpose(1, 2)
+        d_obs = (obs[..., :1] * cfg.d_max - cfg.d_min) / (cfg.d_max - cfg.d_min)
+        d_logit = torch.logit(d_obs.clamp(0.02, 0.98)) * obs[..., 1:2]
+        beta_ab = F.softplus(out[..., 12:14]) + 0.05
+        return {"kp": kp, "h": h.reshape(M, L, -1),
+                "mu_o": out[..., 0:2], "lv_o": out[..., 2:4], "mu_s": out[..., 4:6], "lv_s": out[..., 6:8],
+                "mu_d": out[..., 8:9] + d_logit.detach(), "lv_d": out[..., 9:10],
+                "mu_e": out[..., 10:11], "lv_e": out[..., 11:12],
+                "beta_a": beta_ab[..., :1], "beta_b": beta_ab[..., 1:],
+                "mu_f": out[..., 14:14 + D], "lv_f": out[..., 14 + D:]}
+
+    def interact(self, att: dict[str, Tensor], K: Tensor, c2w: Tensor, bg_feats: Tensor,
+                 n_views: int) -> dict[str, Tensor]:
+        """Ray-FiLM + particle-interaction transformer over all context views' particles and background tokens.
+
+        att: output of :meth:`attributes` for M = B*V views; K: (M, 3, 3); c2w: (M, 4, 4);
+        bg_feats: (M, C) pooled background features. Returns the posteriors with leading dims (B, V*L)
+        (depth and feature means refined).
+        """
+        cfg = self.cfg
+        L = cfg.particles_per_view
+        M = K.shape[0]
+        B = M // n_views
+        pix = (att["kp"] + att["mu_o"] + 1.0) * 0.5 * cfg.resolution
+        ray = plucker_at(pix.detach(), K, c2w)  # (M, L, 6)
+        t_mean = att["beta_a"] / (att["beta_a"] + att["beta_b"])
+        desc = torch.cat([att["h"], att["mu_o"], att["mu_s"], att["mu_d"], att["mu_e"], t_mean], dim=-1)
+        tok = self.token(desc)
+        T = tok.shape[-1]
+        gamma_beta = self.film(ray)
+        tok = (1.0 + gamma_beta[..., :T]) * tok + gamma_beta[..., T:]
+        tok = tok.reshape(B, n_views * L, T)
+        bg_tok = self.bg_token(bg_feats).reshape(B, n_views, T)
+        if self.transformer is not None:
+            tok = self.transformer(torch.cat([tok, bg_tok], dim=1))[:, :n_views * L]
+        delta = self.refine(tok)
+        out = {k: v.reshape(B, n_views * L, v.shape[-1]) for k, v in att.items() if k != "h"}
+        out["mu_d"] = out["mu_d"] + delta[..., :1]
+        out["mu_f"] = out["mu_f"] + delta[..., 1:]
+        return out
+
+
+def box_mask(z_p: Tensor, scale: Tensor, active: Tensor, size: int) -> Tensor:
+    """Union of particle boxes. z_p: (M, L, 2) in [-1, 1]; scale: (M, L, 2) half-extents in normalised
+    units; active: (M, L) bool -> (M, 1, size, size) float mask (1 inside an active box)."""
+    ar = (torch.arange(size, device=z_p.device, dtype=z_p.dtype) + 0.5) / size * 2.0 - 1.0
+    inside_x = (ar[None, None, :] - z_p[..., 0:1]).abs() <= scale[..., 0:1]  # (M, L, W)
+    inside_y = (ar[None, None, :] - z_p[..., 1:2]).abs() <= scale[..., 1:2]  # (M, L, H)
+    box = inside_y[..., :, None] & inside_x[..., None, :] & active[..., None, None]
+    return box.any(1, keepdim=True).to(z_p.dtype)
+
+
+class BackgroundEncoder(nn.Module):
+    """q(z_bg | view): masked RGB-D + rays -> latent map (d_bg, H/stride, W/stride) (mean, logvar)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.backbone = FusedBackbone(cfg, extra_in=1)
+        c = self.backbone.out_channels
+        self.head = nn.Conv2d(c, 2 * cfg.d_bg, 3, padding=1)
+        with torch.no_grad():
+            self.head.bias[cfg.d_bg:] = -4.0
+
+    def forward(self, rgb: Tensor, dep: Tensor, rays: Tensor, mask: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """rgb: (M, 3, H, W); dep: (M, 2, H, W); rays: (M, 6, H, W); mask: (M, 1, H, W) 1 = hidden.
+
+        Returns mean, logvar (M, d_bg, H/s, W/s) and pooled features (M, C) for the background tokens.
+        """
+        keep = 1.0 - mask
+        feats = self.backbone(torch.cat([rgb * keep, mask], dim=1), dep * keep, rays)
+        out = self.head(feats)
+        s = self.cfg.bg_latent_stride
+        n = self.cfg.resolution // s
+        if out.shape[-1] != n:
+            out = F.interpolate(out, size=(n, n), mode="bilinear", align_corners=False) if n > out.shape[-1] \
+                else F.adaptive_avg_pool2d(out, n)
+        d = self.cfg.d_bg
+        return out[:, :d], out[:, d:], feats.mean((2, 3))
+
+
+__all__ = ["ParticleEncoder", "BackgroundEncoder", "box_mask", "depth_input", "plucker_map"]

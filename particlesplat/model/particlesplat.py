@@ -1,0 +1,186 @@
+"""The ParticleSplat model: encoder, decoders, and the scene-level API used by the viewer."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+
+import torch
+from torch import Tensor, nn
+
+from ..camera import Camera
+from ..gaussians import BACKGROUND_OWNER, Gaussians
+from .config import ModelConfig
+from .decoder import BackgroundDecoder, ForegroundDecoder, background_gaussians, background_rays, foreground_gaussians
+from .encoder import BackgroundEncoder, ParticleEncoder, box_mask, depth_input
+from .geometry import plucker_map, stack_cameras
+from .particles import Particles
+
+
+def _gaussians(fields: dict[str, Tensor], owner: Tensor) -> Gaussians:
+    n = owner.shape[0]
+    return Gaussians(fields["means"].reshape(n, 3), fields["quats"].reshape(n, 4), fields["scales"].reshape(n, 3),
+                     fields["opacities"].reshape(n), fields["sh"].reshape(n, -1, 3), owner)
+
+
+class ParticleSplat(nn.Module):
+    """Encoder q(Z | context views) and Gaussian-splatting decoder p(x | Z)."""
+
+    def __init__(self, config: ModelConfig):
+        super().__init__()
+        config.validate()
+        self.config = config
+        self.encoder = ParticleEncoder(config)
+        self.bg_encoder = BackgroundEncoder(config)
+        self.fg_decoder = ForegroundDecoder(config)
+        self.bg_decoder = BackgroundDecoder(config)
+
+    # ------------------------------------------------------------------ batched internals
+    def posterior(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> dict[str, Tensor]:
+        """Posterior parameters for B scenes with V context views.
+
+        rgb: (B, V, 3, H, W) in [0, 1]; depth: (B, V, 1, H, W) metres (0 = missing) or None;
+        K: (B, V, 3, 3); c2w: (B, V, 4, 4) OpenCV. Returns particle posteriors (B, V*L, ·), the view
+        index (V*L,), background mean/logvar (B, V, d_bg, h, w) and the background mask (B, V, 1, H, W).
+        """
+        cfg = self.config
+        B, V = rgb.shape[:2]
+        H, W = rgb.shape[-2:]
+        if H != cfg.resolution or W != cfg.resolution:
+            raise ValueError(f"images are {W}x{H}, the model was built for {cfg.resolution}x{cfg.resolution}")
+        x = rgb.reshape(B * V, 3, H, W)
+        d = None if depth is None else depth.reshape(B * V, 1, H, W)
+        dep = depth_input(d, x, cfg)
+        Kf, cf = K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4)
+        rays = plucker_map(Kf, cf, H, W)
+        att = self.encoder.attributes(x, dep, rays)
+        with torch.no_grad():
+            t_mean = att["beta_a"] / (att["beta_a"] + att["beta_b"])
+            mask = box_mask(att["kp"] + att["mu_o"], torch.sigmoid(att["mu_s"]),
+                            t_mean[..., 0] > cfg.bg_mask_threshold, cfg.resolution)
+        mu_bg, lv_bg, bg_feats = self.bg_encoder(x, dep, rays, mask)
+        post = self.encoder.interact(att, Kf, cf, bg_feats, V)
+        post["mu_bg"] = mu_bg.reshape(B, V, *mu_bg.shape[1:])
+        post["lv_bg"] = lv_bg.reshape(B, V, *lv_bg.shape[1:])
+        post["bg_mask"] = mask.reshape(B, V, 1, H, W)
+        post["view"] = torch.arange(V, device=rgb.device).repeat_interleave(cfg.particles_per_view)
+        return post
+
+    @staticmethod
+    def latents(post: dict[str, Tensor], sample: bool) -> dict[str, Tensor]:
+        """Posterior samples (reparameterised) or means: z_p, z_s, z_d, z_e, z_t, z_f (B, N, ·), bg (B, V, ·)."""
+        def g(mu: Tensor, lv: Tensor) -> Tensor:
+            return mu + torch.randn_like(mu) * torch.exp(0.5 * lv) if sample else mu
+
+        a, b = post["beta_a"], post["beta_b"]
+        z_t = torch.distributions.Beta(a, b).rsample() if sample else a / (a + b)
+        return {"z_p": post["kp"] + g(post["mu_o"], post["lv_o"]), "z_s": g(post["mu_s"], post["lv_s"]),
+                "z_d": g(post["mu_d"], post["lv_d"]), "z_e": g(post["mu_e"], post["lv_e"]), "z_t": z_t,
+                "z_f": g(post["mu_f"], post["lv_f"]), "bg": g(post["mu_bg"], post["lv_bg"])}
+
+    def foreground(self, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor, z_t: Tensor, z_f: Tensor, K: Tensor,
+                   c2w: Tensor) -> dict[str, Tensor]:
+        """M particles -> Gaussian fields (M, S*S, ·). Latents (M, ·); K (M, 3, 3), c2w (M, 4, 4) of their views."""
+        raw = self.fg_decoder(z_f)
+        return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config)
+
+    def background(self, bg: Tensor, K: Tensor, c2w: Tensor) -> dict[str, Tensor]:
+        """bg: (M, d_bg, h, w) latents of M views; K (M, 3, 3), c2w (M, 4, 4) -> fields (M, Hb*Wb, ·)."""
+        raw = self.bg_decoder(bg, background_rays(K, c2w, self.config))
+        return background_gaussians(raw, K, c2w, self.config)
+
+    def decode_batch(self, z: dict[str, Tensor], view: Tensor, K: Tensor, c2w: Tensor,
+                     background: bool = True) -> list[Gaussians]:
+        """Decode B scenes. z: from :meth:`latents`; view: (N,) view index per particle;
+        K: (B, V, 3, 3); c2w: (B, V, 4, 4) of the context views. Returns B Gaussian sets (owner = particle)."""
+        B, N = z["z_p"].shape[:2]
+        V = K.shape[1]
+        flat = {k: z[k].reshape(B * N, -1) for k in ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f")}
+        Kp = K[:, view].reshape(B * N, 3, 3)
+        cp = c2w[:, view].reshape(B * N, 4, 4)
+        fg = self.foreground(flat["z_p"], flat["z_s"], flat["z_d"], flat["z_e"], flat["z_t"], flat["z_f"], Kp, cp)
+        fg = {k: v.reshape(B, -1, *v.shape[2:]) for k, v in fg.items()}
+        S2 = self.config.patch_gaussians ** 2
+        owner_fg = torch.arange(N, device=K.device).repeat_interleave(S2)
+        if background:
+            bgf = self.background(z["bg"].reshape(B * V, *z["bg"].shape[2:]), K.reshape(B * V, 3, 3),
+                                  c2w.reshape(B * V, 4, 4))
+            bgf = {k: v.reshape(B, -1, *v.shape[2:]) for k, v in bgf.items()}
+            owner = torch.cat([owner_fg, torch.full((bgf["means"].shape[1],), BACKGROUND_OWNER, device=K.device)])
+            fields = {k: torch.cat([fg[k], bgf[k]], dim=1) for k in fg}
+        else:
+            owner, fields = owner_fg, fg
+        return [_gaussians({k: v[b] for k, v in fields.items()}, owner) for b in range(B)]
+
+    def forward(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, sample: bool = True,
+                background: bool = True) -> tuple[dict[str, Tensor], dict[str, Tensor], list[Gaussians]]:
+        """Training pass for B scenes (shapes as in :meth:`posterior`): posterior, latents, Gaussians per scene."""
+        post = self.posterior(rgb, depth, K, c2w)
+        z = self.latents(post, sample)
+        return post, z, self.decode_batch(z, post["view"], K, c2w, background)
+
+    # ------------------------------------------------------------------ scene-level API
+    @torch.no_grad()
+    def encode(self, rgb: Tensor, depth: Tensor | None, cameras: list[Camera]) -> Particles:
+        """Posterior means of one scene.
+
+        rgb: (V, 3, H, W) in [0, 1], H = W = config.resolution; depth: (V, 1, H, W) planar metres
+        (0 = missing) or None; cameras: V OpenCV cameras of those images.
+        """
+        V = rgb.shape[0]
+        if rgb.ndim != 4 or rgb.shape[1] != 3:
+            raise ValueError(f"encode: rgb must be (V, 3, H, W), got {tuple(rgb.shape)}")
+        if len(cameras) != V:
+            raise ValueError(f"encode: {V} images but {len(cameras)} cameras")
+        if depth is not None and tuple(depth.shape) != (V, 1, *rgb.shape[-2:]):
+            raise ValueError(f"encode: depth must be {(V, 1, *rgb.shape[-2:])}, got {tuple(depth.shape)}")
+        for c in cameras:
+            if (c.width, c.height) != tuple(rgb.shape[-2:][::-1]):
+                raise ValueError(f"encode: camera is {c.width}x{c.height} but images are "
+                                 f"{rgb.shape[-1]}x{rgb.shape[-2]}")
+        dev = next(self.parameters()).device
+        K, c2w = stack_cameras(cameras, device=dev)
+        post = self.posterior(rgb[None].to(dev), None if depth is None else depth[None].to(dev), K[None], c2w[None])
+        z = self.latents(post, sample=False)
+        return Particles(z_p=z["z_p"][0], z_s=z["z_s"][0], z_d=z["z_d"][0], z_e=z["z_e"][0], z_t=z["z_t"][0],
+                         z_f=z["z_f"][0], view=post["view"], background=z["bg"][0],
+                         cameras=[c.to(dev) for c in cameras])
+
+    @torch.no_grad()
+    def decode(self, particles: Particles, indices: Tensor | None = None, *, background: bool = True,
+               z_t_threshold: float = 0.0, opacity_threshold: float = 0.0) -> Gaussians:
+        """Gaussians of one scene.
+
+        indices: (M,) particle indices to decode (default all); their Gaussians get owner = index.
+        background: include the per-view background Gaussians (owner -1). Particles with z_t below
+        ``z_t_threshold`` and Gaussians with opacity below ``opacity_threshold`` are dropped.
+        Decoding a subset gives exactly the same Gaussians as the full decode restricted to it.
+        """
+        dev = next(self.parameters()).device
+        p = particles.to(dev)
+        idx = torch.arange(p.num, device=dev) if indices is None else torch.as_tensor(indices, device=dev).long()
+        if idx.numel() and (int(idx.min()) < 0 or int(idx.max()) >= p.num):
+            raise IndexError(f"decode: particle indices must be in [0, {p.num}), got {idx.tolist()}")
+        if z_t_threshold > 0.0:
+            idx = idx[p.z_t[idx, 0] >= z_t_threshold]
+        K, c2w = stack_cameras(p.cameras, device=dev)
+        if K.shape[0] != int(p.background.shape[0]):
+            raise ValueError(f"decode: {K.shape[0]} cameras but {p.background.shape[0]} background latents")
+        parts = []
+        if idx.numel():
+            v = p.view[idx]
+            fg = self.foreground(p.z_p[idx], p.z_s[idx], p.z_d[idx], p.z_e[idx], p.z_t[idx], p.z_f[idx], K[v], c2w[v])
+            S2 = self.config.patch_gaussians ** 2
+            parts.append(_gaussians(fg, idx.repeat_interleave(S2)))
+        if background:
+            bgf = self.background(p.background, K, c2w)
+            parts.append(_gaussians(bgf, torch.full((bgf["means"].shape[0] * bgf["means"].shape[1],),
+                                                    BACKGROUND_OWNER, device=dev)))
+        if not parts:
+            return Gaussians.empty(self.config.sh_degree, device=dev)
+        g = Gaussians.cat(parts)
+        if opacity_threshold > 0.0:
+            g = g.subset(g.opacities >= opacity_threshold)
+        return g
+
+    def config_dict(self) -> dict:
+        return asdict(self.config)

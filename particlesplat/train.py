@@ -1,0 +1,236 @@
+"""``particlesplat train``: optimise the multi-view ELBO on a folder of scenes, with exact resume and DDP."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shutil
+from pathlib import Path
+
+import torch
+import torch.distributed as dist
+from torch import Tensor
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import default_collate
+from tqdm import tqdm
+
+from .atomic import atomic_write
+from .camera import Camera
+from .model import ModelConfig, ParticleSplat, TrainConfig, load_config, read_checkpoint, save_checkpoint
+from .model.config import config_to_dict
+from .model.losses import elbo, scene_kl, view_error
+from .render import render_batch
+
+LAST = "last.pt"
+
+
+def render_views(gaussians: list, K: Tensor, c2w: Tensor, size: int) -> tuple[Tensor, Tensor]:
+    """Render B scenes in their views in one rasterizer pass.
+
+    gaussians: B sets; K: (B, V, 3, 3); c2w: (B, V, 4, 4) -> rgb (B, V, 3, H, W), depth (B, V, 1, H, W).
+    """
+    B, V = K.shape[:2]
+    views = [(g, Camera(K[b, v], c2w[b, v], size, size)) for b, g in enumerate(gaussians) for v in range(V)]
+    res = render_batch(views)
+    rgb = torch.stack([r.rgb.permute(2, 0, 1) for r in res])
+    depth = torch.stack([r.depth[None] for r in res])
+    return rgb.reshape(B, V, 3, size, size), depth.reshape(B, V, 1, size, size)
+
+
+def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: bool, background: bool,
+                  size: int, cfg: ModelConfig) -> tuple[dict[str, Tensor], Tensor]:
+    """Negative ELBO of a batch (dict of (B, …) tensors from SceneDataset). Returns the loss parts and the
+    target-view renders (B, T, 3, H, W) (or context renders when there are no targets)."""
+    depth = batch["context_depth"] if use_depth else None
+    post, z, gaussians = model(batch["context_rgb"], depth, batch["context_K"], batch["context_c2w"],
+                               sample=True, background=background)
+    C = batch["context_rgb"].shape[1]
+    K = torch.cat([batch["context_K"], batch["target_K"]], 1)
+    c2w = torch.cat([batch["context_c2w"], batch["target_c2w"]], 1)
+    rgb_hat, depth_hat = render_views(gaussians, K, c2w, size)
+    gt_rgb = torch.cat([batch["context_rgb"], batch["target_rgb"]], 1)
+    gt_depth = torch.cat([batch["context_depth"], batch["target_depth"]], 1)
+    B, V = gt_rgb.shape[:2]
+    sup = torch.cat([torch.ones_like(batch["context_depth"]), batch["target_supervision"]], 1)
+    err = view_error(rgb_hat.flatten(0, 1), gt_rgb.flatten(0, 1), depth_hat.flatten(0, 1), gt_depth.flatten(0, 1),
+                     sup.flatten(0, 1), tc.lambda_depth).reshape(B, V)
+    kl = scene_kl(post, z["z_t"], cfg, tc.beta_f)
+    parts = elbo(err[:, :C], err[:, C:] if V > C else None, kl, z["z_t"], tc)
+    shown = rgb_hat[:, C:] if V > C else rgb_hat
+    target = gt_rgb[:, C:] if V > C else gt_rgb
+    with torch.no_grad():
+        parts["psnr"] = -10.0 * torch.log10(((shown.clamp(0, 1) - target) ** 2).mean().clamp_min(1e-10))
+        parts["active"] = (z["z_t"] > cfg.bg_mask_threshold).float().sum(1).mean()
+    return parts, shown
+
+
+class Trainer:
+    """Holds the model, optimiser, datasets and RNG; one instance per process."""
+
+    def __init__(self, cfg: ModelConfig, tc: TrainConfig, data: Path, out: Path, device: str, resume: bool,
+                 raw_config: dict):
+        self.cfg, self.tc, self.out, self.device = cfg, tc, out, torch.device(device)
+        self.distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
+        if self.distributed:
+            dist.init_process_group("gloo" if self.device.type == "cpu" else "nccl")
+        self.rank = dist.get_rank() if self.distributed else 0
+        self.world = dist.get_world_size() if self.distributed else 1
+        from .data import SceneDataset
+
+        self.train_sets = {c: SceneDataset(data / "train", resolution=cfg.resolution,
+                                           mode="multi" if c == 2 else "single", num_targets=tc.target_views,
+                                           flip=False)
+                           for c in sorted(set(tc.context_views))}
+        self.val_dir = data / "val"
+        torch.manual_seed(tc.seed + 1000 * self.rank)
+        self.gen = torch.Generator().manual_seed(tc.seed * 7919 + self.rank)
+        self.model = ParticleSplat(cfg).to(self.device)
+        self.opt = torch.optim.Adam(self.model.parameters(), lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
+        self.step = 0
+        self.best = -math.inf
+        self.raw_config = raw_config
+        if resume and (out / LAST).is_file():
+            self._load(out / LAST)
+        elif resume:
+            raise FileNotFoundError(f"{out / LAST}: nothing to resume")
+        self.ddp = DistributedDataParallel(self.model, find_unused_parameters=tc.bg_off_steps > 0) \
+            if self.distributed else self.model
+
+    # ------------------------------------------------------------------ state
+    def _rng_state(self) -> dict:
+        return {"torch": torch.get_rng_state(), "gen": self.gen.get_state()}
+
+    def _save(self, path: Path) -> None:
+        states = [self._rng_state()]
+        if self.distributed:
+            states = [None] * self.world
+            dist.all_gather_object(states, self._rng_state())
+        if self.rank != 0:
+            return
+        save_checkpoint(path, self.model, self.step, {"optimizer": self.opt.state_dict(), "rng": states,
+                                                      "train": config_to_dict(self.tc), "best": float(self.best)})
+
+    def _load(self, path: Path) -> None:
+        ckpt = read_checkpoint(path)
+        if ckpt["config"] != config_to_dict(self.cfg):
+            raise ValueError(f"{path}: its model config differs from --config; resume with the same config")
+        self.model.load_state_dict(ckpt["state_dict"])
+        self.opt.load_state_dict(ckpt["optimizer"])
+        self.step = int(ckpt["step"])
+        self.best = float(ckpt.get("best", -math.inf))
+        states = ckpt["rng"]
+        if len(states) != self.world:
+            raise ValueError(f"{path}: saved by {len(states)} process(es), resuming with {self.world}")
+        torch.set_rng_state(states[self.rank]["torch"])
+        self.gen.set_state(states[self.rank]["gen"])
+
+    # ------------------------------------------------------------------ loop
+    def batch(self) -> tuple[dict[str, Tensor], bool]:
+        ctx = self.tc.context_views[int(torch.randint(len(self.tc.context_views), (1,), generator=self.gen))]
+        ds = self.train_sets[ctx]
+        ds.set_progress(self.step / self.tc.steps)
+        idx = torch.randint(len(ds), (self.tc.batch_size,), generator=self.gen).tolist()
+        items = [ds[i] for i in idx]
+        keep = [k for k in items[0] if not k.endswith("_masks")]
+        batch = default_collate([{k: it[k] for k in keep} for it in items])
+        use_depth = bool(torch.rand((), generator=self.gen) >= self.tc.depth_dropout)
+        return {k: v.to(self.device) for k, v in batch.items()}, use_depth
+
+    def train_step(self) -> dict[str, float]:
+        batch, use_depth = self.batch()
+        self.ddp.train()
+        parts, _ = training_loss(self.ddp, batch, self.tc, use_depth, self.step >= self.tc.bg_off_steps,
+                                 self.cfg.resolution, self.cfg)
+        self.opt.zero_grad(set_to_none=True)
+        parts["loss"].backward()
+        if self.tc.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.tc.grad_clip)
+        self.opt.step()
+        self.step += 1
+        return {k: float(v.detach()) for k, v in parts.items()}
+
+    def validate(self) -> dict[str, float]:
+        from .evaluate import evaluate_dataset
+
+        self.model.eval()
+        res = evaluate_dataset(self.model, self.val_dir, context=max(self.tc.context_views),
+                               limit=self.tc.val_scenes, progress_bar=False)
+        self.model.train()
+        return res["mean"]
+
+    def log(self, record: dict) -> None:
+        if self.rank == 0:
+            with open(self.out / "metrics.jsonl", "a") as f:
+                f.write(json.dumps(record) + "\n")
+
+    def run(self) -> int:
+        tc = self.tc
+        if self.rank == 0:
+            self.out.mkdir(parents=True, exist_ok=True)
+            with atomic_write(self.out / "config.yaml", "w") as f:
+                import yaml
+
+                yaml.safe_dump(self.raw_config, f, sort_keys=False)
+        bar = tqdm(total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0, dynamic_ncols=True)
+        run_avg: dict[str, float] = {}
+        while self.step < tc.steps:
+            parts = self.train_step()
+            bar.update(1)
+            for k, v in parts.items():
+                run_avg[k] = v if k not in run_avg else 0.9 * run_avg[k] + 0.1 * v
+            if not math.isfinite(parts["loss"]):
+                raise FloatingPointError(f"loss became {parts['loss']} at step {self.step}")
+            bar.set_postfix(loss=f"{run_avg['loss']:.1f}", psnr=f"{run_avg['psnr']:.2f}",
+                            active=f"{run_avg['active']:.1f}")
+            if self.step % tc.log_every == 0:
+                self.log({"step": self.step, **{k: round(v, 5) for k, v in run_avg.items()}})
+            if self.step % tc.ckpt_every == 0 or self.step == tc.steps:
+                self._save(self.out / LAST)
+            if self.step % tc.val_every == 0 or self.step == tc.steps:
+                if self.rank == 0 and self.val_dir.is_dir():
+                    m = self.validate()
+                    self.log({"step": self.step, "val": m})
+                    tqdm.write(f"step {self.step}: val PSNR {m['psnr']:.2f} dB, FG-ARI {m['fg_ari']:.3f}, "
+                               f"mIoU {m['miou']:.3f}, active {m['active_particles']:.1f}")
+                    save_checkpoint(self.out / f"step_{self.step:06d}.pt", self.model, self.step,
+                                    {"val": m})
+                    score = m["psnr"] / 30.0 + (m["fg_ari"] if math.isfinite(m["fg_ari"]) else 0.0)
+                    if score > self.best:
+                        self.best = score
+                        shutil.copyfile(self.out / f"step_{self.step:06d}.pt", self.out / "best.pt.tmp")
+                        os.replace(self.out / "best.pt.tmp", self.out / "best.pt")
+                if self.distributed:
+                    dist.barrier()
+        bar.close()
+        if self.distributed:
+            dist.destroy_process_group()
+        return 0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", required=True, help="YAML with 'model:' and 'train:' sections "
+                                                        "(see assets/model.yaml for every key)")
+    parser.add_argument("--data", required=True, help="dataset folder holding train/ and val/ scene folders")
+    parser.add_argument("--out", required=True, help="run folder: checkpoints (last.pt, step_*.pt, best.pt), "
+                                                     "metrics.jsonl, config.yaml")
+    parser.add_argument("--resume", action="store_true", help="continue exactly from OUT/last.pt")
+    parser.add_argument("--device", default="cpu", help="cpu or cuda (under torchrun: one process per device)")
+
+
+def run(args: argparse.Namespace) -> int:
+    import yaml
+
+    cfg, tc = load_config(args.config)
+    if tc.num_threads > 0:
+        torch.set_num_threads(tc.num_threads)
+    data = Path(args.data)
+    if not (data / "train").is_dir():
+        raise FileNotFoundError(f"{data / 'train'}: no training split")
+    device = args.device
+    if device.startswith("cuda") and int(os.environ.get("WORLD_SIZE", "1")) > 1:
+        device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
+    raw = yaml.safe_load(Path(args.config).read_text())
+    trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, raw)
+    return trainer.run()

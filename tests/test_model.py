@@ -1,0 +1,278 @@
+"""Model tests: decoder geometry against analytic truth, subset decoding, the scene API, KL terms, checkpoints."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from particlesplat.camera import Camera
+from particlesplat.gaussians import Gaussians
+from particlesplat.model import ConfigError, ModelConfig, ParticleSplat, load_config, load_model, save_checkpoint
+from particlesplat.model.decoder import foreground_gaussians, gaussian_channels, split_gaussian_params
+from particlesplat.model.geometry import covariance_to_quat_scale, ray_dirs, rotate_sh_to_world, stack_cameras
+from particlesplat.model.losses import kl_beta, kl_normal, scene_kl, view_error
+from particlesplat.sh import eval_sh_colors
+
+TINY = dict(resolution=32, particles_per_view=3, kp_patch=4, glimpse_size=8, channels=8, d_obj=4, d_bg=2,
+            bg_latent_stride=8, bg_block=4, patch_gaussians=2, token_dim=16, transformer_layers=1,
+            transformer_heads=2)
+
+
+def tiny_model(seed: int = 0, **kw) -> ParticleSplat:
+    torch.manual_seed(seed)
+    return ParticleSplat(ModelConfig(**{**TINY, **kw})).eval()
+
+
+def cams(n: int = 2, size: int = 32) -> list[Camera]:
+    return [Camera.orbit((0.0, 0.0, 0.15), az, 30.0, 3.3, width=size, height=size) for az in (-30, 25, 0, 50)[:n]]
+
+
+def random_rotation(gen: torch.Generator) -> torch.Tensor:
+    q, _ = torch.linalg.qr(torch.randn(3, 3, generator=gen, dtype=torch.float64))
+    return q * torch.sign(torch.linalg.det(q))
+
+
+# ------------------------------------------------------------------ geometry
+def test_covariance_factorisation_round_trip():
+    gen = torch.Generator().manual_seed(1)
+    M = torch.randn(200, 3, 3, generator=gen, dtype=torch.float64)
+    M[:5] = torch.diag(torch.tensor([0.2, 0.2, 0.05], dtype=torch.float64))  # repeated eigenvalues
+    q, s = covariance_to_quat_scale(M)
+    g = Gaussians(torch.zeros(200, 3, dtype=torch.float64), q, s, torch.ones(200, dtype=torch.float64),
+                  torch.zeros(200, 1, 3, dtype=torch.float64), torch.zeros(200, dtype=torch.int64))
+    torch.testing.assert_close(g.covariances(), M @ M.transpose(-1, -2), rtol=1e-9, atol=1e-10)
+
+
+def test_covariance_factorisation_gradient_is_the_identity_map():
+    """Σ -> (q, s) -> R diag(s²) Rᵀ is the identity, so its vector-Jacobian product is the incoming gradient."""
+    gen = torch.Generator().manual_seed(2)
+    M = torch.randn(20, 3, 3, generator=gen, dtype=torch.float64, requires_grad=True)
+    W = torch.randn(20, 3, 3, generator=gen, dtype=torch.float64)
+    q, s = covariance_to_quat_scale(M)
+    g = Gaussians(torch.zeros(20, 3, dtype=torch.float64), q, s, torch.ones(20, dtype=torch.float64),
+                  torch.zeros(20, 1, 3, dtype=torch.float64), torch.zeros(20, dtype=torch.int64))
+    (g.covariances() * W).sum().backward()
+    Md = M.detach().requires_grad_(True)
+    ((Md @ Md.transpose(-1, -2)) * W).sum().backward()
+    torch.testing.assert_close(M.grad, Md.grad, rtol=1e-6, atol=1e-8)
+
+
+def test_sh_rotation_degree_one_matches_rotated_directions():
+    gen = torch.Generator().manual_seed(3)
+    sh = torch.randn(50, 4, 3, generator=gen, dtype=torch.float64)
+    R = random_rotation(gen)
+    d = torch.nn.functional.normalize(torch.randn(50, 3, generator=gen, dtype=torch.float64), dim=-1)
+    # keep colours above the clamp at 0 so the comparison is of the linear SH value
+    sh[:, 0] = 10.0
+    torch.testing.assert_close(eval_sh_colors(rotate_sh_to_world(sh, R), d @ R.T), eval_sh_colors(sh, d))
+
+
+def test_foreground_lifting_matches_projection_and_jacobian():
+    """Step 2-3 by hand: with zero head outputs the Gaussians sit at the cell centres of the particle's box,
+    at planar depth d, and their covariance is (ζ/f)² J diag(s̄²) J in camera axes."""
+    cfg = ModelConfig(**TINY)
+    S = cfg.patch_gaussians
+    cam = cams(1)[0]
+    K, c2w = stack_cameras([cam])
+    raw = torch.zeros(1, S * S, gaussian_channels(0))
+    raw[..., 7] = 1.0  # quaternion w -> identity
+    z_p = torch.tensor([[0.3, -0.2]])
+    z_s = torch.logit(torch.tensor([[0.25, 0.4]]))
+    z_d = torch.tensor([[0.1]])
+    z_e = torch.tensor([[-1.0]])
+    z_t = torch.tensor([[0.7]])
+    f = foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, cfg)
+    W = cfg.resolution
+    d = cfg.d_min + torch.sigmoid(z_d) * (cfg.d_max - cfg.d_min)
+    cells = (torch.arange(S) + 0.5) / S * 2 - 1  # patch-normalised centres
+    gy, gx = torch.meshgrid(cells, cells, indexing="ij")
+    px = ((0.25 * gx + 0.3) + 1) / 2 * W
+    py = ((0.4 * gy - 0.2) + 1) / 2 * W
+    uv, z = cam.project(f["means"][0])
+    torch.testing.assert_close(uv, torch.stack([px, py], -1).reshape(-1, 2), rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(z, d.reshape(1).expand(S * S), rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(f["opacities"][0], torch.full((S * S,), 0.7 * 0.5))
+    s_bar = cfg.s_min + 0.5 * (cfg.s_max - cfg.s_min)
+    fx = float(cam.K[0, 0])
+    jac = torch.tensor([0.25 * W / S, 0.4 * W / S, 1.0]) * float(d) / fx
+    expect = torch.diag((jac * s_bar) ** 2)
+    g = Gaussians(f["means"][0], f["quats"][0], f["scales"][0], f["opacities"][0], f["sh"][0],
+                  torch.zeros(S * S, dtype=torch.int64))
+    R = cam.R
+    cov_cam = R.T @ g.covariances() @ R
+    torch.testing.assert_close(cov_cam, expect.expand(S * S, 3, 3), rtol=1e-4, atol=1e-6)
+
+
+def test_ray_dirs_match_camera_rays():
+    cam = cams(1)[0]
+    K, c2w = stack_cameras([cam])
+    uv = torch.rand(1, 10, 2) * 32
+    _, d = cam.rays(uv[0])
+    torch.testing.assert_close(ray_dirs(uv, K, c2w)[0], d, rtol=1e-5, atol=1e-6)
+
+
+# ------------------------------------------------------------------ the scene API
+def scene_inputs(n_views: int = 2, size: int = 32):
+    gen = torch.Generator().manual_seed(5)
+    rgb = torch.rand(n_views, 3, size, size, generator=gen)
+    depth = 2.5 + torch.rand(n_views, 1, size, size, generator=gen)
+    return rgb, depth, cams(n_views, size)
+
+
+@pytest.mark.parametrize("n_views,with_depth", [(2, True), (1, True), (2, False), (1, False)])
+def test_encode_shapes(n_views, with_depth):
+    m = tiny_model()
+    rgb, depth, cs = scene_inputs(n_views)
+    p = m.encode(rgb, depth if with_depth else None, cs)
+    L = n_views * m.config.particles_per_view
+    assert p.z_p.shape == (L, 2) and p.z_s.shape == (L, 2) and p.z_d.shape == (L, 1)
+    assert p.z_e.shape == (L, 1) and p.z_t.shape == (L, 1) and p.z_f.shape == (L, m.config.d_obj)
+    assert p.view.tolist() == sorted(p.view.tolist()) and int(p.view.max()) == n_views - 1
+    assert p.background.shape == (n_views, m.config.d_bg, 4, 4)
+    assert bool(((p.z_t >= 0) & (p.z_t <= 1)).all())
+    g = m.decode(p)
+    S2 = m.config.patch_gaussians ** 2
+    assert len(g) == L * S2 + n_views * (32 // m.config.bg_block) ** 2
+    assert torch.isfinite(g.means).all() and torch.isfinite(g.scales).all()
+
+
+def test_encode_rejects_wrong_size():
+    m = tiny_model()
+    rgb, depth, cs = scene_inputs(2, 16)
+    with pytest.raises(ValueError, match="32x32"):
+        m.encode(rgb, depth, cs)
+
+
+def test_subset_decode_equals_full_decode_restricted():
+    m = tiny_model()
+    rgb, depth, cs = scene_inputs(2)
+    p = m.encode(rgb, depth, cs)
+    full = m.decode(p)
+    idx = torch.tensor([4, 1])
+    sub = m.decode(p, idx, background=False)
+    assert sorted(set(sub.owner.tolist())) == [1, 4]
+    for i in (1, 4):
+        a, b = full.of_owner(i), sub.of_owner(i)
+        for name in ("means", "quats", "scales", "opacities", "sh"):
+            torch.testing.assert_close(getattr(b, name), getattr(a, name))
+    assert (full.owner == -1).sum() == 2 * (32 // m.config.bg_block) ** 2
+    assert not bool((sub.owner == -1).any())
+
+
+def test_decode_thresholds_prune():
+    m = tiny_model()
+    rgb, depth, cs = scene_inputs(2)
+    p = m.encode(rgb, depth, cs)
+    p = p.with_attribute(0, "z_t", [0.05]).with_attribute(2, "z_t", [0.9])
+    g = m.decode(p, z_t_threshold=0.1)
+    assert 0 not in g.owner.tolist() and 2 in g.owner.tolist()
+    full = m.decode(p)
+    thr = float(full.opacities.median())
+    g2 = m.decode(p, opacity_threshold=thr)
+    assert len(g2) == int((full.opacities >= thr).sum()) and bool((g2.opacities >= thr).all())
+
+
+def test_edit_moves_only_that_particle():
+    m = tiny_model()
+    rgb, depth, cs = scene_inputs(2)
+    p = m.encode(rgb, depth, cs)
+    before = m.decode(p)
+    moved = m.decode(p.with_attribute(3, "z_p", p.z_p[3] + torch.tensor([0.2, 0.0])))
+    assert not torch.allclose(moved.of_owner(3).means, before.of_owner(3).means)
+    torch.testing.assert_close(moved.of_owner([0, 1, 2, 4, 5, -1]).means, before.of_owner([0, 1, 2, 4, 5, -1]).means)
+
+
+# ------------------------------------------------------------------ loss terms
+def test_kl_terms_match_torch_distributions():
+    mu, lv = torch.tensor([0.3, -1.0]), torch.tensor([-0.5, 0.2])
+    ref = torch.distributions.kl_divergence(torch.distributions.Normal(mu, torch.exp(0.5 * lv)),
+                                            torch.distributions.Normal(0.1, 0.4))
+    torch.testing.assert_close(kl_normal(mu, lv, 0.1, 0.4), ref)
+    a, b = torch.tensor([0.7, 3.0], dtype=torch.float64), torch.tensor([2.0, 0.4], dtype=torch.float64)
+    ref = torch.distributions.kl_divergence(torch.distributions.Beta(a, b), torch.distributions.Beta(
+        torch.tensor(0.01, dtype=torch.float64), torch.tensor(0.01, dtype=torch.float64)))
+    torch.testing.assert_close(kl_beta(a, b, 0.01, 0.01), ref)
+
+
+def test_scene_kl_masks_geometry_but_not_transparency():
+    m = tiny_model()
+    rgb, depth, cs = scene_inputs(2)
+    K, c2w = stack_cameras(cs)
+    post = m.posterior(rgb[None], depth[None], K[None], c2w[None])
+    cfg = m.config
+    zero = scene_kl(post, torch.zeros(1, 6, 1), cfg, beta_f=1.0)
+    t_only = kl_beta(post["beta_a"], post["beta_b"], cfg.prior_t_a, cfg.prior_t_b).sum()
+    bg = kl_normal(post["mu_bg"], post["lv_bg"], 0.0, 1.0).sum()
+    torch.testing.assert_close(zero, (t_only + bg)[None])
+    one = scene_kl(post, torch.ones(1, 6, 1), cfg, beta_f=0.5)
+    geo = (kl_normal(post["mu_o"], post["lv_o"], 0.0, cfg.prior_offset_std).sum()
+           + kl_normal(post["mu_s"], post["lv_s"], cfg.logit_prior_scale, cfg.prior_scale_std).sum()
+           + kl_normal(post["mu_d"], post["lv_d"], 0.0, 1.0).sum()
+           + kl_normal(post["mu_e"], post["lv_e"], cfg.logit_prior_extent, cfg.prior_extent_std).sum())
+    feat = kl_normal(post["mu_f"], post["lv_f"], 0.0, 1.0).sum()
+    torch.testing.assert_close(one, (geo + 0.5 * feat + t_only + 0.5 * bg)[None], rtol=1e-5, atol=1e-3)
+
+
+def test_view_error_ignores_unsupervised_and_depthless_pixels():
+    rgb = torch.zeros(1, 3, 4, 4)
+    hat = torch.zeros(1, 3, 4, 4)
+    hat[..., 0, 0] = 1.0  # wrong pixel, unsupervised
+    mask = torch.ones(1, 1, 4, 4)
+    mask[..., 0, 0] = 0
+    depth = torch.full((1, 1, 4, 4), 2.0)
+    depth[..., 1, 1] = 0.0  # no ground truth here
+    dhat = torch.full((1, 1, 4, 4), 2.0)
+    dhat[..., 1, 1] = 9.0
+    dhat[..., 2, 2] = 3.0
+    err = view_error(hat, rgb, dhat, depth, mask, lambda_depth=0.5)
+    torch.testing.assert_close(err, torch.tensor([0.5]))
+
+
+# ------------------------------------------------------------------ config and checkpoints
+def test_config_errors_name_file_and_key(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("model:\n  resolution: 64\n  particles: 3\n")
+    with pytest.raises(ConfigError, match=r"c\.yaml: model: unknown key\(s\) particles"):
+        load_config(p)
+    p.write_text("model:\n  resolution: 60\n")
+    with pytest.raises(ConfigError, match="model.resolution"):
+        load_config(p)
+    p.write_text("train:\n  lr: fast\n")
+    with pytest.raises(ConfigError, match="train.lr"):
+        load_config(p)
+
+
+def test_checkpoint_round_trip_and_errors(tmp_path):
+    m = tiny_model(seed=3)
+    path = tmp_path / "m.pt"
+    save_checkpoint(path, m, step=7)
+    m2 = load_model(path)
+    assert m2.config == m.config
+    rgb, depth, cs = scene_inputs(2)
+    a, b = m.decode(m.encode(rgb, depth, cs)), m2.decode(m2.encode(rgb, depth, cs))
+    torch.testing.assert_close(a.means, b.means)
+    with pytest.raises(FileNotFoundError, match="nope.pt"):
+        load_model(tmp_path / "nope.pt")
+    torch.save({"config": {}, "step": 1}, tmp_path / "bad.pt")
+    with pytest.raises(ValueError, match="bad.pt: checkpoint has no 'state_dict'"):
+        load_model(tmp_path / "bad.pt")
+
+
+def test_shipped_model_loads_and_matches_its_yaml():
+    from importlib.resources import files
+
+    import yaml
+
+    m = load_model()
+    shipped = yaml.safe_load(files("particlesplat.assets").joinpath("model.yaml").read_text())
+    from dataclasses import asdict
+
+    cfg = asdict(m.config)
+    for k, v in shipped["model"].items():
+        assert cfg[k] == v, k
+    size = m.config.resolution
+    rgb, depth, _ = scene_inputs(2, size)
+    p = m.encode(rgb, depth, cams(2, size))
+    assert math.isfinite(float(m.decode(p).means.sum()))
