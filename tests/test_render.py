@@ -429,15 +429,18 @@ def test_hard_zero_scale() -> None:
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_hard_needles(seed: int) -> None:
+@pytest.mark.parametrize("shape", [(1e-6, 1.0, 1.0), (1.0, 1e-6, 1e-6)], ids=["flat", "stick"])
+def test_hard_needles(seed: int, shape: tuple[float, float, float]) -> None:
+    """Degenerate ellipsoids (1e-6 x 1 x 1 m, and 1 x 1e-6 x 1e-6 m) at random orientations."""
     gen = torch.Generator().manual_seed(seed)
     n = 12
     means = (torch.rand(n, 3, generator=gen, dtype=F64) - 0.5) * torch.tensor([2.0, 1.2, 1.0], dtype=F64)
     means[:, 2] += 3.0
-    scales = torch.tensor([[1e-6, 1.0, 1.0]], dtype=F64).repeat(n, 1)[:, torch.randperm(3, generator=gen)]
-    gs = make(means, torch.randn(n, 4, generator=gen, dtype=F64), scales * 0.3,
+    scales = torch.tensor([shape], dtype=F64).repeat(n, 1)[:, torch.randperm(3, generator=gen)]
+    gs = make(means, torch.randn(n, 4, generator=gen, dtype=F64), scales,
               0.2 + 0.7 * torch.rand(n, generator=gen, dtype=F64), degree=1, seed=seed)
-    check_against_reference(gs, pinhole(), background=BG)
+    ref = check_against_reference(gs, pinhole(), background=BG)
+    assert ref.alpha.max() > 0.5
 
 
 def test_hard_zero_quaternion_is_identity() -> None:
@@ -613,3 +616,109 @@ def test_memory_is_bounded_for_200k_gaussians() -> None:
     grew_mb, mean_alpha = out.stdout.split()
     assert float(mean_alpha) > 0.5
     assert int(grew_mb) < 1500, f"peak memory grew by {grew_mb} MB"
+
+
+# ---------------------------------------------------------------------------------------------- many tiles
+def test_many_gaussians_many_tiles_with_termination() -> None:
+    """400 Gaussians over a 64x48 image: long, uneven per-tile lists, many pixels terminating."""
+    gs, cam = random_scene(7, 400, 1, width=64, height=48)
+    gs = make(gs.means, gs.quats, gs.scales * 1.5, 0.6 + 0.39 * torch.rand(400, generator=torch.Generator()
+                                                                            .manual_seed(0), dtype=F64),
+              gs.sh, gs.owner)
+    ref = check_against_reference(gs, cam, background=BG)
+    assert (ref.transmittance < 2e-3).float().mean() > 0.05  # termination is exercised
+
+
+def test_long_thin_splats_across_tiles() -> None:
+    """Elongated footprints at random orientations: the tile bounds must hold the whole α >= 1/255 set."""
+    gen = torch.Generator().manual_seed(4)
+    n = 30
+    cam = pinhole(64, 48, 50.0)
+    means = torch.cat([(torch.rand(n, 2, generator=gen, dtype=F64) - 0.5) * 2.0,
+                       2.5 + torch.rand(n, 1, generator=gen, dtype=F64)], dim=1)
+    scales = torch.tensor([[0.6, 0.01, 0.02]], dtype=F64).repeat(n, 1)
+    gs = make(means, torch.randn(n, 4, generator=gen, dtype=F64), scales,
+              0.5 + 0.5 * torch.rand(n, generator=gen, dtype=F64), degree=0)
+    check_against_reference(gs, cam, background=BG)
+
+
+def test_many_exact_depth_ties_across_tiles() -> None:
+    gen = torch.Generator().manual_seed(5)
+    n = 60
+    means = torch.cat([(torch.rand(n, 2, generator=gen, dtype=F64) - 0.5) * torch.tensor([1.4, 1.0], dtype=F64),
+                       torch.full((n, 1), 2.0, dtype=F64)], dim=1)
+    means[n // 2:, 2] = 3.0
+    gs = make(means, torch.randn(n, 4, generator=gen, dtype=F64),
+              0.05 + 0.15 * torch.rand(n, 3, generator=gen, dtype=F64),
+              0.3 + 0.69 * torch.rand(n, generator=gen, dtype=F64), degree=0, seed=5)
+    cam = pinhole(48, 40, 30.0)
+    check_against_reference(gs, cam, background=BG)
+    perm = torch.randperm(n, generator=gen)
+    check_against_reference(gs.subset(perm), cam, background=BG, grads=False)
+
+
+def test_far_plane_is_strict() -> None:
+    cam = pinhole()
+    gs = make([[0.0, 0.0, 4.0], [0.1, 0.0, 3.0], [0.0, 0.1, 5.0]], scales=[[0.3] * 3] * 3, opacities=[0.8] * 3)
+    ref = check_against_reference(gs, cam, background=BG, far=4.0)
+    only = reference_render(gs.subset(torch.tensor([1])), cam, background=BG)
+    torch.testing.assert_close(ref.rgb, only.rgb, atol=0, rtol=0)
+
+
+def test_non_contiguous_inputs_and_tensor_background() -> None:
+    gs, cam = random_scene(8, 30, 2)
+    nc = Gaussians(gs.means.T.contiguous().T, gs.quats.T.contiguous().T, gs.scales.T.contiguous().T,
+                   torch.stack([gs.opacities, gs.opacities])[0], gs.sh.transpose(1, 2).contiguous().transpose(1, 2),
+                   gs.owner)
+    assert not nc.means.is_contiguous() and not nc.sh.is_contiguous()
+    check_against_reference(nc, cam, background=torch.tensor(BG))
+
+
+def test_render_batch_matches_reference_per_view() -> None:
+    """Several views (different sizes, cameras and Gaussian sets) in one pass: each view is the brute force."""
+    from particlesplat.render import render_batch
+
+    g1, c1 = random_scene(9, 40, 1, width=37, height=23)
+    g2, c2 = random_scene(10, 25, 1, width=16, height=29)
+    views = [(g1, c1.to(dtype=F32)), (g2, c2.to(dtype=F32)), (g1, Camera.orbit((0.0, 0.0, 0.0), 40.0, 20.0, 4.0,
+                                                                                width=20, height=20))]
+    d1, l1 = leaves(g1, F32)
+    d2, l2 = leaves(g2, F32)
+    out = render_batch([(l1, views[0][1]), (l2, views[1][1]), (l1, views[2][1])], background=BG,
+                       owner_weights=True, num_owners=4)
+    assert len(out) == 3
+    r1, r2 = leaves(g1, F64), leaves(g2, F64)
+    refs = [reference_render(g, cam, background=BG, num_owners=4) for g, cam in
+            ((r1[1], views[0][1]), (r2[1], views[1][1]), (r1[1], views[2][1]))]
+    loss = 0.0
+    loss_ref = 0.0
+    for k, (res, ref) in enumerate(zip(out, refs)):
+        assert_images_close(res, ref, 1e-5)
+        assert (res.owner_weights.double() - ref.owner_weights).abs().max() <= 1e-5
+        wts = weights(ref.alpha.shape[0], ref.alpha.shape[1], seed=k)
+        loss = loss + loss_of(res, wts)
+        loss_ref = loss_ref + loss_of(ref, wts)
+    loss.backward()
+    loss_ref.backward()
+    assert_grads_close(d1, r1[0], rtol=2e-4, atol=1e-6)
+    assert_grads_close(d2, r2[0], rtol=2e-4, atol=1e-6)
+    assert render_batch([]) == []
+
+
+def test_faint_splats_at_tile_corners() -> None:
+    """Opacities just above 1/255: each reaches the threshold only at a few pixels, placed around
+    the 8-, 16-pixel grid corners; every such pixel must be shaded (tile lists must not drop it)."""
+    gen = torch.Generator().manual_seed(11)
+    n = 300
+    W, H, f, z = 64, 48, 40.0, 2.0
+    cam = pinhole(W, H, f)
+    corner = torch.stack([torch.randint(1, W // 8, (n,), generator=gen), torch.randint(1, H // 8, (n,), generator=gen)],
+                         -1).to(F64) * 8
+    uv = corner + (torch.rand(n, 2, generator=gen, dtype=F64) - 0.5) * 4.0
+    xy = (uv - torch.tensor([W / 2, H / 2], dtype=F64)) / f * z
+    means = torch.cat([xy, z + 0.01 * torch.arange(n, dtype=F64)[:, None] / n], dim=1)
+    scales = (0.5 + 2.5 * torch.rand(n, 3, generator=gen, dtype=F64)) * z / f
+    opac = (1.0 + 3.0 * torch.rand(n, generator=gen, dtype=F64)) / 255
+    gs = make(means, torch.randn(n, 4, generator=gen, dtype=F64), scales, opac, degree=0, seed=11)
+    ref = check_against_reference(gs, cam, background=BG, grads=False)
+    assert (ref.alpha > 0).sum() > 300
