@@ -1,0 +1,53 @@
+"""Encode a scene folder into particles the way the viewer and ``particlesplat render`` do."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+
+from .data import Scene, read_scene
+from .model import ParticleSplat, Particles
+from .views import default_context_views
+
+
+@dataclass
+class EncodedScene:
+    """Particles of a scene folder and what they came from.
+
+    Attributes:
+        particles: the encoded particles (posterior means).
+        scene: the context views at the model's resolution.
+        all_cameras: every camera of the folder at its native size (for the default view and
+            snapping to input views).
+        context: the context frame indices in the folder.
+        path: the scene folder.
+    """
+
+    particles: Particles
+    scene: Scene
+    all_cameras: list
+    context: list[int]
+    path: Path
+
+
+def parse_context(text: str | None) -> list[int] | None:
+    """``"4,16"`` -> [4, 16]; None stays None (use the default)."""
+    if text is None or str(text).strip() == "":
+        return None
+    try:
+        return [int(v) for v in str(text).split(",")]
+    except ValueError:
+        raise ValueError(f"--context: expected comma-separated frame indices, got {text!r}") from None
+
+
+def encode_scene(model: ParticleSplat, path: str | PathLike, context: list[int] | None = None,
+                 use_depth: bool = True) -> EncodedScene:
+    """Load ``path`` (a scene folder), pick the context frames (default
+    :func:`particlesplat.views.default_context_views`) and encode them with ``model``."""
+    raw = read_scene(path)
+    ctx = default_context_views(raw.num_frames) if context is None else list(context)
+    scene = raw.select(ctx, model.config.resolution)
+    depth = scene.depth if use_depth and scene.depth is not None and bool((scene.depth > 0).any()) else None
+    particles = model.encode(scene.rgb, depth, scene.cameras)
+    return EncodedScene(particles, scene, list(raw.cameras), ctx, Path(raw.path))

@@ -1,0 +1,418 @@
+"""``particlesplat-viewer``: the desktop app (glfw window, moderngl, imgui-bundle native backends).
+
+The frame loop only pumps events and draws frames. Panels and mouse tools change the session
+(edits, do/undo) and the view state; :class:`~viewer.scene_view.SceneView` re-renders only
+when those or the camera changed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from imgui_bundle import imgui  # import before glfw so both use the same GLFW library
+
+import glfw  # noqa: E402  (after imgui_bundle on purpose)
+import moderngl  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from particlesplat.camera import Camera  # noqa: E402
+from particlesplat.views import DEFAULT_FOV, View, check_fov, default_view, parse_look  # noqa: E402
+
+from .gl_renderer import SplatRenderer  # noqa: E402
+from .loading import load_session, particle_swatches  # noqa: E402
+from .orbit import OrbitCamera  # noqa: E402
+from .panel import UiFields, UiRequests, draw_overlay, draw_panel  # noqa: E402
+from .scene_view import SceneView  # noqa: E402
+from .screenshot import export_ply, png_text, save_png, save_screenshot  # noqa: E402
+from .session import SceneSession  # noqa: E402
+from .state import SEG_MODES, ViewState  # noqa: E402
+
+STILL_AFTER = 0.2  # seconds without interaction before rendering at full scale
+ORBIT_STEP = 1.0  # degrees per frame with --orbit
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"WxH"`` -> (W, H)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--size: expected WxH, e.g. 1024x768, got {text!r}") from None
+    if not (16 <= w <= 8192 and 16 <= h <= 8192):
+        raise argparse.ArgumentTypeError(f"--size: width and height must be in [16, 8192], got {text!r}")
+    return w, h
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="particlesplat-viewer",
+                                description="View and edit ParticleSplat scenes: orbit, select and drag particles, "
+                                            "segment, screenshot.",
+                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--checkpoint", help="model checkpoint (default: the shipped assets/model.pt)")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--scene", help="scene folder to encode (default: the first demo scene in assets/scenes)")
+    src.add_argument("--ply", help="open a 3DGS .ply instead of a model scene (no particle editing)")
+    p.add_argument("--context", help="context frame indices of the scene, e.g. 4,16 (default: two frames 12 apart "
+                                     "about the middle)")
+    p.add_argument("--edits", help="edits YAML to apply at start")
+    p.add_argument("--frames", type=int, help="run N frames, print the median frame time and exit")
+    p.add_argument("--screenshot", help="with --frames: save the last render (no UI) to this PNG")
+    p.add_argument("--size", type=parse_size, default=(1280, 800), help="window size WxH")
+    p.add_argument("--orbit", action="store_true", help="turn the camera a little every frame")
+    p.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
+    p.add_argument("--fov", type=float, help=f"vertical field of view in degrees (default: the scene's, or "
+                                             f"{DEFAULT_FOV:g})")
+    p.add_argument("--primitive", choices=("quads", "points"), default="quads",
+                   help="splat primitive: exact oriented quads or point sprites (clipped at the driver's size limit)")
+    p.add_argument("--output-dir", default=".", help="folder for screenshots, .ply exports")
+    p.add_argument("--no-ui", action="store_true", help="start with the panel hidden (H toggles)")
+    return p
+
+
+def initial_view(session: SceneSession, look: str | None, fov: float | None) -> View:
+    """Default view of the session, with ``--look`` / ``--fov`` applied."""
+    base = default_view(session.cameras or None, None if session.cameras else session.gaussians())
+    lk = parse_look(look) if look else base.look
+    return View(base.target, lk, check_fov(fov) if fov is not None else base.fov)
+
+
+@dataclass
+class Interaction:
+    """Mouse-gesture bookkeeping of the viewport."""
+
+    last_move: float = 0.0
+    press_pos: tuple[float, float] | None = None
+    dragged: bool = False
+    particle_center: torch.Tensor | None = None
+    frame_times: list[float] = field(default_factory=list)
+
+
+class App:
+    """One window: its GL context, renderer, session, state and UI."""
+
+    def __init__(self, window, session: SceneSession, view: View, args: argparse.Namespace) -> None:
+        self.window = window
+        self.ctx = moderngl.create_context()
+        self.args = args
+        self.scene_view = SceneView(SplatRenderer(self.ctx, primitive=args.primitive, color_dtype="f4"))
+        self.session = session
+        self.orbit = OrbitCamera.from_view(view)
+        self.state = ViewState(panel=not args.no_ui)
+        self.req = UiRequests()
+        self.fields = UiFields(output_dir=args.output_dir)
+        self.inter = Interaction()
+        self.swatches = particle_swatches(session)
+
+    # ------------------------------------------------------------------ frame
+    def framebuffer_size(self) -> tuple[int, int]:
+        w, h = glfw.get_framebuffer_size(self.window)
+        return max(int(w), 1), max(int(h), 1)
+
+    def render_scale(self) -> float:
+        moving = time.perf_counter() - self.inter.last_move < STILL_AFTER
+        return self.state.moving_scale if moving else 1.0
+
+    def view_camera(self, scale: float = 1.0) -> Camera:
+        w, h = self.framebuffer_size()
+        return self.orbit.camera(max(1, round(w * scale)), max(1, round(h * scale)))
+
+    def frame(self, show_ui: bool = True) -> None:
+        """One frame: UI, input, render if changed, present."""
+        from imgui_bundle.imgui import backends
+
+        backends.opengl3_new_frame()
+        backends.glfw_new_frame()
+        imgui.new_frame()
+        if show_ui:
+            self.handle_input()
+            if self.state.panel:
+                drawn = self.scene_view.renderer.visible_count
+                draw_panel(self.session, self.state, self.req, self.fields, self.swatches,
+                           (drawn, self.scene_view.renderer.num))
+            if self.state.overlay:
+                draw_overlay(self.overlay_lines())
+        imgui.render()
+        self.process_requests()
+        self.scene_view.draw(self.session, self.state, self.view_camera(self.render_scale()))
+        fw, fh = self.framebuffer_size()
+        self.ctx.screen.use()
+        self.ctx.viewport = (0, 0, fw, fh)
+        self.scene_view.present(self.state, (0, 0, fw, fh))
+        backends.opengl3_render_draw_data(imgui.get_draw_data())
+        glfw.swap_buffers(self.window)
+
+    def overlay_lines(self) -> list[str]:
+        t = self.inter.frame_times[-30:]
+        ms = float(np.median(t)) * 1e3 if t else 0.0
+        r = self.scene_view.renderer
+        lines = [f"{ms:6.1f} ms/frame  (splat {self.scene_view.last_times.draw_ms:.1f} ms, "
+                 f"scale {self.render_scale():.2f})",
+                 f"{r.visible_count:,} of {r.num:,} Gaussians"]
+        if self.session.editable:
+            active = sum(self.session.is_active(i) for i in range(self.session.num_particles))
+            lines.append(f"{active} of {self.session.num_particles} particles active"
+                         + (f", selected {self.state.selected}" if self.state.selected is not None else ""))
+        lines.append(f"mode: {self.state.seg_mode}")
+        return lines
+
+    # ------------------------------------------------------------------ input
+    def handle_input(self) -> None:
+        io = imgui.get_io()
+        sx, sy = self.pixel_ratio()
+        if not io.want_capture_mouse:
+            self._mouse(io, sx, sy)
+        if not io.want_capture_keyboard:
+            self._keys(io)
+
+    def pixel_ratio(self) -> tuple[float, float]:
+        ww, wh = glfw.get_window_size(self.window)
+        fw, fh = self.framebuffer_size()
+        return fw / max(ww, 1), fh / max(wh, 1)
+
+    def _mouse(self, io, sx: float, sy: float) -> None:
+        now = time.perf_counter()
+        dx, dy = io.mouse_delta.x * sx, io.mouse_delta.y * sy
+        if io.mouse_wheel:
+            self.orbit.zoom(io.mouse_wheel)
+            self.inter.last_move = now
+        if imgui.is_mouse_clicked(imgui.MouseButton_.left):
+            self.inter.press_pos = (io.mouse_pos.x, io.mouse_pos.y)
+            self.inter.dragged = False
+            self.inter.particle_center = None
+        if imgui.is_mouse_down(imgui.MouseButton_.left) and self.inter.press_pos is not None and (dx or dy):
+            px, py = self.inter.press_pos
+            if abs(io.mouse_pos.x - px) + abs(io.mouse_pos.y - py) > 3:
+                self.inter.dragged = True
+            if self.inter.dragged:
+                sel = self.state.selected
+                if io.key_shift and sel is not None and self.session.editable:
+                    self.drag_particle_plane(sel, dx, dy)
+                elif io.key_ctrl and sel is not None and self.session.editable:
+                    self.session.set_attribute(sel, "z_d", [self.session.value(sel, "z_d")[0] - dy * 0.01],
+                                               gesture="depth-drag")
+                else:
+                    self.orbit.orbit(dx, dy)
+                self.inter.last_move = now
+        if imgui.is_mouse_released(imgui.MouseButton_.left) and self.inter.press_pos is not None:
+            if not self.inter.dragged:
+                self.pick(io.mouse_pos.x * sx, io.mouse_pos.y * sy)
+            self.session.end_gesture()
+            self.inter.press_pos = None
+        for button in (imgui.MouseButton_.right, imgui.MouseButton_.middle):
+            if imgui.is_mouse_dragging(button) and (dx or dy):
+                self.orbit.pan(dx, dy, self.framebuffer_size()[1])
+                self.inter.last_move = now
+
+    def pick(self, x: float, y: float) -> None:
+        """Select the particle owning framebuffer pixel (x, y) (nothing on background)."""
+        scale = 1.0
+        cam = self.view_camera(scale)
+        owner = self.scene_view.pick(self.session, cam, int(x), int(y))
+        self.state.selected = owner if owner >= 0 and self.session.editable else None
+
+    def drag_particle_plane(self, index: int, dx: float, dy: float) -> None:
+        """Move particle ``index`` so it follows a screen drag of (dx, dy) framebuffer pixels:
+        the world motion at the particle's depth is projected into its own context view."""
+        if self.inter.particle_center is None:
+            g = self.session.particle_gaussians(index)
+            w = g.opacities.clamp_min(1e-6)
+            self.inter.particle_center = (g.means * w[:, None]).sum(0) / w.sum()
+        center = self.inter.particle_center.double()
+        fw, fh = self.framebuffer_size()
+        view_cam = self.orbit.camera(fw, fh)
+        R = view_cam.c2w[:3, :3].double()
+        depth = float((view_cam.world_to_camera(center[None].float())[0, 2]).clamp_min(1e-3))
+        f = float(view_cam.fy)
+        moved = center + (R[:, 0] * dx + R[:, 1] * dy) * depth / f
+        ctx_view = int(self.session.particles.view[index])
+        cam = self.session.particles.cameras[ctx_view]
+        uv0, _ = cam.project(center[None].to(cam.dtype))
+        uv1, _ = cam.project(moved[None].to(cam.dtype))
+        duv = (uv1 - uv0)[0].double()
+        zp = self.session.value(index, "z_p")
+        new = [zp[0] + 2.0 * float(duv[0]) / cam.width, zp[1] + 2.0 * float(duv[1]) / cam.height]
+        self.session.set_attribute(index, "z_p", new, gesture="plane-drag")
+        self.inter.particle_center = moved
+
+    def _keys(self, io) -> None:
+        K = imgui.Key
+        ctrl = io.key_ctrl
+        if ctrl and imgui.is_key_pressed(K.z):
+            (self.session.redo if io.key_shift else self.session.undo)()
+        elif ctrl and imgui.is_key_pressed(K.y):
+            self.session.redo()
+        elif ctrl and imgui.is_key_pressed(K.s) and self.session.editable:
+            self.req.save_edits = True
+        if ctrl:
+            return
+        if imgui.is_key_pressed(K.r, False):
+            self.req.reset_view = True
+        if imgui.is_key_pressed(K.p, False) or imgui.is_key_pressed(K.f12, False):
+            self.req.screenshot = True
+        if imgui.is_key_pressed(K.e, False):
+            self.req.export_ply = True
+        if imgui.is_key_pressed(K.h, False):
+            self.state.panel = not self.state.panel
+        if imgui.is_key_pressed(K.o, False):
+            self.state.overlay = not self.state.overlay
+        if imgui.is_key_pressed(K.m, False):
+            self.state.seg_mode = SEG_MODES[(SEG_MODES.index(self.state.seg_mode) + 1) % len(SEG_MODES)]
+        if imgui.is_key_pressed(K.escape, False):
+            self.state.selected = None
+        digits = [K._1, K._2, K._3, K._4, K._5, K._6, K._7, K._8, K._9]
+        for i, key in enumerate(digits):
+            if imgui.is_key_pressed(key, False):
+                self.req.snap_camera = i
+
+    # ------------------------------------------------------------------ requests
+    def process_requests(self) -> None:
+        req, self.req = self.req, UiRequests()
+        try:
+            if req.reset_view:
+                self.orbit.reset()
+            if req.snap_camera is not None and req.snap_camera < len(self.session.cameras):
+                self.orbit.snap(self.session.cameras[req.snap_camera])
+            if req.open_path:
+                self.open(req.open_path)
+            if req.save_edits:
+                self.session.save_edits(self.fields.edits_path)
+                self.fields.status = f"saved edits to {self.fields.edits_path}"
+            if req.load_edits:
+                self.session.load_edits(self.fields.edits_path)
+                self.fields.status = f"loaded edits from {self.fields.edits_path}"
+            if req.screenshot:
+                path = self.screenshot_numbered()
+                self.fields.status = f"saved {path}"
+            if req.export_ply:
+                path = export_ply(self.fields.output_dir, self.scene_view.visible_gaussians(self.session, self.state))
+                self.fields.status = f"exported {path}"
+        except (OSError, ValueError, KeyError, IndexError) as e:  # bad paths or files: show, keep running
+            self.fields.status = f"error: {e}"
+
+    def open(self, path: str) -> None:
+        """Open a scene folder or a .ply (replaces the session)."""
+        p = Path(path)
+        args = argparse.Namespace(**vars(self.args))
+        args.scene, args.ply, args.edits, args.context = (None, str(p), None, None) if p.suffix == ".ply" else (
+            str(p), None, None, None)
+        self.session = load_session(args)
+        self.swatches = particle_swatches(self.session)
+        self.state = ViewState(panel=self.state.panel, overlay=self.state.overlay, background=self.state.background)
+        view = initial_view(self.session, None, None)
+        self.orbit = OrbitCamera.from_view(view)
+        self.fields.status = f"opened {p}"
+
+    def shot_camera(self) -> Camera:
+        w, h = self.fields.shot_size
+        if w > 0 and h > 0:
+            return self.orbit.camera(w, h)
+        return self.view_camera(1.0)
+
+    def screenshot_image(self, camera: Camera) -> np.ndarray:
+        return self.scene_view.image(self.session, self.state, camera)
+
+    def screenshot_text(self, camera: Camera) -> dict[str, str]:
+        look = self.orbit.view.look
+        return png_text(camera, self.session.edits(), self.session.model_name,
+                        {"look": f"{look.azimuth:.6g},{look.elevation:.6g},{look.distance:.6g}",
+                         "fov": f"{self.orbit.view.fov:.6g}", "scene": self.session.source,
+                         "segmentation": self.state.seg_mode})
+
+    def screenshot_numbered(self) -> Path:
+        cam = self.shot_camera()
+        return save_screenshot(self.fields.output_dir, self.screenshot_image(cam), self.screenshot_text(cam))
+
+    # ------------------------------------------------------------------ loop
+    def run(self, frames: int | None = None, orbit: bool = False) -> list[float]:
+        """Run until the window closes (or ``frames`` frames); returns per-frame seconds."""
+        times = self.inter.frame_times
+        last = time.perf_counter()
+        n = 0
+        while not glfw.window_should_close(self.window) and (frames is None or n < frames):
+            if frames is None and time.perf_counter() - self.inter.last_move > 1.0:
+                glfw.wait_events_timeout(0.05)  # idle: sleep until input
+            else:
+                glfw.poll_events()
+            if orbit:
+                self.orbit.turn(ORBIT_STEP)
+            self.frame(show_ui=frames is None or not self.args.no_ui)
+            now = time.perf_counter()
+            times.append(now - last)
+            last = now
+            n += 1
+        return times
+
+
+def create_window(size: tuple[int, int], title: str = "ParticleSplat Studio"):
+    """A glfw window with a GL 3.3 core context (current) and imgui's native backends."""
+    from imgui_bundle.imgui import backends
+
+    if not glfw.init():
+        raise RuntimeError("glfw.init() failed: no display? (run under xvfb-run for headless use)")
+    glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
+    glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
+    glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+    glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
+    window = glfw.create_window(size[0], size[1], title, None, None)
+    if not window:
+        glfw.terminate()
+        raise RuntimeError("could not create a GL 3.3 core window")
+    glfw.make_context_current(window)
+    glfw.swap_interval(0)
+    imgui.create_context()
+    imgui.get_io().config_flags |= imgui.ConfigFlags_.nav_enable_keyboard
+    imgui.get_io().set_ini_filename("")
+    backends.glfw_init_for_opengl(ctypes.cast(window, ctypes.c_void_p).value, True)
+    backends.opengl3_init("#version 330")
+    return window
+
+
+def destroy_window(window) -> None:
+    from imgui_bundle.imgui import backends
+
+    backends.opengl3_shutdown()
+    backends.glfw_shutdown()
+    imgui.destroy_context()
+    glfw.destroy_window(window)
+    glfw.terminate()
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.screenshot and args.frames is None:
+        print("particlesplat-viewer: --screenshot needs --frames", file=sys.stderr)
+        return 2
+    if args.frames is not None and args.frames < 1:
+        print("particlesplat-viewer: --frames must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        session = load_session(args)
+        view = initial_view(session, args.look, args.fov)
+    except (OSError, ValueError, KeyError, IndexError) as e:
+        print(f"particlesplat-viewer: {e}", file=sys.stderr)
+        return 1
+    window = create_window(args.size)
+    try:
+        app = App(window, session, view, args)
+        times = app.run(args.frames, args.orbit)
+        if args.frames is not None:
+            steady = times[1:] if len(times) > 1 else times
+            print(f"median frame time: {float(np.median(steady)) * 1e3:.2f} ms over {len(steady)} frames "
+                  f"({app.scene_view.renderer.visible_count} Gaussians, {app.framebuffer_size()[0]}x"
+                  f"{app.framebuffer_size()[1]}, {app.scene_view.renderer.renderer_string})")
+            if args.screenshot:
+                cam = app.view_camera(1.0)
+                path = save_png(args.screenshot, app.screenshot_image(cam), app.screenshot_text(cam))
+                print(f"saved {path}")
+    finally:
+        destroy_window(window)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

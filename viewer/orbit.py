@@ -1,0 +1,66 @@
+"""Orbit camera about a target (+z up world): orbit, pan, zoom, snap, reset."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import torch
+
+from particlesplat.camera import Camera
+from particlesplat.views import Look, View, look_from_eye
+
+
+@dataclass
+class OrbitCamera:
+    """The viewer's camera state; ``view`` is immutable, every change replaces it."""
+
+    view: View
+    home: View
+
+    @staticmethod
+    def from_view(view: View) -> OrbitCamera:
+        return OrbitCamera(view, view)
+
+    def camera(self, width: int, height: int) -> Camera:
+        """(width x height) camera of the current view."""
+        return self.view.camera(width, height)
+
+    def orbit(self, dx_px: float, dy_px: float, degrees_per_px: float = 0.3) -> None:
+        """Turn about the target: dragging right turns the scene right, dragging down tilts up."""
+        look = self.view.look
+        el = max(-89.0, min(89.0, look.elevation + dy_px * degrees_per_px))
+        self.view = replace(self.view, look=Look(look.azimuth - dx_px * degrees_per_px, el, look.distance))
+
+    def turn(self, degrees: float) -> None:
+        """Add ``degrees`` of azimuth (the ``--orbit`` animation)."""
+        look = self.view.look
+        self.view = replace(self.view, look=Look(look.azimuth + degrees, look.elevation, look.distance))
+
+    def pan(self, dx_px: float, dy_px: float, viewport_height: int) -> None:
+        """Move the target in the image plane so the scene follows the mouse."""
+        cam = self.camera(max(viewport_height, 1), max(viewport_height, 1))
+        metres_per_px = self.view.look.distance * 2.0 * math.tan(math.radians(self.view.fov) / 2.0) / max(
+            viewport_height, 1)
+        R = cam.c2w[:3, :3].double()
+        shift = R[:, 0] * (-dx_px * metres_per_px) + R[:, 1] * (-dy_px * metres_per_px)
+        target = torch.tensor(self.view.target, dtype=torch.float64) + shift
+        self.view = replace(self.view, target=tuple(float(v) for v in target))
+
+    def zoom(self, wheel_steps: float, factor: float = 0.9) -> None:
+        """Scale the distance by ``factor`` per wheel step (positive = closer)."""
+        look = self.view.look
+        dist = max(1e-3, look.distance * factor ** wheel_steps)
+        self.view = replace(self.view, look=Look(look.azimuth, look.elevation, dist))
+
+    def reset(self) -> None:
+        self.view = self.home
+
+    def snap(self, camera: Camera) -> None:
+        """Look from ``camera``'s centre along its axis (target moved onto the axis, at the point
+        closest to the current target) with its vertical field of view."""
+        c2w = camera.c2w.detach().double().cpu()
+        eye, axis = c2w[:3, 3], c2w[:3, 2] / c2w[:3, 2].norm()
+        t = float(torch.dot(torch.tensor(self.home.target, dtype=torch.float64) - eye, axis))
+        target = eye + max(t, 0.1) * axis
+        self.view = View(tuple(float(v) for v in target), look_from_eye(target, eye), camera.fov_y)

@@ -1,0 +1,235 @@
+"""The ImGui panel and overlay. They read the session, view state and UI requests, and change
+them only through their methods and fields; they never touch GL or the renderer."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from importlib.resources import files
+from pathlib import Path
+
+from imgui_bundle import imgui
+
+from particlesplat.model.particles import EDITABLE
+
+from .session import SceneSession
+from .state import SEG_MODES, ViewState
+
+SHORTCUTS = (
+    ("left drag", "orbit"),
+    ("right / middle drag", "pan"),
+    ("wheel", "zoom"),
+    ("click", "select the particle under the cursor"),
+    ("Shift + left drag", "move the selected particle in its image plane (z_p)"),
+    ("Ctrl + left drag", "move the selected particle in depth (z_d)"),
+    ("R", "reset the view"),
+    ("1 .. 9", "snap to input camera 1 .. 9"),
+    ("Ctrl+Z / Ctrl+Shift+Z", "undo / redo"),
+    ("P or F12", "screenshot (no UI)"),
+    ("E", "export the drawn Gaussians to .ply"),
+    ("M", "next segmentation mode"),
+    ("H", "hide / show the panel"),
+    ("O", "hide / show the overlay"),
+    ("Esc", "deselect"),
+)
+
+DRAG_SPEED = {"z_p": 0.005, "z_s": 0.02, "z_d": 0.02, "z_e": 0.02, "z_t": 0.005}
+
+
+@dataclass
+class UiRequests:
+    """Work the panel asks the app to do after the frame (files, scene switches)."""
+
+    open_path: str | None = None
+    screenshot: bool = False
+    export_ply: bool = False
+    save_edits: bool = False
+    load_edits: bool = False
+    snap_camera: int | None = None
+    reset_view: bool = False
+
+
+@dataclass
+class UiFields:
+    """Persistent text/number fields of the panel."""
+
+    scene_path: str = ""
+    edits_path: str = "edits.yaml"
+    output_dir: str = "."
+    shot_size: list[int] = field(default_factory=lambda: [0, 0])
+    status: str = ""
+
+
+def demo_scenes() -> list[Path]:
+    """Scene folders shipped in ``assets/scenes``."""
+    root = Path(str(files("particlesplat.assets").joinpath("scenes")))
+    return sorted(p for p in root.iterdir() if (p / "transforms.json").is_file()) if root.is_dir() else []
+
+
+def draw_overlay(text_lines: list[str]) -> None:
+    """Frame time, Gaussian count and active particles in the top-left corner."""
+    draw = imgui.get_foreground_draw_list()
+    y = 6.0
+    for line in text_lines:
+        draw.add_text(imgui.ImVec2(9.0, y + 1.0), imgui.IM_COL32(0, 0, 0, 255), line)
+        draw.add_text(imgui.ImVec2(8.0, y), imgui.IM_COL32(255, 255, 255, 255), line)
+        y += imgui.get_text_line_height() + 2.0
+
+
+def draw_panel(session: SceneSession, state: ViewState, req: UiRequests, fields: UiFields,
+               swatches: dict[int, tuple[float, float, float]], counts: tuple[int, int]) -> None:
+    """The side panel. ``swatches``: particle colours; ``counts``: (drawn, total) Gaussians."""
+    vp = imgui.get_main_viewport()
+    imgui.set_next_window_pos(imgui.ImVec2(vp.work_pos.x + vp.work_size.x - 410.0, vp.work_pos.y + 8.0),
+                              imgui.Cond_.first_use_ever)
+    imgui.set_next_window_size(imgui.ImVec2(400.0, vp.work_size.y - 16.0), imgui.Cond_.first_use_ever)
+    imgui.begin("ParticleSplat")
+    imgui.push_item_width(-150.0)
+    _scene_section(session, req, fields)
+    _view_section(session, state, req, counts)
+    if session.editable:
+        _particles_section(session, state, swatches)
+        _selected_section(session, state)
+        _edits_section(session, req, fields)
+    _output_section(req, fields)
+    if imgui.collapsing_header("Shortcuts"):
+        for keys, what in SHORTCUTS:
+            imgui.bullet_text(f"{keys}: {what}")
+    if fields.status:
+        imgui.separator()
+        imgui.text_wrapped(fields.status)
+    imgui.pop_item_width()
+    imgui.end()
+
+
+def _scene_section(session: SceneSession, req: UiRequests, fields: UiFields) -> None:
+    if not imgui.collapsing_header("Scene", imgui.TreeNodeFlags_.default_open):
+        return
+    imgui.text_wrapped(f"{session.source}")
+    if session.model_name:
+        imgui.text_wrapped(f"model: {session.model_name}")
+    scenes = demo_scenes()
+    if scenes:
+        names = ["(choose)"] + [p.name for p in scenes]
+        current = 1 + next((i for i, p in enumerate(scenes) if str(p) == session.source), -1)
+        changed, idx = imgui.combo("demo", current, names)
+        if changed and idx != current and idx > 0:
+            req.open_path = str(scenes[idx - 1])
+    _, fields.scene_path = imgui.input_text("folder / .ply", fields.scene_path)
+    if imgui.button("Open") and fields.scene_path.strip():
+        req.open_path = fields.scene_path.strip()
+
+
+def _view_section(session: SceneSession, state: ViewState, req: UiRequests, counts: tuple[int, int]) -> None:
+    if not imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
+        return
+    if imgui.button("Reset view (R)"):
+        req.reset_view = True
+    cams = session.cameras
+    if cams:
+        imgui.text("snap to input camera:")
+        for i in range(len(cams)):
+            if i % 7:
+                imgui.same_line()
+            if imgui.small_button(f"{i + 1}##cam{i}"):
+                req.snap_camera = i
+    changed, idx = imgui.combo("segmentation", SEG_MODES.index(state.seg_mode), list(SEG_MODES))
+    if changed:
+        state.seg_mode = SEG_MODES[idx]
+    changed, value = imgui.slider_float("prune opacity", state.prune, 0.0, 1.0, "%.3f")
+    if changed:
+        state.prune = max(0.0, value)
+    imgui.text(f"Gaussians drawn: {counts[0]:,} of {counts[1]:,}")
+    changed, value = imgui.slider_float("scale while moving", state.moving_scale, 0.25, 1.0, "%.2f")
+    if changed:
+        state.moving_scale = value
+    changed, col = imgui.color_edit3("background", list(state.background))
+    if changed:
+        state.background = tuple(float(c) for c in col)
+
+
+def _particles_section(session: SceneSession, state: ViewState, swatches: dict[int, tuple[float, float, float]]) -> None:
+    if not imgui.collapsing_header("Particles", imgui.TreeNodeFlags_.default_open):
+        return
+    imgui.text("idx  colour  active  visible  solo")
+    for i in range(session.num_particles):
+        imgui.push_id(i)
+        r, g, b = swatches.get(i, (0.5, 0.5, 0.5))
+        clicked, _ = imgui.selectable(f"{i:3d}", state.selected == i, 0, imgui.ImVec2(28.0, 0.0))
+        if clicked:
+            state.selected = None if state.selected == i else i
+        imgui.same_line()
+        imgui.color_button("##swatch", imgui.ImVec4(r, g, b, 1.0), 0, imgui.ImVec2(36.0, 0.0))
+        imgui.same_line()
+        active = session.is_active(i)
+        imgui.text_colored(imgui.ImVec4(0.5, 1.0, 0.5, 1.0) if active else imgui.ImVec4(0.6, 0.6, 0.6, 1.0),
+                           "active  " if active else "inactive")
+        imgui.same_line()
+        changed, visible = imgui.checkbox("##visible", i not in state.hidden)
+        if changed:
+            (state.hidden.discard if visible else state.hidden.add)(i)
+        imgui.same_line()
+        changed, solo = imgui.checkbox("##solo", state.solo == i)
+        if changed:
+            state.solo = i if solo else None
+        imgui.pop_id()
+
+
+def _selected_section(session: SceneSession, state: ViewState) -> None:
+    i = state.selected
+    if i is None or not 0 <= i < session.num_particles:
+        return
+    if not imgui.collapsing_header(f"Particle {i}", imgui.TreeNodeFlags_.default_open):
+        return
+    for name, width in EDITABLE.items():
+        value = list(session.value(i, name))
+        if width == 2:
+            changed, new = imgui.drag_float2(name, value, DRAG_SPEED[name])
+        elif name == "z_t":
+            changed, v = imgui.drag_float(name, value[0], DRAG_SPEED[name], 0.0, 1.0)
+            new = [v]
+        else:
+            changed, v = imgui.drag_float(name, value[0], DRAG_SPEED[name])
+            new = [v]
+        if changed:
+            session.set_attribute(i, name, new, gesture="panel")
+        if imgui.is_item_deactivated():
+            session.end_gesture()
+        imgui.same_line()
+        if imgui.small_button(f"reset##{name}"):
+            session.end_gesture()
+            session.set_attribute(i, name, session.original_value(i, name))
+            session.end_gesture()
+    if imgui.button("Reset particle to encoded values"):
+        session.reset_particle(i)
+
+
+def _edits_section(session: SceneSession, req: UiRequests, fields: UiFields) -> None:
+    if not imgui.collapsing_header("Edits", imgui.TreeNodeFlags_.default_open):
+        return
+    h = session.history
+    if imgui.button(f"Undo ({len(h.undo)})"):
+        session.undo()
+    imgui.same_line()
+    if imgui.button(f"Redo ({len(h.redo)})"):
+        session.redo()
+    imgui.text(f"edited particles: {len(session.edits())}")
+    _, fields.edits_path = imgui.input_text("edits YAML", fields.edits_path)
+    if imgui.button("Save edits"):
+        req.save_edits = True
+    imgui.same_line()
+    if imgui.button("Load edits"):
+        req.load_edits = True
+
+
+def _output_section(req: UiRequests, fields: UiFields) -> None:
+    if not imgui.collapsing_header("Output", imgui.TreeNodeFlags_.default_open):
+        return
+    _, fields.output_dir = imgui.input_text("folder", fields.output_dir)
+    changed, size = imgui.input_int2("shot size (0 = window)", list(fields.shot_size))
+    if changed:
+        fields.shot_size = [max(0, min(8192, int(v))) for v in size]
+    if imgui.button("Screenshot (P)"):
+        req.screenshot = True
+    imgui.same_line()
+    if imgui.button("Export .ply (E)"):
+        req.export_ply = True

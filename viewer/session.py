@@ -1,0 +1,222 @@
+"""The scene session: particles, their edits as do/undo operations, and the Gaussians to draw.
+
+Panels and mouse tools change the session only through its methods; the renderer asks
+:meth:`SceneSession.take_changes` which owners to re-decode, so an edit re-decodes only the
+edited particle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from os import PathLike
+from pathlib import Path
+
+import torch
+
+from particlesplat.edits import Edits, apply_edits, check_indices, diff_edits, load_edits, save_edits
+from particlesplat.encode_scene import EncodedScene
+from particlesplat.gaussians import Gaussians
+from particlesplat.model.particles import EDITABLE, Particles
+
+
+@dataclass(frozen=True)
+class SetAttribute:
+    """One attribute change of one particle."""
+
+    index: int
+    name: str
+    old: tuple[float, ...]
+    new: tuple[float, ...]
+
+
+@dataclass
+class Operation:
+    """A do/undo step: several attribute changes applied together (reset, load, drag)."""
+
+    label: str
+    changes: list[SetAttribute]
+    open_key: tuple | None = None  # set while a drag gesture may still extend this operation
+
+
+@dataclass
+class History:
+    """Undo and redo stacks of operations."""
+
+    undo: list[Operation] = field(default_factory=list)
+    redo: list[Operation] = field(default_factory=list)
+
+
+class SceneSession:
+    """What is being viewed: either a model's particles (editable) or a fixed Gaussian set (.ply).
+
+    Args:
+        model: a ParticleSplat model (needed for particles).
+        encoded: the encoded scene (particles + cameras), or None for a .ply.
+        gaussians: a fixed Gaussian set (a .ply), used when ``encoded`` is None.
+        model_name: how the model is named in screenshots and edits files.
+    """
+
+    def __init__(self, model=None, encoded: EncodedScene | None = None, gaussians: Gaussians | None = None,
+                 model_name: str = "", source: str = "") -> None:
+        if encoded is None and gaussians is None:
+            raise ValueError("SceneSession needs an encoded scene or a Gaussian set")
+        if encoded is not None and model is None:
+            raise ValueError("SceneSession: an encoded scene needs its model")
+        self.model = model
+        self.encoded = encoded
+        self.model_name = model_name
+        self.source = source
+        self.history = History()
+        self._fixed = gaussians.detach().to("cpu") if gaussians is not None else None
+        self.original: Particles | None = encoded.particles.detach().to("cpu") if encoded else None
+        self.particles: Particles | None = self.original.clone() if self.original is not None else None
+        self._changed: set[int] = set()
+        self._all_changed = True
+        self.version = 0  # bumps on every change of the Gaussians
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def editable(self) -> bool:
+        return self.particles is not None
+
+    @property
+    def num_particles(self) -> int:
+        return self.particles.num if self.particles is not None else 0
+
+    @property
+    def cameras(self) -> list:
+        """The scene's input cameras (all frames), empty for a .ply."""
+        return list(self.encoded.all_cameras) if self.encoded is not None else []
+
+    def num_owners(self) -> int:
+        """P for owner maps: particles, or max owner + 1 of a .ply."""
+        if self.particles is not None:
+            return self.particles.num
+        return int(self._fixed.owner.max()) + 1 if self._fixed.num else 0
+
+    def value(self, index: int, name: str) -> tuple[float, ...]:
+        return tuple(float(v) for v in self.particles.attribute(index, name).tolist())
+
+    def original_value(self, index: int, name: str) -> tuple[float, ...]:
+        return tuple(float(v) for v in self.original.attribute(index, name).tolist())
+
+    def is_active(self, index: int, threshold: float = 0.5) -> bool:
+        """Active = transparency z_t above ``threshold`` (DLP's active particles)."""
+        return float(self.particles.z_t[index, 0]) > threshold
+
+    def edits(self) -> Edits:
+        """Current edits relative to the encoded particles."""
+        return diff_edits(self.original, self.particles) if self.particles is not None else {}
+
+    # ------------------------------------------------------------------ Gaussians
+    def gaussians(self) -> Gaussians:
+        """All Gaussians of the current state (particles with edits, plus background)."""
+        if self._fixed is not None:
+            return self._fixed
+        return self.model.decode(self.particles).detach().to("cpu")
+
+    def particle_gaussians(self, index: int) -> Gaussians:
+        """The Gaussians of one particle (owner = index), decoded alone."""
+        return self.model.decode(self.particles, torch.tensor([index]), background=False).detach().to("cpu")
+
+    def take_changes(self) -> set[int] | None:
+        """Owners whose Gaussians changed since the last call; None = everything changed."""
+        if self._all_changed:
+            self._all_changed, self._changed = False, set()
+            return None
+        out, self._changed = self._changed, set()
+        return out
+
+    # ------------------------------------------------------------------ operations
+    def _apply(self, changes: list[SetAttribute], forward: bool) -> None:
+        for ch in changes:
+            self.particles = self.particles.with_attribute(ch.index, ch.name, ch.new if forward else ch.old)
+            self._changed.add(ch.index)
+        self.version += 1
+
+    def _push(self, op: Operation) -> None:
+        self._apply(op.changes, True)
+        self.history.undo.append(op)
+        self.history.redo.clear()
+
+    def set_attribute(self, index: int, name: str, value, gesture: str | None = None) -> None:
+        """Set attribute ``name`` (width of EDITABLE[name]) of particle ``index``.
+
+        gesture: an id of an ongoing drag; consecutive calls with the same gesture, index and
+        name extend one operation (one undo step per drag) until :meth:`end_gesture`.
+        """
+        if not self.editable:
+            raise ValueError("this scene has no particles to edit (opened from a .ply)")
+        if not 0 <= index < self.num_particles:
+            raise IndexError(f"particle {index} out of range (0..{self.num_particles - 1})")
+        if name not in EDITABLE:
+            raise KeyError(f"'{name}' is not an editable attribute ({', '.join(EDITABLE)})")
+        new = tuple(float(v) for v in (value if isinstance(value, (list, tuple)) else [value]))
+        if len(new) != EDITABLE[name]:
+            raise ValueError(f"{name} needs {EDITABLE[name]} value(s), got {len(new)}")
+        if name == "z_t":
+            new = (min(1.0, max(0.0, new[0])),)
+        old = self.value(index, name)
+        if new == old:
+            return
+        key = (gesture, index, name) if gesture is not None else None
+        last = self.history.undo[-1] if self.history.undo else None
+        if key is not None and last is not None and last.open_key == key:
+            first = last.changes[0]
+            last.changes = [SetAttribute(index, name, first.old, new)]
+            self._apply([SetAttribute(index, name, old, new)], True)
+            return
+        self._push(Operation(f"set {name} of particle {index}", [SetAttribute(index, name, old, new)], key))
+
+    def end_gesture(self) -> None:
+        """Close the open drag operation, if any."""
+        if self.history.undo:
+            self.history.undo[-1].open_key = None
+
+    def reset_particle(self, index: int) -> None:
+        """Restore all editable attributes of particle ``index`` to the encoded values."""
+        changes = [SetAttribute(index, n, self.value(index, n), self.original_value(index, n)) for n in EDITABLE
+                   if self.value(index, n) != self.original_value(index, n)]
+        if changes:
+            self.end_gesture()
+            self._push(Operation(f"reset particle {index}", changes))
+
+    def set_edits(self, edits: Edits, label: str = "load edits") -> None:
+        """Replace all edits by ``edits`` (absolute values) as one operation."""
+        check_indices(edits, self.num_particles, label)
+        target = apply_edits(self.original, edits, label)
+        changes = []
+        for name in EDITABLE:
+            for index in range(self.num_particles):
+                old, new = self.value(index, name), tuple(float(v) for v in target.attribute(index, name).tolist())
+                if old != new:
+                    changes.append(SetAttribute(index, name, old, new))
+        if changes:
+            self.end_gesture()
+            self._push(Operation(label, changes))
+
+    def undo(self) -> bool:
+        """Undo the last operation; False if there is none."""
+        if not self.history.undo:
+            return False
+        op = self.history.undo.pop()
+        op.open_key = None
+        self._apply(list(reversed(op.changes)), False)
+        self.history.redo.append(op)
+        return True
+
+    def redo(self) -> bool:
+        """Redo the last undone operation; False if there is none."""
+        if not self.history.redo:
+            return False
+        op = self.history.redo.pop()
+        self._apply(op.changes, True)
+        self.history.undo.append(op)
+        return True
+
+    # ------------------------------------------------------------------ files
+    def save_edits(self, path: str | PathLike) -> None:
+        save_edits(path, self.edits(), model=self.model_name or None, scene=self.source or None)
+
+    def load_edits(self, path: str | PathLike) -> None:
+        self.set_edits(load_edits(path), label=f"load {Path(path).name}")

@@ -1,0 +1,52 @@
+"""View state the panels change: selection, visibility, segmentation mode, pruning, render scale."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+SEG_MODES = ("normal", "colour by particle", "mask of selected", "background hidden", "background alone")
+
+
+@dataclass
+class ViewState:
+    """Everything about *how* the scene is shown (not what it is: that is the session).
+
+    Attributes:
+        selected: selected particle index or None.
+        hidden: particle indices hidden by their visibility toggle.
+        solo: a particle shown alone (plus the background unless hidden), or None.
+        seg_mode: one of :data:`SEG_MODES`.
+        prune: opacity threshold; Gaussians below it are not drawn (and not exported).
+        background: RGB behind the Gaussians.
+        overlay: show the frame-time / count overlay.
+        panel: show the ImGui panel.
+        moving_scale: render scale while the camera or a particle is being dragged.
+    """
+
+    selected: int | None = None
+    hidden: set[int] = field(default_factory=set)
+    solo: int | None = None
+    seg_mode: str = SEG_MODES[0]
+    prune: float = 0.0
+    background: tuple[float, float, float] = (0.12, 0.14, 0.18)
+    overlay: bool = True
+    panel: bool = True
+    moving_scale: float = 0.5
+
+    def visible_owners(self, num_owners: int) -> list[int]:
+        """Owners to draw (-1 = background) under the visibility, solo and segmentation modes."""
+        if self.seg_mode == "background alone":
+            return [-1]
+        owners = [self.solo] if self.solo is not None else [i for i in range(num_owners) if i not in self.hidden]
+        if self.seg_mode != "background hidden":
+            owners.append(-1)
+        return owners
+
+    def color_mode(self) -> int:
+        """Colour mode of the splat pass: 1 = a colour per particle."""
+        return 1 if self.seg_mode == "colour by particle" else 0
+
+    def key(self) -> tuple:
+        """Everything that changes the rendered pixels."""
+        return (self.selected if self.seg_mode == "mask of selected" else None, tuple(sorted(self.hidden)),
+                self.solo, self.seg_mode, self.prune, self.background)
