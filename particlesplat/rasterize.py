@@ -1,14 +1,17 @@
 """Tile-based front-to-back alpha compositing with an analytic backward (pure torch).
 
-Screen is split into 4×4-pixel tiles (measured ~1.8× faster than 8×8 for small splats). Each projected Gaussian is listed in every tile its
-α ≥ 1/255 footprint's bounding box touches; lists are sorted by depth (ties by index).
-Tiles are bucketed by list length, and each bucket is processed in chunks of about
+The screen is split into 4×4-pixel tiles (measured ~1.8× faster than 8×8 for small splats).
+A Gaussian is listed in a tile iff α ≥ 1/255 at one of its pixel centres (candidates from the
+exact footprint box √(2 ln(255·o))·σ, then tested); lists are sorted by depth (ties by index).
+Tiles are bucketed by list length and each bucket is processed in chunks of about
 ``CHUNK_ELEMENTS`` (tile, pixel, slot) entries, so memory stays bounded for any N and size.
 
-Per pixel and Gaussian, the exponent ``ln o - ½ dᵀ C d`` is one matmul of six pixel features
-``[x², xy, y², x, y, 1]`` (tile-centred coordinates) with six per-Gaussian coefficients.
-The backward recomputes α and T per chunk instead of storing them, and uses the suffix sum
-``S_i = Σ_{k>i} v_k w_k``: ∂L/∂α_i = v_i T_i − S_i / (1 − α_i).
+For each (tile, Gaussian) pair the exponent ``ln o − ½ dᵀ C d`` over the tile's pixels is one
+matmul of six pixel features ``[x², xy, y², x, y, 1]`` (tile-centred coordinates) with six
+pair coefficients. The pair coefficients and pair features are plain differentiable torch;
+:class:`RasterizeFunction` does the per-pixel work with an analytic backward that recomputes α
+and T per chunk instead of storing them, using the suffix sum ``S_i = Σ_{k>i} v_k w_k``:
+∂L/∂α_i = v_i T_i − S_i / (1 − α_i).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ TILE = 4
 CHUNK_ELEMENTS = 1 << 18
 T_MIN = 1e-4  # a pixel stops before the Gaussian that would take T to <= T_MIN
 _EXP_FLOOR = -6.0  # exp(-6) < 1/255: clamping the exponent changes nothing and keeps exp() fast
+_PAD_LOG_OPACITY = -30.0  # coefficient row of padding slots: α = 0 everywhere
 
 
 @dataclass
@@ -33,19 +37,21 @@ class TileBins:
 
     Attributes:
         grids: per view (tiles_x, tiles_y, first tile id).
-        gauss: (P,) int64 Gaussian (row in the rasterizer's inputs) per list entry, grouped by
+        gauss: (P,) int64 Gaussian (row in the rasterizer's inputs) per pair, grouped by
             tile, front to back within a tile.
-        start: (T,) int64 offset of each tile's list in ``gauss``; count: (T,) int64 lengths.
+        pair_tile: (P,) int64 tile of each pair.
+        count: (T,) int64 list length per tile.
         tile_origin: (T, 2) pixel coordinates of each tile's centre in its view.
-        chunks: list of (tile ids (Tb,), padded length L) processed together.
+        chunks: list of (tile ids (Tb,), pair index (Tb, L)) processed together; padding slots
+            index the extra pair row P.
     """
 
     grids: list[tuple[int, int, int]]
     gauss: Tensor
-    start: Tensor
+    pair_tile: Tensor
     count: Tensor
     tile_origin: Tensor
-    chunks: list[tuple[Tensor, int]]
+    chunks: list[tuple[Tensor, Tensor]]
 
     @property
     def num_tiles(self) -> int:
@@ -99,9 +105,8 @@ def bin_gaussians(means2d: Tensor, conics: Tensor, opacities: Tensor, radius: Te
         tile_sorted, perm = torch.sort(tile, stable=True)
         gauss = g[perm]
         count = torch.bincount(tile_sorted, minlength=n_tiles)
-        start = torch.cumsum(count, 0) - count
         chunks = _make_chunks(count)
-    return TileBins(grids, gauss, start, count, origin, chunks)
+    return TileBins(grids, gauss, tile_sorted, count, origin, chunks)
 
 
 def _tile_hits(g: Tensor, tile: Tensor, origin: Tensor, means2d: Tensor, conics: Tensor, opacities: Tensor,
@@ -114,24 +119,31 @@ def _tile_hits(g: Tensor, tile: Tensor, origin: Tensor, means2d: Tensor, conics:
     for i in range(0, g.shape[0], block):
         gi, ti = g[i:i + block], tile[i:i + block]
         coef = _coefficients(means2d[gi] - origin[ti].to(means2d.dtype), conics[gi], log_o[gi])
-        hit[i:i + block] = (coef @ feats.T).amax(-1) >= thresh - 1e-3  # margin: the raster decides exactly
+        # (16, 6) @ (6, B) is ~10x faster than the tall-skinny (B, 6) @ (6, 16) on CPU
+        hit[i:i + block] = (feats @ coef.T).amax(0) >= thresh - 1e-3  # margin: the raster decides exactly
     return hit
 
 
-def _make_chunks(count: Tensor) -> list[tuple[Tensor, int]]:
-    """Bucket non-empty tiles by list length (padded to 1..8, 10, 12, 14, 16, 20, ...: quarter octaves) and chunk them."""
-    chunks: list[tuple[Tensor, int]] = []
+def _make_chunks(count: Tensor) -> list[tuple[Tensor, Tensor]]:
+    """Bucket non-empty tiles by list length (padded to 1..8, 10, 12, 14, 16, 20, ...: quarter
+    octaves) and chunk them; returns (tile ids (Tb,), pair index (Tb, L)) per chunk."""
+    chunks: list[tuple[Tensor, Tensor]] = []
     nonempty = torch.nonzero(count > 0).squeeze(1)
     if nonempty.numel() == 0:
         return chunks
+    num_pairs = int(count.sum())
+    start = torch.cumsum(count, 0) - count
     c = count[nonempty].double()
-    step = torch.clamp(torch.pow(2.0, torch.floor(torch.log2(c))) / 4, min=1.0)  # quarter-octave steps
+    step = torch.clamp(torch.pow(2.0, torch.floor(torch.log2(c))) / 4, min=1.0)
     padded = (torch.ceil(c / step) * step).long()
     for length in torch.unique(padded).tolist():
         tiles = nonempty[padded == length]
+        slot = torch.arange(length, device=count.device)
+        idx = start[tiles][:, None] + slot[None, :]
+        idx = torch.where(slot[None, :] < count[tiles][:, None], idx, num_pairs)
         per_chunk = max(1, CHUNK_ELEMENTS // (TILE * TILE * length))
         for i in range(0, tiles.numel(), per_chunk):
-            chunks.append((tiles[i:i + per_chunk], int(length)))
+            chunks.append((tiles[i:i + per_chunk], idx[i:i + per_chunk]))
     return chunks
 
 
@@ -141,14 +153,6 @@ def _pixel_features(dtype: torch.dtype, device: torch.device) -> Tensor:
     y, x = torch.meshgrid(r, r, indexing="ij")
     x, y = x.reshape(-1), y.reshape(-1)
     return torch.stack([x * x, x * y, y * y, x, y, torch.ones_like(x)], dim=-1)
-
-
-def _gather(bins: TileBins, tiles: Tensor, length: int) -> tuple[Tensor, Tensor]:
-    """(Tb, L) Gaussian rows of the tiles' lists (padding repeats row 0) and (Tb, L) validity."""
-    slot = torch.arange(length, device=tiles.device)
-    valid = slot[None, :] < bins.count[tiles][:, None]
-    idx = (bins.start[tiles][:, None] + slot[None, :]).clamp(max=max(bins.gauss.numel() - 1, 0))
-    return bins.gauss[idx], valid
 
 
 def _coefficients(m: Tensor, conic: Tensor, log_o: Tensor) -> Tensor:
@@ -168,7 +172,9 @@ class _ChunkState:
     """α, T and weights of one chunk (recomputed in the backward), each (Tb, 64, L)."""
 
     def __init__(self, feats: Tensor, coef: Tensor):
-        raw = torch.matmul(feats, coef.transpose(1, 2))  # exponent ln o − ½ dᵀCd
+        # exponent ln o − ½ dᵀCd: one (Tb·L, 6) @ (6, 16) product (faster than a batched one)
+        tb, length = coef.shape[:2]
+        raw = (coef.reshape(-1, 6) @ feats.T).reshape(tb, length, -1).transpose(1, 2).contiguous()
         raw.clamp_min_(_EXP_FLOOR).exp_()
         alpha = raw.clamp_max_(ALPHA_MAX)
         alpha.masked_fill_(alpha < ALPHA_MIN, 0.0)
@@ -181,12 +187,20 @@ class _ChunkState:
         self.weights = torch.sub(self.t_excl, t_incl).masked_fill_(~self.keep, 0.0)
 
 
-def _chunk_inputs(bins: TileBins, tiles: Tensor, length: int, means2d: Tensor, conics: Tensor,
-                  log_o: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    rows, valid = _gather(bins, tiles, length)
-    local = means2d[rows] - bins.tile_origin[tiles].to(means2d.dtype)[:, None, :]
-    lo = torch.where(valid, log_o[rows], torch.full_like(log_o[rows], -30.0))
-    return rows, local, _coefficients(local, conics[rows], lo)
+def pair_inputs(bins: TileBins, means2d: Tensor, conics: Tensor, opacities: Tensor,
+                features: Tensor) -> tuple[Tensor, Tensor]:
+    """Differentiable per-pair rasterizer inputs, with a padding row appended.
+
+    means2d: (M, 2), conics: (M, 3), opacities: (M,), features: (M, C).
+    Returns coefficients (P+1, 6) and features with a trailing 1 (P+1, C+1).
+    """
+    rows = bins.gauss
+    local = means2d[rows] - bins.tile_origin[bins.pair_tile].to(means2d.dtype)
+    coef = _coefficients(local, conics[rows], torch.log(opacities[rows].clamp_min(1e-30)))
+    pad = coef.new_zeros(1, 6)
+    pad[0, 5] = _PAD_LOG_OPACITY
+    f1 = _with_ones(features[rows])
+    return torch.cat([coef, pad]), torch.cat([f1, f1.new_zeros(1, f1.shape[1])])
 
 
 def tiles_to_images(tile_values: Tensor, bins: TileBins, sizes: list[tuple[int, int]]) -> list[Tensor]:
@@ -200,59 +214,46 @@ def tiles_to_images(tile_values: Tensor, bins: TileBins, sizes: list[tuple[int, 
 
 
 class RasterizeFunction(torch.autograd.Function):
-    """Composite features front to back: (T, 64, C+1) per tile pixel Σ w·[feature, 1]."""
+    """Composite pair features front to back.
+
+    Inputs: coefficients (P+1, 6), features (P+1, F) from :func:`pair_inputs`, and the bins.
+    Output: (T, 16, F) per tile pixel Σ w·feature.
+    """
 
     @staticmethod
-    def forward(ctx, means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor,
-                bins: TileBins) -> Tensor:
-        log_o = torch.log(opacities.clamp_min(1e-30))
-        feats = _pixel_features(means2d.dtype, means2d.device)
-        out = means2d.new_zeros(bins.num_tiles, TILE * TILE, features.shape[1] + 1)
-        for tiles, length in bins.chunks:
-            rows, _, coef = _chunk_inputs(bins, tiles, length, means2d, conics, log_o)
-            st = _ChunkState(feats, coef)
-            out[tiles] = torch.bmm(st.weights, _with_ones(features[rows]))
-        ctx.save_for_backward(means2d, conics, opacities, features)
+    def forward(ctx, coef: Tensor, features: Tensor, bins: TileBins) -> Tensor:
+        feats = _pixel_features(coef.dtype, coef.device)
+        out = coef.new_zeros(bins.num_tiles, TILE * TILE, features.shape[1])
+        for tiles, idx in bins.chunks:
+            out[tiles] = torch.bmm(_ChunkState(feats, coef[idx]).weights, features[idx])
+        ctx.save_for_backward(coef, features)
         ctx.bins = bins
         return out
 
     @staticmethod
     def backward(ctx, grad_out: Tensor):
-        means2d, conics, opacities, features = ctx.saved_tensors
-        bins = ctx.bins
-        log_o = torch.log(opacities.clamp_min(1e-30))
-        feats = _pixel_features(means2d.dtype, means2d.device)
-        d_m = torch.zeros_like(means2d)
-        d_conic = torch.zeros_like(conics)
-        d_logo = torch.zeros_like(opacities)
-        d_f = torch.zeros(features.shape[0], features.shape[1] + 1, dtype=features.dtype, device=features.device)
-        for tiles, length in bins.chunks:
-            rows, local, coef = _chunk_inputs(bins, tiles, length, means2d, conics, log_o)
-            st = _ChunkState(feats, coef)
-            f1 = _with_ones(features[rows])
-            G = grad_out[tiles]  # (Tb, 64, C+1)
-            flat = rows.reshape(-1)
-            d_f.index_add_(0, flat, torch.bmm(st.weights.transpose(1, 2), G).reshape(-1, f1.shape[-1]))
-            v = torch.bmm(G, f1.transpose(1, 2))  # (Tb, 64, L) upstream · feature
+        coef, features = ctx.saved_tensors
+        feats = _pixel_features(coef.dtype, coef.device)
+        d_coef = torch.zeros_like(coef)
+        d_feat = torch.zeros_like(features)
+        for tiles, idx in ctx.bins.chunks:
+            st = _ChunkState(feats, coef[idx])
+            f = features[idx]  # (Tb, L, F)
+            G = grad_out[tiles]  # (Tb, 16, F)
+            # each real pair sits in exactly one slot, so plain assignment suffices (padding
+            # slots all write the padding row, whose gradient is dropped)
+            d_feat[idx] = torch.bmm(st.weights.transpose(1, 2), G)
+            v = torch.bmm(G, f.transpose(1, 2))  # (Tb, 16, L) upstream · feature
             vw = v.mul_(st.weights)
             suffix = vw.sum(-1, keepdim=True) - torch.cumsum(vw, dim=-1)  # S_i = Σ_{k>i} v_k w_k
             # ∂L/∂exponent = α ∂L/∂α = α (v T − S / (1 − α)) = v w − S α / (1 − α), where α is
             # neither clamped at 0.99 nor past termination (α = 0 below 1/255 gives 0 by itself)
             d_expo = vw.sub_(suffix.mul_(st.alpha).div_(st.one_minus))
             d_expo.masked_fill_(~st.keep | (st.alpha >= ALPHA_MAX), 0.0)
-            g = torch.matmul(d_expo.transpose(1, 2), feats)  # (Tb, L, 6) ∂L/∂coefficients
-            g0, g1, g2, g3, g4, g5 = g.unbind(-1)
-            a, b, c = conics[rows].unbind(-1)
-            mx, my = local.unbind(-1)
-            lx, ly = a * mx + b * my, b * mx + c * my
-            da = -0.5 * g0 + g3 * mx - 0.5 * g5 * mx * mx
-            db = -g1 + g3 * my + g4 * mx - g5 * mx * my
-            dc = -0.5 * g2 + g4 * my - 0.5 * g5 * my * my
-            d_m.index_add_(0, flat, torch.stack([g3 * a + g4 * b - g5 * lx, g3 * b + g4 * c - g5 * ly],
-                                                dim=-1).reshape(-1, 2))
-            d_conic.index_add_(0, flat, torch.stack([da, db, dc], dim=-1).reshape(-1, 3))
-            d_logo.index_add_(0, flat, g5.reshape(-1))
-        return d_m, d_conic, d_logo / opacities.clamp_min(1e-30), d_f[:, :-1], None
+            d_coef[idx] = torch.matmul(feats.T, d_expo).transpose(1, 2)  # (Tb, L, 6)
+        d_coef[-1] = 0.0
+        d_feat[-1] = 0.0
+        return d_coef, d_feat, None
 
 
 def _with_ones(features: Tensor) -> Tensor:
@@ -260,16 +261,16 @@ def _with_ones(features: Tensor) -> Tensor:
     return torch.cat([features, torch.ones_like(features[..., :1])], dim=-1)
 
 
-def owner_weight_tiles(means2d: Tensor, conics: Tensor, opacities: Tensor, owner_slot: Tensor, num_slots: int,
-                       bins: TileBins) -> Tensor:
-    """(T, 64, num_slots) Σ T·α per owner slot (no gradient). owner_slot: (M,) int64 in [0, num_slots)."""
+def owner_weight_tiles(coef: Tensor, owner_slot: Tensor, num_slots: int, bins: TileBins) -> Tensor:
+    """(T, 16, num_slots) Σ T·α per owner slot (no gradient).
+
+    coef: (P+1, 6) from :func:`pair_inputs`; owner_slot: (M,) int64 in [0, num_slots) per Gaussian.
+    """
     with torch.no_grad():
-        log_o = torch.log(opacities.clamp_min(1e-30))
-        feats = _pixel_features(means2d.dtype, means2d.device)
-        out = means2d.new_zeros(bins.num_tiles, TILE * TILE, num_slots)
-        for tiles, length in bins.chunks:
-            rows, _, coef = _chunk_inputs(bins, tiles, length, means2d, conics, log_o)
-            st = _ChunkState(feats, coef)
-            onehot = torch.nn.functional.one_hot(owner_slot[rows], num_slots).to(means2d.dtype)
-            out[tiles] = torch.bmm(st.weights, onehot)
+        feats = _pixel_features(coef.dtype, coef.device)
+        onehot = torch.nn.functional.one_hot(owner_slot[bins.gauss], num_slots).to(coef.dtype)
+        onehot = torch.cat([onehot, onehot.new_zeros(1, num_slots)])
+        out = coef.new_zeros(bins.num_tiles, TILE * TILE, num_slots)
+        for tiles, idx in bins.chunks:
+            out[tiles] = torch.bmm(_ChunkState(feats, coef[idx].detach()).weights, onehot[idx])
         return out

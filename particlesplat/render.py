@@ -11,7 +11,7 @@ from torch import Tensor
 from .camera import Camera
 from .gaussians import Gaussians
 from .projection import footprint_radius_sq, project_gaussians
-from .rasterize import RasterizeFunction, bin_gaussians, owner_weight_tiles, tiles_to_images
+from .rasterize import RasterizeFunction, bin_gaussians, owner_weight_tiles, pair_inputs, tiles_to_images
 from .sh import eval_sh_colors
 
 
@@ -108,7 +108,8 @@ def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Seque
     cat = {k: torch.cat(v) for k, v in parts.items()}
     bins = bin_gaussians(cat["means2d"], cat["conics"], cat["opac"], cat["radius"], cat["features"][:, 3],
                          cat["view"], sizes)
-    tiles = RasterizeFunction.apply(cat["means2d"], cat["conics"], cat["opac"], cat["features"], bins)
+    coef, pair_features = pair_inputs(bins, cat["means2d"], cat["conics"], cat["opac"], cat["features"])
+    tiles = RasterizeFunction.apply(coef, pair_features, bins)
     results = []
     for acc in tiles_to_images(tiles, bins, sizes):
         alpha = acc[..., 4]
@@ -122,7 +123,7 @@ def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Seque
         else:
             P = max((int(g.owner.max()) + 1 for g, _ in views if len(g)), default=0)
         slot = torch.where((owners >= 0) & (owners < P), owners + 1, torch.zeros_like(owners))
-        maps = owner_weight_tiles(cat["means2d"], cat["conics"], cat["opac"], slot, P + 1, bins)
+        maps = owner_weight_tiles(coef, slot, P + 1, bins)
         for result, m in zip(results, tiles_to_images(maps, bins, sizes)):
             result.owner_weights = m[..., 1:].permute(2, 0, 1).contiguous()
             result.background_weight = m[..., 0]
