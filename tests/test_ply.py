@@ -33,14 +33,17 @@ def layout_names(degree: int, owner: bool) -> list[str]:
 
 
 def write_by_hand(path: Path, rows: list[dict[str, float]], names: list[str], *, endian: str = "<",
-                  int_props: tuple[str, ...] = (), extra_header: str = "", truncate: int = 0) -> None:
-    """A binary .ply written with struct, one row per vertex, floats except ``int_props``."""
+                  int_props: tuple[str, ...] = (), uchar_props: tuple[str, ...] = (), extra_header: str = "",
+                  truncate: int = 0) -> None:
+    """A binary .ply written with struct, one row per vertex: floats, except ``int_props`` (int32)
+    and ``uchar_props`` (uint8)."""
     fmt = "binary_little_endian" if endian == "<" else "binary_big_endian"
+    kind = {n: ("int", "i") for n in int_props} | {n: ("uchar", "B") for n in uchar_props}
     header = f"ply\nformat {fmt} 1.0\ncomment written by hand\nelement vertex {len(rows)}\n"
-    header += "".join(f"property {'int' if n in int_props else 'float'} {n}\n" for n in names)
+    header += "".join(f"property {kind.get(n, ('float', 'f'))[0]} {n}\n" for n in names)
     header += extra_header + "end_header\n"
-    body = b"".join(struct.pack(endian + "".join("i" if n in int_props else "f" for n in names),
-                                *[int(r[n]) if n in int_props else r[n] for n in names]) for r in rows)
+    body = b"".join(struct.pack(endian + "".join(kind.get(n, ("float", "f"))[1] for n in names),
+                                *[int(r[n]) if n in kind else r[n] for n in names]) for r in rows)
     data = header.encode("ascii") + body
     path.write_bytes(data[:len(data) - truncate] if truncate else data)
 
@@ -157,6 +160,20 @@ def test_hand_laid_out_big_endian_with_owner_and_extra_element(tmp_path: Path) -
     assert g.owner.tolist() == [3, 0]
 
 
+def test_hand_laid_out_with_extra_uchar_colour_properties(tmp_path: Path) -> None:
+    """Other tools add properties (e.g. uchar red/green/blue); they are skipped, offsets stay right."""
+    rows, want = hand_rows(1)
+    for r in rows:
+        r.update(red=255, green=7, blue=0)
+    names = layout_names(1, owner=False)
+    names = names[:6] + ["red", "green", "blue"] + names[6:]
+    path = tmp_path / "extra.ply"
+    write_by_hand(path, rows, names, uchar_props=("red", "green", "blue"))
+    g = Gaussians.load_ply(path)
+    assert_matches(g, want)
+    assert g.owner.tolist() == [-1, -1]
+
+
 def test_hand_laid_out_shuffled_property_order(tmp_path: Path) -> None:
     """Properties are found by name, not position."""
     rows, want = hand_rows(2)
@@ -213,6 +230,12 @@ def test_truncated_file_is_rejected(tmp_path: Path, cut: int) -> None:
     path = tmp_path / "short.ply"
     write_by_hand(path, rows, layout_names(3, owner=False), truncate=cut)
     _expect_error(path, "truncated")
+
+
+def test_ascii_ply_is_rejected_with_the_file_name(tmp_path: Path) -> None:
+    path = tmp_path / "ascii.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n0.0\n")
+    _expect_error(path, "ascii")
 
 
 def test_truncated_header_and_not_a_ply(tmp_path: Path) -> None:
