@@ -334,60 +334,47 @@ def test_sh_view_dependence_matches_reference() -> None:
 
 
 # ---------------------------------------------------------------------------------------------- gradients
+def _gradcheck(renderer, cam: Camera, params: tuple[torch.Tensor, ...], owner: torch.Tensor,
+               fast_mode: bool) -> bool:
+    """torch.autograd.gradcheck of ``renderer`` w.r.t. (means, quats, scales, opacities, sh)."""
+
+    def fn(m, q, s, o, c):
+        r = renderer(Gaussians(m, q, s, o, c, owner), cam, background=BG)
+        return r.rgb, r.alpha, r.depth
+
+    inputs = tuple(t.clone().requires_grad_(True) for t in params)
+    return torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-4, fast_mode=fast_mode)
+
+
 def test_gradcheck_float64() -> None:
     """Smooth configuration: every pixel well inside every footprint, no clamp, no termination."""
     cam = pinhole(9, 7, 12.0)
     gen = torch.Generator().manual_seed(3)
-    means = torch.tensor([[0.05, -0.02, 2.0], [-0.1, 0.08, 2.5], [0.12, 0.1, 3.1]], dtype=F64)
-    quats = torch.randn(3, 4, generator=gen, dtype=F64)
-    scales = torch.tensor([[0.9, 0.6, 0.5], [0.7, 1.1, 0.8], [1.0, 0.8, 1.2]], dtype=F64)
-    opac = torch.tensor([0.5, 0.6, 0.7], dtype=F64)
-    sh = torch.randn(3, 4, 3, generator=gen, dtype=F64) * 0.2
+    params = (torch.tensor([[0.05, -0.02, 2.0], [-0.1, 0.08, 2.5], [0.12, 0.1, 3.1]], dtype=F64),
+              torch.randn(3, 4, generator=gen, dtype=F64),
+              torch.tensor([[0.9, 0.6, 0.5], [0.7, 1.1, 0.8], [1.0, 0.8, 1.2]], dtype=F64),
+              torch.tensor([0.5, 0.6, 0.7], dtype=F64), torch.randn(3, 4, 3, generator=gen, dtype=F64) * 0.2)
     owner = torch.tensor([0, 1, -1])
-    ref = reference_render(make(means, quats, scales, opac, sh, owner, dtype=F64), cam)
+    ref = reference_render(make(*params, owner, dtype=F64), cam)
     assert ref.alpha.min() > 0.5 and ref.transmittance.min() > 1e-3  # every pixel, every Gaussian counts
-
-    def fn(m, q, s, o, c):
-        r = render(Gaussians(m, q, s, o, c, owner), cam, background=BG)
-        return r.rgb, r.alpha, r.depth
-
-    inputs = tuple(t.clone().requires_grad_(True) for t in (means, quats, scales, opac, sh))
-    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-4, fast_mode=True)
+    assert _gradcheck(render, cam, params, owner, fast_mode=True)
 
 
 def test_gradcheck_float64_full_jacobian_small() -> None:
-    cam = pinhole(5, 4, 8.0)
-    means = torch.tensor([[0.03, -0.02, 1.5], [-0.05, 0.04, 2.0]], dtype=F64)
-    quats = torch.tensor([[0.9, 0.1, -0.3, 0.2], [0.5, -0.5, 0.4, 0.1]], dtype=F64)
-    scales = torch.tensor([[0.6, 0.4, 0.5], [0.5, 0.7, 0.3]], dtype=F64)
-    opac = torch.tensor([0.45, 0.65], dtype=F64)
-    sh = torch.tensor([[[0.3, -0.1, 0.2]], [[-0.2, 0.4, 0.1]]], dtype=F64)
-    owner = torch.tensor([0, 0])
-
-    def fn(m, q, s, o, c):
-        r = render(Gaussians(m, q, s, o, c, owner), cam, background=BG)
-        return r.rgb, r.alpha, r.depth
-
-    inputs = tuple(t.clone().requires_grad_(True) for t in (means, quats, scales, opac, sh))
-    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
+    params = (torch.tensor([[0.03, -0.02, 1.5], [-0.05, 0.04, 2.0]], dtype=F64),
+              torch.tensor([[0.9, 0.1, -0.3, 0.2], [0.5, -0.5, 0.4, 0.1]], dtype=F64),
+              torch.tensor([[0.6, 0.4, 0.5], [0.5, 0.7, 0.3]], dtype=F64), torch.tensor([0.45, 0.65], dtype=F64),
+              torch.tensor([[[0.3, -0.1, 0.2]], [[-0.2, 0.4, 0.1]]], dtype=F64))
+    assert _gradcheck(render, pinhole(5, 4, 8.0), params, torch.tensor([0, 0]), fast_mode=False)
 
 
 def test_reference_gradcheck() -> None:
     """The reference's own autograd (used as gradient truth above) against finite differences."""
-    cam = pinhole(6, 5, 10.0)
-    means = torch.tensor([[0.05, -0.02, 2.0], [-0.1, 0.08, 2.5]], dtype=F64)
-    quats = torch.tensor([[0.9, 0.1, -0.3, 0.2], [0.5, -0.5, 0.4, 0.1]], dtype=F64)
-    scales = torch.tensor([[0.9, 0.6, 0.5], [0.7, 1.1, 0.8]], dtype=F64)
-    opac = torch.tensor([0.5, 0.6], dtype=F64)
-    sh = torch.randn(2, 4, 3, generator=torch.Generator().manual_seed(0), dtype=F64) * 0.2
-    owner = torch.tensor([0, 1])
-
-    def fn(m, q, s, o, c):
-        r = reference_render(Gaussians(m, q, s, o, c, owner), cam, background=BG)
-        return r.rgb, r.alpha, r.depth
-
-    inputs = tuple(t.clone().requires_grad_(True) for t in (means, quats, scales, opac, sh))
-    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-6, rtol=1e-4, fast_mode=True)
+    params = (torch.tensor([[0.05, -0.02, 2.0], [-0.1, 0.08, 2.5]], dtype=F64),
+              torch.tensor([[0.9, 0.1, -0.3, 0.2], [0.5, -0.5, 0.4, 0.1]], dtype=F64),
+              torch.tensor([[0.9, 0.6, 0.5], [0.7, 1.1, 0.8]], dtype=F64), torch.tensor([0.5, 0.6], dtype=F64),
+              torch.randn(2, 4, 3, generator=torch.Generator().manual_seed(0), dtype=F64) * 0.2)
+    assert _gradcheck(reference_render, pinhole(6, 5, 10.0), params, torch.tensor([0, 1]), fast_mode=True)
 
 
 # ---------------------------------------------------------------------------------------------- hard cases
