@@ -31,6 +31,14 @@ class EncodedScene:
     path: Path
 
 
+def demo_scenes() -> list[Path]:
+    """Scene folders shipped in ``assets/scenes`` (sorted)."""
+    from importlib.resources import files
+
+    root = Path(str(files("particlesplat.assets").joinpath("scenes")))
+    return sorted(p for p in root.iterdir() if (p / "transforms.json").is_file()) if root.is_dir() else []
+
+
 def parse_context(text: str | None) -> list[int] | None:
     """``"4,16"`` -> [4, 16]; None stays None (use the default)."""
     if text is None or str(text).strip() == "":

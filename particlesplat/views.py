@@ -20,6 +20,7 @@ from .gaussians import Gaussians
 
 DEFAULT_FOV = 40.0  # degrees, vertical
 DEFAULT_ELEVATION = 25.0  # degrees, for scenes without cameras
+DEFAULT_BACKGROUND = (0.12, 0.14, 0.18)  # the viewer's and ``particlesplat render``'s background colour
 
 
 @dataclass(frozen=True)

@@ -7,11 +7,10 @@ from pathlib import Path
 
 import torch
 
-from particlesplat.encode_scene import encode_scene, parse_context
+from particlesplat.encode_scene import demo_scenes, encode_scene, parse_context
 from particlesplat.gaussians import Gaussians
 from particlesplat.sh import SH_C0
 
-from .panel import demo_scenes
 from .session import SceneSession
 
 
@@ -43,7 +42,7 @@ def particle_swatches(session: SceneSession) -> dict[int, tuple[float, float, fl
     """Each particle's base colour: the opacity-weighted mean SH DC colour of its Gaussians."""
     if not session.editable:
         return {}
-    g = session.model.decode(session.particles, background=False).detach().cpu()
+    g = session.model.decode(session.particles, background=False).detach().to("cpu")
     rgb = (g.sh[:, 0] * SH_C0 + 0.5).clamp(0.0, 1.0)
     out = {}
     for i in range(session.num_particles):

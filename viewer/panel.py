@@ -4,11 +4,9 @@ them only through their methods and fields; they never touch GL or the renderer.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from importlib.resources import files
-from pathlib import Path
-
 from imgui_bundle import imgui
 
+from particlesplat.encode_scene import demo_scenes
 from particlesplat.model.particles import EDITABLE
 
 from .session import SceneSession
@@ -57,12 +55,6 @@ class UiFields:
     output_dir: str = "."
     shot_size: list[int] = field(default_factory=lambda: [0, 0])
     status: str = ""
-
-
-def demo_scenes() -> list[Path]:
-    """Scene folders shipped in ``assets/scenes``."""
-    root = Path(str(files("particlesplat.assets").joinpath("scenes")))
-    return sorted(p for p in root.iterdir() if (p / "transforms.json").is_file()) if root.is_dir() else []
 
 
 def draw_overlay(text_lines: list[str]) -> None:

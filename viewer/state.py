@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from particlesplat.views import DEFAULT_BACKGROUND
+
 SEG_MODES = ("normal", "colour by particle", "mask of selected", "background hidden", "background alone")
 
 
@@ -28,7 +30,7 @@ class ViewState:
     solo: int | None = None
     seg_mode: str = SEG_MODES[0]
     prune: float = 0.0
-    background: tuple[float, float, float] = (0.12, 0.14, 0.18)
+    background: tuple[float, float, float] = DEFAULT_BACKGROUND
     overlay: bool = True
     panel: bool = True
     moving_scale: float = 0.5

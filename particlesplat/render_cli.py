@@ -1,0 +1,116 @@
+"""``particlesplat render``: render a (possibly edited) scene headless with the torch renderer.
+
+The default camera is the viewer's default view (:func:`particlesplat.views.default_view`);
+``--look AZ,EL,DIST`` and ``--fov DEG`` mean what they mean in ``particlesplat-viewer``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import torch
+
+from .camera import Camera
+from .views import DEFAULT_BACKGROUND, View, check_fov, default_view, parse_look
+
+
+def _background(text: str) -> tuple[float, float, float]:
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--background: expected R,G,B numbers in [0, 1], got {text!r}") from None
+    if len(vals) != 3 or not all(0.0 <= v <= 1.0 for v in vals):
+        raise argparse.ArgumentTypeError(f"--background: expected R,G,B numbers in [0, 1], got {text!r}")
+    return vals  # type: ignore[return-value]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--checkpoint", help="model checkpoint (default: the shipped assets/model.pt)")
+    src = parser.add_mutually_exclusive_group()
+    src.add_argument("--scene", help="scene folder to encode (default: the first demo scene in assets/scenes)")
+    src.add_argument("--ply", help="render a 3DGS .ply instead of a model scene")
+    parser.add_argument("--context", help="context frame indices, e.g. 4,16 (default: as the viewer)")
+    parser.add_argument("--edits", help="edits YAML (particle index -> attribute values) to apply")
+    cam = parser.add_mutually_exclusive_group()
+    cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
+    cam.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
+    parser.add_argument("--fov", type=float, help="vertical field of view in degrees (with --look or the default view)")
+    parser.add_argument("--width", type=int, default=640, help="image width in pixels")
+    parser.add_argument("--height", type=int, default=480, help="image height in pixels")
+    parser.add_argument("--background", type=_background, default=DEFAULT_BACKGROUND, help="background colour R,G,B")
+    parser.add_argument("--prune", type=float, default=0.0, help="drop Gaussians with opacity below this")
+    parser.add_argument("--out", required=True, help="output PNG")
+
+
+def _scene_and_gaussians(args: argparse.Namespace):
+    """(Gaussians, all input cameras, edits dict, model name, source) for the arguments."""
+    from .gaussians import Gaussians
+
+    if args.ply:
+        if args.edits:
+            raise ValueError("--edits needs a model scene, not --ply")
+        path = Path(args.ply)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: .ply file not found")
+        return Gaussians.load_ply(path), [], {}, "", str(path)
+    from .edits import apply_edits, load_edits
+    from .encode_scene import demo_scenes, encode_scene, parse_context
+    from .model import load_model
+
+    model = load_model(args.checkpoint)
+    scene = args.scene
+    if scene is None:
+        scenes = demo_scenes()
+        if not scenes:
+            raise FileNotFoundError("no demo scenes in assets/scenes; pass --scene DIR")
+        scene = scenes[0]
+    enc = encode_scene(model, scene, parse_context(args.context))
+    particles, edits = enc.particles, {}
+    if args.edits:
+        edits = load_edits(args.edits)
+        particles = apply_edits(particles, edits, str(args.edits))
+    g = model.decode(particles).detach().to("cpu")
+    return g, enc.all_cameras, edits, str(args.checkpoint or "assets/model.pt"), str(scene)
+
+
+def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -> tuple[Camera, View | None]:
+    """The camera of ``--view`` / ``--look`` / ``--fov`` / default view at --width x --height."""
+    if args.width < 1 or args.height < 1:
+        raise ValueError(f"--width/--height must be positive, got {args.width}x{args.height}")
+    if args.view is not None:
+        if not cameras:
+            raise ValueError("--view needs a scene with input cameras")
+        if not 0 <= args.view < len(cameras):
+            raise ValueError(f"--view {args.view}: the scene has {len(cameras)} cameras (0..{len(cameras) - 1})")
+        if args.fov is not None:
+            raise ValueError("--fov applies to --look or the default view, not to --view")
+        return cameras[args.view].resized(args.width, args.height), None
+    base = default_view(cameras or None, None if cameras else gaussians)
+    view = View(base.target, parse_look(args.look) if args.look else base.look,
+                check_fov(args.fov) if args.fov is not None else base.fov)
+    return view.camera(args.width, args.height), view
+
+
+def run(args: argparse.Namespace) -> int:
+    from . import render
+    from .png import png_text, save_png
+
+    try:
+        g, cameras, edits, model_name, source = _scene_and_gaussians(args)
+        camera, view = resolve_camera(args, cameras, g)
+    except (OSError, ValueError, KeyError) as e:
+        print(f"particlesplat render: {e}", file=sys.stderr)
+        return 1
+    if args.prune > 0:
+        g = g.subset(g.opacities >= args.prune)
+    with torch.no_grad():
+        res = render(g, camera, background=args.background)
+    extra = {"scene": source}
+    if view is not None:
+        extra.update(look=f"{view.look.azimuth:.6g},{view.look.elevation:.6g},{view.look.distance:.6g}",
+                     fov=f"{view.fov:.6g}")
+    path = save_png(args.out, res.rgb.numpy(), png_text(camera, edits, model_name, extra))
+    print(f"saved {path} ({camera.width}x{camera.height}, {g.num} Gaussians)")
+    return 0
