@@ -48,19 +48,25 @@ def _read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[st
             continue
         if words[0] == "end_header":
             break
-        if words[0] == "format":
+        if words[0] == "format" and len(words) >= 2:
             fmt = words[1]
         elif words[0] == "element":
+            if len(words) != 3 or not words[2].isdigit():
+                raise PlyError(f"{path}: malformed header line {line.strip()!r} (expected 'element NAME COUNT')")
             elements.append((words[1], int(words[2]), []))
         elif words[0] == "property":
             if not elements:
                 raise PlyError(f"{path}: property before any element")
-            if words[1] == "list":
+            if len(words) >= 2 and words[1] == "list":
                 raise PlyError(f"{path}: list property '{words[-1]}' in element '{elements[-1][0]}' "
                                "is not supported in a Gaussian .ply")
+            if len(words) != 3:
+                raise PlyError(f"{path}: malformed header line {line.strip()!r} (expected 'property TYPE NAME')")
             if words[1] not in _PLY_TYPES:
                 raise PlyError(f"{path}: property '{words[2]}' has unknown type '{words[1]}'")
             elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
+        else:
+            raise PlyError(f"{path}: malformed header line {line.strip()!r}")
     if fmt not in ("binary_little_endian", "binary_big_endian"):
         raise PlyError(f"{path}: format '{fmt}' is not supported (binary_little_endian or binary_big_endian)")
     return fmt, elements

@@ -290,3 +290,14 @@ def test_failed_write_leaves_existing_file_intact(tmp_path: Path, monkeypatch: p
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.ply"]
     back = Gaussians.load_ply(path)
     assert torch.equal(back.means, old.means)
+
+
+@pytest.mark.parametrize("bad_line", ["element vertex two", "element vertex -1", "property float", "format",
+                                      "property float x extra", "vertex 3"])
+def test_malformed_header_line_is_rejected(tmp_path: Path, bad_line: str) -> None:
+    rows, _ = hand_rows(0)
+    path = tmp_path / "malformed.ply"
+    write_by_hand(path, rows, layout_names(0, owner=False))
+    data = path.read_bytes().replace(b"comment written by hand", bad_line.encode("ascii"))
+    path.write_bytes(data)
+    _expect_error(path)
