@@ -193,8 +193,10 @@ class Camera:
             raise ValueError("look_at: eye and target coincide")
         forward = forward / forward.norm()
         right = torch.linalg.cross(forward, up_t)
-        if float(right.norm()) < 1e-9:  # looking straight along up: pick any perpendicular
-            right = torch.linalg.cross(forward, torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64))
+        if float(right.norm()) < 1e-9:  # looking straight along up: use the world axis least along forward
+            axis = torch.zeros(3, dtype=torch.float64)
+            axis[int(forward.abs().argmin())] = 1.0
+            right = torch.linalg.cross(forward, axis)
         right = right / right.norm()
         down = torch.linalg.cross(forward, right)
         c2w = torch.eye(4, dtype=torch.float64)

@@ -233,3 +233,17 @@ def test_camera_validation_and_to() -> None:
     cam = _random_camera(1).to(dtype=torch.float32)
     assert cam.K.dtype == torch.float32 and cam.c2w.dtype == torch.float32 and cam.dtype == torch.float32
     torch.testing.assert_close(cam.w2c.double(), torch.linalg.inv(_random_camera(1).c2w), atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("up", [(0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0)])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_look_at_along_up_is_a_valid_camera(up, sign: float) -> None:
+    """Looking straight along (or against) ``up``: any roll is fine, but a finite rotation."""
+    target = tuple(sign * 3.0 * u for u in up)
+    cam = Camera.look_at((0.0, 0.0, 0.0), target, up=up, width=16, height=16, dtype=DT)
+    R = cam.R
+    assert torch.isfinite(cam.c2w).all()
+    torch.testing.assert_close(R.T @ R, torch.eye(3, dtype=DT), atol=1e-12, rtol=0)
+    assert abs(float(torch.det(R)) - 1.0) < 1e-12
+    uv, z = cam.project(torch.tensor([target], dtype=DT))
+    torch.testing.assert_close(uv, torch.tensor([[8.0, 8.0]], dtype=DT), atol=1e-9, rtol=0)
