@@ -134,10 +134,16 @@ def write_ply(gaussians: Gaussians, path: str | PathLike) -> None:
     """Write ``gaussians`` as a binary little-endian 3DGS .ply, atomically (temp file + rename).
 
     Opacities are clamped to [1e-7, 1 - 1e-7] and scales to >= 1e-30 so that the logit and
-    the log stay finite.
+    the log stay finite. Non-finite values raise ValueError (the reader would reject the file)
+    and leave an existing file untouched.
     """
     path = Path(path)
     g = gaussians.detach().to("cpu", torch.float64)
+    for name in ("means", "quats", "scales", "opacities", "sh"):
+        bad = ~torch.isfinite(getattr(g, name))
+        if bool(bad.any()):
+            row = int(bad.reshape(bad.shape[0], -1).any(1).nonzero()[0, 0])
+            raise ValueError(f"{path}: cannot write Gaussians.{name}: non-finite value at Gaussian {row}")
     n, k = g.num, g.sh.shape[1]
     sh = g.sh.numpy()
     props: list[tuple[str, np.ndarray]] = [("x", g.means[:, 0].numpy()), ("y", g.means[:, 1].numpy()),

@@ -301,3 +301,17 @@ def test_malformed_header_line_is_rejected(tmp_path: Path, bad_line: str) -> Non
     data = path.read_bytes().replace(b"comment written by hand", bad_line.encode("ascii"))
     path.write_bytes(data)
     _expect_error(path)
+
+
+@pytest.mark.parametrize("field", ["means", "quats", "scales", "opacities", "sh"])
+def test_writing_non_finite_values_is_refused(tmp_path: Path, field: str) -> None:
+    path = tmp_path / "nan.ply"
+    good = random_gaussians(4, 1, 3)
+    good.save_ply(path)
+    before = path.read_bytes()
+    g = random_gaussians(4, 1, 3)
+    getattr(g, field).view(4, -1)[2, 0] = float("nan")
+    with pytest.raises(ValueError, match=field) as info:
+        g.save_ply(path)
+    assert str(path) in str(info.value) and "2" in str(info.value)
+    assert path.read_bytes() == before
