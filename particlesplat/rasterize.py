@@ -124,15 +124,20 @@ def _tile_hits(g: Tensor, tile: Tensor, origin: Tensor, means2d: Tensor, conics:
     return hit
 
 
-def _make_chunks(count: Tensor) -> list[tuple[Tensor, Tensor]]:
-    """Bucket non-empty tiles by list length (padded to 1..8, 10, 12, 14, 16, 20, ...: quarter
-    octaves) and chunk them; returns (tile ids (Tb,), pair index (Tb, L)) per chunk."""
+def _make_chunks(count: Tensor, list_count: Tensor | None = None) -> list[tuple[Tensor, Tensor]]:
+    """Bucket non-empty tiles by length (padded to 1..8, 10, 12, 14, 16, 20, ...: quarter
+    octaves) and chunk them; returns (tile ids (Tb,), pair index (Tb, L)) per chunk.
+
+    count: (T,) slots to process per tile; list_count: (T,) full list lengths that lay out the
+    pairs (default ``count``), so the first ``count`` slots of each list can be processed alone.
+    """
     chunks: list[tuple[Tensor, Tensor]] = []
     nonempty = torch.nonzero(count > 0).squeeze(1)
     if nonempty.numel() == 0:
         return chunks
-    num_pairs = int(count.sum())
-    start = torch.cumsum(count, 0) - count
+    list_count = count if list_count is None else list_count
+    num_pairs = int(list_count.sum())
+    start = torch.cumsum(list_count, 0) - list_count
     c = count[nonempty].double()
     step = torch.clamp(torch.pow(2.0, torch.floor(torch.log2(c))) / 4, min=1.0)
     padded = (torch.ceil(c / step) * step).long()
@@ -224,10 +229,16 @@ class RasterizeFunction(torch.autograd.Function):
     def forward(ctx, coef: Tensor, features: Tensor, bins: TileBins) -> Tensor:
         feats = _pixel_features(coef.dtype, coef.device)
         out = coef.new_zeros(bins.num_tiles, TILE * TILE, features.shape[1])
+        live = torch.zeros_like(bins.count)  # per tile: slots up to the last one with any weight
         for tiles, idx in bins.chunks:
-            out[tiles] = torch.bmm(_ChunkState(feats, coef[idx]).weights, features[idx])
+            w = _ChunkState(feats, coef[idx]).weights
+            out[tiles] = torch.bmm(w, features[idx])
+            used = (w > 0).any(1)  # (Tb, L)
+            live[tiles] = torch.where(used, torch.arange(1, idx.shape[1] + 1, device=idx.device), 0).amax(-1)
         ctx.save_for_backward(coef, features)
-        ctx.bins = bins
+        # Slots after a tile's last weighted slot (terminated or transparent everywhere) have
+        # zero gradient, so the backward processes only the live prefix of each list.
+        ctx.chunks = _make_chunks(live, bins.count)
         return out
 
     @staticmethod
@@ -236,7 +247,7 @@ class RasterizeFunction(torch.autograd.Function):
         feats = _pixel_features(coef.dtype, coef.device)
         d_coef = torch.zeros_like(coef)
         d_feat = torch.zeros_like(features)
-        for tiles, idx in ctx.bins.chunks:
+        for tiles, idx in ctx.chunks:
             st = _ChunkState(feats, coef[idx])
             f = features[idx]  # (Tb, L, F)
             G = grad_out[tiles]  # (Tb, 16, F)
