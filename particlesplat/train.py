@@ -165,8 +165,10 @@ class Trainer:
             with open(self.out / "metrics.jsonl", "a") as f:
                 f.write(json.dumps(record) + "\n")
 
-    def run(self) -> int:
+    def run(self, stop_after: int | None = None) -> int:
+        """Train until ``steps`` (or for at most ``stop_after`` more steps, then checkpoint and return)."""
         tc = self.tc
+        end = tc.steps if stop_after is None else min(tc.steps, self.step + stop_after)
         if self.rank == 0:
             self.out.mkdir(parents=True, exist_ok=True)
             with atomic_write(self.out / "config.yaml", "w") as f:
@@ -175,7 +177,7 @@ class Trainer:
                 yaml.safe_dump(self.raw_config, f, sort_keys=False)
         bar = tqdm(total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0, dynamic_ncols=True)
         run_avg: dict[str, float] = {}
-        while self.step < tc.steps:
+        while self.step < end:
             parts = self.train_step()
             bar.update(1)
             for k, v in parts.items():
@@ -186,7 +188,7 @@ class Trainer:
                             active=f"{run_avg['active']:.1f}")
             if self.step % tc.log_every == 0:
                 self.log({"step": self.step, **{k: round(v, 5) for k, v in run_avg.items()}})
-            if self.step % tc.ckpt_every == 0 or self.step == tc.steps:
+            if self.step % tc.ckpt_every == 0 or self.step == end:
                 self._save(self.out / LAST)
             if self.step % tc.val_every == 0 or self.step == tc.steps:
                 if self.rank == 0 and self.val_dir.is_dir():
@@ -217,6 +219,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                      "metrics.jsonl, config.yaml")
     parser.add_argument("--resume", action="store_true", help="continue exactly from OUT/last.pt")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (under torchrun: one process per device)")
+    parser.add_argument("--stop-after", type=int, default=None,
+                        help="run at most this many steps in this invocation, checkpoint, and exit "
+                             "(continue later with --resume)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -233,4 +238,4 @@ def run(args: argparse.Namespace) -> int:
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
     raw = yaml.safe_load(Path(args.config).read_text())
     trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, raw)
-    return trainer.run()
+    return trainer.run(args.stop_after)

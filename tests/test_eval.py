@@ -1,0 +1,83 @@
+"""Metric tests against brute-force and analytic truth, and the eval CLI on a tiny dataset."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+
+import torch
+from model_data import TINY_MODEL, tiny_dataset
+from PIL import Image
+
+from particlesplat.cli import main
+from particlesplat.metrics import adjusted_rand_index, depth_abs_rel, fg_ari, matched_miou, psnr, ssim
+from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
+
+
+def ari_brute_force(a: list[int], b: list[int]) -> float:
+    """ARI from pair counts over all point pairs (independent of the contingency-table formula)."""
+    n = len(a)
+    pairs = list(itertools.combinations(range(n), 2))
+    same_a = [a[i] == a[j] for i, j in pairs]
+    same_b = [b[i] == b[j] for i, j in pairs]
+    n11 = sum(x and y for x, y in zip(same_a, same_b))
+    na, nb, m = sum(same_a), sum(same_b), len(pairs)
+    expected = na * nb / m
+    return (n11 - expected) / (0.5 * (na + nb) - expected)
+
+
+def test_ari_matches_pair_counting():
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(5):
+        a = torch.randint(0, 3, (40,), generator=gen)
+        b = torch.randint(-1, 4, (40,), generator=gen)
+        assert math.isclose(adjusted_rand_index(a, b), ari_brute_force(a.tolist(), b.tolist()), rel_tol=1e-9)
+
+
+def test_ari_is_one_for_relabelled_partitions_and_fg_ari_ignores_background():
+    gt = torch.tensor([[0, 1, 1], [2, 2, 0]])
+    pred = torch.tensor([[5, 7, 7], [-1, -1, 5]])  # background pixels are predicted anything
+    assert fg_ari(pred, gt) == 1.0
+    assert adjusted_rand_index(torch.tensor([1, 1, 2, 2]), torch.tensor([3, 4, 3, 4])) < 0
+    assert math.isnan(fg_ari(pred, torch.zeros_like(gt)))
+
+
+def test_matched_miou():
+    gt = torch.tensor([[1, 1, 0, 2], [1, 1, 0, 2]])
+    pred = torch.tensor([[3, 3, 3, 4], [3, 3, -1, -1]])
+    # object 1: IoU(3) = 4/5; object 2: IoU(4) = 1/2
+    assert math.isclose(matched_miou(pred, gt), (0.8 + 0.5) / 2)
+    # one-to-one: a single segment covering both objects matches only one of them
+    assert math.isclose(matched_miou(torch.full_like(gt, 0), gt), (4 / 8 + 0.0) / 2)
+
+
+def test_image_and_depth_metrics_analytic():
+    a = torch.zeros(1, 3, 8, 8)
+    b = torch.full((1, 3, 8, 8), 0.1)
+    assert math.isclose(psnr(a, b), 20.0, rel_tol=1e-5)
+    assert math.isclose(ssim(b, b), 1.0, rel_tol=1e-5)
+    gt = torch.tensor([2.0, 4.0, 0.0])
+    assert math.isclose(depth_abs_rel(torch.tensor([3.0, 4.0, 9.0]), gt), 0.25)
+
+
+def test_eval_cli_writes_json_figures_and_pruning_table(tmp_path_factory, tmp_path):
+    data = tiny_dataset(tmp_path_factory)
+    torch.manual_seed(0)
+    ckpt = tmp_path / "m.pt"
+    save_checkpoint(ckpt, ParticleSplat(ModelConfig(**TINY_MODEL)), step=0)
+    out = tmp_path / "eval.json"
+    assert main(["eval", "--checkpoint", str(ckpt), "--data", str(data / "val"), "--json", str(out),
+                 "--figures", str(tmp_path / "fig"), "--prune"]) == 0
+    res = json.loads(out.read_text())
+    assert set(res["mean"]) >= {"psnr", "ssim", "depth_abs_rel", "fg_ari", "miou"}
+    assert len(res["scenes"]) == 1 and res["scenes"][0]["scene"] == "scene_00000"
+    assert 0 < res["mean"]["psnr"] < 60 and -1 <= res["mean"]["fg_ari"] <= 1
+    rows = res["pruning"]
+    base = rows[0]
+    assert base["z_t_threshold"] == 0 and base["opacity_threshold"] == 0
+    assert base["gaussians"] == res["mean"]["gaussians"]
+    assert all(r["gaussians"] <= base["gaussians"] for r in rows)
+    img = Image.open(tmp_path / "fig" / "scene_00000.png")
+    assert img.size == (4 * 32, 5 * 32)  # 4 targets wide, 5 rows
+    assert main(["eval", "--checkpoint", str(ckpt), "--data", str(data / "val"), "--context", "1"]) == 0
