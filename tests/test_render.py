@@ -40,11 +40,10 @@ def make(means, quats=None, scales=None, opacities=None, sh=None, owner=None, *,
                      torch.as_tensor(owner, dtype=torch.int64).reshape(n))
 
 
-def pinhole(width: int = 37, height: int = 23, f: float = 30.0, c2w: torch.Tensor | None = None,
-            fy: float | None = None) -> Camera:
-    """float64 camera with a centred principal point (identity pose unless ``c2w``)."""
-    K = torch.tensor([[f, 0.0, width / 2], [0.0, fy or f, height / 2], [0.0, 0.0, 1.0]], dtype=F64)
-    return Camera(K, torch.eye(4, dtype=F64) if c2w is None else c2w.to(F64), width, height)
+def pinhole(width: int = 37, height: int = 23, f: float = 30.0) -> Camera:
+    """float64 camera at the origin looking down +z, focal ``f`` px, centred principal point."""
+    K = torch.tensor([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]], dtype=F64)
+    return Camera(K, torch.eye(4, dtype=F64), width, height)
 
 
 def random_scene(seed: int, n: int, degree: int, width: int = 37, height: int = 23) -> tuple[Gaussians, Camera]:
@@ -68,6 +67,7 @@ def leaves(gs: Gaussians, dtype: torch.dtype) -> tuple[dict[str, torch.Tensor], 
 
 
 def weights(h: int, w: int, seed: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Random float64 projection weights for rgb (h, w, 3), alpha (h, w) and depth (h, w)."""
     gen = torch.Generator().manual_seed(seed)
     return (torch.randn(h, w, 3, generator=gen, dtype=F64), torch.randn(h, w, generator=gen, dtype=F64),
             torch.randn(h, w, generator=gen, dtype=F64))
