@@ -257,10 +257,11 @@ class RasterizeFunction(torch.autograd.Function):
             v = torch.bmm(G, f.transpose(1, 2))  # (Tb, 16, L) upstream · feature
             vw = v.mul_(st.weights)
             suffix = vw.sum(-1, keepdim=True) - torch.cumsum(vw, dim=-1)  # S_i = Σ_{k>i} v_k w_k
-            # ∂L/∂exponent = α ∂L/∂α = α (v T − S / (1 − α)) = v w − S α / (1 − α), where α is
-            # neither clamped at 0.99 nor past termination (α = 0 below 1/255 gives 0 by itself)
+            # ∂L/∂exponent = α ∂L/∂α = α (v T − S / (1 − α)) = v w − S α / (1 − α), except where α
+            # is clamped at 0.99. Below 1/255 (α = 0) and from the terminating slot on (w = 0 and
+            # S = 0 there) it is 0 by itself.
             d_expo = vw.sub_(suffix.mul_(st.alpha).div_(st.one_minus))
-            d_expo.masked_fill_(~st.keep | (st.alpha >= ALPHA_MAX), 0.0)
+            d_expo.masked_fill_(st.alpha >= ALPHA_MAX, 0.0)
             d_coef[idx] = torch.matmul(feats.T, d_expo).transpose(1, 2)  # (Tb, L, 6)
         d_coef[-1] = 0.0
         d_feat[-1] = 0.0
