@@ -94,8 +94,9 @@ class Gaussians:
         return M @ M.transpose(-1, -2)
 
     def colors(self, camera_center: Tensor) -> Tensor:
-        """(N, 3) colours seen from ``camera_center`` (3,) (view direction camera -> mean)."""
-        dirs = torch.nn.functional.normalize(self.means - camera_center, dim=-1)
+        """(N, 3) colours seen from ``camera_center`` (3,) (view direction camera -> mean), in the
+        dtype of the Gaussians."""
+        dirs = torch.nn.functional.normalize(self.means - camera_center.to(self.means), dim=-1)
         return eval_sh_colors(self.sh, dirs)
 
     # ------------------------------------------------------------------ subsets and moves

@@ -174,6 +174,11 @@ def test_colors_match_reference_and_clamp(degree: int) -> None:
     torch.testing.assert_close(got, want, atol=1e-12, rtol=0)
     assert (got == 0).any()  # some colours are clamped at 0 with these coefficients
     torch.testing.assert_close(eval_sh_colors(g.sh, d), want, atol=1e-12, rtol=0)
+    # a float64 camera centre does not promote float32 Gaussians' colours
+    g32 = g.to(dtype=torch.float32)
+    c32 = g32.colors(center)
+    assert c32.dtype == torch.float32
+    torch.testing.assert_close(c32.double(), want, atol=1e-5, rtol=0)
 
 
 def test_rgb_to_sh_dc_gives_that_colour_everywhere() -> None:
