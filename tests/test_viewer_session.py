@@ -1,0 +1,130 @@
+"""The scene session (edits as do/undo operations) and the incremental GL update."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from particlesplat import render
+from particlesplat.encode_scene import demo_scenes, encode_scene
+from viewer.gl_renderer import SplatRenderer
+from viewer.scene_view import SceneView
+from viewer.screenshot import save_numbered, save_screenshot
+from viewer.session import SceneSession
+from viewer.state import ViewState
+
+from viewer_helpers import egl_context, psnr, small_model
+
+
+@pytest.fixture(scope="module")
+def encoded():
+    model = small_model()
+    return model, encode_scene(model, demo_scenes()[0])
+
+
+def test_edit_undo_redo(encoded):
+    model, enc = encoded
+    s = SceneSession(model, enc)
+    assert s.take_changes() is None  # first sync uploads everything
+    z0 = s.value(1, "z_p")
+    s.set_attribute(1, "z_p", [0.3, -0.2])
+    assert s.take_changes() == {1}
+    assert s.value(1, "z_p") == pytest.approx((0.3, -0.2))
+    assert s.edits() == {1: {"z_p": pytest.approx((0.3, -0.2))}}
+    assert s.undo() and s.value(1, "z_p") == z0 and s.edits() == {}
+    assert s.take_changes() == {1}
+    assert s.redo() and s.value(1, "z_p") == pytest.approx((0.3, -0.2))
+    assert not s.redo()
+    # a new edit clears the redo stack
+    s.undo()
+    s.set_attribute(0, "z_t", [0.0])
+    assert not s.redo()
+
+
+def test_drag_gesture_is_one_operation(encoded):
+    model, enc = encoded
+    s = SceneSession(model, enc)
+    d0 = s.value(2, "z_d")[0]
+    for k in range(1, 6):
+        s.set_attribute(2, "z_d", [d0 + 0.1 * k], gesture="drag")
+    s.end_gesture()
+    s.set_attribute(2, "z_d", [d0 + 1.0], gesture="drag")  # a new gesture after end_gesture
+    assert len(s.history.undo) == 2
+    s.undo()
+    assert s.value(2, "z_d")[0] == pytest.approx(d0 + 0.5)
+    s.undo()
+    assert s.value(2, "z_d")[0] == pytest.approx(d0)
+
+
+def test_reset_and_load_edits(encoded, tmp_path):
+    model, enc = encoded
+    s = SceneSession(model, enc, model_name="small")
+    s.set_attribute(0, "z_s", [1.0, 1.0])
+    s.set_attribute(0, "z_e", [2.0])
+    s.reset_particle(0)
+    assert s.edits() == {}
+    s.set_attribute(3, "z_d", [0.7])
+    s.save_edits(tmp_path / "e.yaml")
+    s2 = SceneSession(model, enc)
+    s2.load_edits(tmp_path / "e.yaml")
+    assert s2.edits() == s.edits()
+    assert s2.undo() and s2.edits() == {}
+    with pytest.raises(IndexError):
+        s.set_attribute(99, "z_d", [0.0])
+    with pytest.raises(KeyError):
+        s.set_attribute(0, "z_f", [0.0])
+
+
+def test_edit_redecodes_only_that_particle_and_matches_torch(encoded):
+    """After an edit the GL renderer holds exactly the full decode of the edited particles."""
+    model, enc = encoded
+    ctx = egl_context()
+    s = SceneSession(model, enc)
+    view = SceneView(SplatRenderer(ctx, color_dtype="f4"))
+    state = ViewState()
+    cam = enc.all_cameras[10].resized(80, 80)
+    view.draw(s, state, cam)
+    s.set_attribute(2, "z_p", [0.1, 0.1])
+    s.set_attribute(4, "z_d", [2.0])
+    calls = []
+    orig = s.particle_gaussians
+    s.particle_gaussians = lambda i: calls.append(i) or orig(i)
+    assert view.draw(s, state, cam) is not None
+    assert sorted(calls) == [2, 4]
+    assert view.draw(s, state, cam) is None  # nothing changed: no redraw
+    ref = render(s.gaussians(), cam, background=state.background)
+    assert psnr(view.renderer.read_rgb(state.background), ref.rgb.numpy()) >= 40.0
+    # picking (background hidden: the untrained particles are faint): the most clearly owned pixel
+    state.seg_mode = "background hidden"
+    view.draw(s, state, cam)
+    res = render(view.visible_gaussians(s, state), cam, owner_weights=True, num_owners=s.num_owners())
+    w = res.owner_weights.numpy()
+    margin = w.max(0) - (res.background_weight + 1.0 - res.alpha).numpy()
+    y, x = np.unravel_index(np.argmax(margin), margin.shape)
+    assert margin[y, x] > 0
+    assert view.pick(s, cam, int(x), int(y)) == int(w[:, y, x].argmax())
+    assert view.pick(s, cam, 0, 0) == int(res.segmentation()[0, 0])
+    state.seg_mode = "normal"
+    # hidden particles and pruning = the torch render of the filtered set
+    state.hidden = {0, 1}
+    state.prune = 0.3
+    view.draw(s, state, cam)
+    g = view.visible_gaussians(s, state)
+    assert not torch.isin(g.owner, torch.tensor([0, 1])).any() and bool((g.opacities >= 0.3).all())
+    assert psnr(view.renderer.read_rgb(state.background), render(g, cam, background=state.background).rgb.numpy()) >= 40
+    view.renderer.release()
+    ctx.release()
+
+
+def test_numbered_files_never_overwrite(tmp_path):
+    (tmp_path / "particlesplat_0001.png").write_bytes(b"keep")
+    img = np.zeros((4, 5, 3), np.float32)
+    a = save_screenshot(tmp_path, img, {"camera": "{}"})
+    b = save_screenshot(tmp_path, img, {"camera": "{}"})
+    assert (a.name, b.name) == ("particlesplat_0002.png", "particlesplat_0003.png")
+    assert (tmp_path / "particlesplat_0001.png").read_bytes() == b"keep"
+    c = save_numbered(tmp_path, "particlesplat_", ".ply", lambda p: p.write_text("x"))
+    assert c.name == "particlesplat_0001.ply"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["particlesplat_0001.ply", "particlesplat_0001.png",
+                                                         "particlesplat_0002.png", "particlesplat_0003.png"]

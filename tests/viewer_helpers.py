@@ -1,0 +1,29 @@
+"""Shared helpers of the GL and viewer tests: a headless EGL context, a small random model."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from particlesplat.model import ModelConfig, ParticleSplat
+
+SMALL_MODEL = dict(resolution=32, particles_per_view=3, kp_patch=4, glimpse_size=8, channels=8, d_obj=4, d_bg=2,
+                   bg_latent_stride=8, bg_block=4, patch_gaussians=3, token_dim=16, transformer_layers=1,
+                   transformer_heads=2)
+
+
+def egl_context():
+    import moderngl
+
+    return moderngl.create_standalone_context(backend="egl")
+
+
+def small_model(seed: int = 0) -> ParticleSplat:
+    """An untrained model (random weights, fixed seed): enough to exercise encode/decode/edit."""
+    torch.manual_seed(seed)
+    return ParticleSplat(ModelConfig(**SMALL_MODEL)).eval()
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
+    return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
