@@ -200,11 +200,11 @@ def pair_inputs(bins: TileBins, means2d: Tensor, conics: Tensor, opacities: Tens
     Returns coefficients (P+1, 6) and features with a trailing 1 (P+1, C+1).
     """
     rows = bins.gauss
-    local = means2d[rows] - bins.tile_origin[bins.pair_tile].to(means2d.dtype)
-    coef = _coefficients(local, conics[rows], torch.log(opacities[rows].clamp_min(1e-30)))
+    local = means2d.index_select(0, rows) - bins.tile_origin.index_select(0, bins.pair_tile).to(means2d.dtype)
+    coef = _coefficients(local, conics.index_select(0, rows), torch.log(opacities.index_select(0, rows).clamp_min(1e-30)))
     pad = coef.new_zeros(1, 6)
     pad[0, 5] = _PAD_LOG_OPACITY
-    f1 = _with_ones(features[rows])
+    f1 = _with_ones(features.index_select(0, rows))
     return torch.cat([coef, pad]), torch.cat([f1, f1.new_zeros(1, f1.shape[1])])
 
 
@@ -231,8 +231,8 @@ class RasterizeFunction(torch.autograd.Function):
         out = coef.new_zeros(bins.num_tiles, TILE * TILE, features.shape[1])
         live = torch.zeros_like(bins.count)  # per tile: slots up to the last one with any weight
         for tiles, idx in bins.chunks:
-            w = _ChunkState(feats, coef[idx]).weights
-            out[tiles] = torch.bmm(w, features[idx])
+            w = _ChunkState(feats, _rows(coef, idx)).weights
+            out.index_copy_(0, tiles, torch.bmm(w, _rows(features, idx)))
             used = (w > 0).any(1)  # (Tb, L)
             live[tiles] = torch.where(used, torch.arange(1, idx.shape[1] + 1, device=idx.device), 0).amax(-1)
         ctx.save_for_backward(coef, features)
@@ -248,12 +248,13 @@ class RasterizeFunction(torch.autograd.Function):
         d_coef = torch.zeros_like(coef)
         d_feat = torch.zeros_like(features)
         for tiles, idx in ctx.chunks:
-            st = _ChunkState(feats, coef[idx])
-            f = features[idx]  # (Tb, L, F)
-            G = grad_out[tiles]  # (Tb, 16, F)
+            st = _ChunkState(feats, _rows(coef, idx))
+            f = _rows(features, idx)  # (Tb, L, F)
+            G = grad_out.index_select(0, tiles)  # (Tb, 16, F)
             # each real pair sits in exactly one slot, so plain assignment suffices (padding
             # slots all write the padding row, whose gradient is dropped)
-            d_feat[idx] = torch.bmm(st.weights.transpose(1, 2), G)
+            flat = idx.reshape(-1)
+            d_feat.index_copy_(0, flat, torch.bmm(st.weights.transpose(1, 2), G).reshape(flat.numel(), -1))
             v = torch.bmm(G, f.transpose(1, 2))  # (Tb, 16, L) upstream · feature
             vw = v.mul_(st.weights)
             suffix = vw.sum(-1, keepdim=True) - torch.cumsum(vw, dim=-1)  # S_i = Σ_{k>i} v_k w_k
@@ -262,10 +263,15 @@ class RasterizeFunction(torch.autograd.Function):
             # S = 0 there) it is 0 by itself.
             d_expo = vw.sub_(suffix.mul_(st.alpha).div_(st.one_minus))
             d_expo.masked_fill_(st.alpha >= ALPHA_MAX, 0.0)
-            d_coef[idx] = torch.matmul(feats.T, d_expo).transpose(1, 2)  # (Tb, L, 6)
+            d_coef.index_copy_(0, flat, torch.matmul(feats.T, d_expo).transpose(1, 2).reshape(flat.numel(), 6))
         d_coef[-1] = 0.0
         d_feat[-1] = 0.0
         return d_coef, d_feat, None
+
+
+def _rows(table: Tensor, idx: Tensor) -> Tensor:
+    """table[idx] for a 2D index (index_select is much faster than advanced indexing on CPU)."""
+    return table.index_select(0, idx.reshape(-1)).reshape(*idx.shape, *table.shape[1:])
 
 
 def _with_ones(features: Tensor) -> Tensor:
@@ -284,5 +290,5 @@ def owner_weight_tiles(coef: Tensor, owner_slot: Tensor, num_slots: int, bins: T
         onehot = torch.cat([onehot, onehot.new_zeros(1, num_slots)])
         out = coef.new_zeros(bins.num_tiles, TILE * TILE, num_slots)
         for tiles, idx in bins.chunks:
-            out[tiles] = torch.bmm(_ChunkState(feats, coef[idx].detach()).weights, onehot[idx])
+            out.index_copy_(0, tiles, torch.bmm(_ChunkState(feats, _rows(coef.detach(), idx)).weights, _rows(onehot, idx)))
         return out
