@@ -1,20 +1,23 @@
 #version 330
-// Per-Gaussian preprocessing, one fragment per Gaussian (runs on all rasteriser threads).
+// Per-Gaussian preprocessing, one fragment per drawn splat (runs on all rasteriser threads).
+// Fragment k (k = y * row + x) projects Gaussian order[k], the k-th nearest visible Gaussian,
+// so the splat pass reads its data at texel k with no index indirection.
 // Input: the static Gaussian texture, `texels` texels per Gaussian, `row` Gaussians per row:
 //   texel 0: mean xyz (world m), opacity
 //   texels 1-3: rotation matrix rows r0, r1, r2 (xyz) and the scales (w), metres
 //   texel 4..: owner (float), then the SH coefficients, flat index 1 + k * 3 + channel
-// Output (one texel per Gaussian, ROW per row), zero radius = culled:
-//   center: u, v (pixels, image rows downward), camera z, major radius (pixels)
+// Output (one texel per splat, `row` per row), zero radius = culled:
+//   center: u, v (pixels, image rows downward), major and minor radius of the alpha >= 1/255
+//           ellipse (pixels)
 //   conic:  inverse 2D covariance a, b, c (q = a dx^2 + 2 b dx dy + c dy^2), opacity
 //   color:  SH colour rgb, owner
-//   axis:   unit major axis xy, minor radius (pixels), unused
 // Rules follow particlesplat.render: EWA with the Jacobian's x/z, y/z clamped to the frustum
 // widened by 30%, +0.3 px^2 dilation, footprint alpha >= 1/255, near/far culling, and the
 // determinant of the 2D covariance computed without cancellation (as particlesplat.projection).
 
 uniform sampler2D gaussians;
-uniform int num;
+uniform isampler2D order;  // sorted Gaussian indices, `row` per row
+uniform int num;           // splats to project (the sorted list's length)
 uniform int row;
 uniform int texels;
 uniform int sh_bases;
@@ -28,7 +31,6 @@ uniform float dilation;
 layout(location = 0) out vec4 o_center;
 layout(location = 1) out vec4 o_conic;
 layout(location = 2) out vec4 o_color;
-layout(location = 3) out vec4 o_axis;
 
 const float C0 = 0.28209479177387814;
 const float C1 = 0.4886025119029199;
@@ -46,12 +48,12 @@ void cull() {
     o_center = vec4(0.0);
     o_conic = vec4(0.0);
     o_color = vec4(0.0);
-    o_axis = vec4(0.0);
 }
 
 void main() {
-    int g = int(gl_FragCoord.y) * row + int(gl_FragCoord.x);
-    if (g >= num) { cull(); return; }
+    ivec2 k = ivec2(gl_FragCoord.xy);
+    if (k.y * row + k.x >= num) { cull(); return; }
+    int g = texelFetch(order, k, 0).r;
     vec4 t0 = fetch(g, 0);
     vec4 t1 = fetch(g, 1);
     vec4 t2 = fetch(g, 2);
@@ -90,7 +92,6 @@ void main() {
     float disc = sqrt(max(mid * mid - det, 0.0));
     float l1 = mid + disc;
     float l2 = max(mid - disc, 0.0);
-    vec2 e1 = abs(b) > 1e-12 * max(a, c) ? normalize(vec2(b, l1 - a)) : (a >= c ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
     vec2 uv = vec2(intr.x * pc.x / z + intr.z, intr.y * pc.y / z + intr.w);
 
     // view-dependent colour
@@ -123,8 +124,7 @@ void main() {
     }
     rgb = max(rgb + 0.5, vec3(0.0));
 
-    o_center = vec4(uv, z, sqrt(qmax * l1));
+    o_center = vec4(uv, sqrt(qmax * l1), sqrt(qmax * l2));
     o_conic = vec4(c / det, -b / det, a / det, opacity);
     o_color = vec4(rgb, owner);
-    o_axis = vec4(e1, sqrt(qmax * l2), 0.0);
 }

@@ -77,9 +77,12 @@ def test_owner_weights_match_torch(ctx):
     r.release()
 
 
-def test_model_decode_matches_torch(ctx):
-    model = small_model()
+@pytest.mark.parametrize("which", ["shipped", "untrained"])
+def test_model_decode_matches_torch(ctx, which):
     from particlesplat.encode_scene import demo_scenes, encode_scene
+    from particlesplat.model import load_model
+
+    model = load_model() if which == "shipped" else small_model()
 
     enc = encode_scene(model, demo_scenes()[0])
     g = model.decode(enc.particles)

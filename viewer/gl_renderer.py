@@ -157,8 +157,7 @@ class SplatRenderer:
         self._order_tex: moderngl.Texture | None = None
         self._vaos: dict[str, moderngl.VertexArray] = {}
         self._drawn = 0
-        self._sort_key: tuple | None = None
-        self._proj_key: tuple | None = None
+        self._key: tuple | None = None  # (view, data, filter) of the current sort + projection
         # targets
         self._color_tex: moderngl.Texture | None = None
         self._color_fbo: moderngl.Framebuffer | None = None
@@ -207,7 +206,7 @@ class SplatRenderer:
                 self._proj_fbo.release()
             self._data_tex = self.ctx.texture((ROW * texels, rows), 4, dtype="f4")
             self._data_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            self._proj_tex = [self.ctx.texture((ROW, rows), 4, dtype="f4") for _ in range(4)]
+            self._proj_tex = [self.ctx.texture((ROW, rows), 4, dtype="f4") for _ in range(3)]
             self._proj_fbo = self.ctx.framebuffer(color_attachments=self._proj_tex)
         self._write_rows(0, rows)
         self._data_version += 1
@@ -285,15 +284,28 @@ class SplatRenderer:
 
     # ------------------------------------------------------------------ passes
     def _prepare(self, camera: Camera, times: FrameTimes) -> dict[str, tuple]:
-        """Projection pass and global sort, each only when its inputs changed."""
+        """Global sort and projection pass, only when the view, the data or the filter changed."""
         uni = camera_uniforms(camera)
         self._ensure_targets(camera.width, camera.height)
-        view_key = (uni["w2c"], uni["intr"], uni["size"])
-        proj_key = (view_key, self._data_version)
-        if proj_key != self._proj_key and self.num:
+        key = (uni["w2c"], uni["intr"], uni["size"], self._data_version, self._filter_version)
+        if key == self._key:
+            return uni
+        t0 = time.perf_counter()
+        idx = self._visible_idx
+        w2c = np.asarray(uni["w2c"], np.float64).reshape(4, 4).T
+        z = self._means[idx] @ w2c[2, :3].astype(np.float32) + np.float32(w2c[2, 3])
+        keep = (z > self.near) & (z < self.far)
+        idx, z = idx[keep], z[keep]
+        order = idx[np.argsort(z, kind="stable")].astype(np.int32)
+        t1 = time.perf_counter()
+        self._upload_order(order)
+        t2 = time.perf_counter()
+        times.sort_ms, times.upload_ms, times.sorted = (t1 - t0) * 1e3, (t2 - t1) * 1e3, True
+        if self._drawn:
             p = self._project
             p["gaussians"] = 0
-            p["num"] = self.num
+            p["order"] = 1
+            p["num"] = self._drawn
             p["row"] = ROW
             p["texels"] = self._packed.shape[1]
             p["sh_bases"] = self._sh_bases()
@@ -302,24 +314,12 @@ class SplatRenderer:
             p["near_far"] = (self.near, self.far)
             p["dilation"] = DILATION
             self._data_tex.use(0)
+            self._order_tex.use(1)
             self._proj_fbo.use()
             self.ctx.disable(moderngl.BLEND)
+            self.ctx.viewport = (0, 0, ROW, math.ceil(self._drawn / ROW))
             self._empty_vao.render(moderngl.TRIANGLE_STRIP, vertices=4)
-            self._proj_key = proj_key
-        sort_key = (uni["w2c"], self._data_version, self._filter_version)
-        if sort_key != self._sort_key:
-            t0 = time.perf_counter()
-            idx = self._visible_idx
-            w2c = np.asarray(uni["w2c"], np.float64).reshape(4, 4).T
-            z = self._means[idx] @ w2c[2, :3].astype(np.float32) + np.float32(w2c[2, 3])
-            keep = (z > self.near) & (z < self.far)
-            idx, z = idx[keep], z[keep]
-            order = idx[np.argsort(z, kind="stable")].astype(np.int32)
-            t1 = time.perf_counter()
-            self._upload_indices(order)
-            t2 = time.perf_counter()
-            times.sort_ms, times.upload_ms, times.sorted = (t1 - t0) * 1e3, (t2 - t1) * 1e3, True
-            self._sort_key = sort_key
+        self._key = key
         return uni
 
     def _sh_bases(self) -> int:
@@ -327,19 +327,11 @@ class SplatRenderer:
         cap = ((self._packed.shape[1] - 4) * 4 - 1) // 3
         return max(k for k in (1, 4, 9, 16) if k <= cap)
 
-    def _upload_indices(self, order: np.ndarray) -> None:
-        """Upload the sorted Gaussian indices (int32): as the point index buffer, or as the order
-        texture read by the quad vertex stage (plus a static quad element buffer)."""
+    def _upload_order(self, order: np.ndarray) -> None:
+        """Upload the sorted Gaussian indices (int32) to the order texture read by the projection
+        pass; make sure the static quad element buffer is long enough."""
         n = order.shape[0]
         self._drawn = n
-        if self.primitive == "points":
-            data = order.tobytes()
-            if self._index_buf is None or self._index_buf.size < max(4, len(data)):
-                self._release_vaos(also_buffer=True)
-                self._index_buf = self.ctx.buffer(reserve=max(4, 2 * len(data)))
-            if data:
-                self._index_buf.write(data)
-            return
         rows = max(1, math.ceil(n / ROW))
         if self._order_tex is None or self._order_tex.height < rows:
             if self._order_tex is not None:
@@ -350,7 +342,7 @@ class SplatRenderer:
             block = np.zeros(rows * ROW, np.int32)
             block[:n] = order
             self._order_tex.write(block.tobytes(), viewport=(0, 0, ROW, rows))
-        if self._index_buf is None or self._index_buf.size < 24 * max(n, 1):
+        if self.primitive == "quads" and (self._index_buf is None or self._index_buf.size < 24 * max(n, 1)):
             self._release_vaos(also_buffer=True)
             cap = max(2 * n, 1024)
             corners = np.array([0, 1, 2, 2, 1, 3], np.uint32)
@@ -367,18 +359,18 @@ class SplatRenderer:
 
     def _vao(self, prog: moderngl.Program, key: str) -> moderngl.VertexArray:
         if key not in self._vaos:
-            self._vaos[key] = self.ctx.vertex_array(prog, [], index_buffer=self._index_buf, index_element_size=4)
+            if self.primitive == "quads":
+                self._vaos[key] = self.ctx.vertex_array(prog, [], index_buffer=self._index_buf, index_element_size=4)
+            else:
+                self._vaos[key] = self.ctx.vertex_array(prog, [])
         return self._vaos[key]
 
     def _draw(self, prog: moderngl.Program, key: str, uni: dict, color_mode: int = 0) -> None:
         for i, t in enumerate(self._proj_tex):
             t.use(i)
-        for i, name in enumerate(("center_tex", "conic_tex", "color_tex", "axis_tex")):
+        for i, name in enumerate(("center_tex", "conic_tex", "color_tex")):
             if name in prog:
                 prog[name] = i
-        if self.primitive == "quads":
-            self._order_tex.use(4)
-            prog["order_tex"] = 4
         prog["row"] = ROW
         prog["size"] = uni["size"]
         if "color_mode" in prog:
