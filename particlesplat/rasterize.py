@@ -173,8 +173,21 @@ def _coefficients(m: Tensor, conic: Tensor, log_o: Tensor) -> Tensor:
     return torch.stack([-0.5 * a, -b, -0.5 * c, lx, ly, const], dim=-1)
 
 
+def _step(x: Tensor, strict: bool) -> Tensor:
+    """Float indicator of x > 0 (strict) or x >= 0, in place on ``x``.
+
+    Boolean comparisons and masked fills are several times slower than arithmetic on this
+    CPU build of torch; float32/64 spacing is far above 1e-30 for the values we test, so the
+    scaled clamp is an exact step.
+    """
+    x.mul_(1e30)
+    if not strict:
+        x.add_(1.0)
+    return x.clamp_(0.0, 1.0)
+
+
 class _ChunkState:
-    """α, T and weights of one chunk (recomputed in the backward), each (Tb, 64, L)."""
+    """α, T and weights of one chunk (recomputed in the backward), each (Tb, 16, L)."""
 
     def __init__(self, feats: Tensor, coef: Tensor):
         # exponent ln o − ½ dᵀCd: one (Tb·L, 6) @ (6, 16) product (faster than a batched one)
@@ -182,14 +195,13 @@ class _ChunkState:
         raw = (coef.reshape(-1, 6) @ feats.T).reshape(tb, length, -1).transpose(1, 2).contiguous()
         raw.clamp_min_(_EXP_FLOOR).exp_()
         alpha = raw.clamp_max_(ALPHA_MAX)
-        alpha.masked_fill_(alpha < ALPHA_MIN, 0.0)
+        alpha.mul_(_step(alpha - ALPHA_MIN, strict=False))  # α = 0 where α < 1/255
         self.alpha = alpha
         self.one_minus = 1.0 - alpha
         t_incl = torch.cumprod(self.one_minus, dim=-1)
         self.t_excl = t_incl / self.one_minus
-        self.keep = t_incl > T_MIN
-        # w_i = α_i T_i = T_i − T_{i+1}, zero from the terminating Gaussian on
-        self.weights = torch.sub(self.t_excl, t_incl).masked_fill_(~self.keep, 0.0)
+        # w_i = α_i T_i = T_i − T_{i+1}, zero from the Gaussian that would take T to <= T_MIN on
+        self.weights = (self.t_excl - t_incl).mul_(_step(t_incl - T_MIN, strict=True))
 
 
 def pair_inputs(bins: TileBins, means2d: Tensor, conics: Tensor, opacities: Tensor,
@@ -233,8 +245,8 @@ class RasterizeFunction(torch.autograd.Function):
         for tiles, idx in bins.chunks:
             w = _ChunkState(feats, _rows(coef, idx)).weights
             out.index_copy_(0, tiles, torch.bmm(w, _rows(features, idx)))
-            used = (w > 0).any(1)  # (Tb, L)
-            live[tiles] = torch.where(used, torch.arange(1, idx.shape[1] + 1, device=idx.device), 0).amax(-1)
+            used = _step(w.sum(1), strict=True)  # (Tb, L) 1 where a slot has any weight
+            live[tiles] = (used * torch.arange(1, idx.shape[1] + 1, device=idx.device)).amax(-1).long()
         ctx.save_for_backward(coef, features)
         # Slots after a tile's last weighted slot (terminated or transparent everywhere) have
         # zero gradient, so the backward processes only the live prefix of each list.
@@ -262,7 +274,7 @@ class RasterizeFunction(torch.autograd.Function):
             # is clamped at 0.99. Below 1/255 (α = 0) and from the terminating slot on (w = 0 and
             # S = 0 there) it is 0 by itself.
             d_expo = vw.sub_(suffix.mul_(st.alpha).div_(st.one_minus))
-            d_expo.masked_fill_(st.alpha >= ALPHA_MAX, 0.0)
+            d_expo.mul_(_step(ALPHA_MAX - st.alpha, strict=True))
             d_coef.index_copy_(0, flat, torch.matmul(feats.T, d_expo).transpose(1, 2).reshape(flat.numel(), 6))
         d_coef[-1] = 0.0
         d_feat[-1] = 0.0
