@@ -453,6 +453,17 @@ class SplatRenderer:
         weights, alpha = self.owner_weights(camera, num_owners)
         return segmentation_from_weights(weights, alpha)
 
+    def splat_area(self) -> float:
+        """Pixels covered by the splat rectangles of the last projection, summed (a diagnostic of
+        the fill work; reads the projection texture back)."""
+        if not self._drawn:
+            return 0.0
+        rows = math.ceil(self._drawn / ROW)
+        c = np.frombuffer(self._proj_fbo.read(viewport=(0, 0, ROW, rows), components=4, attachment=0, dtype="f4"),
+                          np.float32).reshape(-1, 4)[: self._drawn]
+        live = c[:, 2] > 0
+        return float(((2.0 * c[live, 2] + 1.0) * (2.0 * c[live, 3] + 1.0)).sum())
+
     # ------------------------------------------------------------------ output
     def read_rgba(self) -> np.ndarray:
         """The last render: (H, W, 4) float32 premultiplied rgb and alpha, image rows top down."""

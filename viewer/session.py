@@ -100,9 +100,15 @@ class SceneSession:
     def original_value(self, index: int, name: str) -> tuple[float, ...]:
         return tuple(float(v) for v in self.original.attribute(index, name).tolist())
 
-    def is_active(self, index: int, threshold: float = 0.5) -> bool:
-        """Active = transparency z_t above ``threshold`` (DLP's active particles)."""
-        return float(self.particles.z_t[index, 0]) > threshold
+    @property
+    def active_threshold(self) -> float:
+        """z_t above which a particle counts as active: the model's ``bg_mask_threshold`` (the
+        transparency above which DLP masks a particle's box out of the background), else 0.5."""
+        return float(getattr(getattr(self.model, "config", None), "bg_mask_threshold", 0.5))
+
+    def is_active(self, index: int) -> bool:
+        """Active = transparency z_t above :attr:`active_threshold` (DLP's active particles)."""
+        return float(self.particles.z_t[index, 0]) > self.active_threshold
 
     def edits(self) -> Edits:
         """Current edits relative to the encoded particles."""
