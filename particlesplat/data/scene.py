@@ -80,7 +80,7 @@ class RawScene:
         path: the scene folder.
         rgb: V arrays (H_i, W_i, 3) uint8.
         depth: V arrays (H_i, W_i) float32 metres (0 = none) or None per frame.
-        masks: V arrays (H_i, W_i) int64 or None per frame.
+        masks: V arrays (H_i, W_i) of integer ids (uint8 as stored, to stay small) or None per frame.
         cameras: V cameras at the native size of each frame.
     """
 
@@ -347,7 +347,7 @@ def _read_depth(folder: Path, meta: dict, frame: dict, size: tuple[int, int], wh
 
 
 def _read_mask(folder: Path, frame: dict, size: tuple[int, int], where: str) -> np.ndarray | None:
-    """(H, W) int64 instance ids or None."""
+    """(H, W) integer instance ids (the stored dtype) or None."""
     key = "instance_mask_path"
     if frame.get(key) is None:
         return None
@@ -355,6 +355,6 @@ def _read_mask(folder: Path, frame: dict, size: tuple[int, int], where: str) -> 
     img = _open(p, key, where)
     if img.mode not in ("L", "P", "I;16", "I;16B", "I"):
         raise SceneFormatError(f"{where}: key '{key}': {p} must be a single-channel image, got mode {img.mode}")
-    arr = np.asarray(img).astype(np.int64)
+    arr = np.array(img)
     _check_size(arr, size, key, p, where)
     return arr
