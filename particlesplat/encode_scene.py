@@ -59,3 +59,29 @@ def encode_scene(model: ParticleSplat, path: str | PathLike, context: list[int] 
     depth = scene.depth if use_depth and scene.depth is not None and bool((scene.depth > 0).any()) else None
     particles = model.encode(scene.rgb, depth, scene.cameras)
     return EncodedScene(particles, scene, list(raw.cameras), ctx, Path(raw.path))
+
+
+def load_model_scene(checkpoint: str | None, scene: str | PathLike | None, context: str | None = None):
+    """Load a model (None = the shipped one) and encode ``scene`` (None = the first demo scene).
+
+    Returns (model, EncodedScene, model name for PNG/YAML metadata).
+    """
+    from .model import load_model
+
+    model = load_model(checkpoint)
+    if scene is None:
+        scenes = demo_scenes()
+        if not scenes:
+            raise FileNotFoundError("no demo scenes in assets/scenes; pass --scene DIR (or --ply FILE)")
+        scene = scenes[0]
+    return model, encode_scene(model, scene, parse_context(context)), str(checkpoint or "assets/model.pt")
+
+
+def load_ply_checked(path: str | PathLike):
+    """Gaussians of a .ply file; FileNotFoundError names the path."""
+    from .gaussians import Gaussians
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: .ply file not found")
+    return Gaussians.load_ply(path)

@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
-
 import torch
 
 from .camera import Camera
@@ -46,33 +44,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _scene_and_gaussians(args: argparse.Namespace):
     """(Gaussians, all input cameras, edits dict, model name, source) for the arguments."""
-    from .gaussians import Gaussians
+    from .encode_scene import load_model_scene, load_ply_checked
 
     if args.ply:
         if args.edits:
             raise ValueError("--edits needs a model scene, not --ply")
-        path = Path(args.ply)
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: .ply file not found")
-        return Gaussians.load_ply(path), [], {}, "", str(path)
+        return load_ply_checked(args.ply), [], {}, "", str(args.ply)
     from .edits import apply_edits, load_edits
-    from .encode_scene import demo_scenes, encode_scene, parse_context
-    from .model import load_model
 
-    model = load_model(args.checkpoint)
-    scene = args.scene
-    if scene is None:
-        scenes = demo_scenes()
-        if not scenes:
-            raise FileNotFoundError("no demo scenes in assets/scenes; pass --scene DIR")
-        scene = scenes[0]
-    enc = encode_scene(model, scene, parse_context(args.context))
+    model, enc, name = load_model_scene(args.checkpoint, args.scene, args.context)
     particles, edits = enc.particles, {}
     if args.edits:
         edits = load_edits(args.edits)
         particles = apply_edits(particles, edits, str(args.edits))
-    g = model.decode(particles).detach().to("cpu")
-    return g, enc.all_cameras, edits, str(args.checkpoint or "assets/model.pt"), str(scene)
+    return model.decode(particles).detach().to("cpu"), enc.all_cameras, edits, name, str(enc.path)
 
 
 def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -> tuple[Camera, View | None]:

@@ -3,12 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-import torch
-
-from particlesplat.encode_scene import demo_scenes, encode_scene, parse_context
-from particlesplat.gaussians import Gaussians
+from particlesplat.encode_scene import load_model_scene, load_ply_checked
 from particlesplat.sh import SH_C0
 
 from .session import SceneSession
@@ -18,21 +14,9 @@ def load_session(args: argparse.Namespace) -> SceneSession:
     """A session from ``--ply`` or ``--checkpoint`` + ``--scene`` (defaults: the shipped model
     and the first demo scene), with ``--edits`` applied."""
     if getattr(args, "ply", None):
-        path = Path(args.ply)
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: .ply file not found")
-        return SceneSession(gaussians=Gaussians.load_ply(path), source=str(path))
-    from particlesplat.model import load_model
-
-    model = load_model(args.checkpoint)
-    scene = args.scene
-    if scene is None:
-        scenes = demo_scenes()
-        if not scenes:
-            raise FileNotFoundError("no demo scenes in assets/scenes; pass --scene DIR or --ply FILE")
-        scene = scenes[0]
-    encoded = encode_scene(model, scene, parse_context(getattr(args, "context", None)))
-    session = SceneSession(model, encoded, model_name=str(args.checkpoint or "assets/model.pt"), source=str(scene))
+        return SceneSession(gaussians=load_ply_checked(args.ply), source=str(args.ply))
+    model, encoded, name = load_model_scene(args.checkpoint, args.scene, getattr(args, "context", None))
+    session = SceneSession(model, encoded, model_name=name, source=str(encoded.path))
     if getattr(args, "edits", None):
         session.load_edits(args.edits)
     return session
