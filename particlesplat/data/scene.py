@@ -127,8 +127,7 @@ class RawScene:
         masks = None
         if self.has_masks:
             masks = torch.stack([_resize_nearest(self.masks[i], size, torch.int64) for i in idx])
-        cams = [self.cameras[i] if (self.cameras[i].width, self.cameras[i].height) == size
-                else self.cameras[i].resized(*size) for i in idx]
+        cams = [self.cameras[i].resized(*size) for i in idx]  # new objects: the cache stays untouched
         return Scene(rgb, depth, masks, cams, self.path, idx)
 
 
