@@ -26,6 +26,7 @@ from .projection import ALPHA_MAX, ALPHA_MIN
 
 TILE = 4
 CHUNK_ELEMENTS = 1 << 18
+MIN_CHUNK_ELEMENTS = 1 << 14  # smaller buckets merge into the next one
 T_MIN = 1e-4  # a pixel stops before the Gaussian that would take T to <= T_MIN
 _EXP_FLOOR = -6.0  # exp(-6) < 1/255: clamping the exponent changes nothing and keeps exp() fast
 _PAD_LOG_OPACITY = -30.0  # coefficient row of padding slots: α = 0 everywhere
@@ -141,14 +142,22 @@ def _make_chunks(count: Tensor, list_count: Tensor | None = None) -> list[tuple[
     c = count[nonempty].double()
     step = torch.clamp(torch.pow(2.0, torch.floor(torch.log2(c))) / 4, min=1.0)
     padded = (torch.ceil(c / step) * step).long()
-    for length in torch.unique(padded).tolist():
-        tiles = nonempty[padded == length]
+    order = torch.argsort(padded)
+    nonempty, padded = nonempty[order], padded[order]
+    lengths, sizes = torch.unique_consecutive(padded, return_counts=True)
+    # Buckets too small to be worth a chunk of their own are padded up into the next bucket.
+    first = 0
+    for b, (length, n) in enumerate(zip(lengths.tolist(), torch.cumsum(sizes, 0).tolist())):
+        if b + 1 < len(lengths) and (n - first) * TILE * TILE * length < MIN_CHUNK_ELEMENTS:
+            continue
+        tiles = nonempty[first:n]
         slot = torch.arange(length, device=count.device)
         idx = start[tiles][:, None] + slot[None, :]
         idx = torch.where(slot[None, :] < count[tiles][:, None], idx, num_pairs)
         per_chunk = max(1, CHUNK_ELEMENTS // (TILE * TILE * length))
         for i in range(0, tiles.numel(), per_chunk):
             chunks.append((tiles[i:i + per_chunk], idx[i:i + per_chunk]))
+        first = n
     return chunks
 
 
