@@ -19,17 +19,24 @@ uniform int owner_base;
 #ifndef ATTACH
 #define ATTACH 1
 #endif
+#if ATTACH == 1
+// (a size-1 inout array miscompiled on Mesa 22.3 llvmpipe: use a plain output)
+layout(location = 0) inout vec4 o_single;
+#define OUT(i) o_single
+#else
 layout(location = 0) inout vec4 o[ATTACH];
+#define OUT(i) o[i]
+#endif
 
 void main() {
     vec2 d = vec2(gl_FragCoord.x, size.y - gl_FragCoord.y) - v_center;
     float q = v_conic.x * d.x * d.x + 2.0 * v_conic.y * d.x * d.y + v_conic.z * d.y * d.y;
     float a = min(0.99, v_opacity * exp(-0.5 * q));
-    float T = o[0].a;
+    float T = OUT(0).a;
     if (a < 1.0 / 255.0 || T <= 0.0) discard;
     float t_next = T * (1.0 - a);
     if (t_next <= 1e-4) {
-        o[0].a = -T;
+        OUT(0).a = -T;
         return;
     }
     float w = T * a;
@@ -37,10 +44,10 @@ void main() {
     float rel = v_owner - float(owner_base);
     for (int i = 0; i < ATTACH; ++i) {
         vec3 slot = vec3(float(3 * i), float(3 * i + 1), float(3 * i + 2));
-        o[i].rgb += w * vec3(equal(slot, vec3(rel)));
+        OUT(i).rgb += w * vec3(equal(slot, vec3(rel)));
     }
 #else
-    o[0].rgb += w * v_color;
+    OUT(0).rgb += w * v_color;
 #endif
-    o[0].a = t_next;
+    OUT(0).a = t_next;
 }

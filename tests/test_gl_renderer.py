@@ -71,6 +71,11 @@ def test_owner_weights_match_torch(ctx):
     np.testing.assert_allclose(weights[1:], ref.owner_weights.numpy(), atol=2e-4)
     np.testing.assert_allclose(weights[0], ref.background_weight.numpy(), atol=2e-4)
     np.testing.assert_allclose(alpha, ref.alpha.numpy(), atol=2e-4)
+    # the single-owner mask pass (mask overlay of the selected particle)
+    for owner in (-1, 0, 17, 29):
+        r.render_mask(cam, owner)
+        truth = ref.background_weight if owner < 0 else ref.owner_weights[owner]
+        np.testing.assert_allclose(r.read_mask(), truth.numpy(), atol=2e-4)
     # a 1x1 region (picking) gives the same weights as the full pass at that pixel
     w1, _ = r.owner_weights(cam, 30, region=(40, 25, 1, 1))
     np.testing.assert_allclose(w1[:, 0, 0], weights[:, 25, 40], atol=1e-6)

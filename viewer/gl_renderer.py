@@ -272,7 +272,7 @@ class SplatRenderer:
                 obj.release()
         self._color_tex = self.ctx.texture((width, height), 4, dtype=self.color_dtype)
         self._color_fbo = self.ctx.framebuffer(color_attachments=[self._color_tex])
-        self._mask_tex = self.ctx.texture((width, height), 4, dtype="f2")
+        self._mask_tex = self.ctx.texture((width, height), 4, dtype="f4")
         self._mask_fbo = self.ctx.framebuffer(color_attachments=[self._mask_tex])
         self._id_tex, self._id_fbo = [], None
         self.size = (width, height)
@@ -410,6 +410,12 @@ class SplatRenderer:
         self._mask_fbo.use()
         self._mask_fbo.clear(0.0, 0.0, 0.0, 1.0)
         self._draw(prog, "mask", uni)
+
+    def read_mask(self) -> np.ndarray:
+        """The last :meth:`render_mask`: (H, W) float32 weight of that owner, image rows top down."""
+        w, h = self.size
+        raw = np.frombuffer(self._mask_fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)
+        return raw[::-1, :, 0].copy()
 
     def owner_weights(self, camera: Camera, num_owners: int,
                       region: tuple[int, int, int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
