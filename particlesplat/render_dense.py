@@ -19,8 +19,12 @@ from .sh import eval_sh_colors
 
 
 def render_dense(gaussians: Gaussians, camera: Camera, *, background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
-                 near: float = 0.01, far: float = 1e10) -> tuple[Tensor, Tensor, Tensor]:
-    """Returns rgb (H, W, 3), alpha (H, W), depth (H, W) in the dtype of ``gaussians``."""
+                 near: float = 0.01, far: float = 1e10, pixel_chunk: int | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    """Returns rgb (H, W, 3), alpha (H, W), depth (H, W) in the dtype of ``gaussians``.
+
+    ``pixel_chunk`` evaluates that many pixels at a time (for a memory-bounded forward-only
+    reference; under autograd every chunk's graph is still kept).
+    """
     dt, dev = gaussians.means.dtype, gaussians.means.device
     cam = camera.to(device=dev, dtype=dt)
     w2c = cam.w2c
@@ -48,17 +52,24 @@ def render_dense(gaussians: Gaussians, camera: Camera, *, background: Sequence[f
     mean2d = torch.stack([fx * x / z + cx, fy * y / z + cy], dim=-1)
     v, u = torch.meshgrid(torch.arange(H, dtype=dt, device=dev), torch.arange(W, dtype=dt, device=dev),
                           indexing="ij")
-    d = torch.stack([u + 0.5, v + 0.5], dim=-1).reshape(-1, 1, 2) - mean2d[None]  # (HW, N, 2)
-    q = torch.einsum("pni,nij,pnj->pn", d, conic, d)
-    a = gaussians.opacities[sel][None] * torch.exp(-0.5 * q)
-    a = torch.where(a >= 1.0 / 255.0, a.clamp(max=0.99), torch.zeros_like(a))
-    t_incl = torch.cumprod(1.0 - a, dim=-1)
-    t_excl = torch.cat([torch.ones_like(t_incl[:, :1]), t_incl[:, :-1]], dim=-1)
-    w = a * t_excl * (t_incl > 1e-4)
+    pixels = torch.stack([u + 0.5, v + 0.5], dim=-1).reshape(-1, 1, 2)
+    opac = gaussians.opacities[sel]
     dirs = torch.nn.functional.normalize(gaussians.means[sel] - cam.center, dim=-1)
     colors = eval_sh_colors(gaussians.sh[sel], dirs)
-    alpha = w.sum(-1)
     bg = torch.as_tensor(background, dtype=dt, device=dev)
-    rgb = w @ colors + (1.0 - alpha)[:, None] * bg
-    depth = torch.where(alpha > 0, (w @ z) / alpha.clamp_min(1e-12), torch.zeros_like(alpha))
-    return rgb.reshape(H, W, 3), alpha.reshape(H, W), depth.reshape(H, W)
+    step = pixels.shape[0] if pixel_chunk is None else max(1, int(pixel_chunk))
+    outs = []
+    for i in range(0, pixels.shape[0], step):
+        d = pixels[i:i + step] - mean2d[None]  # (p, N, 2)
+        q = torch.einsum("pni,nij,pnj->pn", d, conic, d)
+        a = opac[None] * torch.exp(-0.5 * q)
+        a = torch.where(a >= 1.0 / 255.0, a.clamp(max=0.99), torch.zeros_like(a))
+        t_incl = torch.cumprod(1.0 - a, dim=-1)
+        t_excl = torch.cat([torch.ones_like(t_incl[:, :1]), t_incl[:, :-1]], dim=-1)
+        w = a * t_excl * (t_incl > 1e-4)
+        alpha = w.sum(-1)
+        rgb = w @ colors + (1.0 - alpha)[:, None] * bg
+        depth = torch.where(alpha > 0, (w @ z) / alpha.clamp_min(1e-12), torch.zeros_like(alpha))
+        outs.append(torch.cat([rgb, alpha[:, None], depth[:, None]], dim=-1))
+    out = torch.cat(outs).reshape(H, W, 5)
+    return out[..., :3], out[..., 3], out[..., 4]
