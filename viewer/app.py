@@ -384,6 +384,8 @@ def destroy_window(window) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    # per-particle decodes are tiny: one torch thread is ~15x faster than two fighting llvmpipe's
+    torch.set_num_threads(1)
     if args.screenshot and args.frames is None:
         print("particlesplat-viewer: --screenshot needs --frames", file=sys.stderr)
         return 2

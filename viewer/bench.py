@@ -107,6 +107,9 @@ def edit_latency(renderer, session, view, width: int, height: int, steps: int = 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     import moderngl
+    import torch
+
+    torch.set_num_threads(1)  # as the viewer: tiny per-particle decodes, llvmpipe owns the cores
 
     from particlesplat.views import default_view
 
@@ -141,7 +144,9 @@ def main(argv: list[str] | None = None) -> int:
         row = _case(renderer, view, args)
         row.name = f"demo scene ({os.path.basename(str(scene))})"
         rows.append(row)
-        latency = edit_latency(renderer, session, view, args.width, args.height)
+        latency = (edit_latency(renderer, session, view, args.width, args.height),
+                   edit_latency(renderer, session, view, round(args.width * args.moving_scale),
+                                round(args.height * args.moving_scale)))
     load1 = os.getloadavg()
     print(f"GL renderer: {renderer.renderer_string}")
     print(f"{args.width}x{args.height}, {args.primitive}, median of {args.frames} frames, camera turning 1 deg/frame "
@@ -154,8 +159,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {r.name} | {r.gaussians:,} | {r.area_mpx:.1f} | {r.sort_ms:.1f} | {r.upload_ms:.2f} | "
               f"{r.draw_ms:.1f} | {r.frame_ms:.1f} | {r.moving_ms:.1f} |")
     if latency is not None:
-        print(f"\nedit -> frame latency (drag one particle's z_p: decode it, upload its rows, sort, draw): "
-              f"{latency:.1f} ms")
+        print(f"\nedit -> frame latency (drag one particle's z_p: decode it, upload its rows, sort, project, draw): "
+              f"{latency[0]:.1f} ms at {args.width}x{args.height}, {latency[1]:.1f} ms at the moving scale "
+              f"{args.moving_scale:g} (what a drag in the viewer renders)")
     renderer.release()
     ctx.release()
     return 0
