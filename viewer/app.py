@@ -354,11 +354,19 @@ def create_window(size: tuple[int, int], title: str = "ParticleSplat Studio"):
 
     if not glfw.init():
         raise RuntimeError("glfw.init() failed: no display? (run under xvfb-run for headless use)")
-    glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
-    glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
-    glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
-    glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
-    window = glfw.create_window(size[0], size[1], title, None, None)
+    window = None
+    # EGL first: a process that also holds a headless EGL context (tests, benches) cannot make
+    # a GLX context current (X error BadAccess); fall back to the platform's native API.
+    for api in (glfw.EGL_CONTEXT_API, glfw.NATIVE_CONTEXT_API):
+        glfw.default_window_hints()
+        glfw.window_hint(glfw.CONTEXT_CREATION_API, api)
+        glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
+        glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
+        glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+        glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
+        window = glfw.create_window(size[0], size[1], title, None, None)
+        if window:
+            break
     if not window:
         glfw.terminate()
         raise RuntimeError("could not create a GL 3.3 core window")
