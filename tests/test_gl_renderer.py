@@ -155,3 +155,18 @@ def test_points_primitive_matches_for_small_splats(ctx):
     r.render(cam)
     assert psnr(r.read_rgba()[..., :3], render(g, cam).rgb.numpy()) >= 40.0
     r.release()
+
+
+def test_empty_and_all_behind_the_camera(ctx):
+    cam = Camera.orbit((0, 0, 0), 0, 20, 3.0, width=32, height=24)
+    r = SplatRenderer(ctx, color_dtype="f4")
+    r.set_gaussians(Gaussians.empty(sh_degree=2))
+    r.render(cam)
+    assert np.array_equal(r.read_rgb((0.2, 0.3, 0.4)), np.broadcast_to(np.float32([0.2, 0.3, 0.4]), (24, 32, 3)))
+    g = random_gaussians(100, seed=1)
+    eye = Camera.orbit_eye((0, 0, 0), 0, 20, 3.0).float()
+    behind = Gaussians(g.means * 0.1 + eye + (eye / eye.norm()) * 1.5, g.quats, g.scales, g.opacities, g.sh, g.owner)
+    r.set_gaussians(behind)
+    ft = r.render(cam)
+    assert ft.drawn == 0 and float(r.read_rgba()[..., 3].max()) == 0.0
+    r.release()

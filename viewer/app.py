@@ -291,7 +291,7 @@ class App:
             if req.export_ply:
                 path = export_ply(self.fields.output_dir, self.scene_view.visible_gaussians(self.session, self.state))
                 self.fields.status = f"exported {path}"
-        except (OSError, ValueError, KeyError, IndexError) as e:  # bad paths or files: show, keep running
+        except Exception as e:  # noqa: BLE001 - a bad path or file must not close the app: show it
             self.fields.status = f"error: {e}"
 
     def open(self, path: str) -> None:
@@ -403,7 +403,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         session = load_session(args)
         view = initial_view(session, args.look, args.fov)
-    except (OSError, ValueError, KeyError, IndexError) as e:
+    except (OSError, ValueError, KeyError, IndexError, RuntimeError) as e:
         print(f"particlesplat-viewer: {e}", file=sys.stderr)
         return 1
     window = create_window(args.size)
