@@ -4,6 +4,7 @@ them only through their methods and fields; they never touch GL or the renderer.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from imgui_bundle import imgui
 
 from particlesplat.encode_scene import demo_scenes
@@ -30,7 +31,7 @@ SHORTCUTS = (
     ("Esc", "deselect"),
 )
 
-DRAG_SPEED = {"z_p": 0.005, "z_s": 0.02, "z_d": 0.02, "z_e": 0.02, "z_t": 0.005}
+DRAG_SPEED = MappingProxyType({"z_p": 0.005, "z_s": 0.02, "z_d": 0.02, "z_e": 0.02, "z_t": 0.005})
 
 
 @dataclass
