@@ -7,6 +7,7 @@ import os
 
 import numpy as np
 import pytest
+from imgui_bundle import imgui
 from PIL import Image
 
 from particlesplat import render
@@ -44,7 +45,7 @@ def test_pick_selects_the_dominant_particle(app):
     res = render(g, cam, owner_weights=True, num_owners=app.session.num_owners())
     margin = res.owner_weights.max(0).values - (res.background_weight + 1.0 - res.alpha)
     y, x = np.unravel_index(int(margin.argmax()), margin.shape)
-    app.pick(float(x), float(y))
+    app.controls.pick(app, float(x), float(y))
     assert app.state.selected == int(res.owner_weights[:, y, x].argmax())
     app.state.seg_mode = "normal"
 
@@ -56,7 +57,7 @@ def test_drag_moves_particle_in_plane_and_undo(app):
     before = s.value(i, "z_p")
     n_ops = len(s.history.undo)
     for _ in range(5):
-        app.drag_particle_plane(i, 4.0, 0.0)
+        app.controls.drag_particle_plane(app, i, 4.0, 0.0)
     s.end_gesture()
     after = s.value(i, "z_p")
     assert len(s.history.undo) == n_ops + 1  # one drag = one operation
@@ -91,6 +92,40 @@ def test_screenshot_and_export(app, tmp_path):
     assert exported.num == app.scene_view.visible_gaussians(app.session, app.state).num
     assert bool((exported.opacities >= 0.2 - 1e-6).all())
     app.state.prune = 0.0
+
+
+def press(app, *keys) -> None:
+    """Press keys (modifiers first) for one frame, release them in the next."""
+    io = imgui.get_io()
+    for k in keys:
+        io.add_key_event(k, True)
+    app.run(1)
+    for k in reversed(keys):
+        io.add_key_event(k, False)
+    app.run(1)
+
+
+def test_keyboard_shortcuts(app, tmp_path):
+    K = imgui.Key
+    s = app.session
+    z0 = s.value(0, "z_d")
+    s.set_attribute(0, "z_d", [z0[0] + 1.0])
+    press(app, K.mod_ctrl, K.left_ctrl, K.z)
+    assert s.value(0, "z_d") == z0
+    press(app, K.mod_ctrl, K.left_ctrl, K.mod_shift, K.left_shift, K.z)
+    assert s.value(0, "z_d")[0] == pytest.approx(z0[0] + 1.0)
+    mode = app.state.seg_mode
+    press(app, K.m)
+    assert app.state.seg_mode != mode
+    app.state.seg_mode = mode
+    app.orbit.orbit(50, 0)
+    press(app, K.r)
+    assert app.orbit.view == app.orbit.home
+    press(app, K._3)
+    assert app.orbit.view.fov == pytest.approx(app.session.cameras[2].fov_y)
+    app.fields.output_dir = str(tmp_path)
+    press(app, K.p)
+    assert len(list(tmp_path.glob("particlesplat_*.png"))) == 1
 
 
 def test_open_ply_replaces_the_session(app, tmp_path):

@@ -11,7 +11,6 @@ import argparse
 import ctypes
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from imgui_bundle import imgui  # import before glfw so both use the same GLFW library
@@ -28,10 +27,11 @@ from .gl_renderer import SplatRenderer  # noqa: E402
 from .loading import load_session, particle_swatches  # noqa: E402
 from .orbit import OrbitCamera  # noqa: E402
 from .panel import UiFields, UiRequests, draw_overlay, draw_panel  # noqa: E402
+from .controls import ViewportControls  # noqa: E402
 from .scene_view import SceneView  # noqa: E402
 from .screenshot import export_ply, png_text, save_png, save_screenshot  # noqa: E402
 from .session import SceneSession  # noqa: E402
-from .state import SEG_MODES, ViewState  # noqa: E402
+from .state import ViewState  # noqa: E402
 
 STILL_AFTER = 0.2  # seconds without interaction before rendering at full scale
 ORBIT_STEP = 1.0  # degrees per frame with --orbit
@@ -81,17 +81,6 @@ def initial_view(session: SceneSession, look: str | None, fov: float | None) -> 
     return View(base.target, lk, check_fov(fov) if fov is not None else base.fov)
 
 
-@dataclass
-class Interaction:
-    """Mouse-gesture bookkeeping of the viewport."""
-
-    last_move: float = 0.0
-    press_pos: tuple[float, float] | None = None
-    dragged: bool = False
-    particle_center: torch.Tensor | None = None
-    frame_times: list[float] = field(default_factory=list)
-
-
 class App:
     """One window: its GL context, renderer, session, state and UI."""
 
@@ -105,7 +94,8 @@ class App:
         self.state = ViewState(panel=not args.no_ui)
         self.req = UiRequests()
         self.fields = UiFields(output_dir=args.output_dir)
-        self.inter = Interaction()
+        self.controls = ViewportControls()
+        self.frame_times: list[float] = []
         self.swatches = particle_swatches(session)
 
     # ------------------------------------------------------------------ frame
@@ -114,7 +104,7 @@ class App:
         return max(int(w), 1), max(int(h), 1)
 
     def render_scale(self) -> float:
-        moving = time.perf_counter() - self.inter.last_move < STILL_AFTER
+        moving = time.perf_counter() - self.controls.last_move < STILL_AFTER
         return self.state.moving_scale if moving else 1.0
 
     def view_camera(self, scale: float = 1.0) -> Camera:
@@ -129,7 +119,7 @@ class App:
         backends.glfw_new_frame()
         imgui.new_frame()
         if show_ui:
-            self.handle_input()
+            self.controls.handle(self)
             if self.state.panel:
                 drawn = self.scene_view.renderer.visible_count
                 draw_panel(self.session, self.state, self.req, self.fields, self.swatches,
@@ -147,7 +137,7 @@ class App:
         glfw.swap_buffers(self.window)
 
     def overlay_lines(self) -> list[str]:
-        t = self.inter.frame_times[-30:]
+        t = self.frame_times[-30:]
         ms = float(np.median(t)) * 1e3 if t else 0.0
         r = self.scene_view.renderer
         lines = [f"{ms:6.1f} ms/frame  (splat {self.scene_view.last_times.draw_ms:.1f} ms, "
@@ -161,113 +151,11 @@ class App:
         return lines
 
     # ------------------------------------------------------------------ input
-    def handle_input(self) -> None:
-        io = imgui.get_io()
-        sx, sy = self.pixel_ratio()
-        if not io.want_capture_mouse:
-            self._mouse(io, sx, sy)
-        if not io.want_capture_keyboard:
-            self._keys(io)
-
     def pixel_ratio(self) -> tuple[float, float]:
+        """Framebuffer pixels per window coordinate (HiDPI)."""
         ww, wh = glfw.get_window_size(self.window)
         fw, fh = self.framebuffer_size()
         return fw / max(ww, 1), fh / max(wh, 1)
-
-    def _mouse(self, io, sx: float, sy: float) -> None:
-        now = time.perf_counter()
-        dx, dy = io.mouse_delta.x * sx, io.mouse_delta.y * sy
-        if io.mouse_wheel:
-            self.orbit.zoom(io.mouse_wheel)
-            self.inter.last_move = now
-        if imgui.is_mouse_clicked(imgui.MouseButton_.left):
-            self.inter.press_pos = (io.mouse_pos.x, io.mouse_pos.y)
-            self.inter.dragged = False
-            self.inter.particle_center = None
-        if imgui.is_mouse_down(imgui.MouseButton_.left) and self.inter.press_pos is not None and (dx or dy):
-            px, py = self.inter.press_pos
-            if abs(io.mouse_pos.x - px) + abs(io.mouse_pos.y - py) > 3:
-                self.inter.dragged = True
-            if self.inter.dragged:
-                sel = self.state.selected
-                if io.key_shift and sel is not None and self.session.editable:
-                    self.drag_particle_plane(sel, dx, dy)
-                elif io.key_ctrl and sel is not None and self.session.editable:
-                    self.session.set_attribute(sel, "z_d", [self.session.value(sel, "z_d")[0] - dy * 0.01],
-                                               gesture="depth-drag")
-                else:
-                    self.orbit.orbit(dx, dy)
-                self.inter.last_move = now
-        if imgui.is_mouse_released(imgui.MouseButton_.left) and self.inter.press_pos is not None:
-            if not self.inter.dragged:
-                self.pick(io.mouse_pos.x * sx, io.mouse_pos.y * sy)
-            self.session.end_gesture()
-            self.inter.press_pos = None
-        for button in (imgui.MouseButton_.right, imgui.MouseButton_.middle):
-            if imgui.is_mouse_dragging(button) and (dx or dy):
-                self.orbit.pan(dx, dy, self.framebuffer_size()[1])
-                self.inter.last_move = now
-
-    def pick(self, x: float, y: float) -> None:
-        """Select the particle owning framebuffer pixel (x, y) (nothing on background)."""
-        scale = 1.0
-        cam = self.view_camera(scale)
-        owner = self.scene_view.pick(self.session, cam, int(x), int(y))
-        self.state.selected = owner if owner >= 0 and self.session.editable else None
-
-    def drag_particle_plane(self, index: int, dx: float, dy: float) -> None:
-        """Move particle ``index`` so it follows a screen drag of (dx, dy) framebuffer pixels:
-        the world motion at the particle's depth is projected into its own context view."""
-        if self.inter.particle_center is None:
-            g = self.session.particle_gaussians(index)
-            w = g.opacities.clamp_min(1e-6)
-            self.inter.particle_center = (g.means * w[:, None]).sum(0) / w.sum()
-        center = self.inter.particle_center.double()
-        fw, fh = self.framebuffer_size()
-        view_cam = self.orbit.camera(fw, fh)
-        R = view_cam.c2w[:3, :3].double()
-        depth = float((view_cam.world_to_camera(center[None].float())[0, 2]).clamp_min(1e-3))
-        f = float(view_cam.fy)
-        moved = center + (R[:, 0] * dx + R[:, 1] * dy) * depth / f
-        ctx_view = int(self.session.particles.view[index])
-        cam = self.session.particles.cameras[ctx_view]
-        uv0, _ = cam.project(center[None].to(cam.dtype))
-        uv1, _ = cam.project(moved[None].to(cam.dtype))
-        duv = (uv1 - uv0)[0].double()
-        zp = self.session.value(index, "z_p")
-        new = [zp[0] + 2.0 * float(duv[0]) / cam.width, zp[1] + 2.0 * float(duv[1]) / cam.height]
-        self.session.set_attribute(index, "z_p", new, gesture="plane-drag")
-        self.inter.particle_center = moved
-
-    def _keys(self, io) -> None:
-        K = imgui.Key
-        ctrl = io.key_ctrl
-        if ctrl and imgui.is_key_pressed(K.z):
-            (self.session.redo if io.key_shift else self.session.undo)()
-        elif ctrl and imgui.is_key_pressed(K.y):
-            self.session.redo()
-        elif ctrl and imgui.is_key_pressed(K.s) and self.session.editable:
-            self.req.save_edits = True
-        if ctrl:
-            return
-        if imgui.is_key_pressed(K.r, False):
-            self.req.reset_view = True
-        if imgui.is_key_pressed(K.p, False) or imgui.is_key_pressed(K.f12, False):
-            self.req.screenshot = True
-        if imgui.is_key_pressed(K.e, False):
-            self.req.export_ply = True
-        if imgui.is_key_pressed(K.h, False):
-            self.state.panel = not self.state.panel
-        if imgui.is_key_pressed(K.o, False):
-            self.state.overlay = not self.state.overlay
-        if imgui.is_key_pressed(K.m, False):
-            self.state.seg_mode = SEG_MODES[(SEG_MODES.index(self.state.seg_mode) + 1) % len(SEG_MODES)]
-        if imgui.is_key_pressed(K.escape, False):
-            self.state.selected = None
-        digits = [K._1, K._2, K._3, K._4, K._5, K._6, K._7, K._8, K._9]
-        for i, key in enumerate(digits):
-            if imgui.is_key_pressed(key, False):
-                self.req.snap_camera = i
 
     # ------------------------------------------------------------------ requests
     def process_requests(self) -> None:
@@ -330,11 +218,11 @@ class App:
     # ------------------------------------------------------------------ loop
     def run(self, frames: int | None = None, orbit: bool = False) -> list[float]:
         """Run until the window closes (or ``frames`` frames); returns per-frame seconds."""
-        times = self.inter.frame_times
+        times = self.frame_times
         last = time.perf_counter()
         n = 0
         while not glfw.window_should_close(self.window) and (frames is None or n < frames):
-            if frames is None and time.perf_counter() - self.inter.last_move > 1.0:
+            if frames is None and time.perf_counter() - self.controls.last_move > 1.0:
                 glfw.wait_events_timeout(0.05)  # idle: sleep until input
             else:
                 glfw.poll_events()
@@ -373,7 +261,6 @@ def create_window(size: tuple[int, int], title: str = "ParticleSplat Studio"):
     glfw.make_context_current(window)
     glfw.swap_interval(0)
     imgui.create_context()
-    imgui.get_io().config_flags |= imgui.ConfigFlags_.nav_enable_keyboard
     imgui.get_io().set_ini_filename("")
     backends.glfw_init_for_opengl(ctypes.cast(window, ctypes.c_void_p).value, True)
     backends.opengl3_init("#version 330")
