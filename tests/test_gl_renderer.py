@@ -9,7 +9,7 @@ import torch
 from particlesplat import render
 from particlesplat.camera import Camera
 from particlesplat.gaussians import Gaussians
-from viewer.gl_renderer import SplatRenderer
+from viewer.gl_renderer import SplatRenderer, depth_order
 from viewer.random_gaussians import random_gaussians
 
 from viewer_helpers import egl_context, psnr, small_model
@@ -170,3 +170,13 @@ def test_empty_and_all_behind_the_camera(ctx):
     ft = r.render(cam)
     assert ft.drawn == 0 and float(r.read_rgba()[..., 3].max()) == 0.0
     r.release()
+
+
+def test_depth_order_is_a_stable_sort_by_z():
+    rng = np.random.default_rng(0)
+    z = rng.choice(np.float32([0.5, 1.0, 1.0 + 1e-7, 2.0, 30.0]), size=1000)  # many exact ties
+    index = rng.permutation(5000)[:1000]
+    expect = index[np.lexsort((index, z))]
+    np.testing.assert_array_equal(depth_order(index, z), expect)
+    z[3] = -1.0  # non-positive depths take the general path
+    np.testing.assert_array_equal(depth_order(index, z), index[np.lexsort((index, z))])
