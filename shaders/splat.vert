@@ -3,12 +3,15 @@
 // projection pass (see project.frag), so there is no index indirection.
 // QUADS: an oriented rectangle around the alpha >= 1/255 ellipse, two triangles drawn through a
 // static element buffer (vertices 4 k .. 4 k + 3). Otherwise a GL_POINTS sprite (vertex k) of
-// the ellipse's bounding square, clipped at the driver's maximum point size.
+// the ellipse's bounding square (used only when every splat fits the 255 px point size limit);
+// points are drawn with the viewport widened by `guard` pixels on each side so that a sprite
+// whose centre is off screen (points are clipped by their centre) still covers the image.
 uniform sampler2D center_tex;
 uniform sampler2D conic_tex;
 uniform sampler2D color_tex;
 uniform int row;
-uniform vec2 size;          // framebuffer width, height in pixels
+uniform vec2 size;          // image width, height in pixels
+uniform float guard;        // viewport margin in pixels (points), 0 for quads
 uniform int color_mode;     // 0 SH colour, 1 colour by owner
 
 flat out vec2 v_center;
@@ -54,9 +57,10 @@ void main() {
     vec2 s = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1)) * 2.0 - 1.0;
     // half a pixel of margin keeps pixel centres on the ellipse boundary inside
     vec2 p = c.xy + e1 * (s.x * (c.z + 0.5)) + e2 * (s.y * (c.w + 0.5));
-    gl_Position = vec4(p.x / size.x * 2.0 - 1.0, 1.0 - p.y / size.y * 2.0, 0.0, 1.0);
+    gl_Position = vec4(p.x / size.x * 2.0 - 1.0, 1.0 - p.y / size.y * 2.0, 0.0, 1.0);  // guard is 0
 #else
-    gl_Position = vec4(c.x / size.x * 2.0 - 1.0, 1.0 - c.y / size.y * 2.0, 0.0, 1.0);
+    vec2 ext = size + 2.0 * guard;
+    gl_Position = vec4((c.x + guard) / ext.x * 2.0 - 1.0, 1.0 - (c.y + guard) / ext.y * 2.0, 0.0, 1.0);
     gl_PointSize = 2.0 * c.z + 1.0;
 #endif
 }

@@ -24,8 +24,9 @@ def ctx():
     c.release()
 
 
-def gl_render(ctx, g: Gaussians, cam: Camera, **filt) -> tuple[np.ndarray, np.ndarray, SplatRenderer]:
-    r = SplatRenderer(ctx, color_dtype="f4")
+def gl_render(ctx, g: Gaussians, cam: Camera, primitive: str = "auto", **filt
+              ) -> tuple[np.ndarray, np.ndarray, SplatRenderer]:
+    r = SplatRenderer(ctx, color_dtype="f4", primitive=primitive)
     r.set_gaussians(g)
     if filt:
         r.set_filter(**filt)
@@ -42,13 +43,14 @@ CASES = [  # seed, n, sh degree, pixel scale, camera (azimuth, elevation, distan
 ]
 
 
+@pytest.mark.parametrize("primitive", ["quads", "points"])
 @pytest.mark.parametrize("seed,n,deg,ps,view", CASES)
-def test_random_sets_match_torch(ctx, seed, n, deg, ps, view):
+def test_random_sets_match_torch(ctx, seed, n, deg, ps, view, primitive):
     g = random_gaussians(n, seed=seed, sh_degree=deg, pixel_scale=ps)
     az, el, dist, fov, w, h = view
     cam = Camera.orbit((0.1, -0.2, 0.0), az, el, dist, fov_y_deg=fov, width=w, height=h)
     ref = render(g, cam, background=(0.2, 0.3, 0.4))
-    rgb, alpha, r = gl_render(ctx, g, cam)
+    rgb, alpha, r = gl_render(ctx, g, cam, primitive)
     out = rgb + (1.0 - alpha[..., None]) * np.array([0.2, 0.3, 0.4], np.float32)
     assert psnr(out, ref.rgb.numpy()) >= 40.0
     assert np.abs(alpha - ref.alpha.numpy()).max() < 1e-3
@@ -145,15 +147,19 @@ def test_sort_and_projection_only_when_needed(ctx):
     r.release()
 
 
-def test_points_primitive_matches_for_small_splats(ctx):
-    """Point sprites are exact while a splat's footprint fits the point size limit and its
-    centre is on screen."""
-    g = random_gaussians(600, seed=9, pixel_scale=0.004, extent=0.6)
-    cam = Camera.orbit((0, 0, 0), 0, 20, 3.0, width=160, height=160)
-    r = SplatRenderer(ctx, primitive="points", color_dtype="f4")
+def test_auto_primitive_picks_points_only_when_exact(ctx):
+    """Point sprites (drawn with a guard band, so off-screen centres still count) when every
+    splat fits 255 px, quads otherwise; both match torch."""
+    g = random_gaussians(1500, seed=9, pixel_scale=0.01)
+    cam = Camera.orbit((0, 0, 0), 0, 20, 2.0, fov_y_deg=60, width=160, height=120)  # many centres off screen
+    r = SplatRenderer(ctx, color_dtype="f4")
     r.set_gaussians(g)
-    r.render(cam)
+    assert r.render(cam).primitive == "points"
     assert psnr(r.read_rgba()[..., :3], render(g, cam).rgb.numpy()) >= 40.0
+    big = Gaussians(g.means, g.quats, g.scales * 30.0, g.opacities, g.sh, g.owner)
+    r.set_gaussians(big)
+    assert r.render(cam).primitive == "quads"
+    assert psnr(r.read_rgba()[..., :3], render(big, cam).rgb.numpy()) >= 40.0
     r.release()
 
 

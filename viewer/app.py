@@ -67,8 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
     p.add_argument("--fov", type=float, help=f"vertical field of view in degrees (default: the scene's, or "
                                              f"{DEFAULT_FOV:g})")
-    p.add_argument("--primitive", choices=("quads", "points"), default="quads",
-                   help="splat primitive: exact oriented quads or point sprites (clipped at the driver's size limit)")
+    p.add_argument("--primitive", choices=("auto", "quads", "points"), default="auto",
+                   help="splat primitive: auto = point sprites when every splat fits 255 px, else oriented quads "
+                        "(both exact); points = always sprites (large splats clipped)")
     p.add_argument("--output-dir", default=".", help="folder for screenshots, .ply exports")
     p.add_argument("--no-ui", action="store_true", help="start with the panel hidden (H toggles)")
     return p

@@ -27,6 +27,7 @@ class Row:
     frame_ms: float
     area_mpx: float = 0.0
     moving_ms: float = 0.0
+    primitive: str = ""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,7 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=int, default=1024)
     p.add_argument("--height", type=int, default=768)
     p.add_argument("--frames", type=int, default=30, help="timed frames per case (default: %(default)s)")
-    p.add_argument("--primitive", choices=("quads", "points"), default="quads")
+    p.add_argument("--primitive", choices=("auto", "quads", "points"), default="auto",
+                   help="splat primitive (default: %(default)s, as the viewer)")
     p.add_argument("--moving-scale", type=float, default=0.5,
                    help="render scale the viewer uses while the camera moves (default: %(default)s)")
     p.add_argument("--pixel-scale", type=float, default=0.005,
@@ -61,7 +63,8 @@ def _time_frames(renderer, cameras) -> Row:
         upload.append(ft.upload_ms)
         draw.append(ft.draw_ms)
     med = lambda v: float(np.median(v))  # noqa: E731
-    return Row("", renderer.num, med(sort), med(upload), med(draw), med(total), renderer.splat_area() / 1e6)
+    return Row("", renderer.num, med(sort), med(upload), med(draw), med(total), renderer.splat_area() / 1e6,
+               primitive=renderer.kind)
 
 
 def _case(renderer, view, args) -> Row:
@@ -152,12 +155,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.width}x{args.height}, {args.primitive}, median of {args.frames} frames, camera turning 1 deg/frame "
           f"(every frame re-sorts); load average {load0[0]:.1f} -> {load1[0]:.1f} on {os.cpu_count()} CPUs")
     print()
-    print(f"| scene | Gaussians | splat area Mpx | sort ms | upload ms | draw ms | frame ms | "
+    print(f"| scene | Gaussians | primitive | splat area Mpx | sort ms | upload ms | draw ms | frame ms | "
           f"frame ms at {args.moving_scale:g} scale (moving) |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r.name} | {r.gaussians:,} | {r.area_mpx:.1f} | {r.sort_ms:.1f} | {r.upload_ms:.2f} | "
-              f"{r.draw_ms:.1f} | {r.frame_ms:.1f} | {r.moving_ms:.1f} |")
+        print(f"| {r.name} | {r.gaussians:,} | {r.primitive} | {r.area_mpx:.1f} | {r.sort_ms:.1f} | "
+              f"{r.upload_ms:.2f} | {r.draw_ms:.1f} | {r.frame_ms:.1f} | {r.moving_ms:.1f} |")
     if latency is not None:
         print(f"\nedit -> frame latency (drag one particle's z_p: decode it, upload its rows, sort, project, draw): "
               f"{latency[0]:.1f} ms at {args.width}x{args.height}, {latency[1]:.1f} ms at the moving scale "

@@ -38,6 +38,9 @@ ID_ATTACHMENTS = 8  # float attachments of the id pass: 3 owners each
 OWNERS_PER_ID_PASS = 3 * ID_ATTACHMENTS
 DILATION = 0.3  # px^2 added to the 2D covariance diagonal, as in particlesplat.render
 FRUSTUM_MARGIN = 0.3  # the Jacobian's x/z, y/z are clamped to the frustum widened by 30%
+PRIMITIVES = ("auto", "quads", "points")
+POINT_GUARD = 128  # viewport margin (pixels) of the point pass: sprites up to 255 px stay whole
+POINT_MAX_RADIUS = 127.0  # splats up to this radius fit a 255 px point sprite (2 r + 1)
 
 
 def load_shader(name: str, defines: dict[str, str | int] | None = None) -> str:
@@ -60,6 +63,7 @@ class FrameTimes:
     draw_ms: float = 0.0
     sorted: bool = False
     drawn: int = 0
+    primitive: str = ""
 
 
 def texels_for(sh_bases: int) -> int:
@@ -126,28 +130,34 @@ class SplatRenderer:
 
     Args:
         ctx: a moderngl context (a window's or a headless EGL one), GL >= 3.3.
-        primitive: ``"quads"`` (oriented rectangle per Gaussian, exact footprint) or
-            ``"points"`` (point sprites, clipped at the driver's maximum point size).
+        primitive: ``"auto"`` (point sprites when every projected splat fits the point size
+            limit, else quads; both exact), ``"quads"`` (an oriented rectangle per Gaussian) or
+            ``"points"`` (point sprites always; splats over 255 px are clipped).
         color_dtype: ``"f2"`` (half float, the app) or ``"f4"`` (float32, tests).
         near, far: camera-z culling planes in metres, as in :func:`particlesplat.render`.
     """
 
-    def __init__(self, ctx: moderngl.Context, *, primitive: str = "quads", color_dtype: str = "f2",
+    def __init__(self, ctx: moderngl.Context, *, primitive: str = "auto", color_dtype: str = "f2",
                  near: float = 0.01, far: float = 1e10) -> None:
-        if primitive not in ("quads", "points"):
-            raise ValueError(f"primitive must be 'quads' or 'points', got {primitive!r}")
+        if primitive not in PRIMITIVES:
+            raise ValueError(f"primitive must be one of {PRIMITIVES}, got {primitive!r}")
         self.ctx = ctx
         self.primitive = primitive
         self.color_dtype = color_dtype
         self.near, self.far = near, far
-        quads = {"QUADS": 1} if primitive == "quads" else {}
-        vert = load_shader("splat.vert", quads)
         self._project = ctx.program(vertex_shader=load_shader("fullscreen.vert"),
                                     fragment_shader=load_shader("project.frag"))
-        self._splat = ctx.program(vertex_shader=vert, fragment_shader=load_shader("splat.frag"))
-        self._id_progs = {n: ctx.program(vertex_shader=vert,
-                                         fragment_shader=load_shader("splat.frag", {"ID_PASS": 1, "ATTACH": n}))
-                          for n in (1, ID_ATTACHMENTS)}
+        # programs per primitive kind and role ("splat", or the id pass with 1 or 8 attachments)
+        self._progs: dict[str, dict[str | int, moderngl.Program]] = {}
+        for kind in (("quads", "points") if primitive == "auto" else (primitive,)):
+            vert = load_shader("splat.vert", {"QUADS": 1} if kind == "quads" else {})
+            progs: dict[str | int, moderngl.Program] = {
+                "splat": ctx.program(vertex_shader=vert, fragment_shader=load_shader("splat.frag"))}
+            for n in (1, ID_ATTACHMENTS):
+                progs[n] = ctx.program(vertex_shader=vert,
+                                       fragment_shader=load_shader("splat.frag", {"ID_PASS": 1, "ATTACH": n}))
+            self._progs[kind] = progs
+        self.kind = "quads" if primitive == "auto" else primitive  # the primitive of the current sort
         self._blit = ctx.program(vertex_shader=load_shader("fullscreen.vert"),
                                  fragment_shader=load_shader("blit.frag"))
         self._empty_vao = ctx.vertex_array(self._project, [])
@@ -332,8 +342,19 @@ class SplatRenderer:
             self.ctx.disable(moderngl.BLEND)
             self.ctx.viewport = (0, 0, ROW, math.ceil(self._drawn / ROW))
             self._empty_vao.render(moderngl.TRIANGLE_STRIP, vertices=4)
+        if self.primitive == "auto":
+            self.kind = "points" if self._max_radius() <= POINT_MAX_RADIUS else "quads"
         self._key = key
         return uni
+
+    def _max_radius(self) -> float:
+        """Largest major radius (pixels) of the projected splats (reads the projection back)."""
+        if not self._drawn:
+            return 0.0
+        rows = math.ceil(self._drawn / ROW)
+        c = np.frombuffer(self._proj_fbo.read(viewport=(0, 0, ROW, rows), components=4, attachment=0, dtype="f4"),
+                          np.float32).reshape(-1, 4)[: self._drawn]
+        return float(c[:, 2].max())
 
     def _sh_bases(self) -> int:
         """SH coefficients per channel held in the data texture (the largest K fitting the texels)."""
@@ -355,7 +376,7 @@ class SplatRenderer:
             block = np.zeros(rows * ROW, np.int32)
             block[:n] = order
             self._order_tex.write(block.tobytes(), viewport=(0, 0, ROW, rows))
-        if self.primitive == "quads" and (self._index_buf is None or self._index_buf.size < 24 * max(n, 1)):
+        if "quads" in self._progs and (self._index_buf is None or self._index_buf.size < 24 * max(n, 1)):
             self._release_vaos(also_buffer=True)
             cap = max(2 * n, 1024)
             corners = np.array([0, 1, 2, 2, 1, 3], np.uint32)
@@ -370,15 +391,13 @@ class SplatRenderer:
             self._index_buf.release()
             self._index_buf = None
 
-    def _vao(self, prog: moderngl.Program, key: str) -> moderngl.VertexArray:
-        if key not in self._vaos:
-            if self.primitive == "quads":
-                self._vaos[key] = self.ctx.vertex_array(prog, [], index_buffer=self._index_buf, index_element_size=4)
-            else:
-                self._vaos[key] = self.ctx.vertex_array(prog, [])
-        return self._vaos[key]
-
-    def _draw(self, prog: moderngl.Program, key: str, uni: dict, color_mode: int = 0) -> None:
+    def _draw(self, role: str | int, uni: dict, color_mode: int = 0, owner_base: int = 0) -> None:
+        """Draw the sorted splats with the program of ``role`` ("splat", or the id pass with 1 or
+        8 attachments, whose first owner is ``owner_base``) into the bound framebuffer."""
+        kind = self.kind
+        prog = self._progs[kind][role]
+        if "owner_base" in prog:
+            prog["owner_base"] = owner_base
         for i, t in enumerate(self._proj_tex):
             t.use(i)
         for i, name in enumerate(("center_tex", "conic_tex", "color_tex")):
@@ -389,14 +408,22 @@ class SplatRenderer:
         if "color_mode" in prog:
             prog["color_mode"] = color_mode
         self.ctx.disable(moderngl.BLEND)
-        if self.primitive == "points":
-            self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
-        if self._drawn:
-            vao = self._vao(prog, key)
-            if self.primitive == "quads":
-                vao.render(moderngl.TRIANGLES, vertices=6 * self._drawn)
-            else:
-                vao.render(moderngl.POINTS, vertices=self._drawn)
+        if not self._drawn:
+            return
+        if (kind, role) not in self._vaos:
+            self._vaos[(kind, role)] = (
+                self.ctx.vertex_array(prog, [], index_buffer=self._index_buf, index_element_size=4)
+                if kind == "quads" else self.ctx.vertex_array(prog, []))
+        vao = self._vaos[(kind, role)]
+        if kind == "quads":
+            vao.render(moderngl.TRIANGLES, vertices=6 * self._drawn)
+            return
+        w, h = self.size
+        prog["guard"] = float(POINT_GUARD)
+        self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
+        self.ctx.viewport = (-POINT_GUARD, -POINT_GUARD, w + 2 * POINT_GUARD, h + 2 * POINT_GUARD)
+        vao.render(moderngl.POINTS, vertices=self._drawn)
+        self.ctx.viewport = (0, 0, w, h)
 
     def render(self, camera: Camera, *, color_mode: int = 0, finish: bool = False) -> FrameTimes:
         """Render into the offscreen colour target (premultiplied rgb, alpha) at the camera's size.
@@ -408,21 +435,20 @@ class SplatRenderer:
         t0 = time.perf_counter()
         self._color_fbo.use()
         self._color_fbo.clear(0.0, 0.0, 0.0, 1.0)
-        self._draw(self._splat, "splat", uni, color_mode)
+        self._draw("splat", uni, color_mode)
         if finish:
             self.ctx.finish()
         times.draw_ms = (time.perf_counter() - t0) * 1e3
         times.drawn = self._drawn
+        times.primitive = self.kind
         return times
 
     def render_mask(self, camera: Camera, owner: int) -> None:
         """Render the weight sum T alpha of ``owner`` into the mask target (channel r)."""
         uni = self._prepare(camera, FrameTimes())
-        prog = self._id_progs[1]
-        prog["owner_base"] = owner
         self._mask_fbo.use()
         self._mask_fbo.clear(0.0, 0.0, 0.0, 1.0)
-        self._draw(prog, "mask", uni)
+        self._draw(1, uni, owner_base=owner)
 
     def read_mask(self) -> np.ndarray:
         """The last :meth:`render_mask`: (H, W) float32 weight of that owner, image rows top down."""
@@ -442,16 +468,14 @@ class SplatRenderer:
         width, height = self.size
         x, y, w, h = region if region is not None else (0, 0, width, height)
         gl_y = height - (y + h)
-        prog = self._id_progs[ID_ATTACHMENTS]
         total = num_owners + 1
         weights = np.zeros((total, h, w), np.float32)
         alpha = np.zeros((h, w), np.float32)
         for base in range(-1, num_owners, OWNERS_PER_ID_PASS):
-            prog["owner_base"] = base
             self._id_fbo.use()
             self.ctx.scissor = (x, gl_y, w, h)
             self._id_fbo.clear(0.0, 0.0, 0.0, 1.0)
-            self._draw(prog, "id", uni)
+            self._draw(ID_ATTACHMENTS, uni, owner_base=base)
             self.ctx.scissor = None
             for i, tex in enumerate(self._id_tex):
                 first = base + 1 + 3 * i  # row of weights for owner base + 3 i
@@ -473,15 +497,16 @@ class SplatRenderer:
         return segmentation_from_weights(weights, alpha)
 
     def splat_area(self) -> float:
-        """Pixels covered by the splat rectangles of the last projection, summed (a diagnostic of
-        the fill work; reads the projection texture back)."""
+        """Pixels covered by the splat rectangles (or point squares) of the last projection, summed
+        (a diagnostic of the fill work; reads the projection texture back)."""
         if not self._drawn:
             return 0.0
         rows = math.ceil(self._drawn / ROW)
         c = np.frombuffer(self._proj_fbo.read(viewport=(0, 0, ROW, rows), components=4, attachment=0, dtype="f4"),
                           np.float32).reshape(-1, 4)[: self._drawn]
         live = c[:, 2] > 0
-        return float(((2.0 * c[live, 2] + 1.0) * (2.0 * c[live, 3] + 1.0)).sum())
+        minor = c[live, 2] if self.kind == "points" else c[live, 3]
+        return float(((2.0 * c[live, 2] + 1.0) * (2.0 * minor + 1.0)).sum())
 
     # ------------------------------------------------------------------ output
     def read_rgba(self) -> np.ndarray:
@@ -519,7 +544,8 @@ class SplatRenderer:
         """Free the GL objects."""
         objs = [self._data_tex, *self._proj_tex, self._proj_fbo, self._index_buf, self._order_tex, *self._vaos.values(),
                 self._color_fbo, self._color_tex, self._mask_fbo, self._mask_tex, self._id_fbo, *self._id_tex,
-                self._empty_vao, self._blit_vao, self._project, self._splat, self._blit, *self._id_progs.values()]
+                self._empty_vao, self._blit_vao, self._project, self._blit,
+                *(p for progs in self._progs.values() for p in progs.values())]
         for obj in objs:
             if obj is not None:
                 obj.release()
