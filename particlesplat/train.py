@@ -81,7 +81,7 @@ class Trainer:
 
         self.train_sets = {c: SceneDataset(data / "train", resolution=cfg.resolution,
                                            mode="multi" if c == 2 else "single", num_targets=tc.target_views,
-                                           flip=False)
+                                           flip=False, cache_size=tc.cache_scenes)
                            for c in sorted(set(tc.context_views))}
         self.val_dir = data / "val"
         torch.manual_seed(tc.seed + 1000 * self.rank)

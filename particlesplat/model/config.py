@@ -23,6 +23,9 @@ class ModelConfig:
     particles_per_view: int = 8
     kp_patch: int = 4
     glimpse_ratio: float = 0.25
+    kp_min_separation: float = 0.25
+    offset_bound: float = 0.25
+    scale_logit_bound: float = 1.2
     glimpse_size: int = 16
     channels: int = 32
     d_obj: int = 16
@@ -62,6 +65,9 @@ class ModelConfig:
         need((self.resolution // self.kp_patch) ** 2 >= self.particles_per_view, "particles_per_view",
              "must not exceed the number of keypoint proposals (resolution/kp_patch)^2")
         need(0.0 < self.glimpse_ratio < 1.0, "glimpse_ratio", "must be in (0, 1)")
+        need(self.kp_min_separation >= 0.0, "kp_min_separation", "must be >= 0")
+        need(self.offset_bound > 0.0, "offset_bound", "must be > 0")
+        need(self.scale_logit_bound > 0.0, "scale_logit_bound", "must be > 0")
         need(self.glimpse_size >= 4 and self.glimpse_size % 4 == 0, "glimpse_size", "must be a multiple of 4")
         need(self.channels >= 4, "channels", "must be >= 4")
         need(self.d_obj >= 1 and self.d_bg >= 1, "d_obj", "d_obj and d_bg must be >= 1")
@@ -115,6 +121,7 @@ class TrainConfig:
     ckpt_every: int = 250
     seed: int = 0
     num_threads: int = 0
+    cache_scenes: int = 1100
 
     def validate(self, where: str = "train") -> None:
         def need(cond: bool, key: str, msg: str) -> None:
@@ -128,6 +135,7 @@ class TrainConfig:
         need(self.steps >= 1, "steps", "must be >= 1")
         need(self.lr > 0, "lr", "must be > 0")
         need(0.0 <= self.depth_dropout <= 1.0, "depth_dropout", "must be in [0, 1]")
+        need(self.cache_scenes >= 0, "cache_scenes", "must be >= 0")
         for key in ("log_every", "val_every", "ckpt_every"):
             need(getattr(self, key) >= 1, key, "must be >= 1")
         for key in ("beta_kl", "beta_f", "beta_reg", "beta_rec_ctx", "beta_rec_tgt", "lambda_depth", "grad_clip"):

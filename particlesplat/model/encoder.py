@@ -81,7 +81,8 @@ class ParticleEncoder(nn.Module):
         nn.init.normal_(self.head.weight, std=1e-3)
         b = torch.zeros(14 + 2 * D)
         b[2:4] = -4.0  # offset logvar
-        b[4:6] = float(torch.logit(torch.tensor(cfg.glimpse_ratio)))
+        self.scale_centre = float(torch.logit(torch.tensor(cfg.glimpse_ratio)))
+        b[4:6] = self.scale_centre
         b[6:8] = -4.0
         b[9] = -4.0
         b[10] = cfg.logit_prior_extent
@@ -133,7 +134,7 @@ class ParticleEncoder(nn.Module):
         M = rgb.shape[0]
         feats = self.backbone(rgb, dep, rays)
         kp, var = self.proposals(feats)
-        idx = var.topk(L, dim=1, largest=False).indices  # lowest variance = most confident
+        idx = select_keypoints(kp.detach(), var.detach(), L, cfg.kp_min_separation)
         kp = torch.gather(kp, 1, idx[..., None].expand(-1, -1, 2))  # (M, L, 2)
         # glimpses of the RGB-D input around each keypoint (STN, bilinear)
         g = cfg.glimpse_ratio
@@ -155,7 +156,9 @@ class ParticleEncoder(nn.Module):
         d_logit = torch.logit(d_obs.clamp(0.02, 0.98)) * obs[..., 1:2]
         beta_ab = F.softplus(out[..., 12:14]) + 0.05
         return {"kp": kp, "h": h.reshape(M, L, -1),
-                "mu_o": out[..., 0:2], "lv_o": out[..., 2:4], "mu_s": out[..., 4:6], "lv_s": out[..., 6:8],
+                "mu_o": cfg.offset_bound * torch.tanh(out[..., 0:2]), "lv_o": out[..., 2:4],
+                "mu_s": self.scale_centre + cfg.scale_logit_bound * torch.tanh(
+                    (out[..., 4:6] - self.scale_centre) / cfg.scale_logit_bound), "lv_s": out[..., 6:8],
                 "mu_d": out[..., 8:9] + d_logit.detach(), "lv_d": out[..., 9:10],
                 "mu_e": out[..., 10:11], "lv_e": out[..., 11:12],
                 "beta_a": beta_ab[..., :1], "beta_b": beta_ab[..., 1:],
@@ -190,6 +193,27 @@ class ParticleEncoder(nn.Module):
         out["mu_d"] = out["mu_d"] + delta[..., :1]
         out["mu_f"] = out["mu_f"] + delta[..., 1:]
         return out
+
+
+def select_keypoints(kp: Tensor, var: Tensor, count: int, min_separation: float) -> Tensor:
+    """Filter proposals to ``count`` per view: lowest spatial-softmax variance first, skipping proposals
+    closer than ``min_separation`` (normalised units, Chebyshev) to one already kept (greedy NMS); when too
+    few are far enough apart the rest are the next lowest-variance proposals.
+
+    kp: (M, Q, 2) in [-1, 1]; var: (M, Q) -> (M, count) int64 proposal indices.
+    """
+    M, Q = var.shape
+    score = var.clone()
+    chosen = []
+    big = torch.finfo(var.dtype).max
+    for _ in range(count):
+        i = score.argmin(1)
+        chosen.append(i)
+        p = torch.gather(kp, 1, i[:, None, None].expand(-1, 1, 2))
+        near = (kp - p).abs().amax(-1) < min_separation
+        score = torch.where(near, score + 1e6, score)
+        score.scatter_(1, i[:, None], big)
+    return torch.stack(chosen, 1)
 
 
 def box_mask(z_p: Tensor, scale: Tensor, active: Tensor, size: int) -> Tensor:
