@@ -25,16 +25,16 @@ def _background(text: str) -> tuple[float, float, float]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--checkpoint", help="model checkpoint (default: the shipped assets/model.pt)")
+    parser.add_argument("--checkpoint", help="model checkpoint; none = the shipped assets/model.pt")
     src = parser.add_mutually_exclusive_group()
-    src.add_argument("--scene", help="scene folder to encode (default: the first demo scene in assets/scenes)")
+    src.add_argument("--scene", help="scene folder to encode; none = the first demo scene in assets/scenes")
     src.add_argument("--ply", help="render a 3DGS .ply instead of a model scene")
-    parser.add_argument("--context", help="context frame indices, e.g. 4,16 (default: as the viewer)")
+    parser.add_argument("--context", help="context frame indices, e.g. 4,16; none = as the viewer (two frames 12 apart about the middle)")
     parser.add_argument("--edits", help="edits YAML (particle index -> attribute values) to apply")
     cam = parser.add_mutually_exclusive_group()
     cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
     cam.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
-    parser.add_argument("--fov", type=float, help="vertical field of view in degrees (with --look or the default view)")
+    parser.add_argument("--fov", type=float, help="vertical field of view in degrees (with --look or the default view); none = the scene's")
     parser.add_argument("--width", type=int, default=640, help="image width in pixels")
     parser.add_argument("--height", type=int, default=480, help="image height in pixels")
     parser.add_argument("--background", type=_background, default=DEFAULT_BACKGROUND, help="background colour R,G,B")

@@ -51,8 +51,7 @@ def parse_size(text: str) -> tuple[int, int]:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="particlesplat-viewer",
                                 description="View and edit ParticleSplat scenes: orbit, select and drag particles, "
-                                            "segment, screenshot.",
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                                            "segment, screenshot.")
     p.add_argument("--checkpoint", help="model checkpoint (default: the shipped assets/model.pt)")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--scene", help="scene folder to encode (default: the first demo scene in assets/scenes)")
@@ -62,15 +61,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--edits", help="edits YAML to apply at start")
     p.add_argument("--frames", type=int, help="run N frames, print the median frame time and exit")
     p.add_argument("--screenshot", help="with --frames: save the last render (no UI) to this PNG")
-    p.add_argument("--size", type=parse_size, default=(1280, 800), help="window size WxH")
+    p.add_argument("--size", type=parse_size, default=(1280, 800), help="window size WxH (default: 1280x800)")
     p.add_argument("--orbit", action="store_true", help="turn the camera a little every frame")
     p.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
     p.add_argument("--fov", type=float, help=f"vertical field of view in degrees (default: the scene's, or "
                                              f"{DEFAULT_FOV:g})")
     p.add_argument("--primitive", choices=("auto", "quads", "points"), default="auto",
                    help="splat primitive: auto = point sprites when every splat fits 255 px, else oriented quads "
-                        "(both exact); points = always sprites (large splats clipped)")
-    p.add_argument("--output-dir", default=".", help="folder for screenshots, .ply exports")
+                        "(both exact; the default); points = always sprites (large splats clipped)")
+    p.add_argument("--output-dir", default=".", help="folder for screenshots and .ply exports (default: .)")
     p.add_argument("--no-ui", action="store_true", help="start with the panel hidden (H toggles)")
     return p
 
