@@ -217,21 +217,20 @@ class App:
 
     # ------------------------------------------------------------------ loop
     def run(self, frames: int | None = None, orbit: bool = False) -> list[float]:
-        """Run until the window closes (or ``frames`` frames); returns per-frame seconds."""
+        """Run until the window closes (or ``frames`` frames); returns the seconds each frame
+        took (events, UI, render if needed, present), not counting the idle wait for input."""
         times = self.frame_times
-        last = time.perf_counter()
         n = 0
         while not glfw.window_should_close(self.window) and (frames is None or n < frames):
             if frames is None and time.perf_counter() - self.controls.last_move > 1.0:
                 glfw.wait_events_timeout(0.05)  # idle: sleep until input
             else:
                 glfw.poll_events()
+            t0 = time.perf_counter()
             if orbit:
                 self.orbit.turn(ORBIT_STEP)
             self.frame(show_ui=frames is None or not self.args.no_ui)
-            now = time.perf_counter()
-            times.append(now - last)
-            last = now
+            times.append(time.perf_counter() - t0)
             n += 1
         return times
 
@@ -283,6 +282,9 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     if args.screenshot and args.frames is None:
         print("particlesplat-viewer: --screenshot needs --frames", file=sys.stderr)
+        return 2
+    if args.ply and args.edits:
+        print("particlesplat-viewer: --edits needs a model scene, not --ply", file=sys.stderr)
         return 2
     if args.frames is not None and args.frames < 1:
         print("particlesplat-viewer: --frames must be >= 1", file=sys.stderr)
