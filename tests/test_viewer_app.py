@@ -4,6 +4,7 @@ particle, undo, screenshot and .ply export requests, opening another scene."""
 from __future__ import annotations
 
 import os
+import time
 
 import numpy as np
 import pytest
@@ -92,6 +93,19 @@ def test_screenshot_and_export(app, tmp_path):
     assert exported.num == app.scene_view.visible_gaussians(app.session, app.state).num
     assert bool((exported.opacities >= 0.2 - 1e-6).all())
     app.state.prune = 0.0
+
+
+def test_render_scale_and_no_redraw_when_still(app):
+    fw, fh = app.framebuffer_size()
+    app.controls.last_move = time.perf_counter()  # as if the camera just moved
+    app.run(1)
+    assert app.scene_view.renderer.size == (round(fw * 0.5), round(fh * 0.5))
+    time.sleep(A.STILL_AFTER + 0.05)
+    app.run(1)
+    assert app.scene_view.renderer.size == (fw, fh)
+    last = app.scene_view.last_times
+    app.run(2)
+    assert app.scene_view.last_times is last  # nothing changed: nothing re-rendered
 
 
 def press(app, *keys) -> None:
