@@ -4,17 +4,17 @@
 Design (see shaders/):
 
 * The Gaussians live in one static RGBA32F texture (``ROW`` Gaussians per texture row,
-  ``texels`` texels each: mean + opacity, 3D covariance, owner, SH). Only the rows of a
-  changed particle are re-uploaded.
-* A projection pass draws one fragment per Gaussian (``project.frag``): 2D centre, conic,
-  footprint radius, major axis and SH colour, computed once per Gaussian on all rasteriser
-  threads, and only when the camera or the data changed.
-* One global float32 sort of the visible Gaussians by camera z (numpy argsort) when the view,
-  the data or the filter changed; only the sorted index list is uploaded.
-* A splat pass draws one oriented quad (or point sprite) per Gaussian into an offscreen float
-  framebuffer, front to back, compositing in the fragment shader with framebuffer fetch
-  exactly like the torch renderer (alpha clamped at 0.99, footprint alpha >= 1/255, a pixel
-  stops before the splat that would take its transmittance to <= 1e-4).
+  ``texels`` texels each: mean + opacity, rotation rows + scales, owner, SH). Only the rows of
+  a changed particle are re-uploaded.
+* When the view, the data or the filter changed: one global sort of the visible Gaussians by
+  float32 camera z (:func:`depth_order`), the sorted indices uploaded, then a projection pass
+  that draws one fragment per splat (``project.frag``, on all rasteriser threads): 2D centre,
+  conic, the radii of the alpha >= 1/255 ellipse and the SH colour, written in sorted order.
+* A splat pass draws one point sprite (``auto`` when every splat fits 255 px; drawn with a
+  guard band) or one oriented quad per splat into an offscreen float framebuffer, front to
+  back, compositing in the fragment shader with framebuffer fetch exactly like the torch
+  renderer (alpha clamped at 0.99, footprint alpha >= 1/255, a pixel stops before the splat
+  that would take its transmittance to <= 1e-4).
 * An id pass writes per-owner weights ``sum T alpha`` (24 owners per pass, 8 float
   attachments) for picking, masks and segmentation.
 """
