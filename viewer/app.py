@@ -140,9 +140,9 @@ class App:
         t = self.frame_times[-30:]
         ms = float(np.median(t)) * 1e3 if t else 0.0
         r = self.scene_view.renderer
-        lines = [f"{ms:6.1f} ms/frame  (splat {self.scene_view.last_times.draw_ms:.1f} ms, "
-                 f"scale {self.render_scale():.2f})",
-                 f"{r.visible_count:,} of {r.num:,} Gaussians"]
+        last = self.scene_view.last_times
+        lines = [f"{ms:6.1f} ms/frame (median of the last 30), render scale {self.render_scale():.2f}",
+                 f"{r.visible_count:,} of {r.num:,} Gaussians, {last.primitive or '-'}, sort {last.sort_ms:.1f} ms"]
         if self.session.editable:
             active = sum(self.session.is_active(i) for i in range(self.session.num_particles))
             lines.append(f"{active} of {self.session.num_particles} particles active"
