@@ -113,13 +113,13 @@ def bin_gaussians(means2d: Tensor, conics: Tensor, opacities: Tensor, radius: Te
 def _tile_hits(g: Tensor, tile: Tensor, origin: Tensor, means2d: Tensor, conics: Tensor, opacities: Tensor,
                block: int = 1 << 16) -> Tensor:
     """(P,) bool: does Gaussian g[i] reach α ≥ 1/255 at a pixel centre of tile[i]? (blocks of pairs)"""
-    feats = _pixel_features(means2d.dtype, means2d.device)
+    feats = _pixel_features(conics.dtype, conics.device)
     log_o = torch.log(opacities.clamp_min(1e-30))
     thresh = math.log(ALPHA_MIN)
     hit = torch.empty(g.shape[0], dtype=torch.bool, device=g.device)
     for i in range(0, g.shape[0], block):
         gi, ti = g[i:i + block], tile[i:i + block]
-        coef = _coefficients(means2d[gi] - origin[ti].to(means2d.dtype), conics[gi], log_o[gi])
+        coef = _coefficients((means2d[gi] - origin[ti].to(means2d.dtype)).to(conics.dtype), conics[gi], log_o[gi])
         # (16, 6) @ (6, B) is ~10x faster than the tall-skinny (B, 6) @ (6, 16) on CPU
         hit[i:i + block] = (feats @ coef.T).amax(0) >= thresh - 1e-3  # margin: the raster decides exactly
     return hit
@@ -217,11 +217,14 @@ def pair_inputs(bins: TileBins, means2d: Tensor, conics: Tensor, opacities: Tens
                 features: Tensor) -> tuple[Tensor, Tensor]:
     """Differentiable per-pair rasterizer inputs, with a padding row appended.
 
-    means2d: (M, 2), conics: (M, 3), opacities: (M,), features: (M, C).
+    means2d: (M, 2) (float64 for full precision), conics: (M, 3), opacities: (M,), features: (M, C).
+    The outputs have the dtype of ``conics``.
     Returns coefficients (P+1, 6) and features with a trailing 1 (P+1, C+1).
     """
     rows = bins.gauss
-    local = means2d.index_select(0, rows) - bins.tile_origin.index_select(0, bins.pair_tile).to(means2d.dtype)
+    # the tile-local offset is formed at the precision of means2d (float64), then rounded
+    local = (means2d.index_select(0, rows) - bins.tile_origin.index_select(0, bins.pair_tile).to(means2d.dtype)
+             ).to(conics.dtype)
     coef = _coefficients(local, conics.index_select(0, rows), torch.log(opacities.index_select(0, rows).clamp_min(1e-30)))
     pad = coef.new_zeros(1, 6)
     pad[0, 5] = _PAD_LOG_OPACITY
