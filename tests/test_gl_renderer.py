@@ -148,8 +148,8 @@ def test_sort_and_projection_only_when_needed(ctx):
 
 
 def test_auto_primitive_picks_points_only_when_exact(ctx):
-    """Point sprites (drawn with a guard band, so off-screen centres still count) when every
-    splat fits 255 px, quads otherwise; both match torch."""
+    """Point sprites (drawn with a guard band, so off-screen centres still count) for many small
+    splats, quads when a splat exceeds 255 px; both match torch."""
     g = random_gaussians(1500, seed=9, pixel_scale=0.01)
     cam = Camera.orbit((0, 0, 0), 0, 20, 2.0, fov_y_deg=60, width=160, height=120)  # many centres off screen
     r = SplatRenderer(ctx, color_dtype="f4")
