@@ -93,3 +93,23 @@ def test_render_cli_view_and_errors(tmp_path):
     assert psnr(load_png(out), ref) >= 40.0
     assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--look", "1,2", "--out", str(out)]) == 1
     assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--view", "0", "--out", str(out)]) == 1
+
+
+def test_render_cli_input_view_with_edits(tmp_path):
+    """`--view I` renders input camera I of the scene; edits apply to the decoded particles."""
+    from particlesplat.edits import apply_edits
+    from particlesplat.encode_scene import demo_scenes, encode_scene
+
+    model = small_model()
+    ckpt = tmp_path / "small.pt"
+    save_checkpoint(ckpt, model, 0)
+    edits = {2: {"z_d": (1.5,)}, 3: {"z_s": (0.5, -0.5)}}
+    save_edits(tmp_path / "e.yaml", edits)
+    out = tmp_path / "v.png"
+    assert cli_main(["render", "--checkpoint", str(ckpt), "--edits", str(tmp_path / "e.yaml"), "--view", "3",
+                     "--width", "48", "--height", "40", "--out", str(out)]) == 0
+    enc = encode_scene(model, demo_scenes()[0])
+    g = model.decode(apply_edits(enc.particles, edits))
+    ref = render(g, enc.all_cameras[3].resized(48, 40), background=DEFAULT_BACKGROUND).rgb.numpy()
+    assert psnr(load_png(out), ref) >= 40.0
+    assert "z_d" in Image.open(out).text["edits"]
