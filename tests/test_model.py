@@ -276,3 +276,14 @@ def test_shipped_model_loads_and_matches_its_yaml():
     rgb, depth, _ = scene_inputs(2, size)
     p = m.encode(rgb, depth, cams(2, size))
     assert math.isfinite(float(m.decode(p).means.sum()))
+
+
+def test_keypoint_filter_prefers_low_variance_and_spreads_out():
+    from particlesplat.model.encoder import select_keypoints
+
+    kp = torch.tensor([[[0.0, 0.0], [0.1, 0.0], [0.5, 0.5], [-0.6, 0.2], [0.52, 0.5]]])
+    var = torch.tensor([[1.0, 0.5, 2.0, 3.0, 1.5]])
+    # lowest variance first (index 1); index 0 is within 0.25 of it, so 4, then 3 come next; 0 and 2 last
+    assert select_keypoints(kp, var, 3, 0.25).tolist() == [[1, 4, 3]]
+    assert select_keypoints(kp, var, 5, 0.25).tolist() == [[1, 4, 3, 0, 2]]
+    assert select_keypoints(kp, var, 3, 0.0).tolist() == [[1, 0, 4]]
