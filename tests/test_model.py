@@ -287,3 +287,25 @@ def test_keypoint_filter_prefers_low_variance_and_spreads_out():
     assert select_keypoints(kp, var, 3, 0.25).tolist() == [[1, 4, 3]]
     assert select_keypoints(kp, var, 5, 0.25).tolist() == [[1, 4, 3, 0, 2]]
     assert select_keypoints(kp, var, 3, 0.0).tolist() == [[1, 0, 4]]
+
+
+def test_presence_selection_picks_high_presence_patches():
+    """With kp_selection=presence the kept proposals are the highest-presence patches (spread by NMS), and
+    their transparency grows with the presence logit (the signal that teaches the selection)."""
+    m = tiny_model()
+    enc = m.encoder
+    rgb, depth, cs = scene_inputs(1)
+    K, c2w = stack_cameras(cs)
+    from particlesplat.model.encoder import depth_input, plucker_map
+
+    dep = depth_input(depth, rgb, m.config)
+    rays = plucker_map(K, c2w, 32, 32)
+    kp0, var0, _ = enc.proposals(enc.backbone(rgb, dep, rays))
+    presence = torch.zeros(1, 64)
+    presence[0, [5, 40, 63]] = torch.tensor([3.0, 6.0, 9.0])
+    enc.proposals = lambda feats: (kp0, var0, presence)
+    att = enc.attributes(rgb, dep, rays)
+    assert torch.equal(att["kp"][0], kp0[0, [63, 40, 5]])
+    t = (att["beta_a"] / (att["beta_a"] + att["beta_b"]))[0, :, 0]
+    shift = att["beta_a"] - att["beta_b"]
+    assert bool((shift[0, 0] > shift[0, 2]).all()) and float(t[0]) > float(t[2])

@@ -24,6 +24,7 @@ class ModelConfig:
     kp_patch: int = 4
     glimpse_ratio: float = 0.25
     kp_min_separation: float = 0.25
+    kp_selection: str = "presence"
     offset_bound: float = 0.25
     scale_logit_bound: float = 1.2
     glimpse_size: int = 16
@@ -65,6 +66,7 @@ class ModelConfig:
         need((self.resolution // self.kp_patch) ** 2 >= self.particles_per_view, "particles_per_view",
              "must not exceed the number of keypoint proposals (resolution/kp_patch)^2")
         need(0.0 < self.glimpse_ratio < 1.0, "glimpse_ratio", "must be in (0, 1)")
+        need(self.kp_selection in ("presence", "variance"), "kp_selection", "must be 'presence' or 'variance'")
         need(self.kp_min_separation >= 0.0, "kp_min_separation", "must be >= 0")
         need(self.offset_bound > 0.0, "offset_bound", "must be > 0")
         need(self.scale_logit_bound > 0.0, "scale_logit_bound", "must be > 0")

@@ -69,7 +69,7 @@ class ParticleEncoder(nn.Module):
         c = cfg.channels
         P = cfg.kp_patch
         self.backbone = FusedBackbone(cfg)
-        self.heat = nn.Conv2d(self.backbone.out_channels, P * P, 1)
+        self.heat = nn.Conv2d(self.backbone.out_channels, P * P + 1, 1)  # patch logits + presence logit
         g = cfg.glimpse_size
         self.glimpse_cnn = nn.Sequential(_conv(5, c // 2, 2), _conv(c // 2, c, 2), _conv(c, c, 2 if g >= 16 else 1))
         gs = g // 8 if g >= 16 else g // 4
@@ -105,13 +105,15 @@ class ParticleEncoder(nn.Module):
         nn.init.zeros_(self.refine.weight)
         nn.init.zeros_(self.refine.bias)
 
-    def proposals(self, feats: Tensor) -> tuple[Tensor, Tensor]:
-        """feats: (M, C, h, w) -> keypoints (M, Q, 2) in [-1, 1] and their spatial variance (M, Q)."""
+    def proposals(self, feats: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """feats: (M, C, h, w) -> keypoints (M, Q, 2) in [-1, 1], their spatial variance (M, Q) and a
+        presence logit (M, Q) per patch (Q = (resolution / kp_patch)^2)."""
         cfg = self.cfg
         P = cfg.kp_patch
         n = cfg.resolution // P
-        logits = self.heat(F.interpolate(feats, size=(n, n), mode="bilinear", align_corners=False))
-        prob = logits.flatten(2).transpose(1, 2).reshape(feats.shape[0], n * n, P * P).softmax(-1)
+        out = self.heat(F.interpolate(feats, size=(n, n), mode="bilinear", align_corners=False))
+        presence = out[:, -1].flatten(1)
+        prob = out[:, :-1].flatten(2).transpose(1, 2).reshape(feats.shape[0], n * n, P * P).softmax(-1)
         ar = torch.arange(P, device=feats.device, dtype=feats.dtype) + 0.5
         gy, gx = torch.meshgrid(ar, ar, indexing="ij")
         local = torch.stack([gx, gy], dim=-1).reshape(P * P, 2)  # pixels within a patch
@@ -121,7 +123,7 @@ class ParticleEncoder(nn.Module):
                                 torch.arange(n, device=feats.device, dtype=feats.dtype) * P, indexing="ij")
         origin = torch.stack([cx, cy], dim=-1).reshape(1, n * n, 2)
         pix = origin + mean
-        return pix / cfg.resolution * 2.0 - 1.0, var
+        return pix / cfg.resolution * 2.0 - 1.0, var, presence
 
     def attributes(self, rgb: Tensor, dep: Tensor, rays: Tensor) -> dict[str, Tensor]:
         """Per-view particle posteriors before interaction.
@@ -133,9 +135,13 @@ class ParticleEncoder(nn.Module):
         L, D = cfg.particles_per_view, cfg.d_obj
         M = rgb.shape[0]
         feats = self.backbone(rgb, dep, rays)
-        kp, var = self.proposals(feats)
-        idx = select_keypoints(kp.detach(), var.detach(), L, cfg.kp_min_separation)
+        kp, var, presence = self.proposals(feats)
+        # filter to L: by presence (the proposal's transparency prior, learned through z_t) or by the
+        # spatial-softmax variance (most confident first), with non-maximum suppression either way
+        score = -presence if cfg.kp_selection == "presence" else var
+        idx = select_keypoints(kp.detach(), score.detach(), L, cfg.kp_min_separation)
         kp = torch.gather(kp, 1, idx[..., None].expand(-1, -1, 2))  # (M, L, 2)
+        presence = torch.gather(presence, 1, idx)[..., None]  # (M, L, 1)
         # glimpses of the RGB-D input around each keypoint (STN, bilinear)
         g = cfg.glimpse_ratio
         theta = torch.zeros(M * L, 2, 3, device=rgb.device, dtype=rgb.dtype)
@@ -154,7 +160,8 @@ class ParticleEncoder(nn.Module):
         obs = F.grid_sample(dep, kp[:, :, None, :], mode="nearest", align_corners=False)[..., 0].transpose(1, 2)
         d_obs = (obs[..., :1] * cfg.d_max - cfg.d_min) / (cfg.d_max - cfg.d_min)
         d_logit = torch.logit(d_obs.clamp(0.02, 0.98)) * obs[..., 1:2]
-        beta_ab = F.softplus(out[..., 12:14]) + 0.05
+        shift = 0.5 * presence if cfg.kp_selection == "presence" else torch.zeros_like(presence)
+        beta_ab = F.softplus(out[..., 12:14] + torch.cat([shift, -shift], dim=-1)) + 0.05
         return {"kp": kp, "h": h.reshape(M, L, -1),
                 "mu_o": cfg.offset_bound * torch.tanh(out[..., 0:2]), "lv_o": out[..., 2:4],
                 "mu_s": self.scale_centre + cfg.scale_logit_bound * torch.tanh(
@@ -196,7 +203,7 @@ class ParticleEncoder(nn.Module):
 
 
 def select_keypoints(kp: Tensor, var: Tensor, count: int, min_separation: float) -> Tensor:
-    """Filter proposals to ``count`` per view: lowest spatial-softmax variance first, skipping proposals
+    """Filter proposals to ``count`` per view: lowest score ``var`` first, skipping proposals
     closer than ``min_separation`` (normalised units, Chebyshev) to one already kept (greedy NMS); when too
     few are far enough apart the rest are the next lowest-variance proposals.
 
