@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 from dataclasses import dataclass
 
@@ -131,15 +132,18 @@ def main(argv: list[str] | None = None) -> int:
         row.name = f"random {n // 1000}k" if n % 1000 == 0 else f"random {n}"
         rows.append(row)
     latency = None
+    failure = None
     if not args.no_scene:
-        from particlesplat.encode_scene import demo_scenes, encode_scene
-        from particlesplat.model import load_model
+        from particlesplat.encode_scene import load_model_scene
 
         from .session import SceneSession
 
-        model = load_model(args.checkpoint)
-        scene = args.scene or demo_scenes()[0]
-        enc = encode_scene(model, scene)
+        try:
+            model, enc, _ = load_model_scene(args.checkpoint, args.scene)
+        except (OSError, ValueError) as e:  # reported after the random-set table, exit status 1
+            failure = f"demo scene not measured: {e}"
+    if not args.no_scene and failure is None:
+        scene = enc.path
         session = SceneSession(model, enc)
         g = session.gaussians()
         renderer.set_gaussians(g)
@@ -167,4 +171,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{args.moving_scale:g} (what a drag in the viewer renders)")
     renderer.release()
     ctx.release()
+    if failure:
+        print(f"\n{failure}", file=sys.stderr)
+        return 1
     return 0
