@@ -5,7 +5,7 @@
 // Input: the static Gaussian texture, `texels` texels per Gaussian, `row` Gaussians per row:
 //   texel 0: mean xyz (world m), opacity
 //   texels 1-3: rotation matrix rows r0, r1, r2 (xyz) and the scales (w), metres
-//   texel 4..: owner (float), then the SH coefficients, flat index 1 + k * 3 + channel
+//   texels 4 .. 4 + SH_BASES - 1: SH coefficient k (rgb) in texel 4 + k; texel 4 alpha = owner
 // Output (one texel per splat, `row` per row), zero radius = culled:
 //   center: u, v (pixels, image rows downward), major and minor radius of the alpha >= 1/255
 //           ellipse (pixels)
@@ -20,7 +20,9 @@ uniform isampler2D order;  // sorted Gaussian indices, `row` per row
 uniform int num;           // splats to project (the sorted list's length)
 uniform int row;
 uniform int texels;
-uniform int sh_bases;
+#ifndef SH_BASES
+#define SH_BASES 1
+#endif
 uniform mat4 w2c;        // world -> camera (OpenCV), column-major as GLSL expects
 uniform vec3 cam_center; // world
 uniform vec4 intr;       // fx, fy, cx, cy (pixels)
@@ -94,34 +96,29 @@ void main() {
     float l2 = max(mid - disc, 0.0);
     vec2 uv = vec2(intr.x * pc.x / z + intr.z, intr.y * pc.y / z + intr.w);
 
-    // view-dependent colour
+    // view-dependent colour, unrolled for SH_BASES coefficients per channel (a compile-time
+    // constant: dynamic indexing is slow on llvmpipe)
     vec3 d = normalize(mean - cam_center);
     float x = d.x, y = d.y, zz = d.z;
-    float basis[16];
-    basis[0] = C0;
-    if (sh_bases > 1) {
-        basis[1] = -C1 * y; basis[2] = C1 * zz; basis[3] = -C1 * x;
-    }
-    if (sh_bases > 4) {
-        float xx = x * x, yy = y * y, z2 = zz * zz;
-        basis[4] = C2[0] * x * y; basis[5] = C2[1] * y * zz; basis[6] = C2[2] * (2.0 * z2 - xx - yy);
-        basis[7] = C2[3] * x * zz; basis[8] = C2[4] * (xx - yy);
-        if (sh_bases > 9) {
-            basis[9] = C3[0] * y * (3.0 * xx - yy); basis[10] = C3[1] * x * y * zz;
-            basis[11] = C3[2] * y * (4.0 * z2 - xx - yy);
-            basis[12] = C3[3] * zz * (2.0 * z2 - 3.0 * xx - 3.0 * yy);
-            basis[13] = C3[4] * x * (4.0 * z2 - xx - yy); basis[14] = C3[5] * zz * (xx - yy);
-            basis[15] = C3[6] * x * (xx - 3.0 * yy);
-        }
-    }
-    vec3 rgb = vec3(0.0);
-    int n = sh_bases * 3;
-    vec4 blk = fetch(g, 4);
-    float owner = blk.x;
-    for (int j = 1; j <= n; ++j) {
-        if (j % 4 == 0) blk = fetch(g, 4 + j / 4);
-        rgb[(j - 1) % 3] += basis[(j - 1) / 3] * blk[j % 4];
-    }
+    vec4 t4 = fetch(g, 4);
+    float owner = t4.w;
+    vec3 rgb = C0 * t4.rgb;
+#if SH_BASES > 1
+    rgb += -C1 * y * fetch(g, 5).rgb + C1 * zz * fetch(g, 6).rgb - C1 * x * fetch(g, 7).rgb;
+#endif
+#if SH_BASES > 4
+    float xx = x * x, yy = y * y, z2 = zz * zz;
+    rgb += C2[0] * x * y * fetch(g, 8).rgb + C2[1] * y * zz * fetch(g, 9).rgb
+         + C2[2] * (2.0 * z2 - xx - yy) * fetch(g, 10).rgb + C2[3] * x * zz * fetch(g, 11).rgb
+         + C2[4] * (xx - yy) * fetch(g, 12).rgb;
+#endif
+#if SH_BASES > 9
+    rgb += C3[0] * y * (3.0 * xx - yy) * fetch(g, 13).rgb + C3[1] * x * y * zz * fetch(g, 14).rgb
+         + C3[2] * y * (4.0 * z2 - xx - yy) * fetch(g, 15).rgb
+         + C3[3] * zz * (2.0 * z2 - 3.0 * xx - 3.0 * yy) * fetch(g, 16).rgb
+         + C3[4] * x * (4.0 * z2 - xx - yy) * fetch(g, 17).rgb + C3[5] * zz * (xx - yy) * fetch(g, 18).rgb
+         + C3[6] * x * (xx - 3.0 * yy) * fetch(g, 19).rgb;
+#endif
     rgb = max(rgb + 0.5, vec3(0.0));
 
     o_center = vec4(uv, sqrt(qmax * l1), sqrt(qmax * l2));

@@ -71,8 +71,8 @@ class FrameTimes:
 
 
 def texels_for(sh_bases: int) -> int:
-    """Texels per Gaussian for ``sh_bases`` SH coefficients per channel."""
-    return 4 + (1 + 3 * sh_bases + 3) // 4
+    """Texels per Gaussian for ``sh_bases`` SH coefficients per channel (one texel each)."""
+    return 4 + sh_bases
 
 
 def pack_gaussians(g: Gaussians, texels: int | None = None) -> np.ndarray:
@@ -89,10 +89,8 @@ def pack_gaussians(g: Gaussians, texels: int | None = None) -> np.ndarray:
     out[:, 0, 3] = g.opacities.numpy()
     out[:, 1:4, :3] = rot
     out[:, 1:4, 3] = g.scales.numpy()
-    flat = np.zeros((n, (texels - 4) * 4), dtype=np.float32)
-    flat[:, 0] = g.owner.numpy().astype(np.float32)
-    flat[:, 1: 1 + 3 * k] = g.sh.numpy().reshape(n, 3 * k)
-    out[:, 4:] = flat.reshape(n, texels - 4, 4)
+    out[:, 4: 4 + k, :3] = g.sh.numpy()
+    out[:, 4, 3] = g.owner.numpy().astype(np.float32)
     return out
 
 
@@ -149,8 +147,7 @@ class SplatRenderer:
         self.primitive = primitive
         self.color_dtype = color_dtype
         self.near, self.far = near, far
-        self._project = ctx.program(vertex_shader=load_shader("fullscreen.vert"),
-                                    fragment_shader=load_shader("project.frag"))
+        self._projects: dict[int, moderngl.Program] = {}  # projection program per SH coefficient count
         # programs per primitive kind and role ("splat", or the id pass with 1 or 8 attachments)
         self._progs: dict[str, dict[str | int, moderngl.Program]] = {}
         for kind in (("quads", "points") if primitive == "auto" else (primitive,)):
@@ -164,7 +161,7 @@ class SplatRenderer:
         self.kind = "quads" if primitive == "auto" else primitive  # the primitive of the current sort
         self._blit = ctx.program(vertex_shader=load_shader("fullscreen.vert"),
                                  fragment_shader=load_shader("blit.frag"))
-        self._empty_vao = ctx.vertex_array(self._project, [])
+        self._project_vaos: dict[int, moderngl.VertexArray] = {}
         self._blit_vao = ctx.vertex_array(self._blit, [])
         # data
         self._packed = np.zeros((0, texels_for(1), 4), np.float32)
@@ -329,15 +326,20 @@ class SplatRenderer:
         t2 = time.perf_counter()
         times.sort_ms, times.upload_ms, times.sorted = (t1 - t0) * 1e3, (t2 - t1) * 1e3, True
         if self._drawn:
-            p = self._project
+            k = self._sh_bases()
+            if k not in self._projects:
+                self._projects[k] = self.ctx.program(vertex_shader=load_shader("fullscreen.vert"),
+                                                     fragment_shader=load_shader("project.frag", {"SH_BASES": k}))
+                self._project_vaos[k] = self.ctx.vertex_array(self._projects[k], [])
+            p = self._projects[k]
             p["gaussians"] = 0
             p["order"] = 1
             p["num"] = self._drawn
             p["row"] = ROW
             p["texels"] = self._packed.shape[1]
-            p["sh_bases"] = self._sh_bases()
             for name in ("w2c", "cam_center", "intr", "lim"):
-                p[name] = uni[name]
+                if name in p:  # cam_center is unused (optimised out) for SH degree 0
+                    p[name] = uni[name]
             p["near_far"] = (self.near, self.far)
             p["dilation"] = DILATION
             self._data_tex.use(0)
@@ -345,7 +347,7 @@ class SplatRenderer:
             self._proj_fbo.use()
             self.ctx.disable(moderngl.BLEND)
             self.ctx.viewport = (0, 0, ROW, math.ceil(self._drawn / ROW))
-            self._empty_vao.render(moderngl.TRIANGLE_STRIP, vertices=4)
+            self._project_vaos[k].render(moderngl.TRIANGLE_STRIP, vertices=4)
         if self.primitive == "auto":
             self.kind = self._cheaper_primitive()
         self._key = key
@@ -377,9 +379,8 @@ class SplatRenderer:
         return "points" if points < quads else "quads"
 
     def _sh_bases(self) -> int:
-        """SH coefficients per channel held in the data texture (the largest K fitting the texels)."""
-        cap = ((self._packed.shape[1] - 4) * 4 - 1) // 3
-        return max(k for k in (1, 4, 9, 16) if k <= cap)
+        """SH coefficients per channel held in the data texture (one texel each after the first 4)."""
+        return self._packed.shape[1] - 4
 
     def _upload_order(self, order: np.ndarray) -> None:
         """Upload the sorted Gaussian indices (int32) to the order texture read by the projection
@@ -560,7 +561,7 @@ class SplatRenderer:
         """Free the GL objects."""
         objs = [self._data_tex, *self._proj_tex, self._proj_fbo, self._index_buf, self._order_tex, *self._vaos.values(),
                 self._color_fbo, self._color_tex, self._mask_fbo, self._mask_tex, self._id_fbo, *self._id_tex,
-                self._empty_vao, self._blit_vao, self._project, self._blit,
+                *self._project_vaos.values(), self._blit_vao, *self._projects.values(), self._blit,
                 *(p for progs in self._progs.values() for p in progs.values())]
         for obj in objs:
             if obj is not None:
