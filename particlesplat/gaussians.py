@@ -14,6 +14,16 @@ from .sh import eval_sh_colors, sh_degree_from_bases
 BACKGROUND_OWNER = -1
 
 
+def quats_to_rotations(quats: Tensor) -> Tensor:
+    """(N, 4) wxyz quaternions of any norm -> (N, 3, 3) rotations; a zero quaternion gives the identity.
+
+    The quaternion is first divided by its largest |component| so that tiny (< 1e-12) or huge
+    norms normalise exactly instead of under- or overflowing inside kornia's normalisation.
+    """
+    peak = quats.detach().abs().amax(-1, keepdim=True)
+    return quaternion_to_rotation_matrix(quats / torch.where(peak > 0, peak, torch.ones_like(peak)))
+
+
 @dataclass
 class Gaussians:
     """A set of N 3D Gaussians.
@@ -86,7 +96,7 @@ class Gaussians:
 
     def rotations(self) -> Tensor:
         """(N, 3, 3) rotation matrices from the (normalised) quaternions."""
-        return quaternion_to_rotation_matrix(self.quats)
+        return quats_to_rotations(self.quats)
 
     def covariances(self) -> Tensor:
         """(N, 3, 3) world covariances R diag(s^2) R^T, metres^2."""

@@ -9,11 +9,10 @@ import math
 from dataclasses import dataclass
 
 import torch
-from kornia.geometry.conversions import quaternion_to_rotation_matrix
 from torch import Tensor
 
 from .camera import Camera
-from .gaussians import Gaussians
+from .gaussians import Gaussians, quats_to_rotations
 
 DILATION = 0.3  # px², added to the 2D covariance diagonal
 ALPHA_MIN = 1.0 / 255.0  # a Gaussian contributes exactly where alpha >= ALPHA_MIN
@@ -71,7 +70,7 @@ def project_gaussians(gaussians: Gaussians, camera: Camera, near: float = 0.01, 
     j0 = torch.stack([fx / z, zero, -fx * xz / z], dim=-1)  # (M, 3)
     j1 = torch.stack([zero, fy / z, -fy * yz / z], dim=-1)
     t0, t1 = j0 @ Rw, j1 @ Rw  # rows of J W, (M, 3)
-    R = quaternion_to_rotation_matrix(gaussians.quats[index])  # (M, 3, 3); zero quaternion -> identity
+    R = quats_to_rotations(gaussians.quats[index])  # (M, 3, 3); zero quaternion -> identity
     s = gaussians.scales[index]
     a0 = (t0[:, None, :] @ R).squeeze(1) * s  # rows of A = J W R S
     a1 = (t1[:, None, :] @ R).squeeze(1) * s

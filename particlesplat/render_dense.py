@@ -10,11 +10,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
-from kornia.geometry.conversions import quaternion_to_rotation_matrix
 from torch import Tensor
 
 from .camera import Camera
-from .gaussians import Gaussians
+from .gaussians import Gaussians, quats_to_rotations
 from .sh import eval_sh_colors
 
 
@@ -44,7 +43,7 @@ def render_dense(gaussians: Gaussians, camera: Camera, *, background: Sequence[f
     J = torch.zeros(len(z), 2, 3, dtype=dt, device=dev)
     J[:, 0, 0], J[:, 0, 2] = fx / z, -fx * tx / (z * z)
     J[:, 1, 1], J[:, 1, 2] = fy / z, -fy * ty / (z * z)
-    R = quaternion_to_rotation_matrix(gaussians.quats[sel])
+    R = quats_to_rotations(gaussians.quats[sel])
     S = R * gaussians.scales[sel][:, None, :]
     T = J @ w2c[:3, :3] @ S
     cov = T @ T.transpose(1, 2) + 0.3 * torch.eye(2, dtype=dt, device=dev)
