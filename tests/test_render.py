@@ -442,6 +442,17 @@ def test_hard_zero_quaternion_is_identity() -> None:
     assert torch.isfinite(d["quats"].grad).all()
 
 
+@pytest.mark.parametrize("norm", [1e-30, 5e-13, 1e-3, 1e3, 1e20])
+def test_hard_quaternion_norms(norm: float) -> None:
+    """Quaternions are normalised on use whatever their (non-zero) norm: tiny and huge ones too."""
+    q = torch.tensor([[0.7, 0.1, -0.2, 0.68], [0.3, 0.9, 0.1, -0.3]], dtype=F64)
+    gs = make([[0.1, 0.0, 2.0], [-0.2, 0.1, 2.5]], quats=q * norm, scales=[[0.4, 0.1, 0.2], [0.1, 0.3, 0.05]],
+              opacities=[0.8, 0.6], degree=1)
+    ref = check_against_reference(gs, pinhole(), background=BG)
+    unit = reference_render(make(gs.means, q, gs.scales, gs.opacities, gs.sh, dtype=F64), pinhole(), background=BG)
+    torch.testing.assert_close(ref.alpha, unit.alpha, atol=1e-6, rtol=0)
+
+
 def test_hard_opacity_zero_and_one() -> None:
     cam = pinhole()
     gs = make([[0.0, 0.0, 2.0], [0.15, 0.05, 2.5], [-0.2, 0.0, 3.0], [0.0, 0.1, 1.5]],
