@@ -292,7 +292,7 @@ def test_keypoint_filter_prefers_low_variance_and_spreads_out():
 def test_presence_selection_picks_high_presence_patches():
     """With kp_selection=presence the kept proposals are the highest-presence patches (spread by NMS), and
     their transparency grows with the presence logit (the signal that teaches the selection)."""
-    m = tiny_model()
+    m = tiny_model(kp_selection="presence")
     enc = m.encoder
     rgb, depth, cs = scene_inputs(1)
     K, c2w = stack_cameras(cs)

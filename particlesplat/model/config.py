@@ -24,7 +24,7 @@ class ModelConfig:
     kp_patch: int = 4
     glimpse_ratio: float = 0.25
     kp_min_separation: float = 0.25
-    kp_selection: str = "presence"
+    kp_selection: str = "residual"
     offset_bound: float = 0.25
     scale_logit_bound: float = 1.2
     glimpse_size: int = 16
@@ -66,7 +66,8 @@ class ModelConfig:
         need((self.resolution // self.kp_patch) ** 2 >= self.particles_per_view, "particles_per_view",
              "must not exceed the number of keypoint proposals (resolution/kp_patch)^2")
         need(0.0 < self.glimpse_ratio < 1.0, "glimpse_ratio", "must be in (0, 1)")
-        need(self.kp_selection in ("presence", "variance"), "kp_selection", "must be 'presence' or 'variance'")
+        need(self.kp_selection in ("residual", "presence", "variance"), "kp_selection",
+             "must be 'residual', 'presence' or 'variance'")
         need(self.kp_min_separation >= 0.0, "kp_min_separation", "must be >= 0")
         need(self.offset_bound > 0.0, "offset_bound", "must be > 0")
         need(self.scale_logit_bound > 0.0, "scale_logit_bound", "must be > 0")
@@ -76,7 +77,6 @@ class ModelConfig:
         for key in ("bg_latent_stride", "bg_block"):
             v = getattr(self, key)
             need(v >= 1 and self.resolution % v == 0, key, "must divide the resolution")
-        need(self.bg_latent_stride in (1, 2, 4, 8, 16), "bg_latent_stride", "must be 1, 2, 4, 8 or 16")
         need(self.patch_gaussians >= 1, "patch_gaussians", "must be >= 1")
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
         need(self.transformer_layers >= 0, "transformer_layers", "must be >= 0")

@@ -125,10 +125,11 @@ class ParticleEncoder(nn.Module):
         pix = origin + mean
         return pix / cfg.resolution * 2.0 - 1.0, var, presence
 
-    def attributes(self, rgb: Tensor, dep: Tensor, rays: Tensor) -> dict[str, Tensor]:
+    def attributes(self, rgb: Tensor, dep: Tensor, rays: Tensor, residual: Tensor | None = None) -> dict[str, Tensor]:
         """Per-view particle posteriors before interaction.
 
-        rgb: (M, 3, H, W); dep: (M, 2, H, W); rays: (M, 6, H, W) -> dict of (M, L, ·) tensors
+        rgb: (M, 3, H, W); dep: (M, 2, H, W); rays: (M, 6, H, W); residual: (M, Q) per-patch error of the
+        background alone (needed by kp_selection "residual") -> dict of (M, L, ·) tensors
         (kp, mu_/lv_ o s d e f, beta_a, beta_b, and the glimpse embedding h).
         """
         cfg = self.cfg
@@ -136,9 +137,15 @@ class ParticleEncoder(nn.Module):
         M = rgb.shape[0]
         feats = self.backbone(rgb, dep, rays)
         kp, var, presence = self.proposals(feats)
-        # filter to L: by presence (the proposal's transparency prior, learned through z_t) or by the
-        # spatial-softmax variance (most confident first), with non-maximum suppression either way
-        score = -presence if cfg.kp_selection == "presence" else var
+        # filter to L, with non-maximum suppression: where the background alone explains the view worst
+        # ("residual"), by presence (the proposal's transparency prior, learned through z_t), or by the
+        # spatial-softmax variance (most confident first)
+        if cfg.kp_selection == "residual":
+            if residual is None:
+                raise ValueError("kp_selection 'residual' needs the background residual")
+            score = -residual
+        else:
+            score = -presence if cfg.kp_selection == "presence" else var
         idx = select_keypoints(kp.detach(), score.detach(), L, cfg.kp_min_separation)
         kp = torch.gather(kp, 1, idx[..., None].expand(-1, -1, 2))  # (M, L, 2)
         presence = torch.gather(presence, 1, idx)[..., None]  # (M, L, 1)
@@ -160,7 +167,7 @@ class ParticleEncoder(nn.Module):
         obs = F.grid_sample(dep, kp[:, :, None, :], mode="nearest", align_corners=False)[..., 0].transpose(1, 2)
         d_obs = (obs[..., :1] * cfg.d_max - cfg.d_min) / (cfg.d_max - cfg.d_min)
         d_logit = torch.logit(d_obs.clamp(0.02, 0.98)) * obs[..., 1:2]
-        shift = 0.5 * presence if cfg.kp_selection == "presence" else torch.zeros_like(presence)
+        shift = 0.5 * presence if cfg.kp_selection != "variance" else torch.zeros_like(presence)
         beta_ab = F.softplus(out[..., 12:14] + torch.cat([shift, -shift], dim=-1)) + 0.05
         return {"kp": kp, "h": h.reshape(M, L, -1),
                 "mu_o": cfg.offset_bound * torch.tanh(out[..., 0:2]), "lv_o": out[..., 2:4],

@@ -5,12 +5,15 @@ from __future__ import annotations
 from dataclasses import asdict
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..camera import Camera
 from ..gaussians import BACKGROUND_OWNER, Gaussians
+from ..sh import SH_C0
 from .config import ModelConfig
-from .decoder import BackgroundDecoder, ForegroundDecoder, background_gaussians, background_rays, foreground_gaussians
+from .decoder import (BackgroundDecoder, ForegroundDecoder, background_gaussians, background_rays,
+                      foreground_gaussians, split_gaussian_params)
 from .encoder import BackgroundEncoder, ParticleEncoder, box_mask, depth_input
 from .geometry import plucker_map, stack_cameras
 from .particles import Particles
@@ -52,7 +55,8 @@ class ParticleSplat(nn.Module):
         dep = depth_input(d, x, cfg)
         Kf, cf = K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4)
         rays = plucker_map(Kf, cf, H, W)
-        att = self.encoder.attributes(x, dep, rays)
+        residual = self.background_residual(x, d, dep, rays, Kf, cf) if cfg.kp_selection == "residual" else None
+        att = self.encoder.attributes(x, dep, rays, residual)
         with torch.no_grad():
             t_mean = att["beta_a"] / (att["beta_a"] + att["beta_b"])
             mask = box_mask(att["kp"] + att["mu_o"], torch.sigmoid(att["mu_s"]),
@@ -64,6 +68,32 @@ class ParticleSplat(nn.Module):
         post["bg_mask"] = mask.reshape(B, V, 1, H, W)
         post["view"] = torch.arange(V, device=rgb.device).repeat_interleave(cfg.particles_per_view)
         return post
+
+    @torch.no_grad()
+    def background_residual(self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor,
+                            c2w: Tensor) -> Tensor:
+        """Per-patch error of the background alone (unmasked input), where particles are needed most.
+
+        x: (M, 3, H, W); depth: (M, 1, H, W) metres or None; dep, rays: encoder inputs; K: (M, 3, 3);
+        c2w: (M, 4, 4). Compares each background Gaussian's colour and planar depth with its pixel block
+        (squared RGB error + squared depth error in metres where depth is known), averaged per keypoint
+        patch. Returns (M, Q) with Q = (resolution / kp_patch)^2.
+        """
+        cfg = self.config
+        M = x.shape[0]
+        mu, _, _ = self.bg_encoder(x, dep, rays, torch.zeros_like(x[:, :1]))
+        p = split_gaussian_params(self.bg_decoder(mu, background_rays(K, c2w, cfg)), cfg.sh_degree)
+        nb = cfg.resolution // cfg.bg_block
+        colour = (SH_C0 * p["sh"][..., 0, :] + 0.5).clamp(0, 1).transpose(1, 2).reshape(M, 3, nb, nb)
+        err = ((colour - F.avg_pool2d(x, cfg.bg_block)) ** 2).sum(1, keepdim=True)
+        if depth is not None:
+            valid = (depth > 0).to(x.dtype)
+            w = F.avg_pool2d(valid, cfg.bg_block)
+            d_blk = F.avg_pool2d(depth * valid, cfg.bg_block) / w.clamp_min(1e-6)
+            zeta = cfg.d_min + torch.sigmoid(p["dd"][..., 0]) * (cfg.d_max - cfg.d_min)
+            err = err + (zeta.reshape(M, 1, nb, nb) - d_blk) ** 2 * (w > 0.5).to(x.dtype)
+        n = cfg.resolution // cfg.kp_patch
+        return F.adaptive_avg_pool2d(err, n).flatten(1)
 
     @staticmethod
     def latents(post: dict[str, Tensor], sample: bool) -> dict[str, Tensor]:
