@@ -309,3 +309,28 @@ def test_presence_selection_picks_high_presence_patches():
     t = (att["beta_a"] / (att["beta_a"] + att["beta_b"]))[0, :, 0]
     shift = att["beta_a"] - att["beta_b"]
     assert bool((shift[0, 0] > shift[0, 2]).all()) and float(t[0]) > float(t[2])
+
+
+def test_residual_selection_puts_particles_where_the_background_fails():
+    """A constant grey background explains a grey image except two coloured squares: the residual is
+    largest on their patches and the kept keypoints land in them first."""
+    m = tiny_model(kp_selection="residual", particles_per_view=2)
+    with torch.no_grad():
+        m.bg_decoder.head.weight.zero_()  # colour = SH DC bias -> 0.5 grey everywhere
+    rgb = torch.full((1, 3, 32, 32), 0.5)
+    rgb[0, :, 4:8, 20:24] = torch.tensor([0.9, 0.1, 0.1])[:, None, None]
+    rgb[0, :, 24:28, 8:12] = torch.tensor([0.1, 0.1, 0.9])[:, None, None]
+    cs = cams(1)
+    K, c2w = stack_cameras(cs)
+    from particlesplat.model.encoder import depth_input, plucker_map
+
+    dep = depth_input(None, rgb, m.config)
+    rays = plucker_map(K, c2w, 32, 32)
+    res = m.background_residual(rgb, None, dep, rays, K, c2w)
+    assert res.shape == (1, 64)
+    top = set(res[0].topk(2).indices.tolist())
+    assert top == {1 * 8 + 5, 6 * 8 + 2}
+    post = m.posterior(rgb[None], None, K[None], c2w[None])
+    pix = (post["kp"][0] + 1) / 2 * 32
+    cells = {(int(p[1]) // 4) * 8 + int(p[0]) // 4 for p in pix}
+    assert cells == top
