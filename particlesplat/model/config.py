@@ -15,6 +15,15 @@ class ConfigError(ValueError):
     """A configuration value is missing, unknown or out of range."""
 
 
+def _checker(cfg, where: str):
+    """need(cond, key, msg): raise ConfigError naming ``where.key`` and its value unless ``cond``."""
+    def need(cond: bool, key: str, msg: str) -> None:
+        if not cond:
+            raise ConfigError(f"{where}.{key}: {msg} (got {getattr(cfg, key)!r})")
+
+    return need
+
+
 @dataclass
 class ModelConfig:
     """Architecture and renderer-side hyperparameters (documented in ``assets/model.yaml``)."""
@@ -55,10 +64,7 @@ class ModelConfig:
     prior_t_b: float = 0.01
 
     def validate(self, where: str = "model") -> None:
-        def need(cond: bool, key: str, msg: str) -> None:
-            if not cond:
-                raise ConfigError(f"{where}.{key}: {msg} (got {getattr(self, key)!r})")
-
+        need = _checker(self, where)
         need(self.resolution >= 16 and self.resolution % 16 == 0, "resolution", "must be a multiple of 16, >= 16")
         need(self.particles_per_view >= 1, "particles_per_view", "must be >= 1")
         need(self.kp_patch >= 2 and self.resolution % self.kp_patch == 0, "kp_patch",
@@ -126,10 +132,7 @@ class TrainConfig:
     cache_scenes: int = 1100
 
     def validate(self, where: str = "train") -> None:
-        def need(cond: bool, key: str, msg: str) -> None:
-            if not cond:
-                raise ConfigError(f"{where}.{key}: {msg} (got {getattr(self, key)!r})")
-
+        need = _checker(self, where)
         need(self.batch_size >= 1, "batch_size", "must be >= 1")
         need(isinstance(self.context_views, list) and len(self.context_views) > 0
              and all(v in (1, 2) for v in self.context_views), "context_views", "must be a list of 1s and 2s")
