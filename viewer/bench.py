@@ -13,7 +13,16 @@ import sys
 import time
 from dataclasses import dataclass
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:  # the GL modules load only when the benchmark runs
+    from particlesplat.camera import Camera
+    from particlesplat.views import View
+
+    from .gl_renderer import SplatRenderer
+    from .session import SceneSession
 
 DEFAULT_SIZES = (20000, 100000)
 
@@ -51,9 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _time_frames(renderer, cameras) -> Row:
-    import torch  # noqa: F401  (imported for the Camera tensors)
-
+def _time_frames(renderer: SplatRenderer, cameras: list[Camera]) -> Row:
+    """Median timings over ``cameras`` (the first frame is a warm-up)."""
     sort, upload, draw, total = [], [], [], []
     renderer.render(cameras[0], finish=True)  # warm-up: shader compile, first upload
     for cam in cameras[1:]:
@@ -68,7 +76,7 @@ def _time_frames(renderer, cameras) -> Row:
                primitive=renderer.kind)
 
 
-def _case(renderer, view, args) -> Row:
+def _case(renderer: SplatRenderer, view: View, args: argparse.Namespace) -> Row:
     """Full-size frames, then the frame time at the viewer's moving render scale."""
     row = _time_frames(renderer, orbit_cameras(view, args.width, args.height, args.frames))
     w, h = round(args.width * args.moving_scale), round(args.height * args.moving_scale)
@@ -76,7 +84,7 @@ def _case(renderer, view, args) -> Row:
     return row
 
 
-def orbit_cameras(view, width: int, height: int, frames: int) -> list:
+def orbit_cameras(view: View, width: int, height: int, frames: int) -> list[Camera]:
     """``frames + 1`` cameras turning 1 degree per frame about ``view``."""
     from dataclasses import replace
 
@@ -87,7 +95,8 @@ def orbit_cameras(view, width: int, height: int, frames: int) -> list:
             for i in range(frames + 1)]
 
 
-def edit_latency(renderer, session, view, width: int, height: int, steps: int = 20) -> float:
+def edit_latency(renderer: SplatRenderer, session: SceneSession, view: View, width: int, height: int,
+                 steps: int = 20) -> float:
     """Median ms from a z_p change of one particle to the finished frame (decode, upload, sort, draw)."""
     from .scene_view import SceneView
     from .state import ViewState
@@ -120,7 +129,16 @@ def main(argv: list[str] | None = None) -> int:
     from .gl_renderer import SplatRenderer
     from .random_gaussians import random_gaussians
 
-    sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
+    try:
+        sizes = [int(v) for v in args.sizes.split(",") if v.strip()]
+    except ValueError:
+        print(f"bench viewer: --sizes: expected comma-separated integers, got {args.sizes!r}", file=sys.stderr)
+        return 2
+    if any(n < 1 for n in sizes) or args.frames < 1 or args.width < 16 or args.height < 16 or not (
+            0.0 < args.moving_scale <= 1.0):
+        print("bench viewer: sizes and --frames must be >= 1, --width/--height >= 16, --moving-scale in (0, 1]",
+              file=sys.stderr)
+        return 2
     ctx = moderngl.create_standalone_context(backend="egl")
     renderer = SplatRenderer(ctx, primitive=args.primitive, color_dtype="f4")
     load0 = os.getloadavg()
