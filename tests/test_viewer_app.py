@@ -97,10 +97,10 @@ def test_screenshot_and_export(app, tmp_path):
 
 def test_render_scale_and_no_redraw_when_still(app):
     fw, fh = app.framebuffer_size()
-    app.controls.last_move = time.perf_counter()  # as if the camera just moved
+    app.controls.last_move = time.perf_counter() + 60.0  # moving (whatever the machine's speed)
     app.run(1)
     assert app.scene_view.renderer.size == (round(fw * 0.5), round(fh * 0.5))
-    time.sleep(A.STILL_AFTER + 0.05)
+    app.controls.last_move = time.perf_counter() - A.STILL_AFTER - 0.01  # stopped just long enough
     app.run(1)
     assert app.scene_view.renderer.size == (fw, fh)
     last = app.scene_view.last_times
