@@ -55,6 +55,9 @@ def encode_scene(model: ParticleSplat, path: str | PathLike, context: list[int] 
     :func:`particlesplat.views.default_context_views`) and encode them with ``model``."""
     raw = read_scene(path)
     ctx = default_context_views(raw.num_frames) if context is None else list(context)
+    bad = [i for i in ctx if not 0 <= i < raw.num_frames]
+    if not ctx or bad:
+        raise ValueError(f"--context: {raw.path} has frames 0..{raw.num_frames - 1}, got {ctx}")
     scene = raw.select(ctx, model.config.resolution)
     depth = scene.depth if use_depth and scene.depth is not None and bool((scene.depth > 0).any()) else None
     particles = model.encode(scene.rgb, depth, scene.cameras)

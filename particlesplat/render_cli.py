@@ -96,6 +96,10 @@ def run(args: argparse.Namespace) -> int:
     if view is not None:
         extra.update(look=f"{view.look.azimuth:.6g},{view.look.elevation:.6g},{view.look.distance:.6g}",
                      fov=f"{view.fov:.6g}")
-    path = save_png(args.out, res.rgb.numpy(), png_text(camera, edits, model_name, extra))
+    try:
+        path = save_png(args.out, res.rgb.numpy(), png_text(camera, edits, model_name, extra))
+    except OSError as e:
+        print(f"particlesplat render: --out {args.out}: cannot write ({e.strerror or e})", file=sys.stderr)
+        return 1
     print(f"saved {path} ({camera.width}x{camera.height}, {g.num} Gaussians)")
     return 0

@@ -93,6 +93,20 @@ def test_render_cli_view_and_errors(tmp_path):
     assert psnr(load_png(out), ref) >= 40.0
     assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--look", "1,2", "--out", str(out)]) == 1
     assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--view", "0", "--out", str(out)]) == 1
+    # an --out that cannot be written (a folder) is a clear error, and no temporary file is left
+    before = set(tmp_path.iterdir())
+    assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--width", "8", "--height", "8",
+                     "--out", str(tmp_path)]) == 1
+    assert set(tmp_path.iterdir()) == before
+
+
+def test_context_out_of_range_names_the_folder():
+    from particlesplat.encode_scene import demo_scenes, encode_scene
+
+    scene = demo_scenes()[0]
+    for bad in ([4, 40], [-1, 4], []):
+        with pytest.raises(ValueError, match=f"--context: {scene}"):
+            encode_scene(small_model(), scene, bad)
 
 
 def test_render_cli_input_view_with_edits(tmp_path):

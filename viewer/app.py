@@ -306,7 +306,12 @@ def main(argv: list[str] | None = None) -> int:
                   f"{app.framebuffer_size()[1]}, {app.scene_view.renderer.renderer_string})")
             if args.screenshot:
                 cam = app.view_camera(1.0)
-                path = save_png(args.screenshot, app.screenshot_image(cam), app.screenshot_text(cam))
+                try:
+                    path = save_png(args.screenshot, app.screenshot_image(cam), app.screenshot_text(cam))
+                except OSError as e:
+                    print(f"particlesplat-viewer: --screenshot {args.screenshot}: cannot write ({e.strerror or e})",
+                          file=sys.stderr)
+                    return 1
                 print(f"saved {path}")
     finally:
         destroy_window(window)
