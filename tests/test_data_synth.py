@@ -1,5 +1,5 @@
 """Generator tests: determinism and resuming, and an independent geometric check of its scenes
-against the spec in docs/dataset.md (analytic surfaces, cameras, Lambert colours)."""
+against the dataset spec (analytic surfaces, cameras, Lambert colours)."""
 
 from __future__ import annotations
 
@@ -71,6 +71,11 @@ def test_cli(tmp_path, capsys):
     assert cli_main(["synth", str(tmp_path / "d"), "--train", "1", "--val", "0", "--test", "0", "--res", "16",
                      "--workers", "1"]) == 0
     assert load_scene(tmp_path / "d" / "train" / "scene_00000").rgb.shape == (21, 3, 16, 16)
+    (tmp_path / "plain").mkdir()  # a finished scene folder has the permissions of any new folder (umask)
+    assert (tmp_path / "d" / "train" / "scene_00000").stat().st_mode == (tmp_path / "plain").stat().st_mode
+    (tmp_path / "file").write_text("")
+    assert cli_main(["synth", str(tmp_path / "file"), "--train", "1", "--val", "0", "--test", "0"]) == 2
+    assert "not a folder" in capsys.readouterr().err
     assert cli_main(["synth", str(tmp_path / "e"), "--seed", "-1", "--train", "1"]) == 2
     assert "--seed" in capsys.readouterr().err
 

@@ -14,8 +14,8 @@ import multiprocessing as mp
 import os
 import shutil
 import sys
-import tempfile
 import time
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -58,7 +58,9 @@ def write_scene(folder: Path, seed: int, split: str, index: int, res: int) -> No
     scene = tabletop.sample_scene(scene_rng(seed, split, index))
     cams = scene_cameras(scene, res)
     folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    # os.mkdir honours the umask (tempfile.mkdtemp would leave the finished scene folder 0700)
+    tmp = folder.parent / f".{folder.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp"
+    tmp.mkdir()
     try:
         for sub in ("rgb", "depth", "masks"):
             (tmp / sub).mkdir()
@@ -137,6 +139,8 @@ def generate(out: Path, counts: dict[str, int], seed: int, res: int = 128, worke
         raise ValueError(f"--res must be >= 8, got {res}")
     if any(n < 0 for n in counts.values()):
         raise ValueError(f"scene counts must be >= 0, got {counts}")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: exists and is not a folder")
     _check_manifest(out, seed, res)
     tasks = []
     for split in SPLITS:
@@ -165,7 +169,7 @@ def generate(out: Path, counts: dict[str, int], seed: int, res: int = 128, worke
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = ("Generate the tabletop dataset (docs/dataset.md): OUT/{train,val,test}/scene_NNNNN "
+    parser.description = ("Generate the tabletop dataset (README, section Data): OUT/{train,val,test}/scene_NNNNN "
                           "folders with RGB, planar 16-bit depth and instance masks for 21 views. "
                           "Deterministic for a seed; re-running resumes and skips finished scenes.")
     parser.add_argument("out", type=Path, help="output folder (created)")
@@ -184,6 +188,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:
         print(f"particlesplat synth: {e}", file=sys.stderr)
         return 2
+    except OSError as e:
+        print(f"particlesplat synth: {args.out}: {e.strerror or e} ({e.filename or args.out})", file=sys.stderr)
+        return 1
     if times:
         print(f"wrote {len(times)} scenes to {args.out}, {np.mean(times):.2f} s per scene per worker")
     else:
