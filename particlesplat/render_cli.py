@@ -13,6 +13,8 @@ import torch
 from .camera import Camera
 from .views import DEFAULT_BACKGROUND, View, check_fov, default_view, parse_look
 
+DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
+
 
 def _background(text: str) -> tuple[float, float, float]:
     try:
@@ -35,8 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
     cam.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
     parser.add_argument("--fov", type=float, help="vertical field of view in degrees (with --look or the default view); none = the scene's")
-    parser.add_argument("--width", type=int, default=640, help="image width in pixels")
-    parser.add_argument("--height", type=int, default=480, help="image height in pixels")
+    parser.add_argument("--width", type=int, help="image width in pixels; none = 640 (with --view and --height: "
+                                                  "from the input camera's aspect)")
+    parser.add_argument("--height", type=int, help="image height in pixels; none = 480 (with --view: from the "
+                                                   "width and the input camera's aspect, never stretched)")
     parser.add_argument("--background", type=_background, default=DEFAULT_BACKGROUND, help="background colour R,G,B")
     parser.add_argument("--prune", type=float, default=0.0, help="drop Gaussians with opacity below this")
     parser.add_argument("--out", required=True, help="output PNG")
@@ -61,9 +65,14 @@ def _scene_and_gaussians(args: argparse.Namespace):
 
 
 def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -> tuple[Camera, View | None]:
-    """The camera of ``--view`` / ``--look`` / ``--fov`` / default view at --width x --height."""
-    if args.width < 1 or args.height < 1:
-        raise ValueError(f"--width/--height must be positive, got {args.width}x{args.height}")
+    """The camera of ``--view`` / ``--look`` / ``--fov`` / default view at --width x --height.
+
+    With ``--view`` a missing --width or --height follows the input camera's aspect ratio (an
+    input view is never stretched unless both are given).
+    """
+    for name in ("width", "height"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            raise ValueError(f"--{name} must be positive, got {getattr(args, name)}")
     if args.view is not None:
         if not cameras:
             raise ValueError("--view needs a scene with input cameras")
@@ -71,11 +80,18 @@ def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -
             raise ValueError(f"--view {args.view}: the scene has {len(cameras)} cameras (0..{len(cameras) - 1})")
         if args.fov is not None:
             raise ValueError("--fov applies to --look or the default view, not to --view")
-        return cameras[args.view].resized(args.width, args.height), None
+        cam = cameras[args.view]
+        width, height = args.width, args.height
+        if height is None:
+            width = width or DEFAULT_WIDTH
+            height = max(1, round(width * cam.height / cam.width))
+        elif width is None:
+            width = max(1, round(height * cam.width / cam.height))
+        return cam.resized(width, height), None
     base = default_view(cameras or None, None if cameras else gaussians)
     view = View(base.target, parse_look(args.look) if args.look else base.look,
                 check_fov(args.fov) if args.fov is not None else base.fov)
-    return view.camera(args.width, args.height), view
+    return view.camera(args.width or DEFAULT_WIDTH, args.height or DEFAULT_HEIGHT), view
 
 
 def run(args: argparse.Namespace) -> int:

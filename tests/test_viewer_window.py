@@ -127,3 +127,6 @@ def test_render_cli_input_view_with_edits(tmp_path):
     ref = render(g, enc.all_cameras[3].resized(48, 40), background=DEFAULT_BACKGROUND).rgb.numpy()
     assert psnr(load_png(out), ref) >= 40.0
     assert "z_d" in Image.open(out).text["edits"]
+    # with only --width, an input view keeps its camera's aspect (the demo scenes are square)
+    assert cli_main(["render", "--checkpoint", str(ckpt), "--view", "3", "--width", "40", "--out", str(out)]) == 0
+    assert Image.open(out).size == (40, 40)
