@@ -70,7 +70,7 @@ class Trainer:
     """Holds the model, optimiser, datasets and RNG; one instance per process."""
 
     def __init__(self, cfg: ModelConfig, tc: TrainConfig, data: Path, out: Path, device: str, resume: bool,
-                 raw_config: dict):
+                 raw_config: dict, init: Path | None = None):
         self.cfg, self.tc, self.out, self.device = cfg, tc, out, torch.device(device)
         self.distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
         if self.distributed:
@@ -91,6 +91,12 @@ class Trainer:
         self.step = 0
         self.best = -math.inf
         self.raw_config = raw_config
+        if init is not None and not resume:
+            state = read_checkpoint(init)["state_dict"]
+            try:
+                self.model.load_state_dict(state)
+            except RuntimeError as e:
+                raise ValueError(f"{init}: its weights do not fit this model config ({e})") from e
         if resume and (out / LAST).is_file():
             self._load(out / LAST)
         elif resume:
@@ -219,6 +225,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                      "metrics.jsonl, config.yaml")
     parser.add_argument("--resume", action="store_true", help="continue exactly from OUT/last.pt")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (under torchrun: one process per device)")
+    parser.add_argument("--init", default=None,
+                        help="start from the weights of this checkpoint (fresh optimiser and step count; "
+                             "the model config may differ only in keys that hold no weights)")
     parser.add_argument("--stop-after", type=int, default=None,
                         help="run at most this many steps in this invocation, checkpoint, and exit "
                              "(continue later with --resume)")
@@ -237,5 +246,6 @@ def run(args: argparse.Namespace) -> int:
     if device.startswith("cuda") and int(os.environ.get("WORLD_SIZE", "1")) > 1:
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
     raw = yaml.safe_load(Path(args.config).read_text())
-    trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, raw)
+    trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, raw,
+                      Path(args.init) if args.init else None)
     return trainer.run(args.stop_after)

@@ -85,3 +85,25 @@ def test_two_process_ddp_run(tmp_path_factory, tmp_path):
     # the two ranks drew different batches and latents (different RNG streams) yet hold one model
     assert not torch.equal(ckpt["rng"][0]["torch"], ckpt["rng"][1]["torch"])
     assert all(torch.isfinite(v).all() for v in ckpt["state_dict"].values() if v.is_floating_point())
+
+
+def test_init_from_checkpoint_weights(tmp_path_factory, tmp_path):
+    from model_data import TINY_MODEL
+
+    from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
+
+    data = tiny_dataset(tmp_path_factory)
+    torch.manual_seed(5)
+    src = ParticleSplat(ModelConfig(**TINY_MODEL))
+    save_checkpoint(tmp_path / "src.pt", src, step=9)
+    cfg = tiny_config(tmp_path / "tiny.yaml", steps=1, val_every=5, lr=1e-12)
+    text = cfg.read_text().replace("particles_per_view: 3", "particles_per_view: 2")  # holds no weights
+    cfg.write_text(text)
+    assert _train(cfg, data, tmp_path / "i", "--init", str(tmp_path / "src.pt")) == 0
+    out = read_checkpoint(tmp_path / "i" / "last.pt")
+    assert out["step"] == 1 and out["config"]["particles_per_view"] == 2
+    for k, v in src.state_dict().items():
+        torch.testing.assert_close(out["state_dict"][k], v, rtol=0, atol=1e-6)
+    cfg.write_text(text.replace("d_obj: 4", "d_obj: 5"))
+    with pytest.raises(ValueError, match="do not fit"):
+        _train(cfg, data, tmp_path / "j", "--init", str(tmp_path / "src.pt"))
