@@ -45,8 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sizes", default=",".join(str(s) for s in DEFAULT_SIZES),
                    help="random Gaussian counts, comma-separated (default: %(default)s)")
-    p.add_argument("--width", type=int, default=1024)
-    p.add_argument("--height", type=int, default=768)
+    p.add_argument("--width", type=int, default=1024, help="frame width in pixels (default: %(default)s)")
+    p.add_argument("--height", type=int, default=768, help="frame height in pixels (default: %(default)s)")
     p.add_argument("--frames", type=int, default=30, help="timed frames per case (default: %(default)s)")
     p.add_argument("--primitive", choices=("auto", "quads", "points"), default="auto",
                    help="splat primitive (default: %(default)s, as the viewer)")
