@@ -33,7 +33,7 @@ def png_text(camera: Camera, edits: dict, model: str, extra: dict[str, str] | No
 
 
 def to_image(rgb: np.ndarray) -> Image.Image:
-    """(H, W, 3) floats in [0, 1] -> 8-bit RGB image (rounded)."""
+    """rgb: (H, W, 3) floats in [0, 1] -> 8-bit RGB image (rounded)."""
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"expected an (H, W, 3) image, got {rgb.shape}")
@@ -48,7 +48,7 @@ def png_info(text: dict[str, str]) -> PngInfo:
 
 
 def save_png(path: str | PathLike, rgb: np.ndarray, text: dict[str, str] | None = None) -> Path:
-    """Write rgb (H, W, 3) as an 8-bit PNG with text chunks, atomically (temp file + rename)."""
+    """Write rgb (H, W, 3) in [0, 1] as an 8-bit PNG with text chunks, atomically (temp file + rename)."""
     path = Path(path)
     with atomic_path(path) as tmp:
         to_image(rgb).save(tmp, format="PNG", pnginfo=png_info(text or {}))

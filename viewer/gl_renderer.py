@@ -215,6 +215,7 @@ class SplatRenderer:
         self._set_packed(packed, owner[order])
 
     def _set_packed(self, packed: np.ndarray, owner: np.ndarray) -> None:
+        """packed: (N, texels, 4) float32 grouped by owner; owner: (N,) int64 -> upload all rows."""
         self._packed = packed
         self._owner = owner
         self._means = np.ascontiguousarray(packed[:, 0, :3])
@@ -383,7 +384,7 @@ class SplatRenderer:
         return self._packed.shape[1] - 4
 
     def _upload_order(self, order: np.ndarray) -> None:
-        """Upload the sorted Gaussian indices (int32) to the order texture read by the projection
+        """Upload the sorted Gaussian indices (M,) int32 to the order texture read by the projection
         pass; make sure the static quad element buffer is long enough."""
         n = order.shape[0]
         self._drawn = n

@@ -44,7 +44,7 @@ def save_numbered(folder: str | PathLike, prefix: str, suffix: str, write) -> Pa
 
 
 def save_screenshot(folder: str | PathLike, rgb: np.ndarray, text: dict[str, str]) -> Path:
-    """A numbered PNG screenshot (``particlesplat_NNNN.png``) in ``folder``."""
+    """A numbered PNG screenshot (``particlesplat_NNNN.png``) in ``folder``; rgb: (H, W, 3) in [0, 1]."""
     img, info = to_image(rgb), png_info(text)
     return save_numbered(folder, "particlesplat_", ".png", lambda p: img.save(p, format="PNG", pnginfo=info))
 

@@ -320,6 +320,7 @@ def _read_rgb(folder: Path, frame: dict, where: str) -> np.ndarray:
 
 
 def _check_size(arr: np.ndarray, size: tuple[int, int], key: str, p: Path, where: str) -> None:
+    """arr: (H, W) image of file ``p``; SceneFormatError unless (W, H) == ``size``."""
     if (arr.shape[1], arr.shape[0]) != size:
         raise SceneFormatError(f"{where}: key '{key}': {p} is {arr.shape[1]}x{arr.shape[0]} but the frame is "
                                f"{size[0]}x{size[1]}")

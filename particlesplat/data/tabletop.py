@@ -133,6 +133,7 @@ def _hit_floor(o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _hit_sphere(o: np.ndarray, d: np.ndarray, obj: TabletopObject) -> tuple[np.ndarray, np.ndarray]:
+    """o: (3,), d: (N, 3) -> (t (N,) inf on miss, normal (N, 3))."""
     c, r = np.array(obj.center), obj.size[0]
     oc = o - c
     a = np.einsum("ij,ij->i", d, d)
@@ -150,7 +151,8 @@ def _rot_z(yaw: float) -> np.ndarray:
 
 
 def _hit_box(o: np.ndarray, d: np.ndarray, obj: TabletopObject) -> tuple[np.ndarray, np.ndarray]:
-    """Slab test in the box frame (rotated by -yaw about z)."""
+    """Slab test in the box frame (rotated by -yaw about z). o: (3,), d: (N, 3) -> (t (N,) inf on
+    miss, normal (N, 3))."""
     rot = _rot_z(obj.yaw)
     ol = rot.T @ (o - np.array(obj.center))
     dl = d @ rot  # == (rot.T @ d.T).T
@@ -168,7 +170,8 @@ def _hit_box(o: np.ndarray, d: np.ndarray, obj: TabletopObject) -> tuple[np.ndar
 
 
 def _hit_cylinder(o: np.ndarray, d: np.ndarray, obj: TabletopObject) -> tuple[np.ndarray, np.ndarray]:
-    """Upright cylinder: side (quadratic in x, y) and the two caps z = 0, z = 2 * half height."""
+    """Upright cylinder: side (quadratic in x, y) and the two caps z = 0, z = 2 * half height.
+    o: (3,), d: (N, 3) -> (t (N,) inf on miss, normal (N, 3))."""
     cx, cy, _ = obj.center
     r, top = obj.size[0], 2.0 * obj.size[2]
     ox, oy = o[0] - cx, o[1] - cy
