@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
@@ -37,6 +38,18 @@ def demo_scenes() -> list[Path]:
 
     root = Path(str(files("particlesplat.assets").joinpath("scenes")))
     return sorted(p for p in root.iterdir() if (p / "transforms.json").is_file()) if root.is_dir() else []
+
+
+def add_source_arguments(parser: argparse.ArgumentParser, ply_help: str) -> None:
+    """``--checkpoint``, ``--scene`` | ``--ply``, ``--context``, ``--edits``: what the viewer and
+    ``particlesplat render`` open (see :func:`load_model_scene`)."""
+    parser.add_argument("--checkpoint", help="model checkpoint; none = the shipped assets/model.pt")
+    src = parser.add_mutually_exclusive_group()
+    src.add_argument("--scene", help="scene folder to encode; none = the first demo scene in assets/scenes")
+    src.add_argument("--ply", help=ply_help)
+    parser.add_argument("--context", help="context frame indices of the scene, e.g. 4,16; none = two frames 12 "
+                                          "apart about the middle")
+    parser.add_argument("--edits", help="edits YAML (particle index -> attribute values) to apply")
 
 
 def parse_context(text: str | None) -> list[int] | None:

@@ -11,6 +11,7 @@ import sys
 import torch
 
 from .camera import Camera
+from .encode_scene import add_source_arguments
 from .views import DEFAULT_BACKGROUND, View, check_fov, default_view, parse_look
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
@@ -27,12 +28,7 @@ def _background(text: str) -> tuple[float, float, float]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--checkpoint", help="model checkpoint; none = the shipped assets/model.pt")
-    src = parser.add_mutually_exclusive_group()
-    src.add_argument("--scene", help="scene folder to encode; none = the first demo scene in assets/scenes")
-    src.add_argument("--ply", help="render a 3DGS .ply instead of a model scene")
-    parser.add_argument("--context", help="context frame indices, e.g. 4,16; none = as the viewer (two frames 12 apart about the middle)")
-    parser.add_argument("--edits", help="edits YAML (particle index -> attribute values) to apply")
+    add_source_arguments(parser, ply_help="render a 3DGS .ply instead of a model scene")
     cam = parser.add_mutually_exclusive_group()
     cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
     cam.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")

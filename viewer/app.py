@@ -21,6 +21,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from particlesplat.camera import Camera  # noqa: E402
+from particlesplat.encode_scene import add_source_arguments  # noqa: E402
 from particlesplat.views import DEFAULT_FOV, View, check_fov, default_view, parse_look  # noqa: E402
 
 from .gl_renderer import SplatRenderer  # noqa: E402
@@ -52,13 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="particlesplat-viewer",
                                 description="View and edit ParticleSplat scenes: orbit, select and drag particles, "
                                             "segment, screenshot.")
-    p.add_argument("--checkpoint", help="model checkpoint (default: the shipped assets/model.pt)")
-    src = p.add_mutually_exclusive_group()
-    src.add_argument("--scene", help="scene folder to encode (default: the first demo scene in assets/scenes)")
-    src.add_argument("--ply", help="open a 3DGS .ply instead of a model scene (no particle editing)")
-    p.add_argument("--context", help="context frame indices of the scene, e.g. 4,16 (default: two frames 12 apart "
-                                     "about the middle)")
-    p.add_argument("--edits", help="edits YAML to apply at start")
+    add_source_arguments(p, ply_help="open a 3DGS .ply instead of a model scene (no particle editing)")
     p.add_argument("--frames", type=int, help="run N frames, print the median frame time and exit")
     p.add_argument("--screenshot", help="with --frames: save the last render (no UI) to this PNG")
     p.add_argument("--size", type=parse_size, default=(1280, 800), help="window size WxH (default: 1280x800)")
