@@ -63,6 +63,8 @@ def validate_edits(data: Any, where: str = "edits") -> Edits:
             index = key
         if index < 0:
             raise EditsError(f"{field}: particle index must be a non-negative integer")
+        if index in out:
+            raise EditsError(f"{field}: particle {index} is listed twice")
         if not isinstance(attrs, dict):
             raise EditsError(f"{field}: expected a mapping of attribute -> values, got {type(attrs).__name__}")
         values: dict[str, tuple[float, ...]] = {}

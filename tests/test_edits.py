@@ -44,6 +44,7 @@ def test_apply_then_diff_recovers_the_edits():
     ("particles: [1, 2]", "particles"),
     ("version: 7\nparticles: {}", "version"),
     ("particles: {}\ncolour: red", "unknown key"),
+    ("particles: {3: {z_d: 1}, '3': {z_d: 2}}", "particles.3: particle 3 is listed twice"),
 ])
 def test_validation_names_file_and_field(tmp_path, text, field):
     path = tmp_path / "bad.yaml"
