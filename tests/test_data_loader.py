@@ -239,6 +239,12 @@ def test_error_missing_image(tmp_path):
     assert "'file_path'" in str(info.value) and str(folder / "rgb" / "missing.png") in str(info.value)
 
 
+def test_error_image_path_is_a_folder(tmp_path):
+    folder = _folder(tmp_path, _set(["frames", 0, "file_path"], "rgb"))
+    with pytest.raises(FileNotFoundError, match="'file_path'.*a folder, not an image file"):
+        load_scene(folder)
+
+
 def test_error_missing_depth_image(tmp_path):
     folder = _folder(tmp_path, _set(["frames", 0, "depth_file_path"], "depth/none.png"))
     with pytest.raises(FileNotFoundError, match="'depth_file_path'.*none.png"):

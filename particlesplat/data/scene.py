@@ -295,7 +295,8 @@ def _resolve(folder: Path, rel: Any, key: str, where: str) -> Path:
     if not p.is_file() and not p.suffix and p.with_suffix(".png").is_file():  # NeRF "blender" paths
         p = p.with_suffix(".png")
     if not p.is_file():
-        raise FileNotFoundError(f"{where}: key '{key}' names {p}, which does not exist")
+        what = "a folder, not an image file" if p.is_dir() else "which does not exist"
+        raise FileNotFoundError(f"{where}: key '{key}' names {p}, {what}")
     return p
 
 
