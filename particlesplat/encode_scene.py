@@ -52,6 +52,14 @@ def add_source_arguments(parser: argparse.ArgumentParser, ply_help: str) -> None
     parser.add_argument("--edits", help="edits YAML (particle index -> attribute values) to apply")
 
 
+def check_source_arguments(args: argparse.Namespace) -> None:
+    """ValueError when ``--ply`` is combined with what only a model scene has (--edits, --context)."""
+    if getattr(args, "ply", None):
+        for name in ("edits", "context"):
+            if getattr(args, name, None):
+                raise ValueError(f"--{name} needs a model scene, not --ply")
+
+
 def parse_context(text: str | None) -> list[int] | None:
     """``"4,16"`` -> [4, 16]; None stays None (use the default)."""
     if text is None or str(text).strip() == "":

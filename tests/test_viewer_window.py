@@ -77,6 +77,8 @@ def test_viewer_rejects_bad_arguments(tmp_path):
     proc = subprocess.run([VIEWER, "--ply", str(tmp_path / "missing.ply"), "--frames", "1"],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 1 and "missing.ply" in proc.stderr
+    proc = subprocess.run([VIEWER, "--ply", "g.ply", "--context", "4,16"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "--context needs a model scene" in proc.stderr
     proc = subprocess.run([VIEWER, "--size", "12xfoo"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "--size" in proc.stderr
 
@@ -93,6 +95,7 @@ def test_render_cli_view_and_errors(tmp_path):
     assert psnr(load_png(out), ref) >= 40.0
     assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--look", "1,2", "--out", str(out)]) == 1
     assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--view", "0", "--out", str(out)]) == 1
+    assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--context", "1,2", "--out", str(out)]) == 1
     # an --out that cannot be written (a folder) is a clear error, and no temporary file is left
     before = set(tmp_path.iterdir())
     assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--width", "8", "--height", "8",

@@ -21,7 +21,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from particlesplat.camera import Camera  # noqa: E402
-from particlesplat.encode_scene import add_source_arguments  # noqa: E402
+from particlesplat.encode_scene import add_source_arguments, check_source_arguments  # noqa: E402
 from particlesplat.views import DEFAULT_FOV, View, check_fov, default_view, parse_look  # noqa: E402
 
 from .gl_renderer import SplatRenderer  # noqa: E402
@@ -278,8 +278,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.screenshot and args.frames is None:
         print("particlesplat-viewer: --screenshot needs --frames", file=sys.stderr)
         return 2
-    if args.ply and args.edits:
-        print("particlesplat-viewer: --edits needs a model scene, not --ply", file=sys.stderr)
+    try:
+        check_source_arguments(args)
+    except ValueError as e:
+        print(f"particlesplat-viewer: {e}", file=sys.stderr)
         return 2
     if args.frames is not None and args.frames < 1:
         print("particlesplat-viewer: --frames must be >= 1", file=sys.stderr)
