@@ -128,3 +128,5 @@ def test_numbered_files_never_overwrite(tmp_path):
     assert c.name == "particlesplat_0001.ply"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["particlesplat_0001.ply", "particlesplat_0001.png",
                                                          "particlesplat_0002.png", "particlesplat_0003.png"]
+    # a screenshot has the permissions of any new file (the umask's), not a temporary file's 0600
+    assert a.stat().st_mode == (tmp_path / "particlesplat_0001.png").stat().st_mode

@@ -4,7 +4,7 @@ never overwrite, and .ply export."""
 from __future__ import annotations
 
 import os
-import tempfile
+import uuid
 from os import PathLike
 from pathlib import Path
 
@@ -24,8 +24,9 @@ def save_numbered(folder: str | PathLike, prefix: str, suffix: str, write) -> Pa
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{prefix}", suffix=".tmp" + suffix, dir=folder)
-    os.close(fd)
+    # O_EXCL with mode 0o666: a fresh name, and the umask's permissions (mkstemp would give 0600)
+    tmp = folder / f".{prefix}{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp{suffix}"
+    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
     try:
         write(Path(tmp))
         taken = {p.name for p in folder.glob(f"{prefix}*{suffix}")}
