@@ -11,7 +11,7 @@ import sys
 import torch
 
 from .camera import Camera
-from .encode_scene import add_source_arguments, check_source_arguments
+from .encode_scene import add_source_arguments, check_source_arguments, load_model_scene, load_ply_checked
 from .views import DEFAULT_BACKGROUND, View, check_fov, default_view, parse_look
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
@@ -44,8 +44,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _scene_and_gaussians(args: argparse.Namespace):
     """(Gaussians, all input cameras, edits dict, model name, source) for the arguments."""
-    from .encode_scene import load_model_scene, load_ply_checked
-
     check_source_arguments(args)
     if args.ply:
         return load_ply_checked(args.ply), [], {}, "", str(args.ply)
