@@ -32,7 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cam = parser.add_mutually_exclusive_group()
     cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
     cam.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
-    parser.add_argument("--fov", type=float, help="vertical field of view in degrees (with --look or the default view); none = the scene's")
+    parser.add_argument("--fov", type=float, help="vertical field of view in degrees (with --look or the default "
+                                                  "view); none = the scene's")
     parser.add_argument("--width", type=int, help="image width in pixels; none = 640 (with --view and --height: "
                                                   "from the input camera's aspect)")
     parser.add_argument("--height", type=int, help="image height in pixels; none = 480 (with --view: from the "
