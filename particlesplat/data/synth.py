@@ -17,6 +17,7 @@ import sys
 import time
 import uuid
 from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 import torch
@@ -28,7 +29,7 @@ from ..camera import Camera
 from . import tabletop
 
 SPLITS = ("train", "val", "test")
-SPLIT_IDS = {"train": 0, "val": 1, "test": 2}
+SPLIT_IDS = MappingProxyType({"train": 0, "val": 1, "test": 2})
 DEPTH_UNIT = 0.0002  # metres per 16-bit step: 0.2 mm resolution, 13.1 m range
 FORMAT_VERSION = 1
 MANIFEST = "synth.json"

@@ -9,7 +9,9 @@ Rays use unnormalised directions whose camera-z component is 1, so a hit's ray p
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from types import MappingProxyType
 
 import numpy as np
 
@@ -17,11 +19,11 @@ FLOOR_HALF = 2.0
 CHECKER_CELL = 0.5
 FLOOR_GREYS = (0.55, 0.65)
 BACKGROUND = (0.12, 0.14, 0.18)
-COLOURS: dict[str, tuple[float, float, float]] = {
+COLOURS: Mapping[str, tuple[float, float, float]] = MappingProxyType({
     "red": (0.85, 0.2, 0.2), "green": (0.2, 0.7, 0.3), "blue": (0.2, 0.35, 0.85),
     "yellow": (0.9, 0.8, 0.2), "cyan": (0.2, 0.75, 0.8), "magenta": (0.8, 0.25, 0.7),
     "orange": (0.95, 0.5, 0.15), "white": (0.9, 0.9, 0.9),
-}
+})
 SHAPES = ("sphere", "box", "cylinder")
 NUM_OBJECTS = (2, 5)
 SIZE_RANGE = (0.12, 0.30)
@@ -196,7 +198,7 @@ def _hit_cylinder(o: np.ndarray, d: np.ndarray, obj: TabletopObject) -> tuple[np
     return t, n
 
 
-_HITTERS = {"sphere": _hit_sphere, "box": _hit_box, "cylinder": _hit_cylinder}
+_HITTERS = MappingProxyType({"sphere": _hit_sphere, "box": _hit_box, "cylinder": _hit_cylinder})
 
 
 def _bounding_radius(obj: TabletopObject) -> float:

@@ -9,16 +9,19 @@ gap from it that grows from [1, 2] to [5, 10] the same way.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from types import MappingProxyType
+
 import torch
 from torch import Tensor
 
 from ..camera import Camera
 
-GAP_SCHEDULES: dict[str, tuple[tuple[int, int], tuple[int, int]]] = {
+GAP_SCHEDULES: Mapping[str, tuple[tuple[int, int], tuple[int, int]]] = MappingProxyType({
     "multi": ((1, 4), (5, 20)),
     "single": ((1, 2), (5, 10)),
-}
-NUM_TARGETS = {"multi": 4, "single": 2}
+})
+NUM_TARGETS: Mapping[str, int] = MappingProxyType({"multi": 4, "single": 2})
 WARMUP = 0.5  # fraction of training after which the gap range is at its maximum
 
 
