@@ -169,7 +169,7 @@ class Camera:
 
     @staticmethod
     def from_opengl_c2w(c2w_gl: Tensor, K: Tensor, width: int, height: int) -> Camera:
-        """Build a camera from a nerfstudio/OpenGL camera-to-world matrix (4, 4)."""
+        """Build a camera from a nerfstudio/OpenGL camera-to-world matrix c2w_gl (4, 4) and K (3, 3) pixels."""
         flip = torch.diag(torch.tensor(_FLIP_YZ, dtype=c2w_gl.dtype, device=c2w_gl.device))
         return Camera(K, c2w_gl @ flip, width, height)
 

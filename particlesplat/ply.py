@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from os import PathLike
 from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 import torch
@@ -21,11 +22,11 @@ from .atomic import atomic_write
 from .gaussians import BACKGROUND_OWNER, Gaussians
 from .sh import sh_degree_from_bases
 
-_PLY_TYPES = {
+_PLY_TYPES = MappingProxyType({
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
     "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}
+})
 _EPS = 1e-7
 
 
@@ -88,9 +89,10 @@ def read_ply(path: str | PathLike) -> Gaussians:
         dtype = np.dtype([(name, order + t) for name, t in props])
         raw = f.read(n * dtype.itemsize)
     if len(raw) < n * dtype.itemsize:
-        got = len(raw) // dtype.itemsize
+        got, partial = divmod(len(raw), dtype.itemsize)
+        first_missing = next(name for name, _ in props if dtype.fields[name][1] + dtype[name].itemsize > partial)
         raise PlyError(f"{path}: truncated: header declares {n} vertices ({n * dtype.itemsize} bytes), "
-                       f"file holds {len(raw)} bytes (vertex {got}, property '{props[0][0]}' onwards missing)")
+                       f"file holds {len(raw)} bytes (vertex {got}, property '{first_missing}' onwards missing)")
     data = np.frombuffer(raw, dtype=dtype, count=n)
     names = {name for name, _ in props}
 
@@ -119,8 +121,14 @@ def read_ply(path: str | PathLike) -> Gaussians:
     dc = stack("f_dc_", 3)
     rest = stack("f_rest_", n_rest).reshape(n, 3, k - 1).transpose(0, 2, 1)
     sh = np.concatenate([dc[:, None, :], rest], axis=1)
-    opacities = 1.0 / (1.0 + np.exp(-column("opacity")))
-    scales = np.exp(stack("scale_", 3))
+    opacities = np.exp(-np.logaddexp(0.0, -column("opacity")))  # sigmoid without overflow
+    log_scales = stack("scale_", 3)
+    too_big = log_scales > np.log(np.finfo(np.float32).max)
+    if too_big.any():
+        vertex, axis = (int(i) for i in np.argwhere(too_big)[0])
+        raise PlyError(f"{path}: property 'scale_{axis}' at vertex {vertex} is exp({log_scales[vertex, axis]:.4g}), "
+                       "beyond float32")
+    scales = np.exp(log_scales)
     quats = stack("rot_", 4)
     if "owner" in names:
         owner = data["owner"].astype(np.int64)

@@ -112,7 +112,11 @@ def bin_gaussians(means2d: Tensor, conics: Tensor, opacities: Tensor, radius: Te
 
 def _tile_hits(g: Tensor, tile: Tensor, origin: Tensor, means2d: Tensor, conics: Tensor, opacities: Tensor,
                block: int = 1 << 16) -> Tensor:
-    """(P,) bool: does Gaussian g[i] reach α ≥ 1/255 at a pixel centre of tile[i]? (blocks of pairs)"""
+    """(P,) bool: does Gaussian g[i] reach α ≥ 1/255 at a pixel centre of tile[i]? (blocks of pairs)
+
+    g: (P,) int64 Gaussian rows; tile: (P,) int64 tile ids; origin: (T, 2) tile centres, pixels;
+    means2d: (M, 2) pixels; conics: (M, 3); opacities: (M,).
+    """
     feats = _pixel_features(conics.dtype, conics.device)
     log_o = torch.log(opacities.clamp_min(1e-30))
     thresh = math.log(ALPHA_MIN)

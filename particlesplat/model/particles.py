@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
+from types import MappingProxyType
 
 import torch
 from torch import Tensor
@@ -10,7 +11,7 @@ from torch import Tensor
 from ..camera import Camera
 
 # The attributes a user may edit, in the paper's order, with their widths.
-EDITABLE = {"z_p": 2, "z_s": 2, "z_d": 1, "z_e": 1, "z_t": 1}
+EDITABLE = MappingProxyType({"z_p": 2, "z_s": 2, "z_d": 1, "z_e": 1, "z_t": 1})
 
 
 @dataclass
