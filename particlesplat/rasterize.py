@@ -166,7 +166,7 @@ def _make_chunks(count: Tensor, list_count: Tensor | None = None) -> list[tuple[
 
 
 def _pixel_features(dtype: torch.dtype, device: torch.device) -> Tensor:
-    """(64, 6) features [x², xy, y², x, y, 1] of a tile's pixel centres relative to the tile centre."""
+    """(TILE², 6) features [x², xy, y², x, y, 1] of a tile's pixel centres relative to the tile centre."""
     r = torch.arange(TILE, dtype=dtype, device=device) + 0.5 - TILE / 2
     y, x = torch.meshgrid(r, r, indexing="ij")
     x, y = x.reshape(-1), y.reshape(-1)
@@ -237,7 +237,7 @@ def pair_inputs(bins: TileBins, means2d: Tensor, conics: Tensor, opacities: Tens
 
 
 def tiles_to_images(tile_values: Tensor, bins: TileBins, sizes: list[tuple[int, int]]) -> list[Tensor]:
-    """(T, 64, C) -> per view (H, W, C) (differentiable reshapes and slices)."""
+    """(T, TILE², C) -> per view (H, W, C) (differentiable reshapes and slices)."""
     C = tile_values.shape[-1]
     images = []
     for (tx, ty, first), (w, h) in zip(bins.grids, sizes):
