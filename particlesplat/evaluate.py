@@ -19,8 +19,8 @@ from .camera import Camera
 from .metrics import depth_abs_rel, fg_ari, matched_miou, psnr, ssim
 from .render import render
 
-PRUNE_Z_T = (0.0, 0.1, 0.3, 0.5)
-PRUNE_OPACITY = (0.0, 0.02, 0.05, 0.1)
+PRUNE_Z_T = (0.0, 0.3, 0.5, 0.7)
+PRUNE_OPACITY = (0.0, 0.05, 0.2, 0.5)
 
 
 def _cameras(K: Tensor, c2w: Tensor, size: int) -> list[Camera]:
