@@ -10,7 +10,7 @@ import torch
 from particlesplat.camera import Camera
 from particlesplat.gaussians import Gaussians
 from particlesplat.model import ConfigError, ModelConfig, ParticleSplat, load_config, load_model, save_checkpoint
-from particlesplat.model.decoder import foreground_gaussians, gaussian_channels, split_gaussian_params
+from particlesplat.model.decoder import foreground_gaussians, gaussian_channels
 from particlesplat.model.geometry import covariance_to_quat_scale, ray_dirs, rotate_sh_to_world, stack_cameras
 from particlesplat.model.losses import kl_beta, kl_normal, scene_kl, view_error
 from particlesplat.sh import eval_sh_colors

@@ -9,7 +9,7 @@ from pathlib import Path
 import torch
 
 from ..atomic import atomic_path
-from .config import ConfigError, model_config_from_dict
+from .config import model_config_from_dict
 from .particlesplat import ParticleSplat
 
 
@@ -41,10 +41,8 @@ def read_checkpoint(path: str | PathLike) -> dict:
 
 
 def model_from_checkpoint(ckpt: dict, where: str = "checkpoint", device: str | torch.device = "cpu") -> ParticleSplat:
-    try:
-        cfg = model_config_from_dict(ckpt["config"], f"{where}: config")
-    except ConfigError:
-        raise
+    """Build the model a checkpoint dict describes and load its weights (eval mode)."""
+    cfg = model_config_from_dict(ckpt["config"], f"{where}: config")
     model = ParticleSplat(cfg)
     try:
         model.load_state_dict(ckpt["state_dict"])
