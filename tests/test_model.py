@@ -304,7 +304,8 @@ def test_presence_selection_picks_high_presence_patches():
     presence = torch.zeros(1, 64)
     presence[0, [5, 40, 63]] = torch.tensor([3.0, 6.0, 9.0])
     enc.proposals = lambda feats: (kp0, var0, presence)
-    att = enc.attributes(rgb, dep, rays)
+    with torch.no_grad():
+        att = enc.attributes(rgb, dep, rays)
     assert torch.equal(att["kp"][0], kp0[0, [63, 40, 5]])
     t = (att["beta_a"] / (att["beta_a"] + att["beta_b"]))[0, :, 0]
     shift = att["beta_a"] - att["beta_b"]
