@@ -100,7 +100,7 @@ def _finish(p: dict[str, Tensor], pix: Tensor, zeta: Tensor, jac_px: Tensor, K: 
     M = camera_covariance_factor(p["quat"], s, jac)
     M_world = c2w[..., :3, :3] @ M
     quats, scales = covariance_to_quat_scale(M_world)
-    sh = rotate_sh_to_world(p["sh"], c2w[..., None, :3, :3])
+    sh = rotate_sh_to_world(p["sh"], c2w[..., :3, :3])  # c2w already broadcasts over the Gaussians
     return {"means": means, "quats": quats, "scales": scales, "opacities": opacity, "sh": sh}
 
 
