@@ -64,5 +64,19 @@ def main(argv: list[str] | None = None) -> int:
     return int(module.run(args) or 0)
 
 
+def console_main() -> int:
+    """The console script: bad input (ValueError, OSError) ends with its message, not a traceback.
+
+    The messages name the file and the field; :func:`main` itself lets the exceptions through
+    for programmatic use and tests.
+    """
+    try:
+        return main()
+    except (ValueError, OSError) as e:
+        command = sys.argv[1] if len(sys.argv) > 1 else ""
+        print(f"particlesplat {command}: error: {e}", file=sys.stderr)
+        return 1
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(console_main())

@@ -101,6 +101,9 @@ class Trainer:
             self._load(out / LAST)
         elif resume:
             raise FileNotFoundError(f"{out / LAST}: nothing to resume")
+        elif (out / LAST).is_file():
+            raise FileExistsError(f"{out / LAST}: this run already exists; pass --resume to continue it "
+                                  "or choose another --out")
         self.ddp = DistributedDataParallel(self.model, find_unused_parameters=tc.bg_off_steps > 0) \
             if self.distributed else self.model
 

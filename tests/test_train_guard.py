@@ -1,0 +1,32 @@
+"""A finished run is never overwritten by accident; the console script reports bad input without a traceback."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from model_data import tiny_config, tiny_dataset
+
+from particlesplat.cli import main
+from particlesplat.model import read_checkpoint
+
+
+def test_existing_run_needs_resume(tmp_path_factory, tmp_path):
+    data = tiny_dataset(tmp_path_factory)
+    cfg = tiny_config(tmp_path / "tiny.yaml", steps=1, val_every=5)
+    argv = ["train", "--config", str(cfg), "--data", str(data), "--out", str(tmp_path / "r")]
+    assert main(argv) == 0
+    before = (tmp_path / "r" / "last.pt").read_bytes()
+    with pytest.raises(FileExistsError, match="already exists; pass --resume"):
+        main(argv)
+    assert (tmp_path / "r" / "last.pt").read_bytes() == before
+    assert read_checkpoint(tmp_path / "r" / "last.pt")["step"] == 1
+
+
+def test_console_script_reports_bad_input_in_one_line(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "particlesplat.cli", "render", "--scene", str(tmp_path / "missing"),
+                           "--out", str(tmp_path / "x.png")], capture_output=True, text=True, timeout=300)
+    assert proc.returncode != 0
+    assert "Traceback" not in proc.stderr
+    assert "missing" in proc.stderr
