@@ -5,7 +5,6 @@ Everything here is plain differentiable torch; the rasterizer consumes its outpu
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -57,10 +56,9 @@ def project_gaussians(gaussians: Gaussians, camera: Camera, near: float = 0.01, 
     K64 = camera.K.to(torch.float64)
     means2d = torch.stack([K64[0, 0] * p64[:, 0] / p64[:, 2] + K64[0, 2],
                            K64[1, 1] * p64[:, 1] / p64[:, 2] + K64[1, 2]], dim=-1)
-    w2c = camera.w2c.to(dtype)
-    Rw = w2c[:3, :3]
+    Rw = w2c64[:3, :3].to(dtype)
     x, y, z = p64.to(dtype).unbind(-1)
-    K = camera.K.to(dtype)
+    K = K64.to(dtype)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     W, H = camera.width, camera.height
     tan_x, tan_y = 0.5 * W / fx, 0.5 * H / fy
@@ -90,6 +88,3 @@ def footprint_radius_sq(opacities: Tensor) -> Tensor:
     """(M,) squared Mahalanobis radius inside which o·exp(-½ r²) >= 1/255: 2 ln(255 o); < 0 if never."""
     return 2.0 * torch.log(opacities.clamp_min(1e-30) * 255.0)
 
-
-def log_alpha_threshold() -> float:
-    return math.log(ALPHA_MIN)

@@ -305,18 +305,3 @@ def _rows(table: Tensor, idx: Tensor) -> Tensor:
 def _with_ones(features: Tensor) -> Tensor:
     """(..., C) -> (..., C+1) with a trailing 1 (its weighted sum is alpha)."""
     return torch.cat([features, torch.ones_like(features[..., :1])], dim=-1)
-
-
-def owner_weight_tiles(coef: Tensor, owner_slot: Tensor, num_slots: int, bins: TileBins) -> Tensor:
-    """(T, 16, num_slots) Σ T·α per owner slot (no gradient).
-
-    coef: (P+1, 6) from :func:`pair_inputs`; owner_slot: (M,) int64 in [0, num_slots) per Gaussian.
-    """
-    with torch.no_grad():
-        feats = _pixel_features(coef.dtype, coef.device)
-        onehot = torch.nn.functional.one_hot(owner_slot[bins.gauss], num_slots).to(coef.dtype)
-        onehot = torch.cat([onehot, onehot.new_zeros(1, num_slots)])
-        out = coef.new_zeros(bins.num_tiles, TILE * TILE, num_slots)
-        for tiles, idx in bins.chunks:
-            out.index_copy_(0, tiles, torch.bmm(_ChunkState(feats, _rows(coef.detach(), idx)).weights, _rows(onehot, idx)))
-        return out

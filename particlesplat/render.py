@@ -11,7 +11,7 @@ from torch import Tensor
 from .camera import Camera
 from .gaussians import Gaussians
 from .projection import footprint_radius_sq, project_gaussians
-from .rasterize import RasterizeFunction, bin_gaussians, owner_weight_tiles, pair_inputs, tiles_to_images
+from .rasterize import RasterizeFunction, bin_gaussians, pair_inputs, tiles_to_images
 from .sh import eval_sh_colors
 
 
@@ -109,22 +109,27 @@ def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Seque
     bins = bin_gaussians(cat["means2d"], cat["conics"], cat["opac"], cat["radius"], cat["features"][:, 3],
                          cat["view"], sizes)
     coef, pair_features = pair_inputs(bins, cat["means2d"], cat["conics"], cat["opac"], cat["features"])
+    if owner_weights:
+        # per-owner weights ride along as extra one-hot feature columns of the same pass
+        # (slot 0 = background, 1..P = owners), so α and T are computed once
+        if num_owners is not None:
+            P = int(num_owners)
+        else:
+            P = max((int(g.owner.max()) + 1 for g, _ in views if len(g)), default=0)
+        owners = cat["owner"]
+        slot = torch.where((owners >= 0) & (owners < P), owners + 1, torch.zeros_like(owners))
+        onehot = torch.nn.functional.one_hot(slot.index_select(0, bins.gauss), P + 1).to(coef.dtype)
+        pair_features = torch.cat([pair_features, torch.cat([onehot, onehot.new_zeros(1, P + 1)])], dim=-1)
     tiles = RasterizeFunction.apply(coef, pair_features, bins)
     results = []
     for acc in tiles_to_images(tiles, bins, sizes):
         alpha = acc[..., 4]
         rgb = acc[..., :3] + (1.0 - alpha)[..., None] * bg
         depth = torch.where(alpha > 0, acc[..., 3] / alpha.clamp_min(1e-12), torch.zeros_like(alpha))
-        results.append(RenderResult(rgb, alpha, depth))
-    if owner_weights:
-        owners = cat["owner"]
-        if num_owners is not None:
-            P = int(num_owners)
-        else:
-            P = max((int(g.owner.max()) + 1 for g, _ in views if len(g)), default=0)
-        slot = torch.where((owners >= 0) & (owners < P), owners + 1, torch.zeros_like(owners))
-        maps = owner_weight_tiles(coef, slot, P + 1, bins)
-        for result, m in zip(results, tiles_to_images(maps, bins, sizes)):
-            result.owner_weights = m[..., 1:].permute(2, 0, 1).contiguous()
-            result.background_weight = m[..., 0]
+        result = RenderResult(rgb, alpha, depth)
+        if owner_weights:
+            maps = acc[..., 5:].detach()
+            result.owner_weights = maps[..., 1:].permute(2, 0, 1).contiguous()
+            result.background_weight = maps[..., 0].contiguous()
+        results.append(result)
     return results
