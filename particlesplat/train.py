@@ -58,6 +58,9 @@ def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: b
                      sup.flatten(0, 1), tc.lambda_depth).reshape(B, V)
     kl = scene_kl(post, z["z_t"], cfg, tc.beta_f)
     parts = elbo(err[:, :C], err[:, C:] if V > C else None, kl, z["z_t"], tc)
+    if "coarse_err" in post:  # the plain background (no detail) must explain the views on its own
+        parts["coarse"] = post["coarse_err"].mean()
+        parts["loss"] = parts["loss"] + tc.beta_coarse * parts["coarse"]
     shown = rgb_hat[:, C:] if V > C else rgb_hat
     target = gt_rgb[:, C:] if V > C else gt_rgb
     with torch.no_grad():
@@ -94,9 +97,15 @@ class Trainer:
         if init is not None and not resume:
             state = read_checkpoint(init)["state_dict"]
             try:
-                self.model.load_state_dict(state)
+                res = self.model.load_state_dict(state, strict=False)
             except RuntimeError as e:
                 raise ValueError(f"{init}: its weights do not fit this model config ({e})") from e
+            if res.unexpected_keys:
+                raise ValueError(f"{init}: weights this model config does not have: "
+                                 f"{', '.join(res.unexpected_keys)}")
+            if res.missing_keys and self.rank == 0:
+                modules = sorted({k.rsplit(".", 2)[0] for k in res.missing_keys})
+                print(f"--init {init}: new modules start from their initialisation: {', '.join(modules)}")
         if resume and (out / LAST).is_file():
             self._load(out / LAST)
         elif resume:

@@ -335,3 +335,64 @@ def test_residual_selection_puts_particles_where_the_background_fails():
     pix = (post["kp"][0] + 1) / 2 * 32
     cells = {(int(p[1]) // 4) * 8 + int(p[0]) // 4 for p in pix}
     assert cells == top
+
+
+def _floor_depth(cam: Camera) -> torch.Tensor:
+    """(1, H, W) planar depth of the floor z = 0 at every pixel centre (analytic ray-plane hit)."""
+    v, u = torch.meshgrid(torch.arange(cam.height) + 0.5, torch.arange(cam.width) + 0.5, indexing="ij")
+    K, c2w = cam.K.double(), cam.c2w.double()
+    d_cam = torch.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], torch.ones_like(u)], -1).double()
+    d_world = d_cam @ c2w[:3, :3].T
+    return (-c2w[2, 3] / d_world[..., 2]).float()[None]
+
+
+@pytest.mark.parametrize("occluded", [False, True])
+def test_cross_view_selection_skips_a_point_the_first_view_holds(occluded):
+    """View 0 keeps a floor point; in view 1 the proposal at that point's projection (computed with the
+    Camera class) is the best one, but it is skipped unless something closer occludes the point there."""
+    from particlesplat.model.encoder import CrossView, select_keypoints
+
+    cs = cams(2)
+    K, c2w = stack_cameras(cs)
+    depth = torch.stack([_floor_depth(c) for c in cs])  # (2, 1, 32, 32)
+    world = torch.tensor([[0.2, -0.1, 0.0]])
+    p0 = cs[0].project(world)[0][0]
+    p1 = cs[1].project(world)[0][0]
+    if occluded:
+        u, v = int(p1[0]), int(p1[1])
+        depth[1, 0, v - 2:v + 3, u - 2:u + 3] -= 1.0
+    norm = lambda p: p / 32 * 2 - 1  # noqa: E731
+    far = torch.tensor([-0.8, 0.8])
+    kp = torch.stack([torch.stack([norm(p0), far]), torch.stack([norm(p1), far])])  # (2 views, Q=2, 2)
+    score = torch.tensor([[0.0, 1.0], [0.0, 1.0]])
+    idx = CrossView(depth, K, c2w, n_views=2).select(kp, score, 1, 0.1, 32)
+    assert idx[0].tolist() == [0]
+    assert idx[1].tolist() == ([0] if occluded else [1])
+    assert select_keypoints(kp, score, 1, 0.1).tolist() == [[0], [0]]  # per view alone: both take it
+
+
+def test_background_detail_never_sees_what_the_plain_background_cannot_explain():
+    """A grey plain background and a red square: the square's blocks (dilated) are hidden from the
+    detail branch, so recolouring the square leaves the detail features unchanged, while a change on
+    the visible grey floor does change them (particle boxes, the other hidden part, are off here)."""
+    m = tiny_model(bg_detail=3, bg_mask_threshold=1.0)
+    with torch.no_grad():
+        m.bg_decoder.head.weight.zero_()  # colour = SH DC bias -> 0.5 grey everywhere
+    rgb = torch.full((1, 1, 3, 32, 32), 0.5)
+    rgb[0, 0, :, 8:16, 12:20] = torch.tensor([0.9, 0.1, 0.1])[:, None, None]
+    K, c2w = stack_cameras(cams(1))
+    post = m.posterior(rgb, None, K[None], c2w[None])
+    hidden = post["bg_mask"][0, 0, 0]
+    assert bool((hidden[8:16, 12:20] == 1).all())
+    assert float(hidden.mean()) < 0.5
+    other = rgb.clone()
+    other[0, 0, :, 8:16, 12:20] = torch.tensor([0.1, 0.8, 0.2])[:, None, None]
+    post2 = m.posterior(other, None, K[None], c2w[None])
+    assert torch.equal(post2["bg_mask"], post["bg_mask"])
+    assert torch.equal(post2["bg_detail"], post["bg_detail"])
+    floor = rgb.clone()
+    floor[0, 0, :, 26:30, 2:6] = 0.52
+    assert not torch.equal(m.posterior(floor, None, K[None], c2w[None])["bg_detail"], post["bg_detail"])
+    # the decoder reads [latent, detail]; the detail enters through a zero-initialised projection
+    z = m.latents(post, sample=False)
+    assert z["bg"].shape == (1, 1, m.config.d_bg + 3, 8, 8)

@@ -94,7 +94,7 @@ def test_init_from_checkpoint_weights(tmp_path_factory, tmp_path):
 
     data = tiny_dataset(tmp_path_factory)
     torch.manual_seed(5)
-    src = ParticleSplat(ModelConfig(**TINY_MODEL))
+    src = ParticleSplat(ModelConfig(**{**TINY_MODEL, "bg_detail": 0}))  # lacks the detail branch: it starts fresh
     save_checkpoint(tmp_path / "src.pt", src, step=9)
     cfg = tiny_config(tmp_path / "tiny.yaml", steps=1, val_every=5, lr=1e-12)
     text = cfg.read_text().replace("particles_per_view: 3", "particles_per_view: 2")  # holds no weights
@@ -104,6 +104,11 @@ def test_init_from_checkpoint_weights(tmp_path_factory, tmp_path):
     assert out["step"] == 1 and out["config"]["particles_per_view"] == 2
     for k, v in src.state_dict().items():
         torch.testing.assert_close(out["state_dict"][k], v, rtol=0, atol=1e-6)
+    assert any(k.startswith("bg_detail.") for k in out["state_dict"])
     cfg.write_text(text.replace("d_obj: 4", "d_obj: 5"))
     with pytest.raises(ValueError, match="do not fit"):
         _train(cfg, data, tmp_path / "j", "--init", str(tmp_path / "src.pt"))
+    save_checkpoint(tmp_path / "src2.pt", ParticleSplat(ModelConfig(**TINY_MODEL)), step=9)
+    cfg.write_text(text.replace("bg_detail: 2", "bg_detail: 0"))
+    with pytest.raises(ValueError, match="does not have: .*bg_detail"):
+        _train(cfg, data, tmp_path / "k", "--init", str(tmp_path / "src2.pt"))

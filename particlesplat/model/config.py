@@ -42,6 +42,9 @@ class ModelConfig:
     d_bg: int = 4
     bg_latent_stride: int = 4
     bg_block: int = 2
+    bg_detail: int = 0
+    bg_detail_threshold: float = 0.02
+    kp_cross_view: bool = False
     patch_gaussians: int = 4
     token_dim: int = 64
     transformer_layers: int = 2
@@ -83,6 +86,8 @@ class ModelConfig:
         for key in ("bg_latent_stride", "bg_block"):
             v = getattr(self, key)
             need(v >= 1 and self.resolution % v == 0, key, "must divide the resolution")
+        need(self.bg_detail >= 0, "bg_detail", "must be >= 0 (0 = no pixel-aligned detail)")
+        need(self.bg_detail_threshold > 0.0, "bg_detail_threshold", "must be > 0")
         need(self.patch_gaussians >= 1, "patch_gaussians", "must be >= 1")
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
         need(self.transformer_layers >= 0, "transformer_layers", "must be >= 0")
@@ -118,6 +123,7 @@ class TrainConfig:
     beta_kl: float = 0.02
     beta_f: float = 1.0
     beta_reg: float = 0.02
+    beta_coarse: float = 1.0
     beta_rec_ctx: float = 1.0
     beta_rec_tgt: float = 1.0
     lambda_depth: float = 0.1
@@ -143,7 +149,7 @@ class TrainConfig:
         need(self.cache_scenes >= 0, "cache_scenes", "must be >= 0")
         for key in ("log_every", "val_every", "ckpt_every"):
             need(getattr(self, key) >= 1, key, "must be >= 1")
-        for key in ("beta_kl", "beta_f", "beta_reg", "beta_rec_ctx", "beta_rec_tgt", "lambda_depth", "grad_clip"):
+        for key in ("beta_kl", "beta_f", "beta_reg", "beta_coarse", "beta_rec_ctx", "beta_rec_tgt", "lambda_depth", "grad_clip"):
             need(getattr(self, key) >= 0, key, "must be >= 0")
 
 

@@ -60,7 +60,12 @@ class ForegroundDecoder(nn.Module):
 
 
 class BackgroundDecoder(nn.Module):
-    """D_bg: per-view background latent map + rays -> one Gaussian per k×k pixel block."""
+    """D_bg: per-view background latent map + rays -> one Gaussian per k×k pixel block.
+
+    The latent's first ``d_bg`` channels are the stochastic background latent; with ``bg_detail`` > 0 the
+    next ``bg_detail`` channels, at block resolution, are the pixel-aligned detail features (absent or
+    zero: the plain background, which the keypoint selection compares with the view).
+    """
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
@@ -70,16 +75,24 @@ class BackgroundDecoder(nn.Module):
         self.inp = nn.Conv2d(cfg.d_bg, c, 3, padding=1)
         self.body = nn.Sequential(nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU(),
                                   nn.Conv2d(c, c, 3, padding=1), nn.SiLU())
+        self.detail = nn.Conv2d(cfg.bg_detail, c, 1) if cfg.bg_detail > 0 else None
+        if self.detail is not None:  # zero: a model without detail is reproduced exactly at the start
+            nn.init.zeros_(self.detail.weight)
+            nn.init.zeros_(self.detail.bias)
         self.head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
         mid = (3.5 - cfg.d_min) / (cfg.d_max - cfg.d_min)
         init_gaussian_head(self.head, cfg.sh_degree, opacity_logit=3.0,
                            depth_logit=float(torch.logit(torch.tensor(min(max(mid, 0.05), 0.95)))))
 
     def forward(self, latent: Tensor, rays: Tensor) -> Tensor:
-        """latent: (M, d_bg, h, w); rays: (M, 6, Hb, Wb) Plücker at block centres -> (M, Hb*Wb, C)."""
+        """latent: (M, d_bg [+ bg_detail], h, w) (detail at (Hb, Wb)); rays: (M, 6, Hb, Wb) Plücker at block
+        centres -> (M, Hb*Wb, C)."""
         hb, wb = rays.shape[-2:]
-        z = F.interpolate(latent, size=(hb, wb), mode="bilinear", align_corners=False)
+        d = self.cfg.d_bg
+        z = F.interpolate(latent[:, :d], size=(hb, wb), mode="bilinear", align_corners=False)
         h = self.inp(z) + self.ray_proj(rays)
+        if self.detail is not None and latent.shape[1] > d:
+            h = h + self.detail(latent[:, d:])
         out = self.head(self.body(h))
         return out.flatten(2).transpose(1, 2)
 

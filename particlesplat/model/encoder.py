@@ -8,7 +8,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .config import ModelConfig
-from .geometry import plucker_at, plucker_map
+from .geometry import plucker_at, plucker_map, project_to_view, ray_dirs
 
 
 def _conv(cin: int, cout: int, stride: int = 1) -> nn.Module:
@@ -125,11 +125,13 @@ class ParticleEncoder(nn.Module):
         pix = origin + mean
         return pix / cfg.resolution * 2.0 - 1.0, var, presence
 
-    def attributes(self, rgb: Tensor, dep: Tensor, rays: Tensor, residual: Tensor | None = None) -> dict[str, Tensor]:
+    def attributes(self, rgb: Tensor, dep: Tensor, rays: Tensor, residual: Tensor | None = None,
+                   cross_view: CrossView | None = None) -> dict[str, Tensor]:
         """Per-view particle posteriors before interaction.
 
         rgb: (M, 3, H, W); dep: (M, 2, H, W); rays: (M, 6, H, W); residual: (M, Q) per-patch error of the
-        background alone (needed by kp_selection "residual") -> dict of (M, L, ·) tensors
+        background alone (needed by kp_selection "residual"); cross_view: the views' geometry, to let
+        each visible 3D point be claimed by one view only (``kp_cross_view``) -> dict of (M, L, ·) tensors
         (kp, mu_/lv_ o s d e f, beta_a, beta_b, and the glimpse embedding h).
         """
         cfg = self.cfg
@@ -146,7 +148,10 @@ class ParticleEncoder(nn.Module):
             score = -residual
         else:
             score = -presence if cfg.kp_selection == "presence" else var
-        idx = select_keypoints(kp.detach(), score.detach(), L, cfg.kp_min_separation)
+        if cross_view is not None and cfg.kp_cross_view and cross_view.n_views > 1:
+            idx = cross_view.select(kp.detach(), score.detach(), L, cfg.kp_min_separation, cfg.resolution)
+        else:
+            idx = select_keypoints(kp.detach(), score.detach(), L, cfg.kp_min_separation)
         kp = torch.gather(kp, 1, idx[..., None].expand(-1, -1, 2))  # (M, L, 2)
         presence = torch.gather(presence, 1, idx)[..., None]  # (M, L, 1)
         # glimpses of the RGB-D input around each keypoint (STN, bilinear)
@@ -209,15 +214,21 @@ class ParticleEncoder(nn.Module):
         return out
 
 
-def select_keypoints(kp: Tensor, var: Tensor, count: int, min_separation: float) -> Tensor:
+def select_keypoints(kp: Tensor, var: Tensor, count: int, min_separation: float,
+                     claimed: Tensor | None = None) -> Tensor:
     """Filter proposals to ``count`` per view: lowest score ``var`` first, skipping proposals
-    closer than ``min_separation`` (normalised units, Chebyshev) to one already kept (greedy NMS); when too
-    few are far enough apart the rest are the next lowest-variance proposals.
+    closer than ``min_separation`` (normalised units, Chebyshev) to one already kept (greedy NMS) or to a
+    point ``claimed`` beforehand; when too few are far enough apart the rest are the next lowest-score
+    proposals.
 
-    kp: (M, Q, 2) in [-1, 1]; var: (M, Q) -> (M, count) int64 proposal indices.
+    kp: (M, Q, 2) in [-1, 1]; var: (M, Q); claimed: (M, C, 2) in [-1, 1] (NaN = none) or None
+    -> (M, count) int64 proposal indices.
     """
     M, Q = var.shape
     score = var.clone()
+    if claimed is not None and claimed.shape[1]:
+        near = ((kp[:, :, None] - claimed[:, None]).abs().amax(-1) < min_separation).any(-1)  # NaN compares False
+        score = torch.where(near, score + 1e6, score)
     chosen = []
     big = torch.finfo(var.dtype).max
     for _ in range(count):
@@ -230,6 +241,50 @@ def select_keypoints(kp: Tensor, var: Tensor, count: int, min_separation: float)
     return torch.stack(chosen, 1)
 
 
+class CrossView:
+    """Geometry of B scenes' V context views, to select keypoints view by view so that a 3D point one view
+    already holds a particle for is not proposed again by the next (needs observed depth).
+
+    depth: (B*V, 1, H, W) metres (0 = missing); K: (B*V, 3, 3); c2w: (B*V, 4, 4); n_views: V.
+    A claimed point suppresses proposals near its projection only where the later view sees it: its
+    projected depth is within ``tolerance`` metres of that view's observed depth (not occluded).
+    """
+
+    def __init__(self, depth: Tensor, K: Tensor, c2w: Tensor, n_views: int, tolerance: float = 0.35):
+        self.depth, self.K, self.c2w, self.n_views, self.tolerance = depth, K, c2w, n_views, tolerance
+
+    def _lift(self, kp: Tensor, v: slice, res: int) -> Tensor:
+        """kp: (B, L, 2) in [-1, 1] of views ``v`` -> world points (B, L, 3), NaN where depth is missing."""
+        d = F.grid_sample(self.depth[v], kp[:, :, None, :], mode="nearest", align_corners=False)[:, 0, :, 0]
+        pix = (kp + 1.0) * 0.5 * res
+        pts = self.c2w[v][:, None, :3, 3] + d[..., None] * ray_dirs(pix, self.K[v], self.c2w[v])
+        return torch.where((d > 0)[..., None], pts, torch.full_like(pts, float("nan")))
+
+    def _claimed_in(self, pts: Tensor, v: slice, res: int) -> Tensor:
+        """World points (B, C, 3) -> their normalised positions in views ``v`` (B, C, 2), NaN where not seen."""
+        pix, z = project_to_view(torch.nan_to_num(pts), self.K[v], self.c2w[v])
+        kp = pix / res * 2.0 - 1.0
+        inside = (kp.abs() <= 1.0).all(-1) & (z > 0) & ~torch.isnan(pts).any(-1)
+        obs = F.grid_sample(self.depth[v], kp.clamp(-1, 1)[:, :, None, :], mode="nearest",
+                            align_corners=False)[:, 0, :, 0]
+        seen = inside & (obs > 0) & ((z - obs).abs() < self.tolerance)
+        return torch.where(seen[..., None], kp, torch.full_like(kp, float("nan")))
+
+    def select(self, kp: Tensor, score: Tensor, count: int, min_separation: float, res: int) -> Tensor:
+        """kp: (B*V, Q, 2); score: (B*V, Q) -> (B*V, count) indices, views selected in order."""
+        V = self.n_views
+        out = []
+        points = kp.new_zeros(kp.shape[0] // V, 0, 3)
+        for v in range(V):
+            sl = slice(v, None, V)
+            claimed = self._claimed_in(points, sl, res) if points.shape[1] else None
+            idx = select_keypoints(kp[sl], score[sl], count, min_separation, claimed)
+            out.append(idx)
+            chosen = torch.gather(kp[sl], 1, idx[..., None].expand(-1, -1, 2))
+            points = torch.cat([points, self._lift(chosen, sl, res)], dim=1)
+        return torch.stack(out, dim=1).reshape(kp.shape[0], count)
+
+
 def box_mask(z_p: Tensor, scale: Tensor, active: Tensor, size: int) -> Tensor:
     """Union of particle boxes. z_p: (M, L, 2) in [-1, 1]; scale: (M, L, 2) half-extents in normalised
     units; active: (M, L) bool -> (M, 1, size, size) float mask (1 inside an active box)."""
@@ -238,6 +293,26 @@ def box_mask(z_p: Tensor, scale: Tensor, active: Tensor, size: int) -> Tensor:
     inside_y = (ar[None, None, :] - z_p[..., 1:2]).abs() <= scale[..., 1:2]  # (M, L, H)
     box = inside_y[..., :, None] & inside_x[..., None, :] & active[..., None, None]
     return box.any(1, keepdim=True).to(z_p.dtype)
+
+
+class BackgroundDetail(nn.Module):
+    """Pixel-aligned skip of the background decoder: the view with what it must not draw hidden
+    -> (M, bg_detail, H/k, W/k) features, one per background Gaussian block (k = bg_block)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        c = cfg.channels
+        self.k = cfg.bg_block
+        self.pre = _conv(6, c // 2)
+        self.post = nn.Sequential(_conv(c // 2, c), nn.Conv2d(c, cfg.bg_detail, 1))
+
+    def forward(self, rgb: Tensor, dep: Tensor, hidden: Tensor) -> Tensor:
+        """rgb: (M, 3, H, W); dep: (M, 2, H, W); hidden: (M, 1, H, W) 1 = hidden -> (M, bg_detail, H/k, W/k)."""
+        keep = 1.0 - hidden
+        h = self.pre(torch.cat([rgb * keep, dep * keep, keep], dim=1))
+        if self.k > 1:
+            h = F.avg_pool2d(h, self.k)
+        return self.post(h)
 
 
 class BackgroundEncoder(nn.Module):
@@ -269,4 +344,5 @@ class BackgroundEncoder(nn.Module):
         return out[:, :d], out[:, d:], feats.mean((2, 3))
 
 
-__all__ = ["ParticleEncoder", "BackgroundEncoder", "box_mask", "depth_input", "plucker_map"]
+__all__ = ["ParticleEncoder", "BackgroundEncoder", "BackgroundDetail", "CrossView", "box_mask", "depth_input",
+           "plucker_map"]

@@ -29,7 +29,8 @@ class Particles:
         z_t: (L, 1) transparency in [0, 1].
         z_f: (L, D) appearance features.
         view: (L,) int64 index of the context view each particle belongs to.
-        background: (V, C, h, w) per-view background latent maps the background decoder reads.
+        background: (V, C, h, w) per-view background latent maps the background decoder reads (the
+            stochastic latent, then, with ``bg_detail``, the pixel-aligned detail features).
         cameras: the V context cameras (OpenCV).
     """
 

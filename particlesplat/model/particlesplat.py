@@ -14,7 +14,7 @@ from ..sh import SH_C0
 from .config import ModelConfig
 from .decoder import (BackgroundDecoder, ForegroundDecoder, background_gaussians, background_rays,
                       foreground_gaussians, split_gaussian_params)
-from .encoder import BackgroundEncoder, ParticleEncoder, box_mask, depth_input
+from .encoder import BackgroundDetail, BackgroundEncoder, CrossView, ParticleEncoder, box_mask, depth_input
 from .geometry import plucker_map, stack_cameras
 from .particles import Particles
 
@@ -36,6 +36,7 @@ class ParticleSplat(nn.Module):
         self.bg_encoder = BackgroundEncoder(config)
         self.fg_decoder = ForegroundDecoder(config)
         self.bg_decoder = BackgroundDecoder(config)
+        self.bg_detail = BackgroundDetail(config) if config.bg_detail > 0 else None
 
     # ------------------------------------------------------------------ batched internals
     def posterior(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> dict[str, Tensor]:
@@ -55,8 +56,16 @@ class ParticleSplat(nn.Module):
         dep = depth_input(d, x, cfg)
         Kf, cf = K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4)
         rays = plucker_map(Kf, cf, H, W)
-        residual = self.background_residual(x, d, dep, rays, Kf, cf) if cfg.kp_selection == "residual" else None
-        att = self.encoder.attributes(x, dep, rays, residual)
+        block_err = None
+        train_coarse = self.bg_detail is not None and self.training and torch.is_grad_enabled()
+        if cfg.kp_selection == "residual" or self.bg_detail is not None:
+            with torch.set_grad_enabled(train_coarse):
+                block_err = self.coarse_background_error(x, d, dep, rays, Kf, cf)
+        residual = None
+        if cfg.kp_selection == "residual":
+            residual = F.adaptive_avg_pool2d(block_err.detach(), cfg.resolution // cfg.kp_patch).flatten(1)
+        cross = None if d is None else CrossView(d, Kf, cf, V)
+        att = self.encoder.attributes(x, dep, rays, residual, cross)
         with torch.no_grad():
             t_mean = att["beta_a"] / (att["beta_a"] + att["beta_b"])
             mask = box_mask(att["kp"] + att["mu_o"], torch.sigmoid(att["mu_s"]),
@@ -66,18 +75,28 @@ class ParticleSplat(nn.Module):
         post["mu_bg"] = mu_bg.reshape(B, V, *mu_bg.shape[1:])
         post["lv_bg"] = lv_bg.reshape(B, V, *lv_bg.shape[1:])
         post["bg_mask"] = mask.reshape(B, V, 1, H, W)
+        if self.bg_detail is not None:
+            with torch.no_grad():  # hide what the plain background cannot explain (dilated by a block)
+                poor = (block_err.detach() > cfg.bg_detail_threshold).to(x.dtype)
+                poor = F.max_pool2d(poor, 3, stride=1, padding=1)
+                hidden = torch.maximum(mask, F.interpolate(poor, scale_factor=cfg.bg_block, mode="nearest"))
+            detail = self.bg_detail(x, dep, hidden)
+            post["bg_detail"] = detail.reshape(B, V, *detail.shape[1:])
+            post["bg_mask"] = hidden.reshape(B, V, 1, H, W)
+        if train_coarse:  # robust: blocks it cannot explain (objects) pull on it little
+            scale = 2.0 * cfg.bg_detail_threshold
+            robust = block_err * scale / (block_err + scale)
+            post["coarse_err"] = robust.flatten(1).sum(-1).reshape(B, V) * cfg.bg_block ** 2
         post["view"] = torch.arange(V, device=rgb.device).repeat_interleave(cfg.particles_per_view)
         return post
 
-    @torch.no_grad()
-    def background_residual(self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor,
-                            c2w: Tensor) -> Tensor:
-        """Per-patch error of the background alone (unmasked input), where particles are needed most.
+    def coarse_background_error(self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor,
+                                c2w: Tensor) -> Tensor:
+        """Per-block error of the plain background (unmasked input, no detail features).
 
         x: (M, 3, H, W); depth: (M, 1, H, W) metres or None; dep, rays: encoder inputs; K: (M, 3, 3);
         c2w: (M, 4, 4). Compares each background Gaussian's colour and planar depth with its pixel block
-        (squared RGB error + squared depth error in metres where depth is known), averaged per keypoint
-        patch. Returns (M, Q) with Q = (resolution / kp_patch)^2.
+        (squared RGB error + squared depth error in metres where depth is known). Returns (M, 1, Hb, Wb).
         """
         cfg = self.config
         M = x.shape[0]
@@ -92,8 +111,15 @@ class ParticleSplat(nn.Module):
             d_blk = F.avg_pool2d(depth * valid, cfg.bg_block) / w.clamp_min(1e-6)
             zeta = cfg.d_min + torch.sigmoid(p["dd"][..., 0]) * (cfg.d_max - cfg.d_min)
             err = err + (zeta.reshape(M, 1, nb, nb) - d_blk) ** 2 * (w > 0.5).to(x.dtype)
-        n = cfg.resolution // cfg.kp_patch
-        return F.adaptive_avg_pool2d(err, n).flatten(1)
+        return err
+
+    @torch.no_grad()
+    def background_residual(self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor,
+                            c2w: Tensor) -> Tensor:
+        """Per-patch error of the plain background, where particles are needed most: the
+        :meth:`coarse_background_error` averaged per keypoint patch -> (M, Q), Q = (resolution / kp_patch)^2."""
+        err = self.coarse_background_error(x, depth, dep, rays, K, c2w)
+        return F.adaptive_avg_pool2d(err, self.config.resolution // self.config.kp_patch).flatten(1)
 
     @staticmethod
     def latents(post: dict[str, Tensor], sample: bool) -> dict[str, Tensor]:
@@ -103,9 +129,15 @@ class ParticleSplat(nn.Module):
 
         a, b = post["beta_a"], post["beta_b"]
         z_t = torch.distributions.Beta(a, b).rsample() if sample else a / (a + b)
+        bg = g(post["mu_bg"], post["lv_bg"])
+        if "bg_detail" in post:  # the decoder reads [latent upsampled to the blocks, detail features]
+            detail = post["bg_detail"]
+            B, V = bg.shape[:2]
+            up = F.interpolate(bg.flatten(0, 1), size=detail.shape[-2:], mode="bilinear", align_corners=False)
+            bg = torch.cat([up.reshape(B, V, *up.shape[1:]), detail], dim=2)
         return {"z_p": post["kp"] + g(post["mu_o"], post["lv_o"]), "z_s": g(post["mu_s"], post["lv_s"]),
                 "z_d": g(post["mu_d"], post["lv_d"]), "z_e": g(post["mu_e"], post["lv_e"]), "z_t": z_t,
-                "z_f": g(post["mu_f"], post["lv_f"]), "bg": g(post["mu_bg"], post["lv_bg"])}
+                "z_f": g(post["mu_f"], post["lv_f"]), "bg": bg}
 
     def foreground(self, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor, z_t: Tensor, z_f: Tensor, K: Tensor,
                    c2w: Tensor) -> dict[str, Tensor]:
