@@ -45,6 +45,11 @@ def render_views(gaussians, cameras: list[Camera], num_owners: int) -> dict[str,
     return {"rgb": torch.stack(rgb), "depth": torch.stack(depth), "seg": torch.stack(seg), "render_ms": ms}
 
 
+def view_psnr(pred: Tensor, gt: Tensor, sup: Tensor | None) -> float:
+    """Mean over views of each view's PSNR (dB). pred, gt: (T, 3, H, W); sup: (T, 1, H, W) or None."""
+    return float(np.mean([psnr(pred[i], gt[i], None if sup is None else sup[i]) for i in range(len(gt))]))
+
+
 @torch.no_grad()
 def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune: bool = False) -> dict:
     """Metrics of one dataset item (see :class:`particlesplat.data.SceneDataset`): encode its context
@@ -66,7 +71,7 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     out = render_views(gaussians, tgt_cams, particles.num)
     sup = item.get("target_supervision")
     gt = item["target_rgb"]
-    res = {"psnr": psnr(out["rgb"], gt, sup), "ssim": ssim(out["rgb"], gt),
+    res = {"psnr": view_psnr(out["rgb"], gt, sup), "ssim": ssim(out["rgb"], gt),
            "depth_abs_rel": depth_abs_rel(out["depth"], item["target_depth"]),
            "active_particles": int((particles.z_t[:, 0] > model.config.bg_mask_threshold).sum()),
            "gaussians": len(gaussians), "encode_ms": enc_ms, "decode_ms": dec_ms, "render_ms": out["render_ms"]}
@@ -84,7 +89,7 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
             for op in PRUNE_OPACITY:
                 g = model.decode(particles, z_t_threshold=zt, opacity_threshold=op)
                 r = render_views(g, tgt_cams, particles.num)
-                rows.append({"z_t_threshold": zt, "opacity_threshold": op, "psnr": psnr(r["rgb"], gt, sup),
+                rows.append({"z_t_threshold": zt, "opacity_threshold": op, "psnr": view_psnr(r["rgb"], gt, sup),
                              "gaussians": len(g), "render_ms": r["render_ms"]})
         res["pruning"] = rows
     return res

@@ -138,6 +138,7 @@ class Trainer:
         self.opt.load_state_dict(ckpt["optimizer"])
         self.step = int(ckpt["step"])
         self.best = float(ckpt.get("best", -math.inf))
+        self._drop_log_after(self.step)
         states = ckpt["rng"]
         if len(states) != self.world:
             raise ValueError(f"{path}: saved by {len(states)} process(es), resuming with {self.world}")
@@ -178,6 +179,17 @@ class Trainer:
         self.model.train()
         return res["mean"]
 
+    def _drop_log_after(self, step: int) -> None:
+        """On resume: forget metrics.jsonl records of steps after the checkpoint (they will be logged again)."""
+        path = self.out / "metrics.jsonl"
+        if self.rank != 0 or not path.is_file():
+            return
+        lines = path.read_text().splitlines()
+        keep = [x for x in lines if x.strip() and json.loads(x).get("step", 0) <= step]
+        if len(keep) != len(lines):
+            with atomic_write(path, "w") as f:
+                f.write("".join(x + "\n" for x in keep))
+
     def log(self, record: dict) -> None:
         if self.rank == 0:
             with open(self.out / "metrics.jsonl", "a") as f:
@@ -206,8 +218,6 @@ class Trainer:
                             active=f"{run_avg['active']:.1f}")
             if self.step % tc.log_every == 0:
                 self.log({"step": self.step, **{k: round(v, 5) for k, v in run_avg.items()}})
-            if self.step % tc.ckpt_every == 0 or self.step == end:
-                self._save(self.out / LAST)
             if self.step % tc.val_every == 0 or self.step == tc.steps:
                 if self.rank == 0 and self.val_dir.is_dir():
                     m = self.validate()
@@ -223,6 +233,8 @@ class Trainer:
                         os.replace(self.out / "best.pt.tmp", self.out / "best.pt")
                 if self.distributed:
                     dist.barrier()
+            if self.step % tc.ckpt_every == 0 or self.step == end:  # after validation: it holds the best score
+                self._save(self.out / LAST)
         bar.close()
         if self.distributed:
             dist.destroy_process_group()
@@ -246,8 +258,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import yaml
-
     cfg, tc = load_config(args.config)
     if tc.num_threads > 0:
         torch.set_num_threads(tc.num_threads)
@@ -257,7 +267,7 @@ def run(args: argparse.Namespace) -> int:
     device = args.device
     if device.startswith("cuda") and int(os.environ.get("WORLD_SIZE", "1")) > 1:
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
-    raw = yaml.safe_load(Path(args.config).read_text())
+    raw = {"model": config_to_dict(cfg), "train": config_to_dict(tc)}  # RUN/config.yaml: every key, resolved
     trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, raw,
                       Path(args.init) if args.init else None)
     return trainer.run(args.stop_after)

@@ -81,3 +81,18 @@ def test_eval_cli_writes_json_figures_and_pruning_table(tmp_path_factory, tmp_pa
     img = Image.open(tmp_path / "fig" / "scene_00000.png")
     assert img.size == (4 * 32, 5 * 32)  # 4 targets wide, 5 rows
     assert main(["eval", "--checkpoint", str(ckpt), "--data", str(data / "val"), "--context", "1"]) == 0
+
+
+def test_eval_psnr_is_the_mean_of_per_view_psnr():
+    """Two views with MSE 1e-2 and 1e-4 score 20 and 40 dB: the mean is 30 dB, not the pooled 23.0 dB."""
+    from particlesplat.evaluate import view_psnr
+
+    gt = torch.full((2, 3, 4, 4), 0.5)
+    pred = gt.clone()
+    pred[0] += 0.1
+    pred[1] += 0.01
+    assert abs(view_psnr(pred, gt, None) - 30.0) < 1e-4
+    sup = torch.ones(2, 1, 4, 4)
+    sup[1, :, :2] = 0  # unsupervised pixels do not count, whatever their error
+    pred[1, :, :2] = 1.0
+    assert abs(view_psnr(pred, gt, sup) - 30.0) < 1e-4

@@ -25,6 +25,8 @@ def test_interrupted_and_resumed_equals_uninterrupted(tmp_path_factory, tmp_path
     assert _train(cfg, data, tmp_path / "a") == 0
     assert _train(cfg, data, tmp_path / "b", "--stop-after", "2") == 0
     assert read_checkpoint(tmp_path / "b" / "last.pt")["step"] == 2
+    with open(tmp_path / "b" / "metrics.jsonl", "a") as f:  # logged after the checkpoint, then interrupted
+        f.write(json.dumps({"step": 3, "loss": 1.0}) + "\n")
     assert _train(cfg, data, tmp_path / "b", "--resume") == 0
     a, b = read_checkpoint(tmp_path / "a" / "last.pt"), read_checkpoint(tmp_path / "b" / "last.pt")
     assert a["step"] == b["step"] == 4
@@ -38,6 +40,12 @@ def test_interrupted_and_resumed_equals_uninterrupted(tmp_path_factory, tmp_path
     assert [r["step"] for r in lines if "loss" in r] == [1, 2, 3, 4]
     vals = [r for r in lines if "val" in r]
     assert [r["step"] for r in vals] == [2, 4]
+    lines_b = [json.loads(x) for x in (tmp_path / "b" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in lines_b] == [r["step"] for r in lines]  # nothing logged twice
+    assert read_checkpoint(tmp_path / "b" / "last.pt")["best"] == read_checkpoint(tmp_path / "a" / "last.pt")["best"]
+    scores = [r["val"]["psnr"] / 30.0 + (r["val"]["fg_ari"] if r["val"]["fg_ari"] == r["val"]["fg_ari"] else 0.0)
+              for r in vals]
+    assert read_checkpoint(tmp_path / "a" / "last.pt")["best"] == pytest.approx(max(scores))  # last val included
     assert set(vals[0]["val"]) >= {"psnr", "ssim", "depth_abs_rel", "fg_ari", "miou"}
     m = load_model(tmp_path / "a" / "best.pt")
     assert m.config.resolution == 32
