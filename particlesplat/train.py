@@ -18,6 +18,7 @@ from tqdm import tqdm
 
 from .atomic import atomic_write
 from .camera import Camera
+from .data.views import WARMUP
 from .model import ModelConfig, ParticleSplat, TrainConfig, load_config, read_checkpoint, save_checkpoint
 from .model.config import config_to_dict
 from .model.losses import elbo, scene_kl, view_error
@@ -69,7 +70,11 @@ def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: b
     return parts, shown
 
 
-class Trainer:
+def gap_progress(step: int, tc: TrainConfig) -> float:
+    """The data sampler's progress at ``step``: its view-gap range grows linearly to the full range over the
+    first ``gap_warmup`` of the steps (0: full from the start)."""
+    done = 1.0 if tc.gap_warmup == 0 else min(step / (tc.steps * tc.gap_warmup), 1.0)
+    return 1.0 if done >= 1.0 else done * WARMUP
     """Holds the model, optimiser, datasets and RNG; one instance per process."""
 
     def __init__(self, cfg: ModelConfig, tc: TrainConfig, data: Path, out: Path, device: str, resume: bool,
@@ -149,7 +154,7 @@ class Trainer:
     def batch(self) -> tuple[dict[str, Tensor], bool]:
         ctx = self.tc.context_views[int(torch.randint(len(self.tc.context_views), (1,), generator=self.gen))]
         ds = self.train_sets[ctx]
-        ds.set_progress(self.step / self.tc.steps)
+        ds.set_progress(gap_progress(self.step, self.tc))
         idx = torch.randint(len(ds), (self.tc.batch_size,), generator=self.gen).tolist()
         items = [ds[i] for i in idx]
         keep = [k for k in items[0] if not k.endswith("_masks")]

@@ -120,3 +120,16 @@ def test_init_from_checkpoint_weights(tmp_path_factory, tmp_path):
     cfg.write_text(text.replace("bg_detail: 2", "bg_detail: 0"))
     with pytest.raises(ValueError, match="does not have: .*bg_detail"):
         _train(cfg, data, tmp_path / "k", "--init", str(tmp_path / "src2.pt"))
+
+
+def test_view_gaps_reach_their_full_range_after_gap_warmup():
+    from particlesplat.data.views import gap_range
+    from particlesplat.model import TrainConfig
+    from particlesplat.train import gap_progress
+
+    tc = TrainConfig(steps=1000, gap_warmup=0.2)
+    assert gap_range(gap_progress(0, tc), "multi") == (1, 4)
+    assert gap_range(gap_progress(100, tc), "multi") == (3, 12)  # half of the warm-up: half of the growth
+    assert gap_range(gap_progress(200, tc), "multi") == (5, 20)
+    assert gap_range(gap_progress(999, tc), "multi") == (5, 20)
+    assert gap_range(gap_progress(0, TrainConfig(gap_warmup=0.0)), "multi") == (5, 20)

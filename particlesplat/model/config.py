@@ -128,6 +128,7 @@ class TrainConfig:
     beta_rec_tgt: float = 1.0
     lambda_depth: float = 0.1
     depth_dropout: float = 0.0
+    gap_warmup: float = 0.5
     bg_off_steps: int = 0
     log_every: int = 20
     val_every: int = 500
@@ -146,6 +147,7 @@ class TrainConfig:
         need(self.steps >= 1, "steps", "must be >= 1")
         need(self.lr > 0, "lr", "must be > 0")
         need(0.0 <= self.depth_dropout <= 1.0, "depth_dropout", "must be in [0, 1]")
+        need(0.0 <= self.gap_warmup <= 1.0, "gap_warmup", "must be in [0, 1]")
         need(self.cache_scenes >= 0, "cache_scenes", "must be >= 0")
         for key in ("log_every", "val_every", "ckpt_every"):
             need(getattr(self, key) >= 1, key, "must be >= 1")
