@@ -75,6 +75,9 @@ def gap_progress(step: int, tc: TrainConfig) -> float:
     first ``gap_warmup`` of the steps (0: full from the start)."""
     done = 1.0 if tc.gap_warmup == 0 else min(step / (tc.steps * tc.gap_warmup), 1.0)
     return 1.0 if done >= 1.0 else done * WARMUP
+
+
+class Trainer:
     """Holds the model, optimiser, datasets and RNG; one instance per process."""
 
     def __init__(self, cfg: ModelConfig, tc: TrainConfig, data: Path, out: Path, device: str, resume: bool,
