@@ -32,12 +32,14 @@ def _ms(t0: float) -> float:
     return (time.perf_counter() - t0) * 1000.0
 
 
-def render_views(gaussians, cameras: list[Camera], num_owners: int) -> dict[str, Tensor]:
-    """Render ``gaussians`` in each camera: rgb (V, 3, H, W), depth (V, 1, H, W), seg (V, H, W) and ms per view."""
+def render_views(gaussians, cameras: list[Camera], num_owners: int,
+                 background: Tensor | tuple[float, float, float] = (0.0, 0.0, 0.0)) -> dict[str, Tensor]:
+    """Render ``gaussians`` in each camera over ``background`` (3,): rgb (V, 3, H, W), depth (V, 1, H, W),
+    seg (V, H, W) and ms per view."""
     rgb, depth, seg = [], [], []
     t0 = time.perf_counter()
     for cam in cameras:
-        r = render(gaussians, cam, owner_weights=True, num_owners=num_owners)
+        r = render(gaussians, cam, background=background, owner_weights=True, num_owners=num_owners)
         rgb.append(r.rgb.permute(2, 0, 1))
         depth.append(r.depth[None])
         seg.append(r.segmentation())
@@ -68,7 +70,8 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     t0 = time.perf_counter()
     gaussians = model.decode(particles)
     dec_ms = _ms(t0)
-    out = render_views(gaussians, tgt_cams, particles.num)
+    bg = model.background_color()
+    out = render_views(gaussians, tgt_cams, particles.num, bg)
     sup = item.get("target_supervision")
     gt = item["target_rgb"]
     res = {"psnr": view_psnr(out["rgb"], gt, sup), "ssim": ssim(out["rgb"], gt),
@@ -88,7 +91,7 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
         for zt in PRUNE_Z_T:
             for op in PRUNE_OPACITY:
                 g = model.decode(particles, z_t_threshold=zt, opacity_threshold=op)
-                r = render_views(g, tgt_cams, particles.num)
+                r = render_views(g, tgt_cams, particles.num, bg)
                 rows.append({"z_t_threshold": zt, "opacity_threshold": op, "psnr": view_psnr(r["rgb"], gt, sup),
                              "gaussians": len(g), "render_ms": r["render_ms"]})
         res["pruning"] = rows

@@ -12,7 +12,7 @@ import torch
 
 from .camera import Camera
 from .encode_scene import add_source_arguments, check_source_arguments, load_model_scene, load_ply_checked
-from .views import DEFAULT_BACKGROUND, View, check_fov, default_view, parse_look
+from .views import View, check_fov, default_view, parse_look, scene_background
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
 
@@ -38,16 +38,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                   "from the input camera's aspect)")
     parser.add_argument("--height", type=int, help="image height in pixels; none = 480 (with --view: from the "
                                                    "width and the input camera's aspect, never stretched)")
-    parser.add_argument("--background", type=_background, default=DEFAULT_BACKGROUND, help="background colour R,G,B")
+    parser.add_argument("--background", type=_background, default=None,
+                        help="background colour R,G,B (default: the model's learned background colour, if it "
+                             "has one, else 0.12,0.14,0.18)")
     parser.add_argument("--prune", type=float, default=0.0, help="drop Gaussians with opacity below this")
     parser.add_argument("--out", required=True, help="output PNG")
 
 
 def _scene_and_gaussians(args: argparse.Namespace):
-    """(Gaussians, all input cameras, edits dict, model name, source) for the arguments."""
+    """(Gaussians, all input cameras, edits dict, model name, source, background colour) for the arguments."""
     check_source_arguments(args)
     if args.ply:
-        return load_ply_checked(args.ply), [], {}, "", str(args.ply)
+        return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None)
     from .edits import apply_edits, load_edits
 
     model, enc, name = load_model_scene(args.checkpoint, args.scene, args.context)
@@ -55,7 +57,8 @@ def _scene_and_gaussians(args: argparse.Namespace):
     if args.edits:
         edits = load_edits(args.edits)
         particles = apply_edits(particles, edits, str(args.edits))
-    return model.decode(particles).detach().to("cpu"), enc.all_cameras, edits, name, str(enc.path)
+    return (model.decode(particles).detach().to("cpu"), enc.all_cameras, edits, name, str(enc.path),
+            scene_background(model))
 
 
 def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -> tuple[Camera, View | None]:
@@ -93,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     from .png import png_text, save_png
 
     try:
-        g, cameras, edits, model_name, source = _scene_and_gaussians(args)
+        g, cameras, edits, model_name, source, background = _scene_and_gaussians(args)
         camera, view = resolve_camera(args, cameras, g)
     except (OSError, ValueError, KeyError) as e:
         print(f"particlesplat render: {e}", file=sys.stderr)
@@ -101,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     if args.prune > 0:
         g = g.subset(g.opacities >= args.prune)
     with torch.no_grad():
-        res = render(g, camera, background=args.background)
+        res = render(g, camera, background=background if args.background is None else args.background)
     extra = {"scene": source}
     if view is not None:
         extra.update(look=f"{view.look.azimuth:.6g},{view.look.elevation:.6g},{view.look.distance:.6g}",

@@ -27,14 +27,15 @@ from .render import render_batch
 LAST = "last.pt"
 
 
-def render_views(gaussians: list, K: Tensor, c2w: Tensor, size: int) -> tuple[Tensor, Tensor]:
+def render_views(gaussians: list, K: Tensor, c2w: Tensor, size: int, background: Tensor) -> tuple[Tensor, Tensor]:
     """Render B scenes in their views in one rasterizer pass.
 
-    gaussians: B sets; K: (B, V, 3, 3); c2w: (B, V, 4, 4) -> rgb (B, V, 3, H, W), depth (B, V, 1, H, W).
+    gaussians: B sets; K: (B, V, 3, 3); c2w: (B, V, 4, 4); background: (3,) RGB behind the Gaussians
+    (differentiable) -> rgb (B, V, 3, H, W), depth (B, V, 1, H, W).
     """
     B, V = K.shape[:2]
     views = [(g, Camera(K[b, v], c2w[b, v], size, size)) for b, g in enumerate(gaussians) for v in range(V)]
-    res = render_batch(views)
+    res = render_batch(views, background=background)
     rgb = torch.stack([r.rgb.permute(2, 0, 1) for r in res])
     depth = torch.stack([r.depth[None] for r in res])
     return rgb.reshape(B, V, 3, size, size), depth.reshape(B, V, 1, size, size)
@@ -50,7 +51,8 @@ def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: b
     C = batch["context_rgb"].shape[1]
     K = torch.cat([batch["context_K"], batch["target_K"]], 1)
     c2w = torch.cat([batch["context_c2w"], batch["target_c2w"]], 1)
-    rgb_hat, depth_hat = render_views(gaussians, K, c2w, size)
+    net = model.module if isinstance(model, DistributedDataParallel) else model
+    rgb_hat, depth_hat = render_views(gaussians, K, c2w, size, net.background_color())
     gt_rgb = torch.cat([batch["context_rgb"], batch["target_rgb"]], 1)
     gt_depth = torch.cat([batch["context_depth"], batch["target_depth"]], 1)
     B, V = gt_rgb.shape[:2]
@@ -112,7 +114,7 @@ class Trainer:
                 raise ValueError(f"{init}: weights this model config does not have: "
                                  f"{', '.join(res.unexpected_keys)}")
             if res.missing_keys and self.rank == 0:
-                modules = sorted({k.rsplit(".", 2)[0] for k in res.missing_keys})
+                modules = sorted({k.rsplit(".", 1)[0] for k in res.missing_keys})
                 print(f"--init {init}: new modules start from their initialisation: {', '.join(modules)}")
         if resume and (out / LAST).is_file():
             self._load(out / LAST)

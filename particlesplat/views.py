@@ -23,6 +23,14 @@ DEFAULT_ELEVATION = 25.0  # degrees, for scenes without cameras
 DEFAULT_BACKGROUND = (0.12, 0.14, 0.18)  # the viewer's and ``particlesplat render``'s background colour
 
 
+def scene_background(model=None) -> tuple[float, float, float]:
+    """The colour behind a scene: the model's learned background colour (``learned_background``), else
+    :data:`DEFAULT_BACKGROUND` (also for a .ply, ``model`` None)."""
+    if model is not None and model.config.learned_background:
+        return tuple(float(c) for c in model.background_color().detach().cpu())
+    return DEFAULT_BACKGROUND
+
+
 @dataclass(frozen=True)
 class Look:
     """Orbit parameters: azimuth and elevation in degrees, distance in metres."""

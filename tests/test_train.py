@@ -133,3 +133,26 @@ def test_view_gaps_reach_their_full_range_after_gap_warmup():
     assert gap_range(gap_progress(200, tc), "multi") == (5, 20)
     assert gap_range(gap_progress(999, tc), "multi") == (5, 20)
     assert gap_range(gap_progress(0, TrainConfig(gap_warmup=0.0)), "multi") == (5, 20)
+
+
+def test_learned_background_is_rendered_behind_the_gaussians_and_trained():
+    """Gaussians that cover nothing leave every pixel at the model's background colour, and the
+    gradient of the summed image w.r.t. that colour is the pixel count (analytic)."""
+    from model_data import TINY_MODEL
+
+    from particlesplat.gaussians import Gaussians
+    from particlesplat.model import ModelConfig, ParticleSplat
+    from particlesplat.train import render_views
+
+    m = ParticleSplat(ModelConfig(**TINY_MODEL))
+    with torch.no_grad():
+        m.background_logit.copy_(torch.logit(torch.tensor([0.2, 0.5, 0.7])))
+    g = Gaussians.empty(0)
+    K = torch.tensor([[[[40.0, 0, 16], [0, 40.0, 16], [0, 0, 1]]]])
+    c2w = torch.eye(4)[None, None]
+    bg = m.background_color()
+    rgb, _ = render_views([g], K, c2w, 32, bg)
+    torch.testing.assert_close(rgb[0, 0], torch.tensor([0.2, 0.5, 0.7])[:, None, None].expand(3, 32, 32))
+    (grad,) = torch.autograd.grad(rgb.sum(), bg)
+    torch.testing.assert_close(grad, torch.full((3,), 32.0 * 32.0))
+    assert ParticleSplat(ModelConfig(**{**TINY_MODEL, "learned_background": False})).background_color().tolist() == [0, 0, 0]

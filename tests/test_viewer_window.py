@@ -16,7 +16,7 @@ from particlesplat.cli import main as cli_main
 from particlesplat.edits import save_edits
 from particlesplat.gaussians import Gaussians
 from particlesplat.model import save_checkpoint
-from particlesplat.views import DEFAULT_BACKGROUND, View, default_view, parse_look
+from particlesplat.views import DEFAULT_BACKGROUND, View, default_view, parse_look, scene_background
 from viewer.random_gaussians import random_gaussians
 
 from viewer_helpers import psnr, small_model
@@ -127,7 +127,8 @@ def test_render_cli_input_view_with_edits(tmp_path):
                      "--width", "48", "--height", "40", "--out", str(out)]) == 0
     enc = encode_scene(model, demo_scenes()[0])
     g = model.decode(apply_edits(enc.particles, edits))
-    ref = render(g, enc.all_cameras[3].resized(48, 40), background=DEFAULT_BACKGROUND).rgb.numpy()
+    assert scene_background(model) != DEFAULT_BACKGROUND  # the model's learned colour is behind it
+    ref = render(g, enc.all_cameras[3].resized(48, 40), background=scene_background(model)).rgb.numpy()
     assert psnr(load_png(out), ref) >= 40.0
     assert "z_d" in Image.open(out).text["edits"]
     # with only --width, an input view keeps its camera's aspect (the demo scenes are square)

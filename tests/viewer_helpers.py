@@ -8,8 +8,8 @@ import torch
 from particlesplat.model import ModelConfig, ParticleSplat
 
 SMALL_MODEL = dict(resolution=32, particles_per_view=3, kp_patch=4, glimpse_size=8, channels=8, d_obj=4, d_bg=2,
-                   bg_latent_stride=8, bg_block=4, patch_gaussians=3, token_dim=16, transformer_layers=1,
-                   transformer_heads=2)
+                   bg_latent_stride=8, bg_block=4, bg_detail=2, kp_cross_view=True, learned_background=True,
+                   patch_gaussians=3, token_dim=16, transformer_layers=1, transformer_heads=2)
 
 
 def egl_context():
@@ -21,7 +21,10 @@ def egl_context():
 def small_model(seed: int = 0) -> ParticleSplat:
     """An untrained model (random weights, fixed seed): enough to exercise encode/decode/edit."""
     torch.manual_seed(seed)
-    return ParticleSplat(ModelConfig(**SMALL_MODEL)).eval()
+    model = ParticleSplat(ModelConfig(**SMALL_MODEL)).eval()
+    with torch.no_grad():  # a learned background colour far from the viewer's default
+        model.background_logit.copy_(torch.logit(torch.tensor([0.7, 0.4, 0.2])))
+    return model
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:

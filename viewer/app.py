@@ -22,7 +22,7 @@ import torch  # noqa: E402
 
 from particlesplat.camera import Camera  # noqa: E402
 from particlesplat.encode_scene import add_source_arguments, check_source_arguments  # noqa: E402
-from particlesplat.views import DEFAULT_FOV, View, check_fov, default_view, parse_look  # noqa: E402
+from particlesplat.views import DEFAULT_FOV, View, check_fov, default_view, parse_look, scene_background  # noqa: E402
 
 from .gl_renderer import SplatRenderer  # noqa: E402
 from .loading import load_session, particle_swatches  # noqa: E402
@@ -86,7 +86,7 @@ class App:
         self.scene_view = SceneView(SplatRenderer(self.ctx, primitive=args.primitive, color_dtype="f4"))
         self.session = session
         self.orbit = OrbitCamera.from_view(view)
-        self.state = ViewState(panel=not args.no_ui)
+        self.state = ViewState(panel=not args.no_ui, background=scene_background(session.model))
         self.req = UiRequests()
         self.fields = UiFields(output_dir=args.output_dir)
         self.controls = ViewportControls()
@@ -185,7 +185,8 @@ class App:
             str(p), None, None, None)
         self.session = load_session(args)
         self.swatches = particle_swatches(self.session)
-        self.state = ViewState(panel=self.state.panel, overlay=self.state.overlay, background=self.state.background)
+        self.state = ViewState(panel=self.state.panel, overlay=self.state.overlay,
+                               background=scene_background(self.session.model))
         view = initial_view(self.session, None, None)
         self.orbit = OrbitCamera.from_view(view)
         self.fields.status = f"opened {p}"

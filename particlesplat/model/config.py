@@ -45,6 +45,7 @@ class ModelConfig:
     bg_detail: int = 0
     bg_detail_threshold: float = 0.02
     kp_cross_view: bool = False
+    learned_background: bool = False
     patch_gaussians: int = 4
     token_dim: int = 64
     transformer_layers: int = 2
