@@ -9,7 +9,7 @@ import yaml
 from particlesplat.data.synth import scene_name, write_scene
 
 TINY_MODEL = dict(resolution=32, particles_per_view=3, kp_patch=4, glimpse_size=8, channels=8, d_obj=4, d_bg=2,
-                  bg_latent_stride=8, bg_block=4, bg_detail=2, kp_cross_view=True, learned_background=True, patch_gaussians=2, token_dim=16,
+                  bg_latent_stride=8, bg_block=4, bg_detail=2, bg_copy_input=True, kp_cross_view=True, learned_background=True, patch_gaussians=2, token_dim=16,
                   transformer_layers=1, transformer_heads=2)
 
 

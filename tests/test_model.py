@@ -396,3 +396,28 @@ def test_background_detail_never_sees_what_the_plain_background_cannot_explain()
     # the decoder reads [latent, detail]; the detail enters through a zero-initialised projection
     z = m.latents(post, sample=False)
     assert z["bg"].shape == (1, 1, m.config.d_bg + 3, 8, 8)
+
+
+def test_background_copies_the_observed_colour_and_depth_of_visible_blocks():
+    """With bg_copy_input and the gate open, every visible background block's Gaussian has exactly the
+    block's mean colour and lies at its mean planar depth (camera z of the decoded world-space mean)."""
+    from particlesplat.sh import SH_C0
+
+    m = tiny_model(bg_detail=2, bg_copy_input=True, bg_mask_threshold=1.0, bg_detail_threshold=1e9)
+    with torch.no_grad():
+        m.bg_decoder.copy_gate.fill_(40.0)  # sigmoid -> 1
+    cs = cams(1)
+    depth = _floor_depth(cs[0])[None]  # (1, 1, 32, 32)
+    gen = torch.Generator().manual_seed(3)
+    rgb = torch.rand(1, 3, 32, 32, generator=gen)
+    p = m.encode(rgb, depth, cs)
+    g = m.decode(p, torch.tensor([], dtype=torch.long))  # the background only
+    k = m.config.bg_block
+    want_rgb = torch.nn.functional.avg_pool2d(rgb, k)[0].flatten(1).T  # (blocks, 3), row-major
+    want_z = torch.nn.functional.avg_pool2d(depth, k)[0, 0].flatten()
+    torch.testing.assert_close(SH_C0 * g.sh[:, 0] + 0.5, want_rgb, atol=1e-5, rtol=0)
+    z = (g.means - cs[0].c2w[:3, 3]) @ cs[0].c2w[:3, 2]  # camera z (OpenCV: third axis looks forward)
+    ok = torch.nn.functional.max_pool2d(-depth, k)[0, 0].flatten() < 0  # every pixel of the block has depth
+    ok &= (want_z > m.config.d_min) & (want_z < m.config.d_max)  # and the depth range can hold it
+    assert int(ok.sum()) >= 32
+    torch.testing.assert_close(z[ok], want_z[ok], atol=1e-4, rtol=1e-5)

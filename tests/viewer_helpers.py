@@ -8,7 +8,7 @@ import torch
 from particlesplat.model import ModelConfig, ParticleSplat
 
 SMALL_MODEL = dict(resolution=32, particles_per_view=3, kp_patch=4, glimpse_size=8, channels=8, d_obj=4, d_bg=2,
-                   bg_latent_stride=8, bg_block=4, bg_detail=2, kp_cross_view=True, learned_background=True,
+                   bg_latent_stride=8, bg_block=4, bg_detail=2, bg_copy_input=True, kp_cross_view=True, learned_background=True,
                    patch_gaussians=3, token_dim=16, transformer_layers=1, transformer_heads=2)
 
 

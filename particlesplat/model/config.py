@@ -44,6 +44,7 @@ class ModelConfig:
     bg_block: int = 2
     bg_detail: int = 0
     bg_detail_threshold: float = 0.02
+    bg_copy_input: bool = False
     kp_cross_view: bool = False
     learned_background: bool = False
     patch_gaussians: int = 4
@@ -89,6 +90,7 @@ class ModelConfig:
             need(v >= 1 and self.resolution % v == 0, key, "must divide the resolution")
         need(self.bg_detail >= 0, "bg_detail", "must be >= 0 (0 = no pixel-aligned detail)")
         need(self.bg_detail_threshold > 0.0, "bg_detail_threshold", "must be > 0")
+        need(not self.bg_copy_input or self.bg_detail > 0, "bg_copy_input", "needs bg_detail > 0")
         need(self.patch_gaussians >= 1, "patch_gaussians", "must be >= 1")
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
         need(self.transformer_layers >= 0, "transformer_layers", "must be >= 0")

@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..sh import num_sh_bases
+from ..sh import SH_C0, num_sh_bases
 from .config import ModelConfig
 from .geometry import (camera_covariance_factor, covariance_to_quat_scale, plucker_at, ray_dirs,
                        rotate_sh_to_world)
@@ -64,7 +64,10 @@ class BackgroundDecoder(nn.Module):
 
     The latent's first ``d_bg`` channels are the stochastic background latent; with ``bg_detail`` > 0 the
     next ``bg_detail`` channels, at block resolution, are the pixel-aligned detail features (absent or
-    zero: the plain background, which the keypoint selection compares with the view).
+    zero: the plain background, which the keypoint selection compares with the view). With
+    ``bg_copy_input`` the last :data:`OBSERVED_CHANNELS` are the observed block colour, planar depth and
+    their visibility (:func:`observed_blocks`): a visible block's Gaussian takes that colour and depth
+    through a learned gate.
     """
 
     def __init__(self, cfg: ModelConfig):
@@ -76,6 +79,7 @@ class BackgroundDecoder(nn.Module):
         self.body = nn.Sequential(nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU(),
                                   nn.Conv2d(c, c, 3, padding=1), nn.SiLU())
         self.detail = nn.Conv2d(cfg.bg_detail, c, 1) if cfg.bg_detail > 0 else None
+        self.copy_gate = nn.Parameter(torch.full((2,), 3.0)) if cfg.bg_copy_input else None  # colour, depth
         if self.detail is not None:  # zero: a model without detail is reproduced exactly at the start
             nn.init.zeros_(self.detail.weight)
             nn.init.zeros_(self.detail.bias)
@@ -91,10 +95,50 @@ class BackgroundDecoder(nn.Module):
         d = self.cfg.d_bg
         z = F.interpolate(latent[:, :d], size=(hb, wb), mode="bilinear", align_corners=False)
         h = self.inp(z) + self.ray_proj(rays)
+        obs = None
         if self.detail is not None and latent.shape[1] > d:
-            h = h + self.detail(latent[:, d:])
+            detail = latent[:, d:]
+            if self.copy_gate is not None:
+                detail, obs = detail[:, :-OBSERVED_CHANNELS], detail[:, -OBSERVED_CHANNELS:]
+            h = h + self.detail(detail)
         out = self.head(self.body(h))
+        if obs is not None:
+            out = self._copy_observed(out, obs)
         return out.flatten(2).transpose(1, 2)
+
+    def _copy_observed(self, out: Tensor, obs: Tensor) -> Tensor:
+        """out: (M, C, Hb, Wb) head output; obs: (M, 6, Hb, Wb) -> out with the SH DC colour and the depth
+        channel of visible blocks moved towards the observed colour and depth by the learned gate."""
+        cfg = self.cfg
+        g = torch.sigmoid(self.copy_gate)
+        gc, gd = g[0] * obs[:, 4:5], g[1] * obs[:, 5:6]
+        dc = (1.0 - gc) * out[:, :3] + gc * (obs[:, :3] - 0.5) / SH_C0
+        i = 3 * num_sh_bases(cfg.sh_degree) + 2  # the depth channel (after the SH and the 2-d offset)
+        frac = ((obs[:, 3:4] - cfg.d_min) / (cfg.d_max - cfg.d_min)).clamp(1e-3, 1.0 - 1e-3)
+        dd = (1.0 - gd) * out[:, i:i + 1] + gd * torch.logit(frac)
+        return torch.cat([dc, out[:, 3:i], dd, out[:, i + 1:]], dim=1)
+
+
+OBSERVED_CHANNELS = 6  # observed block colour (3), planar depth (1), colour and depth visibility (1 + 1)
+
+
+def observed_blocks(rgb: Tensor, depth: Tensor | None, hidden: Tensor, k: int) -> Tensor:
+    """What a background block observes where nothing hides it.
+
+    rgb: (M, 3, H, W); depth: (M, 1, H, W) metres (0 = none) or None; hidden: (M, 1, H, W) 1 = hidden;
+    k: block size -> (M, 6, H/k, W/k): mean colour, mean planar depth, and 1 where every pixel of the block is
+    visible (colour) / visible with depth (depth), else 0.
+    """
+    keep = 1.0 - hidden
+    w = F.avg_pool2d(keep, k)
+    colour = F.avg_pool2d(rgb * keep, k) / w.clamp_min(1e-6)
+    if depth is None:
+        dep, wd = torch.zeros_like(w), torch.zeros_like(w)
+    else:
+        dv = keep * (depth > 0).to(rgb.dtype)
+        wd = F.avg_pool2d(dv, k)
+        dep = F.avg_pool2d(depth * dv, k) / wd.clamp_min(1e-6)
+    return torch.cat([colour, dep, (w > 0.999).to(rgb.dtype), (wd > 0.999).to(rgb.dtype)], dim=1)
 
 
 def _finish(p: dict[str, Tensor], pix: Tensor, zeta: Tensor, jac_px: Tensor, K: Tensor, c2w: Tensor,

@@ -13,7 +13,7 @@ from ..gaussians import BACKGROUND_OWNER, Gaussians
 from ..sh import SH_C0
 from .config import ModelConfig
 from .decoder import (BackgroundDecoder, ForegroundDecoder, background_gaussians, background_rays,
-                      foreground_gaussians, split_gaussian_params)
+                      foreground_gaussians, observed_blocks, split_gaussian_params)
 from .encoder import BackgroundDetail, BackgroundEncoder, CrossView, ParticleEncoder, box_mask, depth_input
 from .geometry import plucker_map, stack_cameras
 from .particles import Particles
@@ -89,6 +89,8 @@ class ParticleSplat(nn.Module):
                 poor = F.max_pool2d(poor, 3, stride=1, padding=1)
                 hidden = torch.maximum(mask, F.interpolate(poor, scale_factor=cfg.bg_block, mode="nearest"))
             detail = self.bg_detail(x, dep, hidden)
+            if cfg.bg_copy_input:
+                detail = torch.cat([detail, observed_blocks(x, d, hidden, cfg.bg_block)], dim=1)
             post["bg_detail"] = detail.reshape(B, V, *detail.shape[1:])
             post["bg_mask"] = hidden.reshape(B, V, 1, H, W)
         if train_coarse:  # robust: blocks it cannot explain (objects) pull on it little
