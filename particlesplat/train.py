@@ -100,7 +100,10 @@ class Trainer:
         torch.manual_seed(tc.seed + 1000 * self.rank)
         self.gen = torch.Generator().manual_seed(tc.seed * 7919 + self.rank)
         self.model = ParticleSplat(cfg).to(self.device)
-        self.opt = torch.optim.Adam(self.model.parameters(), lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
+        bg = [p for n, p in self.model.named_parameters() if n == "background_logit"]
+        rest = [p for n, p in self.model.named_parameters() if n != "background_logit"]
+        groups = [{"params": rest}] + ([{"params": bg, "lr": tc.lr_background}] if bg else [])
+        self.opt = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
         self.step = 0
         self.best = -math.inf
         self.raw_config = raw_config

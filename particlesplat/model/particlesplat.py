@@ -37,8 +37,8 @@ class ParticleSplat(nn.Module):
         self.fg_decoder = ForegroundDecoder(config)
         self.bg_decoder = BackgroundDecoder(config)
         self.bg_detail = BackgroundDetail(config) if config.bg_detail > 0 else None
-        # one colour behind all Gaussians (sigmoid of 3 logits; mid-grey at the start)
-        self.background_logit = nn.Parameter(torch.zeros(3)) if config.learned_background else None
+        # one colour behind all Gaussians (sigmoid of 3 logits; near black at the start, as without it)
+        self.background_logit = nn.Parameter(torch.full((3,), -3.0)) if config.learned_background else None
 
     def background_color(self) -> Tensor:
         """(3,) RGB in [0, 1] rendered behind the Gaussians: learned (``learned_background``) or black."""
