@@ -104,7 +104,7 @@ def test_init_from_checkpoint_weights(tmp_path_factory, tmp_path):
     torch.manual_seed(5)
     src = ParticleSplat(ModelConfig(**{**TINY_MODEL, "bg_detail": 0, "bg_copy_input": False}))  # lacks the detail branch: it starts fresh
     save_checkpoint(tmp_path / "src.pt", src, step=9)
-    cfg = tiny_config(tmp_path / "tiny.yaml", steps=1, val_every=5, lr=1e-12)
+    cfg = tiny_config(tmp_path / "tiny.yaml", steps=1, val_every=5, lr=1e-12, lr_background=1e-12)
     text = cfg.read_text().replace("particles_per_view: 3", "particles_per_view: 2")  # holds no weights
     cfg.write_text(text)
     assert _train(cfg, data, tmp_path / "i", "--init", str(tmp_path / "src.pt")) == 0
