@@ -186,3 +186,28 @@ def test_depth_order_is_a_stable_sort_by_z():
     np.testing.assert_array_equal(depth_order(index, z), expect)
     z[3] = -1.0  # non-positive depths take the general path
     np.testing.assert_array_equal(depth_order(index, z), index[np.lexsort((index, z))])
+
+
+def test_projected_splats_match_torch_projection_and_the_bench_prints_its_floor(ctx, capsys):
+    """The projection read back for the bench's sprite floor has the torch projection's centres (same
+    camera), and `particlesplat bench viewer` prints the table with that column."""
+    from particlesplat.projection import project_gaussians
+    from viewer.bench import main as bench_main
+
+    g = random_gaussians(300, seed=1)
+    cam = Camera.orbit((0.0, 0.0, 0.0), 20.0, 25.0, 3.5, width=96, height=64)
+    r = SplatRenderer(ctx, primitive="points", color_dtype="f4")
+    r.set_gaussians(g)
+    r.render(cam, finish=True)
+    s = r.projected_splats()
+    live = s[:, 2] > 0
+    proj = project_gaussians(g, cam, 0.01, 1e10)
+    z = (g.means[proj.index] - cam.c2w[:3, 3]) @ cam.c2w[:3, 2]
+    ref = proj.means2d[torch.argsort(z, stable=True)].numpy()  # front to back, as the GL order
+    assert len(s) == len(ref) and live.sum() >= 0.9 * len(ref)
+    np.testing.assert_allclose(s[live][:, :2], ref[live], atol=1e-2)
+    r.release()
+    assert bench_main(["--sizes", "400", "--frames", "1", "--no-scene", "--width", "64", "--height", "48",
+                       "--primitive", "points"]) == 0
+    out = capsys.readouterr().out
+    assert "sprite floor ms" in out and "| random 400 | 400 | points |" in out

@@ -38,6 +38,51 @@ class Row:
     area_mpx: float = 0.0
     moving_ms: float = 0.0
     primitive: str = ""
+    floor_ms: float = float("nan")
+
+
+FLOOR_VERTEX = """#version 330
+in vec3 in_splat;  // centre u, v (pixels, rows downward), sprite side (pixels)
+uniform vec2 size;
+void main() {
+    gl_Position = vec4(in_splat.x / size.x * 2.0 - 1.0, 1.0 - in_splat.y / size.y * 2.0, 0.0, 1.0);
+    gl_PointSize = in_splat.z;
+}
+"""
+FLOOR_FRAGMENT = """#version 330
+out vec4 o;
+void main() { o = vec4(0.5); }
+"""
+
+
+def sprite_floor_ms(ctx, renderer: SplatRenderer, width: int, height: int, frames: int) -> float:
+    """Median ms to draw the last frame's point sprites (same centres and sides) with a constant colour and
+    no blending: what any point-sprite splatter pays on this GL before its shading and compositing."""
+    import moderngl
+
+    s = renderer.projected_splats()
+    s = s[s[:, 2] > 0]
+    if not len(s):
+        return 0.0
+    data = np.stack([s[:, 0], s[:, 1], 2.0 * s[:, 2] + 1.0], 1).astype(np.float32)
+    prog = ctx.program(vertex_shader=FLOOR_VERTEX, fragment_shader=FLOOR_FRAGMENT)
+    prog["size"] = (float(width), float(height))
+    buf = ctx.buffer(data.tobytes())
+    vao = ctx.vertex_array(prog, [(buf, "3f", "in_splat")])
+    fbo = ctx.simple_framebuffer((width, height), components=4, dtype="f4")
+    ctx.enable(moderngl.PROGRAM_POINT_SIZE)
+    ctx.disable(moderngl.BLEND)
+    times = []
+    for _ in range(frames + 1):
+        fbo.use()
+        fbo.clear()
+        t0 = time.perf_counter()
+        vao.render(moderngl.POINTS)
+        ctx.finish()
+        times.append((time.perf_counter() - t0) * 1e3)
+    for obj in (vao, buf, fbo, prog):
+        obj.release()
+    return float(np.median(times[1:]))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -148,6 +193,9 @@ def main(argv: list[str] | None = None) -> int:
         renderer.set_gaussians(g)
         row = _case(renderer, default_view(None, g), args)
         row.name = f"random {n // 1000}k" if n % 1000 == 0 else f"random {n}"
+        renderer.render(default_view(None, g).camera(args.width, args.height), finish=True)
+        if renderer.kind == "points":
+            row.floor_ms = sprite_floor_ms(ctx, renderer, args.width, args.height, args.frames)
         rows.append(row)
     latency = None
     failure = None
@@ -178,11 +226,14 @@ def main(argv: list[str] | None = None) -> int:
           f"(every frame re-sorts); load average {load0[0]:.1f} -> {load1[0]:.1f} on {os.cpu_count()} CPUs")
     print()
     print(f"| scene | Gaussians | primitive | splat area Mpx | sort ms | upload ms | draw ms | frame ms | "
-          f"frame ms at {args.moving_scale:g} scale (moving) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          f"frame ms at {args.moving_scale:g} scale (moving) | sprite floor ms |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
+        floor = "-" if r.floor_ms != r.floor_ms else f"{r.floor_ms:.1f}"
         print(f"| {r.name} | {r.gaussians:,} | {r.primitive} | {r.area_mpx:.1f} | {r.sort_ms:.1f} | "
-              f"{r.upload_ms:.2f} | {r.draw_ms:.1f} | {r.frame_ms:.1f} | {r.moving_ms:.1f} |")
+              f"{r.upload_ms:.2f} | {r.draw_ms:.1f} | {r.frame_ms:.1f} | {r.moving_ms:.1f} | {floor} |")
+    print("\nsprite floor: the same point sprites (centres, sides) drawn with a constant colour and no blending, "
+          "the least a point-sprite splatter pays here before shading and compositing")
     if latency is not None:
         print(f"\nedit -> frame latency (drag one particle's z_p: decode it, upload its rows, sort, project, draw): "
               f"{latency[0]:.1f} ms at {args.width}x{args.height}, {latency[1]:.1f} ms at the moving scale "

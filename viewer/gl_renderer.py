@@ -354,15 +354,18 @@ class SplatRenderer:
         self._key = key
         return uni
 
-    def _radii(self) -> np.ndarray:
-        """(drawn, 2) major and minor radii (pixels) of the projected splats, 0 if culled (reads
-        the projection back)."""
+    def projected_splats(self) -> np.ndarray:
+        """(drawn, 4) of the last projection, front to back: centre u, v and the major and minor radius of the
+        alpha >= 1/255 ellipse (pixels; radius 0 = culled). Reads the projection texture back."""
         if not self._drawn:
-            return np.zeros((0, 2), np.float32)
+            return np.zeros((0, 4), np.float32)
         rows = math.ceil(self._drawn / ROW)
-        c = np.frombuffer(self._proj_fbo.read(viewport=(0, 0, ROW, rows), components=4, attachment=0, dtype="f4"),
-                          np.float32).reshape(-1, 4)[: self._drawn]
-        return c[:, 2:4]
+        return np.frombuffer(self._proj_fbo.read(viewport=(0, 0, ROW, rows), components=4, attachment=0, dtype="f4"),
+                             np.float32).reshape(-1, 4)[: self._drawn]
+
+    def _radii(self) -> np.ndarray:
+        """(drawn, 2) major and minor radii (pixels) of the projected splats, 0 if culled."""
+        return self.projected_splats()[:, 2:4]
 
     def _cheaper_primitive(self) -> str:
         """Point sprites if every splat fits one (exact) and the cost model expects them to be
