@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-import tempfile
+import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from os import PathLike
@@ -11,16 +11,16 @@ from pathlib import Path
 from typing import IO
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+def temp_sibling(path: Path, suffix: str = "") -> Path:
+    """A fresh hidden name beside ``path`` (process id + random part) for a temporary file or folder."""
+    return path.parent / f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp{suffix}"
 
 
-def _publish(tmp: str, path: Path) -> None:
-    """Give the temporary file the permissions a plain ``open`` would (mkstemp makes 0600), then rename."""
-    os.chmod(tmp, 0o666 & ~_umask())
-    os.replace(tmp, path)
+def create_temp_file(path: Path, suffix: str = "") -> tuple[int, Path]:
+    """Create a new temporary file beside ``path``: (open descriptor, its path). O_EXCL with mode 0o666,
+    so it gets the permissions a plain ``open`` would (the umask's), unlike mkstemp's 0600."""
+    tmp = temp_sibling(path, suffix)
+    return os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o666), tmp
 
 
 @contextmanager
@@ -31,13 +31,13 @@ def atomic_write(path: str | PathLike, mode: str = "wb") -> Iterator[IO]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = create_temp_file(path)
     try:
         with os.fdopen(fd, mode) as f:
             yield f
             f.flush()
             os.fsync(f.fileno())
-        _publish(tmp, path)
+        os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -52,11 +52,11 @@ def atomic_path(path: str | PathLike) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+    fd, tmp = create_temp_file(path, path.suffix)
     os.close(fd)
     try:
-        yield Path(tmp)
-        _publish(tmp, path)
+        yield tmp
+        os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

@@ -4,12 +4,12 @@ never overwrite, and .ply export."""
 from __future__ import annotations
 
 import os
-import uuid
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
 
+from particlesplat.atomic import create_temp_file
 from particlesplat.gaussians import Gaussians
 from particlesplat.png import png_info, png_text, save_png, to_image
 
@@ -24,11 +24,10 @@ def save_numbered(folder: str | PathLike, prefix: str, suffix: str, write) -> Pa
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    # O_EXCL with mode 0o666: a fresh name, and the umask's permissions (mkstemp would give 0600)
-    tmp = folder / f".{prefix}{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp{suffix}"
-    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+    fd, tmp = create_temp_file(folder / prefix, suffix)
+    os.close(fd)
     try:
-        write(Path(tmp))
+        write(tmp)
         taken = {p.name for p in folder.glob(f"{prefix}*{suffix}")}
         n = 1
         while True:

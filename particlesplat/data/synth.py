@@ -15,7 +15,6 @@ import os
 import shutil
 import sys
 import time
-import uuid
 from pathlib import Path
 from types import MappingProxyType
 
@@ -24,7 +23,7 @@ import torch
 from PIL import Image
 from tqdm import tqdm
 
-from ..atomic import atomic_write
+from ..atomic import atomic_write, temp_sibling
 from ..camera import Camera
 from . import tabletop
 
@@ -59,9 +58,8 @@ def write_scene(folder: Path, seed: int, split: str, index: int, res: int) -> No
     scene = tabletop.sample_scene(scene_rng(seed, split, index))
     cams = scene_cameras(scene, res)
     folder.parent.mkdir(parents=True, exist_ok=True)
-    # os.mkdir honours the umask (tempfile.mkdtemp would leave the finished scene folder 0700)
-    tmp = folder.parent / f".{folder.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp"
-    tmp.mkdir()
+    tmp = temp_sibling(folder)
+    tmp.mkdir()  # honours the umask (tempfile.mkdtemp would leave the finished scene folder 0700)
     try:
         for sub in ("rgb", "depth", "masks"):
             (tmp / sub).mkdir()
