@@ -83,7 +83,7 @@ class Trainer:
     """Holds the model, optimiser, datasets and RNG; one instance per process."""
 
     def __init__(self, cfg: ModelConfig, tc: TrainConfig, data: Path, out: Path, device: str, resume: bool,
-                 raw_config: dict, init: Path | None = None):
+                 init: Path | None = None):
         self.cfg, self.tc, self.out, self.device = cfg, tc, out, torch.device(device)
         self.distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
         if self.distributed:
@@ -106,7 +106,6 @@ class Trainer:
         self.opt = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
         self.step = 0
         self.best = -math.inf
-        self.raw_config = raw_config
         if init is not None and not resume:
             state = read_checkpoint(init)["state_dict"]
             try:
@@ -217,7 +216,9 @@ class Trainer:
             with atomic_write(self.out / "config.yaml", "w") as f:
                 import yaml
 
-                yaml.safe_dump(self.raw_config, f, sort_keys=False)
+                # every key, resolved
+                yaml.safe_dump({"model": config_to_dict(self.cfg), "train": config_to_dict(self.tc)}, f,
+                               sort_keys=False)
         bar = tqdm(total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0, dynamic_ncols=True)
         run_avg: dict[str, float] = {}
         while self.step < end:
@@ -280,7 +281,5 @@ def run(args: argparse.Namespace) -> int:
     device = args.device
     if device.startswith("cuda") and int(os.environ.get("WORLD_SIZE", "1")) > 1:
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
-    raw = {"model": config_to_dict(cfg), "train": config_to_dict(tc)}  # RUN/config.yaml: every key, resolved
-    trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, raw,
-                      Path(args.init) if args.init else None)
+    trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, Path(args.init) if args.init else None)
     return trainer.run(args.stop_after)

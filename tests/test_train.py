@@ -73,7 +73,7 @@ def test_training_reduces_the_loss_on_one_scene(tmp_path_factory, tmp_path):
 
     data = tiny_dataset(tmp_path_factory)
     tc = TrainConfig(batch_size=1, target_views=1, steps=60, lr=3e-3, seed=1)
-    tr = Trainer(ModelConfig(**TINY_MODEL), tc, Path(data), tmp_path / "o", "cpu", False, {})
+    tr = Trainer(ModelConfig(**TINY_MODEL), tc, Path(data), tmp_path / "o", "cpu", False)
     losses = [tr.train_step()["rec"] for _ in range(60)]
     assert sum(losses[-10:]) / 10 < 0.85 * sum(losses[:10]) / 10
 

@@ -122,6 +122,13 @@ class BackgroundDecoder(nn.Module):
 OBSERVED_CHANNELS = 6  # observed block colour (3), planar depth (1), colour and depth visibility (1 + 1)
 
 
+def masked_block_mean(x: Tensor, weight: Tensor, k: int) -> tuple[Tensor, Tensor]:
+    """x: (M, C, H, W); weight: (M, 1, H, W) in [0, 1] -> the weighted mean of every k×k block
+    (M, C, H/k, W/k) and the block's mean weight (M, 1, H/k, W/k) (0 where nothing counts)."""
+    w = F.avg_pool2d(weight, k)
+    return F.avg_pool2d(x * weight, k) / w.clamp_min(1e-6), w
+
+
 def observed_blocks(rgb: Tensor, depth: Tensor | None, hidden: Tensor, k: int) -> Tensor:
     """What a background block observes where nothing hides it.
 
@@ -130,14 +137,11 @@ def observed_blocks(rgb: Tensor, depth: Tensor | None, hidden: Tensor, k: int) -
     visible (colour) / visible with depth (depth), else 0.
     """
     keep = 1.0 - hidden
-    w = F.avg_pool2d(keep, k)
-    colour = F.avg_pool2d(rgb * keep, k) / w.clamp_min(1e-6)
+    colour, w = masked_block_mean(rgb, keep, k)
     if depth is None:
         dep, wd = torch.zeros_like(w), torch.zeros_like(w)
     else:
-        dv = keep * (depth > 0).to(rgb.dtype)
-        wd = F.avg_pool2d(dv, k)
-        dep = F.avg_pool2d(depth * dv, k) / wd.clamp_min(1e-6)
+        dep, wd = masked_block_mean(depth, keep * (depth > 0).to(rgb.dtype), k)
     return torch.cat([colour, dep, (w > 0.999).to(rgb.dtype), (wd > 0.999).to(rgb.dtype)], dim=1)
 
 

@@ -131,8 +131,8 @@ class ParticleEncoder(nn.Module):
 
         rgb: (M, 3, H, W); dep: (M, 2, H, W); rays: (M, 6, H, W); residual: (M, Q) per-patch error of the
         background alone (needed by kp_selection "residual"); cross_view: the views' geometry, to let
-        each visible 3D point be claimed by one view only (``kp_cross_view``) -> dict of (M, L, ·) tensors
-        (kp, mu_/lv_ o s d e f, beta_a, beta_b, and the glimpse embedding h).
+        each visible 3D point be claimed by one view only (``kp_cross_view``), or None
+        -> dict of (M, L, ·) tensors (kp, mu_/lv_ o s d e f, beta_a, beta_b, and the glimpse embedding h).
         """
         cfg = self.cfg
         L, D = cfg.particles_per_view, cfg.d_obj
@@ -148,7 +148,7 @@ class ParticleEncoder(nn.Module):
             score = -residual
         else:
             score = -presence if cfg.kp_selection == "presence" else var
-        if cross_view is not None and cfg.kp_cross_view and cross_view.n_views > 1:
+        if cross_view is not None:
             idx = cross_view.select(kp.detach(), score.detach(), L, cfg.kp_min_separation, cfg.resolution)
         else:
             idx = select_keypoints(kp.detach(), score.detach(), L, cfg.kp_min_separation)

@@ -13,7 +13,7 @@ from ..gaussians import BACKGROUND_OWNER, Gaussians
 from ..sh import SH_C0
 from .config import ModelConfig
 from .decoder import (BackgroundDecoder, ForegroundDecoder, background_gaussians, background_rays,
-                      foreground_gaussians, observed_blocks, split_gaussian_params)
+                      foreground_gaussians, masked_block_mean, observed_blocks, split_gaussian_params)
 from .encoder import BackgroundDetail, BackgroundEncoder, CrossView, ParticleEncoder, box_mask, depth_input
 from .geometry import plucker_map, stack_cameras
 from .particles import Particles
@@ -72,7 +72,7 @@ class ParticleSplat(nn.Module):
         residual = None
         if cfg.kp_selection == "residual":
             residual = F.adaptive_avg_pool2d(block_err.detach(), cfg.resolution // cfg.kp_patch).flatten(1)
-        cross = None if d is None else CrossView(d, Kf, cf, V)
+        cross = CrossView(d, Kf, cf, V) if cfg.kp_cross_view and d is not None and V > 1 else None
         att = self.encoder.attributes(x, dep, rays, residual, cross)
         with torch.no_grad():
             t_mean = att["beta_a"] / (att["beta_a"] + att["beta_b"])
@@ -116,9 +116,7 @@ class ParticleSplat(nn.Module):
         colour = (SH_C0 * p["sh"][..., 0, :] + 0.5).clamp(0, 1).transpose(1, 2).reshape(M, 3, nb, nb)
         err = ((colour - F.avg_pool2d(x, cfg.bg_block)) ** 2).sum(1, keepdim=True)
         if depth is not None:
-            valid = (depth > 0).to(x.dtype)
-            w = F.avg_pool2d(valid, cfg.bg_block)
-            d_blk = F.avg_pool2d(depth * valid, cfg.bg_block) / w.clamp_min(1e-6)
+            d_blk, w = masked_block_mean(depth, (depth > 0).to(x.dtype), cfg.bg_block)
             zeta = cfg.d_min + torch.sigmoid(p["dd"][..., 0]) * (cfg.d_max - cfg.d_min)
             err = err + (zeta.reshape(M, 1, nb, nb) - d_blk) ** 2 * (w > 0.5).to(x.dtype)
         return err
