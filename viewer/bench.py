@@ -12,7 +12,6 @@ import os
 import sys
 import time
 from dataclasses import dataclass
-
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -193,6 +192,7 @@ def main(argv: list[str] | None = None) -> int:
         renderer.set_gaussians(g)
         row = _case(renderer, default_view(None, g), args)
         row.name = f"random {n // 1000}k" if n % 1000 == 0 else f"random {n}"
+        # re-project at full size (the last frames were at the moving scale), then the floor of those splats
         renderer.render(default_view(None, g).camera(args.width, args.height), finish=True)
         if renderer.kind == "points":
             row.floor_ms = sprite_floor_ms(ctx, renderer, args.width, args.height, args.frames)
