@@ -83,7 +83,7 @@ class Trainer:
     """Holds the model, optimiser, datasets and RNG; one instance per process."""
 
     def __init__(self, cfg: ModelConfig, tc: TrainConfig, data: Path, out: Path, device: str, resume: bool,
-                 init: Path | None = None):
+                 init: Path | None = None, init_drop: tuple[str, ...] = ()):
         self.cfg, self.tc, self.out, self.device = cfg, tc, out, torch.device(device)
         self.distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
         if self.distributed:
@@ -100,21 +100,27 @@ class Trainer:
         torch.manual_seed(tc.seed + 1000 * self.rank)
         self.gen = torch.Generator().manual_seed(tc.seed * 7919 + self.rank)
         self.model = ParticleSplat(cfg).to(self.device)
-        bg = [p for n, p in self.model.named_parameters() if n == "background_logit"]
-        rest = [p for n, p in self.model.named_parameters() if n != "background_logit"]
+        # the learned background colour and the static background layer move at lr_background
+        is_bg = lambda n: n == "background_logit" or n.startswith("static_bg.")  # noqa: E731
+        bg = [p for n, p in self.model.named_parameters() if is_bg(n)]
+        rest = [p for n, p in self.model.named_parameters() if not is_bg(n)]
         groups = [{"params": rest}] + ([{"params": bg, "lr": tc.lr_background}] if bg else [])
         self.opt = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
         self.step = 0
         self.best = -math.inf
         if init is not None and not resume:
             state = read_checkpoint(init)["state_dict"]
+            dropped = sorted(k for k in state if any(k == p or k.startswith(p + ".") for p in init_drop))
+            state = {k: v for k, v in state.items() if k not in dropped}
+            if dropped and self.rank == 0:
+                print(f"--init {init}: dropped by --init-drop: {', '.join(dropped)}")
             try:
                 res = self.model.load_state_dict(state, strict=False)
             except RuntimeError as e:
                 raise ValueError(f"{init}: its weights do not fit this model config ({e})") from e
             if res.unexpected_keys:
                 raise ValueError(f"{init}: weights this model config does not have: "
-                                 f"{', '.join(res.unexpected_keys)}")
+                                 f"{', '.join(res.unexpected_keys)} (drop them on purpose with --init-drop MODULE)")
             if res.missing_keys and self.rank == 0:
                 modules = sorted({k.rsplit(".", 1)[0] for k in res.missing_keys})
                 print(f"--init {init}: new modules start from their initialisation: {', '.join(modules)}")
@@ -266,6 +272,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--init", default=None,
                         help="start from the weights of this checkpoint (fresh optimiser and step count; "
                              "the model config may differ only in keys that hold no weights)")
+    parser.add_argument("--init-drop", action="append", default=[], metavar="MODULE",
+                        help="with --init: leave out the checkpoint's weights under this module name (e.g. "
+                             "bg_detail), for a config that no longer has it; repeatable")
     parser.add_argument("--stop-after", type=int, default=None,
                         help="run at most this many steps in this invocation, checkpoint, and exit "
                              "(continue later with --resume)")
@@ -281,5 +290,8 @@ def run(args: argparse.Namespace) -> int:
     device = args.device
     if device.startswith("cuda") and int(os.environ.get("WORLD_SIZE", "1")) > 1:
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
-    trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, Path(args.init) if args.init else None)
+    if args.init_drop and not args.init:
+        raise ValueError("--init-drop needs --init")
+    trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, Path(args.init) if args.init else None,
+                      tuple(args.init_drop))
     return trainer.run(args.stop_after)

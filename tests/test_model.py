@@ -69,10 +69,12 @@ def test_sh_rotation_degree_one_matches_rotated_directions():
     torch.testing.assert_close(eval_sh_colors(rotate_sh_to_world(sh, R), d @ R.T), eval_sh_colors(sh, d))
 
 
-def test_foreground_lifting_matches_projection_and_jacobian():
+@pytest.mark.parametrize("depth_scale", ["pixel", "cell"])
+def test_foreground_lifting_matches_projection_and_jacobian(depth_scale):
     """Step 2-3 by hand: with zero head outputs the Gaussians sit at the cell centres of the particle's box,
-    at planar depth d, and their covariance is (ζ/f)² J diag(s̄²) J in camera axes."""
-    cfg = ModelConfig(**TINY)
+    at planar depth d, and their covariance is (ζ/f)² J diag(s̄²) J in camera axes, where J's depth entry is
+    one pixel ("pixel") or the mean width of a canonical cell ("cell": cubic cells)."""
+    cfg = ModelConfig(**TINY, particle_depth_scale=depth_scale)
     S = cfg.patch_gaussians
     cam = cams(1)[0]
     K, c2w = stack_cameras([cam])
@@ -96,7 +98,8 @@ def test_foreground_lifting_matches_projection_and_jacobian():
     torch.testing.assert_close(f["opacities"][0], torch.full((S * S,), 0.7 * 0.5))
     s_bar = cfg.s_min + 0.5 * (cfg.s_max - cfg.s_min)
     fx = float(cam.K[0, 0])
-    jac = torch.tensor([0.25 * W / S, 0.4 * W / S, 1.0]) * float(d) / fx
+    depth_px = 1.0 if depth_scale == "pixel" else (0.25 + 0.4) / 2 * W / S
+    jac = torch.tensor([0.25 * W / S, 0.4 * W / S, depth_px]) * float(d) / fx
     expect = torch.diag((jac * s_bar) ** 2)
     g = Gaussians(f["means"][0], f["quats"][0], f["scales"][0], f["opacities"][0], f["sh"][0],
                   torch.zeros(S * S, dtype=torch.int64))
@@ -421,3 +424,84 @@ def test_background_copies_the_observed_colour_and_depth_of_visible_blocks():
     ok &= (want_z > m.config.d_min) & (want_z < m.config.d_max)  # and the depth range can hold it
     assert int(ok.sum()) >= 32
     torch.testing.assert_close(z[ok], want_z[ok], atol=1e-4, rtol=1e-5)
+
+
+# ------------------------------------------------------------------ the static background layer
+STATIC = dict(bg_static_grid=24, bg_static_extent=2.25, bg_per_view=False)
+
+
+def test_static_layer_is_flat_discs_covering_the_floor_square():
+    m = tiny_model(**STATIC)
+    f = m.static_bg()
+    n = 24 * 24
+    assert f["means"].shape == (n, 3) and f["sh"].shape == (n, 1, 3)
+    assert bool((f["means"][:, 2] == 0).all())
+    cell = 2 * 2.25 / 24
+    assert float(f["means"][:, :2].abs().max()) == pytest.approx(2.25 - cell / 2)
+    assert bool((f["scales"][:, 2] < 0.1 * f["scales"][:, 0]).all())  # flat, lying in the plane
+    # with SH degree 1 the higher bases are zero: the colour does not depend on the view
+    f1 = tiny_model(**STATIC, sh_degree=1).static_bg()
+    assert f1["sh"].shape == (n, 4, 3) and bool((f1["sh"][:, 1:] == 0).all())
+
+
+def test_static_layer_renders_the_floor_plane_with_its_colour_and_depth():
+    """An opaque layer of one colour: the central pixels take that colour (overlapping discs leave < 0.6 %
+    transmittance) and about the planar depth of the analytic floor z = 0. A render's depth is that of the
+    disc centres, the nearer discs weighing most, so it lies in front of the floor by less than the discs'
+    reach along the plane (3 sigma; depth changes by at most 1 m per metre along it)."""
+    from particlesplat.render import render
+    from particlesplat.sh import rgb_to_sh_dc
+
+    m = tiny_model(**{**STATIC, "bg_static_grid": 48})
+    with torch.no_grad():
+        m.static_bg.sh_dc.copy_(rgb_to_sh_dc(torch.tensor([0.2, 0.7, 0.4])).expand_as(m.static_bg.sh_dc))
+        m.static_bg.opacity_logit.fill_(8.0)
+    cam = cams(1)[0]
+    g = m.decode(m.encode(*[t[:1] if t is not None else None for t in scene_inputs(1)[:2]], [cam]),
+                 torch.tensor([], dtype=torch.long))
+    assert len(g) == 48 * 48
+    r = render(g, cam)
+    centre = (slice(12, 20), slice(12, 20))
+    torch.testing.assert_close(r.rgb[centre], torch.tensor([0.2, 0.7, 0.4]).expand(8, 8, 3), atol=6e-3, rtol=0)
+    err = _floor_depth(cam)[0][centre] - r.depth[centre]
+    assert bool((err > 0).all()) and float(err.max()) < 3 * float(m.static_bg.scales[0, 0])
+
+
+def test_static_layer_error_is_zero_on_its_own_render_and_finds_an_object():
+    """The layer's own render has no error; a block whose observed depth is 0.3 m nearer (an object) has
+    exactly the squared depth difference on top of its colour error, and the residual selection puts a
+    particle on it."""
+    from particlesplat.render import render
+
+    m = tiny_model(**STATIC, particles_per_view=1)
+    cam = cams(1)[0]
+    K, c2w = stack_cameras([cam])
+    g = m.decode(m.encode(*[t[:1] for t in scene_inputs(1)[:2]], [cam]), torch.tensor([], dtype=torch.long))
+    r = render(g, cam, background=m.background_color())
+    rgb, depth = r.rgb.permute(2, 0, 1)[None], r.depth[None, None]
+    err = m.static_background_error(rgb, depth, K, c2w)
+    assert err.shape == (1, 1, 8, 8) and float(err.abs().max()) < 1e-8
+    obj_rgb, obj_depth = rgb.clone(), depth.clone()
+    obj_depth[..., 20:24, 8:12] -= 0.3
+    obj_rgb[..., 20:24, 8:12] = torch.tensor([0.9, 0.1, 0.1])[:, None, None]
+    err = m.static_background_error(obj_rgb, obj_depth, K, c2w)
+    colour = ((obj_rgb - rgb) ** 2).sum(1)[0, 20:24, 8:12].mean()
+    assert float(err[0, 0, 5, 2]) == pytest.approx(float(colour) + 0.09, rel=1e-4)
+    assert float(err[0, 0].flatten().topk(2).values[1]) < 1e-8  # nothing else
+    post = m.posterior(obj_rgb[None], obj_depth[None], K[None], c2w[None])
+    u, v = ((post["kp"][0, 0] + 1) / 2 * 32).tolist()
+    assert 8 <= u < 12 and 20 <= v < 24
+
+
+def test_static_layer_config_and_decode():
+    m = tiny_model(**STATIC)
+    p = m.encode(*scene_inputs(2)[:2], cams(2))
+    g = m.decode(p)
+    assert int((g.owner == -1).sum()) == 24 * 24  # no per-view background
+    both = tiny_model(bg_static_grid=24)  # per-view background and the layer
+    g2 = both.decode(both.encode(*scene_inputs(2)[:2], cams(2)))
+    assert int((g2.owner == -1).sum()) == 24 * 24 + 2 * (32 // both.config.bg_block) ** 2
+    with pytest.raises(ConfigError, match="bg_per_view"):
+        ModelConfig(**{**TINY, "bg_per_view": False}).validate()
+    with pytest.raises(ConfigError, match="bg_detail"):
+        ModelConfig(**{**TINY, **STATIC, "bg_detail": 2}).validate()

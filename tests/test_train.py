@@ -120,6 +120,16 @@ def test_init_from_checkpoint_weights(tmp_path_factory, tmp_path):
     cfg.write_text(text.replace("bg_detail: 2", "bg_detail: 0").replace("bg_copy_input: true", "bg_copy_input: false"))
     with pytest.raises(ValueError, match="does not have: .*bg_detail"):
         _train(cfg, data, tmp_path / "k", "--init", str(tmp_path / "src2.pt"))
+    # dropped on purpose, the rest of the weights load
+    drops = ("bg_detail", "bg_decoder.detail", "bg_decoder.copy_gate")
+    assert _train(cfg, data, tmp_path / "k", "--init", str(tmp_path / "src2.pt"),
+                  *[a for d in drops for a in ("--init-drop", d)]) == 0
+    out = read_checkpoint(tmp_path / "k" / "last.pt")["state_dict"]
+    src2 = torch.load(tmp_path / "src2.pt", weights_only=True)["state_dict"]
+    kept = [k for k in src2 if not any(k == d or k.startswith(d + ".") for d in drops)]
+    assert kept and set(kept) == set(out)
+    for k in kept:
+        torch.testing.assert_close(out[k], src2[k], rtol=0, atol=1e-6)
 
 
 def test_view_gaps_reach_their_full_range_after_gap_warmup():
@@ -156,3 +166,20 @@ def test_learned_background_is_rendered_behind_the_gaussians_and_trained():
     (grad,) = torch.autograd.grad(rgb.sum(), bg)
     torch.testing.assert_close(grad, torch.full((3,), 32.0 * 32.0))
     assert ParticleSplat(ModelConfig(**{**TINY_MODEL, "learned_background": False})).background_color().tolist() == [0, 0, 0]
+
+
+def test_static_layer_trains_at_the_background_learning_rate(tmp_path_factory, tmp_path):
+    """With lr ~ 0 and lr_background > 0, two steps move the static layer (and the background colour) and
+    leave every network weight where it was: the layer is in the lr_background group."""
+    data = tiny_dataset(tmp_path_factory)
+    cfg = tiny_config(tmp_path / "tiny.yaml", steps=2, val_every=5, lr=1e-12, lr_background=0.05)
+    text = cfg.read_text().replace("bg_detail: 2", "bg_detail: 0").replace("bg_copy_input: true",
+                                                                          "bg_copy_input: false")
+    cfg.write_text(text.replace("model:\n", "model:\n  bg_static_grid: 16\n  bg_per_view: false\n", 1))
+    assert _train(cfg, data, tmp_path / "s", "--stop-after", "1") == 0
+    before = read_checkpoint(tmp_path / "s" / "last.pt")["state_dict"]
+    assert _train(cfg, data, tmp_path / "s", "--resume") == 0
+    after = read_checkpoint(tmp_path / "s" / "last.pt")["state_dict"]
+    moved = {k for k in after if not torch.allclose(after[k].float(), before[k].float(), rtol=0, atol=1e-7)}
+    assert {"static_bg.sh_dc", "static_bg.opacity_logit"} <= moved
+    assert moved <= {"static_bg.sh_dc", "static_bg.opacity_logit", "background_logit"}

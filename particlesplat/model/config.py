@@ -47,7 +47,11 @@ class ModelConfig:
     bg_copy_input: bool = False
     kp_cross_view: bool = False
     learned_background: bool = False
+    bg_static_grid: int = 0
+    bg_static_extent: float = 2.25
+    bg_per_view: bool = True
     patch_gaussians: int = 4
+    particle_depth_scale: str = "pixel"
     token_dim: int = 64
     transformer_layers: int = 2
     transformer_heads: int = 4
@@ -91,7 +95,14 @@ class ModelConfig:
         need(self.bg_detail >= 0, "bg_detail", "must be >= 0 (0 = no pixel-aligned detail)")
         need(self.bg_detail_threshold > 0.0, "bg_detail_threshold", "must be > 0")
         need(not self.bg_copy_input or self.bg_detail > 0, "bg_copy_input", "needs bg_detail > 0")
+        need(self.bg_static_grid >= 0, "bg_static_grid", "must be >= 0 (0 = no static background layer)")
+        need(self.bg_static_extent > 0.0, "bg_static_extent", "must be > 0 (metres)")
+        need(self.bg_static_grid == 0 or self.bg_detail == 0, "bg_static_grid",
+             "the static background layer replaces the pixel-aligned detail: set bg_detail to 0")
+        need(self.bg_per_view or self.bg_static_grid > 0, "bg_per_view",
+             "false needs the static background layer (bg_static_grid > 0): nothing would draw the background")
         need(self.patch_gaussians >= 1, "patch_gaussians", "must be >= 1")
+        need(self.particle_depth_scale in ("pixel", "cell"), "particle_depth_scale", "must be 'pixel' or 'cell'")
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
         need(self.transformer_layers >= 0, "transformer_layers", "must be >= 0")
         need(self.sh_degree in (0, 1), "sh_degree", "must be 0 or 1")

@@ -146,17 +146,19 @@ def observed_blocks(rgb: Tensor, depth: Tensor | None, hidden: Tensor, k: int) -
 
 
 def _finish(p: dict[str, Tensor], pix: Tensor, zeta: Tensor, jac_px: Tensor, K: Tensor, c2w: Tensor,
-            opacity: Tensor, cfg: ModelConfig) -> dict[str, Tensor]:
+            opacity: Tensor, cfg: ModelConfig, depth_cell: Tensor | None = None) -> dict[str, Tensor]:
     """Lift image-plane Gaussians to the world.
 
     pix: (..., 2) pixel centres; zeta: (...) planar depth; jac_px: (..., 2) pixels per canonical unit;
-    K: (..., 3, 3), c2w: (..., 4, 4) broadcast per Gaussian; opacity: (...) final α.
+    K: (..., 3, 3), c2w: (..., 4, 4) broadcast per Gaussian; opacity: (...) final α; depth_cell: (...)
+    metres per canonical unit along the camera axis, at least a pixel's width (default: a pixel's width).
     """
     dirs = ray_dirs(pix[..., None, :], K, c2w)[..., 0, :]
     means = c2w[..., :3, 3] + zeta[..., None] * dirs
     fx = K[..., 0, 0]
     fy = K[..., 1, 1]
-    jac = torch.stack([jac_px[..., 0] * zeta / fx, jac_px[..., 1] * zeta / fy, zeta / fx], dim=-1)
+    jac_z = zeta / fx if depth_cell is None else torch.maximum(zeta / fx, depth_cell)
+    jac = torch.stack([jac_px[..., 0] * zeta / fx, jac_px[..., 1] * zeta / fy, jac_z], dim=-1)
     s = cfg.s_min + (cfg.s_max - cfg.s_min) * torch.sigmoid(p["scale"])
     M = camera_covariance_factor(p["quat"], s, jac)
     M_world = c2w[..., :3, :3] @ M
@@ -192,7 +194,13 @@ def foreground_gaussians(raw: Tensor, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e
     opacity = z_t * torch.sigmoid(p["opacity"][..., 0])
     Kn = K[:, None].expand(-1, S * S, -1, -1)
     cn = c2w[:, None].expand(-1, S * S, -1, -1)
-    return _finish(p, pix, zeta, jac_px.expand(-1, S * S, -1), Kn, cn, opacity, cfg)
+    # "cell": canonical cells are cubes (as deep as they are wide), so a particle's Gaussians have volume and
+    # do not turn into slivers seen from the side
+    depth_cell = None
+    if cfg.particle_depth_scale == "cell":
+        fx = K[:, 0, 0, None]
+        depth_cell = jac_px.mean(-1) * zeta / fx
+    return _finish(p, pix, zeta, jac_px.expand(-1, S * S, -1), Kn, cn, opacity, cfg, depth_cell)
 
 
 def block_centres(cfg: ModelConfig, device, dtype) -> Tensor:

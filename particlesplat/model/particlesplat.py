@@ -10,6 +10,7 @@ from torch import Tensor, nn
 
 from ..camera import Camera
 from ..gaussians import BACKGROUND_OWNER, Gaussians
+from ..render import render_batch
 from ..sh import SH_C0
 from .config import ModelConfig
 from .decoder import (BackgroundDecoder, ForegroundDecoder, background_gaussians, background_rays,
@@ -17,6 +18,7 @@ from .decoder import (BackgroundDecoder, ForegroundDecoder, background_gaussians
 from .encoder import BackgroundDetail, BackgroundEncoder, CrossView, ParticleEncoder, box_mask, depth_input
 from .geometry import plucker_map, stack_cameras
 from .particles import Particles
+from .static_background import StaticBackground
 
 
 def _gaussians(fields: dict[str, Tensor], owner: Tensor) -> Gaussians:
@@ -37,6 +39,7 @@ class ParticleSplat(nn.Module):
         self.fg_decoder = ForegroundDecoder(config)
         self.bg_decoder = BackgroundDecoder(config)
         self.bg_detail = BackgroundDetail(config) if config.bg_detail > 0 else None
+        self.static_bg = StaticBackground(config) if config.bg_static_grid > 0 else None
         # one colour behind all Gaussians (sigmoid of 3 logits; near black at the start, as without it)
         self.background_logit = nn.Parameter(torch.full((3,), -3.0)) if config.learned_background else None
 
@@ -66,7 +69,9 @@ class ParticleSplat(nn.Module):
         rays = plucker_map(Kf, cf, H, W)
         block_err = None
         train_coarse = self.bg_detail is not None and self.training and torch.is_grad_enabled()
-        if cfg.kp_selection == "residual" or self.bg_detail is not None:
+        if self.static_bg is not None:
+            block_err = self.static_background_error(x, d, Kf, cf)
+        elif cfg.kp_selection == "residual" or self.bg_detail is not None:
             with torch.set_grad_enabled(train_coarse):
                 block_err = self.coarse_background_error(x, d, dep, rays, Kf, cf)
         residual = None
@@ -122,6 +127,25 @@ class ParticleSplat(nn.Module):
         return err
 
     @torch.no_grad()
+    def static_background_error(self, x: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Tensor:
+        """Per-block error of the static background layer alone, rendered into M views (no gradient).
+
+        x: (M, 3, H, W); depth: (M, 1, H, W) metres (0 = none) or None; K: (M, 3, 3); c2w: (M, 4, 4).
+        Per pixel: squared RGB error + squared depth error in metres where depth is known (a pixel the
+        layer leaves empty renders depth 0, so an object in front of the floor or the floor where the
+        layer is transparent both count). Averaged over ``bg_block``² blocks -> (M, 1, Hb, Wb).
+        """
+        H, W = x.shape[-2:]
+        g = _gaussians(self.static_bg(), torch.full((self.static_bg.num,), BACKGROUND_OWNER, device=x.device))
+        res = render_batch([(g, Camera(K[i], c2w[i], W, H)) for i in range(x.shape[0])],
+                           background=self.background_color())
+        err = ((torch.stack([r.rgb.permute(2, 0, 1) for r in res]) - x) ** 2).sum(1, keepdim=True)
+        if depth is not None:
+            rendered = torch.stack([r.depth[None] for r in res])
+            err = err + (rendered - depth) ** 2 * (depth > 0).to(x.dtype)
+        return F.avg_pool2d(err, self.config.bg_block)
+
+    @torch.no_grad()
     def background_residual(self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor,
                             c2w: Tensor) -> Tensor:
         """Per-patch error of the plain background, where particles are needed most: the
@@ -158,6 +182,19 @@ class ParticleSplat(nn.Module):
         raw = self.bg_decoder(bg, background_rays(K, c2w, self.config))
         return background_gaussians(raw, K, c2w, self.config)
 
+    def background_fields(self, bg: Tensor, K: Tensor, c2w: Tensor) -> dict[str, Tensor]:
+        """Background Gaussians of B scenes: the per-view background (``bg_per_view``) then the static layer
+        (``bg_static_grid``). bg: (B, V, C, h, w) latents; K: (B, V, 3, 3); c2w: (B, V, 4, 4) ->
+        fields (B, N_bg, ·)."""
+        B, V = K.shape[:2]
+        parts = []
+        if self.config.bg_per_view:
+            f = self.background(bg.reshape(B * V, *bg.shape[2:]), K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4))
+            parts.append({k: v.reshape(B, -1, *v.shape[2:]) for k, v in f.items()})
+        if self.static_bg is not None:
+            parts.append({k: v[None].expand(B, *v.shape) for k, v in self.static_bg().items()})
+        return {k: torch.cat([p[k] for p in parts], dim=1) for k in parts[0]}
+
     def decode_batch(self, z: dict[str, Tensor], view: Tensor, K: Tensor, c2w: Tensor,
                      background: bool = True) -> list[Gaussians]:
         """Decode B scenes. z: from :meth:`latents`; view: (N,) view index per particle;
@@ -172,9 +209,7 @@ class ParticleSplat(nn.Module):
         S2 = self.config.patch_gaussians ** 2
         owner_fg = torch.arange(N, device=K.device).repeat_interleave(S2)
         if background:
-            bgf = self.background(z["bg"].reshape(B * V, *z["bg"].shape[2:]), K.reshape(B * V, 3, 3),
-                                  c2w.reshape(B * V, 4, 4))
-            bgf = {k: v.reshape(B, -1, *v.shape[2:]) for k, v in bgf.items()}
+            bgf = self.background_fields(z["bg"], K, c2w)
             owner = torch.cat([owner_fg, torch.full((bgf["means"].shape[1],), BACKGROUND_OWNER, device=K.device)])
             fields = {k: torch.cat([fg[k], bgf[k]], dim=1) for k in fg}
         else:
@@ -242,9 +277,8 @@ class ParticleSplat(nn.Module):
             S2 = self.config.patch_gaussians ** 2
             parts.append(_gaussians(fg, idx.repeat_interleave(S2)))
         if background:
-            bgf = self.background(p.background, K, c2w)
-            parts.append(_gaussians(bgf, torch.full((bgf["means"].shape[0] * bgf["means"].shape[1],),
-                                                    BACKGROUND_OWNER, device=dev)))
+            bgf = {k: v[0] for k, v in self.background_fields(p.background[None], K[None], c2w[None]).items()}
+            parts.append(_gaussians(bgf, torch.full((bgf["means"].shape[0],), BACKGROUND_OWNER, device=dev)))
         if not parts:
             return Gaussians.empty(self.config.sh_degree, device=dev)
         g = Gaussians.cat(parts)
