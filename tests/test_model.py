@@ -505,3 +505,26 @@ def test_static_layer_config_and_decode():
         ModelConfig(**{**TINY, "bg_per_view": False}).validate()
     with pytest.raises(ConfigError, match="bg_detail"):
         ModelConfig(**{**TINY, **STATIC, "bg_detail": 2}).validate()
+
+
+def test_finer_patch_starts_from_the_base_patch_split_into_children():
+    """S = 8 grown from patch_base 4 loads the weights of an S = 4 decoder; with a pointwise conv, every
+    fine cell starts with exactly the parameters of the base cell it lies in (the doubling conv is zero)."""
+    from particlesplat.model.decoder import ForegroundDecoder
+
+    torch.manual_seed(0)
+    coarse = ForegroundDecoder(ModelConfig(**{**TINY, "patch_gaussians": 4}))
+    with torch.no_grad():
+        w = coarse.conv[1].weight
+        w.zero_()
+        w[:, :, 1, 1] = torch.randn(w.shape[:2])  # a 3x3 conv with only its centre tap: pointwise
+        coarse.head.weight.normal_()
+    fine = ForegroundDecoder(ModelConfig(**{**TINY, "patch_gaussians": 8, "patch_base": 4}))
+    missing = fine.load_state_dict(coarse.state_dict(), strict=False).missing_keys
+    assert missing == ["up.0.weight", "up.0.bias"]
+    z_f = torch.randn(3, TINY["d_obj"])
+    base = coarse(z_f).reshape(3, 4, 4, -1)
+    want = base.repeat_interleave(2, dim=1).repeat_interleave(2, dim=2).reshape(3, 64, -1)
+    torch.testing.assert_close(fine(z_f), want)
+    with pytest.raises(ConfigError, match="patch_base"):
+        ModelConfig(**{**TINY, "patch_gaussians": 8, "patch_base": 3}).validate()

@@ -51,6 +51,7 @@ class ModelConfig:
     bg_static_extent: float = 2.25
     bg_per_view: bool = True
     patch_gaussians: int = 4
+    patch_base: int = 0
     particle_depth_scale: str = "pixel"
     token_dim: int = 64
     transformer_layers: int = 2
@@ -102,6 +103,10 @@ class ModelConfig:
         need(self.bg_per_view or self.bg_static_grid > 0, "bg_per_view",
              "false needs the static background layer (bg_static_grid > 0): nothing would draw the background")
         need(self.patch_gaussians >= 1, "patch_gaussians", "must be >= 1")
+        base = self.patch_base or self.patch_gaussians
+        ratio = self.patch_gaussians // base if self.patch_base >= 0 and base > 0 else 0
+        need(self.patch_base >= 0 and ratio >= 1 and base * ratio == self.patch_gaussians and ratio & (ratio - 1) == 0,
+             "patch_base", "must be 0 (= patch_gaussians) or patch_gaussians divided by a power of 2")
         need(self.particle_depth_scale in ("pixel", "cell"), "particle_depth_scale", "must be 'pixel' or 'cell'")
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
         need(self.transformer_layers >= 0, "transformer_layers", "must be >= 0")

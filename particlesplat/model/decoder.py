@@ -39,22 +39,39 @@ def init_gaussian_head(conv: nn.Conv2d, sh_degree: int, opacity_logit: float, de
 
 
 class ForegroundDecoder(nn.Module):
-    """D_fg: z_f (…, D) -> canonical S×S patch of Gaussian parameters (…, S*S, C)."""
+    """D_fg: z_f (…, D) -> canonical S×S patch of Gaussian parameters (…, S*S, C).
+
+    z_f is decoded to a ``patch_base``² feature grid that is doubled (nearest, then a residual 3×3 conv that
+    starts at zero) until it is S×S, so a model trained with S = ``patch_base`` starts an S-times-finer
+    patch from its own Gaussians, each split into children at the finer cell centres.
+    """
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
         self.S = cfg.patch_gaussians
+        self.base = cfg.patch_base or cfg.patch_gaussians
         self.sh_degree = cfg.sh_degree
         c = cfg.channels
         self.c = c
-        self.fc = nn.Sequential(nn.Linear(cfg.d_obj, 2 * c), nn.SiLU(), nn.Linear(2 * c, c * self.S * self.S))
+        self.fc = nn.Sequential(nn.Linear(cfg.d_obj, 2 * c), nn.SiLU(), nn.Linear(2 * c, c * self.base * self.base))
+        self.up = nn.ModuleList()
+        size = self.base
+        while size < self.S:
+            conv = nn.Conv2d(c, c, 3, padding=1)
+            nn.init.zeros_(conv.weight)
+            nn.init.zeros_(conv.bias)
+            self.up.append(conv)
+            size *= 2
         self.conv = nn.Sequential(nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU())
         self.head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
         init_gaussian_head(self.head, cfg.sh_degree, opacity_logit=2.0)
 
     def forward(self, z_f: Tensor) -> Tensor:
         """z_f: (M, D) -> (M, S*S, C) with cells in row-major (y, x) order."""
-        h = self.fc(z_f).reshape(-1, self.c, self.S, self.S)
+        h = self.fc(z_f).reshape(-1, self.c, self.base, self.base)
+        for conv in self.up:
+            h = F.interpolate(h, scale_factor=2, mode="nearest")
+            h = h + conv(F.silu(h))
         out = self.head(self.conv(h))
         return out.flatten(2).transpose(1, 2)
 
