@@ -5,7 +5,7 @@ floor in every scene. The per-view background can only draw what a context view 
 targets show holes where neither view framed the floor. This layer covers the floor everywhere: a
 ``grid`` × ``grid`` lattice of flat discs over the square |x|, |y| <= ``extent`` on z = 0, each with a
 learned colour and opacity (a learned texture of the plane, shared by all scenes; beyond the floor's edge
-the discs learn to be transparent). Its Gaussians are background (owner -1).
+a disc learns the colour behind it or to be transparent). Its Gaussians are background (owner -1).
 """
 
 from __future__ import annotations
@@ -33,6 +33,8 @@ class StaticBackground(nn.Module):
                              persistent=False)
         self.register_buffer("scales", torch.tensor([DISC_SIGMA, DISC_SIGMA, DISC_SIGMA * DISC_FLATNESS])
                              .mul(cell).expand(n * n, 3).clone(), persistent=False)
+        self.register_buffer("quats", torch.tensor([1.0, 0.0, 0.0, 0.0]).expand(n * n, 4).clone(),
+                             persistent=False)  # identity: the discs lie in the plane
         self.num_bases = num_sh_bases(cfg.sh_degree)
         self.sh_dc = nn.Parameter(rgb_to_sh_dc(torch.full((n * n, 3), 0.6)))  # mid grey
         self.opacity_logit = nn.Parameter(torch.full((n * n,), 4.0))
@@ -44,10 +46,6 @@ class StaticBackground(nn.Module):
     def forward(self) -> dict[str, Tensor]:
         """Gaussian fields of the layer: means (N, 3) world metres, quats (N, 4), scales (N, 3) metres,
         opacities (N,), sh (N, K, 3) (degree > 0 bases are zero: the colour is view-independent)."""
-        n = self.num
-        quats = torch.zeros(n, 4, device=self.means.device)
-        quats[:, 0] = 1.0
-        sh = torch.zeros(n, self.num_bases, 3, device=self.means.device, dtype=self.sh_dc.dtype)
-        sh = torch.cat([self.sh_dc[:, None], sh[:, 1:]], dim=1)
-        return {"means": self.means, "quats": quats, "scales": self.scales,
+        sh = torch.cat([self.sh_dc[:, None], self.sh_dc.new_zeros(self.num, self.num_bases - 1, 3)], dim=1)
+        return {"means": self.means, "quats": self.quats, "scales": self.scales,
                 "opacities": torch.sigmoid(self.opacity_logit), "sh": sh}
