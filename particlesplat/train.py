@@ -110,7 +110,11 @@ class Trainer:
         self.best = -math.inf
         if init is not None and not resume:
             state = read_checkpoint(init)["state_dict"]
-            dropped = sorted(k for k in state if any(k == p or k.startswith(p + ".") for p in init_drop))
+            owns = lambda k, p: k == p or k.startswith(p + ".")  # noqa: E731
+            unknown = [p for p in init_drop if not any(owns(k, p) for k in state)]
+            if unknown:
+                raise ValueError(f"{init}: --init-drop {', '.join(unknown)}: no such weights in the checkpoint")
+            dropped = sorted(k for k in state if any(owns(k, p) for p in init_drop))
             state = {k: v for k, v in state.items() if k not in dropped}
             if dropped and self.rank == 0:
                 print(f"--init {init}: dropped by --init-drop: {', '.join(dropped)}")

@@ -120,6 +120,8 @@ def test_init_from_checkpoint_weights(tmp_path_factory, tmp_path):
     cfg.write_text(text.replace("bg_detail: 2", "bg_detail: 0").replace("bg_copy_input: true", "bg_copy_input: false"))
     with pytest.raises(ValueError, match="does not have: .*bg_detail"):
         _train(cfg, data, tmp_path / "k", "--init", str(tmp_path / "src2.pt"))
+    with pytest.raises(ValueError, match="--init-drop bg_detial: no such weights"):
+        _train(cfg, data, tmp_path / "k", "--init", str(tmp_path / "src2.pt"), "--init-drop", "bg_detial")
     # dropped on purpose, the rest of the weights load
     drops = ("bg_detail", "bg_decoder.detail", "bg_decoder.copy_gate")
     assert _train(cfg, data, tmp_path / "k", "--init", str(tmp_path / "src2.pt"),
