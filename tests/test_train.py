@@ -9,6 +9,7 @@ import sys
 
 import pytest
 import torch
+import yaml
 from model_data import tiny_config, tiny_dataset
 
 from particlesplat.cli import main
@@ -78,10 +79,18 @@ def test_training_reduces_the_loss_on_one_scene(tmp_path_factory, tmp_path):
     assert sum(losses[-10:]) / 10 < 0.85 * sum(losses[:10]) / 10
 
 
+STATIC_ONLY = {"bg_detail": 0, "bg_copy_input": False, "bg_static_grid": 16, "bg_per_view": False}
+
+
 @pytest.mark.slow
-def test_two_process_ddp_run(tmp_path_factory, tmp_path):
+@pytest.mark.parametrize("model", [{}, STATIC_ONLY], ids=["per-view background", "static layer only"])
+def test_two_process_ddp_run(tmp_path_factory, tmp_path, model):
     data = tiny_dataset(tmp_path_factory)
     cfg = tiny_config(tmp_path / "tiny.yaml", steps=2, val_every=2, batch_size=1)
+    if model:
+        text = yaml.safe_load(cfg.read_text())
+        text["model"].update(model)
+        cfg.write_text(yaml.safe_dump(text))
     torchrun = os.path.join(os.path.dirname(sys.executable), "torchrun")
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     proc = subprocess.run([torchrun, "--nproc_per_node=2", "--master_port=29517", "-m", "particlesplat.cli", "train",

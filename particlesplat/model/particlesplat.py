@@ -37,7 +37,8 @@ class ParticleSplat(nn.Module):
         self.encoder = ParticleEncoder(config)
         self.bg_encoder = BackgroundEncoder(config)
         self.fg_decoder = ForegroundDecoder(config)
-        self.bg_decoder = BackgroundDecoder(config)
+        # the per-view background decoder exists only where it draws (a module without gradients breaks DDP)
+        self.bg_decoder = BackgroundDecoder(config) if config.bg_per_view else None
         self.bg_detail = BackgroundDetail(config) if config.bg_detail > 0 else None
         self.static_bg = StaticBackground(config) if config.bg_static_grid > 0 else None
         # one colour behind all Gaussians (sigmoid of 3 logits; near black at the start, as without it)
