@@ -17,6 +17,7 @@ from tqdm import tqdm
 from .atomic import atomic_path, atomic_write
 from .camera import Camera
 from .metrics import depth_abs_rel, fg_ari, matched_miou, psnr, ssim
+from .objects import particle_objects
 from .render import render
 
 PRUNE_Z_T = (0.0, 0.3, 0.5, 0.7)
@@ -33,18 +34,25 @@ def _ms(t0: float) -> float:
 
 
 def render_views(gaussians, cameras: list[Camera], num_owners: int,
-                 background: Tensor | tuple[float, float, float] = (0.0, 0.0, 0.0)) -> dict[str, Tensor]:
+                 background: Tensor | tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 objects: Tensor | None = None) -> dict[str, Tensor]:
     """Render ``gaussians`` in each camera over ``background`` (3,): rgb (V, 3, H, W), depth (V, 1, H, W),
-    seg (V, H, W) and ms per view."""
-    rgb, depth, seg = [], [], []
+    seg (V, H, W) per particle, and with ``objects`` ((num_owners,) object label per particle) seg_objects
+    (V, H, W) per object; ms per view."""
+    rgb, depth, seg, seg_obj = [], [], [], []
     t0 = time.perf_counter()
     for cam in cameras:
         r = render(gaussians, cam, background=background, owner_weights=True, num_owners=num_owners)
         rgb.append(r.rgb.permute(2, 0, 1))
         depth.append(r.depth[None])
         seg.append(r.segmentation())
+        if objects is not None:
+            seg_obj.append(r.segmentation(objects))
     ms = _ms(t0) / max(len(cameras), 1)
-    return {"rgb": torch.stack(rgb), "depth": torch.stack(depth), "seg": torch.stack(seg), "render_ms": ms}
+    out = {"rgb": torch.stack(rgb), "depth": torch.stack(depth), "seg": torch.stack(seg), "render_ms": ms}
+    if objects is not None:
+        out["seg_objects"] = torch.stack(seg_obj)
+    return out
 
 
 def view_psnr(pred: Tensor, gt: Tensor, sup: Tensor | None) -> float:
@@ -57,8 +65,11 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     """Metrics of one dataset item (see :class:`particlesplat.data.SceneDataset`): encode its context
     views, decode all particles and the background, render its target views.
 
-    Returns scalars (psnr, ssim, depth_abs_rel, fg_ari, miou, active_particles, gaussians, encode_ms,
-    decode_ms, render_ms), the renders under "renders", and "pruning" rows when ``prune``.
+    Returns scalars (psnr, ssim, depth_abs_rel, fg_ari, miou, fg_ari_particles, miou_particles,
+    active_particles, objects, gaussians, encode_ms, decode_ms, render_ms), the renders under "renders",
+    and "pruning" rows when ``prune``. fg_ari and miou score the segmentation into objects (particles
+    grouped by :func:`particlesplat.objects.particle_objects`); the ``_particles`` keys score the plain
+    per-particle argmax.
     """
     size = model.config.resolution
     ctx_cams = _cameras(item["context_K"], item["context_c2w"], size)
@@ -70,20 +81,24 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     t0 = time.perf_counter()
     gaussians = model.decode(particles)
     dec_ms = _ms(t0)
+    objects = particle_objects(gaussians, particles.num)
     bg = model.background_color()
-    out = render_views(gaussians, tgt_cams, particles.num, bg)
+    out = render_views(gaussians, tgt_cams, particles.num, bg, objects)
+    active = particles.z_t[:, 0] > model.config.bg_mask_threshold
     sup = item.get("target_supervision")
     gt = item["target_rgb"]
     res = {"psnr": view_psnr(out["rgb"], gt, sup), "ssim": ssim(out["rgb"], gt),
            "depth_abs_rel": depth_abs_rel(out["depth"], item["target_depth"]),
-           "active_particles": int((particles.z_t[:, 0] > model.config.bg_mask_threshold).sum()),
+           "active_particles": int(active.sum()), "objects": len(torch.unique(objects[active])),
            "gaussians": len(gaussians), "encode_ms": enc_ms, "decode_ms": dec_ms, "render_ms": out["render_ms"]}
-    if "target_masks" in item:
-        masks = item["target_masks"]
-        res["fg_ari"] = float(np.nanmean([fg_ari(out["seg"][i], masks[i]) for i in range(len(masks))]))
-        res["miou"] = float(np.nanmean([matched_miou(out["seg"][i], masks[i]) for i in range(len(masks))]))
-    else:
-        res["fg_ari"] = res["miou"] = float("nan")
+    for key, suffix in (("seg_objects", ""), ("seg", "_particles")):
+        if "target_masks" in item:
+            masks = item["target_masks"]
+            res["fg_ari" + suffix] = float(np.nanmean([fg_ari(out[key][i], masks[i]) for i in range(len(masks))]))
+            res["miou" + suffix] = float(np.nanmean([matched_miou(out[key][i], masks[i])
+                                                     for i in range(len(masks))]))
+        else:
+            res["fg_ari" + suffix] = res["miou" + suffix] = float("nan")
     res["renders"] = out
     res["particles"] = particles
     if prune:
@@ -98,8 +113,8 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     return res
 
 
-SCALARS = ("psnr", "ssim", "depth_abs_rel", "fg_ari", "miou", "active_particles", "gaussians", "encode_ms",
-           "decode_ms", "render_ms")
+SCALARS = ("psnr", "ssim", "depth_abs_rel", "fg_ari", "miou", "fg_ari_particles", "miou_particles",
+           "active_particles", "objects", "gaussians", "encode_ms", "decode_ms", "render_ms")
 
 
 def _nanmean(values: list[float]) -> float:
@@ -113,7 +128,8 @@ def _palette(n: int) -> np.ndarray:
 
 
 def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
-    """PNG grid: row 1 context views, row 2 target ground truth, row 3 renders, row 4 depth, row 5 segmentation."""
+    """PNG grid: row 1 context views, row 2 target ground truth, row 3 renders, row 4 depth, row 5 segmentation
+    into objects."""
     def img(t: Tensor) -> np.ndarray:
         return (t.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255).astype(np.uint8)
 
@@ -122,7 +138,7 @@ def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
     H = W = r["rgb"].shape[-1]
     d = r["depth"][:, 0]
     dmax = float(torch.quantile(d[d > 0], 0.98)) if bool((d > 0).any()) else 1.0
-    pal = _palette(int(r["seg"].max()) + 1)
+    pal = _palette(int(r["seg_objects"].max()) + 1)
     cols = max(T, item["context_rgb"].shape[0])
     grid = np.zeros((5 * H, cols * W, 3), np.uint8)
     for i in range(item["context_rgb"].shape[0]):
@@ -132,7 +148,7 @@ def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
         grid[2 * H:3 * H, i * W:(i + 1) * W] = img(r["rgb"][i])
         grid[3 * H:4 * H, i * W:(i + 1) * W] = (np.clip(d[i].cpu().numpy() / dmax, 0, 1) * 255).astype(np.uint8)[
             ..., None]
-        s = r["seg"][i].cpu().numpy()
+        s = r["seg_objects"][i].cpu().numpy()
         grid[4 * H:5 * H, i * W:(i + 1) * W] = np.where(s[..., None] >= 0, pal[np.clip(s, 0, None)], 0)
     with atomic_path(path) as tmp:
         Image.fromarray(grid).save(tmp, format="PNG")
@@ -192,8 +208,9 @@ def run(args: argparse.Namespace) -> int:
                            prune=args.prune, use_depth=not args.no_depth)
     m = out["mean"]
     print(f"{len(out['scenes'])} scenes, {args.context} context view(s): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, "
-          f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f}, "
-          f"active particles {m['active_particles']:.1f}, Gaussians {m['gaussians']:.0f}, "
+          f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f} (objects; per "
+          f"particle {m['fg_ari_particles']:.3f}, {m['miou_particles']:.3f}), active particles "
+          f"{m['active_particles']:.1f} in {m['objects']:.1f} objects, Gaussians {m['gaussians']:.0f}, "
           f"encode {m['encode_ms']:.1f} ms, decode {m['decode_ms']:.1f} ms, render {m['render_ms']:.1f} ms/view")
     if "pruning" in out:
         print("z_t thr  opacity thr  PSNR   Gaussians  render ms")

@@ -10,6 +10,7 @@ from torch import Tensor
 
 from .camera import Camera
 from .gaussians import Gaussians
+from .objects import object_segmentation
 from .projection import footprint_radius_sq, project_gaussians
 from .rasterize import RasterizeFunction, bin_gaussians, pair_inputs, tiles_to_images
 from .sh import eval_sh_colors
@@ -34,14 +35,19 @@ class RenderResult:
     owner_weights: Tensor | None = None
     background_weight: Tensor | None = None
 
-    def segmentation(self) -> Tensor:
+    def segmentation(self, objects: Tensor | None = None) -> Tensor:
         """(H, W) int64 argmax owner per pixel; -1 where the background (Gaussians of owner -1
-        plus the empty remainder 1 - alpha) weighs most."""
+        plus the empty remainder 1 - alpha) weighs most.
+
+        objects: (P,) int64 object label per owner (:func:`particlesplat.objects.particle_objects`):
+        the weights of the owners of one object are summed and the pixel gets the object's label.
+        """
         if self.owner_weights is None or self.background_weight is None:
             raise ValueError("segmentation() needs render(..., owner_weights=True)")
         bg = (self.background_weight + (1.0 - self.alpha)).detach()
-        scores = torch.cat([bg[None], self.owner_weights], dim=0)
-        return scores.argmax(0) - 1
+        if objects is None:
+            objects = torch.arange(self.owner_weights.shape[0], device=self.owner_weights.device)
+        return object_segmentation(self.owner_weights, bg, objects)
 
 
 def render(gaussians: Gaussians, camera: Camera, *, background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),

@@ -79,6 +79,13 @@ def gap_progress(step: int, tc: TrainConfig) -> float:
     return 1.0 if done >= 1.0 else done * WARMUP
 
 
+def lr_factor(step: int, tc: TrainConfig) -> float:
+    """Learning-rate multiplier of optimiser step ``step`` (0-based): a cosine from 1 at step 0 to
+    ``lr_final`` at the last step (``lr_final`` 1: constant)."""
+    t = min(step / max(tc.steps - 1, 1), 1.0)
+    return tc.lr_final + (1.0 - tc.lr_final) * 0.5 * (1.0 + math.cos(math.pi * t))
+
+
 class Trainer:
     """Holds the model, optimiser, datasets and RNG; one instance per process."""
 
@@ -186,6 +193,9 @@ class Trainer:
                                  self.cfg.resolution, self.cfg)
         self.opt.zero_grad(set_to_none=True)
         parts["loss"].backward()
+        factor = lr_factor(self.step, self.tc)
+        for g, base in zip(self.opt.param_groups, (self.tc.lr, self.tc.lr_background)):
+            g["lr"] = base * factor
         if self.tc.grad_clip > 0:
             torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.tc.grad_clip)
         self.opt.step()

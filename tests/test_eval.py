@@ -70,7 +70,9 @@ def test_eval_cli_writes_json_figures_and_pruning_table(tmp_path_factory, tmp_pa
     assert main(["eval", "--checkpoint", str(ckpt), "--data", str(data / "val"), "--json", str(out),
                  "--figures", str(tmp_path / "fig"), "--prune"]) == 0
     res = json.loads(out.read_text())
-    assert set(res["mean"]) >= {"psnr", "ssim", "depth_abs_rel", "fg_ari", "miou"}
+    assert set(res["mean"]) >= {"psnr", "ssim", "depth_abs_rel", "fg_ari", "miou", "fg_ari_particles",
+                                "miou_particles", "objects"}
+    assert res["mean"]["objects"] <= res["mean"]["active_particles"]
     assert len(res["scenes"]) == 1 and res["scenes"][0]["scene"] == "scene_00000"
     assert 0 < res["mean"]["psnr"] < 60 and -1 <= res["mean"]["fg_ari"] <= 1
     rows = res["pruning"]

@@ -22,7 +22,7 @@ def _train(cfg, data, out, *extra) -> int:
 
 def test_interrupted_and_resumed_equals_uninterrupted(tmp_path_factory, tmp_path):
     data = tiny_dataset(tmp_path_factory)
-    cfg = tiny_config(tmp_path / "tiny.yaml")
+    cfg = tiny_config(tmp_path / "tiny.yaml", lr_final=0.1)  # the lr decays: resuming must pick up the schedule
     assert _train(cfg, data, tmp_path / "a") == 0
     assert _train(cfg, data, tmp_path / "b", "--stop-after", "2") == 0
     assert read_checkpoint(tmp_path / "b" / "last.pt")["step"] == 2
@@ -36,6 +36,10 @@ def test_interrupted_and_resumed_equals_uninterrupted(tmp_path_factory, tmp_path
     for sa, sb in zip(a["optimizer"]["state"].values(), b["optimizer"]["state"].values()):
         assert torch.equal(sa["exp_avg_sq"], sb["exp_avg_sq"])
     assert torch.equal(a["rng"][0]["torch"], b["rng"][0]["torch"])
+    # the last step (index 3 of 4) ran at the end of the cosine: lr x lr_final
+    from particlesplat.model import load_config
+
+    assert a["optimizer"]["param_groups"][0]["lr"] == pytest.approx(load_config(cfg)[1].lr * 0.1)
     # logs and validation checkpoints
     lines = [json.loads(x) for x in (tmp_path / "a" / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in lines if "loss" in r] == [1, 2, 3, 4]
@@ -141,6 +145,20 @@ def test_init_from_checkpoint_weights(tmp_path_factory, tmp_path):
     assert kept and set(kept) == set(out)
     for k in kept:
         torch.testing.assert_close(out[k], src2[k], rtol=0, atol=1e-6)
+
+
+def test_lr_factor_is_a_cosine_from_one_to_lr_final():
+    from particlesplat.model import TrainConfig
+    from particlesplat.train import lr_factor
+
+    tc = TrainConfig(steps=101, lr_final=0.2)
+    assert lr_factor(0, tc) == pytest.approx(1.0)
+    assert lr_factor(50, tc) == pytest.approx(0.6)  # half-way: the mean of 1 and 0.2
+    assert lr_factor(25, tc) == pytest.approx(0.2 + 0.8 * 0.5 * (1 + 2 ** -0.5))
+    assert lr_factor(100, tc) == pytest.approx(0.2) and lr_factor(500, tc) == pytest.approx(0.2)
+    assert lr_factor(37, TrainConfig(steps=101)) == 1.0  # lr_final 1: constant
+    with pytest.raises(ValueError, match="lr_final"):
+        TrainConfig(lr_final=1.5).validate()
 
 
 def test_view_gaps_reach_their_full_range_after_gap_warmup():

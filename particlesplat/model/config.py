@@ -139,6 +139,7 @@ class TrainConfig:
     steps: int = 10000
     lr: float = 3e-4
     lr_background: float = 0.01
+    lr_final: float = 1.0
     grad_clip: float = 1.0
     beta_kl: float = 0.02
     beta_f: float = 1.0
@@ -167,6 +168,7 @@ class TrainConfig:
         need(self.steps >= 1, "steps", "must be >= 1")
         need(self.lr > 0, "lr", "must be > 0")
         need(self.lr_background > 0, "lr_background", "must be > 0")
+        need(0.0 <= self.lr_final <= 1.0, "lr_final", "must be in [0, 1]")
         need(0.0 <= self.depth_dropout <= 1.0, "depth_dropout", "must be in [0, 1]")
         need(0.0 <= self.gap_warmup <= 1.0, "gap_warmup", "must be in [0, 1]")
         need(self.cache_scenes >= 0, "cache_scenes", "must be >= 0")
