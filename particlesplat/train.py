@@ -20,7 +20,7 @@ from .atomic import atomic_write
 from .camera import Camera
 from .data.views import WARMUP
 from .model import ModelConfig, ParticleSplat, TrainConfig, load_config, read_checkpoint, save_checkpoint
-from .model.config import config_to_dict
+from .model.config import config_to_dict, model_config_from_dict
 from .model.losses import elbo, scene_kl, view_error
 from .render import render_batch
 
@@ -161,7 +161,8 @@ class Trainer:
 
     def _load(self, path: Path) -> None:
         ckpt = read_checkpoint(path)
-        if ckpt["config"] != config_to_dict(self.cfg):
+        # through the dataclass: a key added since the checkpoint was written takes its default
+        if config_to_dict(model_config_from_dict(ckpt["config"], f"{path}: config")) != config_to_dict(self.cfg):
             raise ValueError(f"{path}: its model config differs from --config; resume with the same config")
         self.model.load_state_dict(ckpt["state_dict"])
         self.opt.load_state_dict(ckpt["optimizer"])

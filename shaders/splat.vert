@@ -12,7 +12,8 @@ uniform sampler2D color_tex;
 uniform int row;
 uniform vec2 size;          // image width, height in pixels
 uniform float guard;        // viewport margin in pixels (points), 0 for quads
-uniform int color_mode;     // 0 SH colour, 1 colour by owner
+uniform int color_mode;     // 0 SH colour, 1 colour by owner, 2 colour by the owner's colour key
+uniform float owner_key[MAX_KEYED];  // mode 2: owner k < MAX_KEYED takes the colour of owner owner_key[k]
 
 flat out vec2 v_center;
 flat out vec3 v_conic;
@@ -46,7 +47,8 @@ void main() {
     v_conic = q.xyz;
     v_opacity = q.w;
     v_owner = col.w;
-    v_color = color_mode == 1 ? owner_color(col.w) : col.rgb;
+    float key = color_mode == 2 && col.w >= 0.0 && col.w < float(MAX_KEYED) ? owner_key[int(col.w)] : col.w;
+    v_color = color_mode >= 1 ? owner_color(key) : col.rgb;
 #ifdef QUADS
     // major axis of the ellipse = eigenvector of the conic's smaller eigenvalue
     float mid = 0.5 * (q.x + q.z);

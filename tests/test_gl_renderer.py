@@ -211,3 +211,27 @@ def test_projected_splats_match_torch_projection_and_the_bench_prints_its_floor(
                        "--primitive", "points"]) == 0
     out = capsys.readouterr().out
     assert "sprite floor ms" in out and "| random 400 | 400 | points |" in out
+
+
+@pytest.mark.parametrize("primitive", ["quads", "points"])
+def test_colour_by_object_is_colour_by_particle_of_the_relabelled_set(ctx, primitive):
+    """Mode 2 with objects [0, 0, 2, 2, 4, ...] draws exactly what mode 1 draws when every Gaussian's
+    owner is replaced by its object label; mode 1 itself tells the merged owners apart."""
+    from dataclasses import replace
+
+    g = random_gaussians(1500, seed=5, sh_degree=1, pixel_scale=0.03)
+    cam = Camera.orbit((0.0, 0.0, 0.0), 40.0, 25.0, 3.0, fov_y_deg=45.0, width=80, height=64)
+    num = int(g.owner.max()) + 1
+    objects = [o - o % 2 for o in range(num)]
+    relabelled = replace(g, owner=torch.where(g.owner >= 0, torch.tensor(objects)[g.owner.clamp_min(0)], g.owner))
+    r = SplatRenderer(ctx, color_dtype="f4", primitive=primitive)
+    r.set_gaussians(g)
+    r.render(cam, color_mode=2, objects=objects)
+    by_object = r.read_rgba()
+    r.render(cam, color_mode=1)
+    by_particle = r.read_rgba()
+    r2 = SplatRenderer(ctx, color_dtype="f4", primitive=primitive)
+    r2.set_gaussians(relabelled)
+    r2.render(cam, color_mode=1)
+    assert np.abs(by_object - r2.read_rgba()).max() < 1e-6
+    assert np.abs(by_object - by_particle).max() > 0.1

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -108,6 +109,35 @@ def test_foreground_lifting_matches_projection_and_jacobian(depth_scale):
     torch.testing.assert_close(cov_cam, expect.expand(S * S, 3, 3), rtol=1e-4, atol=1e-6)
 
 
+def test_back_layer_sits_behind_the_front_on_the_same_ray():
+    """patch_back: with zero head outputs (σ = 0.5) each back Gaussian projects onto its front Gaussian's
+    pixel, half the particle box's width (σ(z_s) W / f · ζ, metres, along x and y averaged) deeper; its
+    opacity is z_t σ(its own opacity logit) and the front layer is exactly the layer without the back."""
+    cfg = ModelConfig(**TINY, particle_depth_scale="cell", patch_back=True)
+    S = cfg.patch_gaussians
+    cam = cams(1)[0]
+    K, c2w = stack_cameras([cam])
+    gen = torch.Generator().manual_seed(3)
+    raw = torch.randn(1, 2 * S * S, gaussian_channels(0), generator=gen) * 0.3
+    raw[:, S * S:, 5] = 0.0  # back depth channel -> σ = 0.5
+    z = dict(z_p=torch.tensor([[0.1, 0.2]]), z_s=torch.logit(torch.tensor([[0.3, 0.2]])), z_d=torch.tensor([[0.2]]),
+             z_e=torch.tensor([[-1.0]]), z_t=torch.tensor([[0.8]]))
+    f = foreground_gaussians(raw, **z, K=K, c2w=c2w, cfg=cfg)
+    front = foreground_gaussians(raw[:, :S * S], **z, K=K, c2w=c2w, cfg=replace(cfg, patch_back=False))
+    assert f["means"].shape == (1, 2 * S * S, 3)
+    for k in front:
+        torch.testing.assert_close(f[k][:, :S * S], front[k])
+    uv_f, z_f = cam.project(f["means"][0, :S * S])
+    uv_b, z_b = cam.project(f["means"][0, S * S:])
+    torch.testing.assert_close(uv_b, uv_f, rtol=1e-4, atol=1e-4)
+    box = (0.3 + 0.2) / 2 * cfg.resolution / float(cam.K[0, 0]) * z_f
+    torch.testing.assert_close(z_b - z_f, 0.5 * box, rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(f["opacities"][0, S * S:], 0.8 * torch.sigmoid(raw[0, S * S:, -1]))
+    m = ParticleSplat(cfg)
+    assert m.fg_decoder(torch.zeros(3, cfg.d_obj)).shape == (3, 2 * S * S, gaussian_channels(0))
+    assert cfg.gaussians_per_particle == 2 * S * S
+
+
 def test_ray_dirs_match_camera_rays():
     cam = cams(1)[0]
     K, c2w = stack_cameras([cam])
@@ -136,7 +166,7 @@ def test_encode_shapes(n_views, with_depth):
     assert p.background.shape == (n_views, m.config.d_bg, 4, 4)
     assert bool(((p.z_t >= 0) & (p.z_t <= 1)).all())
     g = m.decode(p)
-    S2 = m.config.patch_gaussians ** 2
+    S2 = m.config.gaussians_per_particle
     assert len(g) == L * S2 + n_views * (32 // m.config.bg_block) ** 2
     assert torch.isfinite(g.means).all() and torch.isfinite(g.scales).all()
 
@@ -148,14 +178,16 @@ def test_encode_rejects_wrong_size():
         m.encode(rgb, depth, cs)
 
 
-def test_subset_decode_equals_full_decode_restricted():
-    m = tiny_model()
+@pytest.mark.parametrize("back", [False, True])
+def test_subset_decode_equals_full_decode_restricted(back):
+    m = tiny_model(patch_back=back)
     rgb, depth, cs = scene_inputs(2)
     p = m.encode(rgb, depth, cs)
     full = m.decode(p)
     idx = torch.tensor([4, 1])
     sub = m.decode(p, idx, background=False)
     assert sorted(set(sub.owner.tolist())) == [1, 4]
+    assert len(sub) == 2 * m.config.gaussians_per_particle
     for i in (1, 4):
         a, b = full.of_owner(i), sub.of_owner(i)
         for name in ("means", "quats", "scales", "opacities", "sh"):

@@ -42,6 +42,19 @@ def test_edit_undo_redo(encoded):
     assert not s.redo()
 
 
+def test_objects_are_grouped_once_on_the_encoded_scene(encoded):
+    from particlesplat.objects import particle_objects
+
+    model, enc = encoded
+    s = SceneSession(model, enc)
+    want = particle_objects(model.decode(enc.particles), enc.particles.num)
+    assert torch.equal(s.objects(), want)
+    s.set_attribute(0, "z_p", [0.9, 0.9])  # an edit moves a particle but does not regroup
+    assert torch.equal(s.objects(), want)
+    g = model.decode(enc.particles)
+    assert torch.equal(SceneSession(gaussians=g).objects(), torch.arange(int(g.owner.max()) + 1))
+
+
 def test_drag_gesture_is_one_operation(encoded):
     model, enc = encoded
     s = SceneSession(model, enc)

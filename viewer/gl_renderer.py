@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib.resources import files
 
@@ -39,6 +40,7 @@ OWNERS_PER_ID_PASS = 3 * ID_ATTACHMENTS
 DILATION = 0.3  # px^2 added to the 2D covariance diagonal, as in particlesplat.render
 FRUSTUM_MARGIN = 0.3  # the Jacobian's x/z, y/z are clamped to the frustum widened by 30%
 PRIMITIVES = ("auto", "quads", "points")
+MAX_KEYED = 64  # owners 0 .. MAX_KEYED - 1 can take another owner's colour (colour by object)
 POINT_GUARD = 128  # viewport margin (pixels) of the point pass: sprites up to 255 px stay whole
 POINT_MAX_RADIUS = 127.0  # splats up to this radius fit a 255 px point sprite (2 r + 1)
 # ``auto`` cost model (ms per splat, ms per rasterised pixel), fitted on llvmpipe (Mesa 22.3, 2
@@ -151,7 +153,7 @@ class SplatRenderer:
         # programs per primitive kind and role ("splat", or the id pass with 1 or 8 attachments)
         self._progs: dict[str, dict[str | int, moderngl.Program]] = {}
         for kind in (("quads", "points") if primitive == "auto" else (primitive,)):
-            vert = load_shader("splat.vert", {"QUADS": 1} if kind == "quads" else {})
+            vert = load_shader("splat.vert", {"MAX_KEYED": MAX_KEYED, **({"QUADS": 1} if kind == "quads" else {})})
             progs: dict[str | int, moderngl.Program] = {
                 "splat": ctx.program(vertex_shader=vert, fragment_shader=load_shader("splat.frag"))}
             for n in (1, ID_ATTACHMENTS):
@@ -416,9 +418,11 @@ class SplatRenderer:
             self._index_buf.release()
             self._index_buf = None
 
-    def _draw(self, role: str | int, uni: dict, color_mode: int = 0, owner_base: int = 0) -> None:
+    def _draw(self, role: str | int, uni: dict, color_mode: int = 0, owner_base: int = 0,
+              owner_key: np.ndarray | None = None) -> None:
         """Draw the sorted splats with the program of ``role`` ("splat", or the id pass with 1 or
-        8 attachments, whose first owner is ``owner_base``) into the bound framebuffer."""
+        8 attachments, whose first owner is ``owner_base``) into the bound framebuffer; ``owner_key``
+        (MAX_KEYED,) is the colour key per owner of colour mode 2."""
         kind = self.kind
         prog = self._progs[kind][role]
         if "owner_base" in prog:
@@ -432,6 +436,8 @@ class SplatRenderer:
         prog["size"] = uni["size"]
         if "color_mode" in prog:
             prog["color_mode"] = color_mode
+        if "owner_key" in prog and owner_key is not None:
+            prog["owner_key"].write(owner_key.astype(np.float32).tobytes())
         self.ctx.disable(moderngl.BLEND)
         if not self._drawn:
             return
@@ -450,17 +456,24 @@ class SplatRenderer:
         vao.render(moderngl.POINTS, vertices=self._drawn)
         self.ctx.viewport = (0, 0, w, h)
 
-    def render(self, camera: Camera, *, color_mode: int = 0, finish: bool = False) -> FrameTimes:
+    def render(self, camera: Camera, *, color_mode: int = 0, objects: Sequence[int] | None = None,
+               finish: bool = False) -> FrameTimes:
         """Render into the offscreen colour target (premultiplied rgb, alpha) at the camera's size.
 
-        color_mode: 0 = SH colour, 1 = a colour per owner (segmentation view).
+        color_mode: 0 = SH colour, 1 = a colour per owner (segmentation view), 2 = a colour per object:
+        owner k < MAX_KEYED is drawn in the colour of owner ``objects[k]`` (its object's label); owners
+        from MAX_KEYED on keep their own colour.
         """
+        key = np.arange(MAX_KEYED, dtype=np.float32)
+        if objects is not None:
+            head = np.asarray(objects, np.float32)[:MAX_KEYED]
+            key[:len(head)] = head
         times = FrameTimes()
         uni = self._prepare(camera, times)
         t0 = time.perf_counter()
         self._color_fbo.use()
         self._color_fbo.clear(0.0, 0.0, 0.0, 1.0)
-        self._draw("splat", uni, color_mode)
+        self._draw("splat", uni, color_mode, owner_key=key)
         if finish:
             self.ctx.finish()
         times.draw_ms = (time.perf_counter() - t0) * 1e3

@@ -49,7 +49,9 @@ class SceneView:
                id(session), state.key())
         if key == self._last_key and not force:
             return None
-        times = self.renderer.render(camera, color_mode=state.color_mode(), finish=finish)
+        mode = state.color_mode()
+        objects = session.objects().tolist() if mode == 2 else None
+        times = self.renderer.render(camera, color_mode=mode, objects=objects, finish=finish)
         if state.seg_mode == "mask of selected" and state.selected is not None:
             self.renderer.render_mask(camera, state.selected)
         self._last_key = key

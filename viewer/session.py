@@ -17,6 +17,7 @@ from particlesplat.edits import Edits, apply_edits, check_indices, diff_edits, l
 from particlesplat.encode_scene import EncodedScene
 from particlesplat.gaussians import Gaussians
 from particlesplat.model.particles import EDITABLE, Particles
+from particlesplat.objects import particle_objects
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,7 @@ class SceneSession:
         self._fixed = gaussians.detach().to("cpu") if gaussians is not None else None
         self.original: Particles | None = encoded.particles.detach().to("cpu") if encoded else None
         self.particles: Particles | None = self.original.clone() if self.original is not None else None
+        self._objects: torch.Tensor | None = None
         self._changed: set[int] = set()
         self._all_changed = True
         self.version = 0  # bumps on every change of the Gaussians
@@ -120,6 +122,18 @@ class SceneSession:
         if self._fixed is not None:
             return self._fixed
         return self.model.decode(self.particles).detach().to("cpu")
+
+    def objects(self) -> torch.Tensor:
+        """(num_owners,) int64 object label per particle (:func:`particlesplat.objects.particle_objects`),
+        grouped once on the scene as encoded, so an edit does not regroup it. A .ply has no particles to
+        group: each owner is its own object."""
+        if self._objects is None:
+            if self._fixed is not None:
+                self._objects = torch.arange(self.num_owners())
+            else:
+                self._objects = particle_objects(self.model.decode(self.original).detach().to("cpu"),
+                                                 self.num_owners())
+        return self._objects
 
     def particle_gaussians(self, index: int) -> Gaussians:
         """The Gaussians of one particle (owner = index), decoded alone."""

@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 
 from particlesplat.views import DEFAULT_BACKGROUND
 
-SEG_MODES = ("normal", "colour by particle", "mask of selected", "background hidden", "background alone")
+SEG_MODES = ("normal", "colour by particle", "colour by object", "mask of selected", "background hidden",
+             "background alone")
 
 
 @dataclass
@@ -45,8 +46,8 @@ class ViewState:
         return owners
 
     def color_mode(self) -> int:
-        """Colour mode of the splat pass: 1 = a colour per particle."""
-        return 1 if self.seg_mode == "colour by particle" else 0
+        """Colour mode of the splat pass: 1 = a colour per particle, 2 = a colour per object."""
+        return {"colour by particle": 1, "colour by object": 2}.get(self.seg_mode, 0)
 
     def key(self) -> tuple:
         """Everything that changes the rendered pixels."""

@@ -53,6 +53,7 @@ class ModelConfig:
     patch_gaussians: int = 4
     patch_base: int = 0
     particle_depth_scale: str = "pixel"
+    patch_back: bool = False
     token_dim: int = 64
     transformer_layers: int = 2
     transformer_heads: int = 4
@@ -119,6 +120,11 @@ class ModelConfig:
         for key in ("prior_offset_std", "prior_scale_std", "prior_depth_std", "prior_extent_std", "prior_t_a",
                     "prior_t_b"):
             need(getattr(self, key) > 0.0, key, "must be > 0")
+
+    @property
+    def gaussians_per_particle(self) -> int:
+        """S², doubled by the back layer (``patch_back``)."""
+        return self.patch_gaussians ** 2 * (2 if self.patch_back else 1)
 
     @property
     def logit_prior_scale(self) -> float:

@@ -44,6 +44,10 @@ class ForegroundDecoder(nn.Module):
     z_f is decoded to a ``patch_base``² feature grid that is doubled (nearest, then a residual 3×3 conv that
     starts at zero) until it is S×S, so a model trained with S = ``patch_base`` starts an S-times-finer
     patch from its own Gaussians, each split into children at the finer cell centres.
+
+    With ``patch_back`` a second head gives every cell a back Gaussian (rows S*S .. 2*S*S - 1), which
+    :func:`foreground_gaussians` places behind the cell's front Gaussian on the same ray; it starts nearly
+    transparent (opacity logit -2), so a model trained without it starts from what it drew before.
     """
 
     def __init__(self, cfg: ModelConfig):
@@ -65,15 +69,21 @@ class ForegroundDecoder(nn.Module):
         self.conv = nn.Sequential(nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU())
         self.head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
         init_gaussian_head(self.head, cfg.sh_degree, opacity_logit=2.0)
+        self.back_head = None
+        if cfg.patch_back:
+            self.back_head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
+            init_gaussian_head(self.back_head, cfg.sh_degree, opacity_logit=-2.0)
 
     def forward(self, z_f: Tensor) -> Tensor:
-        """z_f: (M, D) -> (M, S*S, C) with cells in row-major (y, x) order."""
+        """z_f: (M, D) -> (M, S*S, C) with cells in row-major (y, x) order; (M, 2*S*S, C) with ``patch_back``
+        (front cells, then back cells)."""
         h = self.fc(z_f).reshape(-1, self.c, self.base, self.base)
         for conv in self.up:
             h = F.interpolate(h, scale_factor=2, mode="nearest")
             h = h + conv(F.silu(h))
-        out = self.head(self.conv(h))
-        return out.flatten(2).transpose(1, 2)
+        h = self.conv(h)
+        heads = [self.head] if self.back_head is None else [self.head, self.back_head]
+        return torch.cat([head(h).flatten(2).transpose(1, 2) for head in heads], dim=1)
 
 
 class BackgroundDecoder(nn.Module):
@@ -188,13 +198,17 @@ def foreground_gaussians(raw: Tensor, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e
                          c2w: Tensor, cfg: ModelConfig) -> dict[str, Tensor]:
     """Steps 2-3 for M particles.
 
-    raw: (M, N, C) canonical patch parameters (N = S*S, row-major cells); z_p: (M, 2) in [-1, 1];
-    z_s: (M, 2), z_d: (M, 1), z_e: (M, 1) pre-sigmoid; z_t: (M, 1) in [0, 1]; K: (M, 3, 3) and
-    c2w: (M, 4, 4) of each particle's view. Returns Gaussian fields with leading dims (M, N).
+    raw: (M, N, C) canonical patch parameters (N = S*S, row-major cells; 2*S*S with ``patch_back``);
+    z_p: (M, 2) in [-1, 1]; z_s: (M, 2), z_d: (M, 1), z_e: (M, 1) pre-sigmoid; z_t: (M, 1) in [0, 1];
+    K: (M, 3, 3) and c2w: (M, 4, 4) of each particle's view. Returns Gaussian fields with leading dims (M, N).
+
+    A back Gaussian sits on its front Gaussian's ray, σ(its depth channel) x the particle box's width
+    (metres, at the front depth) further away: the far side of the object along the context view's ray,
+    which the view cannot see. Its offset channels are unused; the rest are its own.
     """
     S = cfg.patch_gaussians
     H = W = cfg.resolution
-    p = split_gaussian_params(raw, cfg.sh_degree)
+    p = split_gaussian_params(raw[:, :S * S], cfg.sh_degree)
     ar = (torch.arange(S, device=raw.device, dtype=raw.dtype) + 0.5) / S
     gy, gx = torch.meshgrid(ar, ar, indexing="ij")
     u = torch.stack([gx, gy], dim=-1).reshape(1, S * S, 2)
@@ -208,16 +222,30 @@ def foreground_gaussians(raw: Tensor, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e
     half = 0.5 * (cfg.d_max - cfg.d_min) * torch.sigmoid(z_e)
     zeta = d + half * torch.tanh(p["dd"][..., 0])
     jac_px = scale * size / S  # s_x / (S_w / W): pixels per canonical cell
-    opacity = z_t * torch.sigmoid(p["opacity"][..., 0])
-    Kn = K[:, None].expand(-1, S * S, -1, -1)
-    cn = c2w[:, None].expand(-1, S * S, -1, -1)
+    out = _lift_cells(p, pix, zeta, jac_px, z_t * torch.sigmoid(p["opacity"][..., 0]), K, c2w, cfg)
+    if not cfg.patch_back:
+        return out
+    pb = split_gaussian_params(raw[:, S * S:], cfg.sh_degree)
+    box = jac_px.mean(-1) * S * zeta / K[:, 0, 0, None]  # (M, N) the particle box's width in metres
+    zeta_back = zeta + torch.sigmoid(pb["dd"][..., 0]) * box
+    back = _lift_cells(pb, pix, zeta_back, jac_px, z_t * torch.sigmoid(pb["opacity"][..., 0]), K, c2w, cfg)
+    return {k: torch.cat([out[k], back[k]], dim=1) for k in out}
+
+
+def _lift_cells(p: dict[str, Tensor], pix: Tensor, zeta: Tensor, jac_px: Tensor, opacity: Tensor, K: Tensor,
+                c2w: Tensor, cfg: ModelConfig) -> dict[str, Tensor]:
+    """Lift N cells of M particles: p split head output, pix (M, N, 2) pixels, zeta (M, N) planar metres,
+    jac_px (M, 1, 2) pixels per canonical cell, opacity (M, N); K (M, 3, 3), c2w (M, 4, 4)."""
+    N = pix.shape[1]
+    Kn = K[:, None].expand(-1, N, -1, -1)
+    cn = c2w[:, None].expand(-1, N, -1, -1)
     # "cell": canonical cells are cubes (as deep as they are wide), so a particle's Gaussians have volume and
     # do not turn into slivers seen from the side
     depth_cell = None
     if cfg.particle_depth_scale == "cell":
         fx = K[:, 0, 0, None]
         depth_cell = jac_px.mean(-1) * zeta / fx
-    return _finish(p, pix, zeta, jac_px.expand(-1, S * S, -1), Kn, cn, opacity, cfg, depth_cell)
+    return _finish(p, pix, zeta, jac_px.expand(-1, N, -1), Kn, cn, opacity, cfg, depth_cell)
 
 
 def block_centres(cfg: ModelConfig, device, dtype) -> Tensor:

@@ -207,8 +207,7 @@ class ParticleSplat(nn.Module):
         cp = c2w[:, view].reshape(B * N, 4, 4)
         fg = self.foreground(flat["z_p"], flat["z_s"], flat["z_d"], flat["z_e"], flat["z_t"], flat["z_f"], Kp, cp)
         fg = {k: v.reshape(B, -1, *v.shape[2:]) for k, v in fg.items()}
-        S2 = self.config.patch_gaussians ** 2
-        owner_fg = torch.arange(N, device=K.device).repeat_interleave(S2)
+        owner_fg = torch.arange(N, device=K.device).repeat_interleave(self.config.gaussians_per_particle)
         if background:
             bgf = self.background_fields(z["bg"], K, c2w)
             owner = torch.cat([owner_fg, torch.full((bgf["means"].shape[1],), BACKGROUND_OWNER, device=K.device)])
@@ -275,8 +274,7 @@ class ParticleSplat(nn.Module):
         if idx.numel():
             v = p.view[idx]
             fg = self.foreground(p.z_p[idx], p.z_s[idx], p.z_d[idx], p.z_e[idx], p.z_t[idx], p.z_f[idx], K[v], c2w[v])
-            S2 = self.config.patch_gaussians ** 2
-            parts.append(_gaussians(fg, idx.repeat_interleave(S2)))
+            parts.append(_gaussians(fg, idx.repeat_interleave(self.config.gaussians_per_particle)))
         if background:
             bgf = {k: v[0] for k, v in self.background_fields(p.background[None], K[None], c2w[None]).items()}
             parts.append(_gaussians(bgf, torch.full((bgf["means"].shape[0],), BACKGROUND_OWNER, device=dev)))
