@@ -55,6 +55,28 @@ def test_objects_are_grouped_once_on_the_encoded_scene(encoded):
     assert torch.equal(SceneSession(gaussians=g).objects(), torch.arange(int(g.owner.max()) + 1))
 
 
+def test_move_object_moves_every_member_as_one_undo_step(encoded):
+    from particlesplat.move import MoveError, anchor_points
+
+    model, enc = encoded
+    s = SceneSession(model, enc)
+    s._objects = torch.tensor([0, 1, 0, 3, 4, 5])[:s.num_particles]  # particles 0 and 2: one object
+    assert s.object_members(2) == [0, 2]
+    before = anchor_points(s.particles, [0, 2], model.config)
+    for _ in range(3):  # a drag of three steps of 0.05 m along x
+        s.move_object(2, [0.05, 0.0, 0.0], gesture="drag")
+    s.end_gesture()
+    after = anchor_points(s.particles, [0, 2], model.config)
+    torch.testing.assert_close(after - before, torch.tensor([[0.15, 0.0, 0.0]] * 2), rtol=0, atol=1e-4)
+    assert s.object_offset(0) == pytest.approx((0.15, 0.0, 0.0), abs=1e-4)
+    assert len(s.history.undo) == 1 and set(s.edits()) == {0, 2}
+    s.take_changes()
+    assert s.undo() and s.edits() == {} and s.take_changes() == {0, 2}
+    with pytest.raises(MoveError):
+        s.move_object(0, [0.0, 0.0, 50.0])
+    assert s.edits() == {} and len(s.history.undo) == 0
+
+
 def test_drag_gesture_is_one_operation(encoded):
     model, enc = encoded
     s = SceneSession(model, enc)

@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING
 import torch
 from imgui_bundle import imgui
 
+from particlesplat.move import MoveError
+
 from .state import SEG_MODES
 
 if TYPE_CHECKING:
@@ -56,7 +58,7 @@ class ViewportControls:
             if self.dragged:
                 sel = app.state.selected
                 if io.key_shift and sel is not None and app.session.editable:
-                    self.drag_particle_plane(app, sel, dx, dy)
+                    self.drag_object(app, sel, dx, dy)
                 elif io.key_ctrl and sel is not None and app.session.editable:
                     z_d = app.session.value(sel, "z_d")[0] - dy * DEPTH_PER_PX
                     app.session.set_attribute(sel, "z_d", [z_d], gesture="depth-drag")
@@ -79,28 +81,26 @@ class ViewportControls:
         owner = app.scene_view.pick(app.session, app.view_camera(1.0), int(x), int(y))
         app.state.selected = owner if owner >= 0 and app.session.editable else None
 
-    def drag_particle_plane(self, app: App, index: int, dx: float, dy: float) -> None:
-        """Move particle ``index`` so it follows a screen drag of (dx, dy) framebuffer pixels:
-        the world motion at the particle's depth is projected into its own context view, whose
-        normalised image position is ``z_p``."""
+    def drag_object(self, app: App, index: int, dx: float, dy: float) -> None:
+        """Move the object of particle ``index`` (every particle of it, :meth:`SceneSession.move_object`)
+        so it follows a screen drag of (dx, dy) framebuffer pixels: the world motion parallel to the
+        viewing camera's image plane at the particle's depth. A move out of the model's depth range is
+        refused (the status line says why)."""
         session = app.session
         if self.particle_center is None:
             g = session.particle_gaussians(index)
             w = g.opacities.clamp_min(1e-6)
             self.particle_center = (g.means * w[:, None]).sum(0) / w.sum()
-        center = self.particle_center.double()
         view_cam = app.orbit.camera(*app.framebuffer_size())
-        R = view_cam.c2w[:3, :3].double()
-        depth = float(view_cam.world_to_camera(center[None].float())[0, 2].clamp_min(1e-3))
-        moved = center + (R[:, 0] * dx + R[:, 1] * dy) * depth / float(view_cam.fy)
-        cam = session.particles.cameras[int(session.particles.view[index])]
-        uv0, _ = cam.project(center[None].to(cam.dtype))
-        uv1, _ = cam.project(moved[None].to(cam.dtype))
-        duv = (uv1 - uv0)[0].double()
-        zp = session.value(index, "z_p")
-        new = [zp[0] + 2.0 * float(duv[0]) / cam.width, zp[1] + 2.0 * float(duv[1]) / cam.height]
-        session.set_attribute(index, "z_p", new, gesture="plane-drag")
-        self.particle_center = moved
+        R = view_cam.c2w[:3, :3]
+        depth = float(view_cam.world_to_camera(self.particle_center[None].float())[0, 2].clamp_min(1e-3))
+        delta = (R[:, 0] * dx + R[:, 1] * dy) * depth / float(view_cam.fy)
+        try:
+            session.move_object(index, delta.tolist(), gesture="object-drag")
+        except MoveError as e:
+            app.fields.status = f"error: {e}"
+            return
+        self.particle_center = self.particle_center + delta
 
     @staticmethod
     def _keys(app: App, io) -> None:

@@ -9,6 +9,7 @@ from imgui_bundle import imgui
 
 from particlesplat.encode_scene import demo_scenes
 from particlesplat.model.particles import EDITABLE
+from particlesplat.move import MoveError
 
 from .session import SceneSession
 from .state import SEG_MODES, ViewState
@@ -32,7 +33,8 @@ SHORTCUTS = (
     ("Esc", "deselect"),
 )
 
-DRAG_SPEED = MappingProxyType({"z_p": 0.005, "z_s": 0.02, "z_d": 0.02, "z_e": 0.02, "z_t": 0.005})
+DRAG_SPEED = MappingProxyType({"z_p": 0.005, "z_s": 0.02, "z_d": 0.02, "z_e": 0.02, "z_t": 0.005,
+                               "move": 0.005})  # move: metres per pixel dragged
 
 
 @dataclass
@@ -82,7 +84,7 @@ def draw_panel(session: SceneSession, state: ViewState, req: UiRequests, fields:
     _view_section(session, state, req, counts)
     if session.editable:
         _particles_section(session, state, swatches)
-        _selected_section(session, state)
+        _selected_section(session, state, fields)
         _edits_section(session, req, fields)
     _output_section(req, fields)
     if imgui.collapsing_header("Shortcuts"):
@@ -168,7 +170,7 @@ def _particles_section(session: SceneSession, state: ViewState, swatches: dict[i
         imgui.pop_id()
 
 
-def _selected_section(session: SceneSession, state: ViewState) -> None:
+def _selected_section(session: SceneSession, state: ViewState, fields: UiFields) -> None:
     i = state.selected
     if i is None or not 0 <= i < session.num_particles:
         return
@@ -195,6 +197,18 @@ def _selected_section(session: SceneSession, state: ViewState) -> None:
             session.end_gesture()
     if imgui.button("Reset particle to encoded values"):
         session.reset_particle(i)
+    # a world translation of every particle of the selected particle's object (one per view that holds it)
+    members = session.object_members(i)
+    imgui.text(f"object: particle{'s' if len(members) > 1 else ''} {', '.join(map(str, members))}")
+    offset = list(session.object_offset(i))
+    changed, new = imgui.drag_float3("move object (m)", offset, DRAG_SPEED["move"])
+    if changed:
+        try:
+            session.move_object(i, [a - b for a, b in zip(new, offset)], gesture="panel")
+        except MoveError as e:
+            fields.status = f"error: {e}"
+    if imgui.is_item_deactivated():
+        session.end_gesture()
 
 
 def _edits_section(session: SceneSession, req: UiRequests, fields: UiFields) -> None:

@@ -17,6 +17,7 @@ from particlesplat.edits import Edits, apply_edits, check_indices, diff_edits, l
 from particlesplat.encode_scene import EncodedScene
 from particlesplat.gaussians import Gaussians
 from particlesplat.model.particles import EDITABLE, Particles
+from particlesplat.move import anchor_points, translate
 from particlesplat.objects import particle_objects
 
 
@@ -187,6 +188,47 @@ class SceneSession:
             self._apply([SetAttribute(index, name, old, new)], True)
             return
         self._push(Operation(f"set {name} of particle {index}", [SetAttribute(index, name, old, new)], key))
+
+    def object_members(self, index: int) -> list[int]:
+        """The particles of particle ``index``'s object (:meth:`objects`), ascending."""
+        labels = self.objects()
+        return [int(j) for j in torch.nonzero(labels == labels[index]).flatten()]
+
+    def object_offset(self, index: int) -> tuple[float, float, float]:
+        """World offset (metres) of particle ``index``'s anchor from where it was encoded."""
+        cfg = self.model.config
+        now = anchor_points(self.particles, [index], cfg)[0]
+        was = anchor_points(self.original, [index], cfg)[0]
+        return tuple(float(v) for v in now - was)
+
+    def move_object(self, index: int, delta, gesture: str | None = None) -> None:
+        """Translate every particle of particle ``index``'s object by ``delta`` (3,) world metres (one
+        operation; consecutive calls with the same ``gesture`` extend it until :meth:`end_gesture`).
+        Raises :class:`particlesplat.move.MoveError` (nothing changed) if a particle would leave the
+        model's depth range."""
+        if not self.editable:
+            raise ValueError("this scene has no particles to edit (opened from a .ply)")
+        if not 0 <= index < self.num_particles:
+            raise IndexError(f"particle {index} out of range (0..{self.num_particles - 1})")
+        members = self.object_members(index)
+        target = translate(self.particles, members, delta, self.model.config)
+        changes = [SetAttribute(i, name, self.value(i, name), value)
+                   for i, attrs in target.items() for name, value in attrs.items() if value != self.value(i, name)]
+        if not changes:
+            return
+        key = (gesture, "move", tuple(members)) if gesture is not None else None
+        last = self.history.undo[-1] if self.history.undo else None
+        if key is not None and last is not None and last.open_key == key:
+            first = {(c.index, c.name): c.old for c in last.changes}
+            merged = {(c.index, c.name): c for c in last.changes}
+            for c in changes:
+                merged[(c.index, c.name)] = SetAttribute(c.index, c.name, first.get((c.index, c.name), c.old), c.new)
+            last.changes = list(merged.values())
+            self._apply(changes, True)
+            return
+        self.end_gesture()
+        label = f"move object of particle{'s' if len(members) > 1 else ''} {', '.join(map(str, members))}"
+        self._push(Operation(label, changes, key))
 
     def end_gesture(self) -> None:
         """Close the open drag operation, if any."""
