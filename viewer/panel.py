@@ -19,7 +19,7 @@ SHORTCUTS = (
     ("right / middle drag", "pan"),
     ("wheel", "zoom"),
     ("click", "select the particle under the cursor"),
-    ("Shift + left drag", "move the selected particle in its image plane (z_p)"),
+    ("Shift + left drag", "move the selected particle's object (all its particles) with the mouse"),
     ("Ctrl + left drag", "move the selected particle in depth (z_d)"),
     ("R", "reset the view"),
     ("1 .. 9", "snap to input camera 1 .. 9"),
