@@ -21,7 +21,7 @@ from .model.particles import Particles
 
 
 class MoveError(ValueError):
-    """A move would take a particle outside the depth range or in front of its camera."""
+    """A move would take a particle outside the model's depth range, or so near its view that it fills it."""
 
 
 def anchor_points(particles: Particles, indices: Sequence[int], config: ModelConfig) -> Tensor:
