@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .state import DEFAULT_PRUNE
+
 if TYPE_CHECKING:  # the GL modules load only when the benchmark runs
     from particlesplat.camera import Camera
     from particlesplat.views import View
@@ -116,7 +118,7 @@ def _time_frames(renderer: SplatRenderer, cameras: list[Camera]) -> Row:
         upload.append(ft.upload_ms)
         draw.append(ft.draw_ms)
     med = lambda v: float(np.median(v))  # noqa: E731
-    return Row("", renderer.num, med(sort), med(upload), med(draw), med(total), renderer.splat_area() / 1e6,
+    return Row("", renderer.num_visible, med(sort), med(upload), med(draw), med(total), renderer.splat_area() / 1e6,
                primitive=renderer.kind)
 
 
@@ -213,9 +215,10 @@ def main(argv: list[str] | None = None) -> int:
         session = SceneSession(model, enc)
         g = session.gaussians()
         renderer.set_gaussians(g)
+        renderer.set_filter(min_opacity=DEFAULT_PRUNE)  # what the viewer draws by default
         view = default_view(enc.all_cameras)
         row = _case(renderer, view, args)
-        row.name = f"demo scene ({os.path.basename(str(scene))})"
+        row.name = f"demo scene ({os.path.basename(str(scene))}, opacity >= {DEFAULT_PRUNE:g})"
         rows.append(row)
         latency = (edit_latency(renderer, session, view, args.width, args.height),
                    edit_latency(renderer, session, view, round(args.width * args.moving_scale),

@@ -6,6 +6,10 @@ from dataclasses import dataclass, field
 
 from particlesplat.views import DEFAULT_BACKGROUND
 
+# Gaussians fainter than this are not drawn by default: on the 32 test scenes the shipped model's PSNR is the
+# same with and without them (27.47 dB) and they are 37 % of its Gaussians (mostly inactive particles, z_t ~ 0)
+DEFAULT_PRUNE = 0.05
+
 SEG_MODES = ("normal", "colour by particle", "colour by object", "mask of selected", "background hidden",
              "background alone")
 
@@ -19,7 +23,8 @@ class ViewState:
         hidden: particle indices hidden by their visibility toggle.
         solo: a particle shown alone (plus the background unless hidden), or None.
         seg_mode: one of :data:`SEG_MODES`.
-        prune: opacity threshold; Gaussians below it are not drawn (and not exported).
+        prune: opacity threshold; Gaussians below it are not drawn (and not exported). Default
+            :data:`DEFAULT_PRUNE`.
         background: RGB behind the Gaussians.
         overlay: show the frame-time / count overlay.
         panel: show the ImGui panel.
@@ -30,7 +35,7 @@ class ViewState:
     hidden: set[int] = field(default_factory=set)
     solo: int | None = None
     seg_mode: str = SEG_MODES[0]
-    prune: float = 0.0
+    prune: float = DEFAULT_PRUNE
     background: tuple[float, float, float] = DEFAULT_BACKGROUND
     overlay: bool = True
     panel: bool = True
