@@ -118,7 +118,7 @@ def _time_frames(renderer: SplatRenderer, cameras: list[Camera]) -> Row:
         upload.append(ft.upload_ms)
         draw.append(ft.draw_ms)
     med = lambda v: float(np.median(v))  # noqa: E731
-    return Row("", renderer.num_visible, med(sort), med(upload), med(draw), med(total), renderer.splat_area() / 1e6,
+    return Row("", renderer.visible_count, med(sort), med(upload), med(draw), med(total), renderer.splat_area() / 1e6,
                primitive=renderer.kind)
 
 

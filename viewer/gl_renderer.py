@@ -201,11 +201,6 @@ class SplatRenderer:
         return self._means.shape[0]
 
     @property
-    def num_visible(self) -> int:
-        """Number of Gaussians that pass the filter (:meth:`set_filter`)."""
-        return int(self._visible_idx.shape[0])
-
-    @property
     def visible_count(self) -> int:
         """Gaussians passing the owner and opacity filter."""
         return int(self._visible_idx.shape[0])
