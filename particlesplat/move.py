@@ -24,16 +24,17 @@ class MoveError(ValueError):
     """A move would take a particle outside the model's depth range, or so near its view that it fills it."""
 
 
+def _anchor(particles: Particles, index: int, config: ModelConfig) -> tuple[Tensor, Tensor]:
+    """World position (3,) metres of particle ``index``'s anchor (``z_p`` at depth d) and d (planar metres)."""
+    cam = particles.cameras[int(particles.view[index])]
+    size = torch.tensor([cam.width, cam.height], dtype=particles.z_p.dtype)
+    d = config.depth_of(particles.z_d[index, 0])
+    return cam.unproject((particles.z_p[index] + 1.0) * 0.5 * size, d), d
+
+
 def anchor_points(particles: Particles, indices: Sequence[int], config: ModelConfig) -> Tensor:
     """World positions (len(indices), 3) metres of the particles' anchors: ``z_p`` at depth d."""
-    out = []
-    for i in indices:
-        cam = particles.cameras[int(particles.view[i])]
-        size = torch.tensor([cam.width, cam.height], dtype=particles.z_p.dtype)
-        uv = (particles.z_p[i] + 1.0) * 0.5 * size
-        d = config.d_min + torch.sigmoid(particles.z_d[i, 0]) * (config.d_max - config.d_min)
-        out.append(cam.unproject(uv, d))
-    return torch.stack(out) if out else torch.zeros(0, 3)
+    return torch.stack([_anchor(particles, i, config)[0] for i in indices]) if len(indices) else torch.zeros(0, 3)
 
 
 def translate(particles: Particles, indices: Sequence[int], delta: Sequence[float] | Tensor,
@@ -45,12 +46,11 @@ def translate(particles: Particles, indices: Sequence[int], delta: Sequence[floa
     would reach 1 (the particle would fill its view).
     """
     delta_t = torch.as_tensor(delta, dtype=particles.z_p.dtype).reshape(3)
-    anchors = anchor_points(particles, indices, config)
     out: dict[int, dict[str, tuple[float, ...]]] = {}
-    for k, i in enumerate(indices):
+    for i in indices:
         cam = particles.cameras[int(particles.view[i])]
-        d_old = config.d_min + torch.sigmoid(particles.z_d[i, 0]) * (config.d_max - config.d_min)
-        uv, d_new = cam.project(anchors[k] + delta_t)
+        anchor, d_old = _anchor(particles, i, config)
+        uv, d_new = cam.project(anchor + delta_t)
         if not config.d_min < float(d_new) < config.d_max:
             raise MoveError(f"particle {i}: the move puts it at depth {float(d_new):.2f} m from its view, outside "
                             f"the model's range ({config.d_min}, {config.d_max}) m")
@@ -59,7 +59,6 @@ def translate(particles: Particles, indices: Sequence[int], delta: Sequence[floa
             raise MoveError(f"particle {i}: the move brings it so close to its view that it would fill it")
         size = torch.tensor([cam.width, cam.height], dtype=uv.dtype)
         z_p = uv / size * 2.0 - 1.0
-        z_d = torch.logit((d_new - config.d_min) / (config.d_max - config.d_min))
-        out[int(i)] = {"z_p": tuple(float(v) for v in z_p), "z_d": (float(z_d),),
+        out[int(i)] = {"z_p": tuple(float(v) for v in z_p), "z_d": (float(config.depth_logit(d_new)),),
                        "z_s": tuple(float(v) for v in torch.logit(scale))}
     return out

@@ -126,6 +126,14 @@ class ModelConfig:
         """S², doubled by the back layer (``patch_back``)."""
         return self.patch_gaussians ** 2 * (2 if self.patch_back else 1)
 
+    def depth_of(self, logit):
+        """Planar depth (metres) of a depth logit (tensor): d_min + σ(logit)(d_max − d_min)."""
+        return self.d_min + logit.sigmoid() * (self.d_max - self.d_min)
+
+    def depth_logit(self, depth):
+        """The logit whose :meth:`depth_of` is ``depth`` (tensor, metres, inside (d_min, d_max))."""
+        return ((depth - self.d_min) / (self.d_max - self.d_min)).logit()
+
     @property
     def logit_prior_scale(self) -> float:
         return math.log(self.prior_scale_mean / (1.0 - self.prior_scale_mean))

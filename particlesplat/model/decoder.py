@@ -218,7 +218,7 @@ def foreground_gaussians(raw: Tensor, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e
     u_img = 0.5 * (scale * u_patch + z_p[:, None, :] + 1.0)
     size = torch.tensor([W, H], device=raw.device, dtype=raw.dtype)
     pix = u_img * size
-    d = cfg.d_min + torch.sigmoid(z_d) * (cfg.d_max - cfg.d_min)
+    d = cfg.depth_of(z_d)
     half = 0.5 * (cfg.d_max - cfg.d_min) * torch.sigmoid(z_e)
     zeta = d + half * torch.tanh(p["dd"][..., 0])
     jac_px = scale * size / S  # s_x / (S_w / W): pixels per canonical cell
@@ -274,7 +274,7 @@ def background_gaussians(raw: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig) 
     p = split_gaussian_params(raw, cfg.sh_degree)
     n = raw.shape[1]
     pix = block_centres(cfg, raw.device, raw.dtype)[None] + (torch.sigmoid(p["delta"]) - 0.5) * k
-    zeta = cfg.d_min + torch.sigmoid(p["dd"][..., 0]) * (cfg.d_max - cfg.d_min)
+    zeta = cfg.depth_of(p["dd"][..., 0])
     jac_px = torch.full_like(pix, float(k))
     opacity = torch.sigmoid(p["opacity"][..., 0])
     Kn = K[:, None].expand(-1, n, -1, -1)

@@ -123,7 +123,7 @@ class ParticleSplat(nn.Module):
         err = ((colour - F.avg_pool2d(x, cfg.bg_block)) ** 2).sum(1, keepdim=True)
         if depth is not None:
             d_blk, w = masked_block_mean(depth, (depth > 0).to(x.dtype), cfg.bg_block)
-            zeta = cfg.d_min + torch.sigmoid(p["dd"][..., 0]) * (cfg.d_max - cfg.d_min)
+            zeta = cfg.depth_of(p["dd"][..., 0])
             err = err + (zeta.reshape(M, 1, nb, nb) - d_blk) ** 2 * (w > 0.5).to(x.dtype)
         return err
 
