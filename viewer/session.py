@@ -166,10 +166,7 @@ class SceneSession:
         gesture: an id of an ongoing drag; consecutive calls with the same gesture, index and
         name extend one operation (one undo step per drag) until :meth:`end_gesture`.
         """
-        if not self.editable:
-            raise ValueError("this scene has no particles to edit (opened from a .ply)")
-        if not 0 <= index < self.num_particles:
-            raise IndexError(f"particle {index} out of range (0..{self.num_particles - 1})")
+        self._check_editable(index)
         if name not in EDITABLE:
             raise KeyError(f"'{name}' is not an editable attribute ({', '.join(EDITABLE)})")
         new = tuple(float(v) for v in (value if isinstance(value, (list, tuple)) else [value]))
@@ -180,14 +177,28 @@ class SceneSession:
         old = self.value(index, name)
         if new == old:
             return
-        key = (gesture, index, name) if gesture is not None else None
+        self._record(f"set {name} of particle {index}", [SetAttribute(index, name, old, new)],
+                     (gesture, index, name) if gesture is not None else None)
+
+    def _check_editable(self, index: int) -> None:
+        if not self.editable:
+            raise ValueError("this scene has no particles to edit (opened from a .ply)")
+        if not 0 <= index < self.num_particles:
+            raise IndexError(f"particle {index} out of range (0..{self.num_particles - 1})")
+
+    def _record(self, label: str, changes: list[SetAttribute], key: tuple | None) -> None:
+        """Apply ``changes`` as a new operation, or, when the last operation is the open gesture ``key``,
+        extend it (each attribute keeps the old value it had when the gesture began)."""
         last = self.history.undo[-1] if self.history.undo else None
         if key is not None and last is not None and last.open_key == key:
-            first = last.changes[0]
-            last.changes = [SetAttribute(index, name, first.old, new)]
-            self._apply([SetAttribute(index, name, old, new)], True)
+            merged = {(c.index, c.name): c for c in last.changes}
+            for c in changes:
+                first = merged.get((c.index, c.name), c)
+                merged[(c.index, c.name)] = SetAttribute(c.index, c.name, first.old, c.new)
+            last.changes = list(merged.values())
+            self._apply(changes, True)
             return
-        self._push(Operation(f"set {name} of particle {index}", [SetAttribute(index, name, old, new)], key))
+        self._push(Operation(label, changes, key))
 
     def object_members(self, index: int) -> list[int]:
         """The particles of particle ``index``'s object (:meth:`objects`), ascending."""
@@ -206,29 +217,14 @@ class SceneSession:
         operation; consecutive calls with the same ``gesture`` extend it until :meth:`end_gesture`).
         Raises :class:`particlesplat.move.MoveError` (nothing changed) if a particle would leave the
         model's depth range."""
-        if not self.editable:
-            raise ValueError("this scene has no particles to edit (opened from a .ply)")
-        if not 0 <= index < self.num_particles:
-            raise IndexError(f"particle {index} out of range (0..{self.num_particles - 1})")
+        self._check_editable(index)
         members = self.object_members(index)
         target = translate(self.particles, members, delta, self.model.config)
         changes = [SetAttribute(i, name, self.value(i, name), value)
                    for i, attrs in target.items() for name, value in attrs.items() if value != self.value(i, name)]
-        if not changes:
-            return
-        key = (gesture, "move", tuple(members)) if gesture is not None else None
-        last = self.history.undo[-1] if self.history.undo else None
-        if key is not None and last is not None and last.open_key == key:
-            first = {(c.index, c.name): c.old for c in last.changes}
-            merged = {(c.index, c.name): c for c in last.changes}
-            for c in changes:
-                merged[(c.index, c.name)] = SetAttribute(c.index, c.name, first.get((c.index, c.name), c.old), c.new)
-            last.changes = list(merged.values())
-            self._apply(changes, True)
-            return
-        self.end_gesture()
-        label = f"move object of particle{'s' if len(members) > 1 else ''} {', '.join(map(str, members))}"
-        self._push(Operation(label, changes, key))
+        if changes:
+            self._record(f"move object of particle{'s' if len(members) > 1 else ''} {', '.join(map(str, members))}",
+                         changes, (gesture, "move", tuple(members)) if gesture is not None else None)
 
     def end_gesture(self) -> None:
         """Close the open drag operation, if any."""
