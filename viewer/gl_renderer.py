@@ -422,7 +422,7 @@ class SplatRenderer:
               owner_key: np.ndarray | None = None) -> None:
         """Draw the sorted splats with the program of ``role`` ("splat", or the id pass with 1 or
         8 attachments, whose first owner is ``owner_base``) into the bound framebuffer; ``owner_key``
-        (MAX_KEYED,) is the colour key per owner of colour mode 2."""
+        (MAX_KEYED,) is the colour key per owner of colour mode 2 (None: leave the uniform as it is)."""
         kind = self.kind
         prog = self._progs[kind][role]
         if "owner_base" in prog:
@@ -437,7 +437,7 @@ class SplatRenderer:
         if "color_mode" in prog:
             prog["color_mode"] = color_mode
         if "owner_key" in prog and owner_key is not None:
-            prog["owner_key"].write(owner_key.astype(np.float32).tobytes())
+            prog["owner_key"].write(owner_key.tobytes())
         self.ctx.disable(moderngl.BLEND)
         if not self._drawn:
             return
@@ -464,9 +464,10 @@ class SplatRenderer:
         owner k < MAX_KEYED is drawn in the colour of owner ``objects[k]`` (its object's label); owners
         from MAX_KEYED on keep their own colour.
         """
-        key = np.arange(MAX_KEYED, dtype=np.float32)
-        if objects is not None:
-            head = np.asarray(objects, np.float32)[:MAX_KEYED]
+        key = None
+        if color_mode == 2:  # the colour keys are uploaded only for the mode that reads them
+            key = np.arange(MAX_KEYED, dtype=np.float32)
+            head = np.asarray(objects if objects is not None else [], np.float32)[:MAX_KEYED]
             key[:len(head)] = head
         times = FrameTimes()
         uni = self._prepare(camera, times)
