@@ -178,9 +178,9 @@ def test_encode_rejects_wrong_size():
         m.encode(rgb, depth, cs)
 
 
-@pytest.mark.parametrize("back", [False, True])
-def test_subset_decode_equals_full_decode_restricted(back):
-    m = tiny_model(patch_back=back)
+@pytest.mark.parametrize("back,copy", [(False, False), (True, False), (True, True)])
+def test_subset_decode_equals_full_decode_restricted(back, copy):
+    m = tiny_model(patch_back=back, patch_copy_input=copy)
     rgb, depth, cs = scene_inputs(2)
     p = m.encode(rgb, depth, cs)
     full = m.decode(p)
@@ -217,6 +217,75 @@ def test_edit_moves_only_that_particle():
     moved = m.decode(p.with_attribute(3, "z_p", p.z_p[3] + torch.tensor([0.2, 0.0])))
     assert not torch.allclose(moved.of_owner(3).means, before.of_owner(3).means)
     torch.testing.assert_close(moved.of_owner([0, 1, 2, 4, 5, -1]).means, before.of_owner([0, 1, 2, 4, 5, -1]).means)
+
+
+def _open_copy_model(**kw) -> ParticleSplat:
+    """A patch_copy_input model whose copy gates are open (σ = 1) and whose cells sit at their centres."""
+    m = tiny_model(patch_copy_input=True, patch_gaussians=4, **kw)
+    with torch.no_grad():
+        m.fg_decoder.copy_gate.bias.fill_(40.0)
+        k = 3  # sh_degree 0: the 2 offset channels follow the 3 colour channels
+        m.fg_decoder.head.weight[k:k + 2].zero_()
+        m.fg_decoder.head.bias[k:k + 2].zero_()  # σ(0) = 0.5: no sub-cell offset
+    return m
+
+
+def test_copied_front_gaussians_reproject_onto_the_observed_pixel_colour_and_depth():
+    """patch_copy_input with the gates open: every front Gaussian inside its view, projected back with the
+    Camera class, lands in a pixel whose colour it has and whose planar depth is its camera z."""
+    from particlesplat.sh import SH_C0
+
+    m = _open_copy_model()
+    rgb, depth, cs = scene_inputs(2)
+    p = m.encode(rgb, depth, cs)
+    assert p.obs is not None and p.obs.shape == (p.num, 6, 4, 4)
+    g = m.decode(p, background=False)
+    n = 0
+    for i in range(p.num):
+        front = g.of_owner(i)
+        front_means = front.means[:16]
+        cam = cs[int(p.view[i])]
+        uv, z = cam.project(front_means)
+        px = uv.floor().long()
+        inside = ((px >= 0) & (px < 32)).all(-1)
+        u, v = px[inside, 0], px[inside, 1]
+        view = int(p.view[i])
+        torch.testing.assert_close(SH_C0 * front.sh[:16][inside, 0] + 0.5, rgb[view, :, v, u].T, atol=1e-5, rtol=0)
+        torch.testing.assert_close(z[inside], depth[view, 0, v, u], atol=1e-4, rtol=0)
+        n += int(inside.sum())
+    assert n >= 50
+
+
+def test_copied_surface_follows_a_depth_edit_and_needs_depth_to_copy_it():
+    """Editing z_d moves the copied front Gaussians along their rays by exactly the change of d; encoded
+    without depth, the depth is not copied (the depth channel is the head's own)."""
+    m = _open_copy_model()
+    rgb, depth, cs = scene_inputs(2)
+    p = m.encode(rgb, depth, cs)
+    i = 2
+    d0 = m.config.depth_of(p.z_d[i])
+    q = p.with_attribute(i, "z_d", p.z_d[i] + 0.3)
+    d1 = m.config.depth_of(q.z_d[i])
+    cam = cs[int(p.view[i])]
+    _, z0 = cam.project(m.decode(p, torch.tensor([i]), background=False).means[:16])
+    _, z1 = cam.project(m.decode(q, torch.tensor([i]), background=False).means[:16])
+    torch.testing.assert_close(z1 - z0, (d1 - d0).expand(16), atol=1e-4, rtol=0)
+    blind = m.encode(rgb, None, cs)
+    assert bool((blind.obs[:, 4] == 0).all()) and bool((blind.obs[:, 3] == 0).all())
+    with torch.no_grad():
+        m.fg_decoder.copy_gate.bias[1] = -40.0  # depth gate closed: the same Gaussians as without depth copy
+    closed = m.decode(blind, background=False)
+    with torch.no_grad():
+        m.fg_decoder.copy_gate.bias[1] = 40.0
+    torch.testing.assert_close(m.decode(blind, background=False).means, closed.means)
+
+
+def test_copy_model_refuses_particles_without_observation():
+    m = _open_copy_model()
+    rgb, depth, cs = scene_inputs(2)
+    p = m.encode(rgb, depth, cs)
+    with pytest.raises(ValueError, match="patch_copy_input"):
+        m.decode(replace(p, obs=None))
 
 
 # ------------------------------------------------------------------ loss terms

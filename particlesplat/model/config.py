@@ -54,6 +54,7 @@ class ModelConfig:
     patch_base: int = 0
     particle_depth_scale: str = "pixel"
     patch_back: bool = False
+    patch_copy_input: bool = False
     token_dim: int = 64
     transformer_layers: int = 2
     transformer_heads: int = 4

@@ -48,6 +48,12 @@ class ForegroundDecoder(nn.Module):
     With ``patch_back`` a second head gives every cell a back Gaussian (rows S*S .. 2*S*S - 1), which
     :func:`foreground_gaussians` places behind the cell's front Gaussian on the same ray; it starts nearly
     transparent (opacity logit -2), so a model trained without it starts from what it drew before.
+
+    With ``patch_copy_input`` the decoder also reads what the particle's context view shows at its cells
+    (:func:`observed_cells`): the observation enters the feature grid through a convolution that starts at
+    zero, and a per-cell gate (two channels, colour and depth, starting open at σ(2)) moves each front
+    Gaussian's colour and depth residual towards the observed ones: the pixel-aligned copy of feed-forward
+    splatting, inside the particle's box.
     """
 
     def __init__(self, cfg: ModelConfig):
@@ -73,17 +79,81 @@ class ForegroundDecoder(nn.Module):
         if cfg.patch_back:
             self.back_head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
             init_gaussian_head(self.back_head, cfg.sh_degree, opacity_logit=-2.0)
+        self.obs_in = self.copy_gate = None
+        if cfg.patch_copy_input:
+            self.obs_in = nn.Sequential(nn.Conv2d(PATCH_OBSERVED_CHANNELS, c, 3, padding=1), nn.SiLU(),
+                                        nn.Conv2d(c, c, 3, padding=1))
+            nn.init.zeros_(self.obs_in[-1].weight)  # a model trained without it starts from what it drew
+            nn.init.zeros_(self.obs_in[-1].bias)
+            self.copy_gate = nn.Conv2d(c, 2, 1)
+            nn.init.zeros_(self.copy_gate.weight)
+            nn.init.constant_(self.copy_gate.bias, 2.0)
 
-    def forward(self, z_f: Tensor) -> Tensor:
-        """z_f: (M, D) -> (M, S*S, C) with cells in row-major (y, x) order; (M, 2*S*S, C) with ``patch_back``
+    def forward(self, z_f: Tensor, obs: Tensor | None = None) -> Tensor:
+        """z_f: (M, D); obs: (M, 6, S, S) from :func:`observed_cells` (needed with ``patch_copy_input``)
+        -> (M, S*S, C) with cells in row-major (y, x) order; (M, 2*S*S, C) with ``patch_back``
         (front cells, then back cells)."""
         h = self.fc(z_f).reshape(-1, self.c, self.base, self.base)
         for conv in self.up:
             h = F.interpolate(h, scale_factor=2, mode="nearest")
             h = h + conv(F.silu(h))
+        if self.obs_in is not None:
+            if obs is None:
+                raise ValueError("this model copies the observed cells (patch_copy_input): the particles "
+                                 "carry no observation (encode them with this model)")
+            h = h + self.obs_in(obs)
         h = self.conv(h)
-        heads = [self.head] if self.back_head is None else [self.head, self.back_head]
-        return torch.cat([head(h).flatten(2).transpose(1, 2) for head in heads], dim=1)
+        front = self.head(h)
+        if self.copy_gate is not None:
+            g = torch.sigmoid(self.copy_gate(h))
+            colour, r, known, inside = obs[:, :3], obs[:, 3:4], obs[:, 4:5], obs[:, 5:6]
+            front = copy_into_head(front, colour, g[:, :1] * inside, torch.atanh(r), g[:, 1:] * known,
+                                   self.sh_degree)
+        out = [front] if self.back_head is None else [front, self.back_head(h)]
+        return torch.cat([o.flatten(2).transpose(1, 2) for o in out], dim=1)
+
+
+PATCH_OBSERVED_CHANNELS = 6  # colour (3), depth residual in units of the extent (1), depth known (1), inside (1)
+
+
+@torch.no_grad()
+def observed_cells(rgb: Tensor, depth: Tensor | None, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor,
+                   cfg: ModelConfig) -> Tensor:
+    """What each particle's context view shows at the centres of its S×S cells (nearest pixel; no gradient).
+
+    rgb: (M, 3, H, W) the view each particle belongs to, in [0, 1]; depth: (M, 1, H, W) planar metres
+    (0 = none) or None; z_p, z_s: (M, 2), z_d, z_e: (M, 1) as the decoder reads them. Returns (M, 6, S, S):
+    the colour, r = (observed depth - d) / Δ clamped to ±0.999 (0 where the depth is unknown), whether the
+    depth is known, whether the cell is inside the image. The depth is kept relative to the particle's own
+    d and Δ, so the copied surface follows an edit of z_d (moved) or z_e (stretched), and its colour an
+    edit of z_p or z_s, like everything else the particle decodes to.
+    """
+    S = cfg.patch_gaussians
+    ar = 2.0 * (torch.arange(S, device=rgb.device, dtype=rgb.dtype) + 0.5) / S - 1.0
+    gy, gx = torch.meshgrid(ar, ar, indexing="ij")
+    cells = torch.stack([gx, gy], dim=-1)  # (S, S, 2) canonical cell centres, x then y
+    grid = torch.sigmoid(z_s)[:, None, None, :] * cells + z_p[:, None, None, :]  # normalised image coords
+    dep = torch.zeros_like(rgb[:, :1]) if depth is None else depth
+    src = torch.cat([rgb, dep, torch.ones_like(dep)], dim=1)
+    s = F.grid_sample(src, grid, mode="nearest", padding_mode="zeros", align_corners=False)
+    known = (s[:, 3:4] > 0).to(rgb.dtype)
+    d = cfg.depth_of(z_d)[:, :, None, None]
+    half = 0.5 * (cfg.d_max - cfg.d_min) * torch.sigmoid(z_e)[:, :, None, None]
+    r = ((s[:, 3:4] - d) / half).clamp(-0.999, 0.999) * known  # atanh(r) stays finite
+    return torch.cat([s[:, :3], r, known, s[:, 4:5]], dim=1)
+
+
+def copy_into_head(out: Tensor, colour: Tensor, gate_colour: Tensor, depth_channel: Tensor, gate_depth: Tensor,
+                   sh_degree: int) -> Tensor:
+    """Move a Gaussian head's SH DC colour and depth channel towards given values.
+
+    out: (M, C, h, w) head output; colour: (M, 3, h, w) RGB in [0, 1]; depth_channel: (M, 1, h, w) the
+    depth channel's target value; gate_colour, gate_depth: (M, 1, h, w) in [0, 1] (1 = take the target).
+    """
+    i = 3 * num_sh_bases(sh_degree) + 2  # the depth channel (after the SH and the 2-d offset)
+    dc = (1.0 - gate_colour) * out[:, :3] + gate_colour * (colour - 0.5) / SH_C0
+    dd = (1.0 - gate_depth) * out[:, i:i + 1] + gate_depth * depth_channel
+    return torch.cat([dc, out[:, 3:i], dd, out[:, i + 1:]], dim=1)
 
 
 class BackgroundDecoder(nn.Module):
@@ -138,12 +208,9 @@ class BackgroundDecoder(nn.Module):
         channel of visible blocks moved towards the observed colour and depth by the learned gate."""
         cfg = self.cfg
         g = torch.sigmoid(self.copy_gate)
-        gc, gd = g[0] * obs[:, 4:5], g[1] * obs[:, 5:6]
-        dc = (1.0 - gc) * out[:, :3] + gc * (obs[:, :3] - 0.5) / SH_C0
-        i = 3 * num_sh_bases(cfg.sh_degree) + 2  # the depth channel (after the SH and the 2-d offset)
         frac = ((obs[:, 3:4] - cfg.d_min) / (cfg.d_max - cfg.d_min)).clamp(1e-3, 1.0 - 1e-3)
-        dd = (1.0 - gd) * out[:, i:i + 1] + gd * torch.logit(frac)
-        return torch.cat([dc, out[:, 3:i], dd, out[:, i + 1:]], dim=1)
+        return copy_into_head(out, obs[:, :3], g[0] * obs[:, 4:5], torch.logit(frac), g[1] * obs[:, 5:6],
+                              cfg.sh_degree)
 
 
 OBSERVED_CHANNELS = 6  # observed block colour (3), planar depth (1), colour and depth visibility (1 + 1)

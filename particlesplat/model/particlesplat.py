@@ -14,7 +14,8 @@ from ..render import render_batch
 from ..sh import SH_C0
 from .config import ModelConfig
 from .decoder import (BackgroundDecoder, ForegroundDecoder, background_gaussians, background_rays,
-                      foreground_gaussians, masked_block_mean, observed_blocks, split_gaussian_params)
+                      foreground_gaussians, masked_block_mean, observed_blocks, observed_cells,
+                      split_gaussian_params)
 from .encoder import BackgroundDetail, BackgroundEncoder, CrossView, ParticleEncoder, box_mask, depth_input
 from .geometry import plucker_map, stack_cameras
 from .particles import Particles
@@ -172,10 +173,28 @@ class ParticleSplat(nn.Module):
                 "z_d": g(post["mu_d"], post["lv_d"]), "z_e": g(post["mu_e"], post["lv_e"]), "z_t": z_t,
                 "z_f": g(post["mu_f"], post["lv_f"]), "bg": bg}
 
+    def observe(self, rgb: Tensor, depth: Tensor | None, z: dict[str, Tensor], view: Tensor) -> Tensor | None:
+        """What each particle's view shows at its cells, for ``patch_copy_input`` (else None).
+
+        rgb: (B, V, 3, H, W); depth: (B, V, 1, H, W) or None; z: latents (B, N, ·); view: (N,) ->
+        (B, N, 6, S, S) (:func:`observed_cells`).
+        """
+        if not self.config.patch_copy_input:
+            return None
+        B, N = z["z_p"].shape[:2]
+
+        def per_particle(x: Tensor) -> Tensor:
+            return x[:, view].reshape(B * N, *x.shape[2:])
+
+        obs = observed_cells(per_particle(rgb), None if depth is None else per_particle(depth),
+                             *(z[k].reshape(B * N, -1) for k in ("z_p", "z_s", "z_d", "z_e")), self.config)
+        return obs.reshape(B, N, *obs.shape[1:])
+
     def foreground(self, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor, z_t: Tensor, z_f: Tensor, K: Tensor,
-                   c2w: Tensor) -> dict[str, Tensor]:
-        """M particles -> Gaussian fields (M, S*S, ·). Latents (M, ·); K (M, 3, 3), c2w (M, 4, 4) of their views."""
-        raw = self.fg_decoder(z_f)
+                   c2w: Tensor, obs: Tensor | None = None) -> dict[str, Tensor]:
+        """M particles -> Gaussian fields (M, S*S, ·). Latents (M, ·); K (M, 3, 3), c2w (M, 4, 4) of their views;
+        obs (M, 6, S, S) their observed cells (``patch_copy_input``)."""
+        raw = self.fg_decoder(z_f, obs)
         return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config)
 
     def background(self, bg: Tensor, K: Tensor, c2w: Tensor) -> dict[str, Tensor]:
@@ -198,14 +217,16 @@ class ParticleSplat(nn.Module):
 
     def decode_batch(self, z: dict[str, Tensor], view: Tensor, K: Tensor, c2w: Tensor,
                      background: bool = True) -> list[Gaussians]:
-        """Decode B scenes. z: from :meth:`latents`; view: (N,) view index per particle;
+        """Decode B scenes. z: from :meth:`latents` (and "obs" from :meth:`observe`); view: (N,) particle views;
         K: (B, V, 3, 3); c2w: (B, V, 4, 4) of the context views. Returns B Gaussian sets (owner = particle)."""
         B, N = z["z_p"].shape[:2]
         V = K.shape[1]
         flat = {k: z[k].reshape(B * N, -1) for k in ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f")}
         Kp = K[:, view].reshape(B * N, 3, 3)
         cp = c2w[:, view].reshape(B * N, 4, 4)
-        fg = self.foreground(flat["z_p"], flat["z_s"], flat["z_d"], flat["z_e"], flat["z_t"], flat["z_f"], Kp, cp)
+        obs = z.get("obs")
+        obs = None if obs is None else obs.reshape(B * N, *obs.shape[2:])
+        fg = self.foreground(flat["z_p"], flat["z_s"], flat["z_d"], flat["z_e"], flat["z_t"], flat["z_f"], Kp, cp, obs)
         fg = {k: v.reshape(B, -1, *v.shape[2:]) for k, v in fg.items()}
         owner_fg = torch.arange(N, device=K.device).repeat_interleave(self.config.gaussians_per_particle)
         if background:
@@ -221,6 +242,7 @@ class ParticleSplat(nn.Module):
         """Training pass for B scenes (shapes as in :meth:`posterior`): posterior, latents, Gaussians per scene."""
         post = self.posterior(rgb, depth, K, c2w)
         z = self.latents(post, sample)
+        z["obs"] = self.observe(rgb, depth, z, post["view"])
         return post, z, self.decode_batch(z, post["view"], K, c2w, background)
 
     # ------------------------------------------------------------------ scene-level API
@@ -246,9 +268,10 @@ class ParticleSplat(nn.Module):
         K, c2w = stack_cameras(cameras, device=dev)
         post = self.posterior(rgb[None].to(dev), None if depth is None else depth[None].to(dev), K[None], c2w[None])
         z = self.latents(post, sample=False)
+        obs = self.observe(rgb[None].to(dev), None if depth is None else depth[None].to(dev), z, post["view"])
         return Particles(z_p=z["z_p"][0], z_s=z["z_s"][0], z_d=z["z_d"][0], z_e=z["z_e"][0], z_t=z["z_t"][0],
                          z_f=z["z_f"][0], view=post["view"], background=z["bg"][0],
-                         cameras=[c.to(dev) for c in cameras])
+                         obs=None if obs is None else obs[0], cameras=[c.to(dev) for c in cameras])
 
     @torch.no_grad()
     def decode(self, particles: Particles, indices: Tensor | None = None, *, background: bool = True,
@@ -273,7 +296,9 @@ class ParticleSplat(nn.Module):
         parts = []
         if idx.numel():
             v = p.view[idx]
-            fg = self.foreground(p.z_p[idx], p.z_s[idx], p.z_d[idx], p.z_e[idx], p.z_t[idx], p.z_f[idx], K[v], c2w[v])
+            obs = None if p.obs is None else p.obs[idx]
+            fg = self.foreground(p.z_p[idx], p.z_s[idx], p.z_d[idx], p.z_e[idx], p.z_t[idx], p.z_f[idx], K[v], c2w[v],
+                                 obs)
             parts.append(_gaussians(fg, idx.repeat_interleave(self.config.gaussians_per_particle)))
         if background:
             bgf = {k: v[0] for k, v in self.background_fields(p.background[None], K[None], c2w[None]).items()}
