@@ -221,7 +221,7 @@ def test_edit_moves_only_that_particle():
 
 def _open_copy_model(**kw) -> ParticleSplat:
     """A patch_copy_input model whose copy gates are open (σ = 1) and whose cells sit at their centres."""
-    m = tiny_model(patch_copy_input=True, patch_gaussians=4, **kw)
+    m = tiny_model(patch_copy_input=True, patch_gaussians=4, **{"patch_copy_threshold": 0.0, **kw})
     with torch.no_grad():
         m.fg_decoder.copy_gate.bias.fill_(40.0)
         k = 3  # sh_degree 0: the 2 offset channels follow the 3 colour channels
@@ -238,7 +238,7 @@ def test_copied_front_gaussians_reproject_onto_the_observed_pixel_colour_and_dep
     m = _open_copy_model()
     rgb, depth, cs = scene_inputs(2)
     p = m.encode(rgb, depth, cs)
-    assert p.obs is not None and p.obs.shape == (p.num, 6, 4, 4)
+    assert p.obs is not None and p.obs.shape == (p.num, 7, 4, 4)
     g = m.decode(p, background=False)
     n = 0
     for i in range(p.num):
@@ -278,6 +278,21 @@ def test_copied_surface_follows_a_depth_edit_and_needs_depth_to_copy_it():
     with torch.no_grad():
         m.fg_decoder.copy_gate.bias[1] = 40.0
     torch.testing.assert_close(m.decode(blind, background=False).means, closed.means)
+
+
+def test_nothing_is_copied_where_the_background_explains_the_view():
+    """A threshold above every pixel's background error: no cell is foreground, and the decode equals the
+    one with both copy gates shut."""
+    m = _open_copy_model(patch_copy_threshold=1e9)
+    rgb, depth, cs = scene_inputs(2)
+    p = m.encode(rgb, depth, cs)
+    assert bool((p.obs[:, 6] == 0).all())
+    copied = m.decode(p)
+    with torch.no_grad():
+        m.fg_decoder.copy_gate.bias.fill_(-40.0)
+    shut = m.decode(p)
+    for name in ("means", "sh", "opacities"):
+        torch.testing.assert_close(getattr(copied, name), getattr(shut, name))
 
 
 def test_copy_model_refuses_particles_without_observation():

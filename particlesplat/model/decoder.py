@@ -52,8 +52,8 @@ class ForegroundDecoder(nn.Module):
     With ``patch_copy_input`` the decoder also reads what the particle's context view shows at its cells
     (:func:`observed_cells`): the observation enters the feature grid through a convolution that starts at
     zero, and a per-cell gate (two channels, colour and depth, starting open at σ(2)) moves each front
-    Gaussian's colour and depth residual towards the observed ones: the pixel-aligned copy of feed-forward
-    splatting, inside the particle's box.
+    Gaussian's colour and depth residual towards the observed ones where the background alone explains the
+    view badly: the pixel-aligned copy of feed-forward splatting, inside the particle's box.
     """
 
     def __init__(self, cfg: ModelConfig):
@@ -90,7 +90,7 @@ class ForegroundDecoder(nn.Module):
             nn.init.constant_(self.copy_gate.bias, 2.0)
 
     def forward(self, z_f: Tensor, obs: Tensor | None = None) -> Tensor:
-        """z_f: (M, D); obs: (M, 6, S, S) from :func:`observed_cells` (needed with ``patch_copy_input``)
+        """z_f: (M, D); obs: (M, 7, S, S) from :func:`observed_cells` (needed with ``patch_copy_input``)
         -> (M, S*S, C) with cells in row-major (y, x) order; (M, 2*S*S, C) with ``patch_back``
         (front cells, then back cells)."""
         h = self.fc(z_f).reshape(-1, self.c, self.base, self.base)
@@ -106,25 +106,28 @@ class ForegroundDecoder(nn.Module):
         front = self.head(h)
         if self.copy_gate is not None:
             g = torch.sigmoid(self.copy_gate(h))
-            colour, r, known, inside = obs[:, :3], obs[:, 3:4], obs[:, 4:5], obs[:, 5:6]
-            front = copy_into_head(front, colour, g[:, :1] * inside, torch.atanh(r), g[:, 1:] * known,
+            colour, r, known, inside, fg = obs[:, :3], obs[:, 3:4], obs[:, 4:5], obs[:, 5:6], obs[:, 6:7]
+            front = copy_into_head(front, colour, g[:, :1] * inside * fg, torch.atanh(r), g[:, 1:] * known * fg,
                                    self.sh_degree)
         out = [front] if self.back_head is None else [front, self.back_head(h)]
         return torch.cat([o.flatten(2).transpose(1, 2) for o in out], dim=1)
 
 
-PATCH_OBSERVED_CHANNELS = 6  # colour (3), depth residual in units of the extent (1), depth known (1), inside (1)
+# colour (3), depth residual in units of the extent (1), depth known (1), inside the image (1), foreground (1)
+PATCH_OBSERVED_CHANNELS = 7
 
 
 @torch.no_grad()
-def observed_cells(rgb: Tensor, depth: Tensor | None, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor,
-                   cfg: ModelConfig) -> Tensor:
+def observed_cells(rgb: Tensor, depth: Tensor | None, fg: Tensor, z_p: Tensor, z_s: Tensor, z_d: Tensor,
+                   z_e: Tensor, cfg: ModelConfig) -> Tensor:
     """What each particle's context view shows at the centres of its S×S cells (nearest pixel; no gradient).
 
     rgb: (M, 3, H, W) the view each particle belongs to, in [0, 1]; depth: (M, 1, H, W) planar metres
-    (0 = none) or None; z_p, z_s: (M, 2), z_d, z_e: (M, 1) as the decoder reads them. Returns (M, 6, S, S):
-    the colour, r = (observed depth - d) / Δ clamped to ±0.999 (0 where the depth is unknown), whether the
-    depth is known, whether the cell is inside the image. The depth is kept relative to the particle's own
+    (0 = none) or None; fg: (M, 1, H, W) 1 where the background alone explains the view badly (only there
+    is anything copied: the floor a box also frames stays the background's); z_p, z_s: (M, 2), z_d, z_e:
+    (M, 1) as the decoder reads them. Returns (M, 7, S, S): the colour, r = (observed depth - d) / Δ clamped
+    to ±0.999 (0 where the depth is unknown), whether the depth is known, whether the cell is inside the
+    image, whether it is foreground. The depth is kept relative to the particle's own
     d and Δ, so the copied surface follows an edit of z_d (moved) or z_e (stretched), and its colour an
     edit of z_p or z_s, like everything else the particle decodes to.
     """
@@ -134,13 +137,13 @@ def observed_cells(rgb: Tensor, depth: Tensor | None, z_p: Tensor, z_s: Tensor, 
     cells = torch.stack([gx, gy], dim=-1)  # (S, S, 2) canonical cell centres, x then y
     grid = torch.sigmoid(z_s)[:, None, None, :] * cells + z_p[:, None, None, :]  # normalised image coords
     dep = torch.zeros_like(rgb[:, :1]) if depth is None else depth
-    src = torch.cat([rgb, dep, torch.ones_like(dep)], dim=1)
+    src = torch.cat([rgb, dep, torch.ones_like(dep), fg], dim=1)
     s = F.grid_sample(src, grid, mode="nearest", padding_mode="zeros", align_corners=False)
     known = (s[:, 3:4] > 0).to(rgb.dtype)
     d = cfg.depth_of(z_d)[:, :, None, None]
     half = 0.5 * (cfg.d_max - cfg.d_min) * torch.sigmoid(z_e)[:, :, None, None]
     r = ((s[:, 3:4] - d) / half).clamp(-0.999, 0.999) * known  # atanh(r) stays finite
-    return torch.cat([s[:, :3], r, known, s[:, 4:5]], dim=1)
+    return torch.cat([s[:, :3], r, known, s[:, 4:6]], dim=1)
 
 
 def copy_into_head(out: Tensor, colour: Tensor, gate_colour: Tensor, depth_channel: Tensor, gate_depth: Tensor,

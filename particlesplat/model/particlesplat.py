@@ -73,7 +73,7 @@ class ParticleSplat(nn.Module):
         train_coarse = self.bg_detail is not None and self.training and torch.is_grad_enabled()
         if self.static_bg is not None:
             block_err = self.static_background_error(x, d, Kf, cf)
-        elif cfg.kp_selection == "residual" or self.bg_detail is not None:
+        elif cfg.kp_selection == "residual" or self.bg_detail is not None or cfg.patch_copy_input:
             with torch.set_grad_enabled(train_coarse):
                 block_err = self.coarse_background_error(x, d, dep, rays, Kf, cf)
         residual = None
@@ -105,6 +105,8 @@ class ParticleSplat(nn.Module):
             robust = block_err * scale / (block_err + scale)
             post["coarse_err"] = robust.flatten(1).sum(-1).reshape(B, V) * cfg.bg_block ** 2
         post["view"] = torch.arange(V, device=rgb.device).repeat_interleave(cfg.particles_per_view)
+        if block_err is not None:  # what the background alone explains badly (the copy's foreground)
+            post["bg_error"] = block_err.detach().reshape(B, V, *block_err.shape[1:])
         return post
 
     def coarse_background_error(self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor,
@@ -173,27 +175,31 @@ class ParticleSplat(nn.Module):
                 "z_d": g(post["mu_d"], post["lv_d"]), "z_e": g(post["mu_e"], post["lv_e"]), "z_t": z_t,
                 "z_f": g(post["mu_f"], post["lv_f"]), "bg": bg}
 
-    def observe(self, rgb: Tensor, depth: Tensor | None, z: dict[str, Tensor], view: Tensor) -> Tensor | None:
+    def observe(self, rgb: Tensor, depth: Tensor | None, z: dict[str, Tensor], view: Tensor,
+                bg_error: Tensor) -> Tensor | None:
         """What each particle's view shows at its cells, for ``patch_copy_input`` (else None).
 
-        rgb: (B, V, 3, H, W); depth: (B, V, 1, H, W) or None; z: latents (B, N, ·); view: (N,) ->
-        (B, N, 6, S, S) (:func:`observed_cells`).
+        rgb: (B, V, 3, H, W); depth: (B, V, 1, H, W) or None; z: latents (B, N, ·); view: (N,); bg_error:
+        (B, V, 1, Hb, Wb) the background's own per-block error (``post["bg_error"]``) ->
+        (B, N, 7, S, S) (:func:`observed_cells`).
         """
-        if not self.config.patch_copy_input:
+        cfg = self.config
+        if not cfg.patch_copy_input:
             return None
         B, N = z["z_p"].shape[:2]
 
         def per_particle(x: Tensor) -> Tensor:
             return x[:, view].reshape(B * N, *x.shape[2:])
 
-        obs = observed_cells(per_particle(rgb), None if depth is None else per_particle(depth),
-                             *(z[k].reshape(B * N, -1) for k in ("z_p", "z_s", "z_d", "z_e")), self.config)
+        fg = F.interpolate(per_particle(bg_error), size=rgb.shape[-2:], mode="nearest") >= cfg.patch_copy_threshold
+        obs = observed_cells(per_particle(rgb), None if depth is None else per_particle(depth), fg.to(rgb.dtype),
+                             *(z[k].reshape(B * N, -1) for k in ("z_p", "z_s", "z_d", "z_e")), cfg)
         return obs.reshape(B, N, *obs.shape[1:])
 
     def foreground(self, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor, z_t: Tensor, z_f: Tensor, K: Tensor,
                    c2w: Tensor, obs: Tensor | None = None) -> dict[str, Tensor]:
         """M particles -> Gaussian fields (M, S*S, ·). Latents (M, ·); K (M, 3, 3), c2w (M, 4, 4) of their views;
-        obs (M, 6, S, S) their observed cells (``patch_copy_input``)."""
+        obs (M, 7, S, S) their observed cells (``patch_copy_input``)."""
         raw = self.fg_decoder(z_f, obs)
         return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config)
 
@@ -242,7 +248,7 @@ class ParticleSplat(nn.Module):
         """Training pass for B scenes (shapes as in :meth:`posterior`): posterior, latents, Gaussians per scene."""
         post = self.posterior(rgb, depth, K, c2w)
         z = self.latents(post, sample)
-        z["obs"] = self.observe(rgb, depth, z, post["view"])
+        z["obs"] = self.observe(rgb, depth, z, post["view"], post.get("bg_error"))
         return post, z, self.decode_batch(z, post["view"], K, c2w, background)
 
     # ------------------------------------------------------------------ scene-level API
@@ -268,7 +274,8 @@ class ParticleSplat(nn.Module):
         K, c2w = stack_cameras(cameras, device=dev)
         post = self.posterior(rgb[None].to(dev), None if depth is None else depth[None].to(dev), K[None], c2w[None])
         z = self.latents(post, sample=False)
-        obs = self.observe(rgb[None].to(dev), None if depth is None else depth[None].to(dev), z, post["view"])
+        obs = self.observe(rgb[None].to(dev), None if depth is None else depth[None].to(dev), z, post["view"],
+                           post.get("bg_error"))
         return Particles(z_p=z["z_p"][0], z_s=z["z_s"][0], z_d=z["z_d"][0], z_e=z["z_e"][0], z_t=z["z_t"][0],
                          z_f=z["z_f"][0], view=post["view"], background=z["bg"][0],
                          obs=None if obs is None else obs[0], cameras=[c.to(dev) for c in cameras])
