@@ -644,3 +644,18 @@ def test_finer_patch_starts_from_the_base_patch_split_into_children():
     torch.testing.assert_close(fine(z_f), want)
     with pytest.raises(ConfigError, match="patch_base"):
         ModelConfig(**{**TINY, "patch_gaussians": 8, "patch_base": 3}).validate()
+
+
+def test_shipped_yaml_documents_every_config_key():
+    """assets/model.yaml lists every ModelConfig and TrainConfig key (the file documents them)."""
+    from dataclasses import fields
+    from importlib.resources import files
+
+    from particlesplat.model.config import TrainConfig
+
+    text = files("particlesplat.assets").joinpath("model.yaml").read_text()
+    lines = {ln.split(":")[0].strip(): ln for ln in text.splitlines() if ln.startswith("  ") and ":" in ln
+             and not ln.strip().startswith("#")}
+    for cls in (ModelConfig, TrainConfig):
+        for f in fields(cls):
+            assert f.name in lines, f"assets/model.yaml does not list {cls.__name__}.{f.name}"
