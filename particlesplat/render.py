@@ -27,6 +27,8 @@ class RenderResult:
         owner_weights: (P, H, W) Σ T·α of the Gaussians of each owner 0..P-1, or None.
             Not differentiable.
         background_weight: (H, W) Σ T·α of the background Gaussians (owner -1), or None.
+        foreground: (H, W) Σ T·α of the Gaussians with an owner >= 0 (the particles), differentiable, or
+            None.
     """
 
     rgb: Tensor
@@ -34,6 +36,7 @@ class RenderResult:
     depth: Tensor
     owner_weights: Tensor | None = None
     background_weight: Tensor | None = None
+    foreground: Tensor | None = None
 
     def segmentation(self, objects: Tensor | None = None) -> Tensor:
         """(H, W) int64 argmax owner per pixel; -1 where the background (Gaussians of owner -1
@@ -52,7 +55,7 @@ class RenderResult:
 
 def render(gaussians: Gaussians, camera: Camera, *, background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
            near: float = 0.01, far: float = 1e10, owner_weights: bool = False,
-           num_owners: int | None = None) -> RenderResult:
+           num_owners: int | None = None, foreground: bool = False) -> RenderResult:
     """Render ``gaussians`` seen by ``camera``.
 
     Rules (3DGS/gsplat): EWA projection with the Jacobian's x/z and y/z clamped to the field of
@@ -70,15 +73,19 @@ def render(gaussians: Gaussians, camera: Camera, *, background: Sequence[float] 
         owner_weights: also return per-owner weight maps (for masks and segmentation).
         num_owners: P for the owner maps (default: max owner + 1); owners outside 0..P-1
             count as background.
+        foreground: also return the differentiable weight of the Gaussians with an owner >= 0.
     """
     return render_batch([(gaussians, camera)], background=background, near=near, far=far,
-                        owner_weights=owner_weights, num_owners=num_owners)[0]
+                        owner_weights=owner_weights, num_owners=num_owners, foreground=foreground)[0]
 
 
 def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
                  near: float = 0.01, far: float = 1e10, owner_weights: bool = False,
-                 num_owners: int | None = None) -> list[RenderResult]:
+                 num_owners: int | None = None, foreground: bool = False) -> list[RenderResult]:
     """Render several (Gaussians, camera) pairs in one pass; same rules and results as :func:`render`.
+
+    ``foreground``: also return the differentiable weight of the particles' Gaussians (owner >= 0) per
+    pixel (``RenderResult.foreground``), one more feature column of the same pass.
 
     All views share one tile list and one set of rasterizer chunks, which amortises the
     per-call overhead when training renders many small views. The Gaussians of all views must
@@ -126,6 +133,9 @@ def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Seque
         slot = torch.where((owners >= 0) & (owners < P), owners + 1, torch.zeros_like(owners))
         onehot = torch.nn.functional.one_hot(slot.index_select(0, bins.gauss), P + 1).to(coef.dtype)
         pair_features = torch.cat([pair_features, torch.cat([onehot, onehot.new_zeros(1, P + 1)])], dim=-1)
+    if foreground:
+        is_fg = (cat["owner"] >= 0).to(coef.dtype).index_select(0, bins.gauss)[:, None]
+        pair_features = torch.cat([pair_features, torch.cat([is_fg, is_fg.new_zeros(1, 1)])], dim=-1)
     tiles = RasterizeFunction.apply(coef, pair_features, bins)
     results = []
     for acc in tiles_to_images(tiles, bins, sizes):
@@ -133,8 +143,10 @@ def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Seque
         rgb = acc[..., :3] + (1.0 - alpha)[..., None] * bg
         depth = torch.where(alpha > 0, acc[..., 3] / alpha.clamp_min(1e-12), torch.zeros_like(alpha))
         result = RenderResult(rgb, alpha, depth)
+        if foreground:
+            result.foreground = acc[..., -1]
         if owner_weights:
-            maps = acc[..., 5:].detach()
+            maps = acc[..., 5:5 + P + 1].detach()
             result.owner_weights = maps[..., 1:].permute(2, 0, 1).contiguous()
             result.background_weight = maps[..., 0].contiguous()
         results.append(result)

@@ -20,25 +20,41 @@ from .atomic import atomic_write
 from .camera import Camera
 from .data.views import WARMUP
 from .model import ModelConfig, ParticleSplat, TrainConfig, load_config, read_checkpoint, save_checkpoint
-from .model.config import config_to_dict, model_config_from_dict
+from .model.config import ConfigError, config_to_dict, model_config_from_dict
 from .model.losses import elbo, scene_kl, view_error
 from .render import render_batch
 
 LAST = "last.pt"
 
 
-def render_views(gaussians: list, K: Tensor, c2w: Tensor, size: int, background: Tensor) -> tuple[Tensor, Tensor]:
+def render_views(gaussians: list, K: Tensor, c2w: Tensor, size: int, background: Tensor,
+                 foreground: bool = False) -> tuple[Tensor, Tensor, Tensor | None]:
     """Render B scenes in their views in one rasterizer pass.
 
     gaussians: B sets; K: (B, V, 3, 3); c2w: (B, V, 4, 4); background: (3,) RGB behind the Gaussians
-    (differentiable) -> rgb (B, V, 3, H, W), depth (B, V, 1, H, W).
+    (differentiable) -> rgb (B, V, 3, H, W), depth (B, V, 1, H, W), and with ``foreground`` the particles'
+    weight (B, V, 1, H, W) (else None).
     """
     B, V = K.shape[:2]
     views = [(g, Camera(K[b, v], c2w[b, v], size, size)) for b, g in enumerate(gaussians) for v in range(V)]
-    res = render_batch(views, background=background)
+    res = render_batch(views, background=background, foreground=foreground)
     rgb = torch.stack([r.rgb.permute(2, 0, 1) for r in res])
     depth = torch.stack([r.depth[None] for r in res])
-    return rgb.reshape(B, V, 3, size, size), depth.reshape(B, V, 1, size, size)
+    fg = torch.stack([r.foreground[None] for r in res]).reshape(B, V, 1, size, size) if foreground else None
+    return rgb.reshape(B, V, 3, size, size), depth.reshape(B, V, 1, size, size), fg
+
+
+def foreground_error(fg: Tensor, rgb: Tensor, depth: Tensor, K: Tensor, c2w: Tensor, net: ParticleSplat,
+                     threshold: float) -> Tensor:
+    """Squared error of the particles' weight against what the static background layer cannot explain.
+
+    fg: (M, 1, H, W) rendered particle weight; rgb: (M, 3, H, W), depth: (M, 1, H, W) (0 = none) the
+    views; K: (M, 3, 3); c2w: (M, 4, 4). The target is 1 on every pixel the layer alone explains worse
+    than ``threshold`` (:meth:`ParticleSplat.static_background_error` per pixel: an object stands there)
+    and 0 elsewhere. Returns (M,) per-view sums over the pixels.
+    """
+    target = (net.static_background_error(rgb, depth, K, c2w, block=1) >= threshold).to(fg.dtype)
+    return ((fg - target) ** 2).flatten(1).sum(1)
 
 
 def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: bool, background: bool,
@@ -52,7 +68,7 @@ def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: b
     K = torch.cat([batch["context_K"], batch["target_K"]], 1)
     c2w = torch.cat([batch["context_c2w"], batch["target_c2w"]], 1)
     net = model.module if isinstance(model, DistributedDataParallel) else model
-    rgb_hat, depth_hat = render_views(gaussians, K, c2w, size, net.background_color())
+    rgb_hat, depth_hat, fg_hat = render_views(gaussians, K, c2w, size, net.background_color(), tc.beta_fg > 0)
     gt_rgb = torch.cat([batch["context_rgb"], batch["target_rgb"]], 1)
     gt_depth = torch.cat([batch["context_depth"], batch["target_depth"]], 1)
     B, V = gt_rgb.shape[:2]
@@ -61,6 +77,11 @@ def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: b
                      sup.flatten(0, 1), tc.lambda_depth).reshape(B, V)
     kl = scene_kl(post, z["z_t"], cfg, tc.beta_f)
     parts = elbo(err[:, :C], err[:, C:] if V > C else None, kl, z["z_t"], tc)
+    if fg_hat is not None:  # particles cover what the floor layer cannot explain, and nothing else
+        fg_err = foreground_error(fg_hat.flatten(0, 1), gt_rgb.flatten(0, 1), gt_depth.flatten(0, 1), K.flatten(0, 1),
+                                  c2w.flatten(0, 1), net, tc.fg_threshold)
+        parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
+        parts["loss"] = parts["loss"] + tc.beta_fg * parts["fg"]
     if "coarse_err" in post:  # the plain background (no detail) must explain the views on its own
         parts["coarse"] = post["coarse_err"].mean()
         parts["loss"] = parts["loss"] + tc.beta_coarse * parts["coarse"]
@@ -92,6 +113,9 @@ class Trainer:
     def __init__(self, cfg: ModelConfig, tc: TrainConfig, data: Path, out: Path, device: str, resume: bool,
                  init: Path | None = None, init_drop: tuple[str, ...] = ()):
         self.cfg, self.tc, self.out, self.device = cfg, tc, out, torch.device(device)
+        if tc.beta_fg > 0 and cfg.bg_static_grid == 0:
+            raise ConfigError(f"train.beta_fg: the foreground term compares with the static background layer; "
+                              f"set model.bg_static_grid > 0 or beta_fg to 0 (got {tc.beta_fg})")
         self.distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
         if self.distributed:
             dist.init_process_group("gloo" if self.device.type == "cpu" else "nccl")

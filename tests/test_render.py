@@ -4,6 +4,7 @@ gradcheck and the hard-case suite of issue 2."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 import os
 import subprocess
 import sys
@@ -160,6 +161,35 @@ def test_principal_point_and_aspect_not_centred() -> None:
 def test_near_far_culling_matches_reference() -> None:
     gs, cam = random_scene(5, 60, 0)
     check_against_reference(gs, cam, background=BG, near=3.6, far=4.4, grads=False)
+
+
+def test_foreground_weight_matches_reference_and_has_the_opacity_gradient() -> None:
+    """foreground = Σ T·α over owners >= 0 (float64 reference), and its gradient with respect to an
+    opacity matches a central finite difference of the float64 renderer."""
+    gs, cam = random_scene(6, 50, 1)
+    ref = reference_render(gs, cam, background=BG, num_owners=5)
+    res = render(gs, cam.to(dtype=F32), background=BG, foreground=True)
+    assert res.owner_weights is None
+    assert (res.foreground.double() - ref.owner_weights.sum(0)).abs().max() <= 1e-5
+    both = render(gs, cam.to(dtype=F32), background=BG, foreground=True, owner_weights=True, num_owners=5)
+    torch.testing.assert_close(both.foreground, res.foreground)
+    assert (both.owner_weights.double() - ref.owner_weights).abs().max() <= 1e-5
+    g64 = gs.to(dtype=F64)
+    opac = g64.opacities.clone().requires_grad_(True)
+    fg = render(replace(g64, opacities=opac), cam, background=BG, foreground=True).foreground
+    weights = torch.linspace(0.5, 1.5, fg.numel(), dtype=F64).reshape(fg.shape)
+    (fg * weights).sum().backward()
+    particle = (gs.owner >= 0).nonzero()[:5, 0]
+    assert bool((opac.grad[particle].abs() > 0).any())
+    for i in particle.tolist():
+        h = 1e-6
+        vals = []
+        for sgn in (1, -1):
+            o = g64.opacities.clone()
+            o[i] += sgn * h
+            vals.append(float((render(replace(g64, opacities=o), cam, background=BG, foreground=True).foreground
+                               * weights).sum()))
+        assert float(opac.grad[i]) == pytest.approx((vals[0] - vals[1]) / (2 * h), rel=1e-4, abs=1e-7)
 
 
 def test_owner_weights_and_segmentation_match_reference() -> None:

@@ -212,3 +212,45 @@ def test_static_layer_trains_at_the_background_learning_rate(tmp_path_factory, t
     moved = {k for k in after if not torch.allclose(after[k].float(), before[k].float(), rtol=0, atol=1e-7)}
     assert {"static_bg.sh_dc", "static_bg.opacity_logit"} <= moved
     assert moved <= {"static_bg.sh_dc", "static_bg.opacity_logit", "background_logit"}
+
+
+def test_foreground_error_targets_what_the_static_layer_cannot_explain():
+    """On the layer's own render the target is empty, so the error is Σ fg²; a 4x4 'object' (nearer, red)
+    makes those 16 pixels the target: with fg = 1 exactly there the error is 0, with fg = 0 it is 16."""
+    from model_data import TINY_MODEL
+
+    from particlesplat.camera import Camera
+    from particlesplat.model import ModelConfig, ParticleSplat
+    from particlesplat.model.geometry import stack_cameras
+    from particlesplat.render import render
+    from particlesplat.train import foreground_error
+
+    m = ParticleSplat(ModelConfig(**{**TINY_MODEL, **STATIC_ONLY})).eval()
+    cam = Camera.orbit((0.0, 0.0, 0.15), 20.0, 30.0, 3.3, width=32, height=32)
+    K, c2w = stack_cameras([cam])
+    with torch.no_grad():
+        floor = m.decode(m.encode(torch.rand(1, 3, 32, 32), 3.0 + torch.rand(1, 1, 32, 32), [cam]),
+                         torch.tensor([], dtype=torch.long))
+        r = render(floor, cam, background=m.background_color())
+    rgb, depth = r.rgb.permute(2, 0, 1)[None], r.depth[None, None]
+    fg = torch.rand(1, 1, 32, 32)
+    torch.testing.assert_close(foreground_error(fg, rgb, depth, K, c2w, m, 0.02), (fg ** 2).flatten(1).sum(1))
+    rgb[..., 10:14, 5:9] = torch.tensor([0.9, 0.1, 0.1])[:, None, None]
+    depth[..., 10:14, 5:9] -= 0.4
+    exact = torch.zeros(1, 1, 32, 32)
+    exact[..., 10:14, 5:9] = 1.0
+    assert float(foreground_error(exact, rgb, depth, K, c2w, m, 0.02)) == 0.0
+    assert float(foreground_error(torch.zeros_like(exact), rgb, depth, K, c2w, m, 0.02)) == 16.0
+
+
+def test_foreground_term_needs_the_static_layer(tmp_path_factory, tmp_path):
+    from pathlib import Path
+
+    from model_data import TINY_MODEL
+
+    from particlesplat.model import ConfigError, ModelConfig, TrainConfig
+    from particlesplat.train import Trainer
+
+    with pytest.raises(ConfigError, match="beta_fg"):
+        Trainer(ModelConfig(**TINY_MODEL), TrainConfig(beta_fg=0.5), Path(tiny_dataset(tmp_path_factory)),
+                tmp_path / "o", "cpu", False)

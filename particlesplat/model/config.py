@@ -162,6 +162,8 @@ class TrainConfig:
     beta_f: float = 1.0
     beta_reg: float = 0.02
     beta_coarse: float = 1.0
+    beta_fg: float = 0.0
+    fg_threshold: float = 0.02
     beta_rec_ctx: float = 1.0
     beta_rec_tgt: float = 1.0
     lambda_depth: float = 0.1
@@ -191,7 +193,8 @@ class TrainConfig:
         need(self.cache_scenes >= 0, "cache_scenes", "must be >= 0")
         for key in ("log_every", "val_every", "ckpt_every"):
             need(getattr(self, key) >= 1, key, "must be >= 1")
-        for key in ("beta_kl", "beta_f", "beta_reg", "beta_coarse", "beta_rec_ctx", "beta_rec_tgt", "lambda_depth", "grad_clip"):
+        for key in ("beta_kl", "beta_f", "beta_reg", "beta_coarse", "beta_fg", "fg_threshold", "beta_rec_ctx",
+                    "beta_rec_tgt", "lambda_depth", "grad_clip"):
             need(getattr(self, key) >= 0, key, "must be >= 0")
 
 

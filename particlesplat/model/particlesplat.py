@@ -131,13 +131,14 @@ class ParticleSplat(nn.Module):
         return err
 
     @torch.no_grad()
-    def static_background_error(self, x: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Tensor:
+    def static_background_error(self, x: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor,
+                                block: int | None = None) -> Tensor:
         """Per-block error of the static background layer alone, rendered into M views (no gradient).
 
         x: (M, 3, H, W); depth: (M, 1, H, W) metres (0 = none) or None; K: (M, 3, 3); c2w: (M, 4, 4).
         Per pixel: squared RGB error + squared depth error in metres where depth is known (a pixel the
         layer leaves empty renders depth 0, so an object in front of the floor or the floor where the
-        layer is transparent both count). Averaged over ``bg_block``² blocks -> (M, 1, Hb, Wb).
+        layer is transparent both count). Averaged over ``block``² blocks (default ``bg_block``) -> (M, 1, Hb, Wb).
         """
         H, W = x.shape[-2:]
         g = _gaussians(self.static_bg(), torch.full((self.static_bg.num,), BACKGROUND_OWNER, device=x.device))
@@ -147,7 +148,7 @@ class ParticleSplat(nn.Module):
         if depth is not None:
             rendered = torch.stack([r.depth[None] for r in res])
             err = err + (rendered - depth) ** 2 * (depth > 0).to(x.dtype)
-        return F.avg_pool2d(err, self.config.bg_block)
+        return F.avg_pool2d(err, block or self.config.bg_block)
 
     @torch.no_grad()
     def background_residual(self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor,
