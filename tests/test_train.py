@@ -190,7 +190,8 @@ def test_learned_background_is_rendered_behind_the_gaussians_and_trained():
     K = torch.tensor([[[[40.0, 0, 16], [0, 40.0, 16], [0, 0, 1]]]])
     c2w = torch.eye(4)[None, None]
     bg = m.background_color()
-    rgb, _ = render_views([g], K, c2w, 32, bg)
+    rgb, _, fg = render_views([g], K, c2w, 32, bg)
+    assert fg is None
     torch.testing.assert_close(rgb[0, 0], torch.tensor([0.2, 0.5, 0.7])[:, None, None].expand(3, 32, 32))
     (grad,) = torch.autograd.grad(rgb.sum(), bg)
     torch.testing.assert_close(grad, torch.full((3,), 32.0 * 32.0))
