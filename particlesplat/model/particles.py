@@ -31,7 +31,7 @@ class Particles:
         view: (L,) int64 index of the context view each particle belongs to.
         background: (V, C, h, w) per-view background latent maps the background decoder reads (the
             stochastic latent, then, with ``bg_detail``, the pixel-aligned detail features).
-        obs: (L, 6, S, S) what each particle's view shows at its cells (``patch_copy_input`` models; see
+        obs: (L, 7, S, S) what each particle's view shows at its cells (``patch_copy_input`` models; see
             :func:`particlesplat.model.decoder.observed_cells`), or None. It is part of the particle: an
             edit moves it with the particle.
         cameras: the V context cameras (OpenCV).

@@ -138,7 +138,8 @@ class ParticleSplat(nn.Module):
         x: (M, 3, H, W); depth: (M, 1, H, W) metres (0 = none) or None; K: (M, 3, 3); c2w: (M, 4, 4).
         Per pixel: squared RGB error + squared depth error in metres where depth is known (a pixel the
         layer leaves empty renders depth 0, so an object in front of the floor or the floor where the
-        layer is transparent both count). Averaged over ``block``² blocks (default ``bg_block``) -> (M, 1, Hb, Wb).
+        layer is transparent both count). Averaged over ``block``² blocks (default ``bg_block``)
+        -> (M, 1, Hb, Wb).
         """
         H, W = x.shape[-2:]
         g = _gaussians(self.static_bg(), torch.full((self.static_bg.num,), BACKGROUND_OWNER, device=x.device))
