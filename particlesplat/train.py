@@ -44,16 +44,15 @@ def render_views(gaussians: list, K: Tensor, c2w: Tensor, size: int, background:
     return rgb.reshape(B, V, 3, size, size), depth.reshape(B, V, 1, size, size), fg
 
 
-def foreground_error(fg: Tensor, rgb: Tensor, depth: Tensor, K: Tensor, c2w: Tensor, net: ParticleSplat,
-                     threshold: float) -> Tensor:
+def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float) -> Tensor:
     """Squared error of the particles' weight against what the static background layer cannot explain.
 
-    fg: (M, 1, H, W) rendered particle weight; rgb: (M, 3, H, W), depth: (M, 1, H, W) (0 = none) the
-    views; K: (M, 3, 3); c2w: (M, 4, 4). The target is 1 on every pixel the layer alone explains worse
-    than ``threshold`` (:meth:`ParticleSplat.static_background_error` per pixel: an object stands there)
-    and 0 elsewhere. Returns (M,) per-view sums over the pixels.
+    fg: (M, 1, H, W) rendered particle weight; bg_error: (M, 1, H, W) the layer's own error per pixel
+    (:meth:`ParticleSplat.static_background_error` with ``block=1``). The target is 1 where that error is
+    at least ``threshold`` (an object stands there) and 0 elsewhere. Returns (M,) per-view sums over the
+    pixels.
     """
-    target = (net.static_background_error(rgb, depth, K, c2w, block=1) >= threshold).to(fg.dtype)
+    target = (bg_error >= threshold).to(fg.dtype)
     return ((fg - target) ** 2).flatten(1).sum(1)
 
 
@@ -78,8 +77,13 @@ def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: b
     kl = scene_kl(post, z["z_t"], cfg, tc.beta_f)
     parts = elbo(err[:, :C], err[:, C:] if V > C else None, kl, z["z_t"], tc)
     if fg_hat is not None:  # particles cover what the floor layer cannot explain, and nothing else
-        fg_err = foreground_error(fg_hat.flatten(0, 1), gt_rgb.flatten(0, 1), gt_depth.flatten(0, 1), K.flatten(0, 1),
-                                  c2w.flatten(0, 1), net, tc.fg_threshold)
+        # the context views' error is the one the encoder computed (no depth on a step that drops it)
+        bg_err = post["bg_error"]
+        if V > C:
+            tgt = [batch[k].flatten(0, 1) for k in ("target_rgb", "target_depth", "target_K", "target_c2w")]
+            tgt_err = net.static_background_error(*tgt, block=1).reshape(B, V - C, 1, size, size)
+            bg_err = torch.cat([bg_err, tgt_err], 1)
+        fg_err = foreground_error(fg_hat.flatten(0, 1), bg_err.flatten(0, 1), tc.fg_threshold)
         parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
         parts["loss"] = parts["loss"] + tc.beta_fg * parts["fg"]
     if "coarse_err" in post:  # the plain background (no detail) must explain the views on its own

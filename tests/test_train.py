@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -235,13 +236,17 @@ def test_foreground_error_targets_what_the_static_layer_cannot_explain():
         r = render(floor, cam, background=m.background_color())
     rgb, depth = r.rgb.permute(2, 0, 1)[None], r.depth[None, None]
     fg = torch.rand(1, 1, 32, 32)
-    torch.testing.assert_close(foreground_error(fg, rgb, depth, K, c2w, m, 0.02), (fg ** 2).flatten(1).sum(1))
+
+    def error(fg, rgb, depth):
+        return foreground_error(fg, m.static_background_error(rgb, depth, K, c2w, block=1), 0.02)
+
+    torch.testing.assert_close(error(fg, rgb, depth), (fg ** 2).flatten(1).sum(1))
     rgb[..., 10:14, 5:9] = torch.tensor([0.9, 0.1, 0.1])[:, None, None]
     depth[..., 10:14, 5:9] -= 0.4
     exact = torch.zeros(1, 1, 32, 32)
     exact[..., 10:14, 5:9] = 1.0
-    assert float(foreground_error(exact, rgb, depth, K, c2w, m, 0.02)) == 0.0
-    assert float(foreground_error(torch.zeros_like(exact), rgb, depth, K, c2w, m, 0.02)) == 16.0
+    assert float(error(exact, rgb, depth)) == 0.0
+    assert float(error(torch.zeros_like(exact), rgb, depth)) == 16.0
 
 
 def test_foreground_term_needs_the_static_layer(tmp_path_factory, tmp_path):
@@ -255,3 +260,18 @@ def test_foreground_term_needs_the_static_layer(tmp_path_factory, tmp_path):
     with pytest.raises(ConfigError, match="beta_fg"):
         Trainer(ModelConfig(**TINY_MODEL), TrainConfig(beta_fg=0.5), Path(tiny_dataset(tmp_path_factory)),
                 tmp_path / "o", "cpu", False)
+
+
+def test_training_with_the_foreground_term_logs_it(tmp_path_factory, tmp_path):
+    """Two steps with beta_fg: the term is logged, finite and at most one per pixel of the scene's views
+    (2 context + 1 target views of 32x32), and the loss stays finite."""
+    data = tiny_dataset(tmp_path_factory)
+    cfg = tiny_config(tmp_path / "tiny.yaml", steps=2, val_every=5, beta_fg=0.5)
+    text = cfg.read_text().replace("bg_detail: 2", "bg_detail: 0").replace("bg_copy_input: true",
+                                                                          "bg_copy_input: false")
+    cfg.write_text(text.replace("model:\n", "model:\n  bg_static_grid: 16\n  bg_per_view: false\n", 1))
+    assert _train(cfg, data, tmp_path / "f") == 0
+    rows = [json.loads(ln) for ln in (tmp_path / "f" / "metrics.jsonl").read_text().splitlines()]
+    fg = [r["fg"] for r in rows if "fg" in r]
+    assert len(fg) == 2 and all(0.0 < v <= 3 * 32 * 32 for v in fg)
+    assert all(math.isfinite(r["loss"]) for r in rows if "loss" in r)

@@ -132,9 +132,7 @@ def observed_cells(rgb: Tensor, depth: Tensor | None, fg: Tensor, z_p: Tensor, z
     edit of z_p or z_s, like everything else the particle decodes to.
     """
     S = cfg.patch_gaussians
-    ar = 2.0 * (torch.arange(S, device=rgb.device, dtype=rgb.dtype) + 0.5) / S - 1.0
-    gy, gx = torch.meshgrid(ar, ar, indexing="ij")
-    cells = torch.stack([gx, gy], dim=-1)  # (S, S, 2) canonical cell centres, x then y
+    cells = 2.0 * cell_centres(S, rgb.device, rgb.dtype).reshape(S, S, 2) - 1.0  # canonical, in [-1, 1]
     grid = torch.sigmoid(z_s)[:, None, None, :] * cells + z_p[:, None, None, :]  # normalised image coords
     dep = torch.zeros_like(rgb[:, :1]) if depth is None else depth
     src = torch.cat([rgb, dep, torch.ones_like(dep), fg], dim=1)
@@ -264,6 +262,13 @@ def _finish(p: dict[str, Tensor], pix: Tensor, zeta: Tensor, jac_px: Tensor, K: 
     return {"means": means, "quats": quats, "scales": scales, "opacities": opacity, "sh": sh}
 
 
+def cell_centres(S: int, device, dtype) -> Tensor:
+    """(S*S, 2) centres (x, y) of an S×S patch's cells in [0, 1], row-major (y, x) order."""
+    ar = (torch.arange(S, device=device, dtype=dtype) + 0.5) / S
+    gy, gx = torch.meshgrid(ar, ar, indexing="ij")
+    return torch.stack([gx, gy], dim=-1).reshape(S * S, 2)
+
+
 def foreground_gaussians(raw: Tensor, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor, z_t: Tensor, K: Tensor,
                          c2w: Tensor, cfg: ModelConfig) -> dict[str, Tensor]:
     """Steps 2-3 for M particles.
@@ -279,9 +284,7 @@ def foreground_gaussians(raw: Tensor, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e
     S = cfg.patch_gaussians
     H = W = cfg.resolution
     p = split_gaussian_params(raw[:, :S * S], cfg.sh_degree)
-    ar = (torch.arange(S, device=raw.device, dtype=raw.dtype) + 0.5) / S
-    gy, gx = torch.meshgrid(ar, ar, indexing="ij")
-    u = torch.stack([gx, gy], dim=-1).reshape(1, S * S, 2)
+    u = cell_centres(S, raw.device, raw.dtype)[None]
     du = (torch.sigmoid(p["delta"]) - 0.5) / S
     u_patch = 2.0 * (u + du) - 1.0
     scale = torch.sigmoid(z_s)[:, None, :]

@@ -69,10 +69,11 @@ class ParticleSplat(nn.Module):
         dep = depth_input(d, x, cfg)
         Kf, cf = K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4)
         rays = plucker_map(Kf, cf, H, W)
-        block_err = None
+        block_err = pixel_err = None
         train_coarse = self.bg_detail is not None and self.training and torch.is_grad_enabled()
         if self.static_bg is not None:
-            block_err = self.static_background_error(x, d, Kf, cf)
+            pixel_err = self.static_background_error(x, d, Kf, cf, block=1)
+            block_err = F.avg_pool2d(pixel_err, cfg.bg_block)
         elif cfg.kp_selection == "residual" or self.bg_detail is not None or cfg.patch_copy_input:
             with torch.set_grad_enabled(train_coarse):
                 block_err = self.coarse_background_error(x, d, dep, rays, Kf, cf)
@@ -105,8 +106,10 @@ class ParticleSplat(nn.Module):
             robust = block_err * scale / (block_err + scale)
             post["coarse_err"] = robust.flatten(1).sum(-1).reshape(B, V) * cfg.bg_block ** 2
         post["view"] = torch.arange(V, device=rgb.device).repeat_interleave(cfg.particles_per_view)
-        if block_err is not None:  # what the background alone explains badly (the copy's foreground)
-            post["bg_error"] = block_err.detach().reshape(B, V, *block_err.shape[1:])
+        if block_err is not None:  # what the background alone explains badly, per pixel (static layer) or block
+            if pixel_err is None:
+                pixel_err = F.interpolate(block_err.detach(), scale_factor=cfg.bg_block, mode="nearest")
+            post["bg_error"] = pixel_err.reshape(B, V, 1, H, W)
         return post
 
     def coarse_background_error(self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor,
@@ -178,12 +181,12 @@ class ParticleSplat(nn.Module):
                 "z_f": g(post["mu_f"], post["lv_f"]), "bg": bg}
 
     def observe(self, rgb: Tensor, depth: Tensor | None, z: dict[str, Tensor], view: Tensor,
-                bg_error: Tensor) -> Tensor | None:
+                bg_error: Tensor | None) -> Tensor | None:
         """What each particle's view shows at its cells, for ``patch_copy_input`` (else None).
 
         rgb: (B, V, 3, H, W); depth: (B, V, 1, H, W) or None; z: latents (B, N, ·); view: (N,); bg_error:
-        (B, V, 1, Hb, Wb) the background's own per-block error (``post["bg_error"]``) ->
-        (B, N, 7, S, S) (:func:`observed_cells`).
+        (B, V, 1, H, W) the background's own error per pixel (``post["bg_error"]``) -> (B, N, 7, S, S)
+        (:func:`observed_cells`).
         """
         cfg = self.config
         if not cfg.patch_copy_input:
@@ -193,8 +196,8 @@ class ParticleSplat(nn.Module):
         def per_particle(x: Tensor) -> Tensor:
             return x[:, view].reshape(B * N, *x.shape[2:])
 
-        fg = F.interpolate(per_particle(bg_error), size=rgb.shape[-2:], mode="nearest") >= cfg.patch_copy_threshold
-        obs = observed_cells(per_particle(rgb), None if depth is None else per_particle(depth), fg.to(rgb.dtype),
+        fg = (per_particle(bg_error) >= cfg.patch_copy_threshold).to(rgb.dtype)
+        obs = observed_cells(per_particle(rgb), None if depth is None else per_particle(depth), fg,
                              *(z[k].reshape(B * N, -1) for k in ("z_p", "z_s", "z_d", "z_e")), cfg)
         return obs.reshape(B, N, *obs.shape[1:])
 
