@@ -67,6 +67,60 @@ def test_chains_are_transitive_and_labels_are_the_smallest_index():
         particle_objects(g, 5, reach=-1.0)
 
 
+def test_objects_a_few_centimetres_apart_stay_apart():
+    """Two spheres (radius 0.2 m) 4 cm apart surface to surface, each held by two particles (two views:
+    each particle a hemisphere plus a wide band of the other one), Gaussians of std 0.03 m: their rims touch,
+    so touching alone (overlap 0) makes one object of all four; with the overlap share each sphere is one
+    object of its own two particles."""
+    parts = []
+    for k, centre in enumerate(([0, 0, 0.2], [0.44, 0, 0.2])):
+        for h in (+1, -1):
+            parts.append(torch.cat([sphere_points(centre, 0.2, 150, 10 * k + 2 * (h > 0), h),
+                                    sphere_points(centre, 0.2, 100, 10 * k + 1 + 2 * (h > 0), -h)]))
+    g = gaussians(torch.cat(parts), 0.03, [0] * 250 + [1] * 250 + [2] * 250 + [3] * 250)
+    assert particle_objects(g, 4).tolist() == [0, 0, 2, 2]
+    assert particle_objects(g, 4, overlap=0.0).tolist() == [0, 0, 0, 0]
+
+
+@pytest.mark.parametrize("shared, grouped", [(2, False), (3, True)])
+@pytest.mark.parametrize("swap", [False, True])
+def test_overlap_is_the_share_of_either_particles_gaussians(shared, grouped, swap):
+    """Particle A: 10 Gaussians 0.1 m apart on a line; particle B: 20 Gaussians, ``shared`` of them next to the
+    first ``shared`` of A, the rest far away. A's share touching B is shared / 10, B's shared / 20: with overlap
+    0.3 they are one object from 3 shared Gaussians on, whichever of the two is the smaller particle."""
+    a = [[0.1 * i, 0, 0] for i in range(10)]
+    b = [[0.1 * i, 0.005, 0] for i in range(shared)] + [[5 + 0.1 * i, 0, 0] for i in range(20 - shared)]
+    owners = [1] * 10 + [0] * 20 if swap else [0] * 10 + [1] * 20
+    g = gaussians(a + b, 0.01, owners)
+    assert particle_objects(g, 2, overlap=0.3).tolist() == ([0, 0] if grouped else [0, 1])
+    assert particle_objects(g, 2, overlap=0.0).tolist() == [0, 0]  # one touching pair is enough at 0
+    assert particle_objects(g, 2, overlap=1.0).tolist() == [0, 1]
+    with pytest.raises(ValueError):
+        particle_objects(g, 2, overlap=1.5)
+
+
+def test_touching_counts_match_a_brute_force_loop(monkeypatch):
+    """The chunked count against a float64 double loop over Gaussian pairs (chunk smaller than the set)."""
+    import particlesplat.objects as objects_module
+
+    gen = torch.Generator().manual_seed(3)
+    M, P = 300, 5
+    means = torch.rand(M, 3, generator=gen, dtype=torch.float64)
+    radius = torch.rand(M, generator=gen, dtype=torch.float64) * 0.08
+    owner = torch.randint(0, P, (M,), generator=gen)
+    monkeypatch.setattr(objects_module, "CHUNK", 64)
+    counts = objects_module.touching_counts(means, radius, owner, P)
+    want = torch.zeros(P, P, dtype=torch.int64)
+    for i in range(M):
+        touched = set()
+        for j in range(M):
+            if owner[j] != owner[i] and (means[i] - means[j]).norm() < radius[i] + radius[j]:
+                touched.add(int(owner[j]))
+        for b in touched:
+            want[owner[i], b] += 1
+    assert torch.equal(counts, want)
+
+
 def test_object_segmentation_matches_brute_force():
     """Against a per-pixel float64 loop: sum each object's particle weights, argmax with the background first."""
     gen = torch.Generator().manual_seed(0)
