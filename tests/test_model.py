@@ -646,6 +646,30 @@ def test_finer_patch_starts_from_the_base_patch_split_into_children():
         ModelConfig(**{**TINY, "patch_gaussians": 8, "patch_base": 3}).validate()
 
 
+def test_refinement_blocks_start_as_the_identity():
+    """patch_refine 2 loads the weights of a decoder without refinement and starts with exactly its output
+    (the blocks' last convs are zero); once those convs are nonzero the blocks change the patch."""
+    from particlesplat.model.decoder import ForegroundDecoder
+
+    torch.manual_seed(0)
+    cfg = {**TINY, "patch_gaussians": 8, "patch_base": 4, "patch_back": True}
+    plain = ForegroundDecoder(ModelConfig(**cfg))
+    with torch.no_grad():
+        for conv in plain.up:
+            conv.weight.normal_(std=0.1)
+        plain.head.weight.normal_()
+    refined = ForegroundDecoder(ModelConfig(**{**cfg, "patch_refine": 2}))
+    missing = refined.load_state_dict(plain.state_dict(), strict=False).missing_keys
+    assert sorted({k.split(".")[0] + "." + k.split(".")[1] for k in missing}) == ["refine.0", "refine.1"]
+    z_f = torch.randn(3, TINY["d_obj"])
+    torch.testing.assert_close(refined(z_f), plain(z_f), rtol=0, atol=0)
+    with torch.no_grad():
+        refined.refine[1][-1].weight.normal_(std=0.1)
+    assert (refined(z_f) - plain(z_f)).abs().max() > 1e-3
+    with pytest.raises(ConfigError, match="patch_refine"):
+        ModelConfig(**{**cfg, "patch_refine": -1}).validate()
+
+
 def test_shipped_yaml_documents_every_config_key():
     """assets/model.yaml lists every ModelConfig and TrainConfig key (the file documents them)."""
     from dataclasses import fields

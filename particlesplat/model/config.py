@@ -52,6 +52,7 @@ class ModelConfig:
     bg_per_view: bool = True
     patch_gaussians: int = 4
     patch_base: int = 0
+    patch_refine: int = 0
     particle_depth_scale: str = "pixel"
     patch_back: bool = False
     patch_copy_input: bool = False
@@ -110,6 +111,7 @@ class ModelConfig:
         ratio = self.patch_gaussians // base if self.patch_base >= 0 and base > 0 else 0
         need(self.patch_base >= 0 and ratio >= 1 and base * ratio == self.patch_gaussians and ratio & (ratio - 1) == 0,
              "patch_base", "must be 0 (= patch_gaussians) or patch_gaussians divided by a power of 2")
+        need(self.patch_refine >= 0, "patch_refine", "must be >= 0 (0: no refinement blocks)")
         need(self.patch_copy_threshold >= 0.0, "patch_copy_threshold", "must be >= 0 (0: copy every cell)")
         need(self.particle_depth_scale in ("pixel", "cell"), "particle_depth_scale", "must be 'pixel' or 'cell'")
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")

@@ -45,6 +45,9 @@ class ForegroundDecoder(nn.Module):
     starts at zero) until it is S×S, so a model trained with S = ``patch_base`` starts an S-times-finer
     patch from its own Gaussians, each split into children at the finer cell centres.
 
+    ``patch_refine`` residual blocks (3×3 conv, SiLU, 3×3 conv whose output starts at zero) then work on the
+    S×S grid, so a model trained without them starts from what it drew and gains depth where shapes need it.
+
     With ``patch_back`` a second head gives every cell a back Gaussian (rows S*S .. 2*S*S - 1), which
     :func:`foreground_gaussians` places behind the cell's front Gaussian on the same ray; it starts nearly
     transparent (opacity logit -2), so a model trained without it starts from what it drew before.
@@ -72,6 +75,12 @@ class ForegroundDecoder(nn.Module):
             nn.init.zeros_(conv.bias)
             self.up.append(conv)
             size *= 2
+        self.refine = nn.ModuleList()
+        for _ in range(cfg.patch_refine):
+            block = nn.Sequential(nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU(), nn.Conv2d(c, c, 3, padding=1))
+            nn.init.zeros_(block[-1].weight)
+            nn.init.zeros_(block[-1].bias)
+            self.refine.append(block)
         self.conv = nn.Sequential(nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU())
         self.head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
         init_gaussian_head(self.head, cfg.sh_degree, opacity_logit=2.0)
@@ -102,6 +111,8 @@ class ForegroundDecoder(nn.Module):
                 raise ValueError("this model copies the observed cells (patch_copy_input): the particles "
                                  "carry no observation (encode them with this model)")
             h = h + self.obs_in(obs)
+        for block in self.refine:
+            h = h + block(h)
         h = self.conv(h)
         front = self.head(h)
         if self.copy_gate is not None:
