@@ -11,6 +11,7 @@ from pathlib import Path
 
 import torch
 import torch.distributed as dist
+import torch.nn.functional as F
 from torch import Tensor
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import default_collate
@@ -44,16 +45,24 @@ def render_views(gaussians: list, K: Tensor, c2w: Tensor, size: int, background:
     return rgb.reshape(B, V, 3, size, size), depth.reshape(B, V, 1, size, size), fg
 
 
-def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float) -> Tensor:
+def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float, band: int = 0) -> Tensor:
     """Squared error of the particles' weight against what the static background layer cannot explain.
 
     fg: (M, 1, H, W) rendered particle weight; bg_error: (M, 1, H, W) the layer's own error per pixel
     (:meth:`ParticleSplat.static_background_error` with ``block=1``). The target is 1 where that error is
-    at least ``threshold`` (an object stands there) and 0 elsewhere. Returns (M,) per-view sums over the
-    pixels.
+    at least ``threshold`` (an object stands there) and 0 elsewhere. With ``band`` > 0, pixels within
+    ``band`` px (Chebyshev) of a pixel with the other target are left out: an object's edge covers them only
+    in part, so their true weight lies between 0 and 1 and the reconstruction alone decides it. Returns (M,)
+    per-view sums over the pixels.
     """
     target = (bg_error >= threshold).to(fg.dtype)
-    return ((fg - target) ** 2).flatten(1).sum(1)
+    err = (fg - target) ** 2
+    if band > 0:
+        k = 2 * band + 1
+        near_fg = F.max_pool2d(target, k, stride=1, padding=band)
+        near_bg = 1.0 - F.max_pool2d(1.0 - target, k, stride=1, padding=band)
+        err = err * (near_fg == near_bg).to(fg.dtype)  # all neighbours agree: not on an edge
+    return err.flatten(1).sum(1)
 
 
 def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: bool, background: bool,
@@ -83,7 +92,7 @@ def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: b
             tgt = [batch[k].flatten(0, 1) for k in ("target_rgb", "target_depth", "target_K", "target_c2w")]
             tgt_err = net.static_background_error(*tgt, block=1).reshape(B, V - C, 1, size, size)
             bg_err = torch.cat([bg_err, tgt_err], 1)
-        fg_err = foreground_error(fg_hat.flatten(0, 1), bg_err.flatten(0, 1), tc.fg_threshold)
+        fg_err = foreground_error(fg_hat.flatten(0, 1), bg_err.flatten(0, 1), tc.fg_threshold, tc.fg_band)
         parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
         parts["loss"] = parts["loss"] + tc.beta_fg * parts["fg"]
     if "coarse_err" in post:  # the plain background (no detail) must explain the views on its own

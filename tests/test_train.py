@@ -249,6 +249,34 @@ def test_foreground_error_targets_what_the_static_layer_cannot_explain():
     assert float(error(torch.zeros_like(exact), rgb, depth)) == 16.0
 
 
+def test_foreground_band_leaves_out_the_pixels_along_the_target_edge():
+    """A 6x6 target square in a 16x16 view with fg = 0.5 everywhere: band 0 counts all 256 pixels at 0.25;
+    band 1 leaves out the square's outer ring of 20 and the 28 pixels around it (208 counted), band 2 leaves
+    out 32 + 64 (160 counted); a brute-force loop over the Chebyshev neighbourhoods agrees on random targets."""
+    from particlesplat.train import foreground_error
+
+    err = torch.zeros(1, 1, 16, 16)
+    err[..., 5:11, 5:11] = 1.0
+    fg = torch.full((1, 1, 16, 16), 0.5)
+    assert float(foreground_error(fg, err, 0.02)) == 256 * 0.25
+    assert float(foreground_error(fg, err, 0.02, band=1)) == (256 - 20 - 28) * 0.25
+    assert float(foreground_error(fg, err, 0.02, band=2)) == (256 - 32 - 64) * 0.25
+
+    gen = torch.Generator().manual_seed(3)
+    err = torch.rand(2, 1, 9, 12, generator=gen) * 0.04
+    fg = torch.rand(2, 1, 9, 12, generator=gen)
+    target = (err >= 0.02).double()
+    for band in (1, 2):
+        want = torch.zeros(2, dtype=torch.float64)
+        for m in range(2):
+            for y in range(9):
+                for x in range(12):
+                    win = target[m, 0, max(0, y - band):y + band + 1, max(0, x - band):x + band + 1]
+                    if bool((win == target[m, 0, y, x]).all()):
+                        want[m] += (fg[m, 0, y, x].double() - target[m, 0, y, x]) ** 2
+        torch.testing.assert_close(foreground_error(fg, err, 0.02, band=band).double(), want)
+
+
 def test_foreground_term_needs_the_static_layer(tmp_path_factory, tmp_path):
     from pathlib import Path
 

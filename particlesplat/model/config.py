@@ -166,6 +166,7 @@ class TrainConfig:
     beta_coarse: float = 1.0
     beta_fg: float = 0.0
     fg_threshold: float = 0.02
+    fg_band: int = 0
     beta_rec_ctx: float = 1.0
     beta_rec_tgt: float = 1.0
     lambda_depth: float = 0.1
@@ -193,6 +194,7 @@ class TrainConfig:
         need(0.0 <= self.depth_dropout <= 1.0, "depth_dropout", "must be in [0, 1]")
         need(0.0 <= self.gap_warmup <= 1.0, "gap_warmup", "must be in [0, 1]")
         need(self.cache_scenes >= 0, "cache_scenes", "must be >= 0")
+        need(self.fg_band >= 0, "fg_band", "must be >= 0")
         for key in ("log_every", "val_every", "ckpt_every"):
             need(getattr(self, key) >= 1, key, "must be >= 1")
         for key in ("beta_kl", "beta_f", "beta_reg", "beta_coarse", "beta_fg", "fg_threshold", "beta_rec_ctx",
