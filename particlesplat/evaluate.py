@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from .atomic import atomic_path, atomic_write
 from .camera import Camera
-from .metrics import depth_abs_rel, fg_ari, matched_miou, psnr, ssim
+from .metrics import depth_abs_rel, fg_ari, matched_miou, psnr, region_errors, ssim, summarise_region_errors
 from .objects import particle_objects
 from .render import render
 
@@ -67,7 +67,8 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
 
     Returns scalars (psnr, ssim, depth_abs_rel, fg_ari, miou, fg_ari_particles, miou_particles,
     active_particles, objects, gaussians, encode_ms, decode_ms, render_ms), the renders under "renders",
-    and "pruning" rows when ``prune``. fg_ari and miou score the segmentation into objects (particles
+    the target views' squared error per region (:func:`particlesplat.metrics.region_errors`) under
+    "region_errors" when the item has masks, and "pruning" rows when ``prune``. fg_ari and miou score the segmentation into objects (particles
     grouped by :func:`particlesplat.objects.particle_objects`); the ``_particles`` keys score the plain
     per-particle argmax.
     """
@@ -99,6 +100,8 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
                                                      for i in range(len(masks))]))
         else:
             res["fg_ari" + suffix] = res["miou" + suffix] = float("nan")
+    if "target_masks" in item:
+        res["region_errors"] = region_errors(out["rgb"], gt, item["target_masks"], sup)
     res["renders"] = out
     res["particles"] = particles
     if prune:
@@ -163,7 +166,7 @@ def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int |
     ds = SceneDataset(data_dir, resolution=model.config.resolution, mode="multi" if context == 2 else "single",
                       deterministic=True, seed=seed, progress=1.0)
     n = len(ds) if limit is None else min(limit, len(ds))
-    scenes, prune_rows = [], []
+    scenes, prune_rows, regions = [], [], []
     for i in tqdm(range(n), desc="eval", disable=not progress_bar):
         item = ds[i]
         res = evaluate_item(model, item, use_depth=use_depth, prune=prune)
@@ -171,10 +174,14 @@ def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int |
             save_figure(Path(figures) / f"{ds.scenes[i].name}.png", item, res)
         row = {"scene": ds.scenes[i].name, **{k: res[k] for k in SCALARS}}
         scenes.append(row)
+        if "region_errors" in res:
+            regions.append(res["region_errors"])
         if prune:
             prune_rows.append(res["pruning"])
     mean = {k: _nanmean([s[k] for s in scenes]) for k in SCALARS}
     out = {"data": str(data_dir), "context": context, "depth": use_depth, "scenes": scenes, "mean": mean}
+    if regions:  # where the squared error of the target views lies, pooled over the scenes
+        out["error_regions"] = summarise_region_errors(regions)
     if prune:
         table = []
         for j, row in enumerate(prune_rows[0]):
@@ -212,6 +219,10 @@ def run(args: argparse.Namespace) -> int:
           f"particle {m['fg_ari_particles']:.3f}, {m['miou_particles']:.3f}), active particles "
           f"{m['active_particles']:.1f} in {m['objects']:.1f} objects, Gaussians {m['gaussians']:.0f}, "
           f"encode {m['encode_ms']:.1f} ms, decode {m['decode_ms']:.1f} ms, render {m['render_ms']:.1f} ms/view")
+    if "error_regions" in out:
+        print("target-view error by region: " + "; ".join(
+            f"{k.replace('_', ' ')} {v['pixel_share']:.1%} of pixels, {v['error_share']:.0%} of the error, "
+            f"{v['psnr']:.1f} dB" for k, v in out["error_regions"].items()))
     if "pruning" in out:
         print("z_t thr  opacity thr  PSNR   Gaussians  render ms")
         for r in out["pruning"]:

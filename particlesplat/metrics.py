@@ -1,8 +1,12 @@
-"""Image, depth and decomposition metrics: PSNR, SSIM (kornia), depth AbsRel, FG-ARI, mIoU."""
+"""Image, depth and decomposition metrics: PSNR, SSIM (kornia), depth AbsRel, FG-ARI, mIoU, and the squared
+error split by where it lies (object interiors and edges, the floor next to objects and away from them)."""
 
 from __future__ import annotations
 
+import math
+
 import torch
+import torch.nn.functional as F
 from kornia.metrics import ssim as kornia_ssim
 from torch import Tensor
 
@@ -104,3 +108,41 @@ def matched_miou(pred_seg: Tensor, gt_masks: Tensor) -> float:
         work[i, :] = -1.0
         work[:, j] = -1.0
     return float(scores.mean())
+
+
+REGIONS = ("object_interior", "object_edge", "floor_near_object", "floor_far")
+
+
+def mask_regions(masks: Tensor) -> dict[str, Tensor]:
+    """Partition the pixels of instance masks into :data:`REGIONS`.
+
+    masks: (V, H, W) int ids, 0 = background. An object pixel is on an edge when a pixel of another id
+    (another object or the background) lies within 1 px (Chebyshev), else interior; a background pixel is
+    near an object when an object pixel lies within 2 px, else far. Returns bool (V, H, W) per region.
+    """
+    m = masks.to(torch.float64)[:, None]
+    edge = (F.max_pool2d(m, 3, 1, 1) != -F.max_pool2d(-m, 3, 1, 1))[:, 0]
+    obj = masks > 0
+    near = F.max_pool2d(obj.to(torch.float64)[:, None], 5, 1, 2)[:, 0] > 0
+    return {"object_interior": obj & ~edge, "object_edge": obj & edge,
+            "floor_near_object": ~obj & near, "floor_far": ~obj & ~near}
+
+
+def region_errors(pred: Tensor, target: Tensor, masks: Tensor, valid: Tensor | None = None
+                  ) -> dict[str, tuple[float, int]]:
+    """Squared error per region (:func:`mask_regions`): (sum over pixels of the channel-mean squared error,
+    pixel count). pred, target: (V, 3, H, W) in [0, 1]; masks: (V, H, W); valid: (V, 1, H, W) or None, only
+    these pixels count (as in the eval PSNR)."""
+    err = ((pred.clamp(0, 1) - target) ** 2).mean(1).double()
+    keep = torch.ones_like(masks, dtype=torch.bool) if valid is None else valid[:, 0] > 0
+    return {name: (float(err[r & keep].sum()), int((r & keep).sum())) for name, r in mask_regions(masks).items()}
+
+
+def summarise_region_errors(parts: list[dict[str, tuple[float, int]]]) -> dict[str, dict[str, float]]:
+    """Pool :func:`region_errors` of many scenes: per region its share of the pixels, its share of the squared
+    error and its PSNR (dB; NaN for a region with no pixel)."""
+    err = {k: sum(p[k][0] for p in parts) for k in REGIONS}
+    n = {k: sum(p[k][1] for p in parts) for k in REGIONS}
+    total_err, total_n = sum(err.values()), sum(n.values())
+    return {k: {"pixel_share": n[k] / max(total_n, 1), "error_share": err[k] / total_err if total_err > 0 else 0.0,
+                "psnr": -10.0 * math.log10(max(err[k] / n[k], 1e-10)) if n[k] else float("nan")} for k in REGIONS}

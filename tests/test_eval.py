@@ -11,7 +11,8 @@ from model_data import TINY_MODEL, tiny_dataset
 from PIL import Image
 
 from particlesplat.cli import main
-from particlesplat.metrics import adjusted_rand_index, depth_abs_rel, fg_ari, matched_miou, psnr, ssim
+from particlesplat.metrics import (REGIONS, adjusted_rand_index, depth_abs_rel, fg_ari, mask_regions, matched_miou,
+                                  psnr, region_errors, ssim, summarise_region_errors)
 from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
 
 
@@ -75,6 +76,10 @@ def test_eval_cli_writes_json_figures_and_pruning_table(tmp_path_factory, tmp_pa
     assert res["mean"]["objects"] <= res["mean"]["active_particles"]
     assert len(res["scenes"]) == 1 and res["scenes"][0]["scene"] == "scene_00000"
     assert 0 < res["mean"]["psnr"] < 60 and -1 <= res["mean"]["fg_ari"] <= 1
+    regions = res["error_regions"]
+    assert list(regions) == list(REGIONS)
+    assert math.isclose(sum(r["pixel_share"] for r in regions.values()), 1.0)
+    assert math.isclose(sum(r["error_share"] for r in regions.values()), 1.0)
     rows = res["pruning"]
     base = rows[0]
     assert base["z_t_threshold"] == 0 and base["opacity_threshold"] == 0
@@ -83,6 +88,40 @@ def test_eval_cli_writes_json_figures_and_pruning_table(tmp_path_factory, tmp_pa
     img = Image.open(tmp_path / "fig" / "scene_00000.png")
     assert img.size == (4 * 32, 5 * 32)  # 4 targets wide, 5 rows
     assert main(["eval", "--checkpoint", str(ckpt), "--data", str(data / "val"), "--context", "1"]) == 0
+
+
+def test_mask_regions_of_a_square_and_a_neighbour():
+    """A 4x4 object in a 12x12 view: 4 interior and 12 edge pixels, 48 floor pixels within 2 px, 80 farther.
+    A second object touching it makes the shared column edge on both sides."""
+    m = torch.zeros(1, 12, 12, dtype=torch.long)
+    m[0, 4:8, 4:8] = 3
+    counts = {k: int(v.sum()) for k, v in mask_regions(m).items()}
+    assert counts == {"object_interior": 4, "object_edge": 12, "floor_near_object": 48, "floor_far": 80}
+    m[0, 4:8, 8:10] = 5
+    r = mask_regions(m)
+    assert not bool(r["object_interior"][0, 4:8, 7].any()) and bool(r["object_edge"][0, 4:8, 8].all())
+    assert sum(int(v.sum()) for v in r.values()) == 144 and not bool(sum(v.int() for v in r.values()).gt(1).any())
+
+
+def test_region_errors_sum_and_summary_analytic():
+    """Error 0.1 on the square's edge, 0.01 on the far floor, 0 elsewhere: sums 12 * 0.01 and 80 * 1e-4,
+    edge PSNR 20 dB, far floor 40 dB; the unsupervised half of the view drops out."""
+    m = torch.zeros(1, 12, 12, dtype=torch.long)
+    m[0, 4:8, 4:8] = 1
+    gt = torch.full((1, 3, 12, 12), 0.5)
+    r = mask_regions(m)
+    pred = gt + 0.1 * r["object_edge"][:, None] + 0.01 * r["floor_far"][:, None]
+    parts = region_errors(pred, gt, m)
+    assert parts["object_edge"][1] == 12 and math.isclose(parts["object_edge"][0], 12 * 0.01, rel_tol=1e-5)
+    assert math.isclose(parts["floor_far"][0], 80 * 1e-4, rel_tol=1e-4) and parts["object_interior"][0] == 0.0
+    summary = summarise_region_errors([parts, parts])
+    assert math.isclose(summary["object_edge"]["psnr"], 20.0, abs_tol=1e-3)
+    assert math.isclose(summary["floor_far"]["psnr"], 40.0, abs_tol=1e-3)
+    assert math.isclose(summary["object_edge"]["pixel_share"], 12 / 144)
+    assert math.isclose(summary["object_edge"]["error_share"], 0.12 / (0.12 + 0.008), rel_tol=1e-4)
+    valid = torch.ones(1, 1, 12, 12)
+    valid[..., :, 6:] = 0
+    assert region_errors(pred, gt, m, valid)["object_edge"][1] == 6
 
 
 def test_eval_psnr_is_the_mean_of_per_view_psnr():
