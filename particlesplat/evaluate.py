@@ -68,9 +68,9 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     Returns scalars (psnr, ssim, depth_abs_rel, fg_ari, miou, fg_ari_particles, miou_particles,
     active_particles, objects, gaussians, encode_ms, decode_ms, render_ms), the renders under "renders",
     the target views' squared error per region (:func:`particlesplat.metrics.region_errors`) under
-    "region_errors" when the item has masks, and "pruning" rows when ``prune``. fg_ari and miou score the segmentation into objects (particles
-    grouped by :func:`particlesplat.objects.particle_objects`); the ``_particles`` keys score the plain
-    per-particle argmax.
+    "region_errors" when the item has masks, and "pruning" rows when ``prune``. fg_ari and miou score the
+    segmentation into objects (particles grouped by :func:`particlesplat.objects.particle_objects`); the
+    ``_particles`` keys score the plain per-particle argmax.
     """
     size = model.config.resolution
     ctx_cams = _cameras(item["context_K"], item["context_c2w"], size)
