@@ -19,11 +19,11 @@ from torch import Tensor
 
 from .gaussians import Gaussians
 
-# Defaults measured on the tabletop family with the shipped model (README, "Objects"; 96 training and 32
-# validation scenes; pairs of particles each >= 60 % on one true object): opaque means opacity (z_t included)
-# >= 0.2. Of 2074 pairs of particles on one object, 95 % had Gaussians within 0.22 x (sum of their largest
-# stds) of each other, and in 94 % at least 30 % of one particle's opaque Gaussians touched the other (median
-# 89 %); of 5825 pairs on different objects 27 touched, 22 of them with at most 11 %.
+# Defaults measured on the tabletop family with r28, the model shipped in session 6 (README, "Objects"; 96
+# training and 32 validation scenes; pairs of particles each >= 60 % on one true object): opaque means opacity
+# (z_t included) >= 0.2. Of 2074 pairs of particles on one object, 95 % had Gaussians within 0.22 x (sum of their
+# largest stds) of each other, and in 94 % at least 30 % of one particle's opaque Gaussians touched the other
+# (median 89 %); of 5825 pairs on different objects 27 touched, 22 of them with at most 11 %.
 OPAQUE = 0.2
 REACH = 1.0
 OVERLAP = 0.3
