@@ -113,6 +113,14 @@ def matched_miou(pred_seg: Tensor, gt_masks: Tensor) -> float:
 REGIONS = ("object_interior", "object_edge", "floor_near_object", "floor_far")
 
 
+def near_other_label(labels: Tensor, radius: int) -> Tensor:
+    """Pixels with a pixel of another label within ``radius`` px (Chebyshev). labels: (M, 1, H, W) numbers
+    (ids or a 0/1 target) -> (M, 1, H, W) bool; the image border does not count as another label."""
+    x = labels.to(torch.float64)
+    k = 2 * radius + 1
+    return F.max_pool2d(x, k, 1, radius) != -F.max_pool2d(-x, k, 1, radius)
+
+
 def mask_regions(masks: Tensor) -> dict[str, Tensor]:
     """Partition the pixels of instance masks into :data:`REGIONS`.
 
@@ -120,10 +128,9 @@ def mask_regions(masks: Tensor) -> dict[str, Tensor]:
     (another object or the background) lies within 1 px (Chebyshev), else interior; a background pixel is
     near an object when an object pixel lies within 2 px, else far. Returns bool (V, H, W) per region.
     """
-    m = masks.to(torch.float64)[:, None]
-    edge = (F.max_pool2d(m, 3, 1, 1) != -F.max_pool2d(-m, 3, 1, 1))[:, 0]
+    edge = near_other_label(masks[:, None], 1)[:, 0]
     obj = masks > 0
-    near = F.max_pool2d(obj.to(torch.float64)[:, None], 5, 1, 2)[:, 0] > 0
+    near = obj | near_other_label(obj[:, None], 2)[:, 0]
     return {"object_interior": obj & ~edge, "object_edge": obj & edge,
             "floor_near_object": ~obj & near, "floor_far": ~obj & ~near}
 

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import torch
 import torch.distributed as dist
-import torch.nn.functional as F
 from torch import Tensor
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import default_collate
@@ -22,6 +21,7 @@ from .camera import Camera
 from .data.views import WARMUP
 from .model import ModelConfig, ParticleSplat, TrainConfig, load_config, read_checkpoint, save_checkpoint
 from .model.config import ConfigError, config_to_dict, model_config_from_dict
+from .metrics import near_other_label
 from .model.losses import elbo, scene_kl, view_error
 from .render import render_batch
 
@@ -58,10 +58,7 @@ def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float, band: int =
     target = (bg_error >= threshold).to(fg.dtype)
     err = (fg - target) ** 2
     if band > 0:
-        k = 2 * band + 1
-        near_fg = F.max_pool2d(target, k, stride=1, padding=band)
-        near_bg = 1.0 - F.max_pool2d(1.0 - target, k, stride=1, padding=band)
-        err = err * (near_fg == near_bg).to(fg.dtype)  # all neighbours agree: not on an edge
+        err = err * (~near_other_label(target, band)).to(fg.dtype)  # all neighbours agree: not on an edge
     return err.flatten(1).sum(1)
 
 
