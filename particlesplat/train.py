@@ -21,6 +21,7 @@ from .camera import Camera
 from .data.views import WARMUP
 from .model import ModelConfig, ParticleSplat, TrainConfig, load_config, read_checkpoint, save_checkpoint
 from .model.config import ConfigError, config_to_dict, model_config_from_dict
+from .model.grow import grow_state_dict
 from .metrics import near_other_label
 from .model.losses import elbo, scene_kl, view_error
 from .render import render_batch
@@ -159,6 +160,9 @@ class Trainer:
             state = {k: v for k, v in state.items() if k not in dropped}
             if dropped and self.rank == 0:
                 print(f"--init {init}: dropped by --init-drop: {', '.join(dropped)}")
+            state, grown = grow_state_dict(state, self.model.state_dict(), str(init))
+            if grown and self.rank == 0:
+                print(f"--init {init}: grown to this config's widths (drawing what it drew): {', '.join(grown)}")
             try:
                 res = self.model.load_state_dict(state, strict=False)
             except RuntimeError as e:
@@ -320,7 +324,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="cpu", help="cpu or cuda (under torchrun: one process per device)")
     parser.add_argument("--init", default=None,
                         help="start from the weights of this checkpoint (fresh optimiser and step count; "
-                             "the model config may differ only in keys that hold no weights)")
+                             "the model config may differ in keys that hold no weights, and may widen d_obj, "
+                             "patch_channels and patch_hidden: the grown model starts by drawing what it drew)")
     parser.add_argument("--init-drop", action="append", default=[], metavar="MODULE",
                         help="with --init: leave out the checkpoint's weights under this module name (e.g. "
                              "bg_detail), for a config that no longer has it; repeatable")

@@ -670,6 +670,38 @@ def test_refinement_blocks_start_as_the_identity():
         ModelConfig(**{**cfg, "patch_refine": -1}).validate()
 
 
+def test_grown_model_draws_what_the_narrow_one_drew():
+    """A model with a wider z_f (d_obj), particle decoder grid (patch_channels) and hidden layer (patch_hidden),
+    grown from a narrower one's weights, encodes and decodes exactly the same Gaussians; the new units receive
+    gradients at once; a shape that cannot grow is refused by name."""
+    from particlesplat.model.grow import grow_state_dict
+
+    narrow_cfg = {"patch_gaussians": 4, "patch_base": 2, "patch_back": True}
+    narrow = tiny_model(1, **narrow_cfg)
+    with torch.no_grad():  # the zero-initialised residual convs and the z_f refinement, made to matter
+        for conv in narrow.fg_decoder.up:
+            conv.weight.normal_(std=0.3)
+        narrow.encoder.refine.weight.normal_(std=0.3)
+    wide = tiny_model(2, **narrow_cfg, d_obj=7, patch_channels=12, patch_hidden=40)
+    state, grown = grow_state_dict(narrow.state_dict(), wide.state_dict())
+    assert "encoder.head.weight" in grown and "fg_decoder.fc.0.weight" in grown and "fg_decoder.head.weight" in grown
+    wide.load_state_dict(state, strict=True)
+    rgb, depth, cs = scene_inputs(2)
+    a, b = narrow.decode(narrow.encode(rgb, depth, cs)), wide.decode(wide.encode(rgb, depth, cs))
+    for name in ("means", "quats", "scales", "opacities", "sh"):
+        torch.testing.assert_close(getattr(b, name), getattr(a, name), rtol=1e-5, atol=1e-6)
+    z_f = torch.randn(5, 7, requires_grad=True)
+    wide.fg_decoder(z_f).square().sum().backward()
+    assert wide.fg_decoder.head.weight.grad[:, 8:].abs().max() > 0  # columns of the new channels
+    assert z_f.grad[:, 4:].abs().max() == 0  # the new z_f dims start with no effect
+    with pytest.raises(ValueError, match="src.pt: encoder.*only d_obj, patch_channels and patch_hidden may differ"):
+        grow_state_dict(narrow.state_dict(), tiny_model(3, **narrow_cfg, channels=12).state_dict(), "src.pt")
+    with pytest.raises(ValueError, match=r"encoder.head.weight has shape \(28, 32\).*needs \(22, 32\)"):
+        grow_state_dict(wide.state_dict(), narrow.state_dict())
+    with pytest.raises(ConfigError, match="patch_channels"):
+        ModelConfig(**{**TINY, "patch_channels": 2}).validate()
+
+
 def test_shipped_yaml_documents_every_config_key():
     """assets/model.yaml lists every ModelConfig and TrainConfig key (the file documents them)."""
     from dataclasses import fields

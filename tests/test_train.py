@@ -127,9 +127,13 @@ def test_init_from_checkpoint_weights(tmp_path_factory, tmp_path):
     for k, v in src.state_dict().items():
         torch.testing.assert_close(out["state_dict"][k], v, rtol=0, atol=1e-6)
     assert any(k.startswith("bg_detail.") for k in out["state_dict"])
-    cfg.write_text(text.replace("d_obj: 4", "d_obj: 5"))
-    with pytest.raises(ValueError, match="do not fit"):
+    cfg.write_text(text.replace("channels: 8", "channels: 12"))
+    with pytest.raises(ValueError, match="src.pt: .* only d_obj, patch_channels and patch_hidden may differ"):
         _train(cfg, data, tmp_path / "j", "--init", str(tmp_path / "src.pt"))
+    cfg.write_text(text.replace("d_obj: 4", "d_obj: 5"))  # grown (test_model checks it draws the same)
+    assert _train(cfg, data, tmp_path / "j", "--init", str(tmp_path / "src.pt")) == 0
+    grown = read_checkpoint(tmp_path / "j" / "last.pt")["state_dict"]["encoder.head.weight"]
+    torch.testing.assert_close(grown[:14 + 4], src.state_dict()["encoder.head.weight"][:14 + 4], rtol=0, atol=1e-6)
     save_checkpoint(tmp_path / "src2.pt", ParticleSplat(ModelConfig(**TINY_MODEL)), step=9)
     cfg.write_text(text.replace("bg_detail: 2", "bg_detail: 0").replace("bg_copy_input: true", "bg_copy_input: false"))
     with pytest.raises(ValueError, match="does not have: .*bg_detail"):

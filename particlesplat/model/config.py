@@ -53,6 +53,8 @@ class ModelConfig:
     patch_gaussians: int = 4
     patch_base: int = 0
     patch_refine: int = 0
+    patch_channels: int = 0
+    patch_hidden: int = 0
     particle_depth_scale: str = "pixel"
     patch_back: bool = False
     patch_copy_input: bool = False
@@ -112,6 +114,8 @@ class ModelConfig:
         need(self.patch_base >= 0 and ratio >= 1 and base * ratio == self.patch_gaussians and ratio & (ratio - 1) == 0,
              "patch_base", "must be 0 (= patch_gaussians) or patch_gaussians divided by a power of 2")
         need(self.patch_refine >= 0, "patch_refine", "must be >= 0 (0: no refinement blocks)")
+        need(self.patch_channels == 0 or self.patch_channels >= 4, "patch_channels", "must be 0 (= channels) or >= 4")
+        need(self.patch_hidden >= 0, "patch_hidden", "must be >= 0 (0: twice the patch channels)")
         need(self.patch_copy_threshold >= 0.0, "patch_copy_threshold", "must be >= 0 (0: copy every cell)")
         need(self.particle_depth_scale in ("pixel", "cell"), "particle_depth_scale", "must be 'pixel' or 'cell'")
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
@@ -130,6 +134,17 @@ class ModelConfig:
     def gaussians_per_particle(self) -> int:
         """S², doubled by the back layer (``patch_back``)."""
         return self.patch_gaussians ** 2 * (2 if self.patch_back else 1)
+
+    @property
+    def particle_decoder_channels(self) -> int:
+        """Channels of the particle decoder's feature grid: ``patch_channels``, else ``channels``."""
+        return self.patch_channels or self.channels
+
+    @property
+    def particle_decoder_hidden(self) -> int:
+        """Width of the particle decoder's hidden layer (z_f -> hidden -> base grid): ``patch_hidden``, else
+        twice :attr:`particle_decoder_channels`."""
+        return self.patch_hidden or 2 * self.particle_decoder_channels
 
     def depth_of(self, logit):
         """Planar depth (metres) of a depth logit (tensor): d_min + σ(logit)(d_max − d_min)."""

@@ -41,8 +41,9 @@ def init_gaussian_head(conv: nn.Conv2d, sh_degree: int, opacity_logit: float, de
 class ForegroundDecoder(nn.Module):
     """D_fg: z_f (…, D) -> canonical S×S patch of Gaussian parameters (…, S*S, C).
 
-    z_f is decoded to a ``patch_base``² feature grid that is doubled (nearest, then a residual 3×3 conv that
-    starts at zero) until it is S×S, so a model trained with S = ``patch_base`` starts an S-times-finer
+    z_f is decoded through a hidden layer (``patch_hidden`` units) to a ``patch_base``² feature grid
+    (``patch_channels`` deep) that is doubled (nearest, then a residual 3×3 conv that starts at zero) until it
+    is S×S, so a model trained with S = ``patch_base`` starts an S-times-finer
     patch from its own Gaussians, each split into children at the finer cell centres.
 
     ``patch_refine`` residual blocks (3×3 conv, SiLU, 3×3 conv whose output starts at zero) then work on the
@@ -64,9 +65,10 @@ class ForegroundDecoder(nn.Module):
         self.S = cfg.patch_gaussians
         self.base = cfg.patch_base or cfg.patch_gaussians
         self.sh_degree = cfg.sh_degree
-        c = cfg.channels
+        c = cfg.particle_decoder_channels
         self.c = c
-        self.fc = nn.Sequential(nn.Linear(cfg.d_obj, 2 * c), nn.SiLU(), nn.Linear(2 * c, c * self.base * self.base))
+        hidden = cfg.particle_decoder_hidden
+        self.fc = nn.Sequential(nn.Linear(cfg.d_obj, hidden), nn.SiLU(), nn.Linear(hidden, c * self.base * self.base))
         self.up = nn.ModuleList()
         size = self.base
         while size < self.S:
