@@ -670,6 +670,42 @@ def test_refinement_blocks_start_as_the_identity():
         ModelConfig(**{**cfg, "patch_refine": -1}).validate()
 
 
+def test_cell_mlp_starts_as_the_identity_and_reads_the_cell_position():
+    """patch_cell_mlp loads the weights of a decoder without it and starts with exactly its output; once its
+    last layer is nonzero, cells whose conv features are equal still differ (it reads their positions). The
+    position code is sin/cos of 2^k π x, y at the cell centres."""
+    from particlesplat.model.decoder import ForegroundDecoder, cell_fourier_features
+
+    code = cell_fourier_features(2, octaves=2)  # cells (x, y) = (-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)
+    x = torch.tensor([-0.5, 0.5, -0.5, 0.5])
+    torch.testing.assert_close(code[:, 0], torch.sin(math.pi * x))
+    torch.testing.assert_close(code[:, 1], torch.sin(2 * math.pi * x))
+    torch.testing.assert_close(code[:, 6], torch.cos(math.pi * x[[0, 0, 3, 3]]))  # y cos, octave 0
+    torch.manual_seed(0)
+    cfg = {**TINY, "patch_gaussians": 4, "patch_base": 2, "patch_back": True}
+    plain = ForegroundDecoder(ModelConfig(**cfg))
+    with torch.no_grad():
+        plain.head.weight.normal_()
+    mlp = ForegroundDecoder(ModelConfig(**{**cfg, "patch_cell_mlp": 16}))
+    missing = mlp.load_state_dict(plain.state_dict(), strict=False).missing_keys
+    assert sorted({k.split(".")[0] for k in missing}) == ["cell_mlp"]
+    z_f = torch.randn(3, TINY["d_obj"])
+    torch.testing.assert_close(mlp(z_f), plain(z_f), rtol=0, atol=0)
+    with torch.no_grad():
+        mlp.cell_mlp[-1].weight.normal_(std=0.1)
+    out = mlp(z_f)
+    assert out.shape == plain(z_f).shape == (3, 2 * 16, gaussian_channels(0))
+    with torch.no_grad():  # features equal at every cell: the last conv reads nothing but its bias ...
+        for m in (plain, mlp):
+            m.conv[1].weight.zero_()
+    flat = plain(z_f)
+    torch.testing.assert_close(flat[:, :16], flat[:, :1].expand(-1, 16, -1))  # the 16 front cells
+    out = mlp(z_f)
+    assert (out[:, 0] - out[:, 1]).abs().max() > 1e-3  # ... and the MLP tells the cells apart
+    with pytest.raises(ConfigError, match="patch_cell_mlp"):
+        ModelConfig(**{**cfg, "patch_cell_mlp": -1}).validate()
+
+
 def test_grown_model_draws_what_the_narrow_one_drew():
     """A model with a wider z_f (d_obj), particle decoder grid (patch_channels) and hidden layer (patch_hidden),
     grown from a narrower one's weights, encodes and decodes exactly the same Gaussians; the new units receive

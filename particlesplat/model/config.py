@@ -55,6 +55,7 @@ class ModelConfig:
     patch_refine: int = 0
     patch_channels: int = 0
     patch_hidden: int = 0
+    patch_cell_mlp: int = 0
     particle_depth_scale: str = "pixel"
     patch_back: bool = False
     patch_copy_input: bool = False
@@ -116,6 +117,7 @@ class ModelConfig:
         need(self.patch_refine >= 0, "patch_refine", "must be >= 0 (0: no refinement blocks)")
         need(self.patch_channels == 0 or self.patch_channels >= 4, "patch_channels", "must be 0 (= channels) or >= 4")
         need(self.patch_hidden >= 0, "patch_hidden", "must be >= 0 (0: twice the patch channels)")
+        need(self.patch_cell_mlp >= 0, "patch_cell_mlp", "must be >= 0 (0: no per-cell MLP)")
         need(self.patch_copy_threshold >= 0.0, "patch_copy_threshold", "must be >= 0 (0: copy every cell)")
         need(self.particle_depth_scale in ("pixel", "cell"), "particle_depth_scale", "must be 'pixel' or 'cell'")
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")

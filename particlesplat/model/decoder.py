@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -49,6 +51,11 @@ class ForegroundDecoder(nn.Module):
     ``patch_refine`` residual blocks (3×3 conv, SiLU, 3×3 conv whose output starts at zero) then work on the
     S×S grid, so a model trained without them starts from what it drew and gains depth where shapes need it.
 
+    With ``patch_cell_mlp`` H > 0 a per-cell MLP (two hidden layers of H units) reads each cell's features, z_f
+    and Fourier features of the cell's position, and adds its output to both heads' (it starts at zero, so a
+    model trained without it starts from what it drew): the convolutions see a cell's position only through
+    its neighbours, the MLP can draw an edge wherever z_f puts it.
+
     With ``patch_back`` a second head gives every cell a back Gaussian (rows S*S .. 2*S*S - 1), which
     :func:`foreground_gaussians` places behind the cell's front Gaussian on the same ray; it starts nearly
     transparent (opacity logit -2), so a model trained without it starts from what it drew before.
@@ -90,6 +97,16 @@ class ForegroundDecoder(nn.Module):
         if cfg.patch_back:
             self.back_head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
             init_gaussian_head(self.back_head, cfg.sh_degree, opacity_logit=-2.0)
+        self.cell_mlp = None
+        if cfg.patch_cell_mlp > 0:
+            H = cfg.patch_cell_mlp
+            heads = 2 if cfg.patch_back else 1
+            self.register_buffer("cell_code", cell_fourier_features(self.S), persistent=False)
+            self.cell_mlp = nn.Sequential(nn.Linear(c + cfg.d_obj + self.cell_code.shape[1], H), nn.SiLU(),
+                                          nn.Linear(H, H), nn.SiLU(),
+                                          nn.Linear(H, heads * gaussian_channels(cfg.sh_degree)))
+            nn.init.zeros_(self.cell_mlp[-1].weight)
+            nn.init.zeros_(self.cell_mlp[-1].bias)
         self.obs_in = self.copy_gate = None
         if cfg.patch_copy_input:
             self.obs_in = nn.Sequential(nn.Conv2d(PATCH_OBSERVED_CHANNELS, c, 3, padding=1), nn.SiLU(),
@@ -117,12 +134,22 @@ class ForegroundDecoder(nn.Module):
             h = h + block(h)
         h = self.conv(h)
         front = self.head(h)
+        back = None if self.back_head is None else self.back_head(h)
+        if self.cell_mlp is not None:
+            M, S = h.shape[0], self.S
+            cells = torch.cat([h.flatten(2).transpose(1, 2), z_f[:, None].expand(-1, S * S, -1),
+                               self.cell_code[None].expand(M, -1, -1)], dim=-1)
+            extra = self.cell_mlp(cells).transpose(1, 2).reshape(M, -1, S, S)
+            C = front.shape[1]
+            front = front + extra[:, :C]
+            if back is not None:
+                back = back + extra[:, C:]
         if self.copy_gate is not None:
             g = torch.sigmoid(self.copy_gate(h))
             colour, r, known, inside, fg = obs[:, :3], obs[:, 3:4], obs[:, 4:5], obs[:, 5:6], obs[:, 6:7]
             front = copy_into_head(front, colour, g[:, :1] * inside * fg, torch.atanh(r), g[:, 1:] * known * fg,
                                    self.sh_degree)
-        out = [front] if self.back_head is None else [front, self.back_head(h)]
+        out = [front] if back is None else [front, back]
         return torch.cat([o.flatten(2).transpose(1, 2) for o in out], dim=1)
 
 
@@ -273,6 +300,14 @@ def _finish(p: dict[str, Tensor], pix: Tensor, zeta: Tensor, jac_px: Tensor, K: 
     quats, scales = covariance_to_quat_scale(M_world)
     sh = rotate_sh_to_world(p["sh"], c2w[..., :3, :3])  # c2w already broadcasts over the Gaussians
     return {"means": means, "quats": quats, "scales": scales, "opacities": opacity, "sh": sh}
+
+
+def cell_fourier_features(S: int, octaves: int = 4) -> Tensor:
+    """(S*S, 4 * octaves) sin and cos of 2^k π x and 2^k π y (k < octaves) at an S×S patch's cell centres
+    (x, y in [-1, 1]), row-major (y, x) order."""
+    xy = cell_centres(S, None, torch.float32) * 2.0 - 1.0
+    angles = xy[:, :, None] * (math.pi * 2.0 ** torch.arange(octaves, dtype=torch.float32))
+    return torch.cat([angles.sin(), angles.cos()], dim=-1).reshape(S * S, 4 * octaves)
 
 
 def cell_centres(S: int, device, dtype) -> Tensor:
