@@ -65,7 +65,8 @@ def grow_state_dict(old: dict[str, Tensor], fresh: dict[str, Tensor], source: st
                 and all(n >= o for n, o in zip(target.shape, value.shape)) and target.shape[2:] == value.shape[2:])
         if not fits:
             raise ValueError(f"{source}: {key} has shape {tuple(value.shape)}, this model config needs "
-                             f"{tuple(target.shape)}: only d_obj, patch_channels and patch_hidden may differ, and only grow")
+                             f"{tuple(target.shape)}: only d_obj, patch_channels and patch_hidden may differ, "
+                             "and only grow")
         with torch.no_grad():
             if key.startswith(_HEAD):
                 out[key] = _embed_head(value, target, d_old, d_new)
