@@ -11,6 +11,11 @@ from kornia.metrics import ssim as kornia_ssim
 from torch import Tensor
 
 
+def psnr_of_mse(mse: float) -> float:
+    """PSNR in dB of a mean squared error of [0, 1] images (floored at 1e-10: 100 dB)."""
+    return -10.0 * math.log10(max(mse, 1e-10))
+
+
 def psnr(pred: Tensor, target: Tensor, mask: Tensor | None = None) -> float:
     """PSNR in dB of images in [0, 1]. pred, target: (..., 3, H, W) or (H, W, 3); mask broadcastable."""
     err = (pred.clamp(0, 1) - target) ** 2
@@ -19,7 +24,7 @@ def psnr(pred: Tensor, target: Tensor, mask: Tensor | None = None) -> float:
         mse = (err * m).sum() / m.sum().clamp_min(1.0)
     else:
         mse = err.mean()
-    return float(-10.0 * torch.log10(mse.clamp_min(1e-10)))
+    return psnr_of_mse(float(mse))
 
 
 def ssim(pred: Tensor, target: Tensor, window: int = 11) -> float:
@@ -152,4 +157,4 @@ def summarise_region_errors(parts: list[dict[str, tuple[float, int]]]) -> dict[s
     n = {k: sum(p[k][1] for p in parts) for k in REGIONS}
     total_err, total_n = sum(err.values()), sum(n.values())
     return {k: {"pixel_share": n[k] / max(total_n, 1), "error_share": err[k] / total_err if total_err > 0 else 0.0,
-                "psnr": -10.0 * math.log10(max(err[k] / n[k], 1e-10)) if n[k] else float("nan")} for k in REGIONS}
+                "psnr": psnr_of_mse(err[k] / n[k]) if n[k] else float("nan")} for k in REGIONS}
