@@ -142,17 +142,29 @@ class Trainer:
         torch.manual_seed(tc.seed + 1000 * self.rank)
         self.gen = torch.Generator().manual_seed(tc.seed * 7919 + self.rank)
         self.model = ParticleSplat(cfg).to(self.device)
+        owns = lambda k, p: k == p or k.startswith(p + ".")  # noqa: E731
+        names = [n for n, _ in self.model.named_parameters()]
+        unknown = [m for m in tc.freeze if not any(owns(n, m) for n in names)]
+        if unknown:
+            raise ConfigError(f"train.freeze: no such module in this model: {', '.join(unknown)} "
+                              f"(modules: {', '.join(sorted({n.split('.')[0] for n in names}))})")
+        for n, p in self.model.named_parameters():  # frozen weights keep what they were initialised with
+            p.requires_grad_(not any(owns(n, m) for m in tc.freeze))
         # the learned background colour and the static background layer move at lr_background
         is_bg = lambda n: n == "background_logit" or n.startswith("static_bg.")  # noqa: E731
-        bg = [p for n, p in self.model.named_parameters() if is_bg(n)]
-        rest = [p for n, p in self.model.named_parameters() if not is_bg(n)]
-        groups = [{"params": rest}] + ([{"params": bg, "lr": tc.lr_background}] if bg else [])
+        trained = [(n, p) for n, p in self.model.named_parameters() if p.requires_grad]
+        bg = [p for n, p in trained if is_bg(n)]
+        rest = [p for n, p in trained if not is_bg(n)]
+        groups = ([{"params": rest, "lr": tc.lr}] if rest else []) + \
+            ([{"params": bg, "lr": tc.lr_background}] if bg else [])
+        self.base_lrs = [g["lr"] for g in groups]
+        if not groups:
+            raise ConfigError("train.freeze: every weight is frozen, nothing would train")
         self.opt = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
         self.step = 0
         self.best = -math.inf
         if init is not None and not resume:
             state = read_checkpoint(init)["state_dict"]
-            owns = lambda k, p: k == p or k.startswith(p + ".")  # noqa: E731
             unknown = [p for p in init_drop if not any(owns(k, p) for k in state)]
             if unknown:
                 raise ValueError(f"{init}: --init-drop {', '.join(unknown)}: no such weights in the checkpoint")
@@ -233,7 +245,7 @@ class Trainer:
         self.opt.zero_grad(set_to_none=True)
         parts["loss"].backward()
         factor = lr_factor(self.step, self.tc)
-        for g, base in zip(self.opt.param_groups, (self.tc.lr, self.tc.lr_background)):
+        for g, base in zip(self.opt.param_groups, self.base_lrs):
             g["lr"] = base * factor
         if self.tc.grad_clip > 0:
             torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.tc.grad_clip)

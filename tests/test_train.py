@@ -307,3 +307,19 @@ def test_training_with_the_foreground_term_logs_it(tmp_path_factory, tmp_path):
     fg = [r["fg"] for r in rows if "fg" in r]
     assert len(fg) == 2 and all(0.0 < v <= 3 * 32 * 32 for v in fg)
     assert all(math.isfinite(r["loss"]) for r in rows if "loss" in r)
+
+
+def test_frozen_modules_keep_their_weights(tmp_path_factory, tmp_path):
+    """train.freeze: the named modules stay bit-identical over two steps while the rest trains; a module the
+    model does not have is refused by name."""
+    data = tiny_dataset(tmp_path_factory)
+    cfg = tiny_config(tmp_path / "tiny.yaml", steps=2, val_every=5, freeze=["encoder", "bg_encoder"])
+    assert _train(cfg, data, tmp_path / "s", "--stop-after", "1") == 0
+    before = read_checkpoint(tmp_path / "s" / "last.pt")["state_dict"]
+    assert _train(cfg, data, tmp_path / "s", "--resume") == 0
+    after = read_checkpoint(tmp_path / "s" / "last.pt")["state_dict"]
+    moved = {k.split(".")[0] for k in after if not torch.equal(after[k], before[k])}
+    assert "fg_decoder" in moved and not moved & {"encoder", "bg_encoder"}
+    bad = tiny_config(tmp_path / "bad.yaml", freeze=["encoder", "refiner"])
+    with pytest.raises(ValueError, match="train.freeze: no such module in this model: refiner"):
+        _train(bad, data, tmp_path / "b")

@@ -60,6 +60,8 @@ class ModelConfig:
     patch_back: bool = False
     patch_copy_input: bool = False
     patch_copy_threshold: float = 0.02
+    refine_steps: int = 0
+    refine_hidden: int = 256
     token_dim: int = 64
     transformer_layers: int = 2
     transformer_heads: int = 4
@@ -119,6 +121,12 @@ class ModelConfig:
         need(self.patch_hidden >= 0, "patch_hidden", "must be >= 0 (0: twice the patch channels)")
         need(self.patch_cell_mlp >= 0, "patch_cell_mlp", "must be >= 0 (0: no per-cell MLP)")
         need(self.patch_copy_threshold >= 0.0, "patch_copy_threshold", "must be >= 0 (0: copy every cell)")
+        need(self.refine_steps >= 0, "refine_steps", "must be >= 0 (0: no refinement)")
+        need(self.refine_steps == 0 or self.glimpse_size % 8 == 0, "glimpse_size",
+             "must be a multiple of 8 with refine_steps > 0")
+        need(self.refine_steps == 0 or not self.patch_copy_input, "refine_steps",
+             "cannot be combined with patch_copy_input")
+        need(self.refine_hidden >= 1, "refine_hidden", "must be >= 1")
         need(self.particle_depth_scale in ("pixel", "cell"), "particle_depth_scale", "must be 'pixel' or 'cell'")
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
         need(self.transformer_layers >= 0, "transformer_layers", "must be >= 0")
@@ -195,6 +203,7 @@ class TrainConfig:
     val_scenes: int = 16
     ckpt_every: int = 250
     seed: int = 0
+    freeze: list[str] = field(default_factory=list)
     num_threads: int = 0
     cache_scenes: int = 1100
 
@@ -212,6 +221,7 @@ class TrainConfig:
         need(0.0 <= self.gap_warmup <= 1.0, "gap_warmup", "must be in [0, 1]")
         need(self.cache_scenes >= 0, "cache_scenes", "must be >= 0")
         need(self.fg_band >= 0, "fg_band", "must be >= 0")
+        need(all(isinstance(m, str) and m for m in self.freeze), "freeze", "must be a list of module names")
         for key in ("log_every", "val_every", "ckpt_every"):
             need(getattr(self, key) >= 1, key, "must be >= 1")
         for key in ("beta_kl", "beta_f", "beta_reg", "beta_coarse", "beta_fg", "fg_threshold", "beta_rec_ctx",

@@ -11,7 +11,7 @@ from .config import ModelConfig
 from .geometry import plucker_at, plucker_map, project_to_view, ray_dirs
 
 
-def _conv(cin: int, cout: int, stride: int = 1) -> nn.Module:
+def conv3x3(cin: int, cout: int, stride: int = 1) -> nn.Module:
     return nn.Sequential(nn.Conv2d(cin, cout, 3, stride=stride, padding=1), nn.SiLU())
 
 
@@ -44,9 +44,9 @@ class FusedBackbone(nn.Module):
         super().__init__()
         c = cfg.channels
         widths = [c // 2, c, c]
-        self.rgb = nn.ModuleList([_conv(3 + extra_in, widths[0]), _conv(widths[0], widths[1], 2),
-                                  _conv(widths[1], widths[2], 2)])
-        self.dep = nn.ModuleList([_conv(2, widths[0]), _conv(widths[0], widths[1], 2), _conv(widths[1], widths[2], 2)])
+        self.rgb = nn.ModuleList([conv3x3(3 + extra_in, widths[0]), conv3x3(widths[0], widths[1], 2),
+                                  conv3x3(widths[1], widths[2], 2)])
+        self.dep = nn.ModuleList([conv3x3(2, widths[0]), conv3x3(widths[0], widths[1], 2), conv3x3(widths[1], widths[2], 2)])
         self.fuse = nn.ModuleList([nn.Conv2d(w, w, 1) for w in widths])
         self.rays = nn.ModuleList([RayConditioning(w) for w in widths])
         self.out_channels = widths[-1]
@@ -71,7 +71,7 @@ class ParticleEncoder(nn.Module):
         self.backbone = FusedBackbone(cfg)
         self.heat = nn.Conv2d(self.backbone.out_channels, P * P + 1, 1)  # patch logits + presence logit
         g = cfg.glimpse_size
-        self.glimpse_cnn = nn.Sequential(_conv(5, c // 2, 2), _conv(c // 2, c, 2), _conv(c, c, 2 if g >= 16 else 1))
+        self.glimpse_cnn = nn.Sequential(conv3x3(5, c // 2, 2), conv3x3(c // 2, c, 2), conv3x3(c, c, 2 if g >= 16 else 1))
         gs = g // 8 if g >= 16 else g // 4
         hid = 4 * c
         self.glimpse_fc = nn.Sequential(nn.Linear(c * gs * gs + self.backbone.out_channels, hid), nn.SiLU())
@@ -303,8 +303,8 @@ class BackgroundDetail(nn.Module):
         super().__init__()
         c = cfg.channels
         self.k = cfg.bg_block
-        self.pre = _conv(6, c // 2)
-        self.post = nn.Sequential(_conv(c // 2, c), nn.Conv2d(c, cfg.bg_detail, 1))
+        self.pre = conv3x3(6, c // 2)
+        self.post = nn.Sequential(conv3x3(c // 2, c), nn.Conv2d(c, cfg.bg_detail, 1))
 
     def forward(self, rgb: Tensor, dep: Tensor, hidden: Tensor) -> Tensor:
         """rgb: (M, 3, H, W); dep: (M, 2, H, W); hidden: (M, 1, H, W) 1 = hidden -> (M, bg_detail, H/k, W/k)."""

@@ -19,6 +19,7 @@ from .decoder import (BackgroundDecoder, ForegroundDecoder, background_gaussians
 from .encoder import BackgroundDetail, BackgroundEncoder, CrossView, ParticleEncoder, box_mask, depth_input
 from .geometry import plucker_map, stack_cameras
 from .particles import Particles
+from .refiner import BOX_MARGIN, GLIMPSE_CHANNELS, Refiner, box_glimpses, latent_vector
 from .static_background import StaticBackground
 
 
@@ -42,6 +43,7 @@ class ParticleSplat(nn.Module):
         self.bg_decoder = BackgroundDecoder(config) if config.bg_per_view else None
         self.bg_detail = BackgroundDetail(config) if config.bg_detail > 0 else None
         self.static_bg = StaticBackground(config) if config.bg_static_grid > 0 else None
+        self.refiner = Refiner(config) if config.refine_steps > 0 else None
         # one colour behind all Gaussians (sigmoid of 3 logits; near black at the start, as without it)
         self.background_logit = nn.Parameter(torch.full((3,), -3.0)) if config.learned_background else None
 
@@ -162,6 +164,42 @@ class ParticleSplat(nn.Module):
         err = self.coarse_background_error(x, depth, dep, rays, K, c2w)
         return F.adaptive_avg_pool2d(err, self.config.resolution // self.config.kp_patch).flatten(1)
 
+    def refine(self, post: dict[str, Tensor], rgb: Tensor, depth: Tensor | None, K: Tensor,
+               c2w: Tensor) -> dict[str, Tensor]:
+        """``refine_steps`` amortised corrections of the particle posterior means (:mod:`.refiner`).
+
+        Each step decodes the current means and renders the context views (no gradient), then every particle
+        compares render and observation inside its box (enlarged by :data:`BOX_MARGIN`) in its own view.
+        post: from :meth:`posterior`; rgb, depth, K, c2w as there. Returns the posterior with refined means.
+        """
+        if self.refiner is None:
+            return post
+        cfg = self.config
+        B, V = rgb.shape[:2]
+        H, W = rgb.shape[-2:]
+        view = post["view"]
+        N = view.shape[0]
+        observed = torch.cat([rgb, depth_input(None if depth is None else depth.flatten(0, 1), rgb.flatten(0, 1),
+                                               cfg).reshape(B, V, 2, H, W)], dim=2)[:, view]  # (B, N, 5, H, W)
+        for _ in range(cfg.refine_steps):
+            with torch.no_grad():
+                z = self.latents(post, sample=False)
+                gaussians = self.decode_batch(z, view, K, c2w)
+                res = render_batch([(g, Camera(K[b, v], c2w[b, v], W, H)) for b, g in enumerate(gaussians)
+                                    for v in range(V)], background=self.background_color(), owner_weights=True,
+                                   num_owners=N)
+                rendered = torch.stack([torch.cat([r.rgb.permute(2, 0, 1), r.depth[None] / cfg.d_max, r.alpha[None]])
+                                        for r in res]).reshape(B, V, 5, H, W)[:, view]
+                weights = torch.stack([r.owner_weights for r in res]).reshape(B, V, N, H, W)
+                own = weights[:, view, torch.arange(N, device=view.device)][:, :, None]  # (B, N, 1, H, W)
+                centre = z["z_p"].reshape(B * N, 2)
+                half = BOX_MARGIN * torch.sigmoid(z["z_s"]).reshape(B * N, 2)
+            images = torch.cat([observed, rendered, own], dim=2).reshape(B * N, GLIMPSE_CHANNELS, H, W)
+            glimpses = box_glimpses(images, centre, half, cfg.glimpse_size)
+            delta = self.refiner(glimpses, latent_vector(post).reshape(B * N, -1)).reshape(B, N, -1)
+            post = self.refiner.corrected(post, delta, self.encoder.scale_centre)
+        return post
+
     @staticmethod
     def latents(post: dict[str, Tensor], sample: bool) -> dict[str, Tensor]:
         """Posterior samples (reparameterised) or means: z_p, z_s, z_d, z_e, z_t, z_f (B, N, ·), bg (B, V, ·)."""
@@ -251,7 +289,7 @@ class ParticleSplat(nn.Module):
     def forward(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, sample: bool = True,
                 background: bool = True) -> tuple[dict[str, Tensor], dict[str, Tensor], list[Gaussians]]:
         """Training pass for B scenes (shapes as in :meth:`posterior`): posterior, latents, Gaussians per scene."""
-        post = self.posterior(rgb, depth, K, c2w)
+        post = self.refine(self.posterior(rgb, depth, K, c2w), rgb, depth, K, c2w)
         z = self.latents(post, sample)
         z["obs"] = self.observe(rgb, depth, z, post["view"], post.get("bg_error"))
         return post, z, self.decode_batch(z, post["view"], K, c2w, background)
@@ -277,10 +315,10 @@ class ParticleSplat(nn.Module):
                                  f"{rgb.shape[-1]}x{rgb.shape[-2]}")
         dev = next(self.parameters()).device
         K, c2w = stack_cameras(cameras, device=dev)
-        post = self.posterior(rgb[None].to(dev), None if depth is None else depth[None].to(dev), K[None], c2w[None])
+        rgb_b, depth_b = rgb[None].to(dev), None if depth is None else depth[None].to(dev)
+        post = self.refine(self.posterior(rgb_b, depth_b, K[None], c2w[None]), rgb_b, depth_b, K[None], c2w[None])
         z = self.latents(post, sample=False)
-        obs = self.observe(rgb[None].to(dev), None if depth is None else depth[None].to(dev), z, post["view"],
-                           post.get("bg_error"))
+        obs = self.observe(rgb_b, depth_b, z, post["view"], post.get("bg_error"))
         return Particles(z_p=z["z_p"][0], z_s=z["z_s"][0], z_d=z["z_d"][0], z_e=z["z_e"][0], z_t=z["z_t"][0],
                          z_f=z["z_f"][0], view=post["view"], background=z["bg"][0],
                          obs=None if obs is None else obs[0], cameras=[c.to(dev) for c in cameras])

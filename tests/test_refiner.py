@@ -1,0 +1,131 @@
+"""Amortised refinement (``refine_steps``): starts as the identity, sees the view beside the render of the current
+means inside each particle's box, keeps its bounds, and trains end to end."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+import torch.nn.functional as F
+from test_model import scene_inputs, tiny_model
+
+from particlesplat.model import ConfigError, ModelConfig
+from particlesplat.model.refiner import BOX_MARGIN, _bounded_shift, box_glimpses
+from particlesplat.render import render
+
+
+def refined_pair(**kw):
+    """A tiny model with refine_steps 1 and the same model without it, sharing every other weight."""
+    plain = tiny_model(3, patch_back=True, **kw)
+    refined = tiny_model(4, patch_back=True, refine_steps=1, refine_hidden=16, **kw)
+    missing = refined.load_state_dict(plain.state_dict(), strict=False).missing_keys
+    assert missing and all(k.startswith("refiner.") for k in missing)
+    return plain, refined
+
+
+def test_refinement_starts_as_the_identity_and_keeps_the_bounds():
+    plain, refined = refined_pair()
+    rgb, depth, cs = scene_inputs(2)
+    a, b = plain.encode(rgb, depth, cs), refined.encode(rgb, depth, cs)
+    for name in ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f"):
+        torch.testing.assert_close(getattr(b, name), getattr(a, name), rtol=0, atol=0)
+    with torch.no_grad():
+        refined.refiner.out.bias.fill_(5.0)  # a huge correction of every mean ...
+        refined.refiner.out.bias[6] = 1.0  # ... but z_t's (its odds, in float32, stay measurable)
+    c = refined.encode(rgb, depth, cs)
+    cfg = refined.config
+    centre = refined.encoder.scale_centre
+    assert (c.z_s - a.z_s).abs().min() > 1e-3 and (c.z_f - a.z_f - 5.0).abs().max() < 1e-5
+    assert bool(((c.z_s - centre).abs() <= cfg.scale_logit_bound + 1e-6).all())
+    assert bool((c.z_t > a.z_t).all())  # Beta(a e, b / e): the mean's odds grow by e^2
+    odds = lambda t: t / (1 - t)  # noqa: E731
+    torch.testing.assert_close(odds(c.z_t.double()), odds(a.z_t.double()) * torch.e ** 2, rtol=1e-4, atol=0)
+    assert (c.z_p - a.z_p).abs().max() <= 2 * cfg.offset_bound + 1e-6  # both within ±offset_bound of the keypoint
+
+
+def test_bounded_shift_is_exact_at_zero_and_never_leaves_the_bound():
+    value = torch.tensor([-0.99, -0.3, 0.0, 0.5, 1.0]) * 0.15
+    torch.testing.assert_close(_bounded_shift(value, 0.0, 0.15, torch.zeros(5)), value, rtol=0, atol=0)
+    for d in (-50.0, -1.0, 1.0, 50.0):
+        moved = _bounded_shift(value, 0.0, 0.15, torch.full((5,), d))
+        assert bool((moved.abs() <= 0.15 + 1e-7).all())
+        assert bool(((moved - value) * d >= 0).all())  # it moves the way delta says
+
+
+def test_box_glimpse_of_a_ramp_is_the_ramp_over_the_box():
+    """An image whose value is its pixel x (channel 0) and y (channel 1) coordinate: the glimpse of a box shows
+    the ramp between the box's edges (analytic, align_corners False)."""
+    H = W = 32
+    ys, xs = torch.meshgrid(torch.arange(H, dtype=torch.float64), torch.arange(W, dtype=torch.float64), indexing="ij")
+    img = torch.stack([xs, ys])[None]
+    centre = torch.tensor([[0.1, -0.2]], dtype=torch.float64)
+    half = torch.tensor([[0.3, 0.5]], dtype=torch.float64)
+    g = 8
+    out = box_glimpses(img, centre, half, g)
+    t = (2 * torch.arange(g, dtype=torch.float64) + 1) / g - 1  # glimpse sample positions in [-1, 1]
+    want_x = ((centre[0, 0] + half[0, 0] * t + 1) * W - 1) / 2
+    want_y = ((centre[0, 1] + half[0, 1] * t + 1) * H - 1) / 2
+    torch.testing.assert_close(out[0, 0], want_x[None].expand(g, g))
+    torch.testing.assert_close(out[0, 1], want_y[:, None].expand(g, g))
+
+
+def test_refiner_sees_the_view_and_the_render_of_the_current_means():
+    """The glimpses the refinement network reads equal an independent render of the plain model's decoded
+    particles in their own view (colour, depth, alpha and the particle's own weight) beside the observation,
+    over each particle's box enlarged by BOX_MARGIN."""
+    plain, refined = refined_pair()
+    rgb, depth, cs = scene_inputs(2)
+    seen = {}
+
+    def spy(glimpses, latents):
+        seen["g"] = glimpses
+        return torch.zeros_like(latents)
+
+    refined.refiner.forward = spy
+    refined.encode(rgb, depth, cs)
+    p = plain.encode(rgb, depth, cs)
+    g = plain.decode(p)
+    cfg = plain.config
+    bg = plain.background_color()
+    size = cfg.glimpse_size
+    N = p.num
+    for n in range(N):
+        v = int(p.view[n])
+        r = render(g, cs[v], background=bg, owner_weights=True, num_owners=N)
+        image = torch.cat([rgb[v], depth[v] / cfg.d_max, torch.ones_like(depth[v]), r.rgb.permute(2, 0, 1),
+                           r.depth[None] / cfg.d_max, r.alpha[None], r.owner_weights[n][None]])
+        theta = torch.zeros(1, 2, 3)
+        theta[0, 0, 0], theta[0, 1, 1] = (BOX_MARGIN * torch.sigmoid(p.z_s[n])).tolist()
+        theta[0, :, 2] = p.z_p[n]
+        grid = F.affine_grid(theta, [1, 11, size, size], align_corners=False)
+        want = F.grid_sample(image[None], grid, mode="bilinear", padding_mode="border", align_corners=False)[0]
+        torch.testing.assert_close(seen["g"][n], want, rtol=1e-4, atol=1e-5)
+    assert seen["g"][:, 10].amax() > 0.1  # particles see their own weight
+
+
+def test_refinement_trains_end_to_end():
+    """Through the corrected means, the loss reaches the refiner's output layer and the encoder under it."""
+    from particlesplat.model import TrainConfig
+    from particlesplat.train import training_loss
+
+    _, refined = refined_pair()
+    refined.train()
+    rgb, depth, cs = scene_inputs(2)
+    from particlesplat.model.geometry import stack_cameras
+
+    K, c2w = stack_cameras(cs)
+    batch = {"context_rgb": rgb[None], "context_depth": depth[None], "context_K": K[None], "context_c2w": c2w[None],
+             "target_rgb": rgb[None, :1], "target_depth": depth[None, :1], "target_K": K[None, :1],
+             "target_c2w": c2w[None, :1], "target_supervision": torch.ones_like(depth[None, :1])}
+    parts, _ = training_loss(refined, batch, TrainConfig(beta_fg=0.0), True, True, 32, refined.config)
+    parts["loss"].backward()
+    assert refined.refiner.out.weight.grad.abs().max() > 0
+    assert refined.encoder.head.weight.grad.abs().max() > 0
+
+
+def test_refinement_config_errors():
+    with pytest.raises(ConfigError, match="refine_steps"):
+        ModelConfig(resolution=32, refine_steps=-1).validate()
+    with pytest.raises(ConfigError, match="glimpse_size.*multiple of 8"):
+        ModelConfig(resolution=32, glimpse_size=12, refine_steps=1).validate()
+    with pytest.raises(ConfigError, match="patch_copy_input"):
+        ModelConfig(resolution=32, refine_steps=1, patch_copy_input=True).validate()
