@@ -62,6 +62,7 @@ class ModelConfig:
     patch_copy_threshold: float = 0.02
     refine_steps: int = 0
     refine_hidden: int = 256
+    refine_glimpse: int = 0
     token_dim: int = 64
     transformer_layers: int = 2
     transformer_heads: int = 4
@@ -122,8 +123,10 @@ class ModelConfig:
         need(self.patch_cell_mlp >= 0, "patch_cell_mlp", "must be >= 0 (0: no per-cell MLP)")
         need(self.patch_copy_threshold >= 0.0, "patch_copy_threshold", "must be >= 0 (0: copy every cell)")
         need(self.refine_steps >= 0, "refine_steps", "must be >= 0 (0: no refinement)")
-        need(self.refine_steps == 0 or self.glimpse_size % 8 == 0, "glimpse_size",
-             "must be a multiple of 8 with refine_steps > 0")
+        need(self.refine_glimpse == 0 or self.refine_glimpse % 8 == 0, "refine_glimpse",
+             "must be 0 (= glimpse_size) or a multiple of 8")
+        need(self.refine_steps == 0 or self.refine_glimpse > 0 or self.glimpse_size % 8 == 0, "glimpse_size",
+             "must be a multiple of 8 with refine_steps > 0 (or set refine_glimpse)")
         need(self.refine_steps == 0 or not self.patch_copy_input, "refine_steps",
              "cannot be combined with patch_copy_input")
         need(self.refine_hidden >= 1, "refine_hidden", "must be >= 1")
@@ -139,6 +142,11 @@ class ModelConfig:
         for key in ("prior_offset_std", "prior_scale_std", "prior_depth_std", "prior_extent_std", "prior_t_a",
                     "prior_t_b"):
             need(getattr(self, key) > 0.0, key, "must be > 0")
+
+    @property
+    def refine_glimpse_size(self) -> int:
+        """Pixels across the refinement glimpse (``refine_glimpse``, 0 = ``glimpse_size``)."""
+        return self.refine_glimpse or self.glimpse_size
 
     @property
     def gaussians_per_particle(self) -> int:

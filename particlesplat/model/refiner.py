@@ -57,7 +57,7 @@ class Refiner(nn.Module):
         super().__init__()
         self.cfg = cfg
         c, D = cfg.channels, cfg.d_obj
-        g = cfg.glimpse_size
+        g = cfg.refine_glimpse_size
         self.cnn = nn.Sequential(conv3x3(GLIMPSE_CHANNELS, c // 2, 2), conv3x3(c // 2, c, 2), conv3x3(c, c, 2))
         n_lat = 7 + D
         hid = cfg.refine_hidden
@@ -67,7 +67,7 @@ class Refiner(nn.Module):
         nn.init.zeros_(self.out.bias)
 
     def forward(self, glimpses: Tensor, latents: Tensor) -> Tensor:
-        """glimpses: (M, 11, g, g) (:data:`GLIMPSE_CHANNELS`); latents: (M, 7 + d_obj) (:func:`latent_vector`)
+        """glimpses: (M, 11, g, g) (g = ``refine_glimpse_size``) (:data:`GLIMPSE_CHANNELS`); latents: (M, 7 + d_obj) (:func:`latent_vector`)
         -> (M, 7 + d_obj) corrections in the same layout (the z_t entry is a log-odds shift)."""
         h = self.cnn(glimpses).flatten(1)
         return self.out(self.mlp(torch.cat([h, latents], dim=1)))
