@@ -46,7 +46,8 @@ class FusedBackbone(nn.Module):
         widths = [c // 2, c, c]
         self.rgb = nn.ModuleList([conv3x3(3 + extra_in, widths[0]), conv3x3(widths[0], widths[1], 2),
                                   conv3x3(widths[1], widths[2], 2)])
-        self.dep = nn.ModuleList([conv3x3(2, widths[0]), conv3x3(widths[0], widths[1], 2), conv3x3(widths[1], widths[2], 2)])
+        self.dep = nn.ModuleList([conv3x3(2, widths[0]), conv3x3(widths[0], widths[1], 2),
+                                  conv3x3(widths[1], widths[2], 2)])
         self.fuse = nn.ModuleList([nn.Conv2d(w, w, 1) for w in widths])
         self.rays = nn.ModuleList([RayConditioning(w) for w in widths])
         self.out_channels = widths[-1]
@@ -71,7 +72,8 @@ class ParticleEncoder(nn.Module):
         self.backbone = FusedBackbone(cfg)
         self.heat = nn.Conv2d(self.backbone.out_channels, P * P + 1, 1)  # patch logits + presence logit
         g = cfg.glimpse_size
-        self.glimpse_cnn = nn.Sequential(conv3x3(5, c // 2, 2), conv3x3(c // 2, c, 2), conv3x3(c, c, 2 if g >= 16 else 1))
+        self.glimpse_cnn = nn.Sequential(conv3x3(5, c // 2, 2), conv3x3(c // 2, c, 2),
+                                         conv3x3(c, c, 2 if g >= 16 else 1))
         gs = g // 8 if g >= 16 else g // 4
         hid = 4 * c
         self.glimpse_fc = nn.Sequential(nn.Linear(c * gs * gs + self.backbone.out_channels, hid), nn.SiLU())

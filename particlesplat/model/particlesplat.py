@@ -169,8 +169,10 @@ class ParticleSplat(nn.Module):
         """``refine_steps`` amortised corrections of the particle posterior means (:mod:`.refiner`).
 
         Each step decodes the current means and renders the context views (no gradient), then every particle
-        compares render and observation inside its box (enlarged by :data:`BOX_MARGIN`, ``refine_glimpse_size`` pixels across) in its own view.
-        post: from :meth:`posterior`; rgb, depth, K, c2w as there. Returns the posterior with refined means.
+        compares render and observation inside its box (enlarged by :data:`BOX_MARGIN`, ``refine_glimpse_size``
+        pixels across) in its own view. post: from :meth:`posterior`; rgb: (B, V, 3, H, W); depth:
+        (B, V, 1, H, W) metres or None; K: (B, V, 3, 3); c2w: (B, V, 4, 4). Returns the posterior with refined
+        means (the same keys and shapes).
         """
         if self.refiner is None:
             return post

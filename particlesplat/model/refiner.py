@@ -16,7 +16,8 @@ from torch import Tensor, nn
 from .config import ModelConfig
 from .encoder import conv3x3
 
-GLIMPSE_CHANNELS = 11  # observed RGB 3, depth 2 (d / d_max, valid), rendered RGB 3, depth / d_max 1, alpha 1, own weight 1
+# observed RGB 3, depth 2 (d / d_max, valid); rendered RGB 3, depth / d_max 1, alpha 1; the particle's own weight 1
+GLIMPSE_CHANNELS = 11
 BOX_MARGIN = 1.25  # the refinement glimpse covers the particle's box enlarged by this factor (its edges and surround)
 
 
@@ -67,8 +68,9 @@ class Refiner(nn.Module):
         nn.init.zeros_(self.out.bias)
 
     def forward(self, glimpses: Tensor, latents: Tensor) -> Tensor:
-        """glimpses: (M, 11, g, g) (g = ``refine_glimpse_size``) (:data:`GLIMPSE_CHANNELS`); latents: (M, 7 + d_obj) (:func:`latent_vector`)
-        -> (M, 7 + d_obj) corrections in the same layout (the z_t entry is a log-odds shift)."""
+        """glimpses: (M, 11, g, g) (:data:`GLIMPSE_CHANNELS`, g = ``refine_glimpse_size``); latents:
+        (M, 7 + d_obj) (:func:`latent_vector`) -> (M, 7 + d_obj) corrections in the same layout (the z_t entry
+        moves log a and -log b)."""
         h = self.cnn(glimpses).flatten(1)
         return self.out(self.mlp(torch.cat([h, latents], dim=1)))
 
