@@ -148,7 +148,7 @@ class Trainer:
         if unknown:
             raise ConfigError(f"train.freeze: no such module in this model: {', '.join(unknown)} "
                               f"(modules: {', '.join(sorted({n.split('.')[0] for n in names}))})")
-        for n, p in self.model.named_parameters():  # frozen weights keep what they were initialised with
+        for n, p in self.model.named_parameters():  # frozen weights keep what they start with (or --init gives)
             p.requires_grad_(not any(owns(n, m) for m in tc.freeze))
         # the learned background colour and the static background layer move at lr_background
         is_bg = lambda n: n == "background_logit" or n.startswith("static_bg.")  # noqa: E731
@@ -157,9 +157,9 @@ class Trainer:
         rest = [p for n, p in trained if not is_bg(n)]
         groups = ([{"params": rest, "lr": tc.lr}] if rest else []) + \
             ([{"params": bg, "lr": tc.lr_background}] if bg else [])
-        self.base_lrs = [g["lr"] for g in groups]
         if not groups:
             raise ConfigError("train.freeze: every weight is frozen, nothing would train")
+        self.base_lrs = [g["lr"] for g in groups]  # each group's lr before the cosine factor
         self.opt = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
         self.step = 0
         self.best = -math.inf
