@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from .atomic import atomic_path, atomic_write
 from .camera import Camera
+from .fit import fit_particles
 from .metrics import depth_abs_rel, fg_ari, matched_miou, psnr, region_errors, ssim, summarise_region_errors
 from .objects import particle_objects
 from .render import render
@@ -61,12 +62,14 @@ def view_psnr(pred: Tensor, gt: Tensor, sup: Tensor | None) -> float:
 
 
 @torch.no_grad()
-def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune: bool = False) -> dict:
+def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune: bool = False,
+                  fit_steps: int = 0, fit_lr: float = 0.02) -> dict:
     """Metrics of one dataset item (see :class:`particlesplat.data.SceneDataset`): encode its context
-    views, decode all particles and the background, render its target views.
+    views (then, with ``fit_steps`` > 0, fit the particles to them: :func:`particlesplat.fit.fit_particles`),
+    decode all particles and the background, render its target views.
 
     Returns scalars (psnr, ssim, depth_abs_rel, fg_ari, miou, fg_ari_particles, miou_particles,
-    active_particles, objects, gaussians, encode_ms, decode_ms, render_ms), the renders under "renders",
+    active_particles, objects, gaussians, encode_ms, fit_ms, decode_ms, render_ms), the renders under "renders",
     the target views' squared error per region (:func:`particlesplat.metrics.region_errors`) under
     "region_errors" when the item has masks, and "pruning" rows when ``prune``. fg_ari and miou score the
     segmentation into objects (particles grouped by :func:`particlesplat.objects.particle_objects`); the
@@ -80,6 +83,9 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     particles = model.encode(item["context_rgb"], depth, ctx_cams)
     enc_ms = _ms(t0)
     t0 = time.perf_counter()
+    particles = fit_particles(model, particles, item["context_rgb"], depth, fit_steps, fit_lr)
+    fit_ms = _ms(t0)
+    t0 = time.perf_counter()
     gaussians = model.decode(particles)
     dec_ms = _ms(t0)
     objects = particle_objects(gaussians, particles.num)
@@ -91,7 +97,8 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     res = {"psnr": view_psnr(out["rgb"], gt, sup), "ssim": ssim(out["rgb"], gt),
            "depth_abs_rel": depth_abs_rel(out["depth"], item["target_depth"]),
            "active_particles": int(active.sum()), "objects": len(torch.unique(objects[active])),
-           "gaussians": len(gaussians), "encode_ms": enc_ms, "decode_ms": dec_ms, "render_ms": out["render_ms"]}
+           "gaussians": len(gaussians), "encode_ms": enc_ms, "fit_ms": fit_ms, "decode_ms": dec_ms,
+           "render_ms": out["render_ms"]}
     for key, suffix in (("seg_objects", ""), ("seg", "_particles")):
         if "target_masks" in item:
             masks = item["target_masks"]
@@ -117,7 +124,7 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
 
 
 SCALARS = ("psnr", "ssim", "depth_abs_rel", "fg_ari", "miou", "fg_ari_particles", "miou_particles",
-           "active_particles", "objects", "gaussians", "encode_ms", "decode_ms", "render_ms")
+           "active_particles", "objects", "gaussians", "encode_ms", "fit_ms", "decode_ms", "render_ms")
 
 
 def _nanmean(values: list[float]) -> float:
@@ -159,7 +166,8 @@ def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
 
 def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int | None = None,
                      figures: Path | None = None, num_figures: int = 4, prune: bool = False,
-                     use_depth: bool = True, seed: int = 0, progress_bar: bool = True) -> dict:
+                     use_depth: bool = True, seed: int = 0, progress_bar: bool = True, fit_steps: int = 0,
+                     fit_lr: float = 0.02) -> dict:
     """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}."""
     from .data import SceneDataset
 
@@ -169,7 +177,7 @@ def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int |
     scenes, prune_rows, regions = [], [], []
     for i in tqdm(range(n), desc="eval", disable=not progress_bar):
         item = ds[i]
-        res = evaluate_item(model, item, use_depth=use_depth, prune=prune)
+        res = evaluate_item(model, item, use_depth=use_depth, prune=prune, fit_steps=fit_steps, fit_lr=fit_lr)
         if figures is not None and i < num_figures:
             save_figure(Path(figures) / f"{ds.scenes[i].name}.png", item, res)
         row = {"scene": ds.scenes[i].name, **{k: res[k] for k in SCALARS}}
@@ -203,6 +211,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--limit", type=int, default=None, help="evaluate only the first N scenes")
     parser.add_argument("--prune", action="store_true",
                         help="also report PSNR, Gaussian count and render time at several z_t/opacity thresholds")
+    parser.add_argument("--fit-steps", type=int, default=0,
+                        help="after encoding, fit the particle latents to the context views for N Adam steps "
+                             "(a quality mode: seconds a scene; 0 = off)")
+    parser.add_argument("--fit-lr", type=float, default=0.02, help="learning rate of --fit-steps")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
 
 
@@ -212,13 +224,15 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(args.checkpoint, device=args.device)
     out = evaluate_dataset(model, args.data, context=args.context, limit=args.limit,
                            figures=Path(args.figures) if args.figures else None, num_figures=args.num_figures,
-                           prune=args.prune, use_depth=not args.no_depth)
+                           prune=args.prune, use_depth=not args.no_depth, fit_steps=args.fit_steps,
+                           fit_lr=args.fit_lr)
     m = out["mean"]
     print(f"{len(out['scenes'])} scenes, {args.context} context view(s): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, "
           f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f} (objects; per "
           f"particle {m['fg_ari_particles']:.3f}, {m['miou_particles']:.3f}), active particles "
           f"{m['active_particles']:.1f} in {m['objects']:.1f} objects, Gaussians {m['gaussians']:.0f}, "
-          f"encode {m['encode_ms']:.1f} ms, decode {m['decode_ms']:.1f} ms, render {m['render_ms']:.1f} ms/view")
+          f"encode {m['encode_ms']:.1f} ms, " + (f"fit {m['fit_ms']:.0f} ms, " if args.fit_steps else "") +
+          f"decode {m['decode_ms']:.1f} ms, render {m['render_ms']:.1f} ms/view")
     if "error_regions" in out:
         print("target-view error by region: " + "; ".join(
             f"{k.replace('_', ' ')} {v['pixel_share']:.1%} of pixels, {v['error_share']:.0%} of the error, "

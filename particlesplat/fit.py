@@ -1,0 +1,76 @@
+"""Test-time fitting: optimise a scene's particle latents against the context views they were encoded from.
+
+An opt-in quality mode (seconds a scene on this CPU, not milliseconds): the decoder stays fixed, so the
+particles keep the shapes it can draw, and the latents move to what the views show. Measured in the README
+(session 9, test split): 10 Adam steps lift the novel target views by 0.7 dB and cost 0.02 FG-ARI.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import torch
+from torch import Tensor
+from tqdm import tqdm
+
+from .model.geometry import stack_cameras
+from .model.losses import view_error
+from .model.particles import Particles
+from .train import render_views
+
+FITTED = ("z_p", "z_s", "z_d", "z_e", "z_f")  # z_t (which particles exist) and the background stay as encoded
+
+
+def context_error(model, particles: Particles, rgb: Tensor, depth: Tensor | None, lambda_depth: float,
+                  latents: dict[str, Tensor] | None = None) -> Tensor:
+    """Σ over the context views of :func:`view_error` (colour + ``lambda_depth`` × depth on valid pixels) of the
+    particles' render, differentiable in ``latents`` (the FITTED tensors (L, ·) replacing the particles' own).
+
+    rgb: (V, 3, H, W) the context images; depth: (V, 1, H, W) metres (0 = unknown) or None. Returns a scalar.
+    """
+    dev = rgb.device
+    K, c2w = stack_cameras(particles.cameras, device=dev)
+    z = {k: (latents or {}).get(k, getattr(particles, k))[None] for k in FITTED}
+    z.update(z_t=particles.z_t[None], bg=particles.background[None],
+             obs=None if particles.obs is None else particles.obs[None])
+    gaussians = model.decode_batch(z, particles.view, K[None], c2w[None])
+    rgb_hat, depth_hat, _ = render_views(gaussians, K[None], c2w[None], model.config.resolution,
+                                         model.background_color())
+    return view_error(rgb_hat[0], rgb, depth_hat[0], depth, None, lambda_depth).sum()
+
+
+def fit_particles(model, particles: Particles, rgb: Tensor, depth: Tensor | None, steps: int = 10,
+                  lr: float = 0.02, lambda_depth: float = 0.5, progress: bool = False) -> Particles:
+    """Adam on ``z_p``, ``z_s``, ``z_d``, ``z_e`` and ``z_f`` of ``particles`` (the decoder's weights fixed and
+    untouched) against :func:`context_error`. rgb: (V, 3, H, W) in [0, 1] and depth: (V, 1, H, W) metres or
+    None, the views the particles were encoded from (their cameras). Returns new Particles (the rest kept).
+    """
+    if steps < 0:
+        raise ValueError(f"fit_particles: steps must be >= 0, got {steps}")
+    if lr <= 0:
+        raise ValueError(f"fit_particles: lr must be > 0, got {lr}")
+    size = model.config.resolution
+    V = len(particles.cameras)
+    if tuple(rgb.shape) != (V, 3, size, size):
+        raise ValueError(f"fit_particles: rgb must be {(V, 3, size, size)} (the particles' context views), "
+                         f"got {tuple(rgb.shape)}")
+    if depth is not None and tuple(depth.shape) != (V, 1, size, size):
+        raise ValueError(f"fit_particles: depth must be {(V, 1, size, size)}, got {tuple(depth.shape)}")
+    if steps == 0:
+        return particles
+    dev = next(model.parameters()).device
+    p = particles.to(dev)
+    rgb, depth = rgb.to(dev), None if depth is None else depth.to(dev)
+    free = {k: getattr(p, k).detach().clone().requires_grad_(True) for k in FITTED}
+    opt = torch.optim.Adam(list(free.values()), lr=lr)
+    with torch.enable_grad():
+        for _ in tqdm(range(steps), desc="fit", disable=not progress):
+            loss = context_error(model, p, rgb, depth, lambda_depth, free)
+            grads = torch.autograd.grad(loss, list(free.values()))  # the model's weights get no .grad
+            for v, g in zip(free.values(), grads):
+                v.grad = g
+            opt.step()
+    return replace(p, **{k: v.detach() for k, v in free.items()})
+
+
+__all__ = ["fit_particles", "context_error", "FITTED"]
