@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from .atomic import atomic_path, atomic_write
 from .camera import Camera
-from .fit import fit_particles
+from .fit import FITTED, fit_particles
 from .metrics import depth_abs_rel, fg_ari, matched_miou, psnr, region_errors, ssim, summarise_region_errors
 from .objects import particle_objects
 from .render import render
@@ -63,7 +63,7 @@ def view_psnr(pred: Tensor, gt: Tensor, sup: Tensor | None) -> float:
 
 @torch.no_grad()
 def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune: bool = False,
-                  fit_steps: int = 0, fit_lr: float = 0.02) -> dict:
+                  fit_steps: int = 0, fit_lr: float = 0.02, fit_latents: tuple[str, ...] = ("z_f",)) -> dict:
     """Metrics of one dataset item (see :class:`particlesplat.data.SceneDataset`): encode its context
     views (then, with ``fit_steps`` > 0, fit the particles to them: :func:`particlesplat.fit.fit_particles`),
     decode all particles and the background, render its target views.
@@ -83,7 +83,7 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     particles = model.encode(item["context_rgb"], depth, ctx_cams)
     enc_ms = _ms(t0)
     t0 = time.perf_counter()
-    particles = fit_particles(model, particles, item["context_rgb"], depth, fit_steps, fit_lr)
+    particles = fit_particles(model, particles, item["context_rgb"], depth, fit_steps, fit_lr, latents=fit_latents)
     fit_ms = _ms(t0)
     t0 = time.perf_counter()
     gaussians = model.decode(particles)
@@ -167,7 +167,7 @@ def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
 def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int | None = None,
                      figures: Path | None = None, num_figures: int = 4, prune: bool = False,
                      use_depth: bool = True, seed: int = 0, progress_bar: bool = True, fit_steps: int = 0,
-                     fit_lr: float = 0.02) -> dict:
+                     fit_lr: float = 0.02, fit_latents: tuple[str, ...] = ("z_f",)) -> dict:
     """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}."""
     from .data import SceneDataset
 
@@ -177,7 +177,8 @@ def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int |
     scenes, prune_rows, regions = [], [], []
     for i in tqdm(range(n), desc="eval", disable=not progress_bar):
         item = ds[i]
-        res = evaluate_item(model, item, use_depth=use_depth, prune=prune, fit_steps=fit_steps, fit_lr=fit_lr)
+        res = evaluate_item(model, item, use_depth=use_depth, prune=prune, fit_steps=fit_steps, fit_lr=fit_lr,
+                            fit_latents=fit_latents)
         if figures is not None and i < num_figures:
             save_figure(Path(figures) / f"{ds.scenes[i].name}.png", item, res)
         row = {"scene": ds.scenes[i].name, **{k: res[k] for k in SCALARS}}
@@ -215,6 +216,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="after encoding, fit the particle latents to the context views for N Adam steps "
                              "(a quality mode: seconds a scene; 0 = off)")
     parser.add_argument("--fit-lr", type=float, default=0.02, help="learning rate of --fit-steps")
+    parser.add_argument("--fit-latents", default="z_f",
+                        help=f"comma-separated latents --fit-steps moves, of {','.join(FITTED)} (default: z_f, which "
+                             "keeps the particles in place)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
 
 
@@ -225,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
     out = evaluate_dataset(model, args.data, context=args.context, limit=args.limit,
                            figures=Path(args.figures) if args.figures else None, num_figures=args.num_figures,
                            prune=args.prune, use_depth=not args.no_depth, fit_steps=args.fit_steps,
-                           fit_lr=args.fit_lr)
+                           fit_lr=args.fit_lr, fit_latents=tuple(k.strip() for k in args.fit_latents.split(",")))
     m = out["mean"]
     print(f"{len(out['scenes'])} scenes, {args.context} context view(s): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, "
           f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f} (objects; per "

@@ -6,7 +6,7 @@ import pytest
 import torch
 from test_model import scene_inputs, tiny_model
 
-from particlesplat.fit import fit_particles
+from particlesplat.fit import FITTED, fit_particles
 from particlesplat.model.losses import view_error
 from particlesplat.render import render
 
@@ -30,7 +30,7 @@ def test_fitting_lowers_the_context_error_and_leaves_the_model_alone():
                                       depth[v:v + 1], None, 0.5).sum())
         return total
 
-    fitted = fit_particles(m, p, rgb, depth, steps=5, lr=0.05)
+    fitted = fit_particles(m, p, rgb, depth, steps=5, lr=0.05, latents=FITTED)
     assert error(fitted) < 0.95 * error(p)
     assert not torch.equal(fitted.z_f, p.z_f) and not torch.equal(fitted.z_p, p.z_p)
     assert torch.equal(fitted.z_t, p.z_t) and torch.equal(fitted.background, p.background)
@@ -39,5 +39,9 @@ def test_fitting_lowers_the_context_error_and_leaves_the_model_alone():
     assert all(w.grad is None for w in m.parameters())
     with pytest.raises(ValueError, match=r"rgb must be \(2, 3, 32, 32\)"):
         fit_particles(m, p, rgb[:1], depth)
+    only_f = fit_particles(m, p, rgb, depth, steps=2, lr=0.05)  # the default: the appearance alone
+    assert torch.equal(only_f.z_p, p.z_p) and not torch.equal(only_f.z_f, p.z_f)
+    with pytest.raises(ValueError, match="latents must be some of z_p, z_s, z_d, z_e, z_f, got z_t"):
+        fit_particles(m, p, rgb, depth, latents=("z_t",))
     with pytest.raises(ValueError, match="steps must be >= 0"):
         fit_particles(m, p, rgb, depth, steps=-1)
