@@ -19,8 +19,8 @@ from .model.losses import view_error
 from .model.particles import Particles
 from .train import render_views
 
-FITTED = ("z_p", "z_s", "z_d", "z_e", "z_f")  # what may be fitted; z_t (which particles exist) and the background
-# stay as encoded
+# the latents a fit may move; z_t (which particles exist) and the background stay as encoded
+FITTED = ("z_p", "z_s", "z_d", "z_e", "z_f")
 
 
 def context_error(model, particles: Particles, rgb: Tensor, depth: Tensor | None, lambda_depth: float,
@@ -45,9 +45,11 @@ def context_error(model, particles: Particles, rgb: Tensor, depth: Tensor | None
 def fit_particles(model, particles: Particles, rgb: Tensor, depth: Tensor | None, steps: int = 10,
                   lr: float = 0.02, lambda_depth: float = 0.5, latents: tuple[str, ...] = ("z_f",),
                   progress: bool = False) -> Particles:
-    """Adam on the ``latents`` of ``particles`` (some of FITTED; by default the appearance z_f alone, which keeps
-    the particles where they are and so the objects they form; the decoder's weights fixed and untouched) against :func:`context_error`. rgb: (V, 3, H, W) in [0, 1] and depth: (V, 1, H, W) metres or
-    None, the views the particles were encoded from (their cameras). Returns new Particles (the rest kept).
+    """Adam on the ``latents`` of ``particles`` against :func:`context_error` (``lambda_depth`` 0.5: the shipped
+    model's λ_D). latents: some of FITTED; by default the appearance z_f alone, which keeps the particles where
+    they are and so the objects they form. The decoder's weights stay fixed and get no gradient. rgb:
+    (V, 3, H, W) in [0, 1] and depth: (V, 1, H, W) metres or None, the views the particles were encoded from
+    (their cameras). Returns new Particles (the rest kept).
     """
     if steps < 0:
         raise ValueError(f"fit_particles: steps must be >= 0, got {steps}")
