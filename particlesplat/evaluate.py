@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from .atomic import atomic_path, atomic_write
 from .camera import Camera
-from .fit import FITTED, fit_particles
+from .fit import DEFAULT_FIT, FITTED, fit_particles
 from .metrics import depth_abs_rel, fg_ari, matched_miou, psnr, region_errors, ssim, summarise_region_errors
 from .objects import particle_objects
 from .render import render
@@ -63,7 +63,7 @@ def view_psnr(pred: Tensor, gt: Tensor, sup: Tensor | None) -> float:
 
 @torch.no_grad()
 def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune: bool = False,
-                  fit_steps: int = 0, fit_lr: float = 0.02, fit_latents: tuple[str, ...] = ("z_f",)) -> dict:
+                  fit_steps: int = 0, fit_lr: float = 0.02, fit_latents: tuple[str, ...] = DEFAULT_FIT) -> dict:
     """Metrics of one dataset item (see :class:`particlesplat.data.SceneDataset`): encode its context
     views (then, with ``fit_steps`` > 0, fit the particles to them: :func:`particlesplat.fit.fit_particles`),
     decode all particles and the background, render its target views.
@@ -167,7 +167,7 @@ def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
 def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int | None = None,
                      figures: Path | None = None, num_figures: int = 4, prune: bool = False,
                      use_depth: bool = True, seed: int = 0, progress_bar: bool = True, fit_steps: int = 0,
-                     fit_lr: float = 0.02, fit_latents: tuple[str, ...] = ("z_f",)) -> dict:
+                     fit_lr: float = 0.02, fit_latents: tuple[str, ...] = DEFAULT_FIT) -> dict:
     """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}."""
     from .data import SceneDataset
 
@@ -216,9 +216,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="after encoding, fit the particle latents to the context views for N Adam steps "
                              "(a quality mode: seconds a scene; 0 = off)")
     parser.add_argument("--fit-lr", type=float, default=0.02, help="learning rate of --fit-steps")
-    parser.add_argument("--fit-latents", default="z_f",
-                        help=f"comma-separated latents --fit-steps moves, of {','.join(FITTED)} (default: z_f, which "
-                             "keeps the particles in place)")
+    parser.add_argument("--fit-latents", default=",".join(DEFAULT_FIT),
+                        help=f"comma-separated latents --fit-steps moves, of {','.join(FITTED)} (default: "
+                             f"{','.join(DEFAULT_FIT)}, which keeps the particles in place)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
 
 

@@ -21,6 +21,8 @@ from .train import render_views
 
 # the latents a fit may move; z_t (which particles exist) and the background stay as encoded
 FITTED = ("z_p", "z_s", "z_d", "z_e", "z_f")
+# what a fit moves unless told otherwise: the appearance alone, so the particles (and the objects they form) stay
+DEFAULT_FIT = ("z_f",)
 
 
 def context_error(model, particles: Particles, rgb: Tensor, depth: Tensor | None, lambda_depth: float,
@@ -43,7 +45,7 @@ def context_error(model, particles: Particles, rgb: Tensor, depth: Tensor | None
 
 
 def fit_particles(model, particles: Particles, rgb: Tensor, depth: Tensor | None, steps: int = 10,
-                  lr: float = 0.02, lambda_depth: float = 0.5, latents: tuple[str, ...] = ("z_f",),
+                  lr: float = 0.02, lambda_depth: float = 0.5, latents: tuple[str, ...] = DEFAULT_FIT,
                   progress: bool = False) -> Particles:
     """Adam on the ``latents`` of ``particles`` against :func:`context_error` (``lambda_depth`` 0.5: the shipped
     model's λ_D). latents: some of FITTED; by default the appearance z_f alone, which keeps the particles where
@@ -82,4 +84,4 @@ def fit_particles(model, particles: Particles, rgb: Tensor, depth: Tensor | None
     return replace(p, **{k: v.detach() for k, v in free.items()})
 
 
-__all__ = ["fit_particles", "context_error", "FITTED"]
+__all__ = ["fit_particles", "context_error", "FITTED", "DEFAULT_FIT"]
