@@ -134,4 +134,3 @@ def test_refinement_config_errors():
         ModelConfig(resolution=32, refine_steps=1, refine_glimpse=20).validate()
     with pytest.raises(ConfigError, match="patch_copy_input"):
         ModelConfig(resolution=32, refine_steps=1, patch_copy_input=True).validate()
-
