@@ -7,6 +7,8 @@ import json
 import math
 import os
 import shutil
+from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -24,9 +26,17 @@ from .model.config import ConfigError, config_to_dict, model_config_from_dict
 from .model.grow import grow_state_dict
 from .metrics import near_other_label
 from .model.losses import elbo, scene_kl, view_error
+from .provenance import Provenance, RunClock
 from .render import render_batch
 
 LAST = "last.pt"
+
+
+def recipe_path() -> Path:
+    """The bundled recipe (``assets/model.yaml`` in the installed ``particlesplat.assets`` package)."""
+    import importlib.resources
+
+    return Path(str(importlib.resources.files("particlesplat.assets").joinpath("model.yaml")))
 
 
 def render_views(gaussians: list, K: Tensor, c2w: Tensor, size: int, background: Tensor,
@@ -104,6 +114,19 @@ def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: b
     return parts, shown
 
 
+@contextmanager
+def training_selection(cfg: ModelConfig, tc: TrainConfig):
+    """Inside: the model keeps ``tc.particles_per_view`` particles per view, ``tc.kp_min_separation`` apart (0 keeps
+    the model's values); outside, the model config (what inference and checkpoints use) is unchanged."""
+    saved = (cfg.particles_per_view, cfg.kp_min_separation)
+    cfg.particles_per_view = tc.particles_per_view or cfg.particles_per_view
+    cfg.kp_min_separation = tc.kp_min_separation or cfg.kp_min_separation
+    try:
+        yield
+    finally:
+        cfg.particles_per_view, cfg.kp_min_separation = saved
+
+
 def gap_progress(step: int, tc: TrainConfig) -> float:
     """The data sampler's progress at ``step``: its view-gap range grows linearly to the full range over the
     first ``gap_warmup`` of the steps (0: full from the start)."""
@@ -122,8 +145,15 @@ class Trainer:
     """Holds the model, optimiser, datasets and RNG; one instance per process."""
 
     def __init__(self, cfg: ModelConfig, tc: TrainConfig, data: Path, out: Path, device: str, resume: bool,
-                 init: Path | None = None, init_drop: tuple[str, ...] = ()):
+                 init: Path | None = None, init_drop: tuple[str, ...] = (), overwrite: bool = False):
         self.cfg, self.tc, self.out, self.device = cfg, tc, out, torch.device(device)
+        if not resume and not overwrite and out.exists() and (not out.is_dir() or any(out.iterdir())):
+            raise FileExistsError(f"{out}: --out is not empty; pass --resume to continue the run in it, "
+                                  "--overwrite to replace it, or choose another folder")
+        replace(cfg, particles_per_view=tc.particles_per_view or cfg.particles_per_view).validate(
+            "train.particles_per_view with the model")
+        self.provenance = Provenance.start(data, init if not resume else None, str(self.device))
+        self.clock = RunClock()
         if tc.beta_fg > 0 and cfg.bg_static_grid == 0:
             raise ConfigError(f"train.beta_fg: the foreground term compares with the static background layer; "
                               f"set model.bg_static_grid > 0 or beta_fg to 0 (got {tc.beta_fg})")
@@ -207,7 +237,13 @@ class Trainer:
         if self.rank != 0:
             return
         save_checkpoint(path, self.model, self.step, {"optimizer": self.opt.state_dict(), "rng": states,
-                                                      "train": config_to_dict(self.tc), "best": float(self.best)})
+                                                      "train": config_to_dict(self.tc), "best": float(self.best),
+                                                      "provenance": self.provenance_now()})
+
+    def provenance_now(self) -> dict:
+        """The run's provenance with the hours spent up to now."""
+        wall, cpu = self.clock.hours()
+        return {**self.provenance.to_dict(), "wall_hours": round(wall, 4), "cpu_hours": round(cpu, 4)}
 
     def _load(self, path: Path) -> None:
         ckpt = read_checkpoint(path)
@@ -218,6 +254,13 @@ class Trainer:
         self.opt.load_state_dict(ckpt["optimizer"])
         self.step = int(ckpt["step"])
         self.best = float(ckpt.get("best", -math.inf))
+        prov = ckpt.get("provenance")
+        if isinstance(prov, dict):  # the run keeps its origin and adds this invocation's hours to its own
+            if prov.get("scene_list_sha256") not in (None, self.provenance.scene_list_sha256):
+                print(f"warning: {path}: trained on another scene list ({prov.get('data')}); "
+                      f"continuing on {self.provenance.data}")
+            self.provenance.init = prov.get("init")
+            self.clock = RunClock(float(prov.get("wall_hours", 0.0)), float(prov.get("cpu_hours", 0.0)))
         self._drop_log_after(self.step)
         states = ckpt["rng"]
         if len(states) != self.world:
@@ -240,8 +283,10 @@ class Trainer:
     def train_step(self) -> dict[str, float]:
         batch, use_depth = self.batch()
         self.ddp.train()
-        parts, _ = training_loss(self.ddp, batch, self.tc, use_depth, self.step >= self.tc.bg_off_steps,
-                                 self.cfg.resolution, self.cfg)
+        self.model.refine_enabled = self.step >= self.tc.refine_start * self.tc.steps
+        with training_selection(self.model.config, self.tc):
+            parts, _ = training_loss(self.ddp, batch, self.tc, use_depth, self.step >= self.tc.bg_off_steps,
+                                     self.cfg.resolution, self.cfg)
         self.opt.zero_grad(set_to_none=True)
         parts["loss"].backward()
         factor = lr_factor(self.step, self.tc)
@@ -310,7 +355,8 @@ class Trainer:
                     tqdm.write(f"step {self.step}: val PSNR {m['psnr']:.2f} dB, FG-ARI {m['fg_ari']:.3f}, "
                                f"mIoU {m['miou']:.3f}, active {m['active_particles']:.1f}")
                     save_checkpoint(self.out / f"step_{self.step:06d}.pt", self.model, self.step,
-                                    {"val": m})
+                                    {"val": m, "train": config_to_dict(self.tc),
+                                     "provenance": self.provenance_now()})
                     score = m["psnr"] / 30.0 + (m["fg_ari"] if math.isfinite(m["fg_ari"]) else 0.0)
                     if score > self.best:
                         self.best = score
@@ -327,8 +373,9 @@ class Trainer:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", required=True, help="YAML with 'model:' and 'train:' sections "
-                                                        "(see assets/model.yaml for every key)")
+    parser.add_argument("--config", default=None,
+                        help="YAML with 'model:' and 'train:' sections (default: the recipe the shipped "
+                             "architecture is trained with, assets/model.yaml, which documents every key)")
     parser.add_argument("--data", required=True, help="dataset folder holding train/ and val/ scene folders")
     parser.add_argument("--out", required=True, help="run folder: checkpoints (last.pt, step_*.pt, best.pt), "
                                                      "metrics.jsonl, config.yaml")
@@ -341,13 +388,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--init-drop", action="append", default=[], metavar="MODULE",
                         help="with --init: leave out the checkpoint's weights under this module name (e.g. "
                              "bg_detail), for a config that no longer has it; repeatable")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="train into a non-empty --out that is not resumed (its files are replaced)")
     parser.add_argument("--stop-after", type=int, default=None,
                         help="run at most this many steps in this invocation, checkpoint, and exit "
                              "(continue later with --resume)")
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg, tc = load_config(args.config)
+    cfg, tc = load_config(args.config or recipe_path())
     if tc.num_threads > 0:
         torch.set_num_threads(tc.num_threads)
     data = Path(args.data)
@@ -359,5 +408,5 @@ def run(args: argparse.Namespace) -> int:
     if args.init_drop and not args.init:
         raise ValueError("--init-drop needs --init")
     trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, Path(args.init) if args.init else None,
-                      tuple(args.init_drop))
+                      tuple(args.init_drop), overwrite=args.overwrite)
     return trainer.run(args.stop_after)

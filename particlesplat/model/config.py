@@ -31,50 +31,50 @@ class ModelConfig:
     resolution: int = 64
     particles_per_view: int = 8
     kp_patch: int = 4
-    glimpse_ratio: float = 0.25
+    glimpse_ratio: float = 0.15
     kp_min_separation: float = 0.25
     kp_selection: str = "residual"
-    offset_bound: float = 0.25
-    scale_logit_bound: float = 1.2
+    offset_bound: float = 0.15
+    scale_logit_bound: float = 1.5
     glimpse_size: int = 16
     channels: int = 32
-    d_obj: int = 16
-    d_bg: int = 4
-    bg_latent_stride: int = 4
+    d_obj: int = 64
+    d_bg: int = 5
+    bg_latent_stride: int = 64
     bg_block: int = 2
     bg_detail: int = 0
     bg_detail_threshold: float = 0.02
     bg_copy_input: bool = False
     kp_cross_view: bool = False
-    learned_background: bool = False
-    bg_static_grid: int = 0
+    learned_background: bool = True
+    bg_static_grid: int = 72
     bg_static_extent: float = 2.25
-    bg_per_view: bool = True
-    patch_gaussians: int = 4
-    patch_base: int = 0
+    bg_per_view: bool = False
+    patch_gaussians: int = 16
+    patch_base: int = 4
     patch_refine: int = 0
-    patch_channels: int = 0
-    patch_hidden: int = 0
+    patch_channels: int = 64
+    patch_hidden: int = 256
     patch_cell_mlp: int = 0
-    particle_depth_scale: str = "pixel"
-    patch_back: bool = False
+    particle_depth_scale: str = "cell"
+    patch_back: bool = True
     patch_copy_input: bool = False
     patch_copy_threshold: float = 0.02
-    refine_steps: int = 0
+    refine_steps: int = 1
     refine_hidden: int = 256
     refine_glimpse: int = 0
     token_dim: int = 64
     transformer_layers: int = 2
     transformer_heads: int = 4
     sh_degree: int = 0
-    d_min: float = 0.5
-    d_max: float = 8.0
-    s_min: float = 0.25
-    s_max: float = 1.5
+    d_min: float = 1.0
+    d_max: float = 7.0
+    s_min: float = 0.2
+    s_max: float = 0.8
     bg_mask_threshold: float = 0.2
     # priors (prior table, RLBench column)
     prior_offset_std: float = 0.2
-    prior_scale_mean: float = 0.25
+    prior_scale_mean: float = 0.15
     prior_scale_std: float = 0.3
     prior_depth_mean: float = 0.0
     prior_depth_std: float = 1.0
@@ -188,31 +188,34 @@ class TrainConfig:
     batch_size: int = 4
     context_views: list[int] = field(default_factory=lambda: [2])
     target_views: int = 2
-    steps: int = 10000
-    lr: float = 3e-4
+    steps: int = 40000
+    lr: float = 0.0004
     lr_background: float = 0.01
-    lr_final: float = 1.0
+    lr_final: float = 0.05
     grad_clip: float = 1.0
     beta_kl: float = 0.02
     beta_f: float = 1.0
-    beta_reg: float = 0.02
+    beta_reg: float = 0.1
     beta_coarse: float = 1.0
-    beta_fg: float = 0.0
+    beta_fg: float = 0.4
     fg_threshold: float = 0.02
     fg_band: int = 0
     beta_rec_ctx: float = 1.0
     beta_rec_tgt: float = 1.0
-    lambda_depth: float = 0.1
+    lambda_depth: float = 0.5
     depth_dropout: float = 0.0
-    gap_warmup: float = 0.5
+    gap_warmup: float = 0.1
+    refine_start: float = 0.5
+    particles_per_view: int = 4
+    kp_min_separation: float = 0.35
     bg_off_steps: int = 0
-    log_every: int = 20
+    log_every: int = 10
     val_every: int = 500
-    val_scenes: int = 16
-    ckpt_every: int = 250
-    seed: int = 0
+    val_scenes: int = 12
+    ckpt_every: int = 50
+    seed: int = 42
     freeze: list[str] = field(default_factory=list)
-    num_threads: int = 0
+    num_threads: int = 1
     cache_scenes: int = 1100
 
     def validate(self, where: str = "train") -> None:
@@ -227,6 +230,9 @@ class TrainConfig:
         need(0.0 <= self.lr_final <= 1.0, "lr_final", "must be in [0, 1]")
         need(0.0 <= self.depth_dropout <= 1.0, "depth_dropout", "must be in [0, 1]")
         need(0.0 <= self.gap_warmup <= 1.0, "gap_warmup", "must be in [0, 1]")
+        need(self.particles_per_view >= 0, "particles_per_view", "must be >= 0 (0: the model's)")
+        need(self.kp_min_separation >= 0.0, "kp_min_separation", "must be >= 0 (0: the model's)")
+        need(0.0 <= self.refine_start <= 1.0, "refine_start", "must be in [0, 1] (a fraction of the steps)")
         need(self.cache_scenes >= 0, "cache_scenes", "must be >= 0")
         need(self.fg_band >= 0, "fg_band", "must be >= 0")
         need(all(isinstance(m, str) and m for m in self.freeze), "freeze", "must be a list of module names")

@@ -44,6 +44,8 @@ class ParticleSplat(nn.Module):
         self.bg_detail = BackgroundDetail(config) if config.bg_detail > 0 else None
         self.static_bg = StaticBackground(config) if config.bg_static_grid > 0 else None
         self.refiner = Refiner(config) if config.refine_steps > 0 else None
+        # training switches the refinement on at ``train.refine_start``; off, encode returns the first look
+        self.refine_enabled = True
         # one colour behind all Gaussians (sigmoid of 3 logits; near black at the start, as without it)
         self.background_logit = nn.Parameter(torch.full((3,), -3.0)) if config.learned_background else None
 
@@ -174,7 +176,7 @@ class ParticleSplat(nn.Module):
         (B, V, 1, H, W) metres or None; K: (B, V, 3, 3); c2w: (B, V, 4, 4). Returns the posterior with refined
         means (the same keys and shapes).
         """
-        if self.refiner is None:
+        if self.refiner is None or not self.refine_enabled:
             return post
         cfg = self.config
         B, V = rgb.shape[:2]
@@ -327,12 +329,15 @@ class ParticleSplat(nn.Module):
 
     @torch.no_grad()
     def decode(self, particles: Particles, indices: Tensor | None = None, *, background: bool = True,
-               z_t_threshold: float = 0.0, opacity_threshold: float = 0.0) -> Gaussians:
+               z_t_threshold: float | None = None, opacity_threshold: float = 0.0) -> Gaussians:
         """Gaussians of one scene.
 
         indices: (M,) particle indices to decode (default all); their Gaussians get owner = index.
         background: include the per-view background Gaussians (owner -1). Particles with z_t below
         ``z_t_threshold`` and Gaussians with opacity below ``opacity_threshold`` are dropped.
+        ``z_t_threshold`` None = ``config.bg_mask_threshold``: only active particles draw (an inactive one
+        drew a faint copy that no object grouping took along; dropping them costs nothing on the test
+        scenes, docs/object-edits.md); 0 draws every particle.
         Decoding a subset gives exactly the same Gaussians as the full decode restricted to it.
         """
         dev = next(self.parameters()).device
@@ -340,6 +345,8 @@ class ParticleSplat(nn.Module):
         idx = torch.arange(p.num, device=dev) if indices is None else torch.as_tensor(indices, device=dev).long()
         if idx.numel() and (int(idx.min()) < 0 or int(idx.max()) >= p.num):
             raise IndexError(f"decode: particle indices must be in [0, {p.num}), got {idx.tolist()}")
+        if z_t_threshold is None:
+            z_t_threshold = self.config.bg_mask_threshold
         if z_t_threshold > 0.0:
             idx = idx[p.z_t[idx, 0] >= z_t_threshold]
         K, c2w = stack_cameras(p.cameras, device=dev)

@@ -1,0 +1,88 @@
+"""Provenance of a training run, stored in every checkpoint it writes and printed by ``particlesplat eval``.
+
+A checkpoint's ``provenance`` dict holds: the data folder and a SHA-256 of its training scene list, the init
+source (None for a run from random initialisation), wall-clock and CPU hours spent so far (summed over
+resumes), the torch version, the git commit of the code (None outside a git checkout) and the host's
+device. The resolved config and the step sit beside it in the checkpoint (``config``, ``train``, ``step``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import subprocess
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+
+
+def scene_list_hash(split: Path) -> str:
+    """SHA-256 (hex) of the sorted scene folder names under ``split`` (one name per line)."""
+    names = sorted(p.name for p in split.iterdir() if p.is_dir() and not p.name.startswith("."))
+    return hashlib.sha256("".join(n + "\n" for n in names).encode()).hexdigest()
+
+
+def git_commit(where: Path | None = None) -> str | None:
+    """The commit checked out where the code lives (``-dirty`` appended with uncommitted changes), or None."""
+    where = where or Path(__file__).resolve().parent
+    try:
+        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, timeout=5)
+        if rev.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=where,
+                               capture_output=True, text=True, timeout=5)
+        return rev.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+@dataclass
+class Provenance:
+    """Where a run's weights come from. Hours are cumulative over every invocation of the run."""
+
+    data: str
+    train_scenes: int
+    scene_list_sha256: str
+    init: str | None
+    wall_hours: float
+    cpu_hours: float
+    torch: str
+    git_commit: str | None
+    device: str
+
+    @classmethod
+    def start(cls, data: Path, init: Path | None, device: str) -> Provenance:
+        split = data / "train"
+        n = sum(1 for p in split.iterdir() if p.is_dir() and not p.name.startswith("."))
+        return cls(data=str(data.resolve()), train_scenes=n, scene_list_sha256=scene_list_hash(split),
+                   init=None if init is None else str(init), wall_hours=0.0, cpu_hours=0.0,
+                   torch=torch.__version__, git_commit=git_commit(), device=device)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class RunClock:
+    """Wall-clock and process CPU time since it was made, added to what earlier invocations spent."""
+
+    def __init__(self, wall_hours: float = 0.0, cpu_hours: float = 0.0):
+        self.base_wall, self.base_cpu = wall_hours, cpu_hours
+        self.t0, self.c0 = time.monotonic(), time.process_time()
+
+    def hours(self) -> tuple[float, float]:
+        """(wall, cpu) hours so far."""
+        return (self.base_wall + (time.monotonic() - self.t0) / 3600.0,
+                self.base_cpu + (time.process_time() - self.c0) / 3600.0)
+
+
+def describe(prov: dict | None) -> str:
+    """One line for ``particlesplat eval``: the run's init, data, cost and code."""
+    if not prov:
+        return "provenance: none recorded (checkpoint written before provenance was kept)"
+    init = prov.get("init") or "random initialisation"
+    commit = prov.get("git_commit") or "unknown commit"
+    return (f"provenance: from {init}; data {prov.get('data')} ({prov.get('train_scenes')} training scenes, "
+            f"list sha256 {str(prov.get('scene_list_sha256'))[:12]}); {prov.get('wall_hours', 0):.2f} h wall, "
+            f"{prov.get('cpu_hours', 0):.2f} CPU h on {prov.get('device')}; torch {prov.get('torch')}; "
+            f"code {commit}")
