@@ -1,14 +1,76 @@
-"""Atomic file writes: write to a temporary name in the same folder, then ``os.replace``."""
+"""Atomic file writes: write to a temporary name in the same folder, fsync, then ``os.replace``.
+
+A target that exists and is not a regular file (a symlink, FIFO, device node, socket or folder) is
+refused with :class:`UnsafeTargetError` before anything is written: replacing it would silently turn
+``--json /dev/stdout`` or a symlinked output into a new regular file.
+"""
 
 from __future__ import annotations
 
 import os
+import stat
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
 from typing import IO
+
+
+class UnsafeTargetError(OSError):
+    """An output path that exists and is not a regular file; the message names it and what it is."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISLNK, "a symbolic link"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a device node"),
+                       (stat.S_ISBLK, "a device node"), (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a folder")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def check_target(path: str | PathLike) -> Path:
+    """``path`` as a Path; UnsafeTargetError unless it is absent or a regular file (symlinks are not followed)."""
+    path = Path(path)
+    try:
+        mode = os.lstat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):  # absent: making its folder will report what is wrong
+        return path
+    if not stat.S_ISREG(mode):
+        raise UnsafeTargetError(f"{path}: is {_kind(mode)}; refusing to replace it with a regular file "
+                                "(give a regular file path)")
+    return path
+
+
+def check_writable(path: str | PathLike) -> Path:
+    """Check before any work that ``path`` can be written atomically: a safe target (:func:`check_target`) in a
+    folder that exists or can be made, where a temporary file can be created. OSError names ``path``."""
+    path = check_target(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = create_temp_file(path)
+    except OSError as e:
+        raise OSError(f"{path}: cannot write ({e.strerror or e})") from None
+    os.close(fd)
+    os.unlink(tmp)
+    return path
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (best effort: some file systems refuse to open folders)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def temp_sibling(path: Path, suffix: str = "") -> Path:
@@ -29,7 +91,7 @@ def atomic_write(path: str | PathLike, mode: str = "wb") -> Iterator[IO]:
 
     A reader never sees a half-written file, and an existing ``path`` survives a failed write.
     """
-    path = Path(path)
+    path = check_target(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = create_temp_file(path)
     try:
@@ -37,7 +99,9 @@ def atomic_write(path: str | PathLike, mode: str = "wb") -> Iterator[IO]:
             yield f
             f.flush()
             os.fsync(f.fileno())
+        check_target(path)
         os.replace(tmp, path)
+        _fsync_dir(path.parent)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -48,15 +112,22 @@ def atomic_write(path: str | PathLike, mode: str = "wb") -> Iterator[IO]:
 def atomic_path(path: str | PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path`` for writers that take a file name (torch.save, PIL).
 
-    On success the temporary file replaces ``path``; on error it is removed.
+    On success the temporary file is fsynced and replaces ``path``; on error it is removed.
     """
-    path = Path(path)
+    path = check_target(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = create_temp_file(path, path.suffix)
     os.close(fd)
     try:
         yield tmp
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        check_target(path)
         os.replace(tmp, path)
+        _fsync_dir(path.parent)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

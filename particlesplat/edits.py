@@ -22,17 +22,21 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from .atomic import atomic_write
+from .errors import UserError, one_line, short_repr
+from .yamlsafe import YamlError, read_yaml
 from .model.particles import EDITABLE, Particles
 
 FORMAT_VERSION = 1
+FLOAT32_MAX = float(np.finfo(np.float32).max)  # edited values are stored as float32
 
 Edits = dict[int, dict[str, tuple[float, ...]]]
 
 
-class EditsError(ValueError):
+class EditsError(UserError):
     """An edits file or mapping is invalid; the message names the file and the field."""
 
 
@@ -41,10 +45,10 @@ def validate_edits(data: Any, where: str = "edits") -> Edits:
     if isinstance(data, dict) and "particles" in data:
         version = data.get("version", FORMAT_VERSION)
         if version != FORMAT_VERSION:
-            raise EditsError(f"{where}: version: expected {FORMAT_VERSION}, got {version!r}")
+            raise EditsError(f"{where}: version: expected {FORMAT_VERSION}, got {short_repr(version)}")
         unknown = set(data) - {"version", "particles", "model", "scene"}
         if unknown:
-            raise EditsError(f"{where}: unknown key(s) {sorted(unknown)} (expected version, particles, model, scene)")
+            raise EditsError(f"{where}: unknown key(s) {short_repr(sorted(map(str, unknown)))} (expected version, particles, model, scene)")
         data = data["particles"]
     if data is None:
         return {}
@@ -53,7 +57,7 @@ def validate_edits(data: Any, where: str = "edits") -> Edits:
                          f"got {type(data).__name__}")
     out: Edits = {}
     for key, attrs in data.items():
-        field = f"{where}: particles.{key}"
+        field = f"{where}: particles.{one_line(key, 40)}"
         if isinstance(key, bool) or not isinstance(key, int):
             try:
                 index = int(str(key))
@@ -70,14 +74,16 @@ def validate_edits(data: Any, where: str = "edits") -> Edits:
         values: dict[str, tuple[float, ...]] = {}
         for name, value in attrs.items():
             if name not in EDITABLE:
-                raise EditsError(f"{field}.{name}: not an editable attribute (one of {', '.join(EDITABLE)})")
+                raise EditsError(f"{field}.{one_line(name, 40)}: not an editable attribute (one of {', '.join(EDITABLE)})")
             seq = value if isinstance(value, (list, tuple)) else [value]
             if len(seq) != EDITABLE[name]:
                 raise EditsError(f"{field}.{name}: expected {EDITABLE[name]} number(s), got {len(seq)}")
             nums = []
             for v in seq:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
-                    raise EditsError(f"{field}.{name}: expected finite numbers, got {value!r}")
+                    raise EditsError(f"{field}.{name}: expected finite numbers, got {short_repr(value)}")
+                if abs(float(v)) > FLOAT32_MAX:
+                    raise EditsError(f"{field}.{name}: {float(v):g} is beyond float32 (|value| <= {FLOAT32_MAX:.4g})")
                 nums.append(float(v))
             if name == "z_t" and not 0.0 <= nums[0] <= 1.0:
                 raise EditsError(f"{field}.z_t: transparency must be in [0, 1], got {nums[0]}")
@@ -88,16 +94,13 @@ def validate_edits(data: Any, where: str = "edits") -> Edits:
 
 
 def load_edits(path: str | PathLike) -> Edits:
-    """Read and validate an edits YAML file (``yaml.safe_load``)."""
+    """Read and validate an edits YAML file (:func:`particlesplat.yamlsafe.read_yaml`: safe tags, no
+    aliases, no duplicate keys)."""
     path = Path(path)
     try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: edits file not found") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise EditsError(f"{path}: not valid YAML ({e})") from e
+        data = read_yaml(path, "edits file")
+    except YamlError as e:
+        raise EditsError(str(e)) from None
     return validate_edits(data, str(path))
 
 

@@ -12,6 +12,10 @@ from torch import Tensor
 from .sh import eval_sh_colors, sh_degree_from_bases
 
 BACKGROUND_OWNER = -1
+# Largest particle index an owner may hold: exact in float32 (the viewer's GL buffers) and small enough for
+# per-owner tables (the model has a few dozen particles; a .ply owner of 2**31 - 1 would ask for 2**31 rows)
+MAX_OWNER = 65535
+_FLOAT_FIELDS = ("means", "quats", "scales", "opacities", "sh")
 
 
 def quats_to_rotations(quats: Tensor) -> Tensor:
@@ -57,6 +61,29 @@ class Gaussians:
         sh_degree_from_bases(self.sh.shape[1])
         if self.owner.dtype != torch.int64:
             self.owner = self.owner.to(torch.int64)
+
+    def check(self, where: str = "Gaussians") -> None:
+        """ValueError naming ``where``, the field and the first bad Gaussian unless every value is finite,
+        the scales and opacities are >= 0 and every owner is -1 or a particle index 0..:data:`MAX_OWNER`.
+        One device synchronisation when all is well."""
+        checks = [torch.isfinite(getattr(self, name)).all() for name in _FLOAT_FIELDS]
+        checks += [(self.scales >= 0).all(), (self.opacities >= 0).all(),
+                   ((self.owner >= BACKGROUND_OWNER) & (self.owner <= MAX_OWNER)).all()]
+        if bool(torch.stack(checks).all()):
+            return
+        for name in _FLOAT_FIELDS:
+            bad = ~torch.isfinite(getattr(self, name).detach())
+            if bool(bad.any()):
+                row = int(bad.reshape(bad.shape[0], -1).any(1).nonzero()[0, 0])
+                raise ValueError(f"{where}: {name}: non-finite value at Gaussian {row}")
+        for name in ("scales", "opacities"):
+            bad = getattr(self, name).detach() < 0
+            if bool(bad.any()):
+                row = int(bad.reshape(bad.shape[0], -1).any(1).nonzero()[0, 0])
+                raise ValueError(f"{where}: {name}: negative value at Gaussian {row}")
+        row = int(((self.owner < BACKGROUND_OWNER) | (self.owner > MAX_OWNER)).nonzero()[0, 0])
+        raise ValueError(f"{where}: owner: {int(self.owner[row])} at Gaussian {row} is neither -1 (background) "
+                         f"nor a particle index 0..{MAX_OWNER}")
 
     # ------------------------------------------------------------------ constructors
     @staticmethod

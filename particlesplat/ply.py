@@ -11,6 +11,7 @@ Layout (one ``vertex`` element, binary little endian, float32 unless noted)::
 
 from __future__ import annotations
 
+import os
 from os import PathLike
 from pathlib import Path
 from types import MappingProxyType
@@ -19,7 +20,8 @@ import numpy as np
 import torch
 
 from .atomic import atomic_write
-from .gaussians import BACKGROUND_OWNER, Gaussians
+from .errors import UserError, one_line
+from .gaussians import BACKGROUND_OWNER, MAX_OWNER, Gaussians
 from .sh import sh_degree_from_bases
 
 _PLY_TYPES = MappingProxyType({
@@ -28,22 +30,25 @@ _PLY_TYPES = MappingProxyType({
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 })
 _EPS = 1e-7
+_MAX_HEADER = 1 << 16  # bytes of header: ~1000 property lines, far beyond SH degree 3's 62 properties
 
 
-class PlyError(ValueError):
+class PlyError(UserError):
     """A .ply file that cannot be read; the message names the file and the property."""
 
 
 def _read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]]]:
-    first = f.readline()
+    first = f.readline(_MAX_HEADER)
     if first.strip() != b"ply":
         raise PlyError(f"{path}: not a PLY file (first line is {first[:20]!r})")
     fmt = None
     elements: list[tuple[str, int, list[tuple[str, str]]]] = []
     while True:
-        line = f.readline()
+        line = f.readline(_MAX_HEADER)
         if not line:
             raise PlyError(f"{path}: truncated header (no end_header)")
+        if f.tell() > _MAX_HEADER:
+            raise PlyError(f"{path}: header longer than {_MAX_HEADER} bytes (no end_header)")
         words = line.decode("ascii", errors="replace").split()
         if not words or words[0] in ("comment", "obj_info"):
             continue
@@ -53,23 +58,23 @@ def _read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[st
             fmt = words[1]
         elif words[0] == "element":
             if len(words) != 3 or not words[2].isdigit():
-                raise PlyError(f"{path}: malformed header line {line.strip()!r} (expected 'element NAME COUNT')")
+                raise PlyError(f"{path}: malformed header line {one_line(line.strip(), 80)!r} (expected 'element NAME COUNT')")
             elements.append((words[1], int(words[2]), []))
         elif words[0] == "property":
             if not elements:
                 raise PlyError(f"{path}: property before any element")
             if len(words) >= 2 and words[1] == "list":
-                raise PlyError(f"{path}: list property '{words[-1]}' in element '{elements[-1][0]}' "
+                raise PlyError(f"{path}: list property '{one_line(words[-1], 40)}' in element '{one_line(elements[-1][0], 40)}' "
                                "is not supported in a Gaussian .ply")
             if len(words) != 3:
-                raise PlyError(f"{path}: malformed header line {line.strip()!r} (expected 'property TYPE NAME')")
+                raise PlyError(f"{path}: malformed header line {one_line(line.strip(), 80)!r} (expected 'property TYPE NAME')")
             if words[1] not in _PLY_TYPES:
-                raise PlyError(f"{path}: property '{words[2]}' has unknown type '{words[1]}'")
+                raise PlyError(f"{path}: property '{one_line(words[2], 40)}' has unknown type '{one_line(words[1], 40)}'")
             elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
         else:
-            raise PlyError(f"{path}: malformed header line {line.strip()!r}")
+            raise PlyError(f"{path}: malformed header line {one_line(line.strip(), 80)!r}")
     if fmt not in ("binary_little_endian", "binary_big_endian"):
-        raise PlyError(f"{path}: format '{fmt}' is not supported (binary_little_endian or binary_big_endian)")
+        raise PlyError(f"{path}: format '{one_line(fmt, 40)}' is not supported (binary_little_endian or binary_big_endian)")
     return fmt, elements
 
 
@@ -86,13 +91,22 @@ def read_ply(path: str | PathLike) -> Gaussians:
         if not elements or elements[0][0] != "vertex":
             raise PlyError(f"{path}: the first element must be 'vertex'")
         _, n, props = elements[0]
+        names = [name for name, _ in props]
+        if len(set(names)) != len(names):
+            dup = next(name for name in names if names.count(name) > 1)
+            raise PlyError(f"{path}: property '{one_line(dup, 40)}' is declared twice in element 'vertex'")
+        if not props:
+            raise PlyError(f"{path}: element 'vertex' has no properties")
         dtype = np.dtype([(name, order + t) for name, t in props])
-        raw = f.read(n * dtype.itemsize)
-    if len(raw) < n * dtype.itemsize:
-        got, partial = divmod(len(raw), dtype.itemsize)
+        # the count is checked against the bytes the file holds before anything is allocated
+        available = max(os.fstat(f.fileno()).st_size - f.tell(), 0)
+        raw = f.read(n * dtype.itemsize) if n * dtype.itemsize <= available else None
+    if raw is None or len(raw) < n * dtype.itemsize:
+        size = available if raw is None else len(raw)
+        got, partial = divmod(size, dtype.itemsize)
         first_missing = next(name for name, _ in props if dtype.fields[name][1] + dtype[name].itemsize > partial)
         raise PlyError(f"{path}: truncated: header declares {n} vertices ({n * dtype.itemsize} bytes), "
-                       f"file holds {len(raw)} bytes (vertex {got}, property '{first_missing}' onwards missing)")
+                       f"file holds {size} bytes (vertex {got}, property '{first_missing}' onwards missing)")
     data = np.frombuffer(raw, dtype=dtype, count=n)
     names = {name for name, _ in props}
 
@@ -131,11 +145,25 @@ def read_ply(path: str | PathLike) -> Gaussians:
     scales = np.exp(log_scales)
     quats = stack("rot_", 4)
     if "owner" in names:
-        owner = data["owner"].astype(np.int64)
+        owner = _owner_column(data["owner"], path)
     else:
         owner = np.full(n, BACKGROUND_OWNER, dtype=np.int64)
     f32 = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
     return Gaussians(f32(means), f32(quats), f32(scales), f32(opacities), f32(sh), torch.from_numpy(owner))
+
+
+def _owner_column(col: np.ndarray, path: Path) -> np.ndarray:
+    """The ``owner`` property as int64: each value -1 (background) or a particle index 0..MAX_OWNER.
+
+    Anything else (NaN, a fraction, -5, 2**31 - 1) is refused rather than drawn by one renderer and
+    dropped by another, or turned into a table of 2**31 rows."""
+    wide = col.astype(np.float64)
+    bad = ~(np.isfinite(wide) & (wide == np.round(wide)) & (wide >= BACKGROUND_OWNER) & (wide <= MAX_OWNER))
+    if bad.any():
+        vertex = int(np.argmax(bad))
+        raise PlyError(f"{path}: property 'owner' at vertex {vertex} is {col[vertex]!r}: expected -1 (background) "
+                       f"or a particle index 0..{MAX_OWNER}")
+    return wide.astype(np.int64)
 
 
 def write_ply(gaussians: Gaussians, path: str | PathLike) -> None:

@@ -65,6 +65,9 @@ def render(gaussians: Gaussians, camera: Camera, *, background: Sequence[float] 
     Gaussians outside near < z < far are culled. Colours come from the SH evaluated along the
     direction camera centre → mean.
 
+    Raises ValueError (naming the field and the Gaussian) for a non-finite value, a negative scale or
+    opacity, or an owner outside -1..MAX_OWNER (:meth:`Gaussians.check`).
+
     Differentiable with respect to means, quats, scales, opacities and sh. Works in the
     dtype and on the device of ``gaussians`` (the camera is converted).
 
@@ -93,6 +96,8 @@ def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Seque
     """
     if not views:
         return []
+    for i, (gaussians, _) in enumerate(views):  # NaN would spread to every pixel and, through clipping, every gradient
+        gaussians.check(f"render: view {i}" if len(views) > 1 else "render")
     dtype, device = views[0][0].means.dtype, views[0][0].means.device
     bg = torch.as_tensor(background, dtype=dtype, device=device).reshape(3)
     parts: dict[str, list[Tensor]] = {k: [] for k in ("means2d", "conics", "opac", "features", "radius", "view",

@@ -38,7 +38,7 @@ class SceneView:
             else:
                 for owner in sorted(changed):
                     self.renderer.replace_owner(owner, session.particle_gaussians(owner))
-        self.renderer.set_filter(state.visible_owners(session.num_owners()), state.prune)
+        self.renderer.set_filter(state.visible_owners(session.owner_ids()), state.prune)
 
     def draw(self, session: SceneSession, state: ViewState, camera: Camera, *, force: bool = False,
              finish: bool = False) -> FrameTimes | None:
@@ -86,6 +86,6 @@ class SceneView:
     def visible_gaussians(self, session: SceneSession, state: ViewState) -> Gaussians:
         """The Gaussians as drawn: edited, filtered by visibility, segmentation mode and pruning."""
         g = session.gaussians()
-        owners = torch.tensor(state.visible_owners(session.num_owners()), dtype=torch.int64)
+        owners = torch.tensor(state.visible_owners(session.owner_ids()), dtype=torch.int64)
         keep = torch.isin(g.owner, owners) & (g.opacities >= state.prune)
         return g.subset(keep)

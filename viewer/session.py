@@ -69,7 +69,10 @@ class SceneSession:
         self.model_name = model_name
         self.source = source
         self.history = History()
+        if gaussians is not None:
+            gaussians.check(source or "Gaussians")  # the GL renderer would draw NaN as nothing, or everything
         self._fixed = gaussians.detach().to("cpu") if gaussians is not None else None
+        self._owner_ids: list[int] | None = None
         self.original: Particles | None = encoded.particles.detach().to("cpu") if encoded else None
         self.particles: Particles | None = self.original.clone() if self.original is not None else None
         self._objects: torch.Tensor | None = None
@@ -96,6 +99,14 @@ class SceneSession:
         if self.particles is not None:
             return self.particles.num
         return int(self._fixed.owner.max()) + 1 if self._fixed.num else 0
+
+    def owner_ids(self) -> list[int]:
+        """The owners >= 0 the scene holds, ascending: every particle, or the distinct owners of a .ply."""
+        if self.particles is not None:
+            return list(range(self.particles.num))
+        if self._owner_ids is None:
+            self._owner_ids = [int(o) for o in torch.unique(self._fixed.owner) if int(o) >= 0]
+        return self._owner_ids
 
     def value(self, index: int, name: str) -> tuple[float, ...]:
         return tuple(float(v) for v in self.particles.attribute(index, name).tolist())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from particlesplat.views import DEFAULT_BACKGROUND
@@ -41,11 +42,15 @@ class ViewState:
     panel: bool = True
     moving_scale: float = 0.5
 
-    def visible_owners(self, num_owners: int) -> list[int]:
-        """Owners to draw (-1 = background) under the visibility, solo and segmentation modes."""
+    def visible_owners(self, owners: int | Iterable[int]) -> list[int]:
+        """Owners to draw (-1 = background) under the visibility, solo and segmentation modes.
+
+        owners: the scene's particle owners (>= 0), or their count P for owners 0..P-1. A .ply passes the
+        owners it holds, so a sparse owner set costs its size, not its largest index."""
         if self.seg_mode == "background alone":
             return [-1]
-        owners = [self.solo] if self.solo is not None else [i for i in range(num_owners) if i not in self.hidden]
+        present = range(owners) if isinstance(owners, int) else owners
+        owners = [self.solo] if self.solo is not None else [i for i in present if i not in self.hidden]
         if self.seg_mode != "background hidden":
             owners.append(-1)
         return owners

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import warnings
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
@@ -22,12 +24,17 @@ from PIL import Image
 from torch import Tensor
 
 from ..camera import Camera
+from ..errors import UserError, one_line, short_repr
 
 TRANSFORMS = "transforms.json"
 _RIGID_TOL = 1e-3
+# Largest image a scene may hold: 4096 x 4096 (decoded RGB 50 MB). Checked from the PNG header before decoding,
+# so a decompression bomb (a few KB declaring 10^10 pixels) is refused without allocating it.
+MAX_IMAGE_PIXELS = 4096 * 4096
+MAX_TRANSFORMS_BYTES = 64 << 20  # transforms.json: ~100,000 frames
 
 
-class SceneFormatError(ValueError):
+class SceneFormatError(UserError):
     """A scene folder does not follow the format; the message names the file and the key."""
 
 
@@ -194,10 +201,15 @@ def read_scene(path: str | PathLike) -> RawScene:
     tf_path = path / TRANSFORMS
     if not tf_path.is_file():
         raise FileNotFoundError(f"{tf_path}: no {TRANSFORMS} in the scene folder")
+    size = tf_path.stat().st_size
+    if size > MAX_TRANSFORMS_BYTES:
+        raise SceneFormatError(f"{tf_path}: {size} bytes, more than the {MAX_TRANSFORMS_BYTES} a {TRANSFORMS} may have")
     try:
         meta = json.loads(tf_path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SceneFormatError(f"{tf_path}: not valid JSON ({e})") from e
+        raise SceneFormatError(f"{tf_path}: not valid JSON ({one_line(e, 200)})") from None
+    except RecursionError:
+        raise SceneFormatError(f"{tf_path}: not valid JSON (nested too deeply)") from None
     if not isinstance(meta, dict):
         raise SceneFormatError(f"{tf_path}: the top level must be an object")
     frames = meta.get("frames")
@@ -232,10 +244,10 @@ def _number(value: Any, key: str, where: str, positive: bool = False) -> float:
     try:
         x = float(value)
     except (TypeError, ValueError):
-        raise SceneFormatError(f"{where}: key '{key}' must be a number, got {value!r}") from None
+        raise SceneFormatError(f"{where}: key '{key}' must be a number, got {short_repr(value)}") from None
     if not math.isfinite(x) or (positive and x <= 0):
         raise SceneFormatError(f"{where}: key '{key}' must be a finite{' positive' if positive else ''} "
-                               f"number, got {value!r}")
+                               f"number, got {short_repr(value)}")
     return x
 
 
@@ -289,8 +301,13 @@ def _rigid_matrix(value: Any, where: str) -> np.ndarray:
 
 
 def _resolve(folder: Path, rel: Any, key: str, where: str) -> Path:
+    """The file ``rel`` names, relative to the scene folder and inside it (no absolute path, no ``..`` out)."""
     if not isinstance(rel, str) or not rel:
-        raise SceneFormatError(f"{where}: key '{key}' must be a file path, got {rel!r}")
+        raise SceneFormatError(f"{where}: key '{key}' must be a file path, got {short_repr(rel)}")
+    norm = os.path.normpath(rel)
+    if os.path.isabs(rel) or norm == ".." or norm.startswith(".." + os.sep) or "\0" in rel:
+        raise SceneFormatError(f"{where}: key '{key}' names {short_repr(rel)}, outside the scene folder "
+                               "(paths must be relative and stay inside it)")
     p = folder / rel
     if not p.is_file() and not p.suffix and p.with_suffix(".png").is_file():  # NeRF "blender" paths
         p = p.with_suffix(".png")
@@ -301,11 +318,21 @@ def _resolve(folder: Path, rel: Any, key: str, where: str) -> Path:
 
 
 def _open(p: Path, key: str, where: str) -> Image.Image:
+    """Decode image ``p``; its size is checked against :data:`MAX_IMAGE_PIXELS` from the header first."""
     try:
-        img = Image.open(p)
-        img.load()
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            img = Image.open(p)
+            w, h = img.size
+            if w * h > MAX_IMAGE_PIXELS:
+                raise SceneFormatError(f"{where}: key '{key}': image {p} is {w}x{h} pixels, more than the "
+                                       f"{MAX_IMAGE_PIXELS} an image may have (a decompression bomb?)")
+            img.load()
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning):
+        raise SceneFormatError(f"{where}: key '{key}': image {p} declares more pixels than the "
+                               f"{MAX_IMAGE_PIXELS} an image may have (a decompression bomb?)") from None
     except OSError as e:
-        raise SceneFormatError(f"{where}: key '{key}': cannot read image {p} ({e})") from e
+        raise SceneFormatError(f"{where}: key '{key}': cannot read image {p} ({one_line(e, 200)})") from None
     return img
 
 
@@ -338,7 +365,10 @@ def _read_depth(folder: Path, meta: dict, frame: dict, size: tuple[int, int], wh
         raise SceneFormatError(f"{where}: has '{key}' but no key 'depth_unit_scale_factor' (metres per unit)")
     scale = _number(scale_value, "depth_unit_scale_factor", where, True)
     img = _open(p, key, where)
-    if img.mode not in ("I;16", "I;16B", "I", "L", "F"):
+    if img.mode in ("L", "P", "1"):
+        raise SceneFormatError(f"{where}: key '{key}': {p} is an 8-bit image; depth must be 16-bit (or float) "
+                               "in units of depth_unit_scale_factor (8 bits would read as 16-bit units)")
+    if img.mode not in ("I;16", "I;16B", "I", "F"):
         raise SceneFormatError(f"{where}: key '{key}': {p} must be a single-channel image, got mode {img.mode}")
     arr = np.asarray(img).astype(np.float64) * scale
     _check_size(arr, size, key, p, where)

@@ -1,0 +1,86 @@
+"""The error policy shared by every command and the viewer.
+
+A user-caused error (bad file, bad argument, unwritable output) is a :class:`UserError` (or one of
+the library's ``ValueError`` / ``OSError`` families): the command prints one line naming the file
+and the field and exits with :data:`EXIT_USER`. Anything else is a bug and keeps its traceback.
+Ctrl-C prints one line and exits with :data:`EXIT_INTERRUPTED`.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+
+EXIT_USER = 2  # bad input, as argparse exits on a bad argument
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
+REPR_LIMIT = 80  # characters of a value echoed in a message
+
+
+class UserError(ValueError):
+    """Bad input from the user; the message is one line naming the file and the field."""
+
+
+def short_repr(value: object, limit: int = REPR_LIMIT) -> str:
+    """``repr(value)`` cut to ``limit`` characters (``...`` marks the cut), so that a message never echoes
+    unbounded input. Containers are walked lazily: a value built from YAML aliases is not expanded beyond
+    ``limit`` characters."""
+    out: list[str] = []
+    size = 0
+
+    def emit(text: str) -> bool:
+        nonlocal size
+        out.append(text)
+        size += len(text)
+        return size <= limit
+
+    def walk(v: object, depth: int) -> bool:
+        if depth > 20:
+            return emit("...")
+        if isinstance(v, dict):
+            if not emit("{"):
+                return False
+            for i, (k, item) in enumerate(v.items()):
+                if (i and not emit(", ")) or not walk(k, depth + 1) or not emit(": ") or not walk(item, depth + 1):
+                    return False
+            return emit("}")
+        if isinstance(v, (list, tuple)):
+            if not emit("[" if isinstance(v, list) else "("):
+                return False
+            for i, item in enumerate(v):
+                if (i and not emit(", ")) or not walk(item, depth + 1):
+                    return False
+            return emit("]" if isinstance(v, list) else ")")
+        if isinstance(v, (str, bytes)):
+            return emit(repr(v[:limit + 1]))
+        return emit(repr(v)[:limit + 1])
+
+    walk(value, 0)
+    text = "".join(out)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def one_line(message: object, limit: int = 2000) -> str:
+    """The message of an error as one line (newlines folded), at most ``limit`` characters."""
+    text = " ".join(str(message).split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def is_user_error(e: BaseException) -> bool:
+    """User-caused: the library's ValueError family (file formats, configs, arguments) and OSError (missing,
+    unreadable or unwritable files). MemoryError, RuntimeError and the rest are bugs."""
+    return isinstance(e, (ValueError, OSError))
+
+
+def run_command(prog: str, fn: Callable[[], int]) -> int:
+    """Run ``fn`` under the error policy: one line on stderr and exit 2 for a user error, one line and
+    exit 130 for Ctrl-C; other exceptions propagate with their traceback."""
+    try:
+        return int(fn() or 0)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as e:
+        if not is_user_error(e):
+            raise
+        print(f"{prog}: error: {one_line(e)}", file=sys.stderr)
+        return EXIT_USER

@@ -1,0 +1,267 @@
+"""Hostile and broken input, case by case where it is handled (issue 22): YAML, .ply, images, outputs,
+the renderer's edge, edits. Each test builds the bad input and checks the one error that names the file
+and the field (or, for outputs, that nothing was replaced)."""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from particlesplat import Gaussians
+from particlesplat.atomic import UnsafeTargetError, atomic_path, atomic_write, check_writable
+from particlesplat.data.scene import MAX_IMAGE_PIXELS, SceneFormatError, read_scene
+from particlesplat.data.synth import write_scene
+from particlesplat.edits import EditsError, load_edits, validate_edits
+from particlesplat.errors import short_repr
+from particlesplat.gaussians import MAX_OWNER
+from particlesplat.ply import PlyError
+from particlesplat.yamlsafe import MAX_YAML_BYTES, YamlError, load_yaml
+
+ALIAS_BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+    f"{chr(98 + i)}: &{chr(98 + i)} [*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, "
+    f"*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}]\n" for i in range(8))
+
+
+def _gaussians(n: int = 5, owner=None) -> Gaussians:
+    g = Gaussians(torch.randn(n, 3), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), torch.full((n, 3), 0.1),
+                  torch.full((n,), 0.5), torch.zeros(n, 1, 3), torch.zeros(n, dtype=torch.int64))
+    if owner is not None:
+        g.owner = torch.as_tensor(owner, dtype=torch.int64)
+    return g
+
+
+# ---------------------------------------------------------------------------- YAML
+def test_alias_bomb_is_refused_before_expansion():
+    assert len(ALIAS_BOMB) < 600  # 9**9 = 387 million leaves once expanded
+    with pytest.raises(YamlError, match=r"bomb\.yaml: not valid YAML \(line 2, column \d+: alias '\*a' is not allowed"):
+        load_yaml(ALIAS_BOMB, "bomb.yaml")
+
+
+def test_duplicate_keys_are_refused_with_their_line():
+    with pytest.raises(YamlError, match=r"c\.yaml: not valid YAML \(line 3, column 1: key 'lr' is given twice\)"):
+        load_yaml("lr: 1.0\nsteps: 3\nlr: 2.0\n", "c.yaml")
+
+
+def test_exponent_without_dot_is_a_float():
+    assert load_yaml("lr: 1e-4\nb: -2E+3\nc: 10\nd: '1e-4'\n", "x") == {"lr": 1e-4, "b": -2000.0, "c": 10,
+                                                                        "d": "1e-4"}
+
+
+def test_oversized_deep_and_python_tagged_yaml_are_one_line_errors():
+    for text in ("x" * (MAX_YAML_BYTES + 1), "[" * 5000 + "]" * 5000, "a: !!python/object/apply:os.system [ls]",
+                 "a: " + "9" * 5000):
+        with pytest.raises(YamlError) as info:
+            load_yaml(text, "f.yaml")
+        assert str(info.value).startswith("f.yaml: ") and "\n" not in str(info.value) and len(str(info.value)) < 400
+
+
+def test_short_repr_does_not_expand_shared_structures():
+    leaf = ["x" * 10] * 10
+    for _ in range(8):
+        leaf = [leaf] * 10  # 10**9 leaves if printed in full
+    text = short_repr(leaf)
+    assert len(text) <= 80 and text.endswith("...")
+    assert short_repr({"a": 1}) == "{'a': 1}"
+
+
+def test_edits_file_alias_bomb_and_duplicates_name_the_file(tmp_path):
+    p = tmp_path / "e.yaml"
+    p.write_text("particles:\n  0: &v {z_t: [0.5]}\n  1: *v\n")
+    with pytest.raises(EditsError, match=r"e\.yaml: not valid YAML \(line 3.*alias"):
+        load_edits(p)
+    p.write_text("particles:\n  0: {z_t: [0.5]}\n  0: {z_t: [0.2]}\n")
+    with pytest.raises(EditsError, match=r"e\.yaml: not valid YAML \(line 3.*given twice"):
+        load_edits(p)
+
+
+def test_edit_value_beyond_float32_is_refused():
+    assert validate_edits({1: {"z_d": [3.0e38]}}) == {1: {"z_d": (3.0e38,)}}
+    with pytest.raises(EditsError, match=r"particles\.1\.z_d: 1e\+300 is beyond float32"):
+        validate_edits({1: {"z_d": [1e300]}})
+
+
+def test_edit_error_does_not_echo_a_long_value():
+    with pytest.raises(EditsError) as info:
+        validate_edits({1: {"z_p": ["y" * 100000, 1.0]}})
+    assert len(str(info.value)) < 300
+
+
+# ---------------------------------------------------------------------------- .ply
+def _ply_bytes(n_declared: int, rows: np.ndarray, extra_header: str = "") -> bytes:
+    names = rows.dtype.names
+    types = {"<f4": "float", "<i4": "int", "<f8": "double"}
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {n_declared}"]
+    header += [f"property {types[rows.dtype[n].str]} {n}" for n in names]
+    return ("\n".join(header) + "\n" + extra_header + "end_header\n").encode() + rows.tobytes()
+
+
+def _rows(n: int, owner_dtype: str = "<i4") -> np.ndarray:
+    names = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
+             "rot_0", "rot_1", "rot_2", "rot_3"]
+    rec = np.zeros(n, dtype=np.dtype([(k, "<f4") for k in names] + [("owner", owner_dtype)]))
+    rec["rot_0"] = 1.0
+    return rec
+
+
+@pytest.mark.parametrize("owner, dtype", [(2147483647, "<i4"), (-5, "<i4"), (float("nan"), "<f4"),
+                                          (2.5, "<f4"), (MAX_OWNER + 1, "<i4")])
+def test_ply_owner_outside_the_particle_range_is_refused(tmp_path, owner, dtype):
+    rows = _rows(3, dtype)
+    rows["owner"][1] = owner
+    (tmp_path / "o.ply").write_bytes(_ply_bytes(3, rows))
+    with pytest.raises(PlyError, match=r"o\.ply: property 'owner' at vertex 1 is .*expected -1 \(background\) or a "
+                                       rf"particle index 0\.\.{MAX_OWNER}"):
+        Gaussians.load_ply(tmp_path / "o.ply")
+
+
+def test_ply_owner_in_range_round_trips(tmp_path):
+    rows = _rows(3)
+    rows["owner"] = [-1, 0, MAX_OWNER]
+    (tmp_path / "o.ply").write_bytes(_ply_bytes(3, rows))
+    assert Gaussians.load_ply(tmp_path / "o.ply").owner.tolist() == [-1, 0, MAX_OWNER]
+
+
+def test_ply_vertex_count_is_checked_against_the_file_size(tmp_path):
+    (tmp_path / "lie.ply").write_bytes(_ply_bytes(10**9, _rows(4)))
+    with pytest.raises(PlyError, match=r"lie\.ply: truncated: header declares 1000000000 vertices .* file holds 240 "
+                                       r"bytes \(vertex 4, property 'x' onwards missing\)"):
+        Gaussians.load_ply(tmp_path / "lie.ply")
+
+
+def test_ply_header_without_end_and_without_newline_is_bounded(tmp_path):
+    (tmp_path / "h.ply").write_bytes(b"ply\n" + b"comment " + b"x" * 200000)
+    with pytest.raises(PlyError, match=r"h\.ply: header longer than"):
+        Gaussians.load_ply(tmp_path / "h.ply")
+    (tmp_path / "d.ply").write_bytes(_ply_bytes(1, _rows(1), "property float x\n"))
+    with pytest.raises(PlyError, match=r"d\.ply: property 'x' is declared twice"):
+        Gaussians.load_ply(tmp_path / "d.ply")
+
+
+# ---------------------------------------------------------------------------- the renderer's edge
+@pytest.mark.parametrize("field, value, message", [
+    ("sh", float("nan"), "sh: non-finite value at Gaussian 2"),
+    ("quats", float("inf"), "quats: non-finite value at Gaussian 2"),
+    ("quats", float("nan"), "quats: non-finite value at Gaussian 2"),
+    ("scales", float("nan"), "scales: non-finite value at Gaussian 2"),
+    ("scales", -1.0, "scales: negative value at Gaussian 2"),
+    ("means", float("inf"), "means: non-finite value at Gaussian 2"),
+])
+def test_render_refuses_non_finite_gaussians(field, value, message):
+    from particlesplat import render
+    from particlesplat.views import default_view
+
+    g = _gaussians()
+    getattr(g, field)[2].view(-1)[0] = value
+    cam = default_view(None, _gaussians()).camera(16, 12)
+    with pytest.raises(ValueError, match=f"render: {message}"):
+        render(g, cam)
+
+
+def test_render_refuses_owner_outside_range():
+    from particlesplat import render
+    from particlesplat.views import default_view
+
+    g = _gaussians(owner=[0, -7, 1, 2, 3])
+    with pytest.raises(ValueError, match=r"render: owner: -7 at Gaussian 1 is neither -1"):
+        render(g, default_view(None, g).camera(8, 8))
+
+
+# ---------------------------------------------------------------------------- outputs
+def test_atomic_writes_refuse_non_regular_targets(tmp_path):
+    target = tmp_path / "real.txt"
+    target.write_text("keep")
+    link = tmp_path / "link.txt"
+    link.symlink_to(target)
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    for path in (link, fifo, tmp_path, "/dev/null"):
+        with pytest.raises(UnsafeTargetError, match=f"{path}: is a "):
+            with atomic_write(path, "w") as f:
+                f.write("new")
+        with pytest.raises(UnsafeTargetError, match=f"{path}: is a "):
+            with atomic_path(path) as p:
+                p.write_text("new")
+        with pytest.raises(UnsafeTargetError):
+            check_writable(path)
+    assert link.is_symlink() and target.read_text() == "keep" and os.path.exists("/dev/null")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fifo", "link.txt", "real.txt"]  # no temporary left
+
+
+def test_check_writable_names_an_unwritable_folder(tmp_path):
+    if os.geteuid() == 0:
+        blocked = tmp_path / "file" / "x.json"  # a path under a regular file: no folder can be made there
+        (tmp_path / "file").write_text("")
+    else:
+        (tmp_path / "ro").mkdir(mode=0o500)
+        blocked = tmp_path / "ro" / "x.json"
+    with pytest.raises(OSError, match=f"{blocked}: cannot write"):
+        check_writable(blocked)
+    assert check_writable(tmp_path / "new" / "ok.json") == tmp_path / "new" / "ok.json"
+    assert list((tmp_path / "new").iterdir()) == []
+
+
+# ---------------------------------------------------------------------------- scene images
+def _png_bomb(path, width: int, height: int) -> None:
+    """A valid-looking grey PNG whose header declares width x height pixels (the data stream is tiny)."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    raw = zlib.compress(b"\0" * (width + 1) * 4)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+                     + chunk(b"IDAT", raw) + chunk(b"IEND", b""))
+
+
+@pytest.fixture(scope="module")
+def scene_template(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("scene") / "s"
+    write_scene(folder, 0, "train", 0, 16)
+    return folder
+
+
+@pytest.fixture
+def scene(scene_template, tmp_path):
+    import shutil
+
+    return Path(shutil.copytree(scene_template, tmp_path / "s"))
+
+
+def _frames(scene):
+    return json.loads((scene / "transforms.json").read_text())
+
+
+def test_decompression_bomb_names_the_file_and_key(scene):
+    meta = _frames(scene)
+    image = scene / meta["frames"][1]["file_path"]
+    for w, h in ((100000, 100000), (5000, 5000)):  # beyond PIL's own limit, and beyond ours only
+        _png_bomb(image, w, h)
+        assert w * h > MAX_IMAGE_PIXELS
+        with pytest.raises(SceneFormatError, match=rf"transforms\.json: frames\[1\]: key 'file_path': image .* "
+                                                   r"(declares more pixels|is \d+x\d+ pixels)"):
+            read_scene(scene)
+
+
+def test_eight_bit_depth_is_an_error_naming_the_file(scene):
+    meta = _frames(scene)
+    depth = scene / meta["frames"][0]["depth_file_path"]
+    a = np.asarray(Image.open(depth))
+    Image.fromarray((a // 256).astype(np.uint8), "L").save(depth)
+    with pytest.raises(SceneFormatError, match=rf"frames\[0\]: key 'depth_file_path': {depth} is an 8-bit image"):
+        read_scene(scene)
+
+
+@pytest.mark.parametrize("bad", ["/etc/hostname", "../outside.png", "rgb/../../outside.png"])
+def test_scene_paths_stay_inside_the_folder(scene, bad):
+    Image.new("RGB", (16, 16)).save(scene.parent / "outside.png")
+    meta = _frames(scene)
+    meta["frames"][2]["file_path"] = bad
+    (scene / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(SceneFormatError, match=r"frames\[2\]: key 'file_path' names .* outside the scene folder"):
+        read_scene(scene)
