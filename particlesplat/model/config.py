@@ -8,10 +8,11 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
-import yaml
+from ..errors import UserError, one_line, short_repr
+from ..yamlsafe import YamlError, read_yaml
 
 
-class ConfigError(ValueError):
+class ConfigError(UserError):
     """A configuration value is missing, unknown or out of range."""
 
 
@@ -19,9 +20,25 @@ def _checker(cfg, where: str):
     """need(cond, key, msg): raise ConfigError naming ``where.key`` and its value unless ``cond``."""
     def need(cond: bool, key: str, msg: str) -> None:
         if not cond:
-            raise ConfigError(f"{where}.{key}: {msg} (got {getattr(cfg, key)!r})")
+            raise ConfigError(f"{where}.{key}: {msg} (got {short_repr(getattr(cfg, key))})")
 
     return need
+
+
+# Integer ranges checked before validation and before anything is allocated: far beyond any model or run that
+# fits this machine, so a typo (refine_hidden: 40000, resolution: 1048576) or a hostile checkpoint config is one
+# clear line instead of gigabytes of weights; the lower ends keep divisions and tensor shapes valid.
+INT_RANGES: dict[str, tuple[int, int]] = {
+    "resolution": (16, 1024), "particles_per_view": (0, 1024), "kp_patch": (2, 1024), "glimpse_size": (4, 256),
+    "channels": (1, 1024), "d_obj": (1, 1024), "d_bg": (1, 1024), "bg_latent_stride": (1, 1024),
+    "bg_block": (1, 1024), "bg_static_grid": (0, 512), "patch_gaussians": (1, 64), "patch_base": (0, 64),
+    "patch_channels": (0, 1024), "patch_hidden": (0, 4096), "refine_steps": (0, 16), "refine_hidden": (1, 4096),
+    "refine_glimpse": (0, 256), "token_dim": (1, 2048), "transformer_layers": (0, 64), "transformer_heads": (1, 64),
+    "sh_degree": (0, 3), "batch_size": (1, 4096), "target_views": (0, 64), "steps": (1, 10**9),
+    "bg_off_steps": (0, 10**9), "log_every": (1, 10**9), "val_every": (1, 10**9), "val_scenes": (1, 10**6),
+    "ckpt_every": (1, 10**9), "seed": (0, 2**63 - 1), "num_threads": (0, 1024), "cache_scenes": (0, 10**6),
+    "fg_band": (0, 1024),
+}
 
 
 @dataclass
@@ -249,9 +266,10 @@ def _from_dict(cls, data: Any, where: str):
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__}")
     known = {f.name: f for f in fields(cls)}
-    unknown = sorted(set(data) - set(known))
+    unknown = sorted(one_line(k, 40) for k in set(data) - set(known))
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)} (known: {', '.join(known)})")
+        raise ConfigError(f"{where}: unknown key(s) {one_line(', '.join(unknown[:5]), 200)} "
+                          f"(known: {', '.join(known)})")
     out = cls()
     for k, v in data.items():
         default = getattr(out, k)
@@ -265,7 +283,22 @@ def _from_dict(cls, data: Any, where: str):
         else:
             ok = True
         if not ok:
-            raise ConfigError(f"{where}.{k}: expected {type(default).__name__}, got {v!r}")
+            hint = ""
+            if isinstance(default, float) and isinstance(v, str):
+                try:
+                    float(v)
+                    hint = " (text, not a number: write it without quotes, e.g. 1.0e-4 or 0.0001)"
+                except ValueError:
+                    pass
+            raise ConfigError(f"{where}.{k}: expected {type(default).__name__}, got {short_repr(v)}{hint}")
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ConfigError(f"{where}.{k}: must be a finite number (got {v})")
+        if k in INT_RANGES and isinstance(v, int) and not isinstance(v, bool):
+            lo, hi = INT_RANGES[k]
+            if not lo <= v <= hi:
+                raise ConfigError(f"{where}.{k}: must be in [{lo}, {hi}] (got {short_repr(v)})")
+        if isinstance(v, list) and len(v) > 64:
+            raise ConfigError(f"{where}.{k}: a list of at most 64 entries (got {len(v)})")
         setattr(out, k, v)
     out.validate(where)
     return out
@@ -283,16 +316,17 @@ def load_config(path: str | PathLike) -> tuple[ModelConfig, TrainConfig]:
     """Read a YAML file with top-level ``model:`` and ``train:`` mappings."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = read_yaml(path, "config")
+    except YamlError as e:
+        raise ConfigError(str(e)) from None
     except OSError as e:
-        raise ConfigError(f"{path}: cannot read config ({e.strerror})") from e
-    except yaml.YAMLError as e:
-        raise ConfigError(f"{path}: invalid YAML ({e})") from e
+        raise ConfigError(f"{path}: cannot read config ({e.strerror or e})") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping with 'model' and 'train' keys")
-    unknown = sorted(set(data) - {"model", "train"})
+    unknown = sorted(one_line(k, 40) for k in set(data) - {"model", "train"})
     if unknown:
-        raise ConfigError(f"{path}: unknown top-level key(s) {', '.join(unknown)} (known: model, train)")
+        raise ConfigError(f"{path}: unknown top-level key(s) {one_line(', '.join(unknown[:5]), 200)} "
+                          "(known: model, train)")
     return (model_config_from_dict(data.get("model"), f"{path}: model"),
             train_config_from_dict(data.get("train"), f"{path}: train"))
 
