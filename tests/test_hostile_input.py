@@ -265,3 +265,45 @@ def test_scene_paths_stay_inside_the_folder(scene, bad):
     (scene / "transforms.json").write_text(json.dumps(meta))
     with pytest.raises(SceneFormatError, match=r"frames\[2\]: key 'file_path' names .* outside the scene folder"):
         read_scene(scene)
+
+
+# ---------------------------------------------------------------------------- configs
+@pytest.mark.parametrize("key, value, message", [
+    ("refine_hidden", 40000, r"refine_hidden: must be in \[1, 4096\] \(got 40000\)"),
+    ("resolution", 1048576, r"resolution: must be in \[16, 1024\]"),
+    ("transformer_heads", 0, r"transformer_heads: must be in \[1, 64\] \(got 0\)"),
+    ("token_dim", -4, r"token_dim: must be in \[1, 2048\] \(got -4\)"),
+    ("d_max", float("inf"), r"d_max: must be a finite number \(got inf\)"),
+    ("prior_depth_mean", float("nan"), r"prior_depth_mean: must be a finite number \(got nan\)"),
+])
+def test_model_config_ranges_and_finite_values(key, value, message):
+    from particlesplat.model.config import ConfigError, model_config_from_dict
+
+    with pytest.raises(ConfigError, match=rf"^ckpt\.pt: config\.{message}"):
+        model_config_from_dict({key: value}, "ckpt.pt: config")
+
+
+def test_train_config_val_scenes_and_quoted_number():
+    from particlesplat.model.config import ConfigError, train_config_from_dict
+
+    with pytest.raises(ConfigError, match=r"train\.val_scenes: must be in \[1, 1000000\] \(got -1\)"):
+        train_config_from_dict({"val_scenes": -1}, "c.yaml: train")
+    with pytest.raises(ConfigError, match=r"train\.lr: expected float, got '1e-4' \(text, not a number: write it "
+                                          r"without quotes, e\.g\. 1\.0e-4"):
+        train_config_from_dict({"lr": "1e-4"}, "c.yaml: train")
+
+
+def test_config_file_alias_bomb_duplicate_key_and_unquoted_exponent(tmp_path):
+    from particlesplat.model.config import ConfigError, load_config
+
+    p = tmp_path / "c.yaml"
+    p.write_text("model: {}\n" + ALIAS_BOMB)
+    with pytest.raises(ConfigError, match=r"c\.yaml: not valid YAML \(line 3, column \d+: alias"):
+        load_config(p)
+    p.write_text("train:\n  lr: 0.1\n  lr: 0.2\n")
+    with pytest.raises(ConfigError, match=r"c\.yaml: not valid YAML \(line 3, column 3: key 'lr' is given twice"):
+        load_config(p)
+    p.write_text("train:\n  " + "k" * 100000 + ": 1\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(p)
+    assert len(str(info.value)) < 1500
