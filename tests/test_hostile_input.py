@@ -307,3 +307,74 @@ def test_config_file_alias_bomb_duplicate_key_and_unquoted_exponent(tmp_path):
     with pytest.raises(ConfigError) as info:
         load_config(p)
     assert len(str(info.value)) < 1500
+
+
+# ---------------------------------------------------------------------------- checkpoints
+@pytest.fixture(scope="module")
+def tiny_ckpt(tmp_path_factory):
+    from model_data import TINY_MODEL
+
+    from particlesplat.model import ParticleSplat, save_checkpoint
+    from particlesplat.model.config import model_config_from_dict
+
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("ckpt") / "m.pt"
+    save_checkpoint(path, ParticleSplat(model_config_from_dict(TINY_MODEL)), 3)
+    return path
+
+
+def _tampered(tiny_ckpt, tmp_path, change) -> Path:
+    ckpt = torch.load(tiny_ckpt, weights_only=True)
+    change(ckpt)
+    out = tmp_path / "bad.pt"
+    torch.save(ckpt, out)
+    return out
+
+
+def test_checkpoint_round_trip_loads(tiny_ckpt):
+    from particlesplat.model import load_model
+
+    assert load_model(tiny_ckpt).config.resolution == 32
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda c: c["state_dict"].__setitem__(next(iter(c["state_dict"])), torch.full((2,), float("nan"))),
+     r"bad\.pt: state_dict\.\S+: non-finite weights"),
+    (lambda c: c.__setitem__("state_dict", [1, 2]), r"bad\.pt: state_dict: expected a mapping of names to tensors, "
+                                                    r"got list"),
+    (lambda c: c["config"].__setitem__("resolution", 64), r"bad\.pt: config: changed after the weights were saved"),
+    (lambda c: c.__setitem__("config", "x" * 1000), r"bad\.pt: config: expected a mapping, got str"),
+])
+def test_checkpoint_tampering_is_refused(tiny_ckpt, tmp_path, change, message):
+    from particlesplat.model import load_model
+    from particlesplat.model.io import CheckpointError
+
+    with pytest.raises(CheckpointError, match=message):
+        load_model(_tampered(tiny_ckpt, tmp_path, change))
+
+
+def test_checkpoint_config_out_of_range_is_refused_before_building(tiny_ckpt, tmp_path):
+    from particlesplat.model import load_model
+    from particlesplat.model.config import ConfigError
+
+    def change(c):
+        c["config"]["refine_hidden"] = 40000
+        c.pop("config_sha256")
+
+    with pytest.raises(ConfigError, match=r"bad\.pt: config\.refine_hidden: must be in \[1, 4096\]"):
+        load_model(_tampered(tiny_ckpt, tmp_path, change))
+
+
+def test_pickled_checkpoint_message_never_suggests_unsafe_loading(tmp_path):
+    import argparse
+
+    from particlesplat.model import load_model
+    from particlesplat.model.io import CheckpointError
+
+    torch.save({"config": argparse.Namespace(a=1), "state_dict": {}, "step": 0}, tmp_path / "p.pt")
+    with pytest.raises(CheckpointError) as info:
+        load_model(tmp_path / "p.pt")
+    assert "p.pt: refused" in str(info.value) and "weights_only" not in str(info.value)
+    (tmp_path / "junk.pt").write_bytes(b"PK\x03\x04" + os.urandom(100))
+    with pytest.raises(CheckpointError, match=r"junk\.pt: not a readable checkpoint"):
+        load_model(tmp_path / "junk.pt")
