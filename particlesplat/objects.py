@@ -19,7 +19,7 @@ from torch import Tensor
 
 from .gaussians import Gaussians
 
-# Defaults measured on the tabletop family with r28, the model shipped in session 6 (README, "Objects"; 96
+# Defaults measured on the tabletop family (docs/model-development.md, "The overlap rule of the grouping"; 96
 # training and 32 validation scenes; pairs of particles each >= 60 % on one true object): opaque means opacity
 # (z_t included) >= 0.2. Of 2074 pairs of particles on one object, 95 % had Gaussians within 0.22 x (sum of their
 # largest stds) of each other, and in 94 % at least 30 % of one particle's opaque Gaussians touched the other
