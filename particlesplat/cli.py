@@ -17,6 +17,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("particlesplat.train", "train a ParticleSplat model"),
     "eval": ("particlesplat.evaluate", "evaluate a model on a folder of scenes"),
     "render": ("particlesplat.render_cli", "render a (possibly edited) scene headless to PNG"),
+    "encode": ("particlesplat.encode_cli", "write the particles of scene folders as .npz arrays"),
+    "curve": ("particlesplat.curve", "plot a training run's validation curve to PNG"),
     "bench": ("", "run a benchmark: " + ", ".join(sorted(e.name for e in entry_points(group="particlesplat.bench")))),
 }
 
@@ -65,17 +67,15 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def console_main() -> int:
-    """The console script: bad input (ValueError, OSError) ends with its message, not a traceback.
-
-    The messages name the file and the field; :func:`main` itself lets the exceptions through
-    for programmatic use and tests.
+    """The console script under the error policy (:func:`particlesplat.errors.run_command`): bad input
+    (ValueError, OSError) ends with one line naming the file and the field and exit code 2, Ctrl-C with one
+    line and 130; a bug keeps its traceback. :func:`main` itself lets the exceptions through for programmatic
+    use and tests.
     """
-    try:
-        return main()
-    except (ValueError, OSError) as e:
-        command = sys.argv[1] if len(sys.argv) > 1 else ""
-        print(f"particlesplat {command}: error: {e}", file=sys.stderr)
-        return 1
+    from .errors import one_line, run_command
+
+    command = one_line(sys.argv[1], 40) if len(sys.argv) > 1 else ""
+    return run_command(f"particlesplat {command}".strip(), main)
 
 
 if __name__ == "__main__":
