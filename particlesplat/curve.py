@@ -66,15 +66,15 @@ def plot_curve(rows: list[tuple[int, float, float]], title: str = "") -> Image.I
         d.text((4, y - 6), f"{p_lo + frac * (p_hi - p_lo):.1f}", fill=PSNR_COLOUR)
         d.text((x1 + 6, y - 6), f"{frac:.2f}", fill=ARI_COLOUR)
         d.text((px(frac * s_max) - 12, y0 + 6), f"{int(frac * s_max)}", fill=AXIS_COLOUR)
-    d.text(((x0 + x1) // 2 - 12, y0 + 22), "step", fill=AXIS_COLOUR)
+    d.text((x1 - 30, y0 + 22), "step", fill=AXIS_COLOUR)
     for values, lo, hi, colour in ((psnrs, p_lo, p_hi, PSNR_COLOUR), ([r[2] for r in rows], 0.0, 1.0, ARI_COLOUR)):
         pts = [(px(s), py(v, lo, hi)) for s, v in zip(steps, values, strict=True) if v == v]
         if len(pts) > 1:
             d.line(pts, fill=colour, width=2)
         for x, y in pts:
             d.ellipse([x - 2, y - 2, x + 2, y + 2], fill=colour)
-    d.text((x0 + 8, y1 + 4), "val PSNR (dB, left)", fill=PSNR_COLOUR)
-    d.text((x0 + 8, y1 + 18), "val FG-ARI (right)", fill=ARI_COLOUR)
+    d.text((x0, y0 + 22), "val PSNR (dB, left)", fill=PSNR_COLOUR)
+    d.text((x0 + 160, y0 + 22), "val FG-ARI (right)", fill=ARI_COLOUR)
     return img
 
 
