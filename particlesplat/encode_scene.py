@@ -49,7 +49,8 @@ def add_source_arguments(parser: argparse.ArgumentParser, ply_help: str) -> None
     src.add_argument("--ply", help=ply_help)
     parser.add_argument("--context", help="context frame indices of the scene, e.g. 4,16; none = two frames 12 "
                                           "apart about the middle")
-    parser.add_argument("--edits", help="edits YAML (particle index -> attribute values) to apply")
+    parser.add_argument("--edits", help="edits YAML to apply: version 2 object operations (pick by a pixel of an "
+                                        "input frame; translate, remove, duplicate) or version 1 particle values")
 
 
 def check_source_arguments(args: argparse.Namespace) -> None:

@@ -91,7 +91,7 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     objects = particle_objects(gaussians, particles.num)
     bg = model.background_color()
     out = render_views(gaussians, tgt_cams, particles.num, bg, objects)
-    active = particles.z_t[:, 0] > model.config.bg_mask_threshold
+    active = particles.z_t[:, 0] >= model.config.bg_mask_threshold  # the particles that draw (decode)
     sup = item.get("target_supervision")
     gt = item["target_rgb"]
     res = {"psnr": view_psnr(out["rgb"], gt, sup), "ssim": ssim(out["rgb"], gt),

@@ -50,13 +50,18 @@ def _scene_and_gaussians(args: argparse.Namespace):
     check_source_arguments(args)
     if args.ply:
         return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None)
-    from .edits import apply_edits, load_edits
+    from .edit_ops import SceneEditor, load_edit_file, scene_mismatch
 
     model, enc, name = load_model_scene(args.checkpoint, args.scene, args.context)
     particles, edits = enc.particles, {}
-    if args.edits:
-        edits = load_edits(args.edits)
-        particles = apply_edits(particles, edits, str(args.edits))
+    if args.edits:  # version 1 (particle values) or 2 (object operations, replayed as the viewer did them)
+        file = load_edit_file(args.edits)
+        warning = scene_mismatch(file, enc.path, enc.context)
+        if warning:
+            print(f"particlesplat render: warning: {args.edits}: {warning}", file=sys.stderr)
+        editor = SceneEditor(model, particles, enc.all_cameras, enc.context)
+        editor.apply_file(file, str(args.edits))
+        particles, edits = editor.particles, editor.edits()
     return (model.decode(particles).detach().to("cpu"), enc.all_cameras, edits, name, str(enc.path),
             scene_background(model))
 
