@@ -1,4 +1,4 @@
-"""Read scene folders in the ``transforms.json`` format (described in the README, section Data) into tensors.
+"""Read scene folders in the ``transforms.json`` format (described in docs/dataset.md) into tensors.
 
 Reading is two steps: :func:`read_scene` decodes and validates the files into a compact
 :class:`RawScene` (uint8 colour, float32 metres, native size), and :meth:`RawScene.select`

@@ -1,6 +1,6 @@
 """The tabletop scene family: draw a scene and ray-cast it analytically (numpy, float64).
 
-The family of the project's dataset spec (summarised in the README, section Data).
+The family of the project's dataset spec (docs/dataset.md).
 World: metres, +z up, floor z = 0.
 Rays use unnormalised directions whose camera-z component is 1, so a hit's ray parameter
 ``t`` *is* its planar camera depth.
