@@ -168,7 +168,7 @@ def generate(out: Path, counts: dict[str, int], seed: int, res: int = 128, worke
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = ("Generate the tabletop dataset (README, section Data): OUT/{train,val,test}/scene_NNNNN "
+    parser.description = ("Generate the tabletop dataset (docs/dataset.md): OUT/{train,val,test}/scene_NNNNN "
                           "folders with RGB, planar 16-bit depth and instance masks for 21 views. "
                           "Deterministic for a seed; re-running resumes and skips finished scenes.")
     parser.add_argument("out", type=Path, help="output folder (created)")
