@@ -19,6 +19,7 @@ from .camera import Camera
 from .fit import DEFAULT_FIT, FITTED, fit_particles
 from .metrics import depth_abs_rel, fg_ari, matched_miou, psnr, region_errors, ssim, summarise_region_errors
 from .objects import particle_objects
+from .particle_data import OBJECT_CENTRES, localisation_summary, object_localisation, scene_object_centres
 from .render import render
 
 PRUNE_Z_T = (0.0, 0.3, 0.5, 0.7)
@@ -63,7 +64,8 @@ def view_psnr(pred: Tensor, gt: Tensor, sup: Tensor | None) -> float:
 
 @torch.no_grad()
 def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune: bool = False,
-                  fit_steps: int = 0, fit_lr: float = 0.02, fit_latents: tuple[str, ...] = DEFAULT_FIT) -> dict:
+                  fit_steps: int = 0, fit_lr: float = 0.02, fit_latents: tuple[str, ...] = DEFAULT_FIT,
+                  true_centres: np.ndarray | None = None) -> dict:
     """Metrics of one dataset item (see :class:`particlesplat.data.SceneDataset`): encode its context
     views (then, with ``fit_steps`` > 0, fit the particles to them: :func:`particlesplat.fit.fit_particles`),
     decode all particles and the background, render its target views.
@@ -73,7 +75,9 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     the target views' squared error per region (:func:`particlesplat.metrics.region_errors`) under
     "region_errors" when the item has masks, and "pruning" rows when ``prune``. fg_ari and miou score the
     segmentation into objects (particles grouped by :func:`particlesplat.objects.particle_objects`); the
-    ``_particles`` keys score the plain per-particle argmax.
+    ``_particles`` keys score the plain per-particle argmax. With ``true_centres`` (N, 3) world metres,
+    "localisation" holds, per object centre method, the distance from each true centre to the nearest object
+    centre (:func:`particlesplat.particle_data.object_localisation`).
     """
     size = model.config.resolution
     ctx_cams = _cameras(item["context_K"], item["context_c2w"], size)
@@ -111,6 +115,8 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
         res["region_errors"] = region_errors(out["rgb"], gt, item["target_masks"], sup)
     res["renders"] = out
     res["particles"] = particles
+    if true_centres is not None:
+        res["localisation"] = object_localisation(model, particles, gaussians, true_centres, objects)
     if prune:
         rows = []
         for zt in PRUNE_Z_T:
@@ -175,13 +181,18 @@ def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int |
                       deterministic=True, seed=seed, progress=1.0)
     n = len(ds) if limit is None else min(limit, len(ds))
     scenes, prune_rows, regions = [], [], []
+    located: dict[str, list[float]] = {m: [] for m in OBJECT_CENTRES}
     for i in tqdm(range(n), desc="eval", disable=not progress_bar):
         item = ds[i]
         res = evaluate_item(model, item, use_depth=use_depth, prune=prune, fit_steps=fit_steps, fit_lr=fit_lr,
-                            fit_latents=fit_latents)
+                            fit_latents=fit_latents, true_centres=scene_object_centres(ds.scenes[i]))
         if figures is not None and i < num_figures:
             save_figure(Path(figures) / f"{ds.scenes[i].name}.png", item, res)
         row = {"scene": ds.scenes[i].name, **{k: res[k] for k in SCALARS}}
+        if "localisation" in res:
+            row["localisation_m"] = res["localisation"]
+            for m, d in res["localisation"].items():
+                located[m] += d
         scenes.append(row)
         if "region_errors" in res:
             regions.append(res["region_errors"])
@@ -189,6 +200,8 @@ def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int |
             prune_rows.append(res["pruning"])
     mean = {k: _nanmean([s[k] for s in scenes]) for k in SCALARS}
     out = {"data": str(data_dir), "context": context, "depth": use_depth, "scenes": scenes, "mean": mean}
+    if located[OBJECT_CENTRES[0]]:  # scenes whose generator recorded the object centres
+        out["localisation"] = {m: localisation_summary(d) for m, d in located.items()}
     if regions:  # where the squared error of the target views lies, pooled over the scenes
         out["error_regions"] = summarise_region_errors(regions)
     if prune:
@@ -241,6 +254,11 @@ def run(args: argparse.Namespace) -> int:
         print("target-view error by region: " + "; ".join(
             f"{k.replace('_', ' ')} {v['pixel_share']:.1%} of pixels, {v['error_share']:.0%} of the error, "
             f"{v['psnr']:.1f} dB" for k, v in out["error_regions"].items()))
+    if "localisation" in out:
+        print("object localisation (true centre to nearest object centre): " + "; ".join(
+            f"{m} {s['within_0.05']:.0%} / {s['within_0.1']:.0%} / {s['within_0.15']:.0%} within 0.05 / 0.10 / "
+            f"0.15 m (median {s['median_m']:.3f} m)" for m, s in out["localisation"].items())
+            + f", {out['localisation'][OBJECT_CENTRES[0]]['objects']} objects")
     if "pruning" in out:
         print("z_t thr  opacity thr  PSNR   Gaussians  render ms")
         for r in out["pruning"]:
