@@ -15,6 +15,8 @@ from .encode_scene import add_source_arguments, check_source_arguments, load_mod
 from .views import View, check_fov, default_view, parse_look, scene_background
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
+MAX_SIDE = 8192  # pixels, as the viewer's --size
+MAX_PIXELS = 4096 * 4096  # the torch renderer holds ~20 floats a pixel: ~1.3 GB at this size
 
 
 def _background(text: str) -> tuple[float, float, float]:
@@ -73,8 +75,8 @@ def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -
     input view is never stretched unless both are given).
     """
     for name in ("width", "height"):
-        if getattr(args, name) is not None and getattr(args, name) < 1:
-            raise ValueError(f"--{name} must be positive, got {getattr(args, name)}")
+        if getattr(args, name) is not None and not 1 <= getattr(args, name) <= MAX_SIDE:
+            raise ValueError(f"--{name} must be in [1, {MAX_SIDE}], got {getattr(args, name)}")
     if args.view is not None:
         if not cameras:
             raise ValueError("--view needs a scene with input cameras")
@@ -100,12 +102,22 @@ def run(args: argparse.Namespace) -> int:
     from . import render
     from .png import png_text, save_png
 
+    from .atomic import check_writable
+    from .errors import EXIT_USER, one_line
+
     try:
+        try:
+            check_writable(args.out)  # before the work, not after it
+        except OSError as e:
+            raise OSError(f"--out {one_line(e)}") from None
         g, cameras, edits, model_name, source, background = _scene_and_gaussians(args)
         camera, view = resolve_camera(args, cameras, g)
+        if camera.width > MAX_SIDE or camera.height > MAX_SIDE or camera.width * camera.height > MAX_PIXELS:
+            raise ValueError(f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
+                             f"({MAX_SIDE} a side, {MAX_PIXELS} pixels)")
     except (OSError, ValueError, KeyError) as e:
-        print(f"particlesplat render: {e}", file=sys.stderr)
-        return 1
+        print(f"particlesplat render: {one_line(e)}", file=sys.stderr)
+        return EXIT_USER
     if args.prune > 0:
         g = g.subset(g.opacities >= args.prune)
     with torch.no_grad():
@@ -117,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         path = save_png(args.out, res.rgb.numpy(), png_text(camera, edits, model_name, extra))
     except OSError as e:
-        print(f"particlesplat render: --out {args.out}: cannot write ({e.strerror or e})", file=sys.stderr)
-        return 1
+        print(f"particlesplat render: --out {args.out}: cannot write ({one_line(e.strerror or e)})", file=sys.stderr)
+        return EXIT_USER
     print(f"saved {path} ({camera.width}x{camera.height}, {g.num} Gaussians)")
     return 0
