@@ -175,8 +175,13 @@ def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int |
                      use_depth: bool = True, seed: int = 0, progress_bar: bool = True, fit_steps: int = 0,
                      fit_lr: float = 0.02, fit_latents: tuple[str, ...] = DEFAULT_FIT) -> dict:
     """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}."""
+    from .atomic import check_writable
     from .data import SceneDataset
 
+    if limit is not None and limit < 1:
+        raise ValueError(f"--limit must be >= 1 (or absent for every scene), got {limit}")
+    if figures is not None and num_figures > 0:
+        check_writable(Path(figures) / "figure.png")  # before the work, not after it
     ds = SceneDataset(data_dir, resolution=model.config.resolution, mode="multi" if context == 2 else "single",
                       deterministic=True, seed=seed, progress=1.0)
     n = len(ds) if limit is None else min(limit, len(ds))
@@ -184,6 +189,9 @@ def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int |
     located: dict[str, list[float]] = {m: [] for m in OBJECT_CENTRES}
     for i in tqdm(range(n), desc="eval", disable=not progress_bar):
         item = ds[i]
+        if set(item["target_index"].tolist()) <= set(item["context_index"].tolist()):
+            raise ValueError(f"{ds.scenes[i]}: {ds.raw(i).num_frames} frame(s): no target view apart from the "
+                             f"{context} context view(s); evaluation needs at least {context + 1} frames")
         res = evaluate_item(model, item, use_depth=use_depth, prune=prune, fit_steps=fit_steps, fit_lr=fit_lr,
                             fit_latents=fit_latents, true_centres=scene_object_centres(ds.scenes[i]))
         if figures is not None and i < num_figures:
@@ -236,8 +244,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .atomic import check_writable
     from .model import load_model
 
+    if args.json:
+        check_writable(args.json)  # before the work, not after it
+    if args.figures and args.num_figures > 0:
+        check_writable(Path(args.figures) / "figure.png")
     model = load_model(args.checkpoint, device=args.device)
     out = evaluate_dataset(model, args.data, context=args.context, limit=args.limit,
                            figures=Path(args.figures) if args.figures else None, num_figures=args.num_figures,
@@ -266,5 +279,16 @@ def run(args: argparse.Namespace) -> int:
                   f"  {r['render_ms']:9.1f}")
     if args.json:
         with atomic_write(args.json, "w") as f:
-            json.dump(out, f, indent=2)
+            json.dump(json_safe(out), f, indent=2, allow_nan=False)
     return 0
+
+
+def json_safe(value):
+    """``value`` with every NaN or infinite float replaced by None (JSON ``null``: bare NaN is not JSON)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
