@@ -93,13 +93,13 @@ def test_render_cli_view_and_errors(tmp_path):
     ref = render(Gaussians.load_ply(tmp_path / "g.ply"), View(base.target, parse_look("10,20,3"), 45.0).camera(40, 30),
                  background=DEFAULT_BACKGROUND).rgb.numpy()
     assert psnr(load_png(out), ref) >= 40.0
-    assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--look", "1,2", "--out", str(out)]) == 1
-    assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--view", "0", "--out", str(out)]) == 1
-    assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--context", "1,2", "--out", str(out)]) == 1
+    assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--look", "1,2", "--out", str(out)]) == 2
+    assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--view", "0", "--out", str(out)]) == 2
+    assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--context", "1,2", "--out", str(out)]) == 2
     # an --out that cannot be written (a folder) is a clear error, and no temporary file is left
     before = set(tmp_path.iterdir())
     assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--width", "8", "--height", "8",
-                     "--out", str(tmp_path)]) == 1
+                     "--out", str(tmp_path)]) == 2
     assert set(tmp_path.iterdir()) == before
 
 
