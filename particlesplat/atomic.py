@@ -7,6 +7,7 @@ refused with :class:`UnsafeTargetError` before anything is written: replacing it
 
 from __future__ import annotations
 
+import errno
 import os
 import stat
 import uuid
@@ -47,15 +48,25 @@ def check_target(path: str | PathLike) -> Path:
 
 def check_writable(path: str | PathLike) -> Path:
     """Check before any work that ``path`` can be written atomically: a safe target (:func:`check_target`) in a
-    folder that exists or can be made, where a temporary file can be created. OSError names ``path``."""
+    folder where a temporary file can be created, or, when the folder does not exist yet, whose nearest existing
+    ancestor is a writable folder (nothing is created). OSError names ``path``."""
     path = check_target(path)
+    folder = path.parent
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = create_temp_file(path)
+        if folder.is_dir():
+            fd, tmp = create_temp_file(path)
+            os.close(fd)
+            os.unlink(tmp)
+            return path
+        ancestor = folder
+        while not ancestor.exists() and ancestor != ancestor.parent:
+            ancestor = ancestor.parent
+        if not ancestor.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, f"{ancestor} is not a folder")
+        if not os.access(ancestor, os.W_OK | os.X_OK):
+            raise PermissionError(errno.EACCES, f"{ancestor} is not writable")
     except OSError as e:
         raise OSError(f"{path}: cannot write ({e.strerror or e})") from None
-    os.close(fd)
-    os.unlink(tmp)
     return path
 
 
