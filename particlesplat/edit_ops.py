@@ -294,7 +294,7 @@ class SceneEditor:
         self.history = History()
         self.original: Particles | None = particles.detach().to("cpu") if particles is not None else None
         self.particles: Particles | None = self.original.clone() if self.original is not None else None
-        self._labels: Tensor | None = None
+        self._objects: Tensor | None = None
         self._source: list[int] = list(range(self.original.num)) if self.original is not None else []
         self._changed: set[int] = set()
         self._all_changed = True
@@ -340,9 +340,9 @@ class SceneEditor:
         """(num_particles,) int64 object label per particle: grouped once on the scene as encoded
         (:func:`particlesplat.objects.particle_objects`), so an edit does not regroup it; a copy's label is
         its first particle's index."""
-        if self._labels is None:
-            self._labels = particle_objects(self.decode(self.original), self.original.num)
-        labels = self._labels
+        if self._objects is None:
+            self._objects = particle_objects(self.decode(self.original), self.original.num)
+        labels = self._objects
         for op in self.history.undo:
             if op.added_labels is not None:
                 labels = torch.cat([labels, op.added_labels])
@@ -606,12 +606,21 @@ class SceneEditor:
             raise EditsError(f"{where}: {e}") from None
 
     def apply_file(self, file: EditFile, where: str = "edits") -> None:
-        """Do every operation of an edit file (version 1: its particle edits as one operation)."""
+        """Do every operation of an edit file (version 1: its particle edits as one operation). All or
+        nothing: when an operation fails, the ones before it are taken back and the error names it."""
         if file.version == 1:
             self.set_edits(file.particles, label=where)
             return
-        for i, op in enumerate(file.operations):
-            self.apply_op(op, f"{where}: operations[{i}] ({op.kind})")
+        self.end_gesture()
+        done, redo = len(self.history.undo), list(self.history.redo)
+        try:
+            for i, op in enumerate(file.operations):
+                self.apply_op(op, f"{where}: operations[{i}] ({op.kind})")
+        except Exception:
+            while len(self.history.undo) > done:
+                self.undo()
+            self.history.redo = redo
+            raise
 
     def operations(self) -> list[EditOp]:
         """What was done, as edit-file operations: an object operation saves a pick of its object on the
