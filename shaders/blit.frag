@@ -1,6 +1,6 @@
 #version 330
-// Presents the offscreen render (accumulated colour, transmittance T in alpha, negated once a
-// pixel stopped) over the background colour,
+// Presents the offscreen render over the background colour: accumulated colour, and in alpha the
+// transmittance T (negated once a pixel stopped) or, with COVERAGE_ALPHA (blended path), 1 - T;
 // optionally tinting the pixels of a mask (weights of the selected particle, channel r).
 in vec2 v_uv;
 uniform sampler2D image;
@@ -12,7 +12,11 @@ out vec4 frag;
 
 void main() {
     vec4 c = texture(image, v_uv);
+#ifdef COVERAGE_ALPHA
+    vec3 rgb = c.rgb + (1.0 - c.a) * background;
+#else
     vec3 rgb = c.rgb + abs(c.a) * background;
+#endif
     if (use_mask == 1) {
         float m = clamp(texture(mask, v_uv).r, 0.0, 1.0);
         rgb = mix(rgb, mask_color, 0.55 * m);

@@ -7,12 +7,13 @@
 //   texels 1-3: rotation matrix rows r0, r1, r2 (xyz) and the scales (w), metres
 //   texels 4 .. 4 + SH_BASES - 1: SH coefficient k (rgb) in texel 4 + k; texel 4 alpha = owner
 // Output (one texel per splat, `row` per row), zero radius = culled:
-//   center: u, v (pixels, image rows downward), major and minor radius of the alpha >= 1/255
+//   center: u, v (pixels, image rows downward), major and minor radius of the alpha >= ALPHA_MIN
 //           ellipse (pixels)
 //   conic:  inverse 2D covariance a, b, c (q = a dx^2 + 2 b dx dy + c dy^2), opacity
 //   color:  SH colour rgb, owner
 // Rules follow particlesplat.render: EWA with the Jacobian's x/z, y/z clamped to the frustum
-// widened by 30%, +0.3 px^2 dilation, footprint alpha >= 1/255, near/far culling, and the
+// widened by FOV_MARGIN, + dilation px^2, footprint alpha >= ALPHA_MIN (#defined from the
+// library's constants), near/far culling, and the
 // determinant of the 2D covariance computed without cancellation (as particlesplat.projection).
 
 uniform sampler2D gaussians;
@@ -64,7 +65,7 @@ void main() {
     float opacity = t0.w;
     vec3 pc = (w2c * vec4(mean, 1.0)).xyz;
     float z = pc.z;
-    if (z <= near_far.x || z >= near_far.y || opacity < 1.0 / 255.0) { cull(); return; }
+    if (z <= near_far.x || z >= near_far.y || opacity < ALPHA_MIN) { cull(); return; }
 
     // EWA: A = J W R S (2x3), Sigma2D = A A^T + dilation I; J at the clamped ray direction
     float xz = clamp(pc.x / z, lim.x, lim.y);
@@ -88,8 +89,8 @@ void main() {
     float c = syy + dilation;
     float b = sxy;
     float det = dot(cc, cc) + dilation * (sxx + syy) + dilation * dilation;
-    // alpha >= 1/255  <=>  q <= 2 ln(255 opacity)
-    float qmax = 2.0 * log(255.0 * opacity);
+    // alpha >= ALPHA_MIN  <=>  q <= 2 ln(opacity / ALPHA_MIN)
+    float qmax = 2.0 * log(opacity / ALPHA_MIN);
     float mid = 0.5 * (a + c);
     float disc = sqrt(max(mid * mid - det, 0.0));
     float l1 = mid + disc;

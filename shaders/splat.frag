@@ -1,12 +1,26 @@
 #version 330
-#extension GL_EXT_shader_framebuffer_fetch : require
-// Gaussian footprint, composited front to back exactly as particlesplat.render: the fragment
-// reads its pixel (framebuffer fetch) where attachment 0 alpha holds the transmittance T in
-// front of this splat (cleared to 1); it adds T alpha (colour, or owner weights) and multiplies
-// T by (1 - alpha). A pixel stops before the splat that would take T to <= 1e-4: T is then
-// stored negated and later splats are discarded.
+// Gaussian footprint alpha = min(ALPHA_MAX, opacity exp(-q / 2)), discarded below ALPHA_MIN,
+// composited front to back as particlesplat.render (the constants are #defined from its Python
+// constants). Two ways, chosen at run time (viewer/gl_caps.py):
+//
+// COMPOSITE_FETCH (GL_EXT_shader_framebuffer_fetch): the fragment reads its pixel, where
+// attachment 0 alpha holds the transmittance T in front of this splat (cleared to 1); it adds
+// T alpha (colour, or owner weights) and multiplies T by (1 - alpha). A pixel stops before the
+// splat that would take T to <= T_MIN: T is then stored negated and later splats are discarded.
+//
+// Otherwise (core GL 3.3): the fragment writes premultiplied (alpha value, alpha) and fixed-function
+// blending with factors (ONE_MINUS_DST_ALPHA, ONE) for colour and alpha adds T alpha value, where
+// every attachment's alpha holds the coverage 1 - T (cleared to 0). There is no early stop: a
+// pixel differs from the torch renderer's by at most T_MIN.
+//
 // Colour pass: rgb += T alpha colour. ID_PASS (ATTACH attachments): owner weights,
 // attachment i channel c += T alpha [owner == owner_base + 3 i + c].
+#ifdef COMPOSITE_FETCH
+#extension GL_EXT_shader_framebuffer_fetch : require
+#define OUT_QUALIFIER inout
+#else
+#define OUT_QUALIFIER out
+#endif
 flat in vec2 v_center;
 flat in vec3 v_conic;
 flat in float v_opacity;
@@ -21,21 +35,22 @@ uniform int owner_base;
 #endif
 #if ATTACH == 1
 // (a size-1 inout array miscompiled on Mesa 22.3 llvmpipe: use a plain output)
-layout(location = 0) inout vec4 o_single;
+layout(location = 0) OUT_QUALIFIER vec4 o_single;
 #define OUT(i) o_single
 #else
-layout(location = 0) inout vec4 o[ATTACH];
+layout(location = 0) OUT_QUALIFIER vec4 o[ATTACH];
 #define OUT(i) o[i]
 #endif
 
 void main() {
     vec2 d = vec2(gl_FragCoord.x, size.y - gl_FragCoord.y) - v_center;
     float q = v_conic.x * d.x * d.x + 2.0 * v_conic.y * d.x * d.y + v_conic.z * d.y * d.y;
-    float a = min(0.99, v_opacity * exp(-0.5 * q));
+    float a = min(ALPHA_MAX, v_opacity * exp(-0.5 * q));
+#ifdef COMPOSITE_FETCH
     float T = OUT(0).a;
-    if (a < 1.0 / 255.0 || T <= 0.0) discard;
+    if (a < ALPHA_MIN || T <= 0.0) discard;
     float t_next = T * (1.0 - a);
-    if (t_next <= 1e-4) {
+    if (t_next <= T_MIN) {
         OUT(0).a = -T;
         return;
     }
@@ -50,4 +65,16 @@ void main() {
     OUT(0).rgb += w * v_color;
 #endif
     OUT(0).a = t_next;
+#else
+    if (a < ALPHA_MIN) discard;
+#ifdef ID_PASS
+    float rel = v_owner - float(owner_base);
+    for (int i = 0; i < ATTACH; ++i) {
+        vec3 slot = vec3(float(3 * i), float(3 * i + 1), float(3 * i + 2));
+        OUT(i) = vec4(a * vec3(equal(slot, vec3(rel))), a);
+    }
+#else
+    OUT(0) = vec4(a * v_color, a);
+#endif
+#endif
 }

@@ -1,9 +1,9 @@
 #version 330
 // One splat per projected Gaussian, in front-to-back order: splat k reads texel k of the
 // projection pass (see project.frag), so there is no index indirection.
-// QUADS: an oriented rectangle around the alpha >= 1/255 ellipse, two triangles drawn through a
+// QUADS: an oriented rectangle around the alpha >= ALPHA_MIN ellipse, two triangles drawn through a
 // static element buffer (vertices 4 k .. 4 k + 3). Otherwise a GL_POINTS sprite (vertex k) of
-// the ellipse's bounding square (used only when every splat fits the 255 px point size limit);
+// the ellipse's bounding square (used only when every splat fits the driver's point size limit);
 // points are drawn with the viewport widened by `guard` pixels on each side so that a sprite
 // whose centre is off screen (points are clipped by their centre) still covers the image.
 uniform sampler2D center_tex;

@@ -1,4 +1,5 @@
-"""The GL splat renderer against the torch reference renderer (headless EGL)."""
+"""The GL splat renderer against the torch reference renderer (headless EGL), on each compositing path
+given by ``--compositing`` (default: fetch and blend forced; see conftest.py)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,9 @@ from particlesplat.gaussians import Gaussians
 from viewer.gl_renderer import SplatRenderer, depth_order
 from viewer.random_gaussians import random_gaussians
 
+from particlesplat.projection import ALPHA_MAX
+from particlesplat.rasterize import T_MIN
+from reference_render import reference_render
 from viewer_helpers import egl_context, psnr, small_model
 
 pytestmark = pytest.mark.gl
@@ -24,15 +28,29 @@ def ctx():
     c.release()
 
 
-def gl_render(ctx, g: Gaussians, cam: Camera, primitive: str = "auto", **filt
+def gl_render(ctx, g: Gaussians, cam: Camera, compositing: str, primitive: str = "auto", **filt
               ) -> tuple[np.ndarray, np.ndarray, SplatRenderer]:
-    r = SplatRenderer(ctx, color_dtype="f4", primitive=primitive)
+    r = SplatRenderer(ctx, color_dtype="f4", primitive=primitive, compositing=compositing)
     r.set_gaussians(g)
     if filt:
         r.set_filter(**filt)
     r.render(cam)
     rgba = r.read_rgba()
     return rgba[..., :3], rgba[..., 3], r
+
+
+NO_STOP_GAP = T_MIN / (1.0 - ALPHA_MAX)  # the most the missing early stop can change a weight sum
+
+
+def no_stop_truth(g: Gaussians, cam: Camera, **kw):
+    """Float64 brute force with the blend path's rules: the torch renderer's, without the early stop."""
+    return reference_render(g, cam, t_stop=-1.0, **kw)
+
+
+def alpha_tolerance(r: SplatRenderer) -> float:
+    """Largest |alpha - torch's alpha| allowed: 1e-3, plus NO_STOP_GAP on the blend path
+    (test_blend_path_follows_the_rules_without_the_early_stop checks that path tightly)."""
+    return 1e-3 + (NO_STOP_GAP if r.compositing == "blend" else 0.0)
 
 
 CASES = [  # seed, n, sh degree, pixel scale, camera (azimuth, elevation, distance, fov, w, h)
@@ -45,15 +63,15 @@ CASES = [  # seed, n, sh degree, pixel scale, camera (azimuth, elevation, distan
 
 @pytest.mark.parametrize("primitive", ["quads", "points"])
 @pytest.mark.parametrize("seed,n,deg,ps,view", CASES)
-def test_random_sets_match_torch(ctx, seed, n, deg, ps, view, primitive):
+def test_random_sets_match_torch(ctx, compositing, seed, n, deg, ps, view, primitive):
     g = random_gaussians(n, seed=seed, sh_degree=deg, pixel_scale=ps)
     az, el, dist, fov, w, h = view
     cam = Camera.orbit((0.1, -0.2, 0.0), az, el, dist, fov_y_deg=fov, width=w, height=h)
     ref = render(g, cam, background=(0.2, 0.3, 0.4))
-    rgb, alpha, r = gl_render(ctx, g, cam, primitive)
+    rgb, alpha, r = gl_render(ctx, g, cam, compositing, primitive)
     out = rgb + (1.0 - alpha[..., None]) * np.array([0.2, 0.3, 0.4], np.float32)
     assert psnr(out, ref.rgb.numpy()) >= 40.0
-    assert np.abs(alpha - ref.alpha.numpy()).max() < 1e-3
+    assert np.abs(alpha - ref.alpha.numpy()).max() < alpha_tolerance(r)
     # the dominant owner per pixel (id pass) against the torch per-owner argmax
     ref_w = render(g, cam, owner_weights=True, num_owners=8)
     seg = r.segmentation(cam, 8)
@@ -63,16 +81,21 @@ def test_random_sets_match_torch(ctx, seed, n, deg, ps, view, primitive):
     r.release()
 
 
-def test_owner_weights_match_torch(ctx):
+def test_owner_weights_match_torch(ctx, compositing):
     g = random_gaussians(1200, seed=5, num_owners=30, pixel_scale=0.04)  # > 24 owners: two id passes
     cam = Camera.orbit((0, 0, 0), 20, 30, 3.0, width=72, height=60)
     ref = render(g, cam, owner_weights=True, num_owners=30)
-    r = SplatRenderer(ctx, color_dtype="f4")
+    r = SplatRenderer(ctx, color_dtype="f4", compositing=compositing)
     r.set_gaussians(g)
     weights, alpha = r.owner_weights(cam, 30)
+    if r.compositing == "blend":  # no early stop: the brute force without it, and close to torch
+        for a, b in ((weights[1:], ref.owner_weights), (weights[0], ref.background_weight), (alpha, ref.alpha)):
+            assert np.abs(a - b.numpy()).max() < NO_STOP_GAP + 2e-4
+        ref = no_stop_truth(g, cam, num_owners=30)
     np.testing.assert_allclose(weights[1:], ref.owner_weights.numpy(), atol=2e-4)
     np.testing.assert_allclose(weights[0], ref.background_weight.numpy(), atol=2e-4)
     np.testing.assert_allclose(alpha, ref.alpha.numpy(), atol=2e-4)
+    assert float(alpha.max()) > 0.9  # covered pixels, where the stop rule matters
     # the single-owner mask pass (mask overlay of the selected particle)
     for owner in (-1, 0, 17, 29):
         r.render_mask(cam, owner)
@@ -84,8 +107,26 @@ def test_owner_weights_match_torch(ctx):
     r.release()
 
 
+@pytest.mark.parametrize("primitive", ["quads", "points"])
+def test_each_path_follows_its_stop_rule(ctx, compositing, primitive):
+    """Opaque, overlapping splats, where the early stop (T <= T_MIN) changes pixels: fetch renders
+    torch's rule, blend the same sums without the stop (float64 brute force), both tightly."""
+    from dataclasses import replace
+
+    g = random_gaussians(500, seed=11, sh_degree=1, pixel_scale=0.06)
+    g = replace(g, opacities=0.9 + 0.1 * g.opacities)
+    cam = Camera.orbit((0.0, 0.0, 0.0), 25.0, 20.0, 3.0, fov_y_deg=40.0, width=48, height=40)
+    stop, free = render(g, cam), no_stop_truth(g, cam)
+    assert np.abs(stop.alpha.numpy() - free.alpha.numpy()).max() > 1e-3  # the rule matters here
+    rgb, alpha, r = gl_render(ctx, g, cam, compositing, primitive)
+    truth = stop if r.compositing == "fetch" else free
+    assert np.abs(alpha - truth.alpha.numpy()).max() < 2e-4
+    assert psnr(rgb, truth.rgb.numpy()) >= 60.0
+    r.release()
+
+
 @pytest.mark.parametrize("which", ["shipped", "untrained"])
-def test_model_decode_matches_torch(ctx, which):
+def test_model_decode_matches_torch(ctx, compositing, which):
     from particlesplat.encode_scene import demo_scenes, encode_scene
     from particlesplat.model import load_model
 
@@ -95,7 +136,7 @@ def test_model_decode_matches_torch(ctx, which):
     g = model.decode(enc.particles)
     cam = enc.all_cameras[10].resized(96, 96)
     ref = render(g, cam, owner_weights=True, num_owners=enc.particles.num)
-    rgb, alpha, r = gl_render(ctx, g, cam)
+    rgb, alpha, r = gl_render(ctx, g, cam, compositing)
     assert psnr(rgb, ref.rgb.numpy()) >= 40.0
     seg = r.segmentation(cam, enc.particles.num)
     m = ref.alpha.numpy() > 0.5
@@ -103,10 +144,10 @@ def test_model_decode_matches_torch(ctx, which):
     r.release()
 
 
-def test_replace_owner_and_filter(ctx):
+def test_replace_owner_and_filter(ctx, compositing):
     g = random_gaussians(2000, seed=7, num_owners=5, pixel_scale=0.04)
     cam = Camera.orbit((0, 0, 0), 40, 20, 3.2, width=80, height=64)
-    r = SplatRenderer(ctx, color_dtype="f4")
+    r = SplatRenderer(ctx, color_dtype="f4", compositing=compositing)
     r.set_gaussians(g)
     r.render(cam)
     # move owner 2's Gaussians (same count: in-place row upload) and recolour them
@@ -134,10 +175,10 @@ def test_replace_owner_and_filter(ctx):
     r.release()
 
 
-def test_sort_and_projection_only_when_needed(ctx):
+def test_sort_and_projection_only_when_needed(ctx, compositing):
     g = random_gaussians(500, seed=3)
     cam = Camera.orbit((0, 0, 0), 0, 20, 3.0, width=48, height=48)
-    r = SplatRenderer(ctx, color_dtype="f4")
+    r = SplatRenderer(ctx, color_dtype="f4", compositing=compositing)
     r.set_gaussians(g)
     assert r.render(cam).sorted
     assert not r.render(cam).sorted  # same view, same data: no sort
@@ -147,12 +188,12 @@ def test_sort_and_projection_only_when_needed(ctx):
     r.release()
 
 
-def test_auto_primitive_picks_points_only_when_exact(ctx):
+def test_auto_primitive_picks_points_only_when_exact(ctx, compositing):
     """Point sprites (drawn with a guard band, so off-screen centres still count) for many small
     splats, quads when a splat exceeds 255 px; both match torch."""
     g = random_gaussians(1500, seed=9, pixel_scale=0.01)
     cam = Camera.orbit((0, 0, 0), 0, 20, 2.0, fov_y_deg=60, width=160, height=120)  # many centres off screen
-    r = SplatRenderer(ctx, color_dtype="f4")
+    r = SplatRenderer(ctx, color_dtype="f4", compositing=compositing)
     r.set_gaussians(g)
     assert r.render(cam).primitive == "points"
     assert psnr(r.read_rgba()[..., :3], render(g, cam).rgb.numpy()) >= 40.0
@@ -163,9 +204,9 @@ def test_auto_primitive_picks_points_only_when_exact(ctx):
     r.release()
 
 
-def test_empty_and_all_behind_the_camera(ctx):
+def test_empty_and_all_behind_the_camera(ctx, compositing):
     cam = Camera.orbit((0, 0, 0), 0, 20, 3.0, width=32, height=24)
-    r = SplatRenderer(ctx, color_dtype="f4")
+    r = SplatRenderer(ctx, color_dtype="f4", compositing=compositing)
     r.set_gaussians(Gaussians.empty(sh_degree=2))
     r.render(cam)
     assert np.array_equal(r.read_rgb((0.2, 0.3, 0.4)), np.broadcast_to(np.float32([0.2, 0.3, 0.4]), (24, 32, 3)))
@@ -214,7 +255,7 @@ def test_projected_splats_match_torch_projection_and_the_bench_prints_its_floor(
 
 
 @pytest.mark.parametrize("primitive", ["quads", "points"])
-def test_colour_by_object_is_colour_by_particle_of_the_relabelled_set(ctx, primitive):
+def test_colour_by_object_is_colour_by_particle_of_the_relabelled_set(ctx, compositing, primitive):
     """Mode 2 with objects [0, 0, 2, 2, 4, ...] draws exactly what mode 1 draws when every Gaussian's
     owner is replaced by its object label; mode 1 itself tells the merged owners apart."""
     from dataclasses import replace
@@ -224,13 +265,13 @@ def test_colour_by_object_is_colour_by_particle_of_the_relabelled_set(ctx, primi
     num = int(g.owner.max()) + 1
     objects = [o - o % 2 for o in range(num)]
     relabelled = replace(g, owner=torch.where(g.owner >= 0, torch.tensor(objects)[g.owner.clamp_min(0)], g.owner))
-    r = SplatRenderer(ctx, color_dtype="f4", primitive=primitive)
+    r = SplatRenderer(ctx, color_dtype="f4", primitive=primitive, compositing=compositing)
     r.set_gaussians(g)
     r.render(cam, color_mode=2, objects=objects)
     by_object = r.read_rgba()
     r.render(cam, color_mode=1)
     by_particle = r.read_rgba()
-    r2 = SplatRenderer(ctx, color_dtype="f4", primitive=primitive)
+    r2 = SplatRenderer(ctx, color_dtype="f4", primitive=primitive, compositing=compositing)
     r2.set_gaussians(relabelled)
     r2.render(cam, color_mode=1)
     assert np.abs(by_object - r2.read_rgba()).max() < 1e-6

@@ -3,18 +3,21 @@
 
 Design (see shaders/):
 
-* The Gaussians live in one static RGBA32F texture (``ROW`` Gaussians per texture row,
+* The Gaussians live in one static RGBA32F texture (``row`` Gaussians per texture row, at most
+  ``ROW`` and as many as the driver's texture size allows,
   ``texels`` texels each: mean + opacity, rotation rows + scales, owner, SH). Only the rows of
   a changed particle are re-uploaded.
 * When the view, the data or the filter changed: one global sort of the visible Gaussians by
   float32 camera z (:func:`depth_order`), the sorted indices uploaded, then a projection pass
   that draws one fragment per splat (``project.frag``, on all rasteriser threads): 2D centre,
   conic, the radii of the alpha >= 1/255 ellipse and the SH colour, written in sorted order.
-* A splat pass draws one point sprite (``auto`` when every splat fits 255 px; drawn with a
-  guard band) or one oriented quad per splat into an offscreen float framebuffer, front to
-  back, compositing in the fragment shader with framebuffer fetch exactly like the torch
-  renderer (alpha clamped at 0.99, footprint alpha >= 1/255, a pixel stops before the splat
-  that would take its transmittance to <= 1e-4).
+* A splat pass draws one point sprite (``auto`` when every splat fits the driver's point size
+  and the guard band) or one oriented quad per splat into an offscreen float framebuffer, front
+  to back. Compositing (chosen per context, :mod:`viewer.gl_caps`): ``fetch`` composites in the
+  fragment shader with framebuffer fetch exactly like the torch renderer (alpha clamped at
+  ALPHA_MAX, footprint alpha >= ALPHA_MIN, a pixel stops before the splat that would take its
+  transmittance to <= T_MIN); ``blend`` (core GL 3.3) blends premultiplied colour with
+  fixed-function blending, destination alpha holding 1 - T, with no early stop.
 * An id pass writes per-owner weights ``sum T alpha`` (24 owners per pass, 8 float
   attachments) for picking, masks and segmentation.
 """
@@ -33,16 +36,16 @@ import torch
 
 from particlesplat.camera import Camera
 from particlesplat.gaussians import Gaussians
+from particlesplat.projection import DILATION, FOV_MARGIN
 
-ROW = 512  # Gaussians per row of the data and projection textures
-ID_ATTACHMENTS = 8  # float attachments of the id pass: 3 owners each
+from .gl_caps import Compositing, GLCaps, probe, shader_constants
+
+ROW = 512  # Gaussians per row of the data and projection textures (fewer if the texture size needs it)
+ID_ATTACHMENTS = 8  # float attachments of the id pass: 3 owners each (core GL 3.3 guarantees 8)
 OWNERS_PER_ID_PASS = 3 * ID_ATTACHMENTS
-DILATION = 0.3  # px^2 added to the 2D covariance diagonal, as in particlesplat.render
-FRUSTUM_MARGIN = 0.3  # the Jacobian's x/z, y/z are clamped to the frustum widened by 30%
 PRIMITIVES = ("auto", "quads", "points")
 MAX_KEYED = 64  # owners 0 .. MAX_KEYED - 1 can take another owner's colour (colour by object)
-POINT_GUARD = 128  # viewport margin (pixels) of the point pass: sprites up to 255 px stay whole
-POINT_MAX_RADIUS = 127.0  # splats up to this radius fit a 255 px point sprite (2 r + 1)
+POINT_GUARD = 128  # viewport margin (pixels) of the point pass: sprites up to 2 * POINT_GUARD - 1 px stay whole
 # ``auto`` cost model (ms per splat, ms per rasterised pixel), fitted on llvmpipe (Mesa 22.3, 2
 # cores): sprites have cheaper vertices and pixels but cover the whole square of the major axis
 POINT_COST = (1.35e-3, 7.7e-6)
@@ -50,13 +53,23 @@ QUAD_COST = (2.07e-3, 11.0e-6)
 
 
 def load_shader(name: str, defines: dict[str, str | int] | None = None) -> str:
-    """Source of ``shaders/<name>`` with ``#define`` lines inserted after ``#version``."""
+    """Source of ``shaders/<name>`` with ``#define`` lines inserted after ``#version``: the library's
+    compositing constants (:func:`~viewer.gl_caps.shader_constants`), then ``defines``."""
     src = files("viewer.shaders").joinpath(name).read_text()
-    if not defines:
-        return src
     first, rest = src.split("\n", 1)
-    lines = [f"#define {k} {v}" for k, v in defines.items()]
+    lines = [f"#define {k} {v}" for k, v in {**shader_constants(), **(defines or {})}.items()]
     return "\n".join([first, *lines, rest])
+
+
+def point_max_radius(caps: GLCaps) -> float:
+    """Largest splat radius (pixels) drawn whole as a point sprite (side 2 r + 1): the driver's point
+    size limit, and the guard band that keeps sprites with off-screen centres."""
+    return min((caps.max_point_size - 1.0) / 2.0, POINT_GUARD - 1.0)
+
+
+def row_for(texels: int, max_texture_size: int) -> int:
+    """Gaussians per data texture row: ``ROW``, or fewer when ``ROW * texels`` exceeds the texture size."""
+    return max(1, min(ROW, max_texture_size // texels))
 
 
 @dataclass
@@ -104,8 +117,8 @@ def camera_uniforms(camera: Camera) -> dict[str, tuple]:
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     w, h = camera.width, camera.height
     tan_x, tan_y = 0.5 * w / fx, 0.5 * h / fy
-    lim = (-(cx / fx + FRUSTUM_MARGIN * tan_x), (w - cx) / fx + FRUSTUM_MARGIN * tan_x,
-           -(cy / fy + FRUSTUM_MARGIN * tan_y), (h - cy) / fy + FRUSTUM_MARGIN * tan_y)
+    lim = (-(cx / fx + FOV_MARGIN * tan_x), (w - cx) / fx + FOV_MARGIN * tan_x,
+           -(cy / fy + FOV_MARGIN * tan_y), (h - cy) / fy + FOV_MARGIN * tan_y)
     return {
         "w2c": tuple(w2c.T.reshape(-1)),  # GLSL matrices are column-major
         "cam_center": tuple(c2w[:3, 3]),
@@ -136,37 +149,45 @@ class SplatRenderer:
         ctx: a moderngl context (a window's or a headless EGL one), GL >= 3.3.
         primitive: ``"auto"`` (point sprites when every projected splat fits the point size
             limit, else quads; both exact), ``"quads"`` (an oriented rectangle per Gaussian) or
-            ``"points"`` (point sprites always; splats over 255 px are clipped).
-        color_dtype: ``"f2"`` (half float, the app) or ``"f4"`` (float32, tests).
+            ``"points"`` (point sprites always; splats over the limit are clipped).
+        compositing: ``"auto"`` (``fetch`` where the driver has framebuffer fetch, else ``blend``),
+            ``"fetch"`` (raises :class:`~viewer.gl_caps.UnsupportedGL` without it) or ``"blend"``;
+            :attr:`compositing` holds the path taken.
+        color_dtype: ``"f2"`` (half float) or ``"f4"`` (float32: the app, tests).
         near, far: camera-z culling planes in metres, as in :func:`particlesplat.render`.
     """
 
-    def __init__(self, ctx: moderngl.Context, *, primitive: str = "auto", color_dtype: str = "f2",
-                 near: float = 0.01, far: float = 1e10) -> None:
+    def __init__(self, ctx: moderngl.Context, *, primitive: str = "auto", compositing: Compositing = "auto",
+                 color_dtype: str = "f2", near: float = 0.01, far: float = 1e10) -> None:
         if primitive not in PRIMITIVES:
             raise ValueError(f"primitive must be one of {PRIMITIVES}, got {primitive!r}")
         self.ctx = ctx
+        self.caps = probe(ctx)
+        self.compositing = self.caps.compositing(compositing)
         self.primitive = primitive
         self.color_dtype = color_dtype
         self.near, self.far = near, far
+        self._point_max_radius = point_max_radius(self.caps)
+        mode = {"COMPOSITE_FETCH": 1} if self.compositing == "fetch" else {}
         self._projects: dict[int, moderngl.Program] = {}  # projection program per SH coefficient count
         # programs per primitive kind and role ("splat", or the id pass with 1 or 8 attachments)
         self._progs: dict[str, dict[str | int, moderngl.Program]] = {}
         for kind in (("quads", "points") if primitive == "auto" else (primitive,)):
             vert = load_shader("splat.vert", {"MAX_KEYED": MAX_KEYED, **({"QUADS": 1} if kind == "quads" else {})})
             progs: dict[str | int, moderngl.Program] = {
-                "splat": ctx.program(vertex_shader=vert, fragment_shader=load_shader("splat.frag"))}
+                "splat": ctx.program(vertex_shader=vert, fragment_shader=load_shader("splat.frag", mode))}
             for n in (1, ID_ATTACHMENTS):
-                progs[n] = ctx.program(vertex_shader=vert,
-                                       fragment_shader=load_shader("splat.frag", {"ID_PASS": 1, "ATTACH": n}))
+                progs[n] = ctx.program(vertex_shader=vert, fragment_shader=load_shader(
+                    "splat.frag", {**mode, "ID_PASS": 1, "ATTACH": n}))
             self._progs[kind] = progs
         self.kind = "quads" if primitive == "auto" else primitive  # the primitive of the current sort
-        self._blit = ctx.program(vertex_shader=load_shader("fullscreen.vert"),
-                                 fragment_shader=load_shader("blit.frag"))
+        self._blit = ctx.program(vertex_shader=load_shader("fullscreen.vert"), fragment_shader=load_shader(
+            "blit.frag", {} if self.compositing == "fetch" else {"COVERAGE_ALPHA": 1}))
         self._project_vaos: dict[int, moderngl.VertexArray] = {}
         self._blit_vao = ctx.vertex_array(self._blit, [])
         # data
         self._packed = np.zeros((0, texels_for(1), 4), np.float32)
+        self.row = row_for(texels_for(1), self.caps.max_texture_size)  # Gaussians per texture row
         self._means = np.zeros((0, 3), np.float32)
         self._opacity = np.zeros(0, np.float32)
         self._owner = np.zeros(0, np.int64)
@@ -207,7 +228,8 @@ class SplatRenderer:
 
     @property
     def renderer_string(self) -> str:
-        return f"{self.ctx.info['GL_RENDERER']} / {self.ctx.info['GL_VERSION']}"
+        """``GL_RENDERER / GL_VERSION`` of the context."""
+        return self.caps.renderer
 
     def set_gaussians(self, gaussians: Gaussians) -> None:
         """Replace all Gaussians (full upload). Gaussians are regrouped by owner internally."""
@@ -225,16 +247,20 @@ class SplatRenderer:
         owners, starts, counts = np.unique(owner, return_index=True, return_counts=True)
         self._groups = {int(o): (int(s), int(c)) for o, s, c in zip(owners, starts, counts)}
         n, texels = packed.shape[0], packed.shape[1]
-        rows = max(1, math.ceil(n / ROW))
-        if (self._data_tex is None or self._data_tex.size != (ROW * texels, rows)):
+        row = self.row = row_for(texels, self.caps.max_texture_size)
+        rows = max(1, math.ceil(n / row))
+        if 2 * rows > self.caps.max_texture_size:  # (the order texture holds 2 rows per data row)
+            raise ValueError(f"{n:,} Gaussians with {texels - 4} SH coefficients exceed this GL driver's "
+                             f"texture size ({self.caps.max_texture_size}; {self.caps.renderer})")
+        if (self._data_tex is None or self._data_tex.size != (row * texels, rows)):
             for t in [self._data_tex, *self._proj_tex]:
                 if t is not None:
                     t.release()
             if self._proj_fbo is not None:
                 self._proj_fbo.release()
-            self._data_tex = self.ctx.texture((ROW * texels, rows), 4, dtype="f4")
+            self._data_tex = self.ctx.texture((row * texels, rows), 4, dtype="f4")
             self._data_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            self._proj_tex = [self.ctx.texture((ROW, rows), 4, dtype="f4") for _ in range(3)]
+            self._proj_tex = [self.ctx.texture((row, rows), 4, dtype="f4") for _ in range(3)]
             self._proj_fbo = self.ctx.framebuffer(color_attachments=self._proj_tex)
         self._write_rows(0, rows)
         self._data_version += 1
@@ -242,11 +268,11 @@ class SplatRenderer:
 
     def _write_rows(self, r0: int, r1: int) -> None:
         """Upload texture rows [r0, r1) from the packed array."""
-        texels = self._packed.shape[1]
-        block = np.zeros(((r1 - r0) * ROW, texels, 4), np.float32)
-        part = self._packed[r0 * ROW: r1 * ROW]
+        texels, row = self._packed.shape[1], self.row
+        block = np.zeros(((r1 - r0) * row, texels, 4), np.float32)
+        part = self._packed[r0 * row: r1 * row]
         block[: part.shape[0]] = part
-        self._data_tex.write(block.tobytes(), viewport=(0, r0, ROW * texels, r1 - r0))
+        self._data_tex.write(block.tobytes(), viewport=(0, r0, row * texels, r1 - r0))
 
     def replace_owner(self, owner: int, gaussians: Gaussians) -> None:
         """Replace the Gaussians of one owner; uploads only its rows when the count is unchanged."""
@@ -258,7 +284,7 @@ class SplatRenderer:
             self._packed[start: start + count] = packed
             self._means[start: start + count] = packed[:, 0, :3]
             self._opacity[start: start + count] = packed[:, 0, 3]
-            self._write_rows(start // ROW, (start + count - 1) // ROW + 1)
+            self._write_rows(start // self.row, (start + count - 1) // self.row + 1)
             self._data_version += 1
             self._refilter()
             return
@@ -338,7 +364,7 @@ class SplatRenderer:
             p["gaussians"] = 0
             p["order"] = 1
             p["num"] = self._drawn
-            p["row"] = ROW
+            p["row"] = self.row
             p["texels"] = self._packed.shape[1]
             for name in ("w2c", "cam_center", "intr", "lim"):
                 if name in p:  # cam_center is unused (optimised out) for SH degree 0
@@ -349,7 +375,7 @@ class SplatRenderer:
             self._order_tex.use(1)
             self._proj_fbo.use()
             self.ctx.disable(moderngl.BLEND)
-            self.ctx.viewport = (0, 0, ROW, math.ceil(self._drawn / ROW))
+            self.ctx.viewport = (0, 0, self.row, math.ceil(self._drawn / self.row))
             self._project_vaos[k].render(moderngl.TRIANGLE_STRIP, vertices=4)
         if self.primitive == "auto":
             self.kind = self._cheaper_primitive()
@@ -361,8 +387,8 @@ class SplatRenderer:
         alpha >= 1/255 ellipse (pixels; radius 0 = culled). Reads the projection texture back."""
         if not self._drawn:
             return np.zeros((0, 4), np.float32)
-        rows = math.ceil(self._drawn / ROW)
-        return np.frombuffer(self._proj_fbo.read(viewport=(0, 0, ROW, rows), components=4, attachment=0, dtype="f4"),
+        rows = math.ceil(self._drawn / self.row)
+        return np.frombuffer(self._proj_fbo.read(viewport=(0, 0, self.row, rows), components=4, attachment=0, dtype="f4"),
                              np.float32).reshape(-1, 4)[: self._drawn]
 
     def _radii(self) -> np.ndarray:
@@ -370,14 +396,19 @@ class SplatRenderer:
         return self.projected_splats()[:, 2:4]
 
     def _cheaper_primitive(self) -> str:
-        """Point sprites if every splat fits one (exact) and the cost model expects them to be
-        faster than quads for these splats, else quads."""
+        """Point sprites if every splat fits one (exact: :func:`point_max_radius`, and the guard-band
+        viewport within the driver's limit) and the cost model expects them to be faster than quads
+        for these splats, else quads."""
+        w, h = self.size
+        vw, vh = self.caps.max_viewport
+        if w + 2 * POINT_GUARD > vw or h + 2 * POINT_GUARD > vh:
+            return "quads"
         r = self._radii()
         live = r[:, 0] > 0
         if not live.any():
             return "quads"
         major, minor = 2.0 * r[live, 0] + 1.0, 2.0 * r[live, 1] + 1.0
-        if float(major.max()) > 2.0 * POINT_MAX_RADIUS + 1.0:
+        if float(major.max()) > 2.0 * self._point_max_radius + 1.0:
             return "quads"
         n = int(live.sum())
         points = POINT_COST[0] * n + POINT_COST[1] * float((major * major).sum())
@@ -391,18 +422,18 @@ class SplatRenderer:
     def _upload_order(self, order: np.ndarray) -> None:
         """Upload the sorted Gaussian indices (M,) int32 to the order texture read by the projection
         pass; make sure the static quad element buffer is long enough."""
-        n = order.shape[0]
+        n, row = order.shape[0], self.row
         self._drawn = n
-        rows = max(1, math.ceil(n / ROW))
-        if self._order_tex is None or self._order_tex.height < rows:
+        rows = max(1, math.ceil(n / row))
+        if self._order_tex is None or self._order_tex.height < rows or self._order_tex.width != row:
             if self._order_tex is not None:
                 self._order_tex.release()
-            self._order_tex = self.ctx.texture((ROW, 2 * rows), 1, dtype="i4")
+            self._order_tex = self.ctx.texture((row, 2 * rows), 1, dtype="i4")
             self._order_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         if n:
-            block = np.zeros(rows * ROW, np.int32)
+            block = np.zeros(rows * row, np.int32)
             block[:n] = order
-            self._order_tex.write(block.tobytes(), viewport=(0, 0, ROW, rows))
+            self._order_tex.write(block.tobytes(), viewport=(0, 0, row, rows))
         if "quads" in self._progs and (self._index_buf is None or self._index_buf.size < 24 * max(n, 1)):
             self._release_vaos(also_buffer=True)
             cap = max(2 * n, 1024)
@@ -432,15 +463,28 @@ class SplatRenderer:
         for i, name in enumerate(("center_tex", "conic_tex", "color_tex")):
             if name in prog:
                 prog[name] = i
-        prog["row"] = ROW
+        prog["row"] = self.row
         prog["size"] = uni["size"]
         if "color_mode" in prog:
             prog["color_mode"] = color_mode
         if "owner_key" in prog and owner_key is not None:
             prog["owner_key"].write(owner_key.tobytes())
-        self.ctx.disable(moderngl.BLEND)
         if not self._drawn:
             return
+        if self.compositing == "blend":  # front to back: dst += (1 - dst alpha) src, alpha = 1 - T
+            self.ctx.enable(moderngl.BLEND)
+            self.ctx.blend_equation = moderngl.FUNC_ADD
+            self.ctx.blend_func = moderngl.ONE_MINUS_DST_ALPHA, moderngl.ONE
+        else:
+            self.ctx.disable(moderngl.BLEND)
+        try:
+            self._draw_splats(prog, role)
+        finally:
+            self.ctx.disable(moderngl.BLEND)
+
+    def _draw_splats(self, prog: moderngl.Program, role: str | int) -> None:
+        """Issue the draw call of the current primitive kind."""
+        kind = self.kind
         if (kind, role) not in self._vaos:
             self._vaos[(kind, role)] = (
                 self.ctx.vertex_array(prog, [], index_buffer=self._index_buf, index_element_size=4)
@@ -455,6 +499,15 @@ class SplatRenderer:
         self.ctx.viewport = (-POINT_GUARD, -POINT_GUARD, w + 2 * POINT_GUARD, h + 2 * POINT_GUARD)
         vao.render(moderngl.POINTS, vertices=self._drawn)
         self.ctx.viewport = (0, 0, w, h)
+
+    def _clear(self, fbo: moderngl.Framebuffer) -> None:
+        """Clear a compositing target: no colour, T = 1 (alpha 1 for fetch, coverage 0 for blend)."""
+        fbo.clear(0.0, 0.0, 0.0, 1.0 if self.compositing == "fetch" else 0.0)
+
+    def _alpha(self, raw_a: np.ndarray) -> np.ndarray:
+        """Alpha (1 - T) from a compositing target's alpha channel (T, negated once a pixel stopped,
+        for fetch; 1 - T for blend)."""
+        return 1.0 - np.abs(raw_a) if self.compositing == "fetch" else raw_a.copy()
 
     def render(self, camera: Camera, *, color_mode: int = 0, objects: Sequence[int] | None = None,
                finish: bool = False) -> FrameTimes:
@@ -473,7 +526,7 @@ class SplatRenderer:
         uni = self._prepare(camera, times)
         t0 = time.perf_counter()
         self._color_fbo.use()
-        self._color_fbo.clear(0.0, 0.0, 0.0, 1.0)
+        self._clear(self._color_fbo)
         self._draw("splat", uni, color_mode, owner_key=key)
         if finish:
             self.ctx.finish()
@@ -486,7 +539,7 @@ class SplatRenderer:
         """Render the weight sum T alpha of ``owner`` into the mask target (channel r)."""
         uni = self._prepare(camera, FrameTimes())
         self._mask_fbo.use()
-        self._mask_fbo.clear(0.0, 0.0, 0.0, 1.0)
+        self._clear(self._mask_fbo)
         self._draw(1, uni, owner_base=owner)
 
     def read_mask(self) -> np.ndarray:
@@ -513,7 +566,7 @@ class SplatRenderer:
         for base in range(-1, num_owners, OWNERS_PER_ID_PASS):
             self._id_fbo.use()
             self.ctx.scissor = (x, gl_y, w, h)
-            self._id_fbo.clear(0.0, 0.0, 0.0, 1.0)
+            self._clear(self._id_fbo)
             self._draw(ID_ATTACHMENTS, uni, owner_base=base)
             self.ctx.scissor = None
             for i, tex in enumerate(self._id_tex):
@@ -525,7 +578,7 @@ class SplatRenderer:
                 n = min(3, total - first)
                 weights[first: first + n] = np.moveaxis(raw[..., :n], -1, 0)
                 if i == 0:
-                    alpha = 1.0 - np.abs(raw[..., 3])
+                    alpha = self._alpha(raw[..., 3])
         return weights, alpha
 
     def segmentation(self, camera: Camera, num_owners: int) -> np.ndarray:
@@ -549,7 +602,7 @@ class SplatRenderer:
         w, h = self.size
         raw = np.frombuffer(self._color_fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
         out = raw.copy()
-        out[..., 3] = 1.0 - np.abs(raw[..., 3])
+        out[..., 3] = self._alpha(raw[..., 3])
         return out
 
     def read_rgb(self, background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
