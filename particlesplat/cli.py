@@ -18,6 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("particlesplat.evaluate", "evaluate a model on a folder of scenes"),
     "render": ("particlesplat.render_cli", "render a (possibly edited) scene headless to PNG"),
     "encode": ("particlesplat.encode_cli", "write the particles of scene folders as .npz arrays"),
+    "object": ("particlesplat.object_cli", "export an object to .ply, or insert it into another scene"),
     "curve": ("particlesplat.curve", "plot a training run's validation curve to PNG"),
     "bench": ("", "run a benchmark: " + ", ".join(sorted(e.name for e in entry_points(group="particlesplat.bench")))),
 }
