@@ -14,13 +14,14 @@ from imgui_bundle import imgui
 
 from particlesplat.move import MoveError
 
+from .panels.objects import duplicate_selected, remove_selected
 from .state import SEG_MODES
+from .tools.object_tools import FloorDrag
 
 if TYPE_CHECKING:
     from .app import App
 
 CLICK_SLOP = 3.0  # window pixels a press may move and still count as a click
-DEPTH_PER_PX = 0.01  # z_d logit change per framebuffer pixel of vertical Ctrl-drag
 
 
 class ViewportControls:
@@ -31,12 +32,13 @@ class ViewportControls:
         self.press_pos: tuple[float, float] | None = None
         self.dragged = False
         self.particle_center: torch.Tensor | None = None
+        self.floor = FloorDrag()  # a plain drag that began on the selected object, or a Shift-drag
 
     def handle(self, app: App) -> None:
         """Read this frame's input from imgui (unless a panel wants it) and apply it."""
         io = imgui.get_io()
         sx, sy = app.pixel_ratio()
-        if not io.want_capture_mouse:
+        if not io.want_capture_mouse and not app.gizmo.capturing:
             self._mouse(app, io, sx, sy)
         if not io.want_capture_keyboard:
             self._keys(app, io)
@@ -53,27 +55,60 @@ class ViewportControls:
             self.particle_center = None
         if imgui.is_mouse_down(imgui.MouseButton_.left) and self.press_pos is not None and (dx or dy):
             px, py = self.press_pos
-            if abs(io.mouse_pos.x - px) + abs(io.mouse_pos.y - py) > CLICK_SLOP:
+            if abs(io.mouse_pos.x - px) + abs(io.mouse_pos.y - py) > CLICK_SLOP and not self.dragged:
                 self.dragged = True
+                self._begin_drag(app, io, px * sx, py * sy)
             if self.dragged:
                 sel = app.state.selected
-                if io.key_shift and sel is not None and app.session.editable:
-                    self.drag_object(app, sel, dx, dy)
+                if self.floor.active:
+                    message = self.floor.update(app.session, app.view_camera(1.0), io.mouse_pos.x * sx,
+                                                io.mouse_pos.y * sy)
+                    if message:
+                        app.fields.status = message
                 elif io.key_ctrl and sel is not None and app.session.editable:
-                    z_d = app.session.value(sel, "z_d")[0] - dy * DEPTH_PER_PX
-                    app.session.set_attribute(sel, "z_d", [z_d], gesture="depth-drag")
+                    self.lift_object(app, sel, dy)
                 else:
                     app.orbit.orbit(dx, dy)
                 self.last_move = now
         if imgui.is_mouse_released(imgui.MouseButton_.left) and self.press_pos is not None:
             if not self.dragged:
                 self.pick(app, io.mouse_pos.x * sx, io.mouse_pos.y * sy)
+            self.floor.stop()
             app.session.end_gesture()
             self.press_pos = None
         for button in (imgui.MouseButton_.right, imgui.MouseButton_.middle):
             if imgui.is_mouse_dragging(button) and (dx or dy):
                 app.orbit.pan(dx, dy, app.framebuffer_size()[1])
                 self.last_move = now
+
+    def _begin_drag(self, app: App, io, x: float, y: float) -> None:
+        """A left drag starts at framebuffer pixel (x, y): it slides the selected object on the floor when it
+        began on that object (or with Shift held), else it orbits (Ctrl: lifts the object)."""
+        sel = app.state.selected
+        if sel is None or not app.session.editable or io.key_ctrl:
+            return
+        on_object = False
+        if not io.key_shift:
+            owner = app.scene_view.pick(app.session, app.view_camera(1.0), int(x), int(y))
+            labels = app.session.objects()
+            on_object = owner >= 0 and int(labels[owner]) == int(labels[sel])
+        if (io.key_shift or on_object) and not self.floor.start(app.session, sel, app.view_camera(1.0), x, y):
+            app.fields.status = "this object cannot slide from here (it draws nothing, or the floor is out of view)"
+
+    def lift_object(self, app: App, index: int, dy: float) -> None:
+        """Move the object of particle ``index`` up or down (world Z) with a vertical drag of ``dy``
+        framebuffer pixels (up = up), by the metres a pixel spans at the object's depth."""
+        from .tools.object_tools import object_centre
+
+        centre = object_centre(app.session, index)
+        if centre is None:
+            return
+        cam = app.view_camera(1.0)
+        depth = float(cam.world_to_camera(centre[None].to(cam.K.dtype))[0, 2].clamp_min(1e-3))
+        try:
+            app.session.move_object(index, [0.0, 0.0, -dy * depth / float(cam.fy)], gesture="lift-drag")
+        except MoveError as e:
+            app.fields.status = f"error: {e}"
 
     @staticmethod
     def pick(app: App, x: float, y: float) -> None:
@@ -112,6 +147,9 @@ class ViewportControls:
                 app.session.redo()
             elif imgui.is_key_pressed(K.s, False) and app.session.editable:
                 app.req.save_edits = True
+            elif imgui.is_key_pressed(K.d, False) and app.session.editable:
+                app.state.selected, app.fields.status = duplicate_selected(app.session, app.state.selected,
+                                                                           app.fields.objects.copy_offset)
             return
         pressed = lambda key: imgui.is_key_pressed(key, False)  # noqa: E731
         if pressed(K.r):
@@ -128,6 +166,8 @@ class ViewportControls:
             app.state.seg_mode = SEG_MODES[(SEG_MODES.index(app.state.seg_mode) + 1) % len(SEG_MODES)]
         if pressed(K.escape):
             app.state.selected = None
+        if pressed(K.delete) and app.session.editable:
+            app.state.selected, app.fields.status = remove_selected(app.session, app.state.selected)
         for i, key in enumerate((K._1, K._2, K._3, K._4, K._5, K._6, K._7, K._8, K._9)):
             if pressed(key):
                 app.req.snap_camera = i

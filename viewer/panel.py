@@ -9,8 +9,8 @@ from imgui_bundle import imgui
 
 from particlesplat.encode_scene import demo_scenes
 from particlesplat.model.particles import EDITABLE
-from particlesplat.move import MoveError
 
+from .panels.objects import ObjectFields, draw_object_section
 from .session import SceneSession
 from .state import SEG_MODES, ViewState
 
@@ -18,9 +18,12 @@ SHORTCUTS = (
     ("left drag", "orbit"),
     ("right / middle drag", "pan"),
     ("wheel", "zoom"),
-    ("click", "select the particle under the cursor"),
-    ("Shift + left drag", "move the selected particle's object (all its particles) with the mouse"),
-    ("Ctrl + left drag", "move the selected particle in depth (z_d)"),
+    ("click", "select the particle under the cursor (its object is outlined)"),
+    ("left drag on the selected object", "slide it on the floor (world X / Y)"),
+    ("Shift + left drag", "slide the selected object on the floor from anywhere"),
+    ("Ctrl + left drag", "lift or lower the selected object (world Z)"),
+    ("gizmo arrows / planes", "move the selected object along world X, Y or Z, or in a plane"),
+    ("Del / Ctrl+D", "delete / duplicate the selected object"),
     ("R", "reset the view"),
     ("1 .. 9", "snap to input camera 1 .. 9"),
     ("Ctrl+Z / Ctrl+Shift+Z or Ctrl+Y", "undo / redo"),
@@ -59,6 +62,7 @@ class UiFields:
     output_dir: str = "."
     shot_size: list[int] = field(default_factory=lambda: [0, 0])
     status: str = ""
+    objects: ObjectFields = field(default_factory=ObjectFields)
 
 
 def draw_overlay(text_lines: list[str]) -> None:
@@ -197,18 +201,10 @@ def _selected_section(session: SceneSession, state: ViewState, fields: UiFields)
             session.end_gesture()
     if imgui.button("Reset particle to encoded values"):
         session.reset_particle(i)
-    # a world translation of every particle of the selected particle's object (one per view that holds it)
-    members = session.object_members(i)
-    imgui.text(f"object: particle{'s' if len(members) > 1 else ''} {', '.join(map(str, members))}")
-    offset = list(session.object_offset(i))
-    changed, new = imgui.drag_float3("move object (m)", offset, DRAG_SPEED["move"])
-    if changed:
-        try:
-            session.move_object(i, [a - b for a, b in zip(new, offset)], gesture="panel")
-        except MoveError as e:
-            fields.status = f"error: {e}"
-    if imgui.is_item_deactivated():
-        session.end_gesture()
+    # the object: every particle of it (one per view that holds it), moved in world metres, deleted, copied
+    state.selected, message = draw_object_section(session, i, fields.objects)
+    if message:
+        fields.status = message
 
 
 def _edits_section(session: SceneSession, req: UiRequests, fields: UiFields) -> None:

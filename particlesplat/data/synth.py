@@ -56,6 +56,12 @@ def write_scene(folder: Path, seed: int, split: str, index: int, res: int) -> No
     The folder is built under a temporary name in the same parent and renamed at the end.
     """
     scene = tabletop.sample_scene(scene_rng(seed, split, index))
+    write_tabletop(folder, scene, res, {"seed": seed, "split": split, "index": index})
+
+
+def write_tabletop(folder: Path, scene: tabletop.TabletopScene, res: int, meta: dict) -> None:
+    """Render ``scene``'s 21 views at ``res`` and write them as a complete scene folder at ``folder``
+    (built under a temporary name and renamed at the end); ``meta`` goes into scene.json."""
     cams = scene_cameras(scene, res)
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = temp_sibling(folder)
@@ -81,8 +87,8 @@ def write_scene(folder: Path, seed: int, split: str, index: int, res: int) -> No
                       "fl_y": float(K0[1, 1]), "cx": float(K0[0, 2]), "cy": float(K0[1, 2]),
                       "depth_unit_scale_factor": DEPTH_UNIT, "frames": frames}
         (tmp / "transforms.json").write_text(json.dumps(transforms, indent=1))
-        meta = {"generator": "particlesplat.data.synth", "format_version": FORMAT_VERSION, "seed": seed,
-                "split": split, "index": index, **scene.to_json()}
+        meta = {"generator": "particlesplat.data.synth", "format_version": FORMAT_VERSION, **meta,
+                **scene.to_json()}
         (tmp / "scene.json").write_text(json.dumps(meta, indent=1))
         os.replace(tmp, folder)
     except BaseException:

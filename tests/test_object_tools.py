@@ -1,0 +1,127 @@
+"""Viewer object tools: sliding an object on the floor follows the mouse ray, the gizmo's GL matrices
+project as the camera does, the outline hull, and Del / Ctrl+D / the gizmo in a real window."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from particlesplat.camera import Camera
+from particlesplat.encode_scene import demo_scenes, encode_scene
+from particlesplat.model import load_model
+from particlesplat.move import anchor_points
+from viewer.session import SceneSession
+from viewer.tools.object_tools import (FloorDrag, convex_hull, floor_point, gl_projection, gl_view,
+                                       object_centre)
+
+
+@pytest.fixture(scope="module")
+def session_parts():
+    torch.set_num_threads(1)
+    model = load_model(None)
+    return model, encode_scene(model, demo_scenes()[0], [4, 16])
+
+
+def test_gl_matrices_project_like_the_camera():
+    cam = Camera.orbit((0.1, -0.2, 0.15), 35.0, 30.0, 3.2, fov_y_deg=40.0, width=200, height=120)
+    cam = Camera(cam.K.clone(), cam.c2w, 200, 120)
+    cam.K[0, 2] += 7.0  # an off-centre principal point
+    pts = torch.rand(50, 3, dtype=torch.float64) - 0.5
+    uv, z = cam.to(dtype=torch.float64).project(pts)
+    clip = (gl_projection(cam) @ gl_view(cam) @ np.c_[pts.numpy(), np.ones(50)].T).T
+    ndc = clip[:, :3] / clip[:, 3:]
+    px = np.stack([(ndc[:, 0] + 1) * 0.5 * 200, (1 - ndc[:, 1]) * 0.5 * 120], 1)
+    np.testing.assert_allclose(px, uv.numpy(), atol=1e-6)
+    assert (np.abs(ndc[:, 2]) < 1).all() and (z.numpy() > 0).all()
+
+
+def test_floor_point_lies_on_the_plane_under_the_pixel():
+    cam = Camera.orbit((0.0, 0.0, 0.15), -20.0, 35.0, 3.3, width=160, height=120).to(dtype=torch.float64)
+    p = floor_point(cam, 50.5, 70.25, 0.12)
+    assert abs(float(p[2]) - 0.12) < 1e-12
+    uv, _ = cam.project(p[None])
+    np.testing.assert_allclose(uv[0].numpy(), [50.5, 70.25], atol=1e-9)
+    assert floor_point(cam, 80.0, 0.0, 5.0) is None  # the plane above the camera, looked at from below: behind
+
+
+def test_convex_hull_of_a_square_with_inner_points():
+    pts = np.array([[0, 0], [2, 0], [2, 2], [0, 2], [1, 1], [0.5, 1.5], [1, 0]], dtype=float)
+    hull = convex_hull(pts)
+    assert {tuple(p) for p in hull} == {(0, 0), (2, 0), (2, 2), (0, 2)}
+    area = 0.5 * sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(hull, np.roll(hull, -1, 0)))
+    assert area == pytest.approx(4.0)  # counter-clockwise
+
+
+def test_floor_drag_slides_the_object_on_its_plane_as_one_undo_step(session_parts):
+    model, enc = session_parts
+    s = SceneSession(model, enc, source=str(enc.path))
+    g = s.decode()
+    fg = g.owner >= 0
+    weight = torch.zeros(s.num_particles).index_add_(0, s.objects()[g.owner[fg]], g.opacities[fg].float())
+    index = int(weight.argmax())
+    members = s.object_members(index)
+    cam = Camera.orbit((0.0, 0.0, 0.15), 10.0, 40.0, 3.4, width=320, height=240)
+    centre = object_centre(s, index)
+    (u, v), _ = cam.project(centre[None].float())[0][0], None
+    drag = FloorDrag()
+    assert drag.start(s, index, cam, float(u), float(v))
+    a0 = anchor_points(s.particles, members, model.config).double()
+    n_ops = len(s.history.undo)
+    path = [(float(u) + 6.0 * k, float(v) - 3.0 * k) for k in range(1, 6)]
+    for x, y in path:
+        assert drag.update(s, cam, x, y) is None
+    drag.stop()
+    s.end_gesture()
+    assert len(s.history.undo) == n_ops + 1
+    expected = floor_point(cam, *path[-1], drag.height or float(centre[2])) - floor_point(cam, float(u), float(v),
+                                                                                          float(centre[2]))
+    assert abs(float(expected[2])) < 1e-9
+    moved = anchor_points(s.particles, members, model.config).double() - a0
+    np.testing.assert_allclose(moved.numpy(), expected[None].expand_as(moved).numpy(), atol=1e-4)
+    # the object's centre is now under the mouse: it projects to the last pixel (within the move's perspective error)
+    uv, _ = cam.project(object_centre(s, index)[None].float())
+    assert float((uv[0] - torch.tensor(path[-1])).norm()) < 2.0
+    assert s.undo() and all(torch.equal(getattr(s.particles, k), getattr(s.original, k)) for k in ("z_p", "z_d"))
+
+
+@pytest.mark.window
+def test_delete_duplicate_keys_and_gizmo_in_a_window(tmp_path):
+    if not os.environ.get("DISPLAY"):
+        pytest.fail("no DISPLAY: run the tests under xvfb-run (see the README's test command)")
+    from imgui_bundle import imgui
+
+    from viewer import app as A
+
+    args = A.build_parser().parse_args(["--scene", str(demo_scenes()[0]), "--context", "4,16", "--size", "200x150",
+                                        "--output-dir", str(tmp_path)])
+    session = A.load_session(args)
+    window = A.create_window(args.size)
+    try:
+        app = A.App(window, session, A.initial_view(session, None, None), args)
+        g = session.decode()
+        index = int(g.owner[g.owner >= 0][g.opacities[g.owner >= 0].argmax()])
+        app.state.selected = index
+        app.run(2)  # the gizmo and the outline draw without error
+        n = session.num_particles
+        members = session.object_members(index)
+        K = imgui.Key
+        io = imgui.get_io()
+        for keys in ((K.mod_ctrl, K.left_ctrl, K.d), (K.delete,)):
+            for k in keys:
+                io.add_key_event(k, True)
+            app.run(1)
+            for k in reversed(keys):
+                io.add_key_event(k, False)
+            app.run(1)
+        # Ctrl+D copied the object (selecting the copy), Del removed the copy
+        assert session.num_particles == n + len(members)
+        assert [op.kind for op in session.history.undo[-2:]] == ["duplicate", "remove"]
+        assert app.state.selected is None and "removed" in app.fields.status
+        assert not bool((session.decode().owner >= n).any())
+        path = session.save_edits(tmp_path / "e.yaml")
+        assert "duplicate:" in path.read_text() and "remove: true" in path.read_text()
+    finally:
+        A.destroy_window(window)

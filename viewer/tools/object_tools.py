@@ -1,0 +1,221 @@
+"""Moving a selected object in the world: slide it on the floor with the mouse, a world-space gizmo
+(ImGuizmo) with X / Y / Z handles at its centre, and an outline of it in the viewport.
+
+Tools get narrow dependencies: the session (a :class:`particlesplat.edit_ops.SceneEditor`), the selected
+particle and the viewing camera; they never see the App. Every move is a do/undo operation of the session
+(one per drag, by its gesture id).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from particlesplat.camera import Camera
+from particlesplat.move import MoveError
+
+FLOOR_GESTURE = "floor-drag"
+GIZMO_GESTURE = "gizmo"
+MAX_STEP = 0.5  # metres one mouse event may slide an object (a ray grazing the plane goes far)
+OUTLINE_OPACITY = 0.1  # Gaussians at least this opaque outline the selected object
+GL_FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV camera axes -> OpenGL (y up, looking down -z)
+
+
+def object_centre(session, index: int) -> Tensor | None:
+    """(3,) float64 world metres: the opacity-weighted centre of the Gaussians of particle ``index``'s object
+    as drawn now, or None if it draws nothing."""
+    members = session.object_members(index)
+    g = session.model.decode(session.particles, torch.tensor(members), background=False)
+    if g.num == 0:
+        return None
+    w = g.opacities.detach().double().cpu()
+    return (g.means.detach().double().cpu() * w[:, None]).sum(0) / w.sum().clamp_min(1e-12)
+
+
+def floor_point(camera: Camera, x: float, y: float, height: float) -> Tensor | None:
+    """(3,) float64: where the ray through framebuffer pixel (x, y) (pixel centres at +0.5) meets the
+    horizontal plane z = ``height`` in front of the camera, or None (parallel, or behind)."""
+    K = camera.K.detach().double().cpu()
+    c2w = camera.c2w.detach().double().cpu()
+    d_cam = torch.linalg.solve(K, torch.tensor([x, y, 1.0], dtype=torch.float64))
+    d = c2w[:3, :3] @ d_cam
+    o = c2w[:3, 3]
+    if abs(float(d[2])) < 1e-9:
+        return None
+    t = (height - float(o[2])) / float(d[2])
+    return o + t * d if t > 0 else None
+
+
+class FloorDrag:
+    """Slides the selected object on the horizontal plane through its centre, following the mouse.
+
+    :meth:`start` at the press, :meth:`update` per mouse event, the session's ``end_gesture`` at release
+    (one undo step per drag)."""
+
+    def __init__(self) -> None:
+        self.index: int | None = None
+        self.height = 0.0
+        self.last: Tensor | None = None
+
+    @property
+    def active(self) -> bool:
+        return self.index is not None
+
+    def start(self, session, index: int, camera: Camera, x: float, y: float) -> bool:
+        """Begin sliding particle ``index``'s object from framebuffer pixel (x, y); False if it draws nothing
+        or the pixel's ray misses its plane."""
+        centre = object_centre(session, index)
+        if centre is None:
+            return False
+        self.height = float(centre[2])
+        self.last = floor_point(camera, x, y, self.height)
+        self.index = index if self.last is not None else None
+        return self.active
+
+    def update(self, session, camera: Camera, x: float, y: float) -> str | None:
+        """Move the object so the plane point under the mouse stays under it; an error message if the
+        move was refused (nothing moved), else None."""
+        if not self.active:
+            return None
+        p = floor_point(camera, x, y, self.height)
+        if p is None:
+            return None
+        delta = p - self.last
+        delta[2] = 0.0
+        step = float(delta.norm())
+        if step > MAX_STEP:
+            delta = delta * (MAX_STEP / step)
+        try:
+            session.move_object(self.index, delta.tolist(), gesture=FLOOR_GESTURE)
+        except MoveError as e:
+            return f"error: {e}"
+        self.last = self.last + delta
+        return None
+
+    def stop(self) -> None:
+        self.index, self.last = None, None
+
+
+def gl_view(camera: Camera) -> np.ndarray:
+    """(4, 4) float64 OpenGL view matrix (world -> eye, y up, looking down -z) of an OpenCV camera."""
+    return GL_FLIP @ camera.w2c.detach().double().cpu().numpy()
+
+
+def gl_projection(camera: Camera, near: float = 0.01, far: float = 100.0) -> np.ndarray:
+    """(4, 4) float64 OpenGL projection of the camera's intrinsics (pixel (0, 0) at the top left)."""
+    K = camera.K.detach().double().cpu().numpy()
+    W, H = camera.width, camera.height
+    P = np.zeros((4, 4))
+    P[0, 0], P[0, 2] = 2.0 * K[0, 0] / W, 1.0 - 2.0 * K[0, 2] / W
+    P[1, 1], P[1, 2] = 2.0 * K[1, 1] / H, 2.0 * K[1, 2] / H - 1.0
+    P[2, 2], P[2, 3] = -(far + near) / (far - near), -2.0 * far * near / (far - near)
+    P[3, 2] = -1.0
+    return P
+
+
+def outline(session, index: int, camera: Camera) -> np.ndarray:
+    """(M, 2) framebuffer pixels: the convex hull of the projected centres of the selected object's
+    Gaussians (opacity >= OUTLINE_OPACITY), counter-clockwise; empty if fewer than 3."""
+    members = session.object_members(index)
+    g = session.model.decode(session.particles, torch.tensor(members), background=False)
+    g = g.subset(g.opacities >= OUTLINE_OPACITY)
+    if g.num < 3:
+        return np.zeros((0, 2))
+    uv, z = camera.project(g.means.detach().to(camera.K.dtype).cpu())
+    pts = uv[z > 0].double().numpy()
+    return convex_hull(pts) if len(pts) >= 3 else np.zeros((0, 2))
+
+
+def convex_hull(points: np.ndarray) -> np.ndarray:
+    """(M, 2) hull vertices of (N, 2) points, counter-clockwise (Andrew's monotone chain)."""
+    pts = np.unique(points, axis=0)
+    if len(pts) < 3:
+        return pts
+
+    def cross(o, a, b) -> float:
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower: list = []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
+            lower.pop()
+        lower.append(p)
+    upper: list = []
+    for p in pts[::-1]:
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
+            upper.pop()
+        upper.append(p)
+    return np.array(lower[:-1] + upper[:-1])
+
+
+class ObjectGizmo:
+    """ImGuizmo translate handles (world X / Y / Z, and the planes between them) at the selected object's
+    centre, plus its outline. Call :meth:`draw` once a frame after ``imgui.new_frame``."""
+
+    def __init__(self) -> None:
+        self._key: tuple | None = None
+        self._centre: Tensor | None = None
+        self._hull = np.zeros((0, 2))
+        self.using = False  # a handle is being dragged
+        self.hovered = False  # the mouse is over a handle: the viewport should not orbit
+
+    @property
+    def capturing(self) -> bool:
+        return self.using or self.hovered
+
+    def _refresh(self, session, index: int, camera: Camera) -> None:
+        key = (id(session), session.version, index, camera.c2w.detach().cpu().numpy().tobytes(), camera.width)
+        if key != self._key:
+            self._key = key
+            self._centre = object_centre(session, index)
+            self._hull = outline(session, index, camera)
+
+    def draw(self, session, index: int | None, camera: Camera, pixel_ratio: tuple[float, float]) -> str | None:
+        """Draw the outline and the handles of particle ``index``'s object (nothing when None) seen by
+        ``camera`` (framebuffer pixels; ``pixel_ratio`` = framebuffer pixels per window point) and apply a
+        handle drag as a move. Returns an error message when a move was refused."""
+        from imgui_bundle import imgui
+        from imgui_bundle import imguizmo
+
+        gz = imguizmo.im_guizmo
+        self.hovered = False
+        if index is None or not session.editable or not 0 <= index < session.num_particles:
+            if self.using:
+                session.end_gesture()
+            self.using = False
+            return None
+        self._refresh(session, index, camera)
+        sx, sy = pixel_ratio
+        draw = imgui.get_background_draw_list()
+        if len(self._hull) >= 3:
+            pts = [imgui.ImVec2(float(u) / sx, float(v) / sy) for u, v in self._hull]
+            draw.add_polyline(pts, imgui.IM_COL32(255, 220, 40, 255), 2.0, imgui.ImDrawFlags_.closed.value)
+        if self._centre is None:
+            return None
+        io = imgui.get_io()
+        gz.begin_frame()
+        gz.set_drawlist(draw)
+        gz.set_rect(0.0, 0.0, io.display_size.x, io.display_size.y)
+        gz.set_orthographic(False)
+        model = np.eye(4)
+        model[:3, 3] = self._centre.numpy()
+        obj = gz.Matrix16(model.T.flatten().tolist())
+        delta = gz.Matrix16(np.eye(4).flatten().tolist())
+        changed = gz.manipulate(gz.Matrix16(gl_view(camera).T.flatten().tolist()),
+                                gz.Matrix16(gl_projection(camera).T.flatten().tolist()),
+                                gz.OPERATION.translate, gz.MODE.world, obj, delta)
+        using = gz.is_using()
+        self.hovered = bool(gz.is_over())
+        message = None
+        if changed:
+            step = np.array(obj.values, dtype=np.float64).reshape(4, 4).T[:3, 3] - self._centre.numpy()
+            if np.isfinite(step).all() and np.linalg.norm(step) > 0:
+                try:
+                    session.move_object(index, step.tolist(), gesture=GIZMO_GESTURE)
+                except MoveError as e:
+                    message = f"error: {e}"
+        if self.using and not using:
+            session.end_gesture()
+        self.using = bool(using)
+        return message
