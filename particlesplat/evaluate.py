@@ -65,6 +65,7 @@ def view_psnr(pred: Tensor, gt: Tensor, sup: Tensor | None) -> float:
 @torch.no_grad()
 def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune: bool = False,
                   fit_steps: int = 0, fit_lr: float = 0.02, fit_latents: tuple[str, ...] = DEFAULT_FIT,
+                  z_t_threshold: float | None = None,
                   true_centres: np.ndarray | None = None) -> dict:
     """Metrics of one dataset item (see :class:`particlesplat.data.SceneDataset`): encode its context
     views (then, with ``fit_steps`` > 0, fit the particles to them: :func:`particlesplat.fit.fit_particles`),
@@ -90,7 +91,7 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     particles = fit_particles(model, particles, item["context_rgb"], depth, fit_steps, fit_lr, latents=fit_latents)
     fit_ms = _ms(t0)
     t0 = time.perf_counter()
-    gaussians = model.decode(particles)
+    gaussians = model.decode(particles, z_t_threshold=z_t_threshold)  # None: the particles that draw
     dec_ms = _ms(t0)
     objects = particle_objects(gaussians, particles.num)
     bg = model.background_color()
@@ -173,8 +174,10 @@ def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
 def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int | None = None,
                      figures: Path | None = None, num_figures: int = 4, prune: bool = False,
                      use_depth: bool = True, seed: int = 0, progress_bar: bool = True, fit_steps: int = 0,
-                     fit_lr: float = 0.02, fit_latents: tuple[str, ...] = DEFAULT_FIT) -> dict:
-    """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}."""
+                     fit_lr: float = 0.02, fit_latents: tuple[str, ...] = DEFAULT_FIT,
+                     z_t_threshold: float | None = None) -> dict:
+    """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}.
+    ``z_t_threshold``: particles drawn (None: the model's, :meth:`ParticleSplat.decode`; 0: every one)."""
     from .atomic import check_writable
     from .data import SceneDataset
 
@@ -193,7 +196,8 @@ def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int |
             raise ValueError(f"{ds.scenes[i]}: {ds.raw(i).num_frames} frame(s): no target view apart from the "
                              f"{context} context view(s); evaluation needs at least {context + 1} frames")
         res = evaluate_item(model, item, use_depth=use_depth, prune=prune, fit_steps=fit_steps, fit_lr=fit_lr,
-                            fit_latents=fit_latents, true_centres=scene_object_centres(ds.scenes[i]))
+                            fit_latents=fit_latents, true_centres=scene_object_centres(ds.scenes[i]),
+                            z_t_threshold=z_t_threshold)
         if figures is not None and i < num_figures:
             save_figure(Path(figures) / f"{ds.scenes[i].name}.png", item, res)
         row = {"scene": ds.scenes[i].name, **{k: res[k] for k in SCALARS}}
@@ -240,6 +244,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fit-latents", default=",".join(DEFAULT_FIT),
                         help=f"comma-separated latents --fit-steps moves, of {','.join(FITTED)} (default: "
                              f"{','.join(DEFAULT_FIT)}, which keeps the particles in place)")
+    parser.add_argument("--z-t-threshold", type=float, default=None,
+                        help="draw the particles with z_t at or above this (default: the model's bg_mask_threshold, "
+                             "as the viewer and particlesplat render draw them; 0 = every particle)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
 
 
@@ -255,7 +262,8 @@ def run(args: argparse.Namespace) -> int:
     out = evaluate_dataset(model, args.data, context=args.context, limit=args.limit,
                            figures=Path(args.figures) if args.figures else None, num_figures=args.num_figures,
                            prune=args.prune, use_depth=not args.no_depth, fit_steps=args.fit_steps,
-                           fit_lr=args.fit_lr, fit_latents=tuple(k.strip() for k in args.fit_latents.split(",")))
+                           fit_lr=args.fit_lr, fit_latents=tuple(k.strip() for k in args.fit_latents.split(",")),
+                           z_t_threshold=args.z_t_threshold)
     m = out["mean"]
     print(f"{len(out['scenes'])} scenes, {args.context} context view(s): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, "
           f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f} (objects; per "
