@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-import torch
 
 from .camera import Camera
 from .encode_scene import add_source_arguments, check_source_arguments, load_model_scene, load_ply_checked
+from .decomposition import MODES, NEEDS_PARTICLES
 from .views import View, check_fov, default_view, parse_look, scene_background
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
@@ -34,6 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cam = parser.add_mutually_exclusive_group()
     cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
     cam.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
+    cam.add_argument("--camera-from", metavar="PNG", help="the camera of a viewer screenshot or a rendered PNG (its "
+                                                          "'camera' chunk); --width/--height rescale it")
     parser.add_argument("--fov", type=float, help="vertical field of view in degrees (with --look or the default "
                                                   "view); none = the scene's")
     parser.add_argument("--width", type=int, help="image width in pixels; none = 640 (with --view and --height: "
@@ -44,14 +46,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="background colour R,G,B (default: the model's learned background colour, if it "
                              "has one, else 0.12,0.14,0.18)")
     parser.add_argument("--prune", type=float, default=0.0, help="drop Gaussians with opacity below this")
-    parser.add_argument("--out", required=True, help="output PNG")
+    parser.add_argument("--out", required=True, help="output PNG (with --turntable: the animation, .gif or .webp; "
+                                                     "frames OUT_STEM_NNN.png beside it)")
+    parser.add_argument("--mode", choices=MODES, default="rgb",
+                        help="layer to render: the scene, depth, segmentation by particle or object, foreground or "
+                             "background alone, or the particles' 3D keypoints or boxes over the scene")
+    parser.add_argument("--turntable", type=int, default=0,
+                        help="N > 0: N frames orbiting the default target (or --look) once, as PNGs plus an "
+                             "animated GIF/WebP")
 
 
 def _scene_and_gaussians(args: argparse.Namespace):
-    """(Gaussians, all input cameras, edits dict, model name, source, background colour) for the arguments."""
+    """(Gaussians, all input cameras, edits dict, model name, source, background colour, particle arrays or None)
+    for the arguments (the arrays only for a --mode that draws from the particles)."""
     check_source_arguments(args)
     if args.ply:
-        return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None)
+        return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None), None
     from .edit_ops import SceneEditor, load_edit_file, scene_mismatch
 
     model, enc, name = load_model_scene(args.checkpoint, args.scene, args.context)
@@ -64,8 +74,13 @@ def _scene_and_gaussians(args: argparse.Namespace):
         editor = SceneEditor(model, particles, enc.all_cameras, enc.context)
         editor.apply_file(file, str(args.edits))
         particles, edits = editor.particles, editor.edits()
-    return (model.decode(particles).detach().to("cpu"), enc.all_cameras, edits, name, str(enc.path),
-            scene_background(model))
+    g = model.decode(particles).detach().to("cpu")
+    arrays = None
+    if getattr(args, "mode", "rgb") in NEEDS_PARTICLES:
+        from .particle_data import particle_arrays
+
+        arrays = particle_arrays(model, particles, g)
+    return g, enc.all_cameras, edits, name, str(enc.path), scene_background(model), arrays
 
 
 def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -> tuple[Camera, View | None]:
@@ -77,6 +92,20 @@ def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -
     for name in ("width", "height"):
         if getattr(args, name) is not None and not 1 <= getattr(args, name) <= MAX_SIDE:
             raise ValueError(f"--{name} must be in [1, {MAX_SIDE}], got {getattr(args, name)}")
+    if getattr(args, "camera_from", None):
+        from .png import camera_from_png
+
+        if args.fov is not None:
+            raise ValueError("--fov applies to --look or the default view, not to --camera-from")
+        cam = camera_from_png(args.camera_from)
+        width, height = args.width, args.height
+        if width is None and height is None:
+            return cam, None
+        if height is None:
+            height = max(1, round(width * cam.height / cam.width))
+        elif width is None:
+            width = max(1, round(height * cam.width / cam.height))
+        return cam.resized(width, height), None
     if args.view is not None:
         if not cameras:
             raise ValueError("--view needs a scene with input cameras")
@@ -99,7 +128,6 @@ def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -
 
 
 def run(args: argparse.Namespace) -> int:
-    from . import render
     from .png import png_text, save_png
 
     from .atomic import check_writable
@@ -110,7 +138,13 @@ def run(args: argparse.Namespace) -> int:
             check_writable(args.out)  # before the work, not after it
         except OSError as e:
             raise OSError(f"--out {one_line(e)}") from None
-        g, cameras, edits, model_name, source, background = _scene_and_gaussians(args)
+        if args.turntable < 0:
+            raise ValueError(f"--turntable must be >= 0 frames, got {args.turntable}")
+        if args.turntable and args.view is not None:
+            raise ValueError("--turntable orbits the default target: use --look (or nothing), not --view")
+        if args.mode in NEEDS_PARTICLES and args.ply:
+            raise ValueError(f"--mode {args.mode} needs a model scene (particles), not --ply")
+        g, cameras, edits, model_name, source, background, arrays = _scene_and_gaussians(args)
         camera, view = resolve_camera(args, cameras, g)
         if camera.width > MAX_SIDE or camera.height > MAX_SIDE or camera.width * camera.height > MAX_PIXELS:
             raise ValueError(f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
@@ -120,14 +154,22 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_USER
     if args.prune > 0:
         g = g.subset(g.opacities >= args.prune)
-    with torch.no_grad():
-        res = render(g, camera, background=background if args.background is None else args.background)
-    extra = {"scene": source}
+    from .decomposition import render_mode, write_turntable
+
+    background = background if args.background is None else args.background
+    extra = {"scene": source, "mode": args.mode}
     if view is not None:
         extra.update(look=f"{view.look.azimuth:.6g},{view.look.elevation:.6g},{view.look.distance:.6g}",
                      fov=f"{view.fov:.6g}")
     try:
-        path = save_png(args.out, res.rgb.numpy(), png_text(camera, edits, model_name, extra))
+        if args.turntable:
+            frames, anim = write_turntable(
+                g, view, args.turntable, camera.width, camera.height, args.out, args.mode, background=background,
+                arrays=arrays, save_frame=lambda p, rgb, c: save_png(p, rgb, png_text(c, edits, model_name, extra)))
+            print(f"saved {anim} and {len(frames)} frames {frames[0]} .. {frames[-1]} ({camera.width}x{camera.height})")
+            return 0
+        path = save_png(args.out, render_mode(g, camera, args.mode, background=background, arrays=arrays),
+                        png_text(camera, edits, model_name, extra))
     except OSError as e:
         print(f"particlesplat render: --out {args.out}: cannot write ({one_line(e.strerror or e)})", file=sys.stderr)
         return EXIT_USER
