@@ -63,7 +63,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=f"particlesplat {name}", description=COMMANDS[name][1],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     module.add_arguments(parser)
-    args = parser.parse_args(rest)
+    from .views import attach_option_values
+
+    args = parser.parse_args(attach_option_values(rest))  # --look -30,20,3: a negative azimuth
     return int(module.run(args) or 0)
 
 

@@ -7,6 +7,7 @@ from os import PathLike
 from pathlib import Path
 
 import numpy as np
+import torch
 import yaml
 from PIL import Image
 from PIL.PngImagePlugin import PngInfo
@@ -53,3 +54,31 @@ def save_png(path: str | PathLike, rgb: np.ndarray, text: dict[str, str] | None 
     with atomic_path(path) as tmp:
         to_image(rgb).save(tmp, format="PNG", pnginfo=png_info(text or {}))
     return path
+
+
+def camera_from_png(path: str | PathLike) -> Camera:
+    """The camera a viewer screenshot or ``particlesplat render`` image was taken with (its ``camera`` text
+    chunk, :func:`camera_text`). Errors name the file and the field."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: PNG not found")
+    try:
+        with Image.open(path) as img:
+            text = dict(getattr(img, "text", {}) or {})
+    except OSError as e:
+        raise ValueError(f"{path}: not a readable image ({e})") from None
+    if "camera" not in text:
+        raise ValueError(f"{path}: no 'camera' text chunk (only viewer screenshots and particlesplat render "
+                         "images carry one)")
+    try:
+        data = json.loads(text["camera"])
+        K = np.asarray(data["K"], dtype=np.float64)
+        c2w = np.asarray(data["c2w_opencv"], dtype=np.float64)
+        width, height = int(data["width"]), int(data["height"])
+    except (ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"{path}: camera chunk: expected JSON with K, c2w_opencv, width, height ({e})") from None
+    if K.shape != (3, 3) or c2w.shape != (4, 4) or not (np.isfinite(K).all() and np.isfinite(c2w).all()):
+        raise ValueError(f"{path}: camera chunk: K must be 3x3 and c2w_opencv 4x4 finite numbers")
+    if not (1 <= width <= 16384 and 1 <= height <= 16384):
+        raise ValueError(f"{path}: camera chunk: width and height must be in [1, 16384], got {width}x{height}")
+    return Camera(torch.from_numpy(K).float(), torch.from_numpy(c2w).float(), width, height)

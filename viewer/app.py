@@ -22,7 +22,8 @@ import torch  # noqa: E402
 
 from particlesplat.camera import Camera  # noqa: E402
 from particlesplat.encode_scene import add_source_arguments, check_source_arguments  # noqa: E402
-from particlesplat.views import DEFAULT_FOV, View, check_fov, default_view, parse_look, scene_background  # noqa: E402
+from particlesplat.views import (DEFAULT_FOV, View, attach_option_values, check_fov, default_view,  # noqa: E402
+                                 parse_look, scene_background)
 
 from .gl_renderer import SplatRenderer  # noqa: E402
 from .loading import load_session, particle_swatches  # noqa: E402
@@ -168,17 +169,18 @@ class App:
             if req.open_path:
                 self.open(req.open_path)
             if req.save_edits:
-                self.session.save_edits(self.fields.edits_path)
-                self.fields.status = f"saved edits to {self.fields.edits_path}"
+                path = self.session.save_edits(self.fields.edits_path)
+                self.fields.status = f"saved {len(self.session.history.undo)} edit operation(s) to {path.resolve()}"
             if req.load_edits:
-                self.session.load_edits(self.fields.edits_path)
-                self.fields.status = f"loaded edits from {self.fields.edits_path}"
+                warning = self.session.load_edits(self.fields.edits_path)
+                self.fields.status = f"loaded edits from {Path(self.fields.edits_path).resolve()}" + (
+                    f"; warning: {warning}" if warning else "")
             if req.screenshot:
                 path = self.screenshot_numbered()
-                self.fields.status = f"saved {path}"
+                self.fields.status = f"saved screenshot {Path(path).resolve()}"
             if req.export_ply:
                 path = export_ply(self.fields.output_dir, self.scene_view.visible_gaussians(self.session, self.state))
-                self.fields.status = f"exported {path}"
+                self.fields.status = f"exported {Path(path).resolve()}"
         except Exception as e:  # noqa: BLE001 - a bad path or file must not close the app: show it
             self.fields.status = f"error: {e}"
 
@@ -278,7 +280,7 @@ def destroy_window(window) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(attach_option_values(list(sys.argv[1:] if argv is None else argv)))
     # per-particle decodes are tiny: one torch thread is ~15x faster than two fighting llvmpipe's
     torch.set_num_threads(1)
     if args.screenshot and args.frames is None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from particlesplat.encode_scene import load_model_scene, load_ply_checked
 from particlesplat.sh import SH_C0
@@ -18,7 +19,9 @@ def load_session(args: argparse.Namespace) -> SceneSession:
     model, encoded, name = load_model_scene(args.checkpoint, args.scene, getattr(args, "context", None))
     session = SceneSession(model, encoded, model_name=name, source=str(encoded.path))
     if getattr(args, "edits", None):
-        session.load_edits(args.edits)
+        warning = session.load_edits(args.edits)
+        if warning:
+            print(f"particlesplat-viewer: warning: {args.edits}: {warning}", file=sys.stderr)
     return session
 
 

@@ -10,7 +10,7 @@ from imgui_bundle import imgui
 from particlesplat.encode_scene import demo_scenes
 from particlesplat.model.particles import EDITABLE
 
-from .panels.objects import ObjectFields, draw_object_section
+from .panels.objects import ObjectFields, draw_object_section, segmentation_colour
 from .session import SceneSession
 from .state import SEG_MODES, ViewState
 
@@ -63,6 +63,7 @@ class UiFields:
     shot_size: list[int] = field(default_factory=lambda: [0, 0])
     status: str = ""
     objects: ObjectFields = field(default_factory=ObjectFields)
+    layout_size: tuple[float, float] = (0.0, 0.0)  # the window size the panel was last placed for
 
 
 def draw_overlay(text_lines: list[str]) -> None:
@@ -79,11 +80,22 @@ def draw_panel(session: SceneSession, state: ViewState, req: UiRequests, fields:
                swatches: dict[int, tuple[float, float, float]], counts: tuple[int, int]) -> None:
     """The side panel. ``swatches``: particle colours; ``counts``: (drawn, total) Gaussians."""
     vp = imgui.get_main_viewport()
-    imgui.set_next_window_pos(imgui.ImVec2(vp.work_pos.x + vp.work_size.x - 410.0, vp.work_pos.y + 8.0),
-                              imgui.Cond_.first_use_ever)
-    imgui.set_next_window_size(imgui.ImVec2(400.0, vp.work_size.y - 16.0), imgui.Cond_.first_use_ever)
+    size = (float(vp.work_size.x), float(vp.work_size.y))
+    cond = imgui.Cond_.always if size != fields.layout_size else imgui.Cond_.first_use_ever
+    fields.layout_size = size  # the panel follows a window resize (docked right, full height)
+    imgui.set_next_window_pos(imgui.ImVec2(vp.work_pos.x + vp.work_size.x - 410.0, vp.work_pos.y + 8.0), cond)
+    imgui.set_next_window_size(imgui.ImVec2(400.0, vp.work_size.y - 16.0), cond)
     imgui.begin("ParticleSplat")
     imgui.push_item_width(-150.0)
+    if fields.status:  # at the top, where the user looks after a click (saved, exported, errors)
+        error = fields.status.startswith("error")
+        imgui.push_style_color(imgui.Col_.text, imgui.ImVec4(1.0, 0.45, 0.4, 1.0) if error
+                               else imgui.ImVec4(0.55, 1.0, 0.55, 1.0))
+        imgui.text_wrapped(fields.status)
+        imgui.pop_style_color()
+        if imgui.small_button("dismiss"):
+            fields.status = ""
+        imgui.separator()
     _scene_section(session, req, fields)
     _view_section(session, state, req, counts)
     if session.editable:
@@ -94,9 +106,6 @@ def draw_panel(session: SceneSession, state: ViewState, req: UiRequests, fields:
     if imgui.collapsing_header("Shortcuts"):
         for keys, what in SHORTCUTS:
             imgui.bullet_text(f"{keys}: {what}")
-    if fields.status:
-        imgui.separator()
-        imgui.text_wrapped(fields.status)
     imgui.pop_item_width()
     imgui.end()
 
@@ -150,7 +159,9 @@ def _view_section(session: SceneSession, state: ViewState, req: UiRequests, coun
 def _particles_section(session: SceneSession, state: ViewState, swatches: dict[int, tuple[float, float, float]]) -> None:
     if not imgui.collapsing_header("Particles", imgui.TreeNodeFlags_.default_open):
         return
-    imgui.text("idx  colour  active  visible  solo")
+    by_object = state.seg_mode == "colour by object"
+    labels = session.objects() if by_object else None
+    imgui.text(f"idx  {'object' if by_object else 'seg'} colour  active  visible  solo")
     for i in range(session.num_particles):
         imgui.push_id(i)
         r, g, b = swatches.get(i, (0.5, 0.5, 0.5))
@@ -158,7 +169,10 @@ def _particles_section(session: SceneSession, state: ViewState, swatches: dict[i
         if clicked:
             state.selected = None if state.selected == i else i
         imgui.same_line()
-        imgui.color_button("##swatch", imgui.ImVec4(r, g, b, 1.0), 0, imgui.ImVec2(36.0, 0.0))
+        sr, sg, sb = segmentation_colour(int(labels[i]) if labels is not None else i)  # as "colour by ..." draws it
+        imgui.color_button("##seg", imgui.ImVec4(sr, sg, sb, 1.0), 0, imgui.ImVec2(22.0, 0.0))
+        imgui.same_line()
+        imgui.color_button("##swatch", imgui.ImVec4(r, g, b, 1.0), 0, imgui.ImVec2(22.0, 0.0))
         imgui.same_line()
         active = session.is_active(i)
         imgui.text_colored(imgui.ImVec4(0.5, 1.0, 0.5, 1.0) if active else imgui.ImVec4(0.6, 0.6, 0.6, 1.0),

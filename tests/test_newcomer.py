@@ -1,0 +1,86 @@
+"""What a newcomer trial asked for: a negative --look azimuth, a screenshot's camera reproduced by
+``particlesplat render --camera-from``, list swatches in the colours the segmentation modes draw."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from particlesplat.camera import Camera
+from particlesplat.encode_scene import demo_scenes
+from particlesplat.gaussians import Gaussians
+from particlesplat.png import camera_from_png, png_text, save_png
+from particlesplat.views import attach_option_values, parse_look
+
+
+def test_a_negative_look_value_is_attached_to_its_option():
+    assert attach_option_values(["--look", "-30,20,3", "--view", "2"]) == ["--look=-30,20,3", "--view", "2"]
+    assert attach_option_values(["--look", "30,20,3"]) == ["--look", "30,20,3"]
+    assert attach_option_values(["--look", "--out", "x"]) == ["--look", "--out", "x"]  # an option stays one
+    import argparse
+
+    p = argparse.ArgumentParser()
+    p.add_argument("--look")
+    assert parse_look(p.parse_args(attach_option_values(["--look", "-30.5,20,3"])).look).azimuth == -30.5
+
+
+def test_render_reproduces_a_png_camera(tmp_path):
+    from particlesplat.cli import main
+
+    scene = str(demo_scenes()[0])
+    a, b = tmp_path / "a.png", tmp_path / "b.png"
+    assert main(["render", "--scene", scene, "--look", "-35,25,3.1", "--width", "48", "--height", "36",
+                 "--out", str(a)]) == 0
+    cam = camera_from_png(a)
+    expected = Camera.orbit((0.0, 0.0, 0.0), -35.0, 25.0, 3.1, width=48, height=36)
+    assert (cam.width, cam.height) == (48, 36)
+    # the look is about the scene's default target: the viewing direction is the one asked for
+    torch.testing.assert_close(cam.c2w[:3, :3], expected.c2w[:3, :3].float(), rtol=0, atol=1e-5)
+    assert main(["render", "--scene", scene, "--camera-from", str(a), "--out", str(b)]) == 0
+    assert np.array_equal(np.asarray(Image.open(a)), np.asarray(Image.open(b)))
+    assert main(["render", "--scene", scene, "--camera-from", str(a), "--width", "96", "--out", str(b)]) == 0
+    assert Image.open(b).size == (96, 72)
+
+
+def test_camera_from_png_errors_name_the_file(tmp_path):
+    plain = tmp_path / "plain.png"
+    Image.new("RGB", (4, 4)).save(plain)
+    with pytest.raises(ValueError, match=r"plain.png: no 'camera' text chunk"):
+        camera_from_png(plain)
+    with pytest.raises(FileNotFoundError, match="missing.png"):
+        camera_from_png(tmp_path / "missing.png")
+    cam = Camera.orbit((0.0, 0.0, 0.0), 10.0, 20.0, 3.0, width=8, height=6)
+    text = png_text(cam, {}, "m")
+    text["camera"] = text["camera"].replace('"width": 8', '"width": "x"')
+    save_png(tmp_path / "bad.png", np.zeros((6, 8, 3)), text)
+    with pytest.raises(ValueError, match=r"bad.png: camera chunk"):
+        camera_from_png(tmp_path / "bad.png")
+
+
+@pytest.mark.gl
+def test_list_swatches_are_the_colours_the_segmentation_mode_draws():
+    from viewer.gl_renderer import SplatRenderer
+    from viewer.panels.objects import segmentation_colour
+    from viewer_helpers import egl_context
+
+    ctx = egl_context()
+    try:
+        owners = [3, 7, 12]
+        means = torch.tensor([[-0.4, 0.0, 0.0], [0.0, 0.0, 0.0], [0.4, 0.0, 0.0]])
+        g = Gaussians(means, torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(3, 1), torch.full((3, 3), 0.06),
+                      torch.full((3,), 0.999), torch.zeros(3, 1, 3), torch.tensor(owners))
+        cam = Camera.look_at((0.0, -3.0, 0.0), (0.0, 0.0, 0.0), fov_y_deg=30.0, width=96, height=64)
+        r = SplatRenderer(ctx)
+        r.set_gaussians(g)
+        r.render(cam, color_mode=1)
+        rgba = r.read_rgba()  # premultiplied: the colour is rgb / alpha
+        uv, _ = cam.project(means)
+        for (u, v), owner in zip(uv.tolist(), owners):
+            px = rgba[int(v), int(u)]
+            assert px[3] > 0.9
+            np.testing.assert_allclose(px[:3] / px[3], segmentation_colour(owner), atol=0.01)
+        r.release()
+    finally:
+        ctx.release()
