@@ -1,5 +1,6 @@
 """The app in-process in a real window (CI runs pytest under xvfb-run): picking, dragging a
-particle, undo, screenshot and .ply export requests, opening another scene."""
+particle, undo, screenshot and .ply export requests, opening another scene, the idle loop; once per
+compositing path (``--compositing``, see conftest.py)."""
 
 from __future__ import annotations
 
@@ -23,19 +24,34 @@ pytestmark = pytest.mark.window
 
 
 @pytest.fixture(scope="module")
-def app(tmp_path_factory):
+def window():
+    """One window and its moderngl context for the module's apps (moderngl detects a window's
+    context once, and a process cannot open a GL window again after closing one on EGL)."""
+    import moderngl
+
     if not os.environ.get("DISPLAY"):
         pytest.fail("no DISPLAY: run the tests under xvfb-run (see the README's test command)")
+    w = A.create_window((160, 120))
+    yield w, moderngl.create_context()
+    A.destroy_window(w)
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory, window, compositing):
+    import glfw
+
+    window, ctx = window
     tmp = tmp_path_factory.mktemp("app")
     ckpt = tmp / "small.pt"
     save_checkpoint(ckpt, small_model(), 0)
-    args = A.build_parser().parse_args(["--checkpoint", str(ckpt), "--size", "160x120", "--output-dir", str(tmp)])
+    args = A.build_parser().parse_args(["--checkpoint", str(ckpt), "--size", "160x120", "--output-dir", str(tmp),
+                                        "--compositing", compositing])
     session = A.load_session(args)
-    window = A.create_window(args.size)
-    a = A.App(window, session, A.initial_view(session, None, None), args)
+    glfw.set_window_size(window, *args.size)
+    a = A.App(window, session, A.initial_view(session, None, None), args, ctx=ctx)
     a.run(2)
     yield a
-    A.destroy_window(window)
+    a.scene_view.renderer.release()
 
 
 def test_pick_selects_the_dominant_particle(app):
@@ -151,3 +167,37 @@ def test_open_ply_replaces_the_session(app, tmp_path):
     app.req.open_path = str(tmp_path / "missing")
     app.run(1)
     assert "error" in app.fields.status and "missing" in app.fields.status
+
+
+def test_idle_loop_draws_only_after_events(app):
+    """Idle, the loop sleeps and draws nothing; a window event draws the settle frames; a motion
+    is followed by one full-scale frame without further input."""
+    import glfw
+
+    from viewer.redraw import SETTLE_FRAMES
+
+    app.run(seconds=0.3)  # let earlier frames and events settle
+    drawn = len(app.frame_times)
+    app.run(seconds=0.5)
+    assert len(app.frame_times) == drawn  # no input, nothing changed: no frame
+    events = app.redraw.events
+    glfw.set_window_size(app.window, 170, 120)  # a real window event through glfw's callbacks
+    app.run(seconds=0.5)
+    assert app.redraw.events > events
+    assert SETTLE_FRAMES <= len(app.frame_times) - drawn <= SETTLE_FRAMES + 2  # (+1 for the re-render at the new size)
+    assert app.scene_view.renderer.size == app.framebuffer_size()
+    glfw.set_window_size(app.window, 160, 120)
+    app.run(seconds=0.3)
+    # a drag's last frame renders at the moving scale; the full-scale frame follows when it stops
+    app.controls.last_move = time.perf_counter()
+    app.orbit.orbit(5.0, 0.0)
+    app.run(1)
+    fw, fh = app.framebuffer_size()
+    assert app.scene_view.renderer.size == (round(fw * 0.5), round(fh * 0.5))
+    drawn = len(app.frame_times)
+    app.run(seconds=A.STILL_AFTER + 0.4)
+    assert app.scene_view.renderer.size == (fw, fh)
+    assert 1 <= len(app.frame_times) - drawn <= SETTLE_FRAMES
+    drawn = len(app.frame_times)
+    app.run(seconds=0.3)
+    assert len(app.frame_times) == drawn  # and then nothing

@@ -111,12 +111,12 @@ def test_reset_and_load_edits(encoded, tmp_path):
         s.set_attribute(0, "z_f", [0.0])
 
 
-def test_edit_redecodes_only_that_particle_and_matches_torch(encoded):
+def test_edit_redecodes_only_that_particle_and_matches_torch(encoded, compositing):
     """After an edit the GL renderer holds exactly the full decode of the edited particles."""
     model, enc = encoded
     ctx = egl_context()
     s = SceneSession(model, enc)
-    view = SceneView(SplatRenderer(ctx, color_dtype="f4"))
+    view = SceneView(SplatRenderer(ctx, color_dtype="f4", compositing=compositing))
     state = ViewState()
     cam = enc.all_cameras[10].resized(80, 80)
     view.draw(s, state, cam)

@@ -3,6 +3,7 @@ and against ``particlesplat render`` (same default view, --look/--fov and edits)
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -24,10 +25,13 @@ from viewer_helpers import psnr, small_model
 pytestmark = pytest.mark.window
 
 VIEWER = str(Path(sys.executable).with_name("particlesplat-viewer"))
+# the driver as NVIDIA's and AMD's desktop drivers are: without framebuffer fetch
+HIDE_FETCH = {"MESA_EXTENSION_OVERRIDE": "-GL_EXT_shader_framebuffer_fetch"}
 
 
-def run_viewer(*args: str) -> str:
-    proc = subprocess.run(["xvfb-run", "-a", VIEWER, *args], capture_output=True, text=True, timeout=240)
+def run_viewer(*args: str, env: dict[str, str] | None = None) -> str:
+    proc = subprocess.run(["xvfb-run", "-a", VIEWER, *args], capture_output=True, text=True, timeout=240,
+                          env={**os.environ, **(env or {})})
     assert proc.returncode == 0, proc.stderr
     assert "median frame time" in proc.stdout
     return proc.stdout
@@ -54,14 +58,18 @@ def test_ply_screenshot_matches_torch(tmp_path):
     assert psnr(load_png(shot), ref) >= 40.0
 
 
-def test_model_scene_with_edits_matches_render_cli(tmp_path):
+@pytest.mark.parametrize("driver", ["as is", "without framebuffer fetch"])
+def test_model_scene_with_edits_matches_render_cli(tmp_path, driver):
     ckpt = tmp_path / "small.pt"
     save_checkpoint(ckpt, small_model(), 0)
     edits = tmp_path / "edits.yaml"
     save_edits(edits, {1: {"z_p": (0.2, -0.3)}, 4: {"z_t": (0.0,)}})
     shot, out = tmp_path / "viewer.png", tmp_path / "render.png"
-    run_viewer("--checkpoint", str(ckpt), "--edits", str(edits), "--frames", "2", "--size", "128x96",
-               "--screenshot", str(shot))
+    hidden = driver != "as is"
+    stdout = run_viewer("--checkpoint", str(ckpt), "--edits", str(edits), "--frames", "2", "--size", "128x96",
+                        "--screenshot", str(shot), env=HIDE_FETCH if hidden else None)
+    if hidden:  # auto took the core-GL path
+        assert "blend compositing" in stdout
     assert cli_main(["render", "--checkpoint", str(ckpt), "--edits", str(edits), "--width", "128", "--height", "96",
                      "--out", str(out)]) == 0
     a, b = load_png(shot), load_png(out)
@@ -81,6 +89,19 @@ def test_viewer_rejects_bad_arguments(tmp_path):
     assert proc.returncode == 2 and "--context needs a model scene" in proc.stderr
     proc = subprocess.run([VIEWER, "--size", "12xfoo"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "--size" in proc.stderr
+    proc = subprocess.run([VIEWER, "--compositing", "fast"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "--compositing" in proc.stderr
+
+
+def test_forced_fetch_without_the_extension_is_a_clear_error(tmp_path):
+    g = random_gaussians(50, seed=0)
+    g.save_ply(tmp_path / "g.ply")
+    proc = subprocess.run(["xvfb-run", "-a", VIEWER, "--ply", str(tmp_path / "g.ply"), "--frames", "1",
+                           "--compositing", "fetch"], capture_output=True, text=True, timeout=240,
+                          env={**os.environ, **HIDE_FETCH})
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines() == [proc.stderr.strip()]  # one line
+    assert "GL_EXT_shader_framebuffer_fetch" in proc.stderr and "--compositing auto or blend" in proc.stderr
 
 
 def test_render_cli_view_and_errors(tmp_path):

@@ -1,8 +1,9 @@
 """``particlesplat-viewer``: the desktop app (glfw window, moderngl, imgui-bundle native backends).
 
-The frame loop only pumps events and draws frames. Panels and mouse tools change the session
-(edits, do/undo) and the view state; :class:`~viewer.scene_view.SceneView` re-renders only
-when those or the camera changed.
+The frame loop only pumps events and draws frames. Idle, it sleeps in ``glfw.wait_events()`` and
+draws nothing; it draws on input (a few frames, :mod:`viewer.redraw`), and once more when a motion
+stops (the full-scale frame). Panels and mouse tools change the session (edits, do/undo) and the
+view state; :class:`~viewer.scene_view.SceneView` re-renders only when those or the camera changed.
 """
 
 from __future__ import annotations
@@ -25,12 +26,13 @@ from particlesplat.encode_scene import add_source_arguments, check_source_argume
 from particlesplat.views import (DEFAULT_FOV, View, attach_option_values, check_fov, default_view,  # noqa: E402
                                  parse_look, scene_background)
 
+from .gl_caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
 from .gl_renderer import SplatRenderer  # noqa: E402
 from .loading import load_session, particle_swatches  # noqa: E402
 from .orbit import OrbitCamera  # noqa: E402
 from .panel import UiFields, UiRequests, draw_overlay, draw_panel  # noqa: E402
+from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noqa: E402
 from .controls import ViewportControls  # noqa: E402
-from .tools.object_tools import ObjectGizmo  # noqa: E402
 from .scene_view import SceneView  # noqa: E402
 from .screenshot import export_ply, png_text, save_png, save_screenshot  # noqa: E402
 from .session import SceneSession  # noqa: E402
@@ -66,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--primitive", choices=("auto", "quads", "points"), default="auto",
                    help="splat primitive: auto = point sprites when every splat fits 255 px, else oriented quads "
                         "(both exact; the default); points = always sprites (large splats clipped)")
+    p.add_argument("--compositing", choices=COMPOSITING, default="auto", help=COMPOSITING_HELP)
     p.add_argument("--output-dir", default=".", help="folder for screenshots and .ply exports (default: .)")
     p.add_argument("--no-ui", action="store_true", help="start with the panel hidden (H toggles)")
     return p
@@ -81,20 +84,33 @@ def initial_view(session: SceneSession, look: str | None, fov: float | None) -> 
 class App:
     """One window: its GL context, renderer, session, state and UI."""
 
-    def __init__(self, window, session: SceneSession, view: View, args: argparse.Namespace) -> None:
+    def __init__(self, window, session: SceneSession, view: View, args: argparse.Namespace,
+                 ctx: moderngl.Context | None = None) -> None:
         self.window = window
-        self.ctx = moderngl.create_context()
+        # (moderngl detects a window's context once: pass ``ctx`` to open another App on the same window)
+        self.ctx = ctx if ctx is not None else moderngl.create_context()
         self.args = args
-        self.scene_view = SceneView(SplatRenderer(self.ctx, primitive=args.primitive, color_dtype="f4"))
+        self.scene_view = SceneView(SplatRenderer(self.ctx, primitive=args.primitive, compositing=args.compositing,
+                                                  color_dtype="f4"))
         self.session = session
         self.orbit = OrbitCamera.from_view(view)
         self.state = ViewState(panel=not args.no_ui, background=scene_background(session.model))
         self.req = UiRequests()
         self.fields = UiFields(output_dir=args.output_dir)
         self.controls = ViewportControls()
-        self.gizmo = ObjectGizmo()  # world-space handles and outline of the selected object
         self.frame_times: list[float] = []
         self.swatches = particle_swatches(session)
+        self.redraw = RedrawSchedule()
+        self._watch_events()
+
+    def _watch_events(self) -> None:
+        """Route every window event to :attr:`redraw`, under imgui's callbacks (which chain to ours)."""
+        from imgui_bundle.imgui import backends
+
+        addr = ctypes.cast(self.window, ctypes.c_void_p).value
+        backends.glfw_restore_callbacks(addr)
+        install_event_callbacks(self.window, self.redraw.notify)
+        backends.glfw_install_callbacks(addr)
 
     # ------------------------------------------------------------------ frame
     def framebuffer_size(self) -> tuple[int, int]:
@@ -109,17 +125,16 @@ class App:
         w, h = self.framebuffer_size()
         return self.orbit.camera(max(1, round(w * scale)), max(1, round(h * scale)))
 
-    def frame(self, show_ui: bool = True) -> None:
-        """One frame: UI, input, render if changed, present."""
+    def frame(self, show_ui: bool = True) -> bool:
+        """One frame: UI, input, render if changed, present. Returns whether it changed anything
+        (re-rendered the scene or carried out a panel request), and schedules the next timed
+        redraw (:attr:`redraw`)."""
         from imgui_bundle.imgui import backends
 
         backends.opengl3_new_frame()
         backends.glfw_new_frame()
         imgui.new_frame()
         if show_ui:
-            message = self.gizmo.draw(self.session, self.state.selected, self.view_camera(1.0), self.pixel_ratio())
-            if message:
-                self.fields.status = message
             self.controls.handle(self)
             if self.state.panel:
                 drawn = self.scene_view.renderer.visible_count
@@ -128,21 +143,35 @@ class App:
             if self.state.overlay:
                 draw_overlay(self.overlay_lines())
         imgui.render()
-        self.process_requests()
-        self.scene_view.draw(self.session, self.state, self.view_camera(self.render_scale()))
+        requested = self.process_requests()
+        scale = self.render_scale()
+        rendered = self.scene_view.draw(self.session, self.state, self.view_camera(scale)) is not None
         fw, fh = self.framebuffer_size()
         self.ctx.screen.use()
         self.ctx.viewport = (0, 0, fw, fh)
         self.scene_view.present(self.state, (0, 0, fw, fh))
         backends.opengl3_render_draw_data(imgui.get_draw_data())
         glfw.swap_buffers(self.window)
+        changed = rendered or requested
+        self.redraw.drawn(changed, self.next_wake(scale))
+        return changed
+
+    def next_wake(self, scale: float) -> float | None:
+        """When to draw without input: the full-scale frame once a motion stops, the cursor of an
+        active text field; None when nothing changes by itself."""
+        if scale < 1.0:
+            return self.controls.last_move + STILL_AFTER
+        if imgui.get_io().want_text_input:
+            return time.perf_counter() + CURSOR_BLINK
+        return None
 
     def overlay_lines(self) -> list[str]:
         t = self.frame_times[-30:]
         ms = float(np.median(t)) * 1e3 if t else 0.0
         r = self.scene_view.renderer
         last = self.scene_view.last_times
-        lines = [f"{ms:6.1f} ms/frame (median of the last 30), render scale {self.render_scale():.2f}",
+        lines = [f"{ms:6.1f} ms/frame (median of the last 30), render scale {self.render_scale():.2f}, "
+                 f"{r.compositing} compositing",
                  f"{r.visible_count:,} of {r.num:,} Gaussians, {last.primitive or '-'}, sort {last.sort_ms:.1f} ms"]
         if self.session.editable:
             active = sum(self.session.is_active(i) for i in range(self.session.num_particles))
@@ -159,8 +188,11 @@ class App:
         return fw / max(ww, 1), fh / max(wh, 1)
 
     # ------------------------------------------------------------------ requests
-    def process_requests(self) -> None:
+    def process_requests(self) -> bool:
+        """Carry out the panel's requests; returns whether there were any."""
         req, self.req = self.req, UiRequests()
+        if req == UiRequests():
+            return False
         try:
             if req.reset_view:
                 self.orbit.reset()
@@ -183,6 +215,7 @@ class App:
                 self.fields.status = f"exported {Path(path).resolve()}"
         except Exception as e:  # noqa: BLE001 - a bad path or file must not close the app: show it
             self.fields.status = f"error: {e}"
+        return True
 
     def open(self, path: str) -> None:
         """Open a scene folder or a .ply (replaces the session)."""
@@ -219,16 +252,34 @@ class App:
         return save_screenshot(self.fields.output_dir, self.screenshot_image(cam), self.screenshot_text(cam))
 
     # ------------------------------------------------------------------ loop
-    def run(self, frames: int | None = None, orbit: bool = False) -> list[float]:
-        """Run until the window closes (or ``frames`` frames); returns the seconds each frame
-        took (events, UI, render if needed, present), not counting the idle wait for input."""
+    def run(self, frames: int | None = None, orbit: bool = False, seconds: float | None = None) -> list[float]:
+        """Run until the window closes, ``frames`` frames were drawn (each drawn at once: benchmarks,
+        tests) or ``seconds`` passed; returns the seconds each frame took (events, UI, render if
+        needed, present), not counting the idle wait for input.
+
+        Without ``frames`` the loop draws only when :attr:`redraw` says so, and sleeps in
+        ``glfw.wait_events`` in between."""
         times = self.frame_times
         n = 0
+        end = None if seconds is None else time.perf_counter() + seconds
         while not glfw.window_should_close(self.window) and (frames is None or n < frames):
-            if frames is None and time.perf_counter() - self.controls.last_move > 1.0:
-                glfw.wait_events_timeout(0.05)  # idle: sleep until input
-            else:
+            if frames is not None:
                 glfw.poll_events()
+            else:
+                now = time.perf_counter()
+                if end is not None and now >= end:
+                    break
+                wait = self.redraw.timeout(now)
+                if end is not None:
+                    wait = end - now if wait is None else min(wait, end - now)
+                if wait is None:
+                    glfw.wait_events()  # idle: sleep until input
+                elif wait > 0:
+                    glfw.wait_events_timeout(wait)
+                else:
+                    glfw.poll_events()
+                if not self.redraw.due(time.perf_counter()):
+                    continue
             t0 = time.perf_counter()
             if orbit:
                 self.orbit.turn(ORBIT_STEP)
@@ -302,13 +353,18 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     window = create_window(args.size)
     try:
-        app = App(window, session, view, args)
+        try:
+            app = App(window, session, view, args)
+        except UnsupportedGL as e:
+            print(f"particlesplat-viewer: {e}", file=sys.stderr)
+            return 1
         times = app.run(args.frames, args.orbit)
         if args.frames is not None:
             steady = times[1:] if len(times) > 1 else times
+            r = app.scene_view.renderer
             print(f"median frame time: {float(np.median(steady)) * 1e3:.2f} ms over {len(steady)} frames "
-                  f"({app.scene_view.renderer.visible_count} Gaussians, {app.framebuffer_size()[0]}x"
-                  f"{app.framebuffer_size()[1]}, {app.scene_view.renderer.renderer_string})")
+                  f"({r.visible_count} Gaussians, {app.framebuffer_size()[0]}x{app.framebuffer_size()[1]}, "
+                  f"{r.renderer_string}, {r.compositing} compositing)")
             if args.screenshot:
                 cam = app.view_camera(1.0)
                 try:

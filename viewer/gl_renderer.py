@@ -155,14 +155,16 @@ class SplatRenderer:
             :attr:`compositing` holds the path taken.
         color_dtype: ``"f2"`` (half float) or ``"f4"`` (float32: the app, tests).
         near, far: camera-z culling planes in metres, as in :func:`particlesplat.render`.
+        caps: the context's capabilities to assume (default: probed); smaller limits than the
+            context's emulate a smaller driver.
     """
 
     def __init__(self, ctx: moderngl.Context, *, primitive: str = "auto", compositing: Compositing = "auto",
-                 color_dtype: str = "f2", near: float = 0.01, far: float = 1e10) -> None:
+                 color_dtype: str = "f2", near: float = 0.01, far: float = 1e10, caps: GLCaps | None = None) -> None:
         if primitive not in PRIMITIVES:
             raise ValueError(f"primitive must be one of {PRIMITIVES}, got {primitive!r}")
         self.ctx = ctx
-        self.caps = probe(ctx)
+        self.caps = caps if caps is not None else probe(ctx)
         self.compositing = self.caps.compositing(compositing)
         self.primitive = primitive
         self.color_dtype = color_dtype
@@ -240,18 +242,19 @@ class SplatRenderer:
 
     def _set_packed(self, packed: np.ndarray, owner: np.ndarray) -> None:
         """packed: (N, texels, 4) float32 grouped by owner; owner: (N,) int64 -> upload all rows."""
+        n, texels = packed.shape[0], packed.shape[1]
+        row = row_for(texels, self.caps.max_texture_size)
+        rows = max(1, math.ceil(n / row))
+        if 2 * rows > self.caps.max_texture_size:  # (the order texture holds 2 rows per data row)
+            raise ValueError(f"{n:,} Gaussians with {texels - 4} SH coefficients exceed this GL driver's "
+                             f"texture size ({self.caps.max_texture_size}; {self.caps.renderer})")
         self._packed = packed
         self._owner = owner
         self._means = np.ascontiguousarray(packed[:, 0, :3])
         self._opacity = np.ascontiguousarray(packed[:, 0, 3])
         owners, starts, counts = np.unique(owner, return_index=True, return_counts=True)
         self._groups = {int(o): (int(s), int(c)) for o, s, c in zip(owners, starts, counts)}
-        n, texels = packed.shape[0], packed.shape[1]
-        row = self.row = row_for(texels, self.caps.max_texture_size)
-        rows = max(1, math.ceil(n / row))
-        if 2 * rows > self.caps.max_texture_size:  # (the order texture holds 2 rows per data row)
-            raise ValueError(f"{n:,} Gaussians with {texels - 4} SH coefficients exceed this GL driver's "
-                             f"texture size ({self.caps.max_texture_size}; {self.caps.renderer})")
+        self.row = row
         if (self._data_tex is None or self._data_tex.size != (row * texels, rows)):
             for t in [self._data_tex, *self._proj_tex]:
                 if t is not None:
@@ -289,11 +292,11 @@ class SplatRenderer:
             self._refilter()
             return
         keep = self._owner != owner
-        if packed.shape[1] > self._packed.shape[1]:
-            grown = np.zeros((self.num, packed.shape[1], 4), np.float32)
-            grown[:, : self._packed.shape[1]] = self._packed
-            self._packed = grown
-        all_packed = np.concatenate([self._packed[keep], packed])
+        held = self._packed
+        if packed.shape[1] > held.shape[1]:
+            held = np.zeros((self.num, packed.shape[1], 4), np.float32)
+            held[:, : self._packed.shape[1]] = self._packed
+        all_packed = np.concatenate([held[keep], packed])
         all_owner = np.concatenate([self._owner[keep], np.full(packed.shape[0], owner, np.int64)])
         order = np.argsort(all_owner, kind="stable")
         self._set_packed(all_packed[order], all_owner[order])
@@ -384,12 +387,12 @@ class SplatRenderer:
 
     def projected_splats(self) -> np.ndarray:
         """(drawn, 4) of the last projection, front to back: centre u, v and the major and minor radius of the
-        alpha >= 1/255 ellipse (pixels; radius 0 = culled). Reads the projection texture back."""
+        alpha >= ALPHA_MIN ellipse (pixels; radius 0 = culled). Reads the projection texture back."""
         if not self._drawn:
             return np.zeros((0, 4), np.float32)
-        rows = math.ceil(self._drawn / self.row)
-        return np.frombuffer(self._proj_fbo.read(viewport=(0, 0, self.row, rows), components=4, attachment=0, dtype="f4"),
-                             np.float32).reshape(-1, 4)[: self._drawn]
+        raw = self._proj_fbo.read(viewport=(0, 0, self.row, math.ceil(self._drawn / self.row)), components=4,
+                                  attachment=0, dtype="f4")
+        return np.frombuffer(raw, np.float32).reshape(-1, 4)[: self._drawn]
 
     def _radii(self) -> np.ndarray:
         """(drawn, 2) major and minor radii (pixels) of the projected splats, 0 if culled."""
