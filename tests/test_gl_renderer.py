@@ -247,11 +247,20 @@ def test_projected_splats_match_torch_projection_and_the_bench_prints_its_floor(
     ref = proj.means2d[torch.argsort(z, stable=True)].numpy()  # front to back, as the GL order
     assert len(s) == len(ref) and live.sum() >= 0.9 * len(ref)
     np.testing.assert_allclose(s[live][:, :2], ref[live], atol=1e-2)
-    r.release()
-    assert bench_main(["--sizes", "400", "--frames", "1", "--no-scene", "--width", "64", "--height", "48",
-                       "--primitive", "points"]) == 0
+    r.release()  # (its caps stay readable)
+    bench = ["--sizes", "400", "--frames", "1", "--no-scene", "--width", "64", "--height", "48", "--primitive",
+             "points", "--compositing"]
+    assert bench_main([*bench, "auto,blend,fetch" if r.caps.framebuffer_fetch else "auto,blend"]) == 0
     out = capsys.readouterr().out
-    assert "sprite floor ms" in out and "| random 400 | 400 | points |" in out
+    assert "sprite floor ms" in out and "| random 400 | 400 | blend | points |" in out
+    if r.caps.framebuffer_fetch:  # both paths side by side (auto is fetch here), and their ratio
+        assert "| random 400 | 400 | fetch | points |" in out
+        assert out.count("| random 400 |") == 2 and "- random 400: blend " in out
+    else:  # auto is blend: one row; fetch is refused
+        assert out.count("| random 400 |") == 1
+        assert bench_main([*bench, "fetch"]) == 2 and "lacks GL_EXT_shader_framebuffer_fetch" in capsys.readouterr().err
+    assert bench_main([*bench, "fetch,fast"]) == 2
+    assert "--compositing" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("primitive", ["quads", "points"])

@@ -3,6 +3,8 @@ random Gaussian sets and the demo scene, and the edit -> frame latency of draggi
 
 Runs on a headless EGL context (the window presents the same offscreen render with one blit,
 under 1 ms on Xvfb). Every frame turns the camera, so every frame re-sorts and re-projects.
+With several compositing paths (``--compositing fetch,blend``) each case is measured on every
+path back to back, and the table ends with their frame-time ratios.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ class Row:
     moving_ms: float = 0.0
     primitive: str = ""
     floor_ms: float = float("nan")
+    compositing: str = ""
 
 
 FLOOR_VERTEX = """#version 330
@@ -96,6 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=30, help="timed frames per case (default: %(default)s)")
     p.add_argument("--primitive", choices=("auto", "quads", "points"), default="auto",
                    help="splat primitive (default: %(default)s, as the viewer)")
+    p.add_argument("--compositing", default="auto",
+                   help="compositing paths, comma-separated, each of auto (fetch where the driver has it), fetch, "
+                        "blend; several are measured side by side (default: %(default)s, as the viewer)")
     p.add_argument("--moving-scale", type=float, default=0.5,
                    help="render scale the viewer uses while the camera moves (default: %(default)s)")
     p.add_argument("--pixel-scale", type=float, default=0.005,
@@ -106,28 +112,34 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _time_frames(renderer: SplatRenderer, cameras: list[Camera]) -> Row:
-    """Median timings over ``cameras`` (the first frame is a warm-up)."""
-    sort, upload, draw, total = [], [], [], []
-    renderer.render(cameras[0], finish=True)  # warm-up: shader compile, first upload
-    for cam in cameras[1:]:
-        t0 = time.perf_counter()
-        ft = renderer.render(cam, finish=True)
-        total.append((time.perf_counter() - t0) * 1e3)
-        sort.append(ft.sort_ms)
-        upload.append(ft.upload_ms)
-        draw.append(ft.draw_ms)
+def _time_frames(renderers: list[SplatRenderer], cameras: list[Camera]) -> list[Row]:
+    """Median timings over ``cameras`` (the first frame is a warm-up) for each renderer. The renderers
+    take turns on every camera (in alternating order), so a change of load on a shared machine
+    falls on all of them alike."""
+    times = [([], [], [], []) for _ in renderers]  # sort, upload, draw, total
+    for r in renderers:
+        r.render(cameras[0], finish=True)  # warm-up: shader compile, first upload
+    for k, cam in enumerate(cameras[1:]):
+        turn = list(enumerate(renderers))
+        for i, r in turn[::-1] if k % 2 else turn:
+            t0 = time.perf_counter()
+            ft = r.render(cam, finish=True)
+            total = (time.perf_counter() - t0) * 1e3
+            for series, v in zip(times[i], (ft.sort_ms, ft.upload_ms, ft.draw_ms, total), strict=True):
+                series.append(v)
     med = lambda v: float(np.median(v))  # noqa: E731
-    return Row("", renderer.visible_count, med(sort), med(upload), med(draw), med(total), renderer.splat_area() / 1e6,
-               primitive=renderer.kind)
+    return [Row("", r.visible_count, med(sort), med(upload), med(draw), med(total), r.splat_area() / 1e6,
+                primitive=r.kind, compositing=r.compositing)
+            for r, (sort, upload, draw, total) in zip(renderers, times, strict=True)]
 
 
-def _case(renderer: SplatRenderer, view: View, args: argparse.Namespace) -> Row:
-    """Full-size frames, then the frame time at the viewer's moving render scale."""
-    row = _time_frames(renderer, orbit_cameras(view, args.width, args.height, args.frames))
+def _case(renderers: list[SplatRenderer], view: View, args: argparse.Namespace) -> list[Row]:
+    """Full-size frames, then the frame time at the viewer's moving render scale, for each renderer."""
+    rows = _time_frames(renderers, orbit_cameras(view, args.width, args.height, args.frames))
     w, h = round(args.width * args.moving_scale), round(args.height * args.moving_scale)
-    row.moving_ms = _time_frames(renderer, orbit_cameras(view, w, h, args.frames)).frame_ms
-    return row
+    for row, moving in zip(rows, _time_frames(renderers, orbit_cameras(view, w, h, args.frames)), strict=True):
+        row.moving_ms = moving.frame_ms
+    return rows
 
 
 def orbit_cameras(view: View, width: int, height: int, frames: int) -> list[Camera]:
@@ -172,6 +184,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from particlesplat.views import default_view
 
+    from .gl_caps import COMPOSITING, UnsupportedGL
     from .gl_renderer import SplatRenderer
     from .random_gaussians import random_gaussians
 
@@ -185,21 +198,39 @@ def main(argv: list[str] | None = None) -> int:
         print("bench viewer: sizes and --frames must be >= 1, --width/--height >= 16, --moving-scale in (0, 1]",
               file=sys.stderr)
         return 2
+    requested = [v.strip() for v in args.compositing.split(",") if v.strip()]
+    if not requested or any(v not in COMPOSITING for v in requested):
+        print(f"bench viewer: --compositing: expected a comma-separated list of {', '.join(COMPOSITING)}, "
+              f"got {args.compositing!r}", file=sys.stderr)
+        return 2
     ctx = moderngl.create_standalone_context(backend="egl")
-    renderer = SplatRenderer(ctx, primitive=args.primitive, color_dtype="f4")
+    renderers: dict[str, SplatRenderer] = {}
+    try:
+        for v in requested:
+            r = SplatRenderer(ctx, primitive=args.primitive, compositing=v, color_dtype="f4")
+            if r.compositing in renderers:
+                r.release()
+            else:
+                renderers[r.compositing] = r
+    except UnsupportedGL as e:
+        print(f"bench viewer: {e}", file=sys.stderr)
+        return 2
+    renderer = next(iter(renderers.values()))
     load0 = os.getloadavg()
     rows: list[Row] = []
     for n in sizes:
         g = random_gaussians(n, seed=0, pixel_scale=args.pixel_scale)
-        renderer.set_gaussians(g)
-        row = _case(renderer, default_view(None, g), args)
-        row.name = f"random {n // 1000}k" if n % 1000 == 0 else f"random {n}"
-        # re-project at full size (the last frames were at the moving scale), then the floor of those splats
-        renderer.render(default_view(None, g).camera(args.width, args.height), finish=True)
-        if renderer.kind == "points":
-            row.floor_ms = sprite_floor_ms(ctx, renderer, args.width, args.height, args.frames)
-        rows.append(row)
-    latency = None
+        for renderer in renderers.values():
+            renderer.set_gaussians(g)
+        case = _case(list(renderers.values()), default_view(None, g), args)
+        for row, renderer in zip(case, renderers.values(), strict=True):
+            row.name = f"random {n // 1000}k" if n % 1000 == 0 else f"random {n}"
+            # re-project at full size (the last frames were at the moving scale), then the floor of those splats
+            renderer.render(default_view(None, g).camera(args.width, args.height), finish=True)
+            if renderer.kind == "points":
+                row.floor_ms = sprite_floor_ms(ctx, renderer, args.width, args.height, args.frames)
+        rows += case
+    latency: dict[str, tuple[float, float]] = {}
     failure = None
     if not args.no_scene:
         from particlesplat.encode_scene import load_model_scene
@@ -214,34 +245,47 @@ def main(argv: list[str] | None = None) -> int:
         scene = enc.path
         session = SceneSession(model, enc)
         g = session.gaussians()
-        renderer.set_gaussians(g)
-        renderer.set_filter(min_opacity=DEFAULT_PRUNE)  # what the viewer draws by default
         view = default_view(enc.all_cameras)
-        row = _case(renderer, view, args)
-        row.name = f"demo scene ({os.path.basename(str(scene))}, opacity >= {DEFAULT_PRUNE:g})"
-        rows.append(row)
-        latency = (edit_latency(renderer, session, view, args.width, args.height),
-                   edit_latency(renderer, session, view, round(args.width * args.moving_scale),
-                                round(args.height * args.moving_scale)))
+        for renderer in renderers.values():
+            renderer.set_gaussians(g)
+            renderer.set_filter(min_opacity=DEFAULT_PRUNE)  # what the viewer draws by default
+        case = _case(list(renderers.values()), view, args)
+        for row in case:
+            row.name = f"demo scene ({os.path.basename(str(scene))}, opacity >= {DEFAULT_PRUNE:g})"
+        rows += case
+        for path, renderer in renderers.items():
+            latency[path] = (edit_latency(renderer, session, view, args.width, args.height),
+                             edit_latency(renderer, session, view, round(args.width * args.moving_scale),
+                                          round(args.height * args.moving_scale)))
     load1 = os.getloadavg()
     print(f"GL renderer: {renderer.renderer_string}")
     print(f"{args.width}x{args.height}, {args.primitive}, median of {args.frames} frames, camera turning 1 deg/frame "
           f"(every frame re-sorts); load average {load0[0]:.1f} -> {load1[0]:.1f} on {os.cpu_count()} CPUs")
     print()
-    print(f"| scene | Gaussians | primitive | splat area Mpx | sort ms | upload ms | draw ms | frame ms | "
-          f"frame ms at {args.moving_scale:g} scale (moving) | sprite floor ms |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print(f"| scene | Gaussians | compositing | primitive | splat area Mpx | sort ms | upload ms | draw ms | "
+          f"frame ms | frame ms at {args.moving_scale:g} scale (moving) | sprite floor ms |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         floor = "-" if r.floor_ms != r.floor_ms else f"{r.floor_ms:.1f}"
-        print(f"| {r.name} | {r.gaussians:,} | {r.primitive} | {r.area_mpx:.1f} | {r.sort_ms:.1f} | "
+        print(f"| {r.name} | {r.gaussians:,} | {r.compositing} | {r.primitive} | {r.area_mpx:.1f} | {r.sort_ms:.1f} | "
               f"{r.upload_ms:.2f} | {r.draw_ms:.1f} | {r.frame_ms:.1f} | {r.moving_ms:.1f} | {floor} |")
     print("\nsprite floor: the same point sprites (centres, sides) drawn with a constant colour and no blending, "
           "the least a point-sprite splatter pays here before shading and compositing")
-    if latency is not None:
-        print(f"\nedit -> frame latency (drag one particle's z_p: decode it, upload its rows, sort, project, draw): "
-              f"{latency[0]:.1f} ms at {args.width}x{args.height}, {latency[1]:.1f} ms at the moving scale "
+    paths = list(renderers)
+    if len(paths) > 1:
+        print(f"\nframe time ratios, {' / '.join(paths[1:])} over {paths[0]} (same cameras, the paths taking turns "
+              f"frame by frame):")
+        for i in range(0, len(rows), len(paths)):
+            base, others = rows[i], rows[i + 1: i + len(paths)]
+            print(f"- {base.name}: " + "; ".join(
+                f"{o.compositing} {o.frame_ms / base.frame_ms:.2f}x still, {o.moving_ms / base.moving_ms:.2f}x moving"
+                for o in others))
+    for path, (full, moving) in latency.items():
+        print(f"\nedit -> frame latency, {path} (drag one particle's z_p: decode it, upload its rows, sort, project, "
+              f"draw): {full:.1f} ms at {args.width}x{args.height}, {moving:.1f} ms at the moving scale "
               f"{args.moving_scale:g} (what a drag in the viewer renders)")
-    renderer.release()
+    for r in renderers.values():
+        r.release()
     ctx.release()
     if failure:
         print(f"\n{failure}", file=sys.stderr)
