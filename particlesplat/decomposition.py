@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import colorsys
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
 from typing import Literal
@@ -80,23 +81,36 @@ def _project(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return uv.numpy(), z.numpy()
 
 
-def _overlay(base: np.ndarray, camera: Camera, arrays: ParticleArrays, mode: str) -> np.ndarray:
-    img = Image.fromarray((np.clip(base * DIM, 0, 1) * 255 + 0.5).astype(np.uint8), "RGB")
-    draw = ImageDraw.Draw(img)
-    scale = max(1.0, min(camera.width, camera.height) / 160.0)  # pixels per mark unit
+@dataclass(frozen=True)
+class Mark:
+    """One overlay mark in image pixels: a filled ``dot`` or a ``ring`` at ``points[0]`` with ``radius``, or a
+    ``line`` from ``points[0]`` to ``points[1]``; ``colour`` RGB in [0, 1]; ``width`` of outlines in pixels."""
+
+    kind: Literal["dot", "ring", "line"]
+    points: tuple[tuple[float, float], ...]
+    colour: tuple[float, float, float]
+    radius: float = 0.0
+    width: float = 1.0
+
+
+def overlay_marks(arrays: ParticleArrays, camera: Camera, mode: Literal["keypoints", "boxes"]) -> list[Mark]:
+    """The marks of ``mode`` for the drawing particles seen by ``camera`` (pixels of its image), coloured by
+    object: keypoints = a dot at each ``anchor`` and a ring at each ``centroid``; boxes = the 12 edges of
+    ``centroid`` +- ``BOX_SIGMAS`` x ``extent``. Points behind the camera are left out (and edges touching
+    them). Mark sizes grow with the image (one unit per 160 pixels of its smaller side)."""
+    scale = max(1.0, min(camera.width, camera.height) / 160.0)
     cam = camera.to("cpu", torch.float64)
+    marks: list[Mark] = []
     for i in np.flatnonzero(arrays.active):
-        colour = tuple(int(255 * c) for c in palette(int(arrays.object[i])))
+        colour = palette(int(arrays.object[i]))
         if mode == "keypoints":
             uv, z = _project(cam, np.stack([arrays.anchor[i], arrays.centroid[i]]))
-            r = 2.5 * scale
             if z[0] > 0:
-                draw.ellipse([uv[0, 0] - r, uv[0, 1] - r, uv[0, 0] + r, uv[0, 1] + r], fill=colour,
-                             outline=(0, 0, 0), width=max(1, int(scale / 2)))
+                marks.append(Mark("dot", ((float(uv[0, 0]), float(uv[0, 1])),), colour, 2.5 * scale,
+                                  max(1.0, scale / 2)))
             if z[1] > 0:
-                r2 = 4.0 * scale
-                draw.ellipse([uv[1, 0] - r2, uv[1, 1] - r2, uv[1, 0] + r2, uv[1, 1] + r2], outline=colour,
-                             width=max(1, int(scale)))
+                marks.append(Mark("ring", ((float(uv[1, 0]), float(uv[1, 1])),), colour, 4.0 * scale,
+                                  max(1.0, scale)))
         else:
             c, e = arrays.centroid[i].astype(np.float64), BOX_SIGMAS * arrays.extent[i].astype(np.float64)
             corners = np.array([[c[0] + sx * e[0], c[1] + sy * e[1], c[2] + sz * e[2]]
@@ -105,7 +119,24 @@ def _overlay(base: np.ndarray, camera: Camera, arrays: ParticleArrays, mode: str
             for a in range(8):
                 for b in range(a + 1, 8):
                     if (a ^ b).bit_count() == 1 and z[a] > 0 and z[b] > 0:  # corners one axis apart: an edge
-                        draw.line([tuple(uv[a]), tuple(uv[b])], fill=colour, width=max(1, int(scale)))
+                        marks.append(Mark("line", ((float(uv[a, 0]), float(uv[a, 1])),
+                                                   (float(uv[b, 0]), float(uv[b, 1]))), colour, 0.0,
+                                          max(1.0, scale)))
+    return marks
+
+
+def _overlay(base: np.ndarray, camera: Camera, arrays: ParticleArrays, mode: str) -> np.ndarray:
+    img = Image.fromarray((np.clip(base * DIM, 0, 1) * 255 + 0.5).astype(np.uint8), "RGB")
+    draw = ImageDraw.Draw(img)
+    for m in overlay_marks(arrays, camera, mode):
+        colour = tuple(int(255 * c) for c in m.colour)
+        (u, v), r, w = m.points[0], m.radius, int(m.width)
+        if m.kind == "dot":
+            draw.ellipse([u - r, v - r, u + r, v + r], fill=colour, outline=(0, 0, 0), width=w)
+        elif m.kind == "ring":
+            draw.ellipse([u - r, v - r, u + r, v + r], outline=colour, width=w)
+        else:
+            draw.line([m.points[0], m.points[1]], fill=colour, width=w)
     return np.asarray(img).astype(np.float64) / 255.0
 
 

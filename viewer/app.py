@@ -34,6 +34,7 @@ from .panel import UiFields, UiRequests, draw_overlay, draw_panel  # noqa: E402
 from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noqa: E402
 from .controls import ViewportControls  # noqa: E402
 from .tools.object_tools import ObjectGizmo  # noqa: E402
+from .particle_overlay import ParticleOverlay  # noqa: E402
 from .scene_view import SceneView  # noqa: E402
 from .screenshot import export_ply, png_text, save_png, save_screenshot  # noqa: E402
 from .session import SceneSession  # noqa: E402
@@ -100,6 +101,7 @@ class App:
         self.fields = UiFields(output_dir=args.output_dir)
         self.controls = ViewportControls()
         self.gizmo = ObjectGizmo()  # world-space handles and outline of the selected object
+        self.particle_overlay = ParticleOverlay()  # keypoints / boxes segmentation modes
         self.frame_times: list[float] = []
         self.swatches = particle_swatches(session)
         self.redraw = RedrawSchedule()
@@ -138,6 +140,7 @@ class App:
         imgui.new_frame()
         if show_ui:
             message = self.gizmo.draw(self.session, self.state.selected, self.view_camera(1.0), self.pixel_ratio())
+            self.particle_overlay.draw(self.session, self.state.seg_mode, self.view_camera(1.0), self.pixel_ratio())
             if message:
                 self.fields.status = message
             self.controls.handle(self)

@@ -12,7 +12,7 @@ from particlesplat.views import DEFAULT_BACKGROUND
 DEFAULT_PRUNE = 0.05
 
 SEG_MODES = ("normal", "colour by particle", "colour by object", "mask of selected", "background hidden",
-             "background alone")
+             "background alone", "keypoints", "boxes")  # the last two: the particles' 3D marks (particle_overlay)
 
 
 @dataclass

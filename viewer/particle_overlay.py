@@ -1,0 +1,59 @@
+"""The "keypoints" and "boxes" segmentation modes: the particles' 3D keypoints and boxes drawn over the scene.
+
+The marks are those of ``particlesplat render --mode keypoints|boxes``
+(:func:`particlesplat.decomposition.overlay_marks`), from the scene's particle arrays
+(:func:`particlesplat.particle_data.particle_arrays`, recomputed when the particles change) projected into the
+view camera, and drawn with ImGui's background draw list (over the scene, under the panels).
+"""
+
+from __future__ import annotations
+
+from particlesplat.camera import Camera
+from particlesplat.decomposition import Mark, overlay_marks
+from particlesplat.particle_data import ParticleArrays, particle_arrays
+
+OVERLAY_MODES = ("keypoints", "boxes")
+
+
+class ParticleOverlay:
+    """Keeps the particle arrays of the session in step (by ``session.version``) and draws the marks."""
+
+    def __init__(self) -> None:
+        self._key: tuple | None = None
+        self._arrays: ParticleArrays | None = None
+
+    def arrays(self, session) -> ParticleArrays | None:
+        """The session's particle arrays (None for a .ply: no particles)."""
+        if not session.editable:
+            return None
+        key = (id(session), session.version)
+        if key != self._key:
+            self._key = key
+            self._arrays = particle_arrays(session.model, session.particles)
+        return self._arrays
+
+    def marks(self, session, mode: str, camera: Camera) -> list[Mark]:
+        """The marks of ``mode`` (keypoints or boxes) in ``camera``'s framebuffer pixels; none otherwise."""
+        arrays = self.arrays(session) if mode in OVERLAY_MODES else None
+        return [] if arrays is None else overlay_marks(arrays, camera, mode)
+
+    def draw(self, session, mode: str, camera: Camera, pixel_ratio: tuple[float, float]) -> int:
+        """Draw the marks (``pixel_ratio``: framebuffer pixels per window point). Returns how many."""
+        from imgui_bundle import imgui
+
+        marks = self.marks(session, mode, camera)
+        if not marks:
+            return 0
+        sx, sy = pixel_ratio
+        draw = imgui.get_background_draw_list()
+        for m in marks:
+            col = imgui.IM_COL32(*(int(255 * c) for c in m.colour), 255)
+            pts = [imgui.ImVec2(float(u) / sx, float(v) / sy) for u, v in m.points]
+            if m.kind == "dot":
+                draw.add_circle_filled(pts[0], m.radius / sx, col)
+                draw.add_circle(pts[0], m.radius / sx, imgui.IM_COL32(0, 0, 0, 255), 0, m.width)
+            elif m.kind == "ring":
+                draw.add_circle(pts[0], m.radius / sx, col, 0, m.width)
+            else:
+                draw.add_line(pts[0], pts[1], col, m.width)
+        return len(marks)
