@@ -65,6 +65,8 @@ def _scene_and_gaussians(args: argparse.Namespace):
     from .edit_ops import SceneEditor, load_edit_file, scene_mismatch
 
     model, enc, name = load_model_scene(args.checkpoint, args.scene, args.context)
+    for warning in enc.warnings:
+        print(f"particlesplat render: warning: {warning}", file=sys.stderr)
     particles, edits = enc.particles, {}
     if args.edits:  # version 1 (particle values) or 2 (object operations, replayed as the viewer did them)
         file = load_edit_file(args.edits)

@@ -84,3 +84,24 @@ def test_list_swatches_are_the_colours_the_segmentation_mode_draws():
         r.release()
     finally:
         ctx.release()
+
+
+def test_a_scene_without_depth_warns(tmp_path):
+    import json
+    import shutil
+
+    from particlesplat.encode_scene import encode_scene
+    from particlesplat.model import load_model
+
+    src = demo_scenes()[0]
+    dst = tmp_path / "rgb_only"
+    shutil.copytree(src, dst)
+    tf = json.loads((dst / "transforms.json").read_text())
+    for frame in tf["frames"]:
+        frame.pop("depth_file_path", None)
+    (dst / "transforms.json").write_text(json.dumps(tf))
+    shutil.rmtree(dst / "depth")
+    model = load_model(None)
+    enc = encode_scene(model, dst, [4, 16])
+    assert len(enc.warnings) == 1 and "no depth" in enc.warnings[0] and "rgb_only" in enc.warnings[0]
+    assert encode_scene(model, src, [4, 16]).warnings == []

@@ -38,6 +38,8 @@ class ViewportControls:
         """Read this frame's input from imgui (unless a panel wants it) and apply it."""
         io = imgui.get_io()
         sx, sy = app.pixel_ratio()
+        if app.state.selected is not None and app.state.selected >= app.session.num_owners():
+            app.state.selected = None  # an undone copy
         if not io.want_capture_mouse and not app.gizmo.capturing:
             self._mouse(app, io, sx, sy)
         if not io.want_capture_keyboard:

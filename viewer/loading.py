@@ -18,6 +18,8 @@ def load_session(args: argparse.Namespace) -> SceneSession:
         return SceneSession(gaussians=load_ply_checked(args.ply), source=str(args.ply))
     model, encoded, name = load_model_scene(args.checkpoint, args.scene, getattr(args, "context", None))
     session = SceneSession(model, encoded, model_name=name, source=str(encoded.path))
+    for warning in encoded.warnings:
+        print(f"particlesplat-viewer: warning: {warning}", file=sys.stderr)
     if getattr(args, "edits", None):
         warning = session.load_edits(args.edits)
         if warning:

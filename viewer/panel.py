@@ -114,6 +114,10 @@ def _scene_section(session: SceneSession, req: UiRequests, fields: UiFields) -> 
     if not imgui.collapsing_header("Scene", imgui.TreeNodeFlags_.default_open):
         return
     imgui.text_wrapped(f"{session.source}")
+    for warning in getattr(session.encoded, "warnings", None) or []:
+        imgui.push_style_color(imgui.Col_.text, imgui.ImVec4(1.0, 0.75, 0.3, 1.0))
+        imgui.text_wrapped(f"warning: {warning}")
+        imgui.pop_style_color()
     if session.model_name:
         imgui.text_wrapped(f"model: {session.model_name}")
     scenes = demo_scenes()
