@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 import pytest
+import torch
 from imgui_bundle import imgui
 from PIL import Image
 
@@ -109,6 +110,26 @@ def test_screenshot_and_export(app, tmp_path):
     assert exported.num == app.scene_view.visible_gaussians(app.session, app.state).num
     assert bool((exported.opacities >= 0.2 - 1e-6).all())
     app.state.prune = 0.0
+
+
+def test_export_object_ply(app, tmp_path):
+    """The panel's "Export object .ply": the selected particle's object alone, its Gaussians as decoded."""
+    s = app.session
+    i = next(k for k in range(s.num_particles) if s.is_active(k))
+    app.fields.output_dir = str(tmp_path)
+    app.state.selected = i
+    app.req.export_object = True
+    app.run(1)
+    plys = sorted(tmp_path.glob("particlesplat_*.ply"))
+    assert len(plys) == 1, app.fields.status
+    exported = Gaussians.load_ply(plys[0])
+    members = s.object_members(i)
+    ref = s.model.decode(s.particles, torch.tensor(members), background=False)
+    assert set(exported.owner.tolist()) <= set(members)
+    ref = ref.subset(ref.opacities >= app.state.prune)
+    assert exported.num == ref.num
+    torch.testing.assert_close(exported.means, ref.means.detach().float(), atol=1e-6, rtol=0)
+    app.state.selected = None
 
 
 def test_render_scale_and_no_redraw_when_still(app):

@@ -221,6 +221,12 @@ class App:
             if req.export_ply:
                 path = export_ply(self.fields.output_dir, self.scene_view.visible_gaussians(self.session, self.state))
                 self.fields.status = f"exported {Path(path).resolve()}"
+            if req.export_object and self.state.selected is not None and self.session.editable:
+                members = self.session.object_members(self.state.selected)  # its Gaussians, as drawn
+                g = self.session.model.decode(self.session.particles, torch.tensor(members), background=False)
+                g = g.subset(g.opacities >= self.state.prune).detach().to("cpu")
+                path = export_ply(self.fields.output_dir, g)
+                self.fields.status = f"exported object of particles {members} to {Path(path).resolve()}"
         except Exception as e:  # noqa: BLE001 - a bad path or file must not close the app: show it
             self.fields.status = f"error: {e}"
         return True

@@ -47,6 +47,7 @@ class UiRequests:
     open_path: str | None = None
     screenshot: bool = False
     export_ply: bool = False
+    export_object: bool = False  # the selected particle's object to a .ply
     save_edits: bool = False
     load_edits: bool = False
     snap_camera: int | None = None
@@ -102,7 +103,7 @@ def draw_panel(session: SceneSession, state: ViewState, req: UiRequests, fields:
         _particles_section(session, state, swatches)
         _selected_section(session, state, fields)
         _edits_section(session, req, fields)
-    _output_section(req, fields)
+    _output_section(req, fields, session.editable and state.selected is not None)
     if imgui.collapsing_header("Shortcuts"):
         for keys, what in SHORTCUTS:
             imgui.bullet_text(f"{keys}: {what}")
@@ -243,7 +244,7 @@ def _edits_section(session: SceneSession, req: UiRequests, fields: UiFields) -> 
         req.load_edits = True
 
 
-def _output_section(req: UiRequests, fields: UiFields) -> None:
+def _output_section(req: UiRequests, fields: UiFields, object_selected: bool = False) -> None:
     if not imgui.collapsing_header("Output", imgui.TreeNodeFlags_.default_open):
         return
     _, fields.output_dir = imgui.input_text("folder", fields.output_dir)
@@ -255,3 +256,7 @@ def _output_section(req: UiRequests, fields: UiFields) -> None:
     imgui.same_line()
     if imgui.button("Export .ply (E)"):
         req.export_ply = True
+    if object_selected:
+        imgui.same_line()
+        if imgui.button("Export object .ply"):
+            req.export_object = True
