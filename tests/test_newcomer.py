@@ -105,3 +105,15 @@ def test_a_scene_without_depth_warns(tmp_path):
     enc = encode_scene(model, dst, [4, 16])
     assert len(enc.warnings) == 1 and "no depth" in enc.warnings[0] and "rgb_only" in enc.warnings[0]
     assert encode_scene(model, src, [4, 16]).warnings == []
+
+
+def test_the_default_framing_keeps_the_scene_clear_of_the_panel():
+    from viewer.panel import PANEL_MARGIN, PANEL_WIDTH, clear_of_panel
+
+    cam = Camera.orbit((0.2, -0.1, 0.15), 30.0, 30.0, 3.3, width=2560, height=1600)
+    framed = clear_of_panel(cam, 2.0)  # a HiDPI window: 2 pixels a point
+    (u, v), _ = framed.project(torch.tensor([[0.2, -0.1, 0.15]]))[0][0], None
+    free = 2560 - 2.0 * (PANEL_WIDTH + PANEL_MARGIN)  # pixels left of the panel
+    assert abs(float(u) - free / 2) < 1e-3 and abs(float(v) - 800) < 1e-3
+    small = Camera.orbit((0.0, 0.0, 0.0), 0.0, 30.0, 3.0, width=300, height=200)
+    assert clear_of_panel(small, 1.0) is small  # too narrow to share with the panel: centred

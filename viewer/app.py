@@ -30,7 +30,7 @@ from .gl_caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
 from .gl_renderer import SplatRenderer  # noqa: E402
 from .loading import load_session, particle_swatches  # noqa: E402
 from .orbit import OrbitCamera  # noqa: E402
-from .panel import UiFields, UiRequests, draw_overlay, draw_panel  # noqa: E402
+from .panel import UiFields, UiRequests, clear_of_panel, draw_overlay, draw_panel  # noqa: E402
 from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noqa: E402
 from .controls import ViewportControls  # noqa: E402
 from .tools.object_tools import ObjectGizmo  # noqa: E402
@@ -125,9 +125,14 @@ class App:
         moving = time.perf_counter() - self.controls.last_move < STILL_AFTER
         return self.state.moving_scale if moving else 1.0
 
-    def view_camera(self, scale: float = 1.0) -> Camera:
+    def view_camera(self, scale: float = 1.0, clear_panel: bool = True) -> Camera:
+        """The orbit camera at the framebuffer size x ``scale``; with the panel shown (and ``clear_panel``) it
+        frames the scene in the part of the window the panel leaves free."""
         w, h = self.framebuffer_size()
-        return self.orbit.camera(max(1, round(w * scale)), max(1, round(h * scale)))
+        cam = self.orbit.camera(max(1, round(w * scale)), max(1, round(h * scale)))
+        if clear_panel and self.state.panel:
+            cam = clear_of_panel(cam, self.pixel_ratio()[0] * scale)
+        return cam
 
     def frame(self, show_ui: bool = True) -> bool:
         """One frame: UI, input, render if changed, present. Returns whether it changed anything
@@ -249,7 +254,7 @@ class App:
         w, h = self.fields.shot_size
         if w > 0 and h > 0:
             return self.orbit.camera(w, h)
-        return self.view_camera(1.0)
+        return self.view_camera(1.0, clear_panel=False)  # a screenshot has no panel: centred
 
     def screenshot_image(self, camera: Camera) -> np.ndarray:
         return self.scene_view.image(self.session, self.state, camera)

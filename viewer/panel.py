@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from imgui_bundle import imgui
 
+from particlesplat.camera import Camera
 from particlesplat.encode_scene import demo_scenes
 from particlesplat.model.particles import EDITABLE
 
@@ -38,6 +39,21 @@ SHORTCUTS = (
 
 DRAG_SPEED = MappingProxyType({"z_p": 0.005, "z_s": 0.02, "z_d": 0.02, "z_e": 0.02, "z_t": 0.005,
                                "move": 0.005})  # move: metres per pixel dragged
+
+
+PANEL_WIDTH, PANEL_MARGIN = 400.0, 10.0  # window points: the panel docks at the right edge
+
+
+def clear_of_panel(camera: Camera, px_per_point: float) -> Camera:
+    """``camera`` with its principal point moved left by half the panel's width (``px_per_point`` camera
+    pixels per window point), so what the orbit looks at sits in the middle of the part of the window the
+    panel leaves free. Unchanged when the window is less than twice as wide as the panel."""
+    shift = 0.5 * (PANEL_WIDTH + PANEL_MARGIN) * px_per_point
+    if camera.width < 4.0 * shift:
+        return camera
+    K = camera.K.clone()
+    K[0, 2] -= shift
+    return Camera(K, camera.c2w, camera.width, camera.height)
 
 
 @dataclass
@@ -84,8 +100,9 @@ def draw_panel(session: SceneSession, state: ViewState, req: UiRequests, fields:
     size = (float(vp.work_size.x), float(vp.work_size.y))
     cond = imgui.Cond_.always if size != fields.layout_size else imgui.Cond_.first_use_ever
     fields.layout_size = size  # the panel follows a window resize (docked right, full height)
-    imgui.set_next_window_pos(imgui.ImVec2(vp.work_pos.x + vp.work_size.x - 410.0, vp.work_pos.y + 8.0), cond)
-    imgui.set_next_window_size(imgui.ImVec2(400.0, vp.work_size.y - 16.0), cond)
+    imgui.set_next_window_pos(imgui.ImVec2(vp.work_pos.x + vp.work_size.x - PANEL_WIDTH - PANEL_MARGIN,
+                                           vp.work_pos.y + 8.0), cond)
+    imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, vp.work_size.y - 16.0), cond)
     imgui.begin("ParticleSplat")
     imgui.push_item_width(-150.0)
     if fields.status:  # at the top, where the user looks after a click (saved, exported, errors)
