@@ -127,9 +127,9 @@ def _dilate(mask: torch.Tensor, px: int) -> torch.Tensor:
     return F.max_pool2d(mask.float()[:, None], 2 * px + 1, stride=1, padding=px)[:, 0] > 0
 
 
-def _renders(model, particles, cameras) -> torch.Tensor:
+def _renders(model, particles, cameras, z_t_threshold: float | None = None) -> torch.Tensor:
     """(V, 3, H, W) renders of the particles (edits applied) in ``cameras``."""
-    g = model.decode(particles).detach().to("cpu")
+    g = model.decode(particles, z_t_threshold=z_t_threshold).detach().to("cpu")
     bg = model.background_color().detach().cpu()
     with torch.no_grad():
         return torch.stack([render(g, c, background=bg).rgb.permute(2, 0, 1) for c in cameras])
@@ -142,7 +142,7 @@ def _sq_err(pred: torch.Tensor, gt: torch.Tensor, region: torch.Tensor) -> tuple
 
 
 def bench_scene(model, seed: int, split: str, index: int, res: int, context: list[int], dilate: int,
-                work: Path) -> dict | None:
+                work: Path, z_t_threshold: float | None = None) -> dict | None:
     """Edit-fidelity PSNR of one held-out scene: {kind: {variant: {region: dB}}}, plus the pick's outcome."""
     pairs = edit_pairs(seed, split, index, res, context)
     if pairs is None:
@@ -171,7 +171,7 @@ def bench_scene(model, seed: int, split: str, index: int, res: int, context: lis
             old = torch.zeros_like(old)  # the original stays: only the copy's place changes
         regions = {"changed": _dilate(old | new, dilate), "vacated": _dilate(old, dilate) & ~new,
                    "view": torch.ones_like(old)}
-        editor = SceneEditor(model, enc.particles, enc.all_cameras, context)
+        editor = SceneEditor(model, enc.particles, enc.all_cameras, context, z_t_threshold)
         status = "ok"
         try:
             label = editor.pick(pairs["pick"])
@@ -185,9 +185,10 @@ def bench_scene(model, seed: int, split: str, index: int, res: int, context: lis
         except (PickError, MoveError) as e:
             status = f"failed: {e}"
         if noop is None:
-            noop = _renders(model, enc.particles, cams)
-        preds = {"edit": _renders(model, editor.particles, cams), "noop": noop,
-                 "ceiling": _renders(model, encode_scene(model, folders[kind], context).particles, cams)}
+            noop = _renders(model, enc.particles, cams, z_t_threshold)
+        preds = {"edit": _renders(model, editor.particles, cams, z_t_threshold), "noop": noop,
+                 "ceiling": _renders(model, encode_scene(model, folders[kind], context).particles, cams,
+                                     z_t_threshold)}
         row = {"status": status, "pixels": {r: int(m.sum()) for r, m in regions.items()}}
         for variant, pred in preds.items():
             row[variant] = {}
@@ -241,6 +242,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--dilate", type=int, default=1, help="pixels (at the model's resolution) the object "
                                                               "masks are grown by")
     parser.add_argument("--work", default=None, help="folder for the generated scenes (default: a temporary one)")
+    parser.add_argument("--z-t-threshold", type=float, default=None,
+                        help="the particles that draw (default: the model's, as the viewer; 0 = every particle, "
+                             "the faint inactive ones too, as before they were dropped)")
     parser.add_argument("--json", default="bench_edits.json", help="write per-scene and mean results here")
     args = parser.parse_args(argv)
     from .model import load_model
@@ -254,7 +258,8 @@ def main(argv: list[str] | None = None) -> int:
         work = Path(args.work) if args.work else Path(tmp)
         index = args.start
         while len(rows) < args.scenes:
-            row = bench_scene(model, args.seed, args.split, index, args.res, context, args.dilate, work)
+            row = bench_scene(model, args.seed, args.split, index, args.res, context, args.dilate, work,
+                              args.z_t_threshold)
             if row is None:
                 skipped.append(index)
             else:
@@ -265,7 +270,8 @@ def main(argv: list[str] | None = None) -> int:
             index += 1
     table = summarise(rows)
     print(format_table(table, len(rows)))
-    out = {"checkpoint": args.checkpoint or "assets/model.pt", "seed": args.seed, "split": args.split,
+    out = {"checkpoint": args.checkpoint or "assets/model.pt", "z_t_threshold": args.z_t_threshold,
+           "seed": args.seed, "split": args.split,
            "context": context, "dilate": args.dilate, "res": args.res, "skipped": skipped,
            "seconds": time.perf_counter() - t0, "machine": platform.machine(), "mean": table, "scenes": rows}
     with atomic_write(args.json, "w") as f:

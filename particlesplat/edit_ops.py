@@ -284,11 +284,14 @@ class SceneEditor:
         particles: the encoded particles (kept as the original), or None (nothing to edit).
         frame_cameras: the scene's input cameras at their stored size, indexed by frame (picks name these).
         context: the context frame indices (saved in edit files; picks try them first).
+        z_t_threshold: the particles that draw (None: the model's, :meth:`ParticleSplat.decode`; 0 draws the
+            inactive ones too, as before they were dropped: for measuring that).
     """
 
     def __init__(self, model, particles: Particles | None, frame_cameras: list[Camera] | None = None,
-                 context: list[int] | None = None) -> None:
+                 context: list[int] | None = None, z_t_threshold: float | None = None) -> None:
         self.model = model
+        self.z_t_threshold = z_t_threshold
         self.frame_cameras = list(frame_cameras or [])
         self.context = list(context) if context is not None else None
         self.history = History()
@@ -334,7 +337,8 @@ class SceneEditor:
 
     def decode(self, particles: Particles | None = None):
         """All Gaussians (edits applied, background included) on the CPU."""
-        return self.model.decode(self.particles if particles is None else particles).detach().to("cpu")
+        p = self.particles if particles is None else particles
+        return self.model.decode(p, z_t_threshold=self.z_t_threshold).detach().to("cpu")
 
     def objects(self) -> Tensor:
         """(num_particles,) int64 object label per particle: grouped once on the scene as encoded
