@@ -97,6 +97,20 @@ def test_gl_agreement_tests_pass_with_auto_and_the_extension_hidden():
     assert " passed" in tail and "failed" not in tail and "skipped" not in tail
 
 
+@pytest.mark.window
+def test_app_tests_pass_with_auto_and_the_extension_hidden():
+    """The in-window app tests (picking, the mask overlay, screenshots against torch, the idle loop) with
+    ``--compositing auto`` on a driver without the extension."""
+    if not os.environ.get("DISPLAY"):
+        pytest.fail("no DISPLAY: run the tests under xvfb-run (see the README's test command)")
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--compositing", "auto",
+                           "tests/test_viewer_app.py"],
+                          capture_output=True, text=True, timeout=600, cwd=ROOT, env={**os.environ, **HIDE_FETCH})
+    tail = proc.stdout[-3000:]
+    assert proc.returncode == 0, tail + proc.stderr[-2000:]
+    assert " passed" in tail and "failed" not in tail and "skipped" not in tail
+
+
 @pytest.fixture(scope="module")
 def ctx():
     from viewer_helpers import egl_context
