@@ -9,6 +9,7 @@ written under a temporary name and renamed when complete.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from os import PathLike
 from pathlib import Path
@@ -32,11 +33,16 @@ def find_scenes(root: str | PathLike) -> list[Path]:
         raise FileNotFoundError(f"{root}: no such folder")
     if (root / TRANSFORMS).is_file():
         return [root]
-    found = []
-    for tf in root.rglob(TRANSFORMS):
-        rel = tf.parent.relative_to(root)
-        if not any(part.startswith(".") for part in rel.parts):
-            found.append(tf.parent)
+    found, seen = [], set()
+    for folder, subdirs, files in os.walk(root, followlinks=True):  # symlinked scene folders count
+        real = os.path.realpath(folder)
+        if real in seen:  # a symlink cycle
+            subdirs[:] = []
+            continue
+        seen.add(real)
+        subdirs[:] = sorted(d for d in subdirs if not d.startswith("."))
+        if TRANSFORMS in files:
+            found.append(Path(folder))
     if not found:
         raise FileNotFoundError(f"{root}: no scene folders (folders with {TRANSFORMS}) in it")
     return sorted(found)
@@ -83,7 +89,7 @@ def _load(path: Path, context: list[int] | None, resolution: int) -> Scene:
 
 
 def encode_folder(model: ParticleSplat, data: str | PathLike, out: str | PathLike, *, context: list[int] | None = None,
-                  batch: int = 8, object_centre: str = "resting", meta: dict | None = None,
+                  batch: int = 1, object_centre: str = "resting", meta: dict | None = None,
                   progress: bool = True) -> dict:
     """Encode every scene under ``data`` into ``out`` (see the module docstring).
 
@@ -134,7 +140,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                           "the middle")
     parser.add_argument("--device", choices=("cpu", "cuda"), default=None,
                         help="none = cuda when present, else cpu")
-    parser.add_argument("--batch", type=int, default=8, help="scenes per forward pass")
+    parser.add_argument("--batch", type=int, default=None,
+                        help="scenes per forward pass; none = 1 on cpu (larger batches measured slower per scene "
+                             "on CPU: docs/particles-as-data.md), 8 on cuda")
     parser.add_argument("--object-centre", choices=OBJECT_CENTRES, default="resting",
                         help="object_centroid: 'resting' (the centre of an object standing on the floor) or "
                              "'weighted' (the opacity-weighted mean of its Gaussians)")
@@ -152,7 +160,8 @@ def run(args: argparse.Namespace) -> int:
     checkpoint = Path(args.checkpoint) if args.checkpoint else shipped_model_path()
     model = load_model(checkpoint, device=device)
     meta = {"model": str(args.checkpoint or "assets/model.pt"), "checkpoint_sha256": file_sha256(checkpoint)}
-    stats = encode_folder(model, args.data, args.out, context=parse_context(args.context), batch=args.batch,
+    batch = args.batch if args.batch is not None else (8 if device == "cuda" else 1)
+    stats = encode_folder(model, args.data, args.out, context=parse_context(args.context), batch=batch,
                           object_centre=args.object_centre, meta=meta, progress=not args.no_progress)
     rate = f", {stats['scenes_per_s']:.2f} scenes/s" if stats["written"] else ""
     print(f"wrote {stats['written']} .npz files to {args.out} ({stats['skipped']} existed){rate} on {device}")

@@ -252,3 +252,13 @@ def test_eval_reports_localisation(model, data, tmp_path):
     loc = out["localisation"]
     assert set(loc) == {"resting", "weighted"} and loc["resting"]["objects"] == n_true
     assert len(out["scenes"][0]["localisation_m"]["weighted"]) == n_true
+
+
+def test_find_scenes_follows_symlinks_and_skips_hidden(data, tmp_path):
+    root = tmp_path / "links"
+    (root / "split").mkdir(parents=True)
+    (root / "split" / "a").symlink_to(data / "train" / "scene_00000", target_is_directory=True)
+    (root / "split" / "loop").symlink_to(root, target_is_directory=True)  # a cycle must not hang
+    (root / ".tmp").mkdir()
+    (root / ".tmp" / "b").symlink_to(data / "train" / "scene_00001", target_is_directory=True)
+    assert find_scenes(root) == [root / "split" / "a"]
