@@ -513,6 +513,8 @@ class SceneEditor:
         members = self.object_members(index)
         changes = [SetAttribute(i, "z_t", self.value(i, "z_t"), (0.0,)) for i in members
                    if self.value(i, "z_t") != (0.0,)]
+        if not changes:
+            return  # already removed
         self.end_gesture()
         self._push(Operation(f"remove object of {self._members_label(members)}", changes, kind="remove",
                              members=tuple(members)))
