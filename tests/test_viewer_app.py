@@ -190,6 +190,16 @@ def test_open_ply_replaces_the_session(app, tmp_path):
     assert "error" in app.fields.status and "missing" in app.fields.status
 
 
+def test_orbit_frames_move_like_a_drag_then_the_still_frame(app):
+    fw, fh = app.framebuffer_size()
+    look = app.orbit.view.look
+    app.run(2, orbit=True)
+    assert app.orbit.view.look.azimuth == pytest.approx(look.azimuth + 2 * A.ORBIT_STEP)
+    assert app.scene_view.renderer.size == (round(fw * app.state.moving_scale), round(fh * app.state.moving_scale))
+    assert app.still_frame() > 0.0
+    assert app.scene_view.renderer.size == (fw, fh)
+
+
 def test_idle_loop_draws_only_after_events(app):
     """Idle, the loop sleeps and draws nothing; a window event draws the settle frames; a motion
     is followed by one full-scale frame without further input."""

@@ -46,8 +46,10 @@ def test_ply_screenshot_matches_torch(tmp_path):
     g.save_ply(tmp_path / "g.ply")
     g = Gaussians.load_ply(tmp_path / "g.ply")
     shot = tmp_path / "shot.png"
-    run_viewer("--ply", str(tmp_path / "g.ply"), "--frames", "4", "--orbit", "--size", "160x120",
-               "--look", "20,25,3.0", "--fov", "50", "--screenshot", str(shot))
+    out = run_viewer("--ply", str(tmp_path / "g.ply"), "--frames", "4", "--orbit", "--size", "160x120",
+                     "--look", "20,25,3.0", "--fov", "50", "--screenshot", str(shot))
+    # like a drag: moving frames at the moving scale, then the still frame
+    assert "over 3 moving frames at render scale 0.5" in out and "still frame at full scale:" in out
     img = Image.open(shot)
     assert img.size == (160, 120)
     assert {"camera", "edits", "model", "look"} <= set(img.text)

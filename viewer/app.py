@@ -63,7 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, help="run N frames, print the median frame time and exit")
     p.add_argument("--screenshot", help="with --frames: save the last render (no UI) to this PNG")
     p.add_argument("--size", type=parse_size, default=(1280, 800), help="window size WxH (default: 1280x800)")
-    p.add_argument("--orbit", action="store_true", help="turn the camera a little every frame")
+    p.add_argument("--orbit", action="store_true",
+                   help="with --frames: turn the camera a little every frame, as a drag does (frames at the moving "
+                        "render scale), then draw the still full-scale frame")
     p.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
     p.add_argument("--fov", type=float, help=f"vertical field of view in degrees (default: the scene's, or "
                                              f"{DEFAULT_FOV:g})")
@@ -300,12 +302,20 @@ class App:
                 if not self.redraw.due(time.perf_counter()):
                     continue
             t0 = time.perf_counter()
-            if orbit:
+            if orbit:  # as a drag: the camera moves, the frame renders at the moving scale
                 self.orbit.turn(ORBIT_STEP)
+                self.controls.last_move = t0
             self.frame(show_ui=frames is None or not self.args.no_ui)
             times.append(time.perf_counter() - t0)
             n += 1
         return times
+
+    def still_frame(self) -> float:
+        """Draw the frame that follows a motion once it stopped (full scale); returns its seconds."""
+        self.controls.last_move = time.perf_counter() - 2.0 * STILL_AFTER
+        t0 = time.perf_counter()
+        self.frame(show_ui=not self.args.no_ui)
+        return time.perf_counter() - t0
 
 
 def create_window(size: tuple[int, int], title: str = "ParticleSplat Studio"):
@@ -381,9 +391,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.frames is not None:
             steady = times[1:] if len(times) > 1 else times
             r = app.scene_view.renderer
-            print(f"median frame time: {float(np.median(steady)) * 1e3:.2f} ms over {len(steady)} frames "
+            moving = f" moving frames at render scale {app.state.moving_scale:g}" if args.orbit else " frames"
+            print(f"median frame time: {float(np.median(steady)) * 1e3:.2f} ms over {len(steady)}{moving} "
                   f"({r.visible_count} Gaussians, {app.framebuffer_size()[0]}x{app.framebuffer_size()[1]}, "
                   f"{r.renderer_string}, {r.compositing} compositing)")
+            if args.orbit:  # the motion stops: the full-scale frame
+                print(f"still frame at full scale: {app.still_frame() * 1e3:.2f} ms")
             if args.screenshot:
                 cam = app.view_camera(1.0)
                 try:
