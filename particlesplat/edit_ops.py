@@ -16,6 +16,9 @@ loads; see :mod:`particlesplat.edits`)::
         duplicate: [0.0, 0.5, 0.0]          # a copy of the object (new particles), offset in world metres
       - particle: 3                         # one particle's attributes (the viewer's sliders)
         set: {z_t: [0.0]}
+      - insert: {scene: assets/scenes/scene_00001, context: [4, 16], object: 0, at: [0.8, 0.5]}
+                                            # object 0 of another scene (numbered as particlesplat encode's
+                                            # `object`), its centre placed at (x, y) on this scene's floor
 
 Operations apply in order; each pick is resolved on the scene as the operations before it left it, by
 rendering that input camera and taking the object whose particles weigh most at the pixel. An object is a
@@ -47,7 +50,7 @@ from .objects import particle_objects
 from .render import render
 
 FORMAT_VERSION = 2
-OpKind = Literal["translate", "remove", "duplicate", "set"]
+OpKind = Literal["translate", "remove", "duplicate", "set", "insert"]
 OBJECT_KINDS: tuple[OpKind, ...] = ("translate", "remove", "duplicate")
 PER_PARTICLE = ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f", "view")  # Particles fields with one row per particle
 MIN_PICK_PIXELS = 2  # an object must cover this many pixels of a frame to be picked there when saving
@@ -66,6 +69,18 @@ class Pick:
 
 
 @dataclass(frozen=True)
+class Insert:
+    """Object ``object`` of scene folder ``scene`` (encoded from ``context``, None = the default frames; objects
+    numbered as ``particlesplat encode``'s ``object`` array) placed with its centre at ``at`` (x, y) world
+    metres on the edited scene's floor (:func:`particlesplat.compose.insert_object`)."""
+
+    scene: str
+    object: int
+    at: tuple[float, float]
+    context: tuple[int, ...] | None = None
+
+
+@dataclass(frozen=True)
 class EditOp:
     """One operation of an edit file.
 
@@ -75,6 +90,7 @@ class EditOp:
         offset: (3,) world metres (translate: the move; duplicate: the copy's offset from the original).
         particle: the particle index (set).
         values: ((name, values), ...) absolute attribute values (set), names of ``EDITABLE``.
+        insert: the object of another scene and where it goes (insert).
     """
 
     kind: OpKind
@@ -82,6 +98,7 @@ class EditOp:
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     particle: int | None = None
     values: tuple[tuple[str, tuple[float, ...]], ...] = ()
+    insert: Insert | None = None
 
 
 @dataclass
@@ -111,9 +128,30 @@ def _int(value: Any, where: str) -> int:
     return int(value)
 
 
+def _parse_insert(item: dict, where: str) -> Insert:
+    if set(item) != {"insert"}:
+        raise EditsError(f"{where}: an insert operation has the one key insert, got {sorted(item)}")
+    spec = item["insert"]
+    if not isinstance(spec, dict) or not {"scene", "object", "at"} <= set(spec) or set(spec) - {"scene", "object",
+                                                                                                  "at", "context"}:
+        raise EditsError(f"{where}.insert: expected {{scene: DIR, object: K, at: [x, y], context: [..] (optional)}}, "
+                         f"got {short_repr(spec)}")
+    if not isinstance(spec["scene"], str) or not spec["scene"]:
+        raise EditsError(f"{where}.insert.scene: expected a scene folder, got {short_repr(spec['scene'])}")
+    context = spec.get("context")
+    if context is not None and (not isinstance(context, list) or not context
+                                or not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in context)):
+        raise EditsError(f"{where}.insert.context: expected a list of frame indices, got {short_repr(context)}")
+    at = _numbers(spec["at"], 2, f"{where}.insert.at")
+    return Insert(spec["scene"], _int(spec["object"], f"{where}.insert.object"), (at[0], at[1]),
+                  None if context is None else tuple(context))
+
+
 def _parse_op(item: Any, where: str) -> EditOp:
     if not isinstance(item, dict):
-        raise EditsError(f"{where}: expected a mapping (pick + translate/remove/duplicate, or particle + set)")
+        raise EditsError(f"{where}: expected a mapping (pick + translate/remove/duplicate, particle + set, or insert)")
+    if "insert" in item:
+        return EditOp("insert", insert=_parse_insert(item, where))
     if "particle" in item:
         unknown = set(item) - {"particle", "set"}
         if unknown or "set" not in item:
@@ -184,6 +222,12 @@ def op_to_yaml(op: EditOp) -> dict[str, Any]:
     """The YAML mapping of one operation (inverse of the parser)."""
     if op.kind == "set":
         return {"particle": int(op.particle), "set": {k: [float(x) for x in v] for k, v in op.values}}
+    if op.kind == "insert":
+        spec = {"scene": op.insert.scene, "object": int(op.insert.object),
+                "at": [round(float(v), 6) for v in op.insert.at]}
+        if op.insert.context is not None:
+            spec["context"] = [int(c) for c in op.insert.context]
+        return {"insert": spec}
     out: dict[str, Any] = {"pick": {"frame": int(op.pick.frame), "pixel": [int(op.pick.pixel[0]),
                                                                            int(op.pick.pixel[1])]}}
     out[op.kind] = True if op.kind == "remove" else [round(float(v), 6) for v in op.offset]
@@ -240,6 +284,8 @@ class Operation:
         offset: (3,) world metres of a translate or duplicate (a drag adds up).
         added: particles appended by the operation (their values before ``changes``), or None.
         added_labels: (len(added),) object labels of the appended particles.
+        sources: rows of the appended particles in :meth:`SceneEditor.origin` (insert; else those of ``members``).
+        insert: what an insert operation inserted (saved as such).
         before: the particles as they were before the operation (to pick its object when saving).
     """
 
@@ -252,6 +298,8 @@ class Operation:
     added: Particles | None = None
     added_labels: Tensor | None = None
     before: Particles | None = None
+    sources: tuple[int, ...] = ()
+    insert: Insert | None = None
 
 
 @dataclass
@@ -299,6 +347,7 @@ class SceneEditor:
         self.particles: Particles | None = self.original.clone() if self.original is not None else None
         self._objects: Tensor | None = None
         self._source: list[int] = list(range(self.original.num)) if self.original is not None else []
+        self._inserted: Particles | None = None  # inserted particles as inserted: origin() rows past the original
         self._changed: set[int] = set()
         self._all_changed = True
         self.version = 0  # bumps on every change of the Gaussians
@@ -315,9 +364,14 @@ class SceneEditor:
     def value(self, index: int, name: str) -> tuple[float, ...]:
         return tuple(float(v) for v in self.particles.attribute(index, name).tolist())
 
+    def origin(self) -> Particles:
+        """The particles as encoded, followed by every particle inserted from another scene as it was inserted
+        (the rows :meth:`original_value` and :meth:`object_offset` refer to)."""
+        return self.original if self._inserted is None else _cat(self.original, self._inserted)
+
     def original_value(self, index: int, name: str) -> tuple[float, ...]:
-        """The encoded value (a copy's: that of the particle it was copied from)."""
-        return tuple(float(v) for v in self.original.attribute(self._source[index], name).tolist())
+        """The encoded value (a copy's: that of the particle it was copied from; an inserted one's: as inserted)."""
+        return tuple(float(v) for v in self.origin().attribute(self._source[index], name).tolist())
 
     @property
     def active_threshold(self) -> float:
@@ -361,7 +415,7 @@ class SceneEditor:
         """World offset (metres) of particle ``index``'s anchor from where it (or what it copies) was encoded."""
         cfg = self.model.config
         now = anchor_points(self.particles, [index], cfg)[0]
-        was = anchor_points(self.original, [self._source[index]], cfg)[0]
+        was = anchor_points(self.origin(), [self._source[index]], cfg)[0]
         return tuple(float(v) for v in now - was)
 
     def take_changes(self) -> set[int] | None:
@@ -430,7 +484,7 @@ class SceneEditor:
     def _apply(self, op: Operation, forward: bool) -> None:
         if forward and op.added is not None:
             self.particles = _cat(self.particles, op.added)
-            self._source += [self._source[i] for i in op.members]
+            self._source += list(op.sources) if op.sources else [self._source[i] for i in op.members]
             self._all_changed = True
         for ch in (op.changes if forward else reversed(op.changes)):
             self.particles = self.particles.with_attribute(ch.index, ch.name, ch.new if forward else ch.old)
@@ -538,6 +592,27 @@ class SceneEditor:
                              added_labels=torch.full((len(members),), n, dtype=torch.int64)))
         return n
 
+    def insert_object(self, source: Particles, insert: Insert) -> int:
+        """Insert object ``insert.object`` of another scene's particles ``source`` (encoded with this model) with
+        its centre at ``insert.at`` on this scene's floor (:func:`particlesplat.compose.insert_object`): new
+        particles, editable like the scene's own. Returns the first new particle (the object's label). Raises
+        ValueError (no such object) or MoveError."""
+        from .compose import insert_object
+
+        if not self.editable:
+            raise ValueError("this scene has no particles to edit (opened from a .ply)")
+        n = self.num_particles
+        grown, new = insert_object(self.model, self.particles, source, insert.object, insert.at)
+        added = replace(grown, **{f: getattr(grown, f)[n:] for f in PER_PARTICLE if getattr(grown, f) is not None})
+        added = added.detach().to("cpu")
+        rows = self.original.num + (0 if self._inserted is None else self._inserted.num)
+        self._inserted = added if self._inserted is None else _cat(self._inserted, added)
+        self.end_gesture()
+        self._push(Operation(f"insert object {insert.object} of {Path(insert.scene).name}", [], kind="insert",
+                             added=added, added_labels=torch.full((len(new),), n, dtype=torch.int64),
+                             sources=tuple(range(rows, rows + len(new))), insert=insert))
+        return n
+
     def end_gesture(self) -> None:
         """Close the open drag operation, if any."""
         if self.history.undo:
@@ -599,6 +674,16 @@ class SceneEditor:
                 self.end_gesture()
                 self._push(Operation(f"set particle {op.particle}", changes))
             return
+        if op.kind == "insert":
+            from .encode_scene import encode_scene
+
+            try:
+                source = encode_scene(self.model, op.insert.scene, None if op.insert.context is None
+                                      else list(op.insert.context)).particles
+                self.insert_object(source, op.insert)
+            except (MoveError, ValueError, OSError) as e:
+                raise EditsError(f"{where}: insert: {e}") from None
+            return
         index = self.pick(op.pick, where)
         try:
             if op.kind == "translate":
@@ -633,6 +718,9 @@ class SceneEditor:
         particles as they were before it; attribute changes save the particles' new values."""
         out: list[EditOp] = []
         for op in self.history.undo:
+            if op.kind == "insert":
+                out.append(EditOp("insert", insert=op.insert))
+                continue
             if op.kind in OBJECT_KINDS:
                 out.append(EditOp(op.kind, pick=self.pick_for(op.members[0], op.before), offset=op.offset))
                 continue
