@@ -132,6 +132,24 @@ def test_export_object_ply(app, tmp_path):
     app.state.selected = None
 
 
+def test_insert_object_request(app):
+    """The panel's "Insert object from another scene": the app encodes the scene and inserts the object (undoable)."""
+    from particlesplat.encode_scene import demo_scenes
+
+    s = app.session
+    n = s.num_particles
+    app.fields.insert.scene, app.fields.insert.object, app.fields.insert.at = str(demo_scenes()[1]), 0, [0.8, 0.5]
+    app.req.insert = True
+    app.run(1)
+    assert s.num_particles > n, app.fields.status
+    assert app.state.selected == n and s.operations()[-1].kind == "insert"
+    assert s.object_members(n) == list(range(n, s.num_particles))
+    s.undo()
+    assert s.num_particles == n
+    app.state.selected = None
+    app.run(1)
+
+
 def test_render_scale_and_no_redraw_when_still(app):
     fw, fh = app.framebuffer_size()
     app.controls.last_move = time.perf_counter() + 60.0  # moving (whatever the machine's speed)

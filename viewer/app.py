@@ -228,6 +228,10 @@ class App:
             if req.export_ply:
                 path = export_ply(self.fields.output_dir, self.scene_view.visible_gaussians(self.session, self.state))
                 self.fields.status = f"exported {Path(path).resolve()}"
+            if req.insert and self.session.editable:
+                from .panels.insert import insert_from_fields
+
+                self.state.selected, self.fields.status = insert_from_fields(self.session, self.fields.insert)
             if req.export_object and self.state.selected is not None and self.session.editable:
                 members = self.session.object_members(self.state.selected)  # its Gaussians, as drawn
                 g = self.session.model.decode(self.session.particles, torch.tensor(members), background=False)

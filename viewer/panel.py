@@ -11,6 +11,7 @@ from particlesplat.camera import Camera
 from particlesplat.encode_scene import demo_scenes
 from particlesplat.model.particles import EDITABLE
 
+from .panels.insert import InsertFields, draw_insert_section
 from .panels.objects import ObjectFields, draw_object_section, segmentation_colour
 from .session import SceneSession
 from .state import SEG_MODES, ViewState
@@ -68,6 +69,7 @@ class UiRequests:
     load_edits: bool = False
     snap_camera: int | None = None
     reset_view: bool = False
+    insert: bool = False  # an object of another scene (UiFields.insert)
 
 
 @dataclass
@@ -78,6 +80,7 @@ class UiFields:
     edits_path: str = "edits.yaml"
     output_dir: str = "."
     shot_size: list[int] = field(default_factory=lambda: [0, 0])
+    insert: InsertFields = field(default_factory=InsertFields)
     status: str = ""
     objects: ObjectFields = field(default_factory=ObjectFields)
     layout_size: tuple[float, float] = (0.0, 0.0)  # the window size the panel was last placed for
@@ -120,6 +123,7 @@ def draw_panel(session: SceneSession, state: ViewState, req: UiRequests, fields:
         _particles_section(session, state, swatches)
         _selected_section(session, state, fields)
         _edits_section(session, req, fields)
+        req.insert = draw_insert_section(fields.insert) or req.insert
     _output_section(req, fields, session.editable and state.selected is not None)
     if imgui.collapsing_header("Shortcuts"):
         for keys, what in SHORTCUTS:

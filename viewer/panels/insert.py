@@ -1,0 +1,56 @@
+"""The "Insert object" panel section: an object of another scene, placed with its centre at (x, y) on this
+scene's floor (:meth:`particlesplat.edit_ops.SceneEditor.insert_object`; saved in edit files as ``insert``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from particlesplat.edit_ops import Insert
+from particlesplat.encode_scene import demo_scenes, encode_scene
+
+
+@dataclass
+class InsertFields:
+    """What the section holds between frames: the source scene folder, the object index (as ``particlesplat
+    encode`` numbers objects) and the floor position (x, y) in metres."""
+
+    scene: str = ""
+    object: int = 0
+    at: list[float] = field(default_factory=lambda: [0.8, 0.5])
+
+
+def draw_insert_section(fields: InsertFields) -> bool:
+    """The section's widgets; returns whether Insert was clicked (the app does the work after the frame)."""
+    from imgui_bundle import imgui
+
+    if not imgui.collapsing_header("Insert object from another scene"):
+        return False
+    scenes = demo_scenes()
+    if scenes:
+        names = ["(choose)"] + [p.name for p in scenes]
+        current = 1 + next((i for i, p in enumerate(scenes) if str(p) == fields.scene), -1)
+        changed, idx = imgui.combo("demo##insert", current, names)
+        if changed and idx > 0:
+            fields.scene = str(scenes[idx - 1])
+    _, fields.scene = imgui.input_text("from scene", fields.scene)
+    changed, value = imgui.input_int("object", fields.object)
+    if changed:
+        fields.object = max(0, int(value))
+    changed, at = imgui.input_float2("at x, y (m)", fields.at, "%.3f")
+    if changed:
+        fields.at = [float(v) for v in at]
+    imgui.text_disabled("objects numbered as particlesplat encode's 'object'; the centre goes to (x, y) on the floor")
+    return bool(imgui.button("Insert")) and bool(fields.scene.strip())
+
+
+def insert_from_fields(session, fields: InsertFields) -> tuple[int, str]:
+    """Encode ``fields.scene`` with the session's model (its default context frames) and insert the object:
+    returns (the new object's first particle, a status line). Errors (no such scene or object, a move out of
+    range) propagate for the app to show."""
+    ins = Insert(fields.scene.strip(), int(fields.object), (float(fields.at[0]), float(fields.at[1])))
+    source = encode_scene(session.model, ins.scene)
+    ins = Insert(ins.scene, ins.object, ins.at, tuple(source.context))
+    first = session.insert_object(source.particles, ins)
+    return first, (f"inserted object {ins.object} of {Path(ins.scene).name} as particles "
+                   f"{first}..{session.num_particles - 1} at ({ins.at[0]:g}, {ins.at[1]:g})")
