@@ -253,11 +253,15 @@ def test_projected_splats_match_torch_projection_and_the_bench_prints_its_floor(
     assert bench_main([*bench, "auto,blend,fetch" if r.caps.framebuffer_fetch else "auto,blend"]) == 0
     out = capsys.readouterr().out
     assert "sprite floor ms" in out and "| random 400 | 400 | blend | points |" in out
+    assert "| random 400 | 400 | naive | instanced quads |" in out  # the baseline, on the same cameras
+    psnr_db = {line.split("|")[3].strip(): float(line.split("|")[-2]) for line in out.splitlines()
+               if line.startswith("| random 400 |")}
+    assert psnr_db["blend"] >= 40.0 and psnr_db["naive"] >= 20.0  # (its own rules: 3 sigma, no clamp)
     if r.caps.framebuffer_fetch:  # both paths side by side (auto is fetch here), and their ratio
-        assert "| random 400 | 400 | fetch | points |" in out
-        assert out.count("| random 400 |") == 2 and "- random 400: blend " in out
-    else:  # auto is blend: one row; fetch is refused
-        assert out.count("| random 400 |") == 1
+        assert "| random 400 | 400 | fetch | points |" in out and psnr_db["fetch"] >= 40.0
+        assert len(psnr_db) == 3 and "- random 400: blend " in out and "- random 400: fetch " in out
+    else:  # auto is blend: one path; fetch is refused
+        assert len(psnr_db) == 2 and "- random 400: blend " in out
         assert bench_main([*bench, "fetch"]) == 2 and "lacks GL_EXT_shader_framebuffer_fetch" in capsys.readouterr().err
     assert bench_main([*bench, "fetch,fast"]) == 2
     assert "--compositing" in capsys.readouterr().err

@@ -4,7 +4,10 @@ random Gaussian sets and the demo scene, and the edit -> frame latency of draggi
 Runs on a headless EGL context (the window presents the same offscreen render with one blit,
 under 1 ms on Xvfb). Every frame turns the camera, so every frame re-sorts and re-projects.
 With several compositing paths (``--compositing fetch,blend``) each case is measured on every
-path back to back, and the table ends with their frame-time ratios.
+path, the paths taking turns frame by frame, and the table ends with their frame-time ratios. A naive
+splatter (:mod:`viewer.naive`: instanced 3-sigma quads, covariance and SH per corner, full resolution
+always) takes its turns on the same cameras as the baseline; every row reports its PSNR against the
+torch renderer at full resolution.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ if TYPE_CHECKING:  # the GL modules load only when the benchmark runs
     from particlesplat.views import View
 
     from .gl_renderer import SplatRenderer
+    from .naive import NaiveSplatter
     from .session import SceneSession
 
 DEFAULT_SIZES = (20000, 100000)
@@ -43,6 +47,7 @@ class Row:
     primitive: str = ""
     floor_ms: float = float("nan")
     compositing: str = ""
+    psnr_db: float = float("nan")
 
 
 FLOOR_VERTEX = """#version 330
@@ -109,6 +114,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", help="model for the demo scene and the edit latency (default: shipped)")
     p.add_argument("--scene", help="scene folder (default: the first demo scene)")
     p.add_argument("--no-scene", action="store_true", help="skip the demo scene and the edit latency")
+    p.add_argument("--no-baseline", action="store_true", help="skip the naive splatter")
+    p.add_argument("--no-psnr", action="store_true", help="skip the PSNR against the torch renderer (it takes "
+                                                          "~10-25 s a case on 2 cores)")
     return p
 
 
@@ -133,13 +141,35 @@ def _time_frames(renderers: list[SplatRenderer], cameras: list[Camera]) -> list[
             for r, (sort, upload, draw, total) in zip(renderers, times, strict=True)]
 
 
-def _case(renderers: list[SplatRenderer], view: View, args: argparse.Namespace) -> list[Row]:
-    """Full-size frames, then the frame time at the viewer's moving render scale, for each renderer."""
-    rows = _time_frames(renderers, orbit_cameras(view, args.width, args.height, args.frames))
+def _case(renderers: list[SplatRenderer], view: View, args: argparse.Namespace,
+          baseline: NaiveSplatter | None = None) -> list[Row]:
+    """Full-size frames, then the frame time at the viewer's moving render scale, for each renderer;
+    the baseline (last row) takes its turns at full size and moves at full size (its moving time is
+    its frame time)."""
+    rows = _time_frames([*renderers, *([baseline] if baseline else [])],
+                        orbit_cameras(view, args.width, args.height, args.frames))
     w, h = round(args.width * args.moving_scale), round(args.height * args.moving_scale)
-    for row, moving in zip(rows, _time_frames(renderers, orbit_cameras(view, w, h, args.frames)), strict=True):
+    for row, moving in zip(rows, _time_frames(renderers, orbit_cameras(view, w, h, args.frames)), strict=False):
         row.moving_ms = moving.frame_ms
+    if baseline:
+        rows[-1].moving_ms = rows[-1].frame_ms
     return rows
+
+
+def psnr_against_torch(renderers: list, g, camera: Camera) -> list[float]:
+    """PSNR (dB) of each renderer's image of ``camera`` against :func:`particlesplat.render` (over black)."""
+    import torch
+
+    from particlesplat import render
+
+    with torch.no_grad():
+        ref = render(g, camera).rgb.numpy().astype(np.float64)
+    out = []
+    for r in renderers:
+        r.render(camera, finish=True)
+        mse = float(np.mean((r.read_rgb().astype(np.float64) - ref) ** 2))
+        out.append(float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse))
+    return out
 
 
 def orbit_cameras(view: View, width: int, height: int, frames: int) -> list[Camera]:
@@ -186,6 +216,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from .gl_caps import COMPOSITING, UnsupportedGL
     from .gl_renderer import SplatRenderer
+    from .naive import NaiveSplatter
     from .random_gaussians import random_gaussians
 
     try:
@@ -216,19 +247,26 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench viewer: {e}", file=sys.stderr)
         return 2
     renderer = next(iter(renderers.values()))
+    baseline = None if args.no_baseline else NaiveSplatter(ctx)
+    drawers = [*renderers.values(), *([baseline] if baseline else [])]
     load0 = os.getloadavg()
     rows: list[Row] = []
     for n in sizes:
         g = random_gaussians(n, seed=0, pixel_scale=args.pixel_scale)
-        for renderer in renderers.values():
-            renderer.set_gaussians(g)
-        case = _case(list(renderers.values()), default_view(None, g), args)
-        for row, renderer in zip(case, renderers.values(), strict=True):
-            row.name = f"random {n // 1000}k" if n % 1000 == 0 else f"random {n}"
+        for r in drawers:
+            r.set_gaussians(g)
+        case = _case(list(renderers.values()), default_view(None, g), args, baseline)
+        for row, renderer in zip(case, renderers.values(), strict=False):
             # re-project at full size (the last frames were at the moving scale), then the floor of those splats
             renderer.render(default_view(None, g).camera(args.width, args.height), finish=True)
             if renderer.kind == "points":
                 row.floor_ms = sprite_floor_ms(ctx, renderer, args.width, args.height, args.frames)
+        for row in case:
+            row.name = f"random {n // 1000}k" if n % 1000 == 0 else f"random {n}"
+        if not args.no_psnr:
+            for row, db in zip(case, psnr_against_torch(drawers, g, default_view(None, g).camera(
+                    args.width, args.height)), strict=True):
+                row.psnr_db = db
         rows += case
     latency: dict[str, tuple[float, float]] = {}
     failure = None
@@ -246,12 +284,16 @@ def main(argv: list[str] | None = None) -> int:
         session = SceneSession(model, enc)
         g = session.gaussians()
         view = default_view(enc.all_cameras)
-        for renderer in renderers.values():
-            renderer.set_gaussians(g)
-            renderer.set_filter(min_opacity=DEFAULT_PRUNE)  # what the viewer draws by default
-        case = _case(list(renderers.values()), view, args)
+        for r in drawers:
+            r.set_gaussians(g)
+            r.set_filter(min_opacity=DEFAULT_PRUNE)  # what the viewer draws by default
+        case = _case(list(renderers.values()), view, args, baseline)
         for row in case:
             row.name = f"demo scene ({os.path.basename(str(scene))}, opacity >= {DEFAULT_PRUNE:g})"
+        if not args.no_psnr:
+            for row, db in zip(case, psnr_against_torch(drawers, g.subset(g.opacities >= DEFAULT_PRUNE),
+                                                        view.camera(args.width, args.height)), strict=True):
+                row.psnr_db = db
         rows += case
         for path, renderer in renderers.items():
             latency[path] = (edit_latency(renderer, session, view, args.width, args.height),
@@ -262,29 +304,43 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.width}x{args.height}, {args.primitive}, median of {args.frames} frames, camera turning 1 deg/frame "
           f"(every frame re-sorts); load average {load0[0]:.1f} -> {load1[0]:.1f} on {os.cpu_count()} CPUs")
     print()
+    num = lambda v, f: "-" if v != v else format(v, f)  # noqa: E731  (NaN: not measured)
     print(f"| scene | Gaussians | compositing | primitive | splat area Mpx | sort ms | upload ms | draw ms | "
-          f"frame ms | frame ms at {args.moving_scale:g} scale (moving) | sprite floor ms |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          f"frame ms | frame ms at {args.moving_scale:g} scale (moving) | sprite floor ms | PSNR dB |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        floor = "-" if r.floor_ms != r.floor_ms else f"{r.floor_ms:.1f}"
-        print(f"| {r.name} | {r.gaussians:,} | {r.compositing} | {r.primitive} | {r.area_mpx:.1f} | {r.sort_ms:.1f} | "
-              f"{r.upload_ms:.2f} | {r.draw_ms:.1f} | {r.frame_ms:.1f} | {r.moving_ms:.1f} | {floor} |")
+        print(f"| {r.name} | {r.gaussians:,} | {r.compositing} | {r.primitive} | {num(r.area_mpx, '.1f')} | "
+              f"{r.sort_ms:.1f} | {r.upload_ms:.2f} | {r.draw_ms:.1f} | {r.frame_ms:.1f} | {r.moving_ms:.1f} | "
+              f"{num(r.floor_ms, '.1f')} | {num(r.psnr_db, '.1f')} |")
     print("\nsprite floor: the same point sprites (centres, sides) drawn with a constant colour and no blending, "
           "the least a point-sprite splatter pays here before shading and compositing")
+    if baseline:
+        print("naive: the baseline (instanced 3-sigma quads, covariance and SH per corner, back-to-front blending); "
+              "it moves at full resolution")
+    if not args.no_psnr:
+        print("PSNR: the first camera at full size against particlesplat.render (over black)")
     paths = list(renderers)
+    per_case = len(paths) + (1 if baseline else 0)
     if len(paths) > 1:
         print(f"\nframe time ratios, {' / '.join(paths[1:])} over {paths[0]} (same cameras, the paths taking turns "
               f"frame by frame):")
-        for i in range(0, len(rows), len(paths)):
+        for i in range(0, len(rows), per_case):
             base, others = rows[i], rows[i + 1: i + len(paths)]
             print(f"- {base.name}: " + "; ".join(
                 f"{o.compositing} {o.frame_ms / base.frame_ms:.2f}x still, {o.moving_ms / base.moving_ms:.2f}x moving"
                 for o in others))
+    if baseline:
+        print("\nframe time over the naive baseline's (its full-resolution frame; same cameras, same run):")
+        for i in range(0, len(rows), per_case):
+            ours, naive = rows[i: i + len(paths)], rows[i + len(paths)]
+            print(f"- {naive.name}: " + "; ".join(
+                f"{o.compositing} {o.frame_ms / naive.frame_ms:.2f}x still, {o.moving_ms / naive.frame_ms:.2f}x moving"
+                for o in ours))
     for path, (full, moving) in latency.items():
         print(f"\nedit -> frame latency, {path} (drag one particle's z_p: decode it, upload its rows, sort, project, "
               f"draw): {full:.1f} ms at {args.width}x{args.height}, {moving:.1f} ms at the moving scale "
               f"{args.moving_scale:g} (what a drag in the viewer renders)")
-    for r in renderers.values():
+    for r in drawers:
         r.release()
     ctx.release()
     if failure:
