@@ -1,9 +1,7 @@
 """Viewer object tools: sliding an object on the floor follows the mouse ray, the gizmo's GL matrices
-project as the camera does, the outline hull, and Del / Ctrl+D / the gizmo in a real window."""
+project as the camera does, the outline hull (Del / Ctrl+D and the gizmo in a window: test_viewer_app.py)."""
 
 from __future__ import annotations
-
-import os
 
 import numpy as np
 import pytest
@@ -85,43 +83,3 @@ def test_floor_drag_slides_the_object_on_its_plane_as_one_undo_step(session_part
     uv, _ = cam.project(object_centre(s, index)[None].float())
     assert float((uv[0] - torch.tensor(path[-1])).norm()) < 2.0
     assert s.undo() and all(torch.equal(getattr(s.particles, k), getattr(s.original, k)) for k in ("z_p", "z_d"))
-
-
-@pytest.mark.window
-def test_delete_duplicate_keys_and_gizmo_in_a_window(tmp_path):
-    if not os.environ.get("DISPLAY"):
-        pytest.fail("no DISPLAY: run the tests under xvfb-run (see the README's test command)")
-    from imgui_bundle import imgui
-
-    from viewer import app as A
-
-    args = A.build_parser().parse_args(["--scene", str(demo_scenes()[0]), "--context", "4,16", "--size", "200x150",
-                                        "--output-dir", str(tmp_path)])
-    session = A.load_session(args)
-    window = A.create_window(args.size)
-    try:
-        app = A.App(window, session, A.initial_view(session, None, None), args)
-        g = session.decode()
-        index = int(g.owner[g.owner >= 0][g.opacities[g.owner >= 0].argmax()])
-        app.state.selected = index
-        app.run(2)  # the gizmo and the outline draw without error
-        n = session.num_particles
-        members = session.object_members(index)
-        K = imgui.Key
-        io = imgui.get_io()
-        for keys in ((K.mod_ctrl, K.left_ctrl, K.d), (K.delete,)):
-            for k in keys:
-                io.add_key_event(k, True)
-            app.run(1)
-            for k in reversed(keys):
-                io.add_key_event(k, False)
-            app.run(1)
-        # Ctrl+D copied the object (selecting the copy), Del removed the copy
-        assert session.num_particles == n + len(members)
-        assert [op.kind for op in session.history.undo[-2:]] == ["duplicate", "remove"]
-        assert app.state.selected is None and "removed" in app.fields.status
-        assert not bool((session.decode().owner >= n).any())
-        path = session.save_edits(tmp_path / "e.yaml")
-        assert "duplicate:" in path.read_text() and "remove: true" in path.read_text()
-    finally:
-        A.destroy_window(window)

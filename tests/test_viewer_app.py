@@ -250,3 +250,36 @@ def test_idle_loop_draws_only_after_events(app):
     drawn = len(app.frame_times)
     app.run(seconds=0.3)
     assert len(app.frame_times) == drawn  # and then nothing
+
+
+def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
+    """On a demo scene: the gizmo and outline draw, Ctrl+D copies the selected object, Del removes it, and
+    the edits save as version 2 operations."""
+    import glfw
+
+    from particlesplat.encode_scene import demo_scenes
+
+    win, ctx = window
+    args = A.build_parser().parse_args(["--scene", str(demo_scenes()[0]), "--context", "4,16", "--size", "160x120",
+                                        "--output-dir", str(tmp_path)])
+    session = A.load_session(args)
+    glfw.set_window_size(win, *args.size)
+    app = A.App(win, session, A.initial_view(session, None, None), args, ctx=ctx)
+    try:
+        g = session.decode()
+        index = int(g.owner[g.owner >= 0][g.opacities[g.owner >= 0].argmax()])
+        app.state.selected = index
+        app.run(2)  # the gizmo and the outline draw without error
+        n = session.num_particles
+        members = session.object_members(index)
+        K = imgui.Key
+        press(app, K.mod_ctrl, K.left_ctrl, K.d)
+        assert session.num_particles == n + len(members) and app.state.selected == n  # the copy is selected
+        press(app, K.delete)
+        assert [op.kind for op in session.history.undo[-2:]] == ["duplicate", "remove"]
+        assert app.state.selected is None and "removed" in app.fields.status
+        assert not bool((session.decode().owner >= n).any())
+        text = session.save_edits(tmp_path / "e.yaml").read_text()
+        assert "duplicate:" in text and "remove: true" in text
+    finally:
+        app.scene_view.renderer.release()
