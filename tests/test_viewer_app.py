@@ -270,6 +270,37 @@ def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
         index = int(g.owner[g.owner >= 0][g.opacities[g.owner >= 0].argmax()])
         app.state.selected = index
         app.run(2)  # the gizmo and the outline draw without error
+        # a plain drag that starts on the selected object slides it on the floor: one operation, no height change
+        from viewer.tools.object_tools import object_centre
+
+        app.state.panel = False
+        glfw.set_window_size(win, 400, 300)
+        app.run(2)
+        cam = app.view_camera(1.0)
+        uv, _ = cam.project(object_centre(session, index)[None].float())
+        seg = render(session.decode(), cam, owner_weights=True, num_owners=session.num_particles).segmentation(
+            session.objects())
+        ys, xs = np.nonzero((seg == int(session.objects()[index])).numpy())
+        dist = np.hypot(xs + 0.5 - float(uv[0, 0]), ys + 0.5 - float(uv[0, 1]))
+        dist[dist < 35.0] = np.inf  # grab the object clear of the gizmo's handles
+        u, v = float(xs[dist.argmin()]) + 0.5, float(ys[dist.argmin()]) + 0.5
+        sx, sy = app.pixel_ratio()
+        io = imgui.get_io()
+        n_ops = len(session.history.undo)
+        glfw.set_cursor_pos(win, u / sx, v / sy)  # the GLFW backend reads the cursor itself
+        app.run(1)
+        io.add_mouse_button_event(0, True)
+        app.run(1)
+        for k in range(1, 6):
+            glfw.set_cursor_pos(win, (u + 4.0 * k) / sx, (v + 1.0 * k) / sy)
+            app.run(1)
+        io.add_mouse_button_event(0, False)
+        app.run(1)
+        assert len(session.history.undo) == n_ops + 1 and session.history.undo[-1].kind == "translate"
+        dx, dy, dz = session.history.undo[-1].offset
+        assert abs(dz) < 1e-9 and (dx * dx + dy * dy) ** 0.5 > 0.02
+        session.undo()
+        app.state.panel = True
         n = session.num_particles
         members = session.object_members(index)
         K = imgui.Key
