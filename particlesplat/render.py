@@ -10,10 +10,25 @@ from torch import Tensor
 
 from .camera import Camera
 from .gaussians import Gaussians
-from .objects import object_segmentation
 from .projection import footprint_radius_sq, project_gaussians
 from .rasterize import RasterizeFunction, bin_gaussians, pair_inputs, tiles_to_images
 from .sh import eval_sh_colors
+
+
+def object_segmentation(owner_weights: Tensor, background_weight: Tensor, objects: Tensor) -> Tensor:
+    """Per-pixel argmax over objects: the weights of each object's particles are summed first.
+
+    owner_weights: (P, H, W) Σ T·α per particle; background_weight: (H, W) Σ T·α of the background
+    plus the empty remainder; objects: (P,) int64 object label per particle
+    (:func:`particlesplat.objects.particle_objects`).
+    Returns (H, W) int64 object label, -1 where the background weighs most.
+    """
+    P = owner_weights.shape[0]
+    if tuple(objects.shape) != (P,):
+        raise ValueError(f"objects must have shape ({P},), got {tuple(objects.shape)}")
+    summed = torch.zeros_like(owner_weights).index_add_(0, objects.to(owner_weights.device), owner_weights)
+    scores = torch.cat([background_weight[None], summed], dim=0)  # (1 + P, H, W)
+    return scores.argmax(0) - 1
 
 
 @dataclass

@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from particlesplat.gaussians import Gaussians
-from particlesplat.objects import object_segmentation, particle_objects
+from particlesplat.objects import particle_objects
+from particlesplat.render import object_segmentation
 
 
 def gaussians(means, scale, owner, opacity=0.9) -> Gaussians:
