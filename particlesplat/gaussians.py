@@ -9,12 +9,10 @@ import torch
 from kornia.geometry.conversions import quaternion_to_rotation_matrix
 from torch import Tensor
 
+from .ply import BACKGROUND_OWNER, MAX_OWNER, read_ply, write_ply
 from .sh import eval_sh_colors, sh_degree_from_bases
 
-BACKGROUND_OWNER = -1
-# Largest particle index an owner may hold: exact in float32 (the viewer's GL buffers) and small enough for
-# per-owner tables (the model has a few dozen particles; a .ply owner of 2**31 - 1 would ask for 2**31 rows)
-MAX_OWNER = 65535
+__all__ = ["BACKGROUND_OWNER", "MAX_OWNER", "Gaussians", "quats_to_rotations"]
 _FLOAT_FIELDS = ("means", "quats", "scales", "opacities", "sh")
 
 
@@ -160,12 +158,8 @@ class Gaussians:
     @staticmethod
     def load_ply(path: str | PathLike) -> Gaussians:
         """Read a standard 3DGS .ply (see :mod:`particlesplat.ply`)."""
-        from .ply import read_ply
-
-        return read_ply(path)
+        return Gaussians(*read_ply(path))
 
     def save_ply(self, path: str | PathLike) -> None:
         """Write a standard 3DGS .ply atomically (see :mod:`particlesplat.ply`)."""
-        from .ply import write_ply
-
         write_ply(self, path)

@@ -15,13 +15,13 @@ import os
 from os import PathLike
 from pathlib import Path
 from types import MappingProxyType
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import torch
 
 from .atomic import atomic_write
 from .errors import UserError, one_line
-from .gaussians import BACKGROUND_OWNER, MAX_OWNER, Gaussians
 from .sh import sh_degree_from_bases
 
 _PLY_TYPES = MappingProxyType({
@@ -29,12 +29,37 @@ _PLY_TYPES = MappingProxyType({
     "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 })
+BACKGROUND_OWNER = -1
+# Largest particle index an owner may hold: exact in float32 (the viewer's GL buffers) and small enough for
+# per-owner tables (the model has a few dozen particles; a .ply owner of 2**31 - 1 would ask for 2**31 rows)
+MAX_OWNER = 65535
 _EPS = 1e-7
 _MAX_HEADER = 1 << 16  # bytes of header: ~1000 property lines, far beyond SH degree 3's 62 properties
 
 
 class PlyError(UserError):
     """A .ply file that cannot be read; the message names the file and the property."""
+
+
+class PlyFields(NamedTuple):
+    """What a 3DGS .ply holds, as float32 CPU tensors (N Gaussians, K SH bases), in ``Gaussians`` field order."""
+
+    means: torch.Tensor  # (N, 3) world metres
+    quats: torch.Tensor  # (N, 4) wxyz
+    scales: torch.Tensor  # (N, 3) linear
+    opacities: torch.Tensor  # (N,) in [0, 1]
+    sh: torch.Tensor  # (N, K, 3)
+    owner: torch.Tensor  # (N,) int64, BACKGROUND_OWNER or a particle index
+
+
+class GaussianFields(Protocol):
+    """What :func:`write_ply` needs of a set of Gaussians (``particlesplat.Gaussians`` has it)."""
+
+    num: int
+
+    def detach(self) -> GaussianFields: ...
+
+    def to(self, *args) -> GaussianFields: ...
 
 
 def _read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]]]:
@@ -78,8 +103,8 @@ def _read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[st
     return fmt, elements
 
 
-def read_ply(path: str | PathLike) -> Gaussians:
-    """Read a 3DGS .ply into float32 :class:`Gaussians` on the CPU.
+def read_ply(path: str | PathLike) -> PlyFields:
+    """Read a 3DGS .ply into float32 CPU tensors (``Gaussians.load_ply`` wraps them).
 
     Raises :class:`PlyError` (naming the file and the property) for a missing property,
     an ``f_rest`` count that is no SH degree, a truncated file, or a non-finite value.
@@ -149,7 +174,7 @@ def read_ply(path: str | PathLike) -> Gaussians:
     else:
         owner = np.full(n, BACKGROUND_OWNER, dtype=np.int64)
     f32 = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
-    return Gaussians(f32(means), f32(quats), f32(scales), f32(opacities), f32(sh), torch.from_numpy(owner))
+    return PlyFields(f32(means), f32(quats), f32(scales), f32(opacities), f32(sh), torch.from_numpy(owner))
 
 
 def _owner_column(col: np.ndarray, path: Path) -> np.ndarray:
@@ -166,7 +191,7 @@ def _owner_column(col: np.ndarray, path: Path) -> np.ndarray:
     return wide.astype(np.int64)
 
 
-def write_ply(gaussians: Gaussians, path: str | PathLike) -> None:
+def write_ply(gaussians: GaussianFields, path: str | PathLike) -> None:
     """Write ``gaussians`` as a binary little-endian 3DGS .ply, atomically (temp file + rename).
 
     Opacities are clamped to [1e-7, 1 - 1e-7] and scales to >= 1e-30 so that the logit and

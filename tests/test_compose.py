@@ -13,7 +13,7 @@ from particlesplat.compose import export_object_ply, insert_object, object_gauss
 from particlesplat.encode_scene import demo_scenes, encode_scene
 from particlesplat.model import load_model
 from particlesplat.move import translate
-from particlesplat.ply import read_ply
+from particlesplat import Gaussians
 from particlesplat.render import render
 from particlesplat.sh import SH_C0
 
@@ -44,7 +44,7 @@ def test_export_ply_round_trip(scenes, tmp_path):
     g = object_gaussians(model, a.particles, 0)
     assert set(g.owner.tolist()) == set(members)
     path = export_object_ply(model, a.particles, 0, tmp_path / "obj.ply")
-    back = read_ply(path)
+    back = Gaussians.load_ply(path)
     assert back.num == g.num
     torch.testing.assert_close(back.means, g.means, atol=1e-6, rtol=0)
     torch.testing.assert_close(back.scales, g.scales, atol=1e-6, rtol=1e-5)
@@ -106,9 +106,9 @@ def test_object_command(tmp_path):
     scene_a, scene_b = demo_scenes()[1], demo_scenes()[0]
     ply = tmp_path / "o.ply"
     assert main(["object", "export", "--scene", str(scene_a), "--object", "0", "--out", str(ply)]) == 0
-    assert read_ply(ply).num > 0
+    assert Gaussians.load_ply(ply).num > 0
     out = tmp_path / "c.ply"
     assert main(["object", "insert", "--scene", str(scene_b), "--from", str(scene_a), "--object", "0",
                  "--at", "0.8,0.5", "--out", str(out)]) == 0
-    composed = read_ply(out)
-    assert composed.num > read_ply(ply).num
+    composed = Gaussians.load_ply(out)
+    assert composed.num > Gaussians.load_ply(ply).num
