@@ -6,7 +6,11 @@ import argparse
 import json
 import math
 import os
+import re
 import shutil
+import signal
+import sys
+import threading
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -18,7 +22,9 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import default_collate
 from tqdm import tqdm
 
-from .atomic import atomic_write
+from .atomic import atomic_path, atomic_write
+from .errors import Interrupted, UserError, one_line
+from .runlog import read_log
 from .camera import Camera
 from .data.views import WARMUP
 from .model import ModelConfig, ParticleSplat, TrainConfig, load_config, read_checkpoint, save_checkpoint
@@ -29,6 +35,21 @@ from .model.losses import elbo, scene_kl, view_error
 from .provenance import Provenance, RunClock
 from .render import render_batch
 
+MAX_SKIPPED = 20  # steps in a row with non-finite loss or gradients before the run stops as diverged
+
+
+class TrainingDiverged(UserError):
+    """Non-finite gradients or weights that skipping steps did not cure; nothing was saved."""
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 LAST = "last.pt"
 
 
@@ -165,6 +186,9 @@ class Trainer:
         from .data import SceneDataset
 
         self.train_sets = {c: SceneDataset(data / "train", resolution=cfg.resolution,
+        if self.rank == 0 and self.val_dir.is_dir():
+            self._check_val_scenes()
+        self.skipped = 0  # steps skipped for non-finite loss or gradients, this invocation
                                            mode="multi" if c == 2 else "single", num_targets=tc.target_views,
                                            flip=False, cache_size=tc.cache_scenes)
                            for c in sorted(set(tc.context_views))}
@@ -204,7 +228,38 @@ class Trainer:
                 print(f"--init {init}: dropped by --init-drop: {', '.join(dropped)}")
             state, grown = grow_state_dict(state, self.model.state_dict(), str(init))
             if grown and self.rank == 0:
+    def _check_val_scenes(self) -> None:
+        """Read the validation scenes once now: a corrupt one is found at the start, not at the first validation
+        (and not again on every resume)."""
+        from .data.dataset import SceneDataset
+        from .data.scene import read_scene
+
+        ds = SceneDataset(self.val_dir)
+        need = max(self.tc.context_views) + 1
+        for folder in ds.scenes[:self.tc.val_scenes]:
+            raw = read_scene(folder)
+            if raw.num_frames < need:
+                raise UserError(f"{folder}: validation scene has {raw.num_frames} frame(s); validation needs at "
+                                f"least {need} (targets apart from the context views)")
+
+    def _check_finite(self) -> None:
+        """TrainingDiverged (nothing is saved) unless every weight is finite."""
+        for n, p in self.model.named_parameters():
+            if not bool(torch.isfinite(p.detach()).all()):
+                raise TrainingDiverged(f"{self.out}: step {self.step}: weight '{n}' is not finite; stopped without "
+                                       f"saving (the last checkpoint in {self.out} is kept)")
+
+    def _clean_temporaries(self) -> None:
+        """Remove temporary files a killed run left in the run folder (``.NAME.PID.XXXXXXXX.tmp*`` of a process
+        that no longer runs, and ``best.pt.tmp``)."""
+        for p in self.out.glob(".*.tmp*"):
+            m = re.match(r"^\.(.+)\.(\d+)\.[0-9a-f]{8}\.tmp", p.name)
+            if m and p.is_file() and int(m.group(2)) != os.getpid() and not _pid_alive(int(m.group(2))):
+                p.unlink(missing_ok=True)
+        (self.out / "best.pt.tmp").unlink(missing_ok=True)
+
                 print(f"--init {init}: grown to this config's widths (drawing what it drew): {', '.join(grown)}")
+        self._check_finite()
             try:
                 res = self.model.load_state_dict(state, strict=False)
             except RuntimeError as e:
@@ -251,7 +306,11 @@ class Trainer:
         if config_to_dict(model_config_from_dict(ckpt["config"], f"{path}: config")) != config_to_dict(self.cfg):
             raise ValueError(f"{path}: its model config differs from --config; resume with the same config")
         self.model.load_state_dict(ckpt["state_dict"])
-        self.opt.load_state_dict(ckpt["optimizer"])
+        if "optimizer" in ckpt:
+            try:
+                self.opt.load_state_dict(ckpt["optimizer"])
+            except (ValueError, KeyError, TypeError, RuntimeError) as e:
+                raise UserError(f"{path}: optimizer: does not fit this run's optimiser ({one_line(e, 160)})") from None
         self.step = int(ckpt["step"])
         self.best = float(ckpt.get("best", -math.inf))
         prov = ckpt.get("provenance")
@@ -262,11 +321,25 @@ class Trainer:
             self.provenance.init = prov.get("init")
             self.clock = RunClock(float(prov.get("wall_hours", 0.0)), float(prov.get("cpu_hours", 0.0)))
         self._drop_log_after(self.step)
-        states = ckpt["rng"]
+        states = ckpt.get("rng")
+        if "optimizer" not in ckpt or states is None:  # a step_*.pt or best.pt copied over last.pt to roll back
+            if self.rank == 0:
+                print(f"warning: {path}: no optimizer or RNG state (a step_*.pt or best.pt?): Adam's moments start "
+                      "afresh and the data order is reseeded from the step; the resume is not bit-exact",
+                      file=sys.stderr)
+            torch.manual_seed(self.tc.seed + 1000 * self.rank + 7 * self.step)
+            self.gen.manual_seed(self.tc.seed * 7919 + self.rank + 104729 * self.step)
+            return
         if len(states) != self.world:
             raise ValueError(f"{path}: saved by {len(states)} process(es), resuming with {self.world}")
         torch.set_rng_state(states[self.rank]["torch"])
         self.gen.set_state(states[self.rank]["gen"])
+        grads = [p.grad for p in self.model.parameters() if p.grad is not None]
+        if grads and not bool(torch.stack([torch.isfinite(g).all() for g in grads]).all()):
+            # one NaN gradient would become all-NaN after clipping: skip the update, keep the weights
+            self.opt.zero_grad(set_to_none=True)
+            self.step += 1
+            return {"skipped": 1.0}
 
     # ------------------------------------------------------------------ loop
     def batch(self) -> tuple[dict[str, Tensor], bool]:
@@ -312,11 +385,40 @@ class Trainer:
         path = self.out / "metrics.jsonl"
         if self.rank != 0 or not path.is_file():
             return
-        lines = path.read_text().splitlines()
-        keep = [x for x in lines if x.strip() and json.loads(x).get("step", 0) <= step]
-        if len(keep) != len(lines):
+        records, note = read_log(path)  # a torn last line (disk full, crash) is reported and left out
+        if note:
+            print(f"warning: {note}", file=sys.stderr)
+            self._clean_temporaries()
+        stop = {"signum": 0}
+
+        def on_signal(signum, frame):  # finish the step, save, exit; a second signal stops at once
+            if stop["signum"]:
+                raise KeyboardInterrupt
+            stop["signum"] = signum
+
+        handlers = {}
+        if threading.current_thread() is threading.main_thread():
+            handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            self._loop(end, stop)
+            if stop["signum"] and self.step < end:
+                raise Interrupted(f"saved {self.out / LAST} at step {self.step}; continue with --resume",
+                                  stop["signum"])
+        finally:
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+        if self.distributed:
+            dist.destroy_process_group()
+        return 0
+
+    def _loop(self, end: int, stop: dict | None = None) -> None:
+        tc = self.tc
+        stop = stop if stop is not None else {}
+        keep = [r for r in records if not isinstance(r.get("step"), (int, float)) or r["step"] <= step]
+        if note or len(keep) != len(records):
+        skipped_in_a_row = 0
             with atomic_write(path, "w") as f:
-                f.write("".join(x + "\n" for x in keep))
+                f.write("".join(json.dumps(r) + "\n" for r in keep))
 
     def log(self, record: dict) -> None:
         if self.rank == 0:
@@ -337,20 +439,36 @@ class Trainer:
                                sort_keys=False)
         bar = tqdm(total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0, dynamic_ncols=True)
         run_avg: dict[str, float] = {}
+                self._check_finite()
         while self.step < end:
             parts = self.train_step()
             bar.update(1)
-            for k, v in parts.items():
-                run_avg[k] = v if k not in run_avg else 0.9 * run_avg[k] + 0.1 * v
-            if not math.isfinite(parts["loss"]):
-                raise FloatingPointError(f"loss became {parts['loss']} at step {self.step}")
-            bar.set_postfix(loss=f"{run_avg['loss']:.1f}", psnr=f"{run_avg['psnr']:.2f}",
-                            active=f"{run_avg['active']:.1f}")
-            if self.step % tc.log_every == 0:
-                self.log({"step": self.step, **{k: round(v, 5) for k, v in run_avg.items()}})
+            if "skipped" in parts:
+                self.skipped += 1
+                skipped_in_a_row += 1
+                tqdm.write(f"warning: step {self.step}: non-finite loss or gradients; update skipped")
+                if skipped_in_a_row >= MAX_SKIPPED:
+                    raise TrainingDiverged(f"{self.out}: steps {self.step - MAX_SKIPPED + 1}-{self.step}: non-finite "
+                                           "loss or gradients at every step; stopped without saving (the last "
+                                           f"checkpoint in {self.out} is kept)")
+            else:
+                skipped_in_a_row = 0
+                for k, v in parts.items():
+                    run_avg[k] = v if k not in run_avg else 0.9 * run_avg[k] + 0.1 * v
+            if run_avg:
+                bar.set_postfix(loss=f"{run_avg['loss']:.1f}", psnr=f"{run_avg['psnr']:.2f}",
+                                active=f"{run_avg['active']:.1f}")
+            if self.step % tc.log_every == 0 and run_avg:
+                self.log({"step": self.step, **{k: round(v, 5) for k, v in run_avg.items()},
+                          **({"skipped": self.skipped} if self.skipped else {})})
             if self.step % tc.val_every == 0 or self.step == tc.steps:
                 if self.rank == 0 and self.val_dir.is_dir():
-                    m = self.validate()
+                    try:
+                        m = self.validate()
+                    except BaseException:
+                        if not self.distributed:  # the steps since the last checkpoint are not lost
+                            self._save(self.out / LAST)
+                        raise
                     self.log({"step": self.step, "val": m})
                     tqdm.write(f"step {self.step}: val PSNR {m['psnr']:.2f} dB, FG-ARI {m['fg_ari']:.3f}, "
                                f"mIoU {m['miou']:.3f}, active {m['active_particles']:.1f}")
@@ -360,16 +478,15 @@ class Trainer:
                     score = m["psnr"] / 30.0 + (m["fg_ari"] if math.isfinite(m["fg_ari"]) else 0.0)
                     if score > self.best:
                         self.best = score
-                        shutil.copyfile(self.out / f"step_{self.step:06d}.pt", self.out / "best.pt.tmp")
-                        os.replace(self.out / "best.pt.tmp", self.out / "best.pt")
+                        with atomic_path(self.out / "best.pt") as tmp:
+                            shutil.copyfile(self.out / f"step_{self.step:06d}.pt", tmp)
                 if self.distributed:
                     dist.barrier()
-            if self.step % tc.ckpt_every == 0 or self.step == end:  # after validation: it holds the best score
-                self._save(self.out / LAST)
+            if self.step % tc.ckpt_every == 0 or self.step == end or stop.get("signum"):
+                self._save(self.out / LAST)  # after validation: it holds the best score
+            if stop.get("signum"):
+                break
         bar.close()
-        if self.distributed:
-            dist.destroy_process_group()
-        return 0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
