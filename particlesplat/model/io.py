@@ -24,8 +24,12 @@ def save_checkpoint(path: str | PathLike, model: ParticleSplat, step: int, extra
              "step": int(step), "config_sha256": config_digest(config)}
     if extra:
         state.update(extra)
-    with atomic_path(path) as tmp:
-        torch.save(state, tmp)
+    try:
+        with atomic_path(path) as tmp:
+            torch.save(state, tmp)
+    except RuntimeError as e:  # torch reports a failed write (disk full, file too large) as RuntimeError
+        raise OSError(f"{path}: cannot write the checkpoint ({one_line(e, 160)}); the previous file, if any, "
+                      "is unchanged") from None
 
 
 class CheckpointError(UserError):
