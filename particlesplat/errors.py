@@ -20,6 +20,16 @@ class UserError(ValueError):
     """Bad input from the user; the message is one line naming the file and the field."""
 
 
+class Interrupted(KeyboardInterrupt):
+    """A command stopped by a signal after it saved what it had (the message says what and where).
+
+    ``signum`` is the signal (SIGINT, SIGTERM): the exit code is 128 + signum, as a shell reports it."""
+
+    def __init__(self, message: str = "", signum: int = 2) -> None:
+        super().__init__(message)
+        self.signum = signum
+
+
 def short_repr(value: object, limit: int = REPR_LIMIT) -> str:
     """``repr(value)`` cut to ``limit`` characters (``...`` marks the cut), so that a message never echoes
     unbounded input. Containers are walked lazily: a value built from YAML aliases is not expanded beyond
@@ -76,9 +86,10 @@ def run_command(prog: str, fn: Callable[[], int]) -> int:
     exit 130 for Ctrl-C; other exceptions propagate with their traceback."""
     try:
         return int(fn() or 0)
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as e:
+        detail = f" ({one_line(e)})" if str(e) else ""
+        print(f"{prog}: interrupted{detail}", file=sys.stderr)
+        return 128 + e.signum if isinstance(e, Interrupted) else EXIT_INTERRUPTED
     except Exception as e:
         if not is_user_error(e):
             raise
