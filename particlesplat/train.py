@@ -35,6 +35,7 @@ from .model.losses import elbo, scene_kl, view_error
 from .provenance import Provenance, RunClock
 from .render import render_batch
 
+LAST = "last.pt"
 MAX_SKIPPED = 20  # steps in a row with non-finite loss or gradients before the run stops as diverged
 
 
@@ -50,7 +51,6 @@ def _pid_alive(pid: int) -> bool:
     except PermissionError:
         return True
     return True
-LAST = "last.pt"
 
 
 def recipe_path() -> Path:
@@ -186,13 +186,13 @@ class Trainer:
         from .data import SceneDataset
 
         self.train_sets = {c: SceneDataset(data / "train", resolution=cfg.resolution,
-        if self.rank == 0 and self.val_dir.is_dir():
-            self._check_val_scenes()
-        self.skipped = 0  # steps skipped for non-finite loss or gradients, this invocation
                                            mode="multi" if c == 2 else "single", num_targets=tc.target_views,
                                            flip=False, cache_size=tc.cache_scenes)
                            for c in sorted(set(tc.context_views))}
         self.val_dir = data / "val"
+        if self.rank == 0 and self.val_dir.is_dir():
+            self._check_val_scenes()
+        self.skipped = 0  # steps skipped for non-finite loss or gradients, this invocation
         torch.manual_seed(tc.seed + 1000 * self.rank)
         self.gen = torch.Generator().manual_seed(tc.seed * 7919 + self.rank)
         self.model = ParticleSplat(cfg).to(self.device)
@@ -228,6 +228,31 @@ class Trainer:
                 print(f"--init {init}: dropped by --init-drop: {', '.join(dropped)}")
             state, grown = grow_state_dict(state, self.model.state_dict(), str(init))
             if grown and self.rank == 0:
+                print(f"--init {init}: grown to this config's widths (drawing what it drew): {', '.join(grown)}")
+            try:
+                res = self.model.load_state_dict(state, strict=False)
+            except RuntimeError as e:
+                raise ValueError(f"{init}: its weights do not fit this model config ({e})") from e
+            if res.unexpected_keys:
+                raise ValueError(f"{init}: weights this model config does not have: "
+                                 f"{', '.join(res.unexpected_keys)} (drop them on purpose with --init-drop MODULE)")
+            if res.missing_keys and self.rank == 0:
+                modules = sorted({k.rsplit(".", 1)[0] for k in res.missing_keys})
+                print(f"--init {init}: new modules start from their initialisation: {', '.join(modules)}")
+        if resume and (out / LAST).is_file():
+            self._load(out / LAST)
+        elif resume:
+            raise FileNotFoundError(f"{out / LAST}: nothing to resume")
+        elif (out / LAST).is_file():
+            raise FileExistsError(f"{out / LAST}: this run already exists; pass --resume to continue it "
+                                  "or choose another --out")
+        self.ddp = DistributedDataParallel(self.model, find_unused_parameters=tc.bg_off_steps > 0) \
+            if self.distributed else self.model
+
+    # ------------------------------------------------------------------ state
+    def _rng_state(self) -> dict:
+        return {"torch": torch.get_rng_state(), "gen": self.gen.get_state()}
+
     def _check_val_scenes(self) -> None:
         """Read the validation scenes once now: a corrupt one is found at the start, not at the first validation
         (and not again on every resume)."""
@@ -258,33 +283,8 @@ class Trainer:
                 p.unlink(missing_ok=True)
         (self.out / "best.pt.tmp").unlink(missing_ok=True)
 
-                print(f"--init {init}: grown to this config's widths (drawing what it drew): {', '.join(grown)}")
-        self._check_finite()
-            try:
-                res = self.model.load_state_dict(state, strict=False)
-            except RuntimeError as e:
-                raise ValueError(f"{init}: its weights do not fit this model config ({e})") from e
-            if res.unexpected_keys:
-                raise ValueError(f"{init}: weights this model config does not have: "
-                                 f"{', '.join(res.unexpected_keys)} (drop them on purpose with --init-drop MODULE)")
-            if res.missing_keys and self.rank == 0:
-                modules = sorted({k.rsplit(".", 1)[0] for k in res.missing_keys})
-                print(f"--init {init}: new modules start from their initialisation: {', '.join(modules)}")
-        if resume and (out / LAST).is_file():
-            self._load(out / LAST)
-        elif resume:
-            raise FileNotFoundError(f"{out / LAST}: nothing to resume")
-        elif (out / LAST).is_file():
-            raise FileExistsError(f"{out / LAST}: this run already exists; pass --resume to continue it "
-                                  "or choose another --out")
-        self.ddp = DistributedDataParallel(self.model, find_unused_parameters=tc.bg_off_steps > 0) \
-            if self.distributed else self.model
-
-    # ------------------------------------------------------------------ state
-    def _rng_state(self) -> dict:
-        return {"torch": torch.get_rng_state(), "gen": self.gen.get_state()}
-
     def _save(self, path: Path) -> None:
+        self._check_finite()
         states = [self._rng_state()]
         if self.distributed:
             states = [None] * self.world
@@ -334,12 +334,6 @@ class Trainer:
             raise ValueError(f"{path}: saved by {len(states)} process(es), resuming with {self.world}")
         torch.set_rng_state(states[self.rank]["torch"])
         self.gen.set_state(states[self.rank]["gen"])
-        grads = [p.grad for p in self.model.parameters() if p.grad is not None]
-        if grads and not bool(torch.stack([torch.isfinite(g).all() for g in grads]).all()):
-            # one NaN gradient would become all-NaN after clipping: skip the update, keep the weights
-            self.opt.zero_grad(set_to_none=True)
-            self.step += 1
-            return {"skipped": 1.0}
 
     # ------------------------------------------------------------------ loop
     def batch(self) -> tuple[dict[str, Tensor], bool]:
@@ -362,6 +356,12 @@ class Trainer:
                                      self.cfg.resolution, self.cfg)
         self.opt.zero_grad(set_to_none=True)
         parts["loss"].backward()
+        grads = [p.grad for p in self.model.parameters() if p.grad is not None]
+        if grads and not bool(torch.stack([torch.isfinite(g).all() for g in grads]).all()):
+            # one NaN gradient would become all-NaN after clipping: skip the update, keep the weights
+            self.opt.zero_grad(set_to_none=True)
+            self.step += 1
+            return {"skipped": 1.0}
         factor = lr_factor(self.step, self.tc)
         for g, base in zip(self.opt.param_groups, self.base_lrs):
             g["lr"] = base * factor
@@ -388,6 +388,28 @@ class Trainer:
         records, note = read_log(path)  # a torn last line (disk full, crash) is reported and left out
         if note:
             print(f"warning: {note}", file=sys.stderr)
+        keep = [r for r in records if not isinstance(r.get("step"), (int, float)) or r["step"] <= step]
+        if note or len(keep) != len(records):
+            with atomic_write(path, "w") as f:
+                f.write("".join(json.dumps(r) + "\n" for r in keep))
+
+    def log(self, record: dict) -> None:
+        if self.rank == 0:
+            with open(self.out / "metrics.jsonl", "a") as f:
+                f.write(json.dumps(record) + "\n")
+
+    def run(self, stop_after: int | None = None) -> int:
+        """Train until ``steps`` (or for at most ``stop_after`` more steps, then checkpoint and return)."""
+        tc = self.tc
+        end = tc.steps if stop_after is None else min(tc.steps, self.step + stop_after)
+        if self.rank == 0:
+            self.out.mkdir(parents=True, exist_ok=True)
+            with atomic_write(self.out / "config.yaml", "w") as f:
+                import yaml
+
+                # every key, resolved
+                yaml.safe_dump({"model": config_to_dict(self.cfg), "train": config_to_dict(self.tc)}, f,
+                               sort_keys=False)
             self._clean_temporaries()
         stop = {"signum": 0}
 
@@ -414,32 +436,9 @@ class Trainer:
     def _loop(self, end: int, stop: dict | None = None) -> None:
         tc = self.tc
         stop = stop if stop is not None else {}
-        keep = [r for r in records if not isinstance(r.get("step"), (int, float)) or r["step"] <= step]
-        if note or len(keep) != len(records):
-        skipped_in_a_row = 0
-            with atomic_write(path, "w") as f:
-                f.write("".join(json.dumps(r) + "\n" for r in keep))
-
-    def log(self, record: dict) -> None:
-        if self.rank == 0:
-            with open(self.out / "metrics.jsonl", "a") as f:
-                f.write(json.dumps(record) + "\n")
-
-    def run(self, stop_after: int | None = None) -> int:
-        """Train until ``steps`` (or for at most ``stop_after`` more steps, then checkpoint and return)."""
-        tc = self.tc
-        end = tc.steps if stop_after is None else min(tc.steps, self.step + stop_after)
-        if self.rank == 0:
-            self.out.mkdir(parents=True, exist_ok=True)
-            with atomic_write(self.out / "config.yaml", "w") as f:
-                import yaml
-
-                # every key, resolved
-                yaml.safe_dump({"model": config_to_dict(self.cfg), "train": config_to_dict(self.tc)}, f,
-                               sort_keys=False)
         bar = tqdm(total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0, dynamic_ncols=True)
         run_avg: dict[str, float] = {}
-                self._check_finite()
+        skipped_in_a_row = 0
         while self.step < end:
             parts = self.train_step()
             bar.update(1)
@@ -462,6 +461,7 @@ class Trainer:
                 self.log({"step": self.step, **{k: round(v, 5) for k, v in run_avg.items()},
                           **({"skipped": self.skipped} if self.skipped else {})})
             if self.step % tc.val_every == 0 or self.step == tc.steps:
+                self._check_finite()
                 if self.rank == 0 and self.val_dir.is_dir():
                     try:
                         m = self.validate()
