@@ -208,6 +208,25 @@ def test_open_ply_replaces_the_session(app, tmp_path):
     assert "error" in app.fields.status and "missing" in app.fields.status
 
 
+def test_open_keeps_unsaved_edits_and_offers_them_back(app, tmp_path):
+    from particlesplat.encode_scene import demo_scenes
+
+    scene = demo_scenes()[0]
+    app.fields.output_dir = str(tmp_path)
+    app.open(str(scene))
+    app.session.set_attribute(1, "z_p", [0.3, -0.2])
+    assert app.session.unsaved
+    app.req.open_path = str(scene)  # the same scene again: the edits would be gone
+    app.run(1)
+    kept = tmp_path / ".particlesplat-autosave" / f"{scene.name}.edits.yaml"
+    assert kept.is_file() and f"unsaved edits of the previous scene kept in {kept}" in app.fields.status
+    assert "Load edits restores them" in app.fields.status and app.fields.edits_path == str(kept)
+    assert app.session.edits() == {} and not app.session.unsaved
+    app.req.load_edits = True
+    app.run(1)
+    assert app.session.value(1, "z_p") == pytest.approx((0.3, -0.2)) and not app.session.unsaved
+
+
 def test_orbit_frames_move_like_a_drag_then_the_still_frame(app):
     fw, fh = app.framebuffer_size()
     look = app.orbit.view.look

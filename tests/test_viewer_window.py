@@ -86,7 +86,7 @@ def test_model_scene_with_edits_matches_render_cli(tmp_path, driver):
 def test_viewer_rejects_bad_arguments(tmp_path):
     proc = subprocess.run([VIEWER, "--ply", str(tmp_path / "missing.ply"), "--frames", "1"],
                           capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 1 and "missing.ply" in proc.stderr
+    assert proc.returncode == 2 and "missing.ply" in proc.stderr
     proc = subprocess.run([VIEWER, "--ply", "g.ply", "--context", "4,16"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "--context needs a model scene" in proc.stderr
     proc = subprocess.run([VIEWER, "--size", "12xfoo"], capture_output=True, text=True, timeout=120)

@@ -242,19 +242,30 @@ class App:
             self.fields.status = f"error: {e}"
         return True
 
+    def keep_unsaved(self) -> Path | None:
+        """Autosave the session's unsaved edits (before it is replaced or the window closes); returns the file."""
+        return self.session.autosave(self.fields.output_dir)
+
     def open(self, path: str) -> None:
-        """Open a scene folder or a .ply (replaces the session)."""
+        """Open a scene folder or a .ply (replaces the session). Unsaved edits of the old scene are autosaved
+        first; autosaved edits of the new one are offered (the edits path is set: Load restores them)."""
         p = Path(path)
         args = argparse.Namespace(**vars(self.args))
         args.scene, args.ply, args.edits, args.context = (None, str(p), None, None) if p.suffix == ".ply" else (
             str(p), None, None, None)
-        self.session = load_session(args)
+        new = load_session(args)  # a bad path leaves the current scene as it is
+        kept = self.keep_unsaved()
+        self.session = new
         self.swatches = particle_swatches(self.session)
         self.state = ViewState(panel=self.state.panel, overlay=self.state.overlay,
                                background=scene_background(self.session.model))
         view = initial_view(self.session, None, None)
         self.orbit = OrbitCamera.from_view(view)
-        self.fields.status = f"opened {p}"
+        self.fields.status = f"opened {p}" + (f"; unsaved edits of the previous scene kept in {kept}" if kept else "")
+        found = self.session.autosave_path(self.fields.output_dir) if self.session.editable else None
+        if found is not None and found.is_file():
+            self.fields.edits_path = str(found)
+            self.fields.status += f"; autosaved edits of this scene found: Load edits restores them ({found})"
 
     def shot_camera(self) -> Camera:
         w, h = self.fields.shot_size
@@ -364,6 +375,14 @@ def destroy_window(window) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The viewer under the error policy (:func:`particlesplat.errors.run_command`): a bad file or argument is
+    one line and exit code 2, Ctrl-C one line and 130; a bug keeps its traceback."""
+    from particlesplat.errors import run_command
+
+    return run_command("particlesplat-viewer", lambda: _main(argv))
+
+
+def _main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(attach_option_values(list(sys.argv[1:] if argv is None else argv)))
     # per-particle decodes are tiny: one torch thread is ~15x faster than two fighting llvmpipe's
     torch.set_num_threads(1)
@@ -381,10 +400,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         session = load_session(args)
         view = initial_view(session, args.look, args.fov)
-    except (OSError, ValueError, KeyError, IndexError, RuntimeError) as e:
-        print(f"particlesplat-viewer: {e}", file=sys.stderr)
-        return 1
+    except (OSError, ValueError, KeyError, IndexError) as e:
+        from particlesplat.errors import EXIT_USER, one_line
+
+        print(f"particlesplat-viewer: {one_line(e)}", file=sys.stderr)
+        return EXIT_USER
     window = create_window(args.size)
+    app = None
     try:
         try:
             app = App(window, session, view, args)
@@ -408,9 +430,13 @@ def main(argv: list[str] | None = None) -> int:
                 except OSError as e:
                     print(f"particlesplat-viewer: --screenshot {args.screenshot}: cannot write ({e.strerror or e})",
                           file=sys.stderr)
-                    return 1
+                    return 2
                 print(f"saved {path}")
     finally:
+        kept = app.keep_unsaved() if app is not None else None  # closing the window (or Ctrl-C) loses no edits
+        if kept is not None:
+            print(f"particlesplat-viewer: unsaved edits kept in {kept} (open them with --edits {kept})",
+                  file=sys.stderr)
         destroy_window(window)
     return 0
 

@@ -21,6 +21,8 @@ from particlesplat.gaussians import Gaussians
 
 __all__ = ["History", "Operation", "SceneSession", "SetAttribute"]
 
+AUTOSAVE_DIR = ".particlesplat-autosave"  # under the viewer's --output-dir
+
 
 class SceneSession(SceneEditor):
     """What is being viewed: either a model's particles (editable) or a fixed Gaussian set (.ply).
@@ -49,6 +51,7 @@ class SceneSession(SceneEditor):
             gaussians.check(source or "Gaussians")  # the GL renderer would draw NaN as nothing, or everything
         self._fixed = gaussians.detach().to("cpu") if gaussians is not None else None
         self._owner_ids: list[int] | None = None
+        self._saved_token = self._history_token()
 
     # ------------------------------------------------------------------ queries
     @property
@@ -89,9 +92,32 @@ class SceneSession(SceneEditor):
         return self.model.decode(self.particles, torch.tensor([index]), background=False).detach().to("cpu")
 
     # ------------------------------------------------------------------ files
+    def _history_token(self) -> tuple:
+        undo = self.history.undo
+        return len(undo), id(undo[-1]) if undo else None
+
+    @property
+    def unsaved(self) -> bool:
+        """Edits done since the scene was opened, its edits saved or an edit file loaded."""
+        return self.editable and self._history_token() != self._saved_token
+
+    def autosave_path(self, folder: str | PathLike) -> Path:
+        """Where :meth:`autosave` keeps this scene's unsaved edits:
+        ``FOLDER/.particlesplat-autosave/NAME.edits.yaml``."""
+        return Path(folder) / AUTOSAVE_DIR / f"{Path(self.source).name or 'scene'}.edits.yaml"
+
+    def autosave(self, folder: str | PathLike) -> Path | None:
+        """Keep unsaved edits (before the scene is replaced or the window closes); returns the file, or None when
+        nothing was unsaved. The session stays unsaved: the user did not save them."""
+        if not self.unsaved:
+            return None
+        return self.save(self.autosave_path(folder), scene=self.source or None, model=self.model_name or None)
+
     def save_edits(self, path: str | PathLike) -> Path:
         """Write what was done as a version 2 edit file (object operations picked by pixel); returns the path."""
-        return self.save(path, scene=self.source or None, model=self.model_name or None)
+        out = self.save(path, scene=self.source or None, model=self.model_name or None)
+        self._saved_token = self._history_token()
+        return out
 
     def load_edits(self, path: str | PathLike) -> str | None:
         """Do the operations of an edit file (version 1: one operation setting the particles' values).
@@ -102,4 +128,5 @@ class SceneSession(SceneEditor):
             self.apply_file(file, str(path))
         else:
             self.set_edits(file.particles, label=f"load {Path(path).name}")
+        self._saved_token = self._history_token()
         return scene_mismatch(file, self.source, self.context) if self.source else None
