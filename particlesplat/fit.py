@@ -36,8 +36,7 @@ def context_error(model, particles: Particles, rgb: Tensor, depth: Tensor | None
     dev = rgb.device
     K, c2w = stack_cameras(particles.cameras, device=dev)
     z = {k: (latents or {}).get(k, getattr(particles, k))[None] for k in FITTED}
-    z.update(z_t=particles.z_t[None], bg=particles.background[None],
-             obs=None if particles.obs is None else particles.obs[None])
+    z.update(z_t=particles.z_t[None], bg=particles.background[None])
     gaussians = model.decode_batch(z, particles.view, K[None], c2w[None])
     rgb_hat, depth_hat, _ = render_views(gaussians, K[None], c2w[None], model.config.resolution,
                                          model.background_color())

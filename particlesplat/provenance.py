@@ -57,7 +57,7 @@ class Provenance:
         n = sum(1 for p in split.iterdir() if p.is_dir() and not p.name.startswith("."))
         return cls(data=str(data.resolve()), train_scenes=n, scene_list_sha256=scene_list_hash(split),
                    init=None if init is None else str(init), wall_hours=0.0, cpu_hours=0.0,
-                   torch=torch.__version__, git_commit=git_commit(), device=device)
+                   torch=str(torch.__version__), git_commit=git_commit(), device=device)
 
     def to_dict(self) -> dict:
         return asdict(self)

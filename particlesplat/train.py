@@ -28,8 +28,7 @@ from .runlog import read_log
 from .camera import Camera
 from .data.views import WARMUP
 from .model import ModelConfig, ParticleSplat, TrainConfig, load_config, read_checkpoint, save_checkpoint
-from .model.config import ConfigError, config_to_dict, model_config_from_dict
-from .model.grow import grow_state_dict
+from .model.config import ConfigError, config_to_dict, model_config_from_dict, without_removed_keys
 from .metrics import near_other_label
 from .model.losses import elbo, scene_kl, view_error
 from .provenance import Provenance, RunClock
@@ -105,7 +104,7 @@ def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: b
     K = torch.cat([batch["context_K"], batch["target_K"]], 1)
     c2w = torch.cat([batch["context_c2w"], batch["target_c2w"]], 1)
     net = model.module if isinstance(model, DistributedDataParallel) else model
-    rgb_hat, depth_hat, fg_hat = render_views(gaussians, K, c2w, size, net.background_color(), tc.beta_fg > 0)
+    rgb_hat, depth_hat, fg_hat = render_views(gaussians, K, c2w, size, z["bg_color"], tc.beta_fg > 0)
     gt_rgb = torch.cat([batch["context_rgb"], batch["target_rgb"]], 1)
     gt_depth = torch.cat([batch["context_depth"], batch["target_depth"]], 1)
     B, V = gt_rgb.shape[:2]
@@ -124,9 +123,6 @@ def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: b
         fg_err = foreground_error(fg_hat.flatten(0, 1), bg_err.flatten(0, 1), tc.fg_threshold, tc.fg_band)
         parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
         parts["loss"] = parts["loss"] + tc.beta_fg * parts["fg"]
-    if "coarse_err" in post:  # the plain background (no detail) must explain the views on its own
-        parts["coarse"] = post["coarse_err"].mean()
-        parts["loss"] = parts["loss"] + tc.beta_coarse * parts["coarse"]
     shown = rgb_hat[:, C:] if V > C else rgb_hat
     target = gt_rgb[:, C:] if V > C else gt_rgb
     with torch.no_grad():
@@ -166,14 +162,14 @@ class Trainer:
     """Holds the model, optimiser, datasets and RNG; one instance per process."""
 
     def __init__(self, cfg: ModelConfig, tc: TrainConfig, data: Path, out: Path, device: str, resume: bool,
-                 init: Path | None = None, init_drop: tuple[str, ...] = (), overwrite: bool = False):
+                 overwrite: bool = False):
         self.cfg, self.tc, self.out, self.device = cfg, tc, out, torch.device(device)
         if not resume and not overwrite and out.exists() and (not out.is_dir() or any(out.iterdir())):
             raise FileExistsError(f"{out}: --out is not empty; pass --resume to continue the run in it, "
                                   "--overwrite to replace it, or choose another folder")
         replace(cfg, particles_per_view=tc.particles_per_view or cfg.particles_per_view).validate(
             "train.particles_per_view with the model")
-        self.provenance = Provenance.start(data, init if not resume else None, str(self.device))
+        self.provenance = Provenance.start(data, None, str(self.device))  # from random initialisation
         self.clock = RunClock()
         if tc.beta_fg > 0 and cfg.bg_static_grid == 0:
             raise ConfigError(f"train.beta_fg: the foreground term compares with the static background layer; "
@@ -202,7 +198,7 @@ class Trainer:
         if unknown:
             raise ConfigError(f"train.freeze: no such module in this model: {', '.join(unknown)} "
                               f"(modules: {', '.join(sorted({n.split('.')[0] for n in names}))})")
-        for n, p in self.model.named_parameters():  # frozen weights keep what they start with (or --init gives)
+        for n, p in self.model.named_parameters():  # frozen weights keep what they start with
             p.requires_grad_(not any(owns(n, m) for m in tc.freeze))
         # the learned background colour and the static background layer move at lr_background
         is_bg = lambda n: n == "background_logit" or n.startswith("static_bg.")  # noqa: E731
@@ -217,28 +213,6 @@ class Trainer:
         self.opt = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
         self.step = 0
         self.best = -math.inf
-        if init is not None and not resume:
-            state = read_checkpoint(init)["state_dict"]
-            unknown = [p for p in init_drop if not any(owns(k, p) for k in state)]
-            if unknown:
-                raise ValueError(f"{init}: --init-drop {', '.join(unknown)}: no such weights in the checkpoint")
-            dropped = sorted(k for k in state if any(owns(k, p) for p in init_drop))
-            state = {k: v for k, v in state.items() if k not in dropped}
-            if dropped and self.rank == 0:
-                print(f"--init {init}: dropped by --init-drop: {', '.join(dropped)}")
-            state, grown = grow_state_dict(state, self.model.state_dict(), str(init))
-            if grown and self.rank == 0:
-                print(f"--init {init}: grown to this config's widths (drawing what it drew): {', '.join(grown)}")
-            try:
-                res = self.model.load_state_dict(state, strict=False)
-            except RuntimeError as e:
-                raise ValueError(f"{init}: its weights do not fit this model config ({e})") from e
-            if res.unexpected_keys:
-                raise ValueError(f"{init}: weights this model config does not have: "
-                                 f"{', '.join(res.unexpected_keys)} (drop them on purpose with --init-drop MODULE)")
-            if res.missing_keys and self.rank == 0:
-                modules = sorted({k.rsplit(".", 1)[0] for k in res.missing_keys})
-                print(f"--init {init}: new modules start from their initialisation: {', '.join(modules)}")
         if resume and (out / LAST).is_file():
             self._load(out / LAST)
         elif resume:
@@ -246,8 +220,9 @@ class Trainer:
         elif (out / LAST).is_file():
             raise FileExistsError(f"{out / LAST}: this run already exists; pass --resume to continue it "
                                   "or choose another --out")
-        self.ddp = DistributedDataParallel(self.model, find_unused_parameters=tc.bg_off_steps > 0) \
-            if self.distributed else self.model
+        # steps without the background or before refine_start leave weights without gradients
+        unused = tc.bg_off_steps > 0 or (cfg.refine_steps > 0 and tc.refine_start > 0)
+        self.ddp = DistributedDataParallel(self.model, find_unused_parameters=unused) if self.distributed else self.model
 
     # ------------------------------------------------------------------ state
     def _rng_state(self) -> dict:
@@ -302,8 +277,11 @@ class Trainer:
 
     def _load(self, path: Path) -> None:
         ckpt = read_checkpoint(path)
-        # through the dataclass: a key added since the checkpoint was written takes its default
-        if config_to_dict(model_config_from_dict(ckpt["config"], f"{path}: config")) != config_to_dict(self.cfg):
+        # through the dataclass: a key added since the checkpoint was written takes its default, a removed one
+        # that held its "off" value is dropped
+        stored = model_config_from_dict(without_removed_keys(ckpt["config"], "model", f"{path}: config"),
+                                        f"{path}: config")
+        if config_to_dict(stored) != config_to_dict(self.cfg):
             raise ValueError(f"{path}: its model config differs from --config; resume with the same config")
         self.model.load_state_dict(ckpt["state_dict"])
         if "optimizer" in ckpt:
@@ -498,13 +476,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                      "metrics.jsonl, config.yaml")
     parser.add_argument("--resume", action="store_true", help="continue exactly from OUT/last.pt")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (under torchrun: one process per device)")
-    parser.add_argument("--init", default=None,
-                        help="start from the weights of this checkpoint (fresh optimiser and step count; "
-                             "the model config may differ in keys that hold no weights, and may widen d_obj, "
-                             "patch_channels and patch_hidden: the grown model starts by drawing what it drew)")
-    parser.add_argument("--init-drop", action="append", default=[], metavar="MODULE",
-                        help="with --init: leave out the checkpoint's weights under this module name (e.g. "
-                             "bg_detail), for a config that no longer has it; repeatable")
     parser.add_argument("--overwrite", action="store_true",
                         help="train into a non-empty --out that is not resumed (its files are replaced)")
     parser.add_argument("--stop-after", type=int, default=None,
@@ -522,8 +493,5 @@ def run(args: argparse.Namespace) -> int:
     device = args.device
     if device.startswith("cuda") and int(os.environ.get("WORLD_SIZE", "1")) > 1:
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
-    if args.init_drop and not args.init:
-        raise ValueError("--init-drop needs --init")
-    trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, Path(args.init) if args.init else None,
-                      tuple(args.init_drop), overwrite=args.overwrite)
+    trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, overwrite=args.overwrite)
     return trainer.run(args.stop_after)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 import torch.nn.functional as F
-from test_model import scene_inputs, tiny_model
+from test_model import TINY, scene_inputs, tiny_model
 
 from particlesplat.model import ConfigError, ModelConfig
 from particlesplat.model.refiner import BOX_MARGIN, _bounded_shift, box_glimpses
@@ -16,8 +16,8 @@ from particlesplat.render import render
 def refined_pair(**kw):
     """A tiny model with refine_steps 1 and the same model without it, sharing every other weight."""
     glimpse = kw.pop("refine_glimpse", 0)
-    plain = tiny_model(3, patch_back=True, **kw)
-    refined = tiny_model(4, patch_back=True, refine_steps=1, refine_hidden=16, refine_glimpse=glimpse, **kw)
+    plain = tiny_model(3, refine_steps=0, **kw)
+    refined = tiny_model(4, refine_steps=1, refine_hidden=16, refine_glimpse=glimpse, **kw)
     missing = refined.load_state_dict(plain.state_dict(), strict=False).missing_keys
     assert missing and all(k.startswith("refiner.") for k in missing)
     return plain, refined
@@ -127,10 +127,8 @@ def test_refinement_trains_end_to_end():
 
 def test_refinement_config_errors():
     with pytest.raises(ConfigError, match="refine_steps"):
-        ModelConfig(resolution=32, refine_steps=-1).validate()
+        ModelConfig(**{**TINY, "refine_steps": -1}).validate()
     with pytest.raises(ConfigError, match="glimpse_size.*multiple of 8"):
-        ModelConfig(resolution=32, glimpse_size=12, refine_steps=1).validate()
+        ModelConfig(**{**TINY, "glimpse_size": 12, "refine_steps": 1}).validate()
     with pytest.raises(ConfigError, match="refine_glimpse"):
-        ModelConfig(resolution=32, refine_steps=1, refine_glimpse=20).validate()
-    with pytest.raises(ConfigError, match="patch_copy_input"):
-        ModelConfig(resolution=32, refine_steps=1, patch_copy_input=True).validate()
+        ModelConfig(**{**TINY, "refine_steps": 1, "refine_glimpse": 20}).validate()

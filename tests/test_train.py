@@ -78,17 +78,17 @@ def test_training_reduces_the_loss_on_one_scene(tmp_path_factory, tmp_path):
     from model_data import TINY_MODEL
 
     data = tiny_dataset(tmp_path_factory)
-    tc = TrainConfig(batch_size=1, target_views=1, steps=60, lr=3e-3, seed=1)
+    tc = TrainConfig(batch_size=1, target_views=1, steps=60, lr=3e-3, seed=1, beta_fg=0.0)  # the reconstruction alone
     tr = Trainer(ModelConfig(**TINY_MODEL), tc, Path(data), tmp_path / "o", "cpu", False)
     losses = [tr.train_step()["rec"] for _ in range(60)]
     assert sum(losses[-10:]) / 10 < 0.85 * sum(losses[:10]) / 10
 
 
-STATIC_ONLY = {"bg_detail": 0, "bg_copy_input": False, "bg_static_grid": 16, "bg_per_view": False}
+PER_VIEW = {"bg_per_view": True}  # the per-view background beside the static layer
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("model", [{}, STATIC_ONLY], ids=["per-view background", "static layer only"])
+@pytest.mark.parametrize("model", [{}, PER_VIEW], ids=["recipe (static layer)", "with the per-view background"])
 def test_two_process_ddp_run(tmp_path_factory, tmp_path, model):
     data = tiny_dataset(tmp_path_factory)
     cfg = tiny_config(tmp_path / "tiny.yaml", steps=2, val_every=2, batch_size=1)
@@ -109,49 +109,6 @@ def test_two_process_ddp_run(tmp_path_factory, tmp_path, model):
     assert all(torch.isfinite(v).all() for v in ckpt["state_dict"].values() if v.is_floating_point())
 
 
-def test_init_from_checkpoint_weights(tmp_path_factory, tmp_path):
-    from model_data import TINY_MODEL
-
-    from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
-
-    data = tiny_dataset(tmp_path_factory)
-    torch.manual_seed(5)
-    src = ParticleSplat(ModelConfig(**{**TINY_MODEL, "bg_detail": 0, "bg_copy_input": False}))  # lacks the detail branch: it starts fresh
-    save_checkpoint(tmp_path / "src.pt", src, step=9)
-    cfg = tiny_config(tmp_path / "tiny.yaml", steps=1, val_every=5, lr=1e-12, lr_background=1e-12)
-    text = cfg.read_text().replace("particles_per_view: 3", "particles_per_view: 2")  # holds no weights
-    cfg.write_text(text)
-    assert _train(cfg, data, tmp_path / "i", "--init", str(tmp_path / "src.pt")) == 0
-    out = read_checkpoint(tmp_path / "i" / "last.pt")
-    assert out["step"] == 1 and out["config"]["particles_per_view"] == 2
-    for k, v in src.state_dict().items():
-        torch.testing.assert_close(out["state_dict"][k], v, rtol=0, atol=1e-6)
-    assert any(k.startswith("bg_detail.") for k in out["state_dict"])
-    cfg.write_text(text.replace("channels: 8", "channels: 12"))
-    with pytest.raises(ValueError, match="src.pt: .* only d_obj, patch_channels and patch_hidden may differ"):
-        _train(cfg, data, tmp_path / "j", "--init", str(tmp_path / "src.pt"))
-    cfg.write_text(text.replace("d_obj: 4", "d_obj: 5"))  # grown (test_model checks it draws the same)
-    assert _train(cfg, data, tmp_path / "j", "--init", str(tmp_path / "src.pt")) == 0
-    grown = read_checkpoint(tmp_path / "j" / "last.pt")["state_dict"]["encoder.head.weight"]
-    torch.testing.assert_close(grown[:14 + 4], src.state_dict()["encoder.head.weight"][:14 + 4], rtol=0, atol=1e-6)
-    save_checkpoint(tmp_path / "src2.pt", ParticleSplat(ModelConfig(**TINY_MODEL)), step=9)
-    cfg.write_text(text.replace("bg_detail: 2", "bg_detail: 0").replace("bg_copy_input: true", "bg_copy_input: false"))
-    with pytest.raises(ValueError, match="does not have: .*bg_detail"):
-        _train(cfg, data, tmp_path / "k", "--init", str(tmp_path / "src2.pt"))
-    with pytest.raises(ValueError, match="--init-drop bg_detial: no such weights"):
-        _train(cfg, data, tmp_path / "k", "--init", str(tmp_path / "src2.pt"), "--init-drop", "bg_detial")
-    # dropped on purpose, the rest of the weights load
-    drops = ("bg_detail", "bg_decoder.detail", "bg_decoder.copy_gate")
-    assert _train(cfg, data, tmp_path / "k", "--init", str(tmp_path / "src2.pt"),
-                  *[a for d in drops for a in ("--init-drop", d)]) == 0
-    out = read_checkpoint(tmp_path / "k" / "last.pt")["state_dict"]
-    src2 = torch.load(tmp_path / "src2.pt", weights_only=True)["state_dict"]
-    kept = [k for k in src2 if not any(k == d or k.startswith(d + ".") for d in drops)]
-    assert kept and set(kept) == set(out)
-    for k in kept:
-        torch.testing.assert_close(out[k], src2[k], rtol=0, atol=1e-6)
-
-
 def test_lr_factor_is_a_cosine_from_one_to_lr_final():
     from particlesplat.model import TrainConfig
     from particlesplat.train import lr_factor
@@ -161,7 +118,7 @@ def test_lr_factor_is_a_cosine_from_one_to_lr_final():
     assert lr_factor(50, tc) == pytest.approx(0.6)  # half-way: the mean of 1 and 0.2
     assert lr_factor(25, tc) == pytest.approx(0.2 + 0.8 * 0.5 * (1 + 2 ** -0.5))
     assert lr_factor(100, tc) == pytest.approx(0.2) and lr_factor(500, tc) == pytest.approx(0.2)
-    assert lr_factor(37, TrainConfig(steps=101)) == 1.0  # lr_final 1: constant
+    assert lr_factor(37, TrainConfig(steps=101, lr_final=1.0)) == 1.0  # lr_final 1: constant
     with pytest.raises(ValueError, match="lr_final"):
         TrainConfig(lr_final=1.5).validate()
 
@@ -208,9 +165,6 @@ def test_static_layer_trains_at_the_background_learning_rate(tmp_path_factory, t
     leave every network weight where it was: the layer is in the lr_background group."""
     data = tiny_dataset(tmp_path_factory)
     cfg = tiny_config(tmp_path / "tiny.yaml", steps=2, val_every=5, lr=1e-12, lr_background=0.05)
-    text = cfg.read_text().replace("bg_detail: 2", "bg_detail: 0").replace("bg_copy_input: true",
-                                                                          "bg_copy_input: false")
-    cfg.write_text(text.replace("model:\n", "model:\n  bg_static_grid: 16\n  bg_per_view: false\n", 1))
     assert _train(cfg, data, tmp_path / "s", "--stop-after", "1") == 0
     before = read_checkpoint(tmp_path / "s" / "last.pt")["state_dict"]
     assert _train(cfg, data, tmp_path / "s", "--resume") == 0
@@ -231,7 +185,7 @@ def test_foreground_error_targets_what_the_static_layer_cannot_explain():
     from particlesplat.render import render
     from particlesplat.train import foreground_error
 
-    m = ParticleSplat(ModelConfig(**{**TINY_MODEL, **STATIC_ONLY})).eval()
+    m = ParticleSplat(ModelConfig(**TINY_MODEL)).eval()
     cam = Camera.orbit((0.0, 0.0, 0.15), 20.0, 30.0, 3.3, width=32, height=32)
     K, c2w = stack_cameras([cam])
     with torch.no_grad():
@@ -290,8 +244,8 @@ def test_foreground_term_needs_the_static_layer(tmp_path_factory, tmp_path):
     from particlesplat.train import Trainer
 
     with pytest.raises(ConfigError, match="beta_fg"):
-        Trainer(ModelConfig(**TINY_MODEL), TrainConfig(beta_fg=0.5), Path(tiny_dataset(tmp_path_factory)),
-                tmp_path / "o", "cpu", False)
+        Trainer(ModelConfig(**{**TINY_MODEL, "bg_static_grid": 0, "bg_per_view": True}), TrainConfig(beta_fg=0.5),
+                Path(tiny_dataset(tmp_path_factory)), tmp_path / "o", "cpu", False)
 
 
 def test_training_with_the_foreground_term_logs_it(tmp_path_factory, tmp_path):
@@ -299,9 +253,6 @@ def test_training_with_the_foreground_term_logs_it(tmp_path_factory, tmp_path):
     (2 context + 1 target views of 32x32), and the loss stays finite."""
     data = tiny_dataset(tmp_path_factory)
     cfg = tiny_config(tmp_path / "tiny.yaml", steps=2, val_every=5, beta_fg=0.5)
-    text = cfg.read_text().replace("bg_detail: 2", "bg_detail: 0").replace("bg_copy_input: true",
-                                                                          "bg_copy_input: false")
-    cfg.write_text(text.replace("model:\n", "model:\n  bg_static_grid: 16\n  bg_per_view: false\n", 1))
     assert _train(cfg, data, tmp_path / "f") == 0
     rows = [json.loads(ln) for ln in (tmp_path / "f" / "metrics.jsonl").read_text().splitlines()]
     fg = [r["fg"] for r in rows if "fg" in r]
@@ -320,6 +271,6 @@ def test_frozen_modules_keep_their_weights(tmp_path_factory, tmp_path):
     after = read_checkpoint(tmp_path / "s" / "last.pt")["state_dict"]
     moved = {k.split(".")[0] for k in after if not torch.equal(after[k], before[k])}
     assert "fg_decoder" in moved and not moved & {"encoder", "bg_encoder"}
-    bad = tiny_config(tmp_path / "bad.yaml", freeze=["encoder", "refiner"])
-    with pytest.raises(ValueError, match="train.freeze: no such module in this model: refiner"):
+    bad = tiny_config(tmp_path / "bad.yaml", freeze=["encoder", "bg_decoder"])  # built with bg_per_view only
+    with pytest.raises(ValueError, match="train.freeze: no such module in this model: bg_decoder"):
         _train(bad, data, tmp_path / "b")

@@ -18,7 +18,7 @@ def test_existing_run_needs_resume(tmp_path_factory, tmp_path):
     argv = ["train", "--config", str(cfg), "--data", str(data), "--out", str(tmp_path / "r")]
     assert main(argv) == 0
     before = (tmp_path / "r" / "last.pt").read_bytes()
-    with pytest.raises(FileExistsError, match="already exists; pass --resume"):
+    with pytest.raises(FileExistsError, match="not empty; pass --resume"):
         main(argv)
     assert (tmp_path / "r" / "last.pt").read_bytes() == before
     assert read_checkpoint(tmp_path / "r" / "last.pt")["step"] == 1

@@ -50,7 +50,6 @@ class ModelConfig:
     kp_patch: int = 4
     glimpse_ratio: float = 0.15
     kp_min_separation: float = 0.25
-    kp_selection: str = "residual"
     offset_bound: float = 0.15
     scale_logit_bound: float = 1.5
     glimpse_size: int = 16
@@ -59,24 +58,16 @@ class ModelConfig:
     d_bg: int = 5
     bg_latent_stride: int = 64
     bg_block: int = 2
-    bg_detail: int = 0
-    bg_detail_threshold: float = 0.02
-    bg_copy_input: bool = False
-    kp_cross_view: bool = False
     learned_background: bool = True
     bg_static_grid: int = 72
     bg_static_extent: float = 2.25
     bg_per_view: bool = False
     patch_gaussians: int = 16
     patch_base: int = 4
-    patch_refine: int = 0
     patch_channels: int = 64
     patch_hidden: int = 256
-    patch_cell_mlp: int = 0
     particle_depth_scale: str = "cell"
     patch_back: bool = True
-    patch_copy_input: bool = False
-    patch_copy_threshold: float = 0.02
     refine_steps: int = 1
     refine_hidden: int = 256
     refine_glimpse: int = 0
@@ -109,8 +100,6 @@ class ModelConfig:
         need((self.resolution // self.kp_patch) ** 2 >= self.particles_per_view, "particles_per_view",
              "must not exceed the number of keypoint proposals (resolution/kp_patch)^2")
         need(0.0 < self.glimpse_ratio < 1.0, "glimpse_ratio", "must be in (0, 1)")
-        need(self.kp_selection in ("residual", "presence", "variance"), "kp_selection",
-             "must be 'residual', 'presence' or 'variance'")
         need(self.kp_min_separation >= 0.0, "kp_min_separation", "must be >= 0")
         need(self.offset_bound > 0.0, "offset_bound", "must be > 0")
         need(self.scale_logit_bound > 0.0, "scale_logit_bound", "must be > 0")
@@ -120,13 +109,8 @@ class ModelConfig:
         for key in ("bg_latent_stride", "bg_block"):
             v = getattr(self, key)
             need(v >= 1 and self.resolution % v == 0, key, "must divide the resolution")
-        need(self.bg_detail >= 0, "bg_detail", "must be >= 0 (0 = no pixel-aligned detail)")
-        need(self.bg_detail_threshold > 0.0, "bg_detail_threshold", "must be > 0")
-        need(not self.bg_copy_input or self.bg_detail > 0, "bg_copy_input", "needs bg_detail > 0")
         need(self.bg_static_grid >= 0, "bg_static_grid", "must be >= 0 (0 = no static background layer)")
         need(self.bg_static_extent > 0.0, "bg_static_extent", "must be > 0 (metres)")
-        need(self.bg_static_grid == 0 or self.bg_detail == 0, "bg_static_grid",
-             "the static background layer replaces the pixel-aligned detail: set bg_detail to 0")
         need(self.bg_per_view or self.bg_static_grid > 0, "bg_per_view",
              "false needs the static background layer (bg_static_grid > 0): nothing would draw the background")
         need(self.patch_gaussians >= 1, "patch_gaussians", "must be >= 1")
@@ -134,18 +118,13 @@ class ModelConfig:
         ratio = self.patch_gaussians // base if self.patch_base >= 0 and base > 0 else 0
         need(self.patch_base >= 0 and ratio >= 1 and base * ratio == self.patch_gaussians and ratio & (ratio - 1) == 0,
              "patch_base", "must be 0 (= patch_gaussians) or patch_gaussians divided by a power of 2")
-        need(self.patch_refine >= 0, "patch_refine", "must be >= 0 (0: no refinement blocks)")
         need(self.patch_channels == 0 or self.patch_channels >= 4, "patch_channels", "must be 0 (= channels) or >= 4")
         need(self.patch_hidden >= 0, "patch_hidden", "must be >= 0 (0: twice the patch channels)")
-        need(self.patch_cell_mlp >= 0, "patch_cell_mlp", "must be >= 0 (0: no per-cell MLP)")
-        need(self.patch_copy_threshold >= 0.0, "patch_copy_threshold", "must be >= 0 (0: copy every cell)")
         need(self.refine_steps >= 0, "refine_steps", "must be >= 0 (0: no refinement)")
         need(self.refine_glimpse == 0 or self.refine_glimpse % 8 == 0, "refine_glimpse",
              "must be 0 (= glimpse_size) or a multiple of 8")
         need(self.refine_steps == 0 or self.refine_glimpse > 0 or self.glimpse_size % 8 == 0, "glimpse_size",
              "must be a multiple of 8 with refine_steps > 0 (or set refine_glimpse)")
-        need(self.refine_steps == 0 or not self.patch_copy_input, "refine_steps",
-             "cannot be combined with patch_copy_input")
         need(self.refine_hidden >= 1, "refine_hidden", "must be >= 1")
         need(self.particle_depth_scale in ("pixel", "cell"), "particle_depth_scale", "must be 'pixel' or 'cell'")
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
@@ -213,7 +192,6 @@ class TrainConfig:
     beta_kl: float = 0.02
     beta_f: float = 1.0
     beta_reg: float = 0.1
-    beta_coarse: float = 1.0
     beta_fg: float = 0.4
     fg_threshold: float = 0.02
     fg_band: int = 0
@@ -255,7 +233,7 @@ class TrainConfig:
         need(all(isinstance(m, str) and m for m in self.freeze), "freeze", "must be a list of module names")
         for key in ("log_every", "val_every", "ckpt_every"):
             need(getattr(self, key) >= 1, key, "must be >= 1")
-        for key in ("beta_kl", "beta_f", "beta_reg", "beta_coarse", "beta_fg", "fg_threshold", "beta_rec_ctx",
+        for key in ("beta_kl", "beta_f", "beta_reg", "beta_fg", "fg_threshold", "beta_rec_ctx",
                     "beta_rec_tgt", "lambda_depth", "grad_clip"):
             need(getattr(self, key) >= 0, key, "must be >= 0")
 
@@ -301,6 +279,37 @@ def _from_dict(cls, data: Any, where: str):
             raise ConfigError(f"{where}.{k}: a list of at most 64 entries (got {len(v)})")
         setattr(out, k, v)
     out.validate(where)
+    return out
+
+
+# Keys of experiment branches the recipe does not use; the code behind them is gone. Checkpoints written before
+# (the shipped assets/model.pt among them) still store them: each maps to the value that turned its branch off
+# (ANY: it only tuned a removed branch, so any value reads as off).
+ANY = object()
+REMOVED_KEYS: dict[str, dict[str, Any]] = {
+    "model": {"kp_selection": "residual", "kp_cross_view": False, "bg_detail": 0, "bg_detail_threshold": ANY,
+              "bg_copy_input": False, "patch_refine": 0, "patch_cell_mlp": 0, "patch_copy_input": False,
+              "patch_copy_threshold": ANY},
+    "train": {"beta_coarse": ANY},
+}
+
+
+def without_removed_keys(data: Any, section: str, where: str) -> Any:
+    """A stored ``section`` ("model" or "train") config dict without the keys of removed branches (see
+    :data:`REMOVED_KEYS`) that hold their "off" value. Raises ConfigError naming ``where`` and the key when one
+    holds a value that switched its branch on: this version cannot build that model."""
+    if not isinstance(data, dict):
+        return data
+    removed = REMOVED_KEYS[section]
+    out = {}
+    for k, v in data.items():
+        if k not in removed:
+            out[k] = v
+            continue
+        off = removed[k]
+        if off is not ANY and not (v == off and isinstance(v, bool) == isinstance(off, bool)):
+            raise ConfigError(f"{where}.{k}: {v!r} switches on a branch this version no longer has (only "
+                              f"{off!r}, off, can be read); use the version of ParticleSplat that wrote it")
     return out
 
 

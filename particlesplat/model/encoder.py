@@ -8,7 +8,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .config import ModelConfig
-from .geometry import plucker_at, plucker_map, project_to_view, ray_dirs
+from .geometry import plucker_at, plucker_map
 
 
 def conv3x3(cin: int, cout: int, stride: int = 1) -> nn.Module:
@@ -107,9 +107,9 @@ class ParticleEncoder(nn.Module):
         nn.init.zeros_(self.refine.weight)
         nn.init.zeros_(self.refine.bias)
 
-    def proposals(self, feats: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """feats: (M, C, h, w) -> keypoints (M, Q, 2) in [-1, 1], their spatial variance (M, Q) and a
-        presence logit (M, Q) per patch (Q = (resolution / kp_patch)^2)."""
+    def proposals(self, feats: Tensor) -> tuple[Tensor, Tensor]:
+        """feats: (M, C, h, w) -> keypoints (M, Q, 2) in [-1, 1] (spatial-softmax means) and a presence logit
+        (M, Q) per patch (Q = (resolution / kp_patch)^2)."""
         cfg = self.cfg
         P = cfg.kp_patch
         n = cfg.resolution // P
@@ -120,40 +120,26 @@ class ParticleEncoder(nn.Module):
         gy, gx = torch.meshgrid(ar, ar, indexing="ij")
         local = torch.stack([gx, gy], dim=-1).reshape(P * P, 2)  # pixels within a patch
         mean = prob @ local
-        var = (prob * ((local[None, None] - mean[:, :, None]) ** 2).sum(-1)).sum(-1)
         cy, cx = torch.meshgrid(torch.arange(n, device=feats.device, dtype=feats.dtype) * P,
                                 torch.arange(n, device=feats.device, dtype=feats.dtype) * P, indexing="ij")
         origin = torch.stack([cx, cy], dim=-1).reshape(1, n * n, 2)
         pix = origin + mean
-        return pix / cfg.resolution * 2.0 - 1.0, var, presence
+        return pix / cfg.resolution * 2.0 - 1.0, presence
 
-    def attributes(self, rgb: Tensor, dep: Tensor, rays: Tensor, residual: Tensor | None = None,
-                   cross_view: CrossView | None = None) -> dict[str, Tensor]:
+    def attributes(self, rgb: Tensor, dep: Tensor, rays: Tensor, residual: Tensor) -> dict[str, Tensor]:
         """Per-view particle posteriors before interaction.
 
         rgb: (M, 3, H, W); dep: (M, 2, H, W); rays: (M, 6, H, W); residual: (M, Q) per-patch error of the
-        background alone (needed by kp_selection "residual"); cross_view: the views' geometry, to let
-        each visible 3D point be claimed by one view only (``kp_cross_view``), or None
+        background alone (the keypoint selection's score)
         -> dict of (M, L, ·) tensors (kp, mu_/lv_ o s d e f, beta_a, beta_b, and the glimpse embedding h).
         """
         cfg = self.cfg
         L, D = cfg.particles_per_view, cfg.d_obj
         M = rgb.shape[0]
         feats = self.backbone(rgb, dep, rays)
-        kp, var, presence = self.proposals(feats)
+        kp, presence = self.proposals(feats)
         # filter to L, with non-maximum suppression: where the background alone explains the view worst
-        # ("residual"), by presence (the proposal's transparency prior, learned through z_t), or by the
-        # spatial-softmax variance (most confident first)
-        if cfg.kp_selection == "residual":
-            if residual is None:
-                raise ValueError("kp_selection 'residual' needs the background residual")
-            score = -residual
-        else:
-            score = -presence if cfg.kp_selection == "presence" else var
-        if cross_view is not None:
-            idx = cross_view.select(kp.detach(), score.detach(), L, cfg.kp_min_separation, cfg.resolution)
-        else:
-            idx = select_keypoints(kp.detach(), score.detach(), L, cfg.kp_min_separation)
+        idx = select_keypoints(kp.detach(), -residual.detach(), L, cfg.kp_min_separation)
         kp = torch.gather(kp, 1, idx[..., None].expand(-1, -1, 2))  # (M, L, 2)
         presence = torch.gather(presence, 1, idx)[..., None]  # (M, L, 1)
         # glimpses of the RGB-D input around each keypoint (STN, bilinear)
@@ -174,7 +160,7 @@ class ParticleEncoder(nn.Module):
         obs = F.grid_sample(dep, kp[:, :, None, :], mode="nearest", align_corners=False)[..., 0].transpose(1, 2)
         d_obs = (obs[..., :1] * cfg.d_max - cfg.d_min) / (cfg.d_max - cfg.d_min)
         d_logit = torch.logit(d_obs.clamp(0.02, 0.98)) * obs[..., 1:2]
-        shift = 0.5 * presence if cfg.kp_selection != "variance" else torch.zeros_like(presence)
+        shift = 0.5 * presence  # the proposal's presence logit seeds the transparency (learned through z_t)
         beta_ab = F.softplus(out[..., 12:14] + torch.cat([shift, -shift], dim=-1)) + 0.05
         return {"kp": kp, "h": h.reshape(M, L, -1),
                 "mu_o": cfg.offset_bound * torch.tanh(out[..., 0:2]), "lv_o": out[..., 2:4],
@@ -216,23 +202,16 @@ class ParticleEncoder(nn.Module):
         return out
 
 
-def select_keypoints(kp: Tensor, var: Tensor, count: int, min_separation: float,
-                     claimed: Tensor | None = None) -> Tensor:
-    """Filter proposals to ``count`` per view: lowest score ``var`` first, skipping proposals
-    closer than ``min_separation`` (normalised units, Chebyshev) to one already kept (greedy NMS) or to a
-    point ``claimed`` beforehand; when too few are far enough apart the rest are the next lowest-score
-    proposals.
+def select_keypoints(kp: Tensor, score: Tensor, count: int, min_separation: float) -> Tensor:
+    """Filter proposals to ``count`` per view: lowest ``score`` first, skipping proposals closer than
+    ``min_separation`` (normalised units, Chebyshev) to one already kept (greedy NMS); when too few are far
+    enough apart the rest are the next lowest-score proposals.
 
-    kp: (M, Q, 2) in [-1, 1]; var: (M, Q); claimed: (M, C, 2) in [-1, 1] (NaN = none) or None
-    -> (M, count) int64 proposal indices.
+    kp: (M, Q, 2) in [-1, 1]; score: (M, Q) -> (M, count) int64 proposal indices.
     """
-    M, Q = var.shape
-    score = var.clone()
-    if claimed is not None and claimed.shape[1]:
-        near = ((kp[:, :, None] - claimed[:, None]).abs().amax(-1) < min_separation).any(-1)  # NaN compares False
-        score = torch.where(near, score + 1e6, score)
+    score = score.clone()
     chosen = []
-    big = torch.finfo(var.dtype).max
+    big = torch.finfo(score.dtype).max
     for _ in range(count):
         i = score.argmin(1)
         chosen.append(i)
@@ -243,50 +222,6 @@ def select_keypoints(kp: Tensor, var: Tensor, count: int, min_separation: float,
     return torch.stack(chosen, 1)
 
 
-class CrossView:
-    """Geometry of B scenes' V context views, to select keypoints view by view so that a 3D point one view
-    already holds a particle for is not proposed again by the next (needs observed depth).
-
-    depth: (B*V, 1, H, W) metres (0 = missing); K: (B*V, 3, 3); c2w: (B*V, 4, 4); n_views: V.
-    A claimed point suppresses proposals near its projection only where the later view sees it: its
-    projected depth is within ``tolerance`` metres of that view's observed depth (not occluded).
-    """
-
-    def __init__(self, depth: Tensor, K: Tensor, c2w: Tensor, n_views: int, tolerance: float = 0.35):
-        self.depth, self.K, self.c2w, self.n_views, self.tolerance = depth, K, c2w, n_views, tolerance
-
-    def _lift(self, kp: Tensor, v: slice, res: int) -> Tensor:
-        """kp: (B, L, 2) in [-1, 1] of views ``v`` -> world points (B, L, 3), NaN where depth is missing."""
-        d = F.grid_sample(self.depth[v], kp[:, :, None, :], mode="nearest", align_corners=False)[:, 0, :, 0]
-        pix = (kp + 1.0) * 0.5 * res
-        pts = self.c2w[v][:, None, :3, 3] + d[..., None] * ray_dirs(pix, self.K[v], self.c2w[v])
-        return torch.where((d > 0)[..., None], pts, torch.full_like(pts, float("nan")))
-
-    def _claimed_in(self, pts: Tensor, v: slice, res: int) -> Tensor:
-        """World points (B, C, 3) -> their normalised positions in views ``v`` (B, C, 2), NaN where not seen."""
-        pix, z = project_to_view(torch.nan_to_num(pts), self.K[v], self.c2w[v])
-        kp = pix / res * 2.0 - 1.0
-        inside = (kp.abs() <= 1.0).all(-1) & (z > 0) & ~torch.isnan(pts).any(-1)
-        obs = F.grid_sample(self.depth[v], kp.clamp(-1, 1)[:, :, None, :], mode="nearest",
-                            align_corners=False)[:, 0, :, 0]
-        seen = inside & (obs > 0) & ((z - obs).abs() < self.tolerance)
-        return torch.where(seen[..., None], kp, torch.full_like(kp, float("nan")))
-
-    def select(self, kp: Tensor, score: Tensor, count: int, min_separation: float, res: int) -> Tensor:
-        """kp: (B*V, Q, 2); score: (B*V, Q) -> (B*V, count) indices, views selected in order."""
-        V = self.n_views
-        out = []
-        points = kp.new_zeros(kp.shape[0] // V, 0, 3)
-        for v in range(V):
-            sl = slice(v, None, V)
-            claimed = self._claimed_in(points, sl, res) if points.shape[1] else None
-            idx = select_keypoints(kp[sl], score[sl], count, min_separation, claimed)
-            out.append(idx)
-            chosen = torch.gather(kp[sl], 1, idx[..., None].expand(-1, -1, 2))
-            points = torch.cat([points, self._lift(chosen, sl, res)], dim=1)
-        return torch.stack(out, dim=1).reshape(kp.shape[0], count)
-
-
 def box_mask(z_p: Tensor, scale: Tensor, active: Tensor, size: int) -> Tensor:
     """Union of particle boxes. z_p: (M, L, 2) in [-1, 1]; scale: (M, L, 2) half-extents in normalised
     units; active: (M, L) bool -> (M, 1, size, size) float mask (1 inside an active box)."""
@@ -295,26 +230,6 @@ def box_mask(z_p: Tensor, scale: Tensor, active: Tensor, size: int) -> Tensor:
     inside_y = (ar[None, None, :] - z_p[..., 1:2]).abs() <= scale[..., 1:2]  # (M, L, H)
     box = inside_y[..., :, None] & inside_x[..., None, :] & active[..., None, None]
     return box.any(1, keepdim=True).to(z_p.dtype)
-
-
-class BackgroundDetail(nn.Module):
-    """Pixel-aligned skip of the background decoder: the view with what it must not draw hidden
-    -> (M, bg_detail, H/k, W/k) features, one per background Gaussian block (k = bg_block)."""
-
-    def __init__(self, cfg: ModelConfig):
-        super().__init__()
-        c = cfg.channels
-        self.k = cfg.bg_block
-        self.pre = conv3x3(6, c // 2)
-        self.post = nn.Sequential(conv3x3(c // 2, c), nn.Conv2d(c, cfg.bg_detail, 1))
-
-    def forward(self, rgb: Tensor, dep: Tensor, hidden: Tensor) -> Tensor:
-        """rgb: (M, 3, H, W); dep: (M, 2, H, W); hidden: (M, 1, H, W) 1 = hidden -> (M, bg_detail, H/k, W/k)."""
-        keep = 1.0 - hidden
-        h = self.pre(torch.cat([rgb * keep, dep * keep, keep], dim=1))
-        if self.k > 1:
-            h = F.avg_pool2d(h, self.k)
-        return self.post(h)
 
 
 class BackgroundEncoder(nn.Module):
@@ -346,5 +261,4 @@ class BackgroundEncoder(nn.Module):
         return out[:, :d], out[:, d:], feats.mean((2, 3))
 
 
-__all__ = ["ParticleEncoder", "BackgroundEncoder", "BackgroundDetail", "CrossView", "box_mask", "depth_input",
-           "plucker_map"]
+__all__ = ["ParticleEncoder", "BackgroundEncoder", "box_mask", "depth_input", "plucker_map"]

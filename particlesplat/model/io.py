@@ -10,10 +10,11 @@ from os import PathLike
 from pathlib import Path
 
 import torch
+from torch.torch_version import TorchVersion
 
 from ..atomic import atomic_path
 from ..errors import UserError, one_line
-from .config import model_config_from_dict
+from .config import model_config_from_dict, without_removed_keys
 from .particlesplat import ParticleSplat
 
 
@@ -48,7 +49,9 @@ def read_checkpoint(path: str | PathLike) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        # TorchVersion: a str subclass, the torch version in the provenance of the first recipe checkpoints
+        with torch.serialization.safe_globals([TorchVersion]):
+            ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError:  # torch's own message suggests an unsafe load: never pass that on
         raise CheckpointError(f"{path}: refused: the checkpoint holds Python objects other than tensors and plain "
                               "data (only weights-only checkpoints are loaded)") from None
@@ -88,7 +91,8 @@ def check_state_dict(state: object, where: str) -> None:
 
 def model_from_checkpoint(ckpt: dict, where: str = "checkpoint", device: str | torch.device = "cpu") -> ParticleSplat:
     """Build the model a checkpoint dict describes and load its weights (eval mode)."""
-    cfg = model_config_from_dict(ckpt["config"], f"{where}: config")
+    cfg = model_config_from_dict(without_removed_keys(ckpt["config"], "model", f"{where}: config"),
+                                 f"{where}: config")
     model = ParticleSplat(cfg)
     try:
         model.load_state_dict(ckpt["state_dict"])

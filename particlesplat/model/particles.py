@@ -29,11 +29,8 @@ class Particles:
         z_t: (L, 1) transparency in [0, 1].
         z_f: (L, D) appearance features.
         view: (L,) int64 index of the context view each particle belongs to.
-        background: (V, C, h, w) per-view background latent maps the background decoder reads (the
-            stochastic latent, then, with ``bg_detail``, the pixel-aligned detail features).
-        obs: (L, 7, S, S) what each particle's view shows at its cells (``patch_copy_input`` models; see
-            :func:`particlesplat.model.decoder.observed_cells`), or None. It is part of the particle: an
-            edit moves it with the particle.
+        background: (V, d_bg, h, w) per-view background latent maps (what the per-view background decoder
+            reads, ``bg_per_view``).
         cameras: the V context cameras (OpenCV).
     """
 
@@ -45,7 +42,6 @@ class Particles:
     z_f: Tensor
     view: Tensor
     background: Tensor
-    obs: Tensor | None = None
     cameras: list[Camera] = field(default_factory=list)
 
     @property
@@ -53,8 +49,7 @@ class Particles:
         return self.z_p.shape[0]
 
     def _map(self, fn) -> Particles:
-        out = {f.name: None if getattr(self, f.name) is None else fn(getattr(self, f.name))
-               for f in fields(self) if f.name != "cameras"}
+        out = {f.name: fn(getattr(self, f.name)) for f in fields(self) if f.name != "cameras"}
         return Particles(**out, cameras=list(self.cameras))
 
     def detach(self) -> Particles:

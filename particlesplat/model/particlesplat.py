@@ -14,9 +14,8 @@ from ..render import render_batch
 from ..sh import SH_C0
 from .config import ModelConfig
 from .decoder import (BackgroundDecoder, ForegroundDecoder, background_gaussians, background_rays,
-                      foreground_gaussians, masked_block_mean, observed_blocks, observed_cells,
-                      split_gaussian_params)
-from .encoder import BackgroundDetail, BackgroundEncoder, CrossView, ParticleEncoder, box_mask, depth_input
+                      foreground_gaussians, masked_block_mean, split_gaussian_params)
+from .encoder import BackgroundEncoder, ParticleEncoder, box_mask, depth_input
 from .geometry import plucker_map, stack_cameras
 from .particles import Particles
 from .refiner import BOX_MARGIN, GLIMPSE_CHANNELS, Refiner, box_glimpses, latent_vector
@@ -41,7 +40,6 @@ class ParticleSplat(nn.Module):
         self.fg_decoder = ForegroundDecoder(config)
         # the per-view background decoder exists only where it draws (a module without gradients breaks DDP)
         self.bg_decoder = BackgroundDecoder(config) if config.bg_per_view else None
-        self.bg_detail = BackgroundDetail(config) if config.bg_detail > 0 else None
         self.static_bg = StaticBackground(config) if config.bg_static_grid > 0 else None
         self.refiner = Refiner(config) if config.refine_steps > 0 else None
         # training switches the refinement on at ``train.refine_start``; off, encode returns the first look
@@ -61,7 +59,9 @@ class ParticleSplat(nn.Module):
 
         rgb: (B, V, 3, H, W) in [0, 1]; depth: (B, V, 1, H, W) metres (0 = missing) or None;
         K: (B, V, 3, 3); c2w: (B, V, 4, 4) OpenCV. Returns particle posteriors (B, V*L, ·), the view
-        index (V*L,), background mean/logvar (B, V, d_bg, h, w) and the background mask (B, V, 1, H, W).
+        index (V*L,), background mean/logvar (B, V, d_bg, h, w), the background mask (B, V, 1, H, W) and
+        the background's own error per pixel, ``bg_error`` (B, V, 1, H, W): the static layer's (``bg_static_grid``)
+        per pixel, else the per-view background's per ``bg_block``² block.
         """
         cfg = self.config
         B, V = rgb.shape[:2]
@@ -73,19 +73,16 @@ class ParticleSplat(nn.Module):
         dep = depth_input(d, x, cfg)
         Kf, cf = K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4)
         rays = plucker_map(Kf, cf, H, W)
-        block_err = pixel_err = None
-        train_coarse = self.bg_detail is not None and self.training and torch.is_grad_enabled()
+        # what the background alone explains badly: the keypoints go there
         if self.static_bg is not None:
             pixel_err = self.static_background_error(x, d, Kf, cf, block=1)
             block_err = F.avg_pool2d(pixel_err, cfg.bg_block)
-        elif cfg.kp_selection == "residual" or self.bg_detail is not None or cfg.patch_copy_input:
-            with torch.set_grad_enabled(train_coarse):
+        else:
+            with torch.no_grad():
                 block_err = self.coarse_background_error(x, d, dep, rays, Kf, cf)
-        residual = None
-        if cfg.kp_selection == "residual":
-            residual = F.adaptive_avg_pool2d(block_err.detach(), cfg.resolution // cfg.kp_patch).flatten(1)
-        cross = CrossView(d, Kf, cf, V) if cfg.kp_cross_view and d is not None and V > 1 else None
-        att = self.encoder.attributes(x, dep, rays, residual, cross)
+            pixel_err = F.interpolate(block_err, scale_factor=cfg.bg_block, mode="nearest")
+        residual = F.adaptive_avg_pool2d(block_err, cfg.resolution // cfg.kp_patch).flatten(1)
+        att = self.encoder.attributes(x, dep, rays, residual)
         with torch.no_grad():
             t_mean = att["beta_a"] / (att["beta_a"] + att["beta_b"])
             mask = box_mask(att["kp"] + att["mu_o"], torch.sigmoid(att["mu_s"]),
@@ -95,25 +92,8 @@ class ParticleSplat(nn.Module):
         post["mu_bg"] = mu_bg.reshape(B, V, *mu_bg.shape[1:])
         post["lv_bg"] = lv_bg.reshape(B, V, *lv_bg.shape[1:])
         post["bg_mask"] = mask.reshape(B, V, 1, H, W)
-        if self.bg_detail is not None:
-            with torch.no_grad():  # hide what the plain background cannot explain (dilated by a block)
-                poor = (block_err.detach() > cfg.bg_detail_threshold).to(x.dtype)
-                poor = F.max_pool2d(poor, 3, stride=1, padding=1)
-                hidden = torch.maximum(mask, F.interpolate(poor, scale_factor=cfg.bg_block, mode="nearest"))
-            detail = self.bg_detail(x, dep, hidden)
-            if cfg.bg_copy_input:
-                detail = torch.cat([detail, observed_blocks(x, d, hidden, cfg.bg_block)], dim=1)
-            post["bg_detail"] = detail.reshape(B, V, *detail.shape[1:])
-            post["bg_mask"] = hidden.reshape(B, V, 1, H, W)
-        if train_coarse:  # robust: blocks it cannot explain (objects) pull on it little
-            scale = 2.0 * cfg.bg_detail_threshold
-            robust = block_err * scale / (block_err + scale)
-            post["coarse_err"] = robust.flatten(1).sum(-1).reshape(B, V) * cfg.bg_block ** 2
         post["view"] = torch.arange(V, device=rgb.device).repeat_interleave(cfg.particles_per_view)
-        if block_err is not None:  # what the background alone explains badly, per pixel (static layer) or block
-            if pixel_err is None:
-                pixel_err = F.interpolate(block_err.detach(), scale_factor=cfg.bg_block, mode="nearest")
-            post["bg_error"] = pixel_err.reshape(B, V, 1, H, W)
+        post["bg_error"] = pixel_err.reshape(B, V, 1, H, W)
         return post
 
     def coarse_background_error(self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor,
@@ -213,41 +193,15 @@ class ParticleSplat(nn.Module):
         a, b = post["beta_a"], post["beta_b"]
         z_t = torch.distributions.Beta(a, b).rsample() if sample else a / (a + b)
         bg = g(post["mu_bg"], post["lv_bg"])
-        if "bg_detail" in post:  # the decoder reads [latent upsampled to the blocks, detail features]
-            detail = post["bg_detail"]
-            B, V = bg.shape[:2]
-            up = F.interpolate(bg.flatten(0, 1), size=detail.shape[-2:], mode="bilinear", align_corners=False)
-            bg = torch.cat([up.reshape(B, V, *up.shape[1:]), detail], dim=2)
         return {"z_p": post["kp"] + g(post["mu_o"], post["lv_o"]), "z_s": g(post["mu_s"], post["lv_s"]),
                 "z_d": g(post["mu_d"], post["lv_d"]), "z_e": g(post["mu_e"], post["lv_e"]), "z_t": z_t,
                 "z_f": g(post["mu_f"], post["lv_f"]), "bg": bg}
 
-    def observe(self, rgb: Tensor, depth: Tensor | None, z: dict[str, Tensor], view: Tensor,
-                bg_error: Tensor | None) -> Tensor | None:
-        """What each particle's view shows at its cells, for ``patch_copy_input`` (else None).
-
-        rgb: (B, V, 3, H, W); depth: (B, V, 1, H, W) or None; z: latents (B, N, ·); view: (N,); bg_error:
-        (B, V, 1, H, W) the background's own error per pixel (``post["bg_error"]``) -> (B, N, 7, S, S)
-        (:func:`observed_cells`).
-        """
-        cfg = self.config
-        if not cfg.patch_copy_input:
-            return None
-        B, N = z["z_p"].shape[:2]
-
-        def per_particle(x: Tensor) -> Tensor:
-            return x[:, view].reshape(B * N, *x.shape[2:])
-
-        fg = (per_particle(bg_error) >= cfg.patch_copy_threshold).to(rgb.dtype)
-        obs = observed_cells(per_particle(rgb), None if depth is None else per_particle(depth), fg,
-                             *(z[k].reshape(B * N, -1) for k in ("z_p", "z_s", "z_d", "z_e")), cfg)
-        return obs.reshape(B, N, *obs.shape[1:])
-
     def foreground(self, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor, z_t: Tensor, z_f: Tensor, K: Tensor,
-                   c2w: Tensor, obs: Tensor | None = None) -> dict[str, Tensor]:
-        """M particles -> Gaussian fields (M, S*S, ·). Latents (M, ·); K (M, 3, 3), c2w (M, 4, 4) of their views;
-        obs (M, 7, S, S) their observed cells (``patch_copy_input``)."""
-        raw = self.fg_decoder(z_f, obs)
+                   c2w: Tensor) -> dict[str, Tensor]:
+        """M particles -> Gaussian fields (M, S*S, ·) ((M, 2*S*S, ·) with ``patch_back``). Latents (M, ·);
+        K (M, 3, 3), c2w (M, 4, 4) of their views."""
+        raw = self.fg_decoder(z_f)
         return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config)
 
     def background(self, bg: Tensor, K: Tensor, c2w: Tensor) -> dict[str, Tensor]:
@@ -270,16 +224,13 @@ class ParticleSplat(nn.Module):
 
     def decode_batch(self, z: dict[str, Tensor], view: Tensor, K: Tensor, c2w: Tensor,
                      background: bool = True) -> list[Gaussians]:
-        """Decode B scenes. z: from :meth:`latents` (and "obs" from :meth:`observe`); view: (N,) particle views;
+        """Decode B scenes. z: from :meth:`latents`; view: (N,) particle views;
         K: (B, V, 3, 3); c2w: (B, V, 4, 4) of the context views. Returns B Gaussian sets (owner = particle)."""
         B, N = z["z_p"].shape[:2]
-        V = K.shape[1]
         flat = {k: z[k].reshape(B * N, -1) for k in ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f")}
         Kp = K[:, view].reshape(B * N, 3, 3)
         cp = c2w[:, view].reshape(B * N, 4, 4)
-        obs = z.get("obs")
-        obs = None if obs is None else obs.reshape(B * N, *obs.shape[2:])
-        fg = self.foreground(flat["z_p"], flat["z_s"], flat["z_d"], flat["z_e"], flat["z_t"], flat["z_f"], Kp, cp, obs)
+        fg = self.foreground(flat["z_p"], flat["z_s"], flat["z_d"], flat["z_e"], flat["z_t"], flat["z_f"], Kp, cp)
         fg = {k: v.reshape(B, -1, *v.shape[2:]) for k, v in fg.items()}
         owner_fg = torch.arange(N, device=K.device).repeat_interleave(self.config.gaussians_per_particle)
         if background:
@@ -292,10 +243,12 @@ class ParticleSplat(nn.Module):
 
     def forward(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, sample: bool = True,
                 background: bool = True) -> tuple[dict[str, Tensor], dict[str, Tensor], list[Gaussians]]:
-        """Training pass for B scenes (shapes as in :meth:`posterior`): posterior, latents, Gaussians per scene."""
+        """Training pass for B scenes (shapes as in :meth:`posterior`): posterior, latents (with the background
+        colour to render behind the Gaussians, ``bg_color`` (3,), computed here so that under DDP every weight
+        is used inside the forward pass), Gaussians per scene."""
         post = self.refine(self.posterior(rgb, depth, K, c2w), rgb, depth, K, c2w)
         z = self.latents(post, sample)
-        z["obs"] = self.observe(rgb, depth, z, post["view"], post.get("bg_error"))
+        z["bg_color"] = self.background_color()
         return post, z, self.decode_batch(z, post["view"], K, c2w, background)
 
     # ------------------------------------------------------------------ scene-level API
@@ -322,10 +275,9 @@ class ParticleSplat(nn.Module):
         rgb_b, depth_b = rgb[None].to(dev), None if depth is None else depth[None].to(dev)
         post = self.refine(self.posterior(rgb_b, depth_b, K[None], c2w[None]), rgb_b, depth_b, K[None], c2w[None])
         z = self.latents(post, sample=False)
-        obs = self.observe(rgb_b, depth_b, z, post["view"], post.get("bg_error"))
         return Particles(z_p=z["z_p"][0], z_s=z["z_s"][0], z_d=z["z_d"][0], z_e=z["z_e"][0], z_t=z["z_t"][0],
                          z_f=z["z_f"][0], view=post["view"], background=z["bg"][0],
-                         obs=None if obs is None else obs[0], cameras=[c.to(dev) for c in cameras])
+                         cameras=[c.to(dev) for c in cameras])
 
     @torch.no_grad()
     def decode(self, particles: Particles, indices: Tensor | None = None, *, background: bool = True,
@@ -355,9 +307,7 @@ class ParticleSplat(nn.Module):
         parts = []
         if idx.numel():
             v = p.view[idx]
-            obs = None if p.obs is None else p.obs[idx]
-            fg = self.foreground(p.z_p[idx], p.z_s[idx], p.z_d[idx], p.z_e[idx], p.z_t[idx], p.z_f[idx], K[v], c2w[v],
-                                 obs)
+            fg = self.foreground(p.z_p[idx], p.z_s[idx], p.z_d[idx], p.z_e[idx], p.z_t[idx], p.z_f[idx], K[v], c2w[v])
             parts.append(_gaussians(fg, idx.repeat_interleave(self.config.gaussians_per_particle)))
         if background:
             bgf = {k: v[0] for k, v in self.background_fields(p.background[None], K[None], c2w[None]).items()}
