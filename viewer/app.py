@@ -410,9 +410,11 @@ def _main(argv: list[str] | None = None) -> int:
     try:
         try:
             app = App(window, session, view, args)
-        except UnsupportedGL as e:
+        except UnsupportedGL as e:  # e.g. --compositing fetch on a driver without the extension: a bad argument
+            from particlesplat.errors import EXIT_USER
+
             print(f"particlesplat-viewer: {e}", file=sys.stderr)
-            return 1
+            return EXIT_USER
         times = app.run(args.frames, args.orbit)
         if args.frames is not None:
             steady = times[1:] if len(times) > 1 else times
