@@ -252,13 +252,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .atomic import check_writable
-    from .model import load_model
+    from .model import load_model, read_checkpoint
+    from .model.io import shipped_model_path
+    from .provenance import describe
 
     if args.json:
         check_writable(args.json)  # before the work, not after it
     if args.figures and args.num_figures > 0:
         check_writable(Path(args.figures) / "figure.png")
     model = load_model(args.checkpoint, device=args.device)
+    path = args.checkpoint or shipped_model_path()
+    ckpt = read_checkpoint(path)
+    print(f"{path}: step {ckpt['step']}; {describe(ckpt.get('provenance'))}")
     out = evaluate_dataset(model, args.data, context=args.context, limit=args.limit,
                            figures=Path(args.figures) if args.figures else None, num_figures=args.num_figures,
                            prune=args.prune, use_depth=not args.no_depth, fit_steps=args.fit_steps,
