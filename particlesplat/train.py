@@ -405,6 +405,8 @@ class Trainer:
                 raise Interrupted(f"saved {self.out / LAST} at step {self.step}; continue with --resume",
                                   stop["signum"])
         finally:
+            if getattr(self, "_bar", None) is not None:
+                self._bar.close()  # ends the bar's line: an error message gets a line of its own
             for sig, handler in handlers.items():
                 signal.signal(sig, handler)
         if self.distributed:
@@ -414,7 +416,8 @@ class Trainer:
     def _loop(self, end: int, stop: dict | None = None) -> None:
         tc = self.tc
         stop = stop if stop is not None else {}
-        bar = tqdm(total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0, dynamic_ncols=True)
+        self._bar = bar = tqdm(total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0,
+                               dynamic_ncols=True)
         run_avg: dict[str, float] = {}
         skipped_in_a_row = 0
         while self.step < end:
