@@ -186,7 +186,8 @@ def _owner_column(col: np.ndarray, path: Path) -> np.ndarray:
     bad = ~(np.isfinite(wide) & (wide == np.round(wide)) & (wide >= BACKGROUND_OWNER) & (wide <= MAX_OWNER))
     if bad.any():
         vertex = int(np.argmax(bad))
-        raise PlyError(f"{path}: property 'owner' at vertex {vertex} is {col[vertex]!r}: expected -1 (background) "
+        value = col[vertex].item()  # a plain int or float (NaN included) in the message
+        raise PlyError(f"{path}: property 'owner' at vertex {vertex} is {value!r}: expected -1 (background) "
                        f"or a particle index 0..{MAX_OWNER}")
     return wide.astype(np.int64)
 

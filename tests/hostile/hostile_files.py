@@ -1,0 +1,91 @@
+"""Builders of hostile and broken files for the hostile-input suite: each is small on disk and
+expands into something huge, or lies, or is torn, if a reader trusts it."""
+
+from __future__ import annotations
+
+import shutil
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import torch
+
+# 9 levels of 9 aliases: 9**9 = 387 million leaves, 520 bytes on disk
+ALIAS_BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+    f"{chr(98 + i)}: &{chr(98 + i)} [" + ", ".join([f"*{chr(97 + i)}"] * 9) + "]\n" for i in range(8))
+
+_PLY_FIELDS = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
+               "rot_0", "rot_1", "rot_2", "rot_3"]
+
+
+def alias_bomb_edits(path: Path) -> Path:
+    """An edits file carrying an alias bomb (a printed or walked value would expand it)."""
+    path.write_text("version: 1\nparticles:\n  0: {z_p: [0.1, 0.2]}\nscene:\n  " + ALIAS_BOMB.replace("\n", "\n  "))
+    return path
+
+
+def alias_bomb_config(path: Path) -> Path:
+    """A training config whose ``train.freeze`` is an alias bomb."""
+    path.write_text("model: {}\n" + ALIAS_BOMB + "train:\n  freeze: *i\n")
+    return path
+
+
+def _ply(path: Path, declared: int, owners: list[int]) -> Path:
+    rec = np.zeros(len(owners), dtype=np.dtype([(k, "<f4") for k in _PLY_FIELDS] + [("owner", "<i4")]))
+    rec["rot_0"], rec["scale_0"], rec["scale_1"], rec["scale_2"] = 1.0, -3.0, -3.0, -3.0
+    rec["owner"] = owners
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {declared}"]
+    header += [f"property float {k}" for k in _PLY_FIELDS] + ["property int owner", "end_header"]
+    path.write_bytes(("\n".join(header) + "\n").encode() + rec.tobytes())
+    return path
+
+
+def huge_owner_ply(path: Path) -> Path:
+    """A .ply of a few KB whose one owner is 2**31 - 1 (a viewer building range(max owner + 1) needs 24+ GB)."""
+    return _ply(path, 64, [0] * 63 + [2**31 - 1])
+
+
+def lying_count_ply(path: Path) -> Path:
+    """A .ply whose header declares 10**9 vertices over a body of 4."""
+    return _ply(path, 10**9, [0, 1, 2, -1])
+
+
+def png_bomb(path: Path, width: int = 100000, height: int = 100000) -> Path:
+    """A few-KB grey PNG declaring width x height pixels (10**10 by default)."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(b"\0" * (width + 1) * 8)) + chunk(b"IEND", b""))
+    return path
+
+
+def bomb_scene(good_scene: Path, folder: Path) -> Path:
+    """A copy of ``good_scene`` whose frame 1 colour image is a decompression bomb."""
+    import json
+
+    shutil.copytree(good_scene, folder)
+    meta = json.loads((folder / "transforms.json").read_text())
+    png_bomb(folder / meta["frames"][1]["file_path"])
+    return folder
+
+
+def nan_checkpoint(good: Path, path: Path) -> Path:
+    """A copy of checkpoint ``good`` with one NaN weight (what a diverged run would have saved)."""
+    ckpt = torch.load(good, weights_only=True)
+    first = next(k for k, v in ckpt["state_dict"].items() if v.is_floating_point())
+    ckpt["state_dict"][first].view(-1)[0] = float("nan")
+    torch.save(ckpt, path)
+    return path
+
+
+def tear_log(path: Path, where: str) -> Path:
+    """Tear a metrics.jsonl: its last line cut mid-record (``where="last"``, a disk that filled up) or a
+    record before the last one cut (``"middle"``, a file edited by hand)."""
+    lines = path.read_text().splitlines(keepends=True)
+    if where == "last":
+        path.write_text("".join(lines) + lines[-1][: len(lines[-1]) // 2])
+    else:
+        path.write_text(lines[0][: len(lines[0]) // 2] + "\n" + "".join(lines[1:]))
+    return path
