@@ -30,7 +30,6 @@ turning an object would show each view's patch edge-on rather than the object's 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from os import PathLike
 from pathlib import Path
@@ -43,7 +42,7 @@ from torch import Tensor
 from .atomic import atomic_write
 from .errors import short_repr
 from .camera import Camera
-from .edits import Edits, EditsError, apply_edits, check_indices, diff_edits, validate_edits
+from .edits import Edits, EditsError, apply_edits, check_indices, diff_edits, finite_float32, validate_edits
 from .model.particles import EDITABLE, Particles
 from .move import MoveError, anchor_points, translate
 from .objects import particle_objects
@@ -116,9 +115,10 @@ class EditFile:
 # ---------------------------------------------------------------------------------------------- files
 def _numbers(value: Any, n: int, where: str) -> tuple[float, ...]:
     seq = value if isinstance(value, (list, tuple)) else [value]
-    if len(seq) != n or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v))
+    if len(seq) != n or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not finite_float32(v)
                             for v in seq):
-        raise EditsError(f"{where}: expected {n} finite number(s), got {short_repr(value)}")
+        raise EditsError(f"{where}: expected {n} finite number(s) (float32: |value| <= 3.4e38), "
+                         f"got {short_repr(value)}")
     return tuple(float(v) for v in seq)
 
 

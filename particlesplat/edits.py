@@ -40,6 +40,20 @@ class EditsError(UserError):
     """An edits file or mapping is invalid; the message names the file and the field."""
 
 
+def as_float(v: int | float) -> float:
+    """``float(v)``, inf for an integer beyond float64 (instead of OverflowError)."""
+    try:
+        return float(v)
+    except OverflowError:
+        return math.inf
+
+
+def finite_float32(v: int | float) -> bool:
+    """True when ``v`` stays finite as float32 (the particles' dtype): a value finite in float64 but beyond
+    float32 would become inf and make the particle vanish."""
+    return abs(as_float(v)) <= FLOAT32_MAX
+
+
 def validate_edits(data: Any, where: str = "edits") -> Edits:
     """Check a parsed edits document (or a bare ``particles`` mapping) and normalise it."""
     if isinstance(data, dict) and "particles" in data:
@@ -48,7 +62,8 @@ def validate_edits(data: Any, where: str = "edits") -> Edits:
             raise EditsError(f"{where}: version: expected {FORMAT_VERSION}, got {short_repr(version)}")
         unknown = set(data) - {"version", "particles", "model", "scene"}
         if unknown:
-            raise EditsError(f"{where}: unknown key(s) {short_repr(sorted(map(str, unknown)))} (expected version, particles, model, scene)")
+            raise EditsError(f"{where}: unknown key(s) {short_repr(sorted(map(str, unknown)))} "
+                             "(expected version, particles, model, scene)")
         data = data["particles"]
     if data is None:
         return {}
@@ -74,15 +89,16 @@ def validate_edits(data: Any, where: str = "edits") -> Edits:
         values: dict[str, tuple[float, ...]] = {}
         for name, value in attrs.items():
             if name not in EDITABLE:
-                raise EditsError(f"{field}.{one_line(name, 40)}: not an editable attribute (one of {', '.join(EDITABLE)})")
+                raise EditsError(f"{field}.{one_line(name, 40)}: not an editable attribute "
+                                 f"(one of {', '.join(EDITABLE)})")
             seq = value if isinstance(value, (list, tuple)) else [value]
             if len(seq) != EDITABLE[name]:
                 raise EditsError(f"{field}.{name}: expected {EDITABLE[name]} number(s), got {len(seq)}")
             nums = []
             for v in seq:
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(as_float(v)):
                     raise EditsError(f"{field}.{name}: expected finite numbers, got {short_repr(value)}")
-                if abs(float(v)) > FLOAT32_MAX:
+                if not finite_float32(v):
                     raise EditsError(f"{field}.{name}: {float(v):g} is beyond float32 (|value| <= {FLOAT32_MAX:.4g})")
                 nums.append(float(v))
             if name == "z_t" and not 0.0 <= nums[0] <= 1.0:

@@ -75,6 +75,7 @@ def _read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[st
         if f.tell() > _MAX_HEADER:
             raise PlyError(f"{path}: header longer than {_MAX_HEADER} bytes (no end_header)")
         words = line.decode("ascii", errors="replace").split()
+        shown = repr(one_line(line.decode("ascii", errors="replace"), 80))  # the line, bounded
         if not words or words[0] in ("comment", "obj_info"):
             continue
         if words[0] == "end_header":
@@ -83,23 +84,25 @@ def _read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[st
             fmt = words[1]
         elif words[0] == "element":
             if len(words) != 3 or not words[2].isdigit():
-                raise PlyError(f"{path}: malformed header line {one_line(line.strip(), 80)!r} (expected 'element NAME COUNT')")
+                raise PlyError(f"{path}: malformed header line {shown} (expected 'element NAME COUNT')")
             elements.append((words[1], int(words[2]), []))
         elif words[0] == "property":
             if not elements:
                 raise PlyError(f"{path}: property before any element")
             if len(words) >= 2 and words[1] == "list":
-                raise PlyError(f"{path}: list property '{one_line(words[-1], 40)}' in element '{one_line(elements[-1][0], 40)}' "
-                               "is not supported in a Gaussian .ply")
+                raise PlyError(f"{path}: list property '{one_line(words[-1], 40)}' in element "
+                               f"'{one_line(elements[-1][0], 40)}' is not supported in a Gaussian .ply")
             if len(words) != 3:
-                raise PlyError(f"{path}: malformed header line {one_line(line.strip(), 80)!r} (expected 'property TYPE NAME')")
+                raise PlyError(f"{path}: malformed header line {shown} (expected 'property TYPE NAME')")
             if words[1] not in _PLY_TYPES:
-                raise PlyError(f"{path}: property '{one_line(words[2], 40)}' has unknown type '{one_line(words[1], 40)}'")
+                raise PlyError(f"{path}: property '{one_line(words[2], 40)}' has unknown type "
+                               f"'{one_line(words[1], 40)}'")
             elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
         else:
-            raise PlyError(f"{path}: malformed header line {one_line(line.strip(), 80)!r}")
+            raise PlyError(f"{path}: malformed header line {shown}")
     if fmt not in ("binary_little_endian", "binary_big_endian"):
-        raise PlyError(f"{path}: format '{one_line(fmt, 40)}' is not supported (binary_little_endian or binary_big_endian)")
+        raise PlyError(f"{path}: format '{one_line(fmt, 40)}' is not supported "
+                       "(binary_little_endian or binary_big_endian)")
     return fmt, elements
 
 

@@ -183,12 +183,10 @@ def test_atomic_writes_refuse_non_regular_targets(tmp_path):
     fifo = tmp_path / "fifo"
     os.mkfifo(fifo)
     for path in (link, fifo, tmp_path, "/dev/null"):
-        with pytest.raises(UnsafeTargetError, match=f"{path}: is a "):
-            with atomic_write(path, "w") as f:
-                f.write("new")
-        with pytest.raises(UnsafeTargetError, match=f"{path}: is a "):
-            with atomic_path(path) as p:
-                p.write_text("new")
+        with pytest.raises(UnsafeTargetError, match=f"{path}: is a "), atomic_write(path, "w") as f:
+            f.write("new")
+        with pytest.raises(UnsafeTargetError, match=f"{path}: is a "), atomic_path(path) as p:
+            p.write_text("new")
         with pytest.raises(UnsafeTargetError):
             check_writable(path)
     assert link.is_symlink() and target.read_text() == "keep" and os.path.exists("/dev/null")
@@ -243,7 +241,7 @@ def test_decompression_bomb_names_the_file_and_key(scene):
     for w, h in ((100000, 100000), (5000, 5000)):  # beyond PIL's own limit, and beyond ours only
         _png_bomb(image, w, h)
         assert w * h > MAX_IMAGE_PIXELS
-        with pytest.raises(SceneFormatError, match=rf"transforms\.json: frames\[1\]: key 'file_path': image .* "
+        with pytest.raises(SceneFormatError, match=r"transforms\.json: frames\[1\]: key 'file_path': image .* "
                                                    r"(declares more pixels|is \d+x\d+ pixels)"):
             read_scene(scene)
 
@@ -378,3 +376,16 @@ def test_pickled_checkpoint_message_never_suggests_unsafe_loading(tmp_path):
     (tmp_path / "junk.pt").write_bytes(b"PK\x03\x04" + os.urandom(100))
     with pytest.raises(CheckpointError, match=r"junk\.pt: not a readable checkpoint"):
         load_model(tmp_path / "junk.pt")
+
+
+def test_edit_values_beyond_float64_or_float32_in_both_formats():
+    from particlesplat.edit_ops import parse_edit_file
+
+    with pytest.raises(EditsError, match=r"particles\.1\.z_d: expected finite numbers"):
+        validate_edits({1: {"z_d": [10**400]}})  # an integer beyond float64: no OverflowError
+    with pytest.raises(EditsError, match=r"e\.yaml: operations\[0\]: particles\.0\.z_d: 1e\+300 is beyond float32"):
+        parse_edit_file({"version": 2, "operations": [{"particle": 0, "set": {"z_d": [1e300]}}]}, "e.yaml")
+    with pytest.raises(EditsError, match=r"e\.yaml: operations\[0\]\.translate: expected 3 finite number\(s\) "
+                                         r"\(float32"):
+        parse_edit_file({"version": 2, "operations": [{"pick": {"frame": 0, "pixel": [1, 2]},
+                                                       "translate": [1e300, 0, 0]}]}, "e.yaml")

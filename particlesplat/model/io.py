@@ -80,7 +80,8 @@ def read_checkpoint(path: str | PathLike) -> dict:
 def check_state_dict(state: object, where: str) -> None:
     """CheckpointError naming ``where`` and the entry unless ``state`` maps names to finite tensors."""
     if not isinstance(state, dict):
-        raise CheckpointError(f"{where}: state_dict: expected a mapping of names to tensors, got {type(state).__name__}")
+        raise CheckpointError(f"{where}: state_dict: expected a mapping of names to tensors, "
+                              f"got {type(state).__name__}")
     for k, v in state.items():
         if not isinstance(v, torch.Tensor):
             raise CheckpointError(f"{where}: state_dict.{one_line(k, 80)}: expected a tensor, got {type(v).__name__}")
