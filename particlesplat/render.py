@@ -111,8 +111,11 @@ def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Seque
     """
     if not views:
         return []
+    checked: set[int] = set()
     for i, (gaussians, _) in enumerate(views):  # NaN would spread to every pixel and, through clipping, every gradient
-        gaussians.check(f"render: view {i}" if len(views) > 1 else "render")
+        if id(gaussians) not in checked:  # training renders one set in several views: checked once
+            checked.add(id(gaussians))
+            gaussians.check(f"render: view {i}" if len(views) > 1 else "render")
     dtype, device = views[0][0].means.dtype, views[0][0].means.device
     bg = torch.as_tensor(background, dtype=dtype, device=device).reshape(3)
     parts: dict[str, list[Tensor]] = {k: [] for k in ("means2d", "conics", "opac", "features", "radius", "view",
