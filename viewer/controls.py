@@ -7,7 +7,7 @@ and the UI requests of the app; they never draw.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import torch
 from imgui_bundle import imgui
@@ -19,7 +19,32 @@ from .state import SEG_MODES
 from .tools.object_tools import FloorDrag
 
 if TYPE_CHECKING:
-    from .app import App
+    from particlesplat.camera import Camera
+
+    from .orbit import OrbitCamera
+    from .panel import UiFields, UiRequests
+    from .scene_view import SceneView
+    from .session import SceneSession
+    from .state import ViewState
+    from .tools.object_tools import ObjectGizmo
+
+
+class ViewportHost(Protocol):
+    """What the controls use of the app (the app is one; the controls never import it)."""
+
+    orbit: OrbitCamera
+    state: ViewState
+    session: SceneSession
+    scene_view: SceneView
+    fields: UiFields
+    req: UiRequests
+    gizmo: ObjectGizmo
+
+    def pixel_ratio(self) -> tuple[float, float]: ...
+
+    def framebuffer_size(self) -> tuple[int, int]: ...
+
+    def view_camera(self, scale: float = 1.0, clear_panel: bool = True) -> Camera: ...
 
 CLICK_SLOP = 3.0  # window pixels a press may move and still count as a click
 
@@ -34,7 +59,7 @@ class ViewportControls:
         self.particle_center: torch.Tensor | None = None
         self.floor = FloorDrag()  # a plain drag that began on the selected object, or a Shift-drag
 
-    def handle(self, app: App) -> None:
+    def handle(self, app: ViewportHost) -> None:
         """Read this frame's input from imgui (unless a panel wants it) and apply it."""
         io = imgui.get_io()
         sx, sy = app.pixel_ratio()
@@ -45,7 +70,7 @@ class ViewportControls:
         if not io.want_capture_keyboard:
             self._keys(app, io)
 
-    def _mouse(self, app: App, io, sx: float, sy: float) -> None:
+    def _mouse(self, app: ViewportHost, io, sx: float, sy: float) -> None:
         now = time.perf_counter()
         dx, dy = io.mouse_delta.x * sx, io.mouse_delta.y * sy
         if io.mouse_wheel:
@@ -83,7 +108,7 @@ class ViewportControls:
                 app.orbit.pan(dx, dy, app.framebuffer_size()[1])
                 self.last_move = now
 
-    def _begin_drag(self, app: App, io, x: float, y: float) -> None:
+    def _begin_drag(self, app: ViewportHost, io, x: float, y: float) -> None:
         """A left drag starts at framebuffer pixel (x, y): it slides the selected object on the floor when it
         began on that object (or with Shift held), else it orbits (Ctrl: lifts the object)."""
         sel = app.state.selected
@@ -97,7 +122,7 @@ class ViewportControls:
         if (io.key_shift or on_object) and not self.floor.start(app.session, sel, app.view_camera(1.0), x, y):
             app.fields.status = "this object cannot slide from here (it draws nothing, or the floor is out of view)"
 
-    def lift_object(self, app: App, index: int, dy: float) -> None:
+    def lift_object(self, app: ViewportHost, index: int, dy: float) -> None:
         """Move the object of particle ``index`` up or down (world Z) with a vertical drag of ``dy``
         framebuffer pixels (up = up), by the metres a pixel spans at the object's depth."""
         from .tools.object_tools import object_centre
@@ -113,12 +138,12 @@ class ViewportControls:
             app.fields.status = f"error: {e}"
 
     @staticmethod
-    def pick(app: App, x: float, y: float) -> None:
+    def pick(app: ViewportHost, x: float, y: float) -> None:
         """Select the particle owning framebuffer pixel (x, y) (nothing on background)."""
         owner = app.scene_view.pick(app.session, app.view_camera(1.0), int(x), int(y))
         app.state.selected = owner if owner >= 0 and app.session.editable else None
 
-    def drag_object(self, app: App, index: int, dx: float, dy: float) -> None:
+    def drag_object(self, app: ViewportHost, index: int, dx: float, dy: float) -> None:
         """Move the object of particle ``index`` (every particle of it, :meth:`SceneSession.move_object`)
         so it follows a screen drag of (dx, dy) framebuffer pixels: the world motion parallel to the
         viewing camera's image plane at the particle's depth. A move out of the model's depth range is
@@ -140,7 +165,7 @@ class ViewportControls:
         self.particle_center = self.particle_center + delta
 
     @staticmethod
-    def _keys(app: App, io) -> None:
+    def _keys(app: ViewportHost, io) -> None:
         K = imgui.Key
         if io.key_ctrl:
             if imgui.is_key_pressed(K.z):
