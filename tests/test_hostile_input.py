@@ -389,3 +389,12 @@ def test_edit_values_beyond_float64_or_float32_in_both_formats():
                                          r"\(float32"):
         parse_edit_file({"version": 2, "operations": [{"pick": {"frame": 0, "pixel": [1, 2]},
                                                        "translate": [1e300, 0, 0]}]}, "e.yaml")
+
+
+def test_scene_path_of_a_megabyte_is_one_short_line(scene):
+    meta = _frames(scene)
+    meta["frames"][0]["file_path"] = "x" * 1_000_000
+    (scene / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(SceneFormatError, match=r"frames\[0\]: key 'file_path' is a path of 1000000 characters") as e:
+        read_scene(scene)
+    assert len(str(e.value)) < 400

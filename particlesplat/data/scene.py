@@ -304,6 +304,8 @@ def _resolve(folder: Path, rel: Any, key: str, where: str) -> Path:
     """The file ``rel`` names, relative to the scene folder and inside it (no absolute path, no ``..`` out)."""
     if not isinstance(rel, str) or not rel:
         raise SceneFormatError(f"{where}: key '{key}' must be a file path, got {short_repr(rel)}")
+    if len(rel) > 4096:  # PATH_MAX: the OS would echo it whole in its error
+        raise SceneFormatError(f"{where}: key '{key}' is a path of {len(rel)} characters ({short_repr(rel)})")
     norm = os.path.normpath(rel)
     if os.path.isabs(rel) or norm == ".." or norm.startswith(".." + os.sep) or "\0" in rel:
         raise SceneFormatError(f"{where}: key '{key}' names {short_repr(rel)}, outside the scene folder "
