@@ -14,10 +14,11 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
+from .camera import Camera
 from .model.geometry import stack_cameras
 from .model.losses import view_error
 from .model.particles import Particles
-from .train import render_views
+from .render import render_batch
 
 # the latents a fit may move; z_t (which particles exist) and the background stay as encoded
 FITTED = ("z_p", "z_s", "z_d", "z_e", "z_f")
@@ -37,10 +38,13 @@ def context_error(model, particles: Particles, rgb: Tensor, depth: Tensor | None
     K, c2w = stack_cameras(particles.cameras, device=dev)
     z = {k: (latents or {}).get(k, getattr(particles, k))[None] for k in FITTED}
     z.update(z_t=particles.z_t[None], bg=particles.background[None])
-    gaussians = model.decode_batch(z, particles.view, K[None], c2w[None])
-    rgb_hat, depth_hat, _ = render_views(gaussians, K[None], c2w[None], model.config.resolution,
-                                         model.background_color())
-    return view_error(rgb_hat[0], rgb, depth_hat[0], depth, None, lambda_depth).sum()
+    (gaussians,) = model.decode_batch(z, particles.view, K[None], c2w[None])
+    size = model.config.resolution
+    res = render_batch([(gaussians, Camera(K[v], c2w[v], size, size)) for v in range(K.shape[0])],
+                       background=model.background_color())
+    rgb_hat = torch.stack([r.rgb.permute(2, 0, 1) for r in res])
+    depth_hat = torch.stack([r.depth[None] for r in res])
+    return view_error(rgb_hat, rgb, depth_hat, depth, None, lambda_depth).sum()
 
 
 def fit_particles(model, particles: Particles, rgb: Tensor, depth: Tensor | None, steps: int = 10,

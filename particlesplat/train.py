@@ -273,7 +273,7 @@ class Trainer:
     def provenance_now(self) -> dict:
         """The run's provenance with the hours spent up to now."""
         wall, cpu = self.clock.hours()
-        return {**self.provenance.to_dict(), "wall_hours": round(wall, 4), "cpu_hours": round(cpu, 4)}
+        return {**self.provenance.to_dict(), "wall_hours": round(wall, 6), "cpu_hours": round(cpu, 6)}
 
     def _load(self, path: Path) -> None:
         ckpt = read_checkpoint(path)
