@@ -1,0 +1,158 @@
+"""Imports go one way: core -> rendering -> model, data -> edit -> training, evaluation -> cli; the viewer on top.
+
+Every module of ``particlesplat`` and ``viewer`` has a layer below. A module may import its own layer and
+the layers under it, never one above; and the import graph between modules has no cycle, counting imports
+inside functions too (a lazy import is still an import). A new module must be given a layer here.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("particlesplat", "viewer")
+
+# lowest first; a module is matched by its dotted name or by the longest listed package prefix
+LAYERS: list[tuple[str, tuple[str, ...]]] = [
+    ("core", ("particlesplat.errors", "particlesplat.atomic", "particlesplat.yamlsafe", "particlesplat.camera",
+              "particlesplat.sh", "particlesplat.gaussians", "particlesplat.ply", "particlesplat.png",
+              "particlesplat.runlog")),
+    ("rendering", ("particlesplat.constants", "particlesplat.projection", "particlesplat.rasterize",
+                   "particlesplat.render_dense", "particlesplat.segmentation", "particlesplat.render",
+                   "particlesplat.views_render")),
+    ("model, data", ("particlesplat.model", "particlesplat.data", "particlesplat.views")),
+    ("edit", ("particlesplat.objects", "particlesplat.move", "particlesplat.edits", "particlesplat.edit_ops",
+              "particlesplat.fit", "particlesplat.encode_scene", "particlesplat.particle_data", "particlesplat.compose",
+              "particlesplat.decomposition")),
+    ("training, evaluation", ("particlesplat.provenance", "particlesplat.metrics", "particlesplat.train",
+                              "particlesplat.evaluate", "particlesplat.curve", "particlesplat.bench_render",
+                              "particlesplat.bench_edits")),
+    ("cli", ("particlesplat.cli", "particlesplat.render_cli", "particlesplat.encode_cli", "particlesplat.object_cli",
+             "particlesplat.__main__")),
+    ("viewer", ("viewer",)),
+]
+# the package roots re-export a few core names lazily; importing them is importing those names
+PACKAGE_ROOT_LAYER = {"particlesplat": "rendering"}
+
+
+def module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def all_modules() -> dict[str, Path]:
+    mods = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            mods[module_name(path)] = path
+    return mods
+
+
+def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
+    """Modules of ours that ``name`` imports anywhere in its file (module level or inside functions)."""
+    is_pkg = path.name == "__init__.py"
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        targets: list[str] = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = name.split(".") if is_pkg else name.split(".")[:-1]
+                base = base[: len(base) - (node.level - 1)]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            targets = [mod] + [f"{mod}.{a.name}" for a in node.names]
+        for t in targets:
+            while t and t not in known:  # the longest prefix that is one of our modules
+                t = t.rpartition(".")[0]
+            if t and t != name:
+                found.add(t)
+    return found
+
+
+def layer_of(name: str) -> int:
+    if name in PACKAGE_ROOT_LAYER:
+        return [n for n, _ in LAYERS].index(PACKAGE_ROOT_LAYER[name])
+    best, best_len = -1, -1
+    for i, (_, prefixes) in enumerate(LAYERS):
+        for p in prefixes:
+            if (name == p or name.startswith(p + ".")) and len(p) > best_len:
+                best, best_len = i, len(p)
+    return best
+
+
+def graph() -> dict[str, set[str]]:
+    mods = all_modules()
+    return {name: imports_of(name, path, set(mods)) for name, path in mods.items()}
+
+
+def test_every_module_has_a_layer():
+    missing = [m for m in all_modules() if layer_of(m) < 0]
+    assert not missing, f"give these modules a layer in tests/test_layering.py: {missing}"
+
+
+def test_no_upward_imports():
+    names = [n for n, _ in LAYERS]
+    bad = []
+    for mod, deps in graph().items():
+        for dep in deps:
+            if dep.split(".")[0] == "viewer" and mod.split(".")[0] == "particlesplat":
+                bad.append(f"{mod} imports the viewer ({dep})")
+            elif layer_of(dep) > layer_of(mod) and not mod.startswith(dep + "."):
+                bad.append(f"{mod} ({names[layer_of(mod)]}) imports {dep} ({names[layer_of(dep)]})")
+    assert not bad, "upward imports:\n" + "\n".join(sorted(bad))
+
+
+def test_library_never_imports_gui_packages():
+    gui = ("moderngl", "glfw", "imgui_bundle", "viewer")
+    bad = []
+    for name, path in all_modules().items():
+        if not name.startswith("particlesplat"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            mods = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else []
+            bad += [f"{name} imports {m}" for m in mods if m.split(".")[0] in gui]
+    assert not bad, bad
+
+
+def test_no_import_cycles():
+    g = graph()
+    # a package's __init__ importing its own submodules is how packages work, not a cycle
+    edges = {m: {d for d in deps if not (d.startswith(m + ".") and all_modules()[m].name == "__init__.py")}
+             for m, deps in g.items()}
+    state: dict[str, int] = {}
+    stack: list[str] = []
+    cycles: list[list[str]] = []
+
+    def visit(m: str) -> None:
+        state[m] = 1
+        stack.append(m)
+        for d in sorted(edges.get(m, ())):
+            if state.get(d) == 1:
+                cycles.append(stack[stack.index(d):] + [d])
+            elif d not in state:
+                visit(d)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(edges):
+        if m not in state:
+            visit(m)
+    assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+
+
+def test_the_checker_sees_a_lazy_upward_import(tmp_path):
+    """The test itself: an import inside a function is found and resolved relative to its package."""
+    pkg = tmp_path / "particlesplat"
+    pkg.mkdir()
+    (pkg / "camera.py").write_text("def f():\n    from .train import x\n")
+    found = imports_of("particlesplat.camera", pkg / "camera.py", {"particlesplat.train", "particlesplat.camera"})
+    assert found == {"particlesplat.train"}
+    assert layer_of("particlesplat.train") > layer_of("particlesplat.camera")
