@@ -6,7 +6,8 @@ space may grow by at most ``cap_mb`` over the parent's (``resource.setrlimit(RLI
 file-size limit (``fsize``: a full disk as far as the command can tell). A result is the exit code, the
 output (stdout, stderr), the wall time and the child's peak resident memory.
 
-CASES.json: a list of {"entry": "particlesplat" | "particlesplat-viewer", "argv": [...], "cap_mb": int,
+CASES.json: a list of {"entry": "particlesplat" | "particlesplat-viewer" | "alloc" (argv: [MB]),
+"argv": [...], "cap_mb": int,
 "fsize": int | null, "timeout": seconds, "watch": [folders]}; a result also lists the files under
 ``watch`` that were added, removed or changed ("changed").
 """
@@ -41,7 +42,10 @@ def _child(case: dict, out_fd: int, err_fd: int) -> None:
         resource.setrlimit(resource.RLIMIT_FSIZE, (case["fsize"], case["fsize"]))
     code = 99
     try:
-        if case["entry"] == "particlesplat":
+        if case["entry"] == "alloc":  # the cap's own check: allocate argv[0] MB
+            bytearray(int(case["argv"][0]) << 20)
+            code = 0
+        elif case["entry"] == "particlesplat":
             from particlesplat.cli import console_main
 
             sys.argv = ["particlesplat", *case["argv"]]

@@ -117,6 +117,8 @@ def results(world, tmp_path_factory):
     specs.append({"entry": PS, "argv": ["train", "--config", str(world["cfg"]), "--data", str(world["data"]),
                                         "--out", str(w / "torn_last"), "--resume", "--stop-after", "1"],
                   "cap_mb": CAP_MB, "timeout": 120, "watch": []})
+    # the cap itself: 100 MB fit in it, 600 MB do not
+    specs += [{"entry": "alloc", "argv": [mb], "cap_mb": CAP_MB, "timeout": 60} for mb in (100, 600)]
     io = tmp_path_factory.mktemp("runner")
     (io / "cases.json").write_text(json.dumps(specs))
     before = (w / "full_disk" / "last.pt").read_bytes()
@@ -129,7 +131,7 @@ def results(world, tmp_path_factory):
         Path(os.environ["HOSTILE_REPORT"]).write_text(json.dumps(
             [{"case": n, "code": r["code"], "seconds": round(r["seconds"], 3), "max_rss_mb": round(r["max_rss_mb"])}
              for n, r in zip(names, res)], indent=1))
-    return dict(zip(cases, res[:len(cases)])), res[len(cases)], res[len(cases) + 1], before
+    return dict(zip(cases, res[:len(cases)])), res[len(cases)], res[len(cases) + 1], before, res[-2:]
 
 
 def _lines(stderr: str) -> list[str]:
@@ -154,7 +156,7 @@ def test_hostile_file_is_one_line_exit_2_nothing_changed(results, world, name):
 
 
 def test_full_disk_during_a_checkpoint_save(results, world):
-    _, res, _, before = results
+    _, res, _, before, _ = results
     lines = _lines(res["stderr"])
     assert res["code"] == 2 and "Traceback" not in res["stderr"], res["stderr"][-3000:]
     assert lines and "last.pt: cannot write the checkpoint" in lines[-1], res["stderr"][-2000:]
@@ -170,3 +172,9 @@ def test_torn_last_log_line_is_repaired_on_resume(results, world):
     assert f"warning: {log}: line 3 is torn" in res["stderr"]
     records = [json.loads(x) for x in log.read_text().splitlines()]  # every line is whole again
     assert [r["step"] for r in records if "loss" in r] == [1, 2, 3]
+
+
+def test_the_memory_cap_holds(results):
+    fits, too_big = results[4]
+    assert fits["code"] == 0, fits["stderr"]
+    assert too_big["code"] != 0 and "MemoryError" in too_big["stderr"]
