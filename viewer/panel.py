@@ -14,7 +14,7 @@ from particlesplat.model.particles import EDITABLE
 from .panels.insert import InsertFields, draw_insert_section
 from .panels.objects import ObjectFields, draw_object_section, segmentation_colour
 from .session import SceneSession
-from .state import SEG_MODES, ViewState
+from .state import SEG_MODES, SegMode, ViewState
 
 SHORTCUTS = (
     ("left drag", "orbit"),
@@ -167,7 +167,7 @@ def _view_section(session: SceneSession, state: ViewState, req: UiRequests, coun
                 imgui.same_line()
             if imgui.small_button(f"{i + 1}##cam{i}"):
                 req.snap_camera = i
-    changed, idx = imgui.combo("segmentation", SEG_MODES.index(state.seg_mode), list(SEG_MODES))
+    changed, idx = imgui.combo("segmentation", SEG_MODES.index(state.seg_mode), [m.value for m in SEG_MODES])
     if changed:
         state.seg_mode = SEG_MODES[idx]
     changed, value = imgui.slider_float("prune opacity", state.prune, 0.0, 1.0, "%.3f")
@@ -185,7 +185,7 @@ def _view_section(session: SceneSession, state: ViewState, req: UiRequests, coun
 def _particles_section(session: SceneSession, state: ViewState, swatches: dict[int, tuple[float, float, float]]) -> None:
     if not imgui.collapsing_header("Particles", imgui.TreeNodeFlags_.default_open):
         return
-    by_object = state.seg_mode == "colour by object"
+    by_object = state.seg_mode is SegMode.BY_OBJECT
     labels = session.objects() if by_object else None
     imgui.text(f"idx  {'object' if by_object else 'seg'} colour  active  visible  solo")
     for i in range(session.num_particles):

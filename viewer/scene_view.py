@@ -10,7 +10,7 @@ from particlesplat.gaussians import Gaussians
 
 from .gl_renderer import FrameTimes, SplatRenderer, segmentation_from_weights
 from .session import SceneSession
-from .state import ViewState
+from .state import SegMode, ViewState
 
 MASK_COLOR = (1.0, 0.85, 0.1)
 
@@ -52,7 +52,7 @@ class SceneView:
         mode = state.color_mode()
         objects = session.objects().tolist() if mode == 2 else None
         times = self.renderer.render(camera, color_mode=mode, objects=objects, finish=finish)
-        if state.seg_mode == "mask of selected" and state.selected is not None:
+        if state.seg_mode is SegMode.MASK_SELECTED and state.selected is not None:
             self.renderer.render_mask(camera, state.selected)
         self._last_key = key
         self.last_times = times
@@ -64,7 +64,7 @@ class SceneView:
 
     def present(self, state: ViewState, viewport: tuple[int, int, int, int]) -> None:
         """Blit the last render into ``viewport`` of the bound framebuffer."""
-        mask = MASK_COLOR if state.seg_mode == "mask of selected" and state.selected is not None else None
+        mask = MASK_COLOR if state.seg_mode is SegMode.MASK_SELECTED and state.selected is not None else None
         self.renderer.blit(viewport, state.background, mask)
 
     def pick(self, session: SceneSession, camera: Camera, x: int, y: int) -> int:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 from particlesplat.views import DEFAULT_BACKGROUND
 
@@ -11,8 +12,22 @@ from particlesplat.views import DEFAULT_BACKGROUND
 # model's Gaussians (half of them of inactive particles, z_t ~ 0) and its PSNR is 28.18 dB without them, 28.15 with
 DEFAULT_PRUNE = 0.05
 
-SEG_MODES = ("normal", "colour by particle", "colour by object", "mask of selected", "background hidden",
-             "background alone", "keypoints", "boxes")  # the last two: the particles' 3D marks (particle_overlay)
+
+
+class SegMode(StrEnum):
+    """How the scene is coloured and what of it is drawn; the value is the panel's label."""
+
+    NORMAL = "normal"
+    BY_PARTICLE = "colour by particle"
+    BY_OBJECT = "colour by object"
+    MASK_SELECTED = "mask of selected"
+    BACKGROUND_HIDDEN = "background hidden"
+    BACKGROUND_ALONE = "background alone"
+    KEYPOINTS = "keypoints"  # the particles' 3D keypoints over the scene (particle_overlay)
+    BOXES = "boxes"  # the particles' 3D boxes over the scene (particle_overlay)
+
+
+SEG_MODES: tuple[SegMode, ...] = tuple(SegMode)  # in the panel's and the M key's order
 
 
 @dataclass
@@ -23,7 +38,7 @@ class ViewState:
         selected: selected particle index or None.
         hidden: particle indices hidden by their visibility toggle.
         solo: a particle shown alone (plus the background unless hidden), or None.
-        seg_mode: one of :data:`SEG_MODES`.
+        seg_mode: a :class:`SegMode` (its label string is accepted and converted).
         prune: opacity threshold; Gaussians below it are not drawn (and not exported). Default
             :data:`DEFAULT_PRUNE`.
         background: RGB behind the Gaussians.
@@ -35,31 +50,36 @@ class ViewState:
     selected: int | None = None
     hidden: set[int] = field(default_factory=set)
     solo: int | None = None
-    seg_mode: str = SEG_MODES[0]
+    seg_mode: SegMode = SegMode.NORMAL
     prune: float = DEFAULT_PRUNE
     background: tuple[float, float, float] = DEFAULT_BACKGROUND
     overlay: bool = True
     panel: bool = True
     moving_scale: float = 0.5
 
+    def __setattr__(self, name, value) -> None:
+        if name == "seg_mode":
+            value = SegMode(value)  # a label that is no mode raises ValueError here, not a silent normal view
+        super().__setattr__(name, value)
+
     def visible_owners(self, owners: int | Iterable[int]) -> list[int]:
         """Owners to draw (-1 = background) under the visibility, solo and segmentation modes.
 
         owners: the scene's particle owners (>= 0), or their count P for owners 0..P-1. A .ply passes the
         owners it holds, so a sparse owner set costs its size, not its largest index."""
-        if self.seg_mode == "background alone":
+        if self.seg_mode is SegMode.BACKGROUND_ALONE:
             return [-1]
         present = range(owners) if isinstance(owners, int) else owners
         owners = [self.solo] if self.solo is not None else [i for i in present if i not in self.hidden]
-        if self.seg_mode != "background hidden":
+        if self.seg_mode is not SegMode.BACKGROUND_HIDDEN:
             owners.append(-1)
         return owners
 
     def color_mode(self) -> int:
         """Colour mode of the splat pass: 1 = a colour per particle, 2 = a colour per object."""
-        return {"colour by particle": 1, "colour by object": 2}.get(self.seg_mode, 0)
+        return {SegMode.BY_PARTICLE: 1, SegMode.BY_OBJECT: 2}.get(self.seg_mode, 0)
 
     def key(self) -> tuple:
         """Everything that changes the rendered pixels."""
-        return (self.selected if self.seg_mode == "mask of selected" else None, tuple(sorted(self.hidden)),
+        return (self.selected if self.seg_mode is SegMode.MASK_SELECTED else None, tuple(sorted(self.hidden)),
                 self.solo, self.seg_mode, self.prune, self.background)
