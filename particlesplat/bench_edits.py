@@ -247,7 +247,12 @@ def main(argv: list[str] | None = None) -> int:
                              "the faint inactive ones too, as before they were dropped)")
     parser.add_argument("--json", default="bench_edits.json", help="write per-scene and mean results here")
     args = parser.parse_args(argv)
+    from .atomic import check_writable
     from .model import load_model
+
+    if args.scenes < 1:
+        parser.error(f"--scenes must be >= 1, got {args.scenes}")
+    check_writable(args.json)  # before half an hour of work, not after it
 
     torch.set_num_threads(min(2, torch.get_num_threads()))
     model = load_model(args.checkpoint)
