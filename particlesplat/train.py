@@ -217,12 +217,22 @@ class Trainer:
             self._load(out / LAST)
         elif resume:
             raise FileNotFoundError(f"{out / LAST}: nothing to resume")
-        elif (out / LAST).is_file():
+        elif (out / LAST).is_file() and not overwrite:
             raise FileExistsError(f"{out / LAST}: this run already exists; pass --resume to continue it "
                                   "or choose another --out")
         # steps without the background or before refine_start leave weights without gradients
         unused = tc.bg_off_steps > 0 or (cfg.refine_steps > 0 and tc.refine_start > 0)
         self.ddp = DistributedDataParallel(self.model, find_unused_parameters=unused) if self.distributed else self.model
+        if overwrite and not resume and self.rank == 0 and out.is_dir():
+            self._clear_run()
+
+    def _clear_run(self) -> None:
+        """--overwrite: remove the earlier run's own files (log, config, checkpoints) once every check has passed,
+        so its log is not continued and its step files do not mix with the new run's. Other files stay."""
+        for path in [*self.out.glob("step_*.pt"), *(self.out / n for n in ("metrics.jsonl", "config.yaml", LAST,
+                                                                           "best.pt"))]:
+            if path.is_file():
+                path.unlink()
 
     # ------------------------------------------------------------------ state
     def _rng_state(self) -> dict:
