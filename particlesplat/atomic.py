@@ -26,8 +26,14 @@ class UnsafeTargetError(OSError):
 
 
 def _kind(mode: int) -> str:
-    for test, name in ((stat.S_ISLNK, "a symbolic link"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a device node"),
-                       (stat.S_ISBLK, "a device node"), (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a folder")):
+    for test, name in (
+        (stat.S_ISLNK, "a symbolic link"),
+        (stat.S_ISFIFO, "a FIFO"),
+        (stat.S_ISCHR, "a device node"),
+        (stat.S_ISBLK, "a device node"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISDIR, "a folder"),
+    ):
         if test(mode):
             return name
     return "not a regular file"
@@ -41,8 +47,9 @@ def check_target(path: str | PathLike) -> Path:
     except (FileNotFoundError, NotADirectoryError):  # absent: making its folder will report what is wrong
         return path
     if not stat.S_ISREG(mode):
-        raise UnsafeTargetError(f"{path}: is {_kind(mode)}; refusing to replace it with a regular file "
-                                "(give a regular file path)")
+        raise UnsafeTargetError(
+            f"{path}: is {_kind(mode)}; refusing to replace it with a regular file (give a regular file path)"
+        )
     return path
 
 

@@ -74,7 +74,7 @@ def edit_pairs(seed: int, split: str, index: int, res: int, context: list[int]) 
     cams = scene_cameras(scene, res)
     for k in rng.permutation(len(scene.objects)):
         k = int(k)
-        obj, others = scene.objects[k], scene.objects[:k] + scene.objects[k + 1:]
+        obj, others = scene.objects[k], scene.objects[:k] + scene.objects[k + 1 :]
         pick = None
         best = 0
         for f in context:
@@ -100,10 +100,15 @@ def edit_pairs(seed: int, split: str, index: int, res: int, context: list[int]) 
                 break
         if move is None or dup is None:
             continue
-        return {"original": scene, "object": k, "pick": pick, "offsets": {"move": move, "duplicate": dup},
-                "move": replace(scene, objects=others[:k] + [_moved(obj, *move)] + others[k:]),
-                "remove": replace(scene, objects=list(others)),
-                "duplicate": replace(scene, objects=scene.objects + [_moved(obj, *dup)])}
+        return {
+            "original": scene,
+            "object": k,
+            "pick": pick,
+            "offsets": {"move": move, "duplicate": dup},
+            "move": replace(scene, objects=others[:k] + [_moved(obj, *move)] + others[k:]),
+            "remove": replace(scene, objects=list(others)),
+            "duplicate": replace(scene, objects=scene.objects + [_moved(obj, *dup)]),
+        }
     return None
 
 
@@ -141,8 +146,17 @@ def _sq_err(pred: torch.Tensor, gt: torch.Tensor, region: torch.Tensor) -> tuple
     return float(err[region].sum()), int(region.sum()) * 3
 
 
-def bench_scene(model, seed: int, split: str, index: int, res: int, context: list[int], dilate: int,
-                work: Path, z_t_threshold: float | None = None) -> dict | None:
+def bench_scene(
+    model,
+    seed: int,
+    split: str,
+    index: int,
+    res: int,
+    context: list[int],
+    dilate: int,
+    work: Path,
+    z_t_threshold: float | None = None,
+) -> dict | None:
     """Edit-fidelity PSNR of one held-out scene: {kind: {variant: {region: dB}}}, plus the pick's outcome."""
     pairs = edit_pairs(seed, split, index, res, context)
     if pairs is None:
@@ -151,14 +165,20 @@ def bench_scene(model, seed: int, split: str, index: int, res: int, context: lis
     for name in ("original", *KINDS):
         folders[name] = work / f"{index:05d}_{name}"
         if not folders[name].is_dir():
-            write_tabletop(folders[name], pairs[name], res, {"seed": seed, "split": split, "index": index,
-                                                             "edit": name})
+            write_tabletop(
+                folders[name], pairs[name], res, {"seed": seed, "split": split, "index": index, "edit": name}
+            )
     enc = encode_scene(model, folders["original"], context)
     others = [i for i in range(len(enc.all_cameras)) if i not in context]
     size = model.config.resolution
     noop = None
-    out: dict = {"scene": f"{split}/{index:05d}", "object": pairs["object"], "pick": list(pairs["pick"].pixel),
-                 "pick_frame": pairs["pick"].frame, "offsets": pairs["offsets"]}
+    out: dict = {
+        "scene": f"{split}/{index:05d}",
+        "object": pairs["object"],
+        "pick": list(pairs["pick"].pixel),
+        "pick_frame": pairs["pick"].frame,
+        "offsets": pairs["offsets"],
+    }
     k = pairs["object"] + 1
     orig_raw = read_scene(folders["original"]).select(others, size)
     for kind in KINDS:
@@ -169,8 +189,11 @@ def bench_scene(model, seed: int, split: str, index: int, res: int, context: lis
         new = truth.masks == (len(pairs[kind].objects) if kind == "duplicate" else (k if kind == "move" else -1))
         if kind == "duplicate":
             old = torch.zeros_like(old)  # the original stays: only the copy's place changes
-        regions = {"changed": _dilate(old | new, dilate), "vacated": _dilate(old, dilate) & ~new,
-                   "view": torch.ones_like(old)}
+        regions = {
+            "changed": _dilate(old | new, dilate),
+            "vacated": _dilate(old, dilate) & ~new,
+            "view": torch.ones_like(old),
+        }
         editor = SceneEditor(model, enc.particles, enc.all_cameras, context, z_t_threshold)
         status = "ok"
         try:
@@ -186,9 +209,11 @@ def bench_scene(model, seed: int, split: str, index: int, res: int, context: lis
             status = f"failed: {e}"
         if noop is None:
             noop = _renders(model, enc.particles, cams, z_t_threshold)
-        preds = {"edit": _renders(model, editor.particles, cams, z_t_threshold), "noop": noop,
-                 "ceiling": _renders(model, encode_scene(model, folders[kind], context).particles, cams,
-                                     z_t_threshold)}
+        preds = {
+            "edit": _renders(model, editor.particles, cams, z_t_threshold),
+            "noop": noop,
+            "ceiling": _renders(model, encode_scene(model, folders[kind], context).particles, cams, z_t_threshold),
+        }
         row = {"status": status, "pixels": {r: int(m.sum()) for r, m in regions.items()}}
         for variant, pred in preds.items():
             row[variant] = {}
@@ -215,9 +240,11 @@ def summarise(rows: list[dict]) -> dict:
 
 
 def format_table(table: dict, n: int) -> str:
-    lines = [f"edit fidelity on {n} held-out scenes (PSNR dB, mean over scenes; ceiling = the model's own encoding "
-             "of the edited scene)",
-             f"{'edit':<10} {'region':<8} {'edit':>6} {'no-op':>6} {'ceiling':>7} {'gap':>6}"]
+    lines = [
+        f"edit fidelity on {n} held-out scenes (PSNR dB, mean over scenes; ceiling = the model's own encoding "
+        "of the edited scene)",
+        f"{'edit':<10} {'region':<8} {'edit':>6} {'no-op':>6} {'ceiling':>7} {'gap':>6}",
+    ]
     for kind in KINDS:
         for region in REGIONS:
             if kind == "duplicate" and region == "vacated":
@@ -230,8 +257,11 @@ def format_table(table: dict, n: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="particlesplat bench edits", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="particlesplat bench edits",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     parser.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped assets/model.pt)")
     parser.add_argument("--scenes", type=int, default=12, help="held-out scenes")
     parser.add_argument("--start", type=int, default=0, help="first scene index of the split")
@@ -239,12 +269,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--split", default="test", choices=("val", "test"), help="held-out split of the generator")
     parser.add_argument("--res", type=int, default=128, help="stored image size of the generated scenes")
     parser.add_argument("--context", default="4,16", help="context frames")
-    parser.add_argument("--dilate", type=int, default=1, help="pixels (at the model's resolution) the object "
-                                                              "masks are grown by")
+    parser.add_argument(
+        "--dilate", type=int, default=1, help="pixels (at the model's resolution) the object masks are grown by"
+    )
     parser.add_argument("--work", default=None, help="folder for the generated scenes (default: a temporary one)")
-    parser.add_argument("--z-t-threshold", type=float, default=None,
-                        help="the particles that draw (default: the model's, as the viewer; 0 = every particle, "
-                             "the faint inactive ones too, as before they were dropped)")
+    parser.add_argument(
+        "--z-t-threshold",
+        type=float,
+        default=None,
+        help="the particles that draw (default: the model's, as the viewer; 0 = every particle, "
+        "the faint inactive ones too, as before they were dropped)",
+    )
     parser.add_argument("--json", default="bench_edits.json", help="write per-scene and mean results here")
     args = parser.parse_args(argv)
     from .atomic import check_writable
@@ -263,22 +298,35 @@ def main(argv: list[str] | None = None) -> int:
         work = Path(args.work) if args.work else Path(tmp)
         index = args.start
         while len(rows) < args.scenes:
-            row = bench_scene(model, args.seed, args.split, index, args.res, context, args.dilate, work,
-                              args.z_t_threshold)
+            row = bench_scene(
+                model, args.seed, args.split, index, args.res, context, args.dilate, work, args.z_t_threshold
+            )
             if row is None:
                 skipped.append(index)
             else:
                 rows.append(row)
-                print(f"scene {index:3d}: move {row['move']['edit']['changed']['psnr']:.2f} / ceiling "
-                      f"{row['move']['ceiling']['changed']['psnr']:.2f} dB (changed), {row['move']['status']}",
-                      file=sys.stderr)
+                print(
+                    f"scene {index:3d}: move {row['move']['edit']['changed']['psnr']:.2f} / ceiling "
+                    f"{row['move']['ceiling']['changed']['psnr']:.2f} dB (changed), {row['move']['status']}",
+                    file=sys.stderr,
+                )
             index += 1
     table = summarise(rows)
     print(format_table(table, len(rows)))
-    out = {"checkpoint": args.checkpoint or "assets/model.pt", "z_t_threshold": args.z_t_threshold,
-           "seed": args.seed, "split": args.split,
-           "context": context, "dilate": args.dilate, "res": args.res, "skipped": skipped,
-           "seconds": time.perf_counter() - t0, "machine": platform.machine(), "mean": table, "scenes": rows}
+    out = {
+        "checkpoint": args.checkpoint or "assets/model.pt",
+        "z_t_threshold": args.z_t_threshold,
+        "seed": args.seed,
+        "split": args.split,
+        "context": context,
+        "dilate": args.dilate,
+        "res": args.res,
+        "skipped": skipped,
+        "seconds": time.perf_counter() - t0,
+        "machine": platform.machine(),
+        "mean": table,
+        "scenes": rows,
+    }
     with atomic_write(args.json, "w") as f:
         json.dump(out, f, indent=1)
     print(f"wrote {args.json}")

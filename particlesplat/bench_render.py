@@ -73,16 +73,28 @@ def run_case(n: int, size: int, repeats: int) -> dict:
         fwd = _time(lambda: render(g, cam), repeats)
     fwd_bwd = _time(_fwd_bwd(render, g, cam), repeats)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    row = {"n": n, "size": size, "fwd_ms": fwd, "fwd_bwd_ms": fwd_bwd, "peak_mb": peak / 1024,
-           "peak_over_base_mb": (peak - base_rss) / 1024}
+    row = {
+        "n": n,
+        "size": size,
+        "fwd_ms": fwd,
+        "fwd_bwd_ms": fwd_bwd,
+        "peak_mb": peak / 1024,
+        "peak_over_base_mb": (peak - base_rss) / 1024,
+    }
     pairs = n * size * size
     if pairs <= REFERENCE_MAX_PAIRS:
         with torch.no_grad():
             out = render(g, cam)
-            ref = render_dense(g.to(dtype=torch.float64), cam.to(dtype=torch.float64),
-                               pixel_chunk=max(1, int(2e7 // n)))
-        err = torch.cat([(a.double() - b).abs().reshape(size, size, -1) for a, b in
-                         zip((out.rgb, out.alpha, out.depth), ref)], dim=-1).amax(-1)  # (H, W)
+            ref = render_dense(
+                g.to(dtype=torch.float64), cam.to(dtype=torch.float64), pixel_chunk=max(1, int(2e7 // n))
+            )
+        err = torch.cat(
+            [
+                (a.double() - b).abs().reshape(size, size, -1)
+                for a, b in zip((out.rgb, out.alpha, out.depth), ref, strict=True)
+            ],
+            dim=-1,
+        ).amax(-1)  # (H, W)
         row["max_abs_err"] = float(err.max())
         row["pixels_over_1e-5"] = int((err > 1e-5).sum())
     if pairs <= DENSE_MAX_PAIRS:
@@ -101,8 +113,10 @@ def machine_line() -> str:
                     break
     except OSError:
         pass
-    return (f"machine: {os.cpu_count()} cores ({model}), torch {torch.__version__}, "
-            f"{torch.get_num_threads()} threads, python {platform.python_version()}")
+    return (
+        f"machine: {os.cpu_count()} cores ({model}), torch {torch.__version__}, "
+        f"{torch.get_num_threads()} threads, python {platform.python_version()}"
+    )
 
 
 def _fmt(row: dict, key: str, spec: str) -> str:
@@ -110,8 +124,9 @@ def _fmt(row: dict, key: str, spec: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="particlesplat bench render", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="particlesplat bench render", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--n", type=int, nargs="+", default=[2000, 10000, 50000], help="Gaussian counts")
     parser.add_argument("--sizes", type=int, nargs="+", default=[64, 128, 512], help="square image sizes")
     parser.add_argument("--repeats", type=int, default=5, help="timed repeats per case (median)")
@@ -122,24 +137,41 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(run_case(args.case[0], args.case[1], args.repeats)))
         return 0
     print(machine_line())
-    header = ("| N | size | fwd ms | fwd+bwd ms | peak RSS MB (over start) | max abs err vs f64 brute force | "
-              "pixels > 1e-5 | dense fwd+bwd ms | speed-up vs dense |")
+    header = (
+        "| N | size | fwd ms | fwd+bwd ms | peak RSS MB (over start) | max abs err vs f64 brute force | "
+        "pixels > 1e-5 | dense fwd+bwd ms | speed-up vs dense |"
+    )
     print(header)
     print("|---" * (header.count("|") - 1) + "|")
     rows = []
     for n in args.n:
         for size in args.sizes:
-            proc = subprocess.run([sys.executable, "-m", "particlesplat.bench_render", "--case", str(n), str(size),
-                                   "--repeats", str(args.repeats)], capture_output=True, text=True)
+            proc = subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "particlesplat.bench_render",
+                    "--case",
+                    str(n),
+                    str(size),
+                    "--repeats",
+                    str(args.repeats),
+                ],
+                capture_output=True,
+                text=True,
+            )
             if proc.returncode != 0:
                 print(f"case N={n} size={size} failed:\n{proc.stderr}", file=sys.stderr)
                 return 1
             row = json.loads(proc.stdout.strip().splitlines()[-1])
             rows.append(row)
-            print(f"| {n} | {size}² | {row['fwd_ms']:.1f} | {row['fwd_bwd_ms']:.1f} | "
-                  f"{row['peak_mb']:.0f} ({row['peak_over_base_mb']:.0f}) | {_fmt(row, 'max_abs_err', '.1e')} | "
-                  f"{_fmt(row, 'pixels_over_1e-5', 'd')} | "
-                  f"{_fmt(row, 'dense_fwd_bwd_ms', '.0f')} | {_fmt(row, 'speedup', '.1f')} |", flush=True)
+            print(
+                f"| {n} | {size}² | {row['fwd_ms']:.1f} | {row['fwd_bwd_ms']:.1f} | "
+                f"{row['peak_mb']:.0f} ({row['peak_over_base_mb']:.0f}) | {_fmt(row, 'max_abs_err', '.1e')} | "
+                f"{_fmt(row, 'pixels_over_1e-5', 'd')} | "
+                f"{_fmt(row, 'dense_fwd_bwd_ms', '.0f')} | {_fmt(row, 'speedup', '.1f')} |",
+                flush=True,
+            )
     if args.json:
         from .atomic import atomic_write
 

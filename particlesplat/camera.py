@@ -89,8 +89,9 @@ class Camera:
         return math.degrees(2.0 * math.atan(0.5 * self.height / float(self.fy)))
 
     def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> Camera:
-        return Camera(self.K.to(device=device, dtype=dtype), self.c2w.to(device=device, dtype=dtype),
-                      self.width, self.height)
+        return Camera(
+            self.K.to(device=device, dtype=dtype), self.c2w.to(device=device, dtype=dtype), self.width, self.height
+        )
 
     # ------------------------------------------------------------------ geometry
     def world_to_camera(self, points: Tensor) -> Tensor:
@@ -126,8 +127,11 @@ class Camera:
 
     def pixel_centers(self) -> Tensor:
         """(H, W, 2) pixel-centre coordinates ``(u + 0.5, v + 0.5)``."""
-        v, u = torch.meshgrid(torch.arange(self.height, device=self.device, dtype=self.dtype),
-                              torch.arange(self.width, device=self.device, dtype=self.dtype), indexing="ij")
+        v, u = torch.meshgrid(
+            torch.arange(self.height, device=self.device, dtype=self.dtype),
+            torch.arange(self.width, device=self.device, dtype=self.dtype),
+            indexing="ij",
+        )
         return torch.stack([u + 0.5, v + 0.5], dim=-1)
 
     def rays(self, uv: Tensor | None = None) -> tuple[Tensor, Tensor]:
@@ -175,15 +179,22 @@ class Camera:
 
     # ------------------------------------------------------------------ constructors
     @staticmethod
-    def intrinsics_from_fov(fov_y_deg: float, width: int, height: int,
-                            dtype: torch.dtype = torch.float32) -> Tensor:
+    def intrinsics_from_fov(fov_y_deg: float, width: int, height: int, dtype: torch.dtype = torch.float32) -> Tensor:
         """(3, 3) K with square pixels, vertical field of view ``fov_y_deg`` and a centred principal point."""
         f = 0.5 * height / math.tan(math.radians(fov_y_deg) / 2.0)
         return torch.tensor([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]], dtype=dtype)
 
     @staticmethod
-    def look_at(eye, target, up=(0.0, 0.0, 1.0), *, fov_y_deg: float = 40.0, width: int = 128,
-                height: int = 128, dtype: torch.dtype = torch.float32) -> Camera:
+    def look_at(
+        eye,
+        target,
+        up=(0.0, 0.0, 1.0),
+        *,
+        fov_y_deg: float = 40.0,
+        width: int = 128,
+        height: int = 128,
+        dtype: torch.dtype = torch.float32,
+    ) -> Camera:
         """Camera at ``eye`` (3,) looking at ``target`` (3,), with world ``up`` (3,) upward in the image."""
         eye_t = torch.as_tensor(eye, dtype=torch.float64)
         target_t = torch.as_tensor(target, dtype=torch.float64)
@@ -213,14 +224,23 @@ class Camera:
         Elevation is the angle above the horizontal plane through ``target``.
         """
         az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
-        offset = torch.tensor([math.sin(az) * math.cos(el), -math.cos(az) * math.cos(el), math.sin(el)],
-                              dtype=torch.float64)
+        offset = torch.tensor(
+            [math.sin(az) * math.cos(el), -math.cos(az) * math.cos(el), math.sin(el)], dtype=torch.float64
+        )
         return torch.as_tensor(target, dtype=torch.float64) + distance * offset
 
     @staticmethod
-    def orbit(target, azimuth_deg: float, elevation_deg: float, distance: float, *,
-              fov_y_deg: float = 40.0, width: int = 128, height: int = 128,
-              dtype: torch.dtype = torch.float32) -> Camera:
+    def orbit(
+        target,
+        azimuth_deg: float,
+        elevation_deg: float,
+        distance: float,
+        *,
+        fov_y_deg: float = 40.0,
+        width: int = 128,
+        height: int = 128,
+        dtype: torch.dtype = torch.float32,
+    ) -> Camera:
         """Camera on an orbit about ``target`` (see :meth:`orbit_eye`), no roll, +z up."""
         eye = Camera.orbit_eye(target, azimuth_deg, elevation_deg, distance)
         return Camera.look_at(eye, target, fov_y_deg=fov_y_deg, width=width, height=height, dtype=dtype)

@@ -25,9 +25,13 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 def _top_help() -> str:
-    lines = ["usage: particlesplat <command> [options]", "",
-             "ParticleSplat Studio: object-centric latent particles decoded into 3D Gaussians.", "",
-             "commands:"]
+    lines = [
+        "usage: particlesplat <command> [options]",
+        "",
+        "ParticleSplat Studio: object-centric latent particles decoded into 3D Gaussians.",
+        "",
+        "commands:",
+    ]
     lines += [f"  {name:<8} {desc}" for name, (_, desc) in COMMANDS.items()]
     lines += ["", "Run 'particlesplat <command> --help' for a command's options."]
     return "\n".join(lines)
@@ -42,8 +46,9 @@ def _run_bench(argv: list[str]) -> int:
         print("\nRun 'particlesplat bench <name> --help' for its options.")
         return 0
     if argv[0] not in benches:
-        print(f"particlesplat bench: unknown benchmark '{argv[0]}' (have: {', '.join(sorted(benches))})",
-              file=sys.stderr)
+        print(
+            f"particlesplat bench: unknown benchmark '{argv[0]}' (have: {', '.join(sorted(benches))})", file=sys.stderr
+        )
         return 2
     return int(benches[argv[0]].load()(argv[1:]) or 0)
 
@@ -60,8 +65,11 @@ def main(argv: list[str] | None = None) -> int:
     if name == "bench":
         return _run_bench(rest)
     module = importlib.import_module(COMMANDS[name][0])
-    parser = argparse.ArgumentParser(prog=f"particlesplat {name}", description=COMMANDS[name][1],
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog=f"particlesplat {name}",
+        description=COMMANDS[name][1],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     module.add_arguments(parser)
     from .views import attach_option_values
 

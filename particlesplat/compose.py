@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from .gaussians import Gaussians
-from .model import ParticleSplat, Particles
+from .model import Particles, ParticleSplat
 from .move import MoveError, translate
 from .objects import particle_objects
 from .particle_data import ObjectCentre, dense_objects, drawing_particles, object_centres, support_height
@@ -70,8 +70,9 @@ def export_object_ply(model: ParticleSplat, particles: Particles, index: int, pa
     return path
 
 
-def _centre(model: ParticleSplat, particles: Particles, members: list[int], method: ObjectCentre,
-            support: float) -> Tensor:
+def _centre(
+    model: ParticleSplat, particles: Particles, members: list[int], method: ObjectCentre, support: float
+) -> Tensor:
     """(3,) float64 centre of the object made of ``members``."""
     g = model.decode(particles, torch.tensor(members), background=False).detach().to("cpu")
     labels = torch.full((particles.num,), -1, dtype=torch.int64)
@@ -97,8 +98,9 @@ def match_views(src: Particles, src_point: Tensor, dst: Particles, dst_point: Te
     return [max(range(Vb), key=lambda j: cos[i][j]) for i in range(Va)]
 
 
-def reexpress(src: Particles, members: list[int], dst: Particles, views: list[int], delta: Tensor,
-              model: ParticleSplat) -> Particles:
+def reexpress(
+    src: Particles, members: list[int], dst: Particles, views: list[int], delta: Tensor, model: ParticleSplat
+) -> Particles:
     """Copies of ``src``'s particles ``members`` moved by ``delta`` (3,) world metres and re-expressed in
     ``dst``'s context views (particle i goes to view ``views[src.view[i]]``). Returns the new particles as a
     :class:`Particles` on ``dst``'s cameras and background (the per-particle fields only are new).
@@ -118,8 +120,10 @@ def reexpress(src: Particles, members: list[int], dst: Particles, views: list[in
         anchor = ca.unproject((src.z_p[i].detach().double().cpu() + 1.0) * 0.5 * size_a, d_a) + delta
         uv, d_b = cb.project(anchor)
         if not cfg.d_min < float(d_b) < cfg.d_max:
-            raise MoveError(f"particle {i}: at the new place it lies {float(d_b):.2f} m from view {vb}, outside the "
-                            f"model's range ({cfg.d_min}, {cfg.d_max}) m")
+            raise MoveError(
+                f"particle {i}: at the new place it lies {float(d_b):.2f} m from view {vb}, outside the "
+                f"model's range ({cfg.d_min}, {cfg.d_max}) m"
+            )
         f_a = torch.stack([ca.fx, ca.fy]).double()
         f_b = torch.stack([cb.fx, cb.fy]).double()
         # half-size in metres = sigmoid(z_s) * size / 2 * d / f, kept
@@ -153,8 +157,16 @@ def append(dst: Particles, new: Particles) -> Particles:
     return replace(dst, **out)
 
 
-def insert_object(model: ParticleSplat, dst: Particles, src: Particles, index: int, at: tuple[float, float], *,
-                  method: ObjectCentre = "resting", iterations: int = 3) -> tuple[Particles, list[int]]:
+def insert_object(
+    model: ParticleSplat,
+    dst: Particles,
+    src: Particles,
+    index: int,
+    at: tuple[float, float],
+    *,
+    method: ObjectCentre = "resting",
+    iterations: int = 3,
+) -> tuple[Particles, list[int]]:
     """Insert object ``index`` of ``src`` (scene A) into ``dst`` (scene B) so that its centre lands at
     ``at`` = (x, y) world metres on B's floor.
 
@@ -166,8 +178,7 @@ def insert_object(model: ParticleSplat, dst: Particles, src: Particles, index: i
     support_a = support_height(model.decode(src).detach().to("cpu"))
     support_b = support_height(model.decode(dst).detach().to("cpu"))
     centre_a = _centre(model, src, members, method, support_a)
-    target = torch.tensor([float(at[0]), float(at[1]), support_b + float(centre_a[2]) - support_a],
-                          dtype=torch.float64)
+    target = torch.tensor([float(at[0]), float(at[1]), support_b + float(centre_a[2]) - support_a], dtype=torch.float64)
     views = match_views(src, centre_a, dst, target)
     n = dst.num
     out = append(dst, reexpress(src, members, dst, views, target - centre_a, model))

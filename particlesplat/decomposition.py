@@ -106,22 +106,34 @@ def overlay_marks(arrays: ParticleArrays, camera: Camera, mode: Literal["keypoin
         if mode == "keypoints":
             uv, z = _project(cam, np.stack([arrays.anchor[i], arrays.centroid[i]]))
             if z[0] > 0:
-                marks.append(Mark("dot", ((float(uv[0, 0]), float(uv[0, 1])),), colour, 2.5 * scale,
-                                  max(1.0, scale / 2)))
+                marks.append(
+                    Mark("dot", ((float(uv[0, 0]), float(uv[0, 1])),), colour, 2.5 * scale, max(1.0, scale / 2))
+                )
             if z[1] > 0:
-                marks.append(Mark("ring", ((float(uv[1, 0]), float(uv[1, 1])),), colour, 4.0 * scale,
-                                  max(1.0, scale)))
+                marks.append(Mark("ring", ((float(uv[1, 0]), float(uv[1, 1])),), colour, 4.0 * scale, max(1.0, scale)))
         else:
             c, e = arrays.centroid[i].astype(np.float64), BOX_SIGMAS * arrays.extent[i].astype(np.float64)
-            corners = np.array([[c[0] + sx * e[0], c[1] + sy * e[1], c[2] + sz * e[2]]
-                                for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+            corners = np.array(
+                [
+                    [c[0] + sx * e[0], c[1] + sy * e[1], c[2] + sz * e[2]]
+                    for sx in (-1, 1)
+                    for sy in (-1, 1)
+                    for sz in (-1, 1)
+                ]
+            )
             uv, z = _project(cam, corners)
             for a in range(8):
                 for b in range(a + 1, 8):
                     if (a ^ b).bit_count() == 1 and z[a] > 0 and z[b] > 0:  # corners one axis apart: an edge
-                        marks.append(Mark("line", ((float(uv[a, 0]), float(uv[a, 1])),
-                                                   (float(uv[b, 0]), float(uv[b, 1]))), colour, 0.0,
-                                          max(1.0, scale)))
+                        marks.append(
+                            Mark(
+                                "line",
+                                ((float(uv[a, 0]), float(uv[a, 1])), (float(uv[b, 0]), float(uv[b, 1]))),
+                                colour,
+                                0.0,
+                                max(1.0, scale),
+                            )
+                        )
     return marks
 
 
@@ -141,8 +153,14 @@ def _overlay(base: np.ndarray, camera: Camera, arrays: ParticleArrays, mode: str
 
 
 @torch.no_grad()
-def render_mode(gaussians: Gaussians, camera: Camera, mode: RenderMode, *,
-                background: Sequence[float] = (0.0, 0.0, 0.0), arrays: ParticleArrays | None = None) -> np.ndarray:
+def render_mode(
+    gaussians: Gaussians,
+    camera: Camera,
+    mode: RenderMode,
+    *,
+    background: Sequence[float] = (0.0, 0.0, 0.0),
+    arrays: ParticleArrays | None = None,
+) -> np.ndarray:
     """One view of ``gaussians`` (the decoded scene, owner = particle index) as ``mode`` -> (H, W, 3) in [0, 1].
 
     ``arrays``: the scene's particle arrays, needed by every mode but rgb and depth (ValueError without).
@@ -174,8 +192,12 @@ def turntable_cameras(view: View, frames: int, width: int, height: int) -> list[
     and field of view kept), starting at ``view``."""
     if frames < 1:
         raise ValueError(f"--turntable must be >= 1 frames, got {frames}")
-    return [View(view.target, Look(view.look.azimuth + 360.0 * i / frames, view.look.elevation,
-                                   view.look.distance), view.fov).camera(width, height) for i in range(frames)]
+    return [
+        View(
+            view.target, Look(view.look.azimuth + 360.0 * i / frames, view.look.elevation, view.look.distance), view.fov
+        ).camera(width, height)
+        for i in range(frames)
+    ]
 
 
 def turntable_paths(out: str | PathLike, frames: int) -> tuple[list[Path], Path]:
@@ -201,11 +223,20 @@ def save_animation(frames: list[np.ndarray], path: str | PathLike, frame_ms: int
     return path
 
 
-def write_turntable(gaussians: Gaussians, view: View, frames: int, width: int, height: int, out: str | PathLike,
-                    mode: RenderMode = "rgb", *, background: Sequence[float] = (0.0, 0.0, 0.0),
-                    arrays: ParticleArrays | None = None,
-                    save_frame: Callable[[Path, np.ndarray, Camera], None] | None = None,
-                    progress: bool = False) -> tuple[list[Path], Path]:
+def write_turntable(
+    gaussians: Gaussians,
+    view: View,
+    frames: int,
+    width: int,
+    height: int,
+    out: str | PathLike,
+    mode: RenderMode = "rgb",
+    *,
+    background: Sequence[float] = (0.0, 0.0, 0.0),
+    arrays: ParticleArrays | None = None,
+    save_frame: Callable[[Path, np.ndarray, Camera], None] | None = None,
+    progress: bool = False,
+) -> tuple[list[Path], Path]:
     """Render a turntable of ``frames`` views (:func:`turntable_cameras`) in ``mode``; write each frame as a
     PNG (``save_frame(path, rgb, camera)``, default a plain PNG) and the animation (:func:`turntable_paths`).
     Returns (frame paths, animation path)."""
@@ -215,11 +246,14 @@ def write_turntable(gaussians: Gaussians, view: View, frames: int, width: int, h
 
     paths, anim = turntable_paths(out, frames)
     images = []
-    for path, cam in tqdm(list(zip(paths, turntable_cameras(view, frames, width, height))), desc="turntable",
-                          unit="frame", disable=not progress):
+    for path, cam in tqdm(
+        list(zip(paths, turntable_cameras(view, frames, width, height), strict=False)),
+        desc="turntable",
+        unit="frame",
+        disable=not progress,
+    ):
         rgb = render_mode(gaussians, cam, mode, background=background, arrays=arrays)
         (save_frame or (lambda p, x, c: save_png(p, x)))(path, rgb, cam)
         images.append(rgb)
     save_animation(images, anim, FRAME_MS if frames > 1 else 1000)
     return paths, anim
-

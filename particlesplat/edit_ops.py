@@ -40,9 +40,9 @@ import yaml
 from torch import Tensor
 
 from .atomic import atomic_write
-from .errors import short_repr
 from .camera import Camera
 from .edits import Edits, EditsError, apply_edits, check_indices, diff_edits, finite_float32, validate_edits
+from .errors import short_repr
 from .model.particles import EDITABLE, Particles
 from .move import MoveError, anchor_points, translate
 from .objects import particle_objects
@@ -115,10 +115,12 @@ class EditFile:
 # ---------------------------------------------------------------------------------------------- files
 def _numbers(value: Any, n: int, where: str) -> tuple[float, ...]:
     seq = value if isinstance(value, (list, tuple)) else [value]
-    if len(seq) != n or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not finite_float32(v)
-                            for v in seq):
-        raise EditsError(f"{where}: expected {n} finite number(s) (float32: |value| <= 3.4e38), "
-                         f"got {short_repr(value)}")
+    if len(seq) != n or any(
+        isinstance(v, bool) or not isinstance(v, (int, float)) or not finite_float32(v) for v in seq
+    ):
+        raise EditsError(
+            f"{where}: expected {n} finite number(s) (float32: |value| <= 3.4e38), got {short_repr(value)}"
+        )
     return tuple(float(v) for v in seq)
 
 
@@ -132,19 +134,31 @@ def _parse_insert(item: dict, where: str) -> Insert:
     if set(item) != {"insert"}:
         raise EditsError(f"{where}: an insert operation has the one key insert, got {sorted(item)}")
     spec = item["insert"]
-    if not isinstance(spec, dict) or not {"scene", "object", "at"} <= set(spec) or set(spec) - {"scene", "object",
-                                                                                                  "at", "context"}:
-        raise EditsError(f"{where}.insert: expected {{scene: DIR, object: K, at: [x, y], context: [..] (optional)}}, "
-                         f"got {short_repr(spec)}")
+    if (
+        not isinstance(spec, dict)
+        or not {"scene", "object", "at"} <= set(spec)
+        or set(spec) - {"scene", "object", "at", "context"}
+    ):
+        raise EditsError(
+            f"{where}.insert: expected {{scene: DIR, object: K, at: [x, y], context: [..] (optional)}}, "
+            f"got {short_repr(spec)}"
+        )
     if not isinstance(spec["scene"], str) or not spec["scene"]:
         raise EditsError(f"{where}.insert.scene: expected a scene folder, got {short_repr(spec['scene'])}")
     context = spec.get("context")
-    if context is not None and (not isinstance(context, list) or not context
-                                or not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in context)):
+    if context is not None and (
+        not isinstance(context, list)
+        or not context
+        or not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in context)
+    ):
         raise EditsError(f"{where}.insert.context: expected a list of frame indices, got {short_repr(context)}")
     at = _numbers(spec["at"], 2, f"{where}.insert.at")
-    return Insert(spec["scene"], _int(spec["object"], f"{where}.insert.object"), (at[0], at[1]),
-                  None if context is None else tuple(context))
+    return Insert(
+        spec["scene"],
+        _int(spec["object"], f"{where}.insert.object"),
+        (at[0], at[1]),
+        None if context is None else tuple(context),
+    )
 
 
 def _parse_op(item: Any, where: str) -> EditOp:
@@ -162,8 +176,10 @@ def _parse_op(item: Any, where: str) -> EditOp:
     kinds = [k for k in OBJECT_KINDS if k in item]
     unknown = set(item) - {"pick", *OBJECT_KINDS}
     if unknown:
-        raise EditsError(f"{where}: unknown key(s) {sorted(unknown)} (expected pick and one of "
-                         f"{', '.join(OBJECT_KINDS)}, or particle and set)")
+        raise EditsError(
+            f"{where}: unknown key(s) {sorted(unknown)} (expected pick and one of "
+            f"{', '.join(OBJECT_KINDS)}, or particle and set)"
+        )
     if "pick" not in item or len(kinds) != 1:
         raise EditsError(f"{where}: expected pick and exactly one of {', '.join(OBJECT_KINDS)}")
     pick = item["pick"]
@@ -172,8 +188,10 @@ def _parse_op(item: Any, where: str) -> EditOp:
     pixel = pick["pixel"]
     if not isinstance(pixel, (list, tuple)) or len(pixel) != 2:
         raise EditsError(f"{where}.pick.pixel: expected [x, y], got {short_repr(pixel)}")
-    p = Pick(_int(pick["frame"], f"{where}.pick.frame"),
-             (_int(pixel[0], f"{where}.pick.pixel"), _int(pixel[1], f"{where}.pick.pixel")))
+    p = Pick(
+        _int(pick["frame"], f"{where}.pick.frame"),
+        (_int(pixel[0], f"{where}.pick.pixel"), _int(pixel[1], f"{where}.pick.pixel")),
+    )
     kind = kinds[0]
     if kind == "remove":
         if item["remove"] is not True:
@@ -187,18 +205,24 @@ def parse_edit_file(data: Any, where: str = "edits") -> EditFile:
     if isinstance(data, dict) and data.get("version") == FORMAT_VERSION:
         unknown = set(data) - {"version", "operations", "scene", "model", "context"}
         if unknown:
-            raise EditsError(f"{where}: unknown key(s) {sorted(unknown)} (expected version, operations, scene, "
-                             "model, context)")
+            raise EditsError(
+                f"{where}: unknown key(s) {sorted(unknown)} (expected version, operations, scene, model, context)"
+            )
         ops = data.get("operations") or []
         if not isinstance(ops, list):
             raise EditsError(f"{where}: operations: expected a list, got {type(ops).__name__}")
         context = data.get("context")
-        if context is not None and (not isinstance(context, list)
-                                    or not all(isinstance(c, int) and not isinstance(c, bool) for c in context)):
+        if context is not None and (
+            not isinstance(context, list) or not all(isinstance(c, int) and not isinstance(c, bool) for c in context)
+        ):
             raise EditsError(f"{where}: context: expected a list of frame indices, got {short_repr(context)}")
-        return EditFile(2, [_parse_op(item, f"{where}: operations[{i}]") for i, item in enumerate(ops)],
-                        scene=None if data.get("scene") is None else str(data["scene"]),
-                        model=None if data.get("model") is None else str(data["model"]), context=context)
+        return EditFile(
+            2,
+            [_parse_op(item, f"{where}: operations[{i}]") for i, item in enumerate(ops)],
+            scene=None if data.get("scene") is None else str(data["scene"]),
+            model=None if data.get("model") is None else str(data["model"]),
+            context=context,
+        )
     if isinstance(data, dict) and "version" in data and data["version"] not in (1, FORMAT_VERSION):
         raise EditsError(f"{where}: version: expected 1 or {FORMAT_VERSION}, got {short_repr(data['version'])}")
     scene = data.get("scene") if isinstance(data, dict) else None
@@ -223,19 +247,29 @@ def op_to_yaml(op: EditOp) -> dict[str, Any]:
     if op.kind == "set":
         return {"particle": int(op.particle), "set": {k: [float(x) for x in v] for k, v in op.values}}
     if op.kind == "insert":
-        spec = {"scene": op.insert.scene, "object": int(op.insert.object),
-                "at": [round(float(v), 6) for v in op.insert.at]}
+        spec = {
+            "scene": op.insert.scene,
+            "object": int(op.insert.object),
+            "at": [round(float(v), 6) for v in op.insert.at],
+        }
         if op.insert.context is not None:
             spec["context"] = [int(c) for c in op.insert.context]
         return {"insert": spec}
-    out: dict[str, Any] = {"pick": {"frame": int(op.pick.frame), "pixel": [int(op.pick.pixel[0]),
-                                                                           int(op.pick.pixel[1])]}}
+    out: dict[str, Any] = {
+        "pick": {"frame": int(op.pick.frame), "pixel": [int(op.pick.pixel[0]), int(op.pick.pixel[1])]}
+    }
     out[op.kind] = True if op.kind == "remove" else [round(float(v), 6) for v in op.offset]
     return out
 
 
-def save_edit_file(path: str | PathLike, ops: list[EditOp], *, scene: str | None = None, model: str | None = None,
-                   context: list[int] | None = None) -> Path:
+def save_edit_file(
+    path: str | PathLike,
+    ops: list[EditOp],
+    *,
+    scene: str | None = None,
+    model: str | None = None,
+    context: list[int] | None = None,
+) -> Path:
     """Write a version 2 edit file atomically (temp file + rename); returns the path."""
     doc: dict[str, Any] = {"version": FORMAT_VERSION}
     if scene is not None:
@@ -313,14 +347,21 @@ class History:
 def append_particles(particles: Particles, indices: list[int]) -> Particles:
     """A copy of ``particles`` with copies of particles ``indices`` appended (same view, latents)."""
     idx = torch.as_tensor(indices, dtype=torch.long, device=particles.z_p.device)
-    return replace(particles, **{f: torch.cat([getattr(particles, f), getattr(particles, f)[idx]])
-                                 for f in PER_PARTICLE if getattr(particles, f) is not None})
+    return replace(
+        particles,
+        **{
+            f: torch.cat([getattr(particles, f), getattr(particles, f)[idx]])
+            for f in PER_PARTICLE
+            if getattr(particles, f) is not None
+        },
+    )
 
 
 def truncate_particles(particles: Particles, num: int) -> Particles:
     """The first ``num`` particles."""
-    return replace(particles, **{f: getattr(particles, f)[:num] for f in PER_PARTICLE
-                                 if getattr(particles, f) is not None})
+    return replace(
+        particles, **{f: getattr(particles, f)[:num] for f in PER_PARTICLE if getattr(particles, f) is not None}
+    )
 
 
 # ---------------------------------------------------------------------------------------------- editor
@@ -336,8 +377,14 @@ class SceneEditor:
             inactive ones too, as before they were dropped: for measuring that).
     """
 
-    def __init__(self, model, particles: Particles | None, frame_cameras: list[Camera] | None = None,
-                 context: list[int] | None = None, z_t_threshold: float | None = None) -> None:
+    def __init__(
+        self,
+        model,
+        particles: Particles | None,
+        frame_cameras: list[Camera] | None = None,
+        context: list[int] | None = None,
+        z_t_threshold: float | None = None,
+    ) -> None:
         self.model = model
         self.z_t_threshold = z_t_threshold
         self.frame_cameras = list(frame_cameras or [])
@@ -437,8 +484,13 @@ class SceneEditor:
         p = self.particles if particles is None else particles
         cam = self._frame_camera(frame, where)
         with torch.no_grad():
-            res = render(self.decode(p), cam.to("cpu", torch.float32), background=self.model.background_color().cpu(),
-                         owner_weights=True, num_owners=p.num)
+            res = render(
+                self.decode(p),
+                cam.to("cpu", torch.float32),
+                background=self.model.background_color().cpu(),
+                owner_weights=True,
+                num_owners=p.num,
+            )
         labels = self.objects()
         return res.segmentation(labels[: p.num])
 
@@ -486,12 +538,12 @@ class SceneEditor:
             self.particles = _cat(self.particles, op.added)
             self._source += list(op.sources) if op.sources else [self._source[i] for i in op.members]
             self._all_changed = True
-        for ch in (op.changes if forward else reversed(op.changes)):
+        for ch in op.changes if forward else reversed(op.changes):
             self.particles = self.particles.with_attribute(ch.index, ch.name, ch.new if forward else ch.old)
             self._changed.add(ch.index)
         if not forward and op.added is not None:
             self.particles = truncate_particles(self.particles, self.particles.num - op.added.num)
-            del self._source[self.particles.num:]
+            del self._source[self.particles.num :]
             self._all_changed = True
         self.version += 1
 
@@ -517,7 +569,7 @@ class SceneEditor:
                 first = merged.get((c.index, c.name), c)
                 merged[(c.index, c.name)] = SetAttribute(c.index, c.name, first.old, c.new)
             last.changes = list(merged.values())
-            last.offset = tuple(a + b for a, b in zip(last.offset, op.offset))
+            last.offset = tuple(a + b for a, b in zip(last.offset, op.offset, strict=False))
             self._apply(replace(op, added=None), True)
             return
         self._push(op)
@@ -539,8 +591,13 @@ class SceneEditor:
         old = self.value(index, name)
         if new == old:
             return
-        self._record(Operation(f"set {name} of particle {index}", [SetAttribute(index, name, old, new)],
-                               (gesture, index, name) if gesture is not None else None))
+        self._record(
+            Operation(
+                f"set {name} of particle {index}",
+                [SetAttribute(index, name, old, new)],
+                (gesture, index, name) if gesture is not None else None,
+            )
+        )
 
     def _members_label(self, members: list[int]) -> str:
         return f"particle{'s' if len(members) > 1 else ''} {', '.join(map(str, members))}"
@@ -554,24 +611,39 @@ class SceneEditor:
         members = self.object_members(index)
         delta = tuple(float(v) for v in torch.as_tensor(delta, dtype=torch.float64).reshape(3).tolist())
         target = translate(self.particles, members, delta, self.model.config)
-        changes = [SetAttribute(i, name, self.value(i, name), value)
-                   for i, attrs in target.items() for name, value in attrs.items() if value != self.value(i, name)]
+        changes = [
+            SetAttribute(i, name, self.value(i, name), value)
+            for i, attrs in target.items()
+            for name, value in attrs.items()
+            if value != self.value(i, name)
+        ]
         if changes:
-            self._record(Operation(f"move object of {self._members_label(members)}", changes,
-                                   (gesture, "move", tuple(members)) if gesture is not None else None,
-                                   kind="translate", members=tuple(members), offset=delta))
+            self._record(
+                Operation(
+                    f"move object of {self._members_label(members)}",
+                    changes,
+                    (gesture, "move", tuple(members)) if gesture is not None else None,
+                    kind="translate",
+                    members=tuple(members),
+                    offset=delta,
+                )
+            )
 
     def remove_object(self, index: int) -> None:
         """Remove particle ``index``'s object: its particles' z_t go to 0, so they no longer draw."""
         self._check_editable(index)
         members = self.object_members(index)
-        changes = [SetAttribute(i, "z_t", self.value(i, "z_t"), (0.0,)) for i in members
-                   if self.value(i, "z_t") != (0.0,)]
+        changes = [
+            SetAttribute(i, "z_t", self.value(i, "z_t"), (0.0,)) for i in members if self.value(i, "z_t") != (0.0,)
+        ]
         if not changes:
             return  # already removed
         self.end_gesture()
-        self._push(Operation(f"remove object of {self._members_label(members)}", changes, kind="remove",
-                             members=tuple(members)))
+        self._push(
+            Operation(
+                f"remove object of {self._members_label(members)}", changes, kind="remove", members=tuple(members)
+            )
+        )
 
     def duplicate_object(self, index: int, offset) -> int:
         """Copy particle ``index``'s object (new particles, the same latents) and move the copy by ``offset``
@@ -583,13 +655,24 @@ class SceneEditor:
         grown = append_particles(self.particles, members)
         new = list(range(n, n + len(members)))
         target = translate(grown, new, offset, self.model.config)
-        changes = [SetAttribute(i, name, tuple(float(v) for v in grown.attribute(i, name).tolist()), value)
-                   for i, attrs in target.items() for name, value in attrs.items()]
+        changes = [
+            SetAttribute(i, name, tuple(float(v) for v in grown.attribute(i, name).tolist()), value)
+            for i, attrs in target.items()
+            for name, value in attrs.items()
+        ]
         self.end_gesture()
         added = replace(grown, **{f: getattr(grown, f)[n:] for f in PER_PARTICLE if getattr(grown, f) is not None})
-        self._push(Operation(f"duplicate object of {self._members_label(members)}", changes, kind="duplicate",
-                             members=tuple(members), offset=offset, added=added,
-                             added_labels=torch.full((len(members),), n, dtype=torch.int64)))
+        self._push(
+            Operation(
+                f"duplicate object of {self._members_label(members)}",
+                changes,
+                kind="duplicate",
+                members=tuple(members),
+                offset=offset,
+                added=added,
+                added_labels=torch.full((len(members),), n, dtype=torch.int64),
+            )
+        )
         return n
 
     def insert_object(self, source: Particles, insert: Insert) -> int:
@@ -608,9 +691,17 @@ class SceneEditor:
         rows = self.original.num + (0 if self._inserted is None else self._inserted.num)
         self._inserted = added if self._inserted is None else _cat(self._inserted, added)
         self.end_gesture()
-        self._push(Operation(f"insert object {insert.object} of {Path(insert.scene).name}", [], kind="insert",
-                             added=added, added_labels=torch.full((len(new),), n, dtype=torch.int64),
-                             sources=tuple(range(rows, rows + len(new))), insert=insert))
+        self._push(
+            Operation(
+                f"insert object {insert.object} of {Path(insert.scene).name}",
+                [],
+                kind="insert",
+                added=added,
+                added_labels=torch.full((len(new),), n, dtype=torch.int64),
+                sources=tuple(range(rows, rows + len(new))),
+                insert=insert,
+            )
+        )
         return n
 
     def end_gesture(self) -> None:
@@ -620,8 +711,11 @@ class SceneEditor:
 
     def reset_particle(self, index: int) -> None:
         """Restore all editable attributes of particle ``index`` to the encoded values."""
-        changes = [SetAttribute(index, n, self.value(index, n), self.original_value(index, n)) for n in EDITABLE
-                   if self.value(index, n) != self.original_value(index, n)]
+        changes = [
+            SetAttribute(index, n, self.value(index, n), self.original_value(index, n))
+            for n in EDITABLE
+            if self.value(index, n) != self.original_value(index, n)
+        ]
         if changes:
             self.end_gesture()
             self._push(Operation(f"reset particle {index}", changes))
@@ -666,10 +760,14 @@ class SceneEditor:
         """Do one edit-file operation (a pick is resolved on the current particles). Errors name ``where``."""
         if op.kind == "set":
             if not 0 <= op.particle < self.num_particles:
-                raise EditsError(f"{where}: particle {op.particle}: no such particle (the scene has "
-                                 f"{self.num_particles})")
-            changes = [SetAttribute(op.particle, n, self.value(op.particle, n), tuple(v)) for n, v in op.values
-                       if self.value(op.particle, n) != tuple(v)]
+                raise EditsError(
+                    f"{where}: particle {op.particle}: no such particle (the scene has {self.num_particles})"
+                )
+            changes = [
+                SetAttribute(op.particle, n, self.value(op.particle, n), tuple(v))
+                for n, v in op.values
+                if self.value(op.particle, n) != tuple(v)
+            ]
             if changes:
                 self.end_gesture()
                 self._push(Operation(f"set particle {op.particle}", changes))
@@ -678,8 +776,9 @@ class SceneEditor:
             from .encode_scene import encode_scene
 
             try:
-                source = encode_scene(self.model, op.insert.scene, None if op.insert.context is None
-                                      else list(op.insert.context)).particles
+                source = encode_scene(
+                    self.model, op.insert.scene, None if op.insert.context is None else list(op.insert.context)
+                ).particles
                 self.insert_object(source, op.insert)
             except (MoveError, ValueError, OSError) as e:
                 raise EditsError(f"{where}: insert: {e}") from None
@@ -737,12 +836,24 @@ class SceneEditor:
 
 def _cat(a: Particles, b: Particles) -> Particles:
     """Particles of ``a`` then ``b`` (same scene: background and cameras of ``a``)."""
-    return replace(a, **{f: torch.cat([getattr(a, f), getattr(b, f).to(getattr(a, f).device)])
-                         for f in PER_PARTICLE if getattr(a, f) is not None})
+    return replace(
+        a,
+        **{
+            f: torch.cat([getattr(a, f), getattr(b, f).to(getattr(a, f).device)])
+            for f in PER_PARTICLE
+            if getattr(a, f) is not None
+        },
+    )
 
 
-def apply_edit_file(model, particles: Particles, frame_cameras: list[Camera], file: EditFile,
-                    context: list[int] | None = None, where: str = "edits") -> Particles:
+def apply_edit_file(
+    model,
+    particles: Particles,
+    frame_cameras: list[Camera],
+    file: EditFile,
+    context: list[int] | None = None,
+    where: str = "edits",
+) -> Particles:
     """The particles after replaying an edit file (what ``particlesplat render --edits`` draws)."""
     editor = SceneEditor(model, particles, frame_cameras, context)
     editor.apply_file(file, where)

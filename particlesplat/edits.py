@@ -27,8 +27,8 @@ import yaml
 
 from .atomic import atomic_write
 from .errors import UserError, one_line, short_repr
-from .yamlsafe import YamlError, read_yaml
 from .model.particles import EDITABLE, Particles
+from .yamlsafe import YamlError, read_yaml
 
 FORMAT_VERSION = 1
 FLOAT32_MAX = float(np.finfo(np.float32).max)  # edited values are stored as float32
@@ -62,14 +62,17 @@ def validate_edits(data: Any, where: str = "edits") -> Edits:
             raise EditsError(f"{where}: version: expected {FORMAT_VERSION}, got {short_repr(version)}")
         unknown = set(data) - {"version", "particles", "model", "scene"}
         if unknown:
-            raise EditsError(f"{where}: unknown key(s) {short_repr(sorted(map(str, unknown)))} "
-                             "(expected version, particles, model, scene)")
+            raise EditsError(
+                f"{where}: unknown key(s) {short_repr(sorted(map(str, unknown)))} "
+                "(expected version, particles, model, scene)"
+            )
         data = data["particles"]
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise EditsError(f"{where}: particles: expected a mapping of particle index -> attributes, "
-                         f"got {type(data).__name__}")
+        raise EditsError(
+            f"{where}: particles: expected a mapping of particle index -> attributes, got {type(data).__name__}"
+        )
     out: Edits = {}
     for key, attrs in data.items():
         field = f"{where}: particles.{one_line(key, 40)}"
@@ -89,8 +92,9 @@ def validate_edits(data: Any, where: str = "edits") -> Edits:
         values: dict[str, tuple[float, ...]] = {}
         for name, value in attrs.items():
             if name not in EDITABLE:
-                raise EditsError(f"{field}.{one_line(name, 40)}: not an editable attribute "
-                                 f"(one of {', '.join(EDITABLE)})")
+                raise EditsError(
+                    f"{field}.{one_line(name, 40)}: not an editable attribute (one of {', '.join(EDITABLE)})"
+                )
             seq = value if isinstance(value, (list, tuple)) else [value]
             if len(seq) != EDITABLE[name]:
                 raise EditsError(f"{field}.{name}: expected {EDITABLE[name]} number(s), got {len(seq)}")
@@ -128,8 +132,9 @@ def save_edits(path: str | PathLike, edits: Edits, *, model: str | None = None, 
         doc["model"] = str(model)
     if scene is not None:
         doc["scene"] = str(scene)
-    doc["particles"] = {int(i): {k: [float(x) for x in v] for k, v in sorted(attrs.items())}
-                        for i, attrs in sorted(edits.items())}
+    doc["particles"] = {
+        int(i): {k: [float(x) for x in v] for k, v in sorted(attrs.items())} for i, attrs in sorted(edits.items())
+    }
     with atomic_write(path, "w") as f:
         yaml.safe_dump(doc, f, sort_keys=False, default_flow_style=None)
 

@@ -19,7 +19,7 @@ from tqdm import tqdm
 
 from .data import Scene, read_scene
 from .data.scene import TRANSFORMS
-from .model import ParticleSplat, Particles
+from .model import Particles, ParticleSplat
 from .model.geometry import stack_cameras
 from .particle_data import OBJECT_CENTRES, file_sha256, particle_arrays
 from .views import default_context_views
@@ -70,10 +70,20 @@ def encode_batch(model: ParticleSplat, scenes: list[Scene]) -> list[Particles]:
     c2w = torch.stack([c for _, c in cams])
     post = model.refine(model.posterior(rgb, depth, K, c2w), rgb, depth, K, c2w)
     z = model.latents(post, sample=False)
-    return [Particles(z_p=z["z_p"][b], z_s=z["z_s"][b], z_d=z["z_d"][b], z_e=z["z_e"][b], z_t=z["z_t"][b],
-                      z_f=z["z_f"][b], view=post["view"], background=z["bg"][b],
-                      cameras=[c.to(dev) for c in s.cameras])
-            for b, s in enumerate(scenes)]
+    return [
+        Particles(
+            z_p=z["z_p"][b],
+            z_s=z["z_s"][b],
+            z_d=z["z_d"][b],
+            z_e=z["z_e"][b],
+            z_t=z["z_t"][b],
+            z_f=z["z_f"][b],
+            view=post["view"],
+            background=z["bg"][b],
+            cameras=[c.to(dev) for c in s.cameras],
+        )
+        for b, s in enumerate(scenes)
+    ]
 
 
 def _load(path: Path, context: list[int] | None, resolution: int) -> Scene:
@@ -88,9 +98,17 @@ def _load(path: Path, context: list[int] | None, resolution: int) -> Scene:
     return scene
 
 
-def encode_folder(model: ParticleSplat, data: str | PathLike, out: str | PathLike, *, context: list[int] | None = None,
-                  batch: int = 1, object_centre: str = "resting", meta: dict | None = None,
-                  progress: bool = True) -> dict:
+def encode_folder(
+    model: ParticleSplat,
+    data: str | PathLike,
+    out: str | PathLike,
+    *,
+    context: list[int] | None = None,
+    batch: int = 1,
+    object_centre: str = "resting",
+    meta: dict | None = None,
+    progress: bool = True,
+) -> dict:
     """Encode every scene under ``data`` into ``out`` (see the module docstring).
 
     Returns {"written": n, "skipped": n, "seconds": wall time of the written scenes, "scenes_per_s": ...}.
@@ -109,7 +127,7 @@ def encode_folder(model: ParticleSplat, data: str | PathLike, out: str | PathLik
 
         def flush() -> None:
             particles = encode_batch(model, [sc for _, _, sc in pending])
-            for (path, target, sc), p in zip(pending, particles):
+            for (path, target, sc), p in zip(pending, particles, strict=False):
                 info = {"scene": str(path), "context": [int(i) for i in sc.frame_indices]}
                 info.update(meta or {})
                 particle_arrays(model, p, object_centre=object_centre, meta=info).save(target)
@@ -128,24 +146,36 @@ def encode_folder(model: ParticleSplat, data: str | PathLike, out: str | PathLik
     finally:
         bar.close()
     seconds = time.perf_counter() - t0
-    return {"written": len(todo), "skipped": len(scenes) - len(todo), "seconds": seconds,
-            "scenes_per_s": len(todo) / seconds if todo and seconds > 0 else float("nan")}
+    return {
+        "written": len(todo),
+        "skipped": len(scenes) - len(todo),
+        "seconds": seconds,
+        "scenes_per_s": len(todo) / seconds if todo and seconds > 0 else float("nan"),
+    }
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, help="a scene folder, or a folder with scene folders below it")
     parser.add_argument("--out", required=True, help="output folder: OUT/<scene>.npz per scene")
     parser.add_argument("--checkpoint", help="model checkpoint; none = the shipped assets/model.pt")
-    parser.add_argument("--context", help="context frame indices, e.g. 4,16; none = two frames 12 apart about "
-                                          "the middle")
-    parser.add_argument("--device", choices=("cpu", "cuda"), default=None,
-                        help="none = cuda when present, else cpu")
-    parser.add_argument("--batch", type=int, default=None,
-                        help="scenes per forward pass; none = 1 on cpu (larger batches measured slower per scene "
-                             "on CPU: docs/particles-as-data.md), 8 on cuda")
-    parser.add_argument("--object-centre", choices=OBJECT_CENTRES, default="resting",
-                        help="object_centroid: 'resting' (the centre of an object standing on the floor) or "
-                             "'weighted' (the opacity-weighted mean of its Gaussians)")
+    parser.add_argument(
+        "--context", help="context frame indices, e.g. 4,16; none = two frames 12 apart about the middle"
+    )
+    parser.add_argument("--device", choices=("cpu", "cuda"), default=None, help="none = cuda when present, else cpu")
+    parser.add_argument(
+        "--batch",
+        type=int,
+        default=None,
+        help="scenes per forward pass; none = 1 on cpu (larger batches measured slower per scene "
+        "on CPU: docs/particles-as-data.md), 8 on cuda",
+    )
+    parser.add_argument(
+        "--object-centre",
+        choices=OBJECT_CENTRES,
+        default="resting",
+        help="object_centroid: 'resting' (the centre of an object standing on the floor) or "
+        "'weighted' (the opacity-weighted mean of its Gaussians)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -161,8 +191,16 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(checkpoint, device=device)
     meta = {"model": str(args.checkpoint or "assets/model.pt"), "checkpoint_sha256": file_sha256(checkpoint)}
     batch = args.batch if args.batch is not None else (8 if device == "cuda" else 1)
-    stats = encode_folder(model, args.data, args.out, context=parse_context(args.context), batch=batch,
-                          object_centre=args.object_centre, meta=meta, progress=not args.no_progress)
+    stats = encode_folder(
+        model,
+        args.data,
+        args.out,
+        context=parse_context(args.context),
+        batch=batch,
+        object_centre=args.object_centre,
+        meta=meta,
+        progress=not args.no_progress,
+    )
     rate = f", {stats['scenes_per_s']:.2f} scenes/s" if stats["written"] else ""
     print(f"wrote {stats['written']} .npz files to {args.out} ({stats['skipped']} existed){rate} on {device}")
     return 0

@@ -8,7 +8,7 @@ from os import PathLike
 from pathlib import Path
 
 from .data import Scene, read_scene
-from .model import ParticleSplat, Particles
+from .model import Particles, ParticleSplat
 from .views import default_context_views
 
 # measured with the shipped model on test scenes 0-7 of the tabletop set: particlesplat eval --limit 8 [--no-depth]
@@ -52,10 +52,14 @@ def add_source_arguments(parser: argparse.ArgumentParser, ply_help: str) -> None
     src = parser.add_mutually_exclusive_group()
     src.add_argument("--scene", help="scene folder to encode; none = the first demo scene in assets/scenes")
     src.add_argument("--ply", help=ply_help)
-    parser.add_argument("--context", help="context frame indices of the scene, e.g. 4,16; none = two frames 12 "
-                                          "apart about the middle")
-    parser.add_argument("--edits", help="edits YAML to apply: version 2 object operations (pick by a pixel of an "
-                                        "input frame; translate, remove, duplicate) or version 1 particle values")
+    parser.add_argument(
+        "--context", help="context frame indices of the scene, e.g. 4,16; none = two frames 12 apart about the middle"
+    )
+    parser.add_argument(
+        "--edits",
+        help="edits YAML to apply: version 2 object operations (pick by a pixel of an "
+        "input frame; translate, remove, duplicate) or version 1 particle values",
+    )
 
 
 def check_source_arguments(args: argparse.Namespace) -> None:
@@ -76,8 +80,9 @@ def parse_context(text: str | None) -> list[int] | None:
         raise ValueError(f"--context: expected comma-separated frame indices, got {text!r}") from None
 
 
-def encode_scene(model: ParticleSplat, path: str | PathLike, context: list[int] | None = None,
-                 use_depth: bool = True) -> EncodedScene:
+def encode_scene(
+    model: ParticleSplat, path: str | PathLike, context: list[int] | None = None, use_depth: bool = True
+) -> EncodedScene:
     """Load ``path`` (a scene folder), pick the context frames (default
     :func:`particlesplat.views.default_context_views`) and encode them with ``model``."""
     raw = read_scene(path)
@@ -90,8 +95,10 @@ def encode_scene(model: ParticleSplat, path: str | PathLike, context: list[int] 
     particles = model.encode(scene.rgb, depth, scene.cameras)
     warnings = []
     if use_depth and depth is None:
-        warnings.append(f"{raw.path}: no depth in the context frames {ctx}: the model was trained with depth, and "
-                        f"from RGB alone it reconstructs far worse ({NO_DEPTH_NOTE})")
+        warnings.append(
+            f"{raw.path}: no depth in the context frames {ctx}: the model was trained with depth, and "
+            f"from RGB alone it reconstructs far worse ({NO_DEPTH_NOTE})"
+        )
     return EncodedScene(particles, scene, list(raw.cameras), ctx, Path(raw.path), warnings)
 
 

@@ -61,18 +61,18 @@ def short_repr(value: object, limit: int = REPR_LIMIT) -> str:
                     return False
             return emit("]" if isinstance(v, list) else ")")
         if isinstance(v, (str, bytes)):
-            return emit(repr(v[:limit + 1]))
-        return emit(repr(v)[:limit + 1])
+            return emit(repr(v[: limit + 1]))
+        return emit(repr(v)[: limit + 1])
 
     walk(value, 0)
     text = "".join(out)
-    return text if len(text) <= limit else text[:limit - 3] + "..."
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def one_line(message: object, limit: int = 2000) -> str:
     """The message of an error as one line (newlines folded), at most ``limit`` characters."""
     text = " ".join(str(message).split())
-    return text if len(text) <= limit else text[:limit - 3] + "..."
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def is_user_error(e: BaseException) -> bool:

@@ -35,9 +35,13 @@ def _ms(t0: float) -> float:
     return (time.perf_counter() - t0) * 1000.0
 
 
-def render_views(gaussians, cameras: list[Camera], num_owners: int,
-                 background: Tensor | tuple[float, float, float] = (0.0, 0.0, 0.0),
-                 objects: Tensor | None = None) -> dict[str, Tensor]:
+def render_views(
+    gaussians,
+    cameras: list[Camera],
+    num_owners: int,
+    background: Tensor | tuple[float, float, float] = (0.0, 0.0, 0.0),
+    objects: Tensor | None = None,
+) -> dict[str, Tensor]:
     """Render ``gaussians`` in each camera over ``background`` (3,): rgb (V, 3, H, W), depth (V, 1, H, W),
     seg (V, H, W) per particle, and with ``objects`` ((num_owners,) object label per particle) seg_objects
     (V, H, W) per object; ms per view."""
@@ -63,10 +67,17 @@ def view_psnr(pred: Tensor, gt: Tensor, sup: Tensor | None) -> float:
 
 
 @torch.no_grad()
-def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune: bool = False,
-                  fit_steps: int = 0, fit_lr: float = 0.02, fit_latents: tuple[str, ...] = DEFAULT_FIT,
-                  z_t_threshold: float | None = None,
-                  true_centres: np.ndarray | None = None) -> dict:
+def evaluate_item(
+    model,
+    item: dict[str, Tensor],
+    use_depth: bool = True,
+    prune: bool = False,
+    fit_steps: int = 0,
+    fit_lr: float = 0.02,
+    fit_latents: tuple[str, ...] = DEFAULT_FIT,
+    z_t_threshold: float | None = None,
+    true_centres: np.ndarray | None = None,
+) -> dict:
     """Metrics of one dataset item (see :class:`particlesplat.data.SceneDataset`): encode its context
     views (then, with ``fit_steps`` > 0, fit the particles to them: :func:`particlesplat.fit.fit_particles`),
     decode all particles and the background, render its target views.
@@ -99,17 +110,23 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
     active = particles.z_t[:, 0] >= model.config.bg_mask_threshold  # the particles that draw (decode)
     sup = item.get("target_supervision")
     gt = item["target_rgb"]
-    res = {"psnr": view_psnr(out["rgb"], gt, sup), "ssim": ssim(out["rgb"], gt),
-           "depth_abs_rel": depth_abs_rel(out["depth"], item["target_depth"]),
-           "active_particles": int(active.sum()), "objects": len(torch.unique(objects[active])),
-           "gaussians": len(gaussians), "encode_ms": enc_ms, "fit_ms": fit_ms, "decode_ms": dec_ms,
-           "render_ms": out["render_ms"]}
+    res = {
+        "psnr": view_psnr(out["rgb"], gt, sup),
+        "ssim": ssim(out["rgb"], gt),
+        "depth_abs_rel": depth_abs_rel(out["depth"], item["target_depth"]),
+        "active_particles": int(active.sum()),
+        "objects": len(torch.unique(objects[active])),
+        "gaussians": len(gaussians),
+        "encode_ms": enc_ms,
+        "fit_ms": fit_ms,
+        "decode_ms": dec_ms,
+        "render_ms": out["render_ms"],
+    }
     for key, suffix in (("seg_objects", ""), ("seg", "_particles")):
         if "target_masks" in item:
             masks = item["target_masks"]
             res["fg_ari" + suffix] = float(np.nanmean([fg_ari(out[key][i], masks[i]) for i in range(len(masks))]))
-            res["miou" + suffix] = float(np.nanmean([matched_miou(out[key][i], masks[i])
-                                                     for i in range(len(masks))]))
+            res["miou" + suffix] = float(np.nanmean([matched_miou(out[key][i], masks[i]) for i in range(len(masks))]))
         else:
             res["fg_ari" + suffix] = res["miou" + suffix] = float("nan")
     if "target_masks" in item:
@@ -124,14 +141,35 @@ def evaluate_item(model, item: dict[str, Tensor], use_depth: bool = True, prune:
             for op in PRUNE_OPACITY:
                 g = model.decode(particles, z_t_threshold=zt, opacity_threshold=op)
                 r = render_views(g, tgt_cams, particles.num, bg)
-                rows.append({"z_t_threshold": zt, "opacity_threshold": op, "psnr": view_psnr(r["rgb"], gt, sup),
-                             "gaussians": len(g), "render_ms": r["render_ms"]})
+                rows.append(
+                    {
+                        "z_t_threshold": zt,
+                        "opacity_threshold": op,
+                        "psnr": view_psnr(r["rgb"], gt, sup),
+                        "gaussians": len(g),
+                        "render_ms": r["render_ms"],
+                    }
+                )
         res["pruning"] = rows
     return res
 
 
-SCALARS = ("psnr", "ssim", "depth_abs_rel", "fg_ari", "miou", "fg_ari_particles", "miou_particles",
-           "active_particles", "objects", "gaussians", "encode_ms", "fit_ms", "decode_ms", "render_ms")
+SCALARS = (
+    "psnr",
+    "ssim",
+    "depth_abs_rel",
+    "fg_ari",
+    "miou",
+    "fg_ari_particles",
+    "miou_particles",
+    "active_particles",
+    "objects",
+    "gaussians",
+    "encode_ms",
+    "fit_ms",
+    "decode_ms",
+    "render_ms",
+)
 
 
 def _nanmean(values: list[float]) -> float:
@@ -147,6 +185,7 @@ def _palette(n: int) -> np.ndarray:
 def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
     """PNG grid: row 1 context views, row 2 target ground truth, row 3 renders, row 4 depth, row 5 segmentation
     into objects."""
+
     def img(t: Tensor) -> np.ndarray:
         return (t.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255).astype(np.uint8)
 
@@ -159,23 +198,35 @@ def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
     cols = max(T, item["context_rgb"].shape[0])
     grid = np.zeros((5 * H, cols * W, 3), np.uint8)
     for i in range(item["context_rgb"].shape[0]):
-        grid[0:H, i * W:(i + 1) * W] = img(item["context_rgb"][i])
+        grid[0:H, i * W : (i + 1) * W] = img(item["context_rgb"][i])
     for i in range(T):
-        grid[H:2 * H, i * W:(i + 1) * W] = img(item["target_rgb"][i])
-        grid[2 * H:3 * H, i * W:(i + 1) * W] = img(r["rgb"][i])
-        grid[3 * H:4 * H, i * W:(i + 1) * W] = (np.clip(d[i].cpu().numpy() / dmax, 0, 1) * 255).astype(np.uint8)[
-            ..., None]
+        grid[H : 2 * H, i * W : (i + 1) * W] = img(item["target_rgb"][i])
+        grid[2 * H : 3 * H, i * W : (i + 1) * W] = img(r["rgb"][i])
+        grid[3 * H : 4 * H, i * W : (i + 1) * W] = (np.clip(d[i].cpu().numpy() / dmax, 0, 1) * 255).astype(np.uint8)[
+            ..., None
+        ]
         s = r["seg_objects"][i].cpu().numpy()
-        grid[4 * H:5 * H, i * W:(i + 1) * W] = np.where(s[..., None] >= 0, pal[np.clip(s, 0, None)], 0)
+        grid[4 * H : 5 * H, i * W : (i + 1) * W] = np.where(s[..., None] >= 0, pal[np.clip(s, 0, None)], 0)
     with atomic_path(path) as tmp:
         Image.fromarray(grid).save(tmp, format="PNG")
 
 
-def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int | None = None,
-                     figures: Path | None = None, num_figures: int = 4, prune: bool = False,
-                     use_depth: bool = True, seed: int = 0, progress_bar: bool = True, fit_steps: int = 0,
-                     fit_lr: float = 0.02, fit_latents: tuple[str, ...] = DEFAULT_FIT,
-                     z_t_threshold: float | None = None) -> dict:
+def evaluate_dataset(
+    model,
+    data_dir: str | Path,
+    context: int = 2,
+    limit: int | None = None,
+    figures: Path | None = None,
+    num_figures: int = 4,
+    prune: bool = False,
+    use_depth: bool = True,
+    seed: int = 0,
+    progress_bar: bool = True,
+    fit_steps: int = 0,
+    fit_lr: float = 0.02,
+    fit_latents: tuple[str, ...] = DEFAULT_FIT,
+    z_t_threshold: float | None = None,
+) -> dict:
     """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}.
     ``z_t_threshold``: particles drawn (None: the model's, :meth:`ParticleSplat.decode`; 0: every one)."""
     from .atomic import check_writable
@@ -185,19 +236,35 @@ def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int |
         raise ValueError(f"--limit must be >= 1 (or absent for every scene), got {limit}")
     if figures is not None and num_figures > 0:
         check_writable(Path(figures) / "figure.png")  # before the work, not after it
-    ds = SceneDataset(data_dir, resolution=model.config.resolution, mode="multi" if context == 2 else "single",
-                      deterministic=True, seed=seed, progress=1.0)
+    ds = SceneDataset(
+        data_dir,
+        resolution=model.config.resolution,
+        mode="multi" if context == 2 else "single",
+        deterministic=True,
+        seed=seed,
+        progress=1.0,
+    )
     n = len(ds) if limit is None else min(limit, len(ds))
     scenes, prune_rows, regions = [], [], []
     located: dict[str, list[float]] = {m: [] for m in OBJECT_CENTRES}
     for i in tqdm(range(n), desc="eval", disable=not progress_bar):
         item = ds[i]
         if set(item["target_index"].tolist()) <= set(item["context_index"].tolist()):
-            raise ValueError(f"{ds.scenes[i]}: {ds.raw(i).num_frames} frame(s): no target view apart from the "
-                             f"{context} context view(s); evaluation needs at least {context + 1} frames")
-        res = evaluate_item(model, item, use_depth=use_depth, prune=prune, fit_steps=fit_steps, fit_lr=fit_lr,
-                            fit_latents=fit_latents, true_centres=scene_object_centres(ds.scenes[i]),
-                            z_t_threshold=z_t_threshold)
+            raise ValueError(
+                f"{ds.scenes[i]}: {ds.raw(i).num_frames} frame(s): no target view apart from the "
+                f"{context} context view(s); evaluation needs at least {context + 1} frames"
+            )
+        res = evaluate_item(
+            model,
+            item,
+            use_depth=use_depth,
+            prune=prune,
+            fit_steps=fit_steps,
+            fit_lr=fit_lr,
+            fit_latents=fit_latents,
+            true_centres=scene_object_centres(ds.scenes[i]),
+            z_t_threshold=z_t_threshold,
+        )
         if figures is not None and i < num_figures:
             save_figure(Path(figures) / f"{ds.scenes[i].name}.png", item, res)
         row = {"scene": ds.scenes[i].name, **{k: res[k] for k in SCALARS}}
@@ -219,9 +286,13 @@ def evaluate_dataset(model, data_dir: str | Path, context: int = 2, limit: int |
     if prune:
         table = []
         for j, row in enumerate(prune_rows[0]):
-            table.append({"z_t_threshold": row["z_t_threshold"], "opacity_threshold": row["opacity_threshold"],
-                          **{k: _nanmean([rows[j][k] for rows in prune_rows]) for k in ("psnr", "gaussians",
-                                                                                         "render_ms")}})
+            table.append(
+                {
+                    "z_t_threshold": row["z_t_threshold"],
+                    "opacity_threshold": row["opacity_threshold"],
+                    **{k: _nanmean([rows[j][k] for rows in prune_rows]) for k in ("psnr", "gaussians", "render_ms")},
+                }
+            )
         out["pruning"] = table
     return out
 
@@ -235,18 +306,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--figures", default=None, help="write PNG grids of a few scenes to this folder")
     parser.add_argument("--num-figures", type=int, default=4, help="how many scenes get a figure")
     parser.add_argument("--limit", type=int, default=None, help="evaluate only the first N scenes")
-    parser.add_argument("--prune", action="store_true",
-                        help="also report PSNR, Gaussian count and render time at several z_t/opacity thresholds")
-    parser.add_argument("--fit-steps", type=int, default=0,
-                        help="after encoding, fit the particle latents to the context views for N Adam steps "
-                             "(a quality mode: seconds a scene; 0 = off)")
+    parser.add_argument(
+        "--prune",
+        action="store_true",
+        help="also report PSNR, Gaussian count and render time at several z_t/opacity thresholds",
+    )
+    parser.add_argument(
+        "--fit-steps",
+        type=int,
+        default=0,
+        help="after encoding, fit the particle latents to the context views for N Adam steps "
+        "(a quality mode: seconds a scene; 0 = off)",
+    )
     parser.add_argument("--fit-lr", type=float, default=0.02, help="learning rate of --fit-steps")
-    parser.add_argument("--fit-latents", default=",".join(DEFAULT_FIT),
-                        help=f"comma-separated latents --fit-steps moves, of {','.join(FITTED)} (default: "
-                             f"{','.join(DEFAULT_FIT)}, which keeps the particles in place)")
-    parser.add_argument("--z-t-threshold", type=float, default=None,
-                        help="draw the particles with z_t at or above this (default: the model's bg_mask_threshold, "
-                             "as the viewer and particlesplat render draw them; 0 = every particle)")
+    parser.add_argument(
+        "--fit-latents",
+        default=",".join(DEFAULT_FIT),
+        help=f"comma-separated latents --fit-steps moves, of {','.join(FITTED)} (default: "
+        f"{','.join(DEFAULT_FIT)}, which keeps the particles in place)",
+    )
+    parser.add_argument(
+        "--z-t-threshold",
+        type=float,
+        default=None,
+        help="draw the particles with z_t at or above this (default: the model's bg_mask_threshold, "
+        "as the viewer and particlesplat render draw them; 0 = every particle)",
+    )
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
 
 
@@ -264,32 +349,56 @@ def run(args: argparse.Namespace) -> int:
     path = args.checkpoint or shipped_model_path()
     ckpt = read_checkpoint(path)
     print(f"{path}: step {ckpt['step']}; {describe(ckpt.get('provenance'))}")
-    out = evaluate_dataset(model, args.data, context=args.context, limit=args.limit,
-                           figures=Path(args.figures) if args.figures else None, num_figures=args.num_figures,
-                           prune=args.prune, use_depth=not args.no_depth, fit_steps=args.fit_steps,
-                           fit_lr=args.fit_lr, fit_latents=tuple(k.strip() for k in args.fit_latents.split(",")),
-                           z_t_threshold=args.z_t_threshold)
+    out = evaluate_dataset(
+        model,
+        args.data,
+        context=args.context,
+        limit=args.limit,
+        figures=Path(args.figures) if args.figures else None,
+        num_figures=args.num_figures,
+        prune=args.prune,
+        use_depth=not args.no_depth,
+        fit_steps=args.fit_steps,
+        fit_lr=args.fit_lr,
+        fit_latents=tuple(k.strip() for k in args.fit_latents.split(",")),
+        z_t_threshold=args.z_t_threshold,
+    )
     m = out["mean"]
-    print(f"{len(out['scenes'])} scenes, {args.context} context view(s): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, "
-          f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f} (objects; per "
-          f"particle {m['fg_ari_particles']:.3f}, {m['miou_particles']:.3f}), active particles "
-          f"{m['active_particles']:.1f} in {m['objects']:.1f} objects, Gaussians {m['gaussians']:.0f}, "
-          f"encode {m['encode_ms']:.1f} ms, " + (f"fit {m['fit_ms']:.0f} ms, " if args.fit_steps else "") +
-          f"decode {m['decode_ms']:.1f} ms, render {m['render_ms']:.1f} ms/view")
+    print(
+        f"{len(out['scenes'])} scenes, {args.context} context view(s): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, "
+        f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f} (objects; per "
+        f"particle {m['fg_ari_particles']:.3f}, {m['miou_particles']:.3f}), active particles "
+        f"{m['active_particles']:.1f} in {m['objects']:.1f} objects, Gaussians {m['gaussians']:.0f}, "
+        f"encode {m['encode_ms']:.1f} ms, "
+        + (f"fit {m['fit_ms']:.0f} ms, " if args.fit_steps else "")
+        + f"decode {m['decode_ms']:.1f} ms, render {m['render_ms']:.1f} ms/view"
+    )
     if "error_regions" in out:
-        print("target-view error by region: " + "; ".join(
-            f"{k.replace('_', ' ')} {v['pixel_share']:.1%} of pixels, {v['error_share']:.0%} of the error, "
-            f"{v['psnr']:.1f} dB" for k, v in out["error_regions"].items()))
+        print(
+            "target-view error by region: "
+            + "; ".join(
+                f"{k.replace('_', ' ')} {v['pixel_share']:.1%} of pixels, {v['error_share']:.0%} of the error, "
+                f"{v['psnr']:.1f} dB"
+                for k, v in out["error_regions"].items()
+            )
+        )
     if "localisation" in out:
-        print("object localisation (true centre to nearest object centre): " + "; ".join(
-            f"{m} {s['within_0.05']:.0%} / {s['within_0.1']:.0%} / {s['within_0.15']:.0%} within 0.05 / 0.10 / "
-            f"0.15 m (median {s['median_m']:.3f} m)" for m, s in out["localisation"].items())
-            + f", {out['localisation'][OBJECT_CENTRES[0]]['objects']} objects")
+        print(
+            "object localisation (true centre to nearest object centre): "
+            + "; ".join(
+                f"{m} {s['within_0.05']:.0%} / {s['within_0.1']:.0%} / {s['within_0.15']:.0%} within 0.05 / 0.10 / "
+                f"0.15 m (median {s['median_m']:.3f} m)"
+                for m, s in out["localisation"].items()
+            )
+            + f", {out['localisation'][OBJECT_CENTRES[0]]['objects']} objects"
+        )
     if "pruning" in out:
         print("z_t thr  opacity thr  PSNR   Gaussians  render ms")
         for r in out["pruning"]:
-            print(f"{r['z_t_threshold']:7.2f}  {r['opacity_threshold']:11.2f}  {r['psnr']:5.2f}  {r['gaussians']:9.0f}"
-                  f"  {r['render_ms']:9.1f}")
+            print(
+                f"{r['z_t_threshold']:7.2f}  {r['opacity_threshold']:11.2f}  {r['psnr']:5.2f}  {r['gaussians']:9.0f}"
+                f"  {r['render_ms']:9.1f}"
+            )
     if args.json:
         with atomic_write(args.json, "w") as f:
             json.dump(json_safe(out), f, indent=2, allow_nan=False)

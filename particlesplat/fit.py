@@ -26,8 +26,14 @@ FITTED = ("z_p", "z_s", "z_d", "z_e", "z_f")
 DEFAULT_FIT = ("z_f",)
 
 
-def context_error(model, particles: Particles, rgb: Tensor, depth: Tensor | None, lambda_depth: float,
-                  latents: dict[str, Tensor] | None = None) -> Tensor:
+def context_error(
+    model,
+    particles: Particles,
+    rgb: Tensor,
+    depth: Tensor | None,
+    lambda_depth: float,
+    latents: dict[str, Tensor] | None = None,
+) -> Tensor:
     """Σ over the context views of :func:`view_error` (colour + ``lambda_depth`` × depth on valid pixels) of the
     particles' render, differentiable in ``latents`` (some of the FITTED tensors (L, ·), replacing the particles'
     own).
@@ -40,16 +46,25 @@ def context_error(model, particles: Particles, rgb: Tensor, depth: Tensor | None
     z.update(z_t=particles.z_t[None], bg=particles.background[None])
     (gaussians,) = model.decode_batch(z, particles.view, K[None], c2w[None])
     size = model.config.resolution
-    res = render_batch([(gaussians, Camera(K[v], c2w[v], size, size)) for v in range(K.shape[0])],
-                       background=model.background_color())
+    res = render_batch(
+        [(gaussians, Camera(K[v], c2w[v], size, size)) for v in range(K.shape[0])], background=model.background_color()
+    )
     rgb_hat = torch.stack([r.rgb.permute(2, 0, 1) for r in res])
     depth_hat = torch.stack([r.depth[None] for r in res])
     return view_error(rgb_hat, rgb, depth_hat, depth, None, lambda_depth).sum()
 
 
-def fit_particles(model, particles: Particles, rgb: Tensor, depth: Tensor | None, steps: int = 10,
-                  lr: float = 0.02, lambda_depth: float = 0.5, latents: tuple[str, ...] = DEFAULT_FIT,
-                  progress: bool = False) -> Particles:
+def fit_particles(
+    model,
+    particles: Particles,
+    rgb: Tensor,
+    depth: Tensor | None,
+    steps: int = 10,
+    lr: float = 0.02,
+    lambda_depth: float = 0.5,
+    latents: tuple[str, ...] = DEFAULT_FIT,
+    progress: bool = False,
+) -> Particles:
     """Adam on the ``latents`` of ``particles`` against :func:`context_error` (``lambda_depth`` 0.5: the shipped
     model's λ_D). latents: some of FITTED; by default the appearance z_f alone, which keeps the particles where
     they are and so the objects they form. The decoder's weights stay fixed and get no gradient. rgb:
@@ -66,8 +81,9 @@ def fit_particles(model, particles: Particles, rgb: Tensor, depth: Tensor | None
     size = model.config.resolution
     V = len(particles.cameras)
     if tuple(rgb.shape) != (V, 3, size, size):
-        raise ValueError(f"fit_particles: rgb must be {(V, 3, size, size)} (the particles' context views), "
-                         f"got {tuple(rgb.shape)}")
+        raise ValueError(
+            f"fit_particles: rgb must be {(V, 3, size, size)} (the particles' context views), got {tuple(rgb.shape)}"
+        )
     if depth is not None and tuple(depth.shape) != (V, 1, size, size):
         raise ValueError(f"fit_particles: depth must be {(V, 1, size, size)}, got {tuple(depth.shape)}")
     if steps == 0:
@@ -81,7 +97,7 @@ def fit_particles(model, particles: Particles, rgb: Tensor, depth: Tensor | None
         for _ in tqdm(range(steps), desc="fit", disable=not progress):
             loss = context_error(model, p, rgb, depth, lambda_depth, free)
             grads = torch.autograd.grad(loss, list(free.values()))  # the model's weights get no .grad
-            for v, g in zip(free.values(), grads):
+            for v, g in zip(free.values(), grads, strict=False):
                 v.grad = g
             opt.step()
     return replace(p, **{k: v.detach() for k, v in free.items()})

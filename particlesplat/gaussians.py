@@ -65,8 +65,11 @@ class Gaussians:
         the scales and opacities are >= 0 and every owner is -1 or a particle index 0..:data:`MAX_OWNER`.
         One device synchronisation when all is well."""
         checks = [torch.isfinite(getattr(self, name)).all() for name in _FLOAT_FIELDS]
-        checks += [(self.scales >= 0).all(), (self.opacities >= 0).all(),
-                   ((self.owner >= BACKGROUND_OWNER) & (self.owner <= MAX_OWNER)).all()]
+        checks += [
+            (self.scales >= 0).all(),
+            (self.opacities >= 0).all(),
+            ((self.owner >= BACKGROUND_OWNER) & (self.owner <= MAX_OWNER)).all(),
+        ]
         if bool(torch.stack(checks).all()):
             return
         for name in _FLOAT_FIELDS:
@@ -80,17 +83,19 @@ class Gaussians:
                 row = int(bad.reshape(bad.shape[0], -1).any(1).nonzero()[0, 0])
                 raise ValueError(f"{where}: {name}: negative value at Gaussian {row}")
         row = int(((self.owner < BACKGROUND_OWNER) | (self.owner > MAX_OWNER)).nonzero()[0, 0])
-        raise ValueError(f"{where}: owner: {int(self.owner[row])} at Gaussian {row} is neither -1 (background) "
-                         f"nor a particle index 0..{MAX_OWNER}")
+        raise ValueError(
+            f"{where}: owner: {int(self.owner[row])} at Gaussian {row} is neither -1 (background) "
+            f"nor a particle index 0..{MAX_OWNER}"
+        )
 
     # ------------------------------------------------------------------ constructors
     @staticmethod
-    def empty(sh_degree: int = 0, device: torch.device | str | None = None,
-              dtype: torch.dtype = torch.float32) -> Gaussians:
+    def empty(
+        sh_degree: int = 0, device: torch.device | str | None = None, dtype: torch.dtype = torch.float32
+    ) -> Gaussians:
         k = (sh_degree + 1) ** 2
         z = lambda *s: torch.zeros(*s, device=device, dtype=dtype)  # noqa: E731
-        return Gaussians(z(0, 3), z(0, 4), z(0, 3), z(0), z(0, k, 3),
-                         torch.zeros(0, dtype=torch.int64, device=device))
+        return Gaussians(z(0, 3), z(0, 4), z(0, 3), z(0), z(0, k, 3), torch.zeros(0, dtype=torch.int64, device=device))
 
     @staticmethod
     def cat(parts: list[Gaussians]) -> Gaussians:
@@ -99,9 +104,11 @@ class Gaussians:
             raise ValueError("Gaussians.cat needs at least one set")
         k = max(p.sh.shape[1] for p in parts)
         shs = [torch.nn.functional.pad(p.sh, (0, 0, 0, k - p.sh.shape[1])) for p in parts]
-        return Gaussians(*(torch.cat([getattr(p, f) for p in parts]) for f in ("means", "quats", "scales",
-                                                                               "opacities")),
-                         torch.cat(shs), torch.cat([p.owner for p in parts]))
+        return Gaussians(
+            *(torch.cat([getattr(p, f) for p in parts]) for f in ("means", "quats", "scales", "opacities")),
+            torch.cat(shs),
+            torch.cat([p.owner for p in parts]),
+        )
 
     # ------------------------------------------------------------------ properties
     def __len__(self) -> int:

@@ -136,12 +136,17 @@ def mask_regions(masks: Tensor) -> dict[str, Tensor]:
     edge = near_other_label(masks[:, None], 1)[:, 0]
     obj = masks > 0
     near = obj | near_other_label(obj[:, None], 2)[:, 0]
-    return {"object_interior": obj & ~edge, "object_edge": obj & edge,
-            "floor_near_object": ~obj & near, "floor_far": ~obj & ~near}
+    return {
+        "object_interior": obj & ~edge,
+        "object_edge": obj & edge,
+        "floor_near_object": ~obj & near,
+        "floor_far": ~obj & ~near,
+    }
 
 
-def region_errors(pred: Tensor, target: Tensor, masks: Tensor, valid: Tensor | None = None
-                  ) -> dict[str, tuple[float, int]]:
+def region_errors(
+    pred: Tensor, target: Tensor, masks: Tensor, valid: Tensor | None = None
+) -> dict[str, tuple[float, int]]:
     """Squared error per region (:func:`mask_regions`): (sum over pixels of the channel-mean squared error,
     pixel count). pred, target: (V, 3, H, W) in [0, 1]; masks: (V, H, W); valid: (V, 1, H, W) or None, only
     these pixels count (as in the eval PSNR)."""
@@ -156,5 +161,11 @@ def summarise_region_errors(parts: list[dict[str, tuple[float, int]]]) -> dict[s
     err = {k: sum(p[k][0] for p in parts) for k in REGIONS}
     n = {k: sum(p[k][1] for p in parts) for k in REGIONS}
     total_err, total_n = sum(err.values()), sum(n.values())
-    return {k: {"pixel_share": n[k] / max(total_n, 1), "error_share": err[k] / total_err if total_err > 0 else 0.0,
-                "psnr": psnr_of_mse(err[k] / n[k]) if n[k] else float("nan")} for k in REGIONS}
+    return {
+        k: {
+            "pixel_share": n[k] / max(total_n, 1),
+            "error_share": err[k] / total_err if total_err > 0 else 0.0,
+            "psnr": psnr_of_mse(err[k] / n[k]) if n[k] else float("nan"),
+        }
+        for k in REGIONS
+    }

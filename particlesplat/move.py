@@ -37,8 +37,9 @@ def anchor_points(particles: Particles, indices: Sequence[int], config: ModelCon
     return torch.stack([_anchor(particles, i, config)[0] for i in indices]) if len(indices) else torch.zeros(0, 3)
 
 
-def translate(particles: Particles, indices: Sequence[int], delta: Sequence[float] | Tensor,
-              config: ModelConfig) -> dict[int, dict[str, tuple[float, ...]]]:
+def translate(
+    particles: Particles, indices: Sequence[int], delta: Sequence[float] | Tensor, config: ModelConfig
+) -> dict[int, dict[str, tuple[float, ...]]]:
     """New ``z_p``, ``z_d``, ``z_s`` of each particle in ``indices`` moved by ``delta`` (3,) world metres.
 
     Returns {index: {"z_p": (x, y), "z_d": (d,), "z_s": (sx, sy)}} (absolute values, as edits files hold
@@ -52,13 +53,18 @@ def translate(particles: Particles, indices: Sequence[int], delta: Sequence[floa
         anchor, d_old = _anchor(particles, i, config)
         uv, d_new = cam.project(anchor + delta_t)
         if not config.d_min < float(d_new) < config.d_max:
-            raise MoveError(f"particle {i}: the move puts it at depth {float(d_new):.2f} m from its view, outside "
-                            f"the model's range ({config.d_min}, {config.d_max}) m")
+            raise MoveError(
+                f"particle {i}: the move puts it at depth {float(d_new):.2f} m from its view, outside "
+                f"the model's range ({config.d_min}, {config.d_max}) m"
+            )
         scale = torch.sigmoid(particles.z_s[i]) * d_old / d_new
         if bool((scale >= 1.0).any()):
             raise MoveError(f"particle {i}: the move brings it so close to its view that it would fill it")
         size = torch.tensor([cam.width, cam.height], dtype=uv.dtype)
         z_p = uv / size * 2.0 - 1.0
-        out[int(i)] = {"z_p": tuple(float(v) for v in z_p), "z_d": (float(config.depth_logit(d_new)),),
-                       "z_s": tuple(float(v) for v in torch.logit(scale))}
+        out[int(i)] = {
+            "z_p": tuple(float(v) for v in z_p),
+            "z_d": (float(config.depth_logit(d_new)),),
+            "z_s": tuple(float(v) for v in torch.logit(scale)),
+        }
     return out

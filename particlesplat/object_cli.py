@@ -22,14 +22,20 @@ def _xy(text: str) -> tuple[float, float]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", required=True)
-    exp = sub.add_parser("export", help="write one object's Gaussians as a standard 3DGS .ply",
-                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    exp = sub.add_parser(
+        "export",
+        help="write one object's Gaussians as a standard 3DGS .ply",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     exp.add_argument("--scene", required=True, help="scene folder")
     exp.add_argument("--object", type=int, required=True, help="object index (as in particlesplat encode)")
     exp.add_argument("--out", required=True, help="output .ply")
-    ins = sub.add_parser("insert", help="insert an object of --from into --scene at a floor position; writes the "
-                                        "composed scene as a .ply (and a PNG)",
-                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ins = sub.add_parser(
+        "insert",
+        help="insert an object of --from into --scene at a floor position; writes the "
+        "composed scene as a .ply (and a PNG)",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     ins.add_argument("--scene", required=True, help="scene folder B that receives the object")
     ins.add_argument("--from", dest="source", required=True, help="scene folder A the object comes from")
     ins.add_argument("--from-context", help="context frames of A, e.g. 4,16; none = the default")
@@ -40,8 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ins.add_argument("--png", help="also render the composed scene from B's default view to this PNG")
     for p in (exp, ins):
         p.add_argument("--checkpoint", help="model checkpoint; none = the shipped assets/model.pt")
-        p.add_argument("--context", help="context frames of --scene, e.g. 4,16; none = two frames 12 apart about "
-                                         "the middle")
+        p.add_argument(
+            "--context", help="context frames of --scene, e.g. 4,16; none = two frames 12 apart about the middle"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,8 +67,10 @@ def run(args: argparse.Namespace) -> int:
     particles, new = insert_object(model, enc.particles, src.particles, args.object, args.at, method=args.centre)
     g = model.decode(particles).detach().to("cpu")
     write_ply(g, Path(args.out))
-    print(f"saved {args.out}: {enc.path} with object {args.object} of {src.path} as particles {new[0]}..{new[-1]} "
-          f"at ({args.at[0]:g}, {args.at[1]:g})")
+    print(
+        f"saved {args.out}: {enc.path} with object {args.object} of {src.path} as particles {new[0]}..{new[-1]} "
+        f"at ({args.at[0]:g}, {args.at[1]:g})"
+    )
     if args.png:
         import torch
 

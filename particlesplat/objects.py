@@ -40,14 +40,15 @@ def touching_counts(means: Tensor, radius: Tensor, owner: Tensor, num_particles:
     onehot = torch.nn.functional.one_hot(owner, num_particles).to(means.dtype)  # (M, P)
     reaches = torch.zeros(M, num_particles, dtype=torch.bool, device=means.device)
     for s in range(0, M, CHUNK):
-        near = torch.cdist(means[s:s + CHUNK], means) < radius[s:s + CHUNK, None] + radius[None, :]  # (m, M)
-        reaches[s:s + CHUNK] = (near.to(means.dtype) @ onehot) > 0
+        near = torch.cdist(means[s : s + CHUNK], means) < radius[s : s + CHUNK, None] + radius[None, :]  # (m, M)
+        reaches[s : s + CHUNK] = (near.to(means.dtype) @ onehot) > 0
     reaches &= ~onehot.bool()  # a particle does not touch itself
     return (onehot.T @ reaches.to(means.dtype)).round().long()
 
 
-def particle_objects(gaussians: Gaussians, num_particles: int, *, opaque: float = OPAQUE,
-                     reach: float = REACH, overlap: float = OVERLAP) -> Tensor:
+def particle_objects(
+    gaussians: Gaussians, num_particles: int, *, opaque: float = OPAQUE, reach: float = REACH, overlap: float = OVERLAP
+) -> Tensor:
     """Object label of each particle: (num_particles,) int64, the smallest particle index of its group.
 
     gaussians: the decoded scene (owner = particle index, -1 background; background ignored).

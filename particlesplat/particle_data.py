@@ -36,7 +36,7 @@ from torch import Tensor
 
 from .atomic import atomic_path
 from .gaussians import Gaussians
-from .model import ParticleSplat, Particles
+from .model import Particles, ParticleSplat
 from .move import anchor_points
 from .objects import OPAQUE, particle_objects
 from .sh import SH_C0
@@ -48,8 +48,25 @@ TOP_QUANTILE = 0.95  # an object's top: this quantile of its opaque Gaussians' h
 
 ObjectCentre = Literal["resting", "weighted"]
 OBJECT_CENTRES: tuple[str, ...] = ("resting", "weighted")
-ARRAY_NAMES = ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f", "view", "anchor", "centroid", "extent", "colour", "active",
-               "object", "object_centroid", "object_extent", "K", "c2w")
+ARRAY_NAMES = (
+    "z_p",
+    "z_s",
+    "z_d",
+    "z_e",
+    "z_t",
+    "z_f",
+    "view",
+    "anchor",
+    "centroid",
+    "extent",
+    "colour",
+    "active",
+    "object",
+    "object_centroid",
+    "object_extent",
+    "K",
+    "c2w",
+)
 
 
 @dataclass
@@ -169,8 +186,13 @@ def support_height(gaussians: Gaussians) -> float:
     return float(gaussians.means[bg][:, 2].double().median())
 
 
-def object_centres(gaussians: Gaussians, objects: Tensor, num_objects: int, method: ObjectCentre = "resting",
-                   support: float | None = None) -> tuple[Tensor, Tensor]:
+def object_centres(
+    gaussians: Gaussians,
+    objects: Tensor,
+    num_objects: int,
+    method: ObjectCentre = "resting",
+    support: float | None = None,
+) -> tuple[Tensor, Tensor]:
     """Centre (K, 3) and extent (K, 3) of each object, float64 metres.
 
     objects: (P,) int64 object index per particle (-1 = none; :func:`dense_objects`). The extent is the
@@ -218,8 +240,14 @@ def file_sha256(path: str | PathLike) -> str:
     return h.hexdigest()
 
 
-def particle_arrays(model: ParticleSplat, particles: Particles, gaussians: Gaussians | None = None, *,
-                    object_centre: ObjectCentre = "resting", meta: dict | None = None) -> ParticleArrays:
+def particle_arrays(
+    model: ParticleSplat,
+    particles: Particles,
+    gaussians: Gaussians | None = None,
+    *,
+    object_centre: ObjectCentre = "resting",
+    meta: dict | None = None,
+) -> ParticleArrays:
     """The arrays of already-encoded ``particles`` (``gaussians``: their decode with the background, decoded
     here when None). ``meta`` is merged into the recorded metadata."""
     if gaussians is None:
@@ -241,24 +269,48 @@ def particle_arrays(model: ParticleSplat, particles: Particles, gaussians: Gauss
     anchor = anchor_points(p, list(range(P)), model.config).double()
     K = torch.stack([c.K for c in p.cameras]).double()
     c2w = torch.stack([c.c2w for c in p.cameras]).double()
-    info = {"format_version": FORMAT_VERSION, "object_centre": object_centre,
-            "resolution": int(model.config.resolution), "bg_mask_threshold": float(model.config.bg_mask_threshold),
-            "units": "metres, world +z up, OpenCV cameras"}
+    info = {
+        "format_version": FORMAT_VERSION,
+        "object_centre": object_centre,
+        "resolution": int(model.config.resolution),
+        "bg_mask_threshold": float(model.config.bg_mask_threshold),
+        "units": "metres, world +z up, OpenCV cameras",
+    }
     info.update(meta or {})
 
     def f32(t: Tensor) -> np.ndarray:
         return t.detach().cpu().to(torch.float32).numpy()
 
     return ParticleArrays(
-        z_p=f32(p.z_p), z_s=f32(p.z_s), z_d=f32(p.z_d), z_e=f32(p.z_e), z_t=f32(p.z_t), z_f=f32(p.z_f),
-        view=p.view.cpu().to(torch.int64).numpy(), anchor=f32(anchor), centroid=f32(centroid), extent=f32(extent),
-        colour=f32(colour), active=active.numpy().astype(bool), object=objects.numpy().astype(np.int64),
-        object_centroid=f32(obj_centre).reshape(num_objects, 3), object_extent=f32(obj_extent).reshape(num_objects, 3),
-        K=f32(K), c2w=f32(c2w), meta=info)
+        z_p=f32(p.z_p),
+        z_s=f32(p.z_s),
+        z_d=f32(p.z_d),
+        z_e=f32(p.z_e),
+        z_t=f32(p.z_t),
+        z_f=f32(p.z_f),
+        view=p.view.cpu().to(torch.int64).numpy(),
+        anchor=f32(anchor),
+        centroid=f32(centroid),
+        extent=f32(extent),
+        colour=f32(colour),
+        active=active.numpy().astype(bool),
+        object=objects.numpy().astype(np.int64),
+        object_centroid=f32(obj_centre).reshape(num_objects, 3),
+        object_extent=f32(obj_extent).reshape(num_objects, 3),
+        K=f32(K),
+        c2w=f32(c2w),
+        meta=info,
+    )
 
 
-def encode_scene_arrays(model: ParticleSplat, scene: str | PathLike, context: list[int] | None = None, *,
-                        object_centre: ObjectCentre = "resting", meta: dict | None = None) -> ParticleArrays:
+def encode_scene_arrays(
+    model: ParticleSplat,
+    scene: str | PathLike,
+    context: list[int] | None = None,
+    *,
+    object_centre: ObjectCentre = "resting",
+    meta: dict | None = None,
+) -> ParticleArrays:
     """Encode the scene folder ``scene`` with ``model`` from the context frames ``context`` (None = the
     viewer's default, :func:`particlesplat.views.default_context_views`) and return its arrays.
 
@@ -275,7 +327,6 @@ def encode_scene_arrays(model: ParticleSplat, scene: str | PathLike, context: li
     info = {"scene": str(enc.path), "context": [int(i) for i in enc.context]}
     info.update(meta or {})
     return particle_arrays(model, enc.particles, object_centre=object_centre, meta=info)
-
 
 
 # ---------------------------------------------------------------------------- localisation
@@ -319,15 +370,19 @@ def localisation_summary(distances) -> dict:
     "within_0.05", "within_0.1", "within_0.15": share of objects within each radius}."""
     d = np.asarray(list(distances), dtype=np.float64)
     finite = d[np.isfinite(d)]
-    out = {"objects": int(d.size), "mean_m": float(finite.mean()) if finite.size else float("nan"),
-           "median_m": float(np.median(finite)) if finite.size else float("nan")}
+    out = {
+        "objects": int(d.size),
+        "mean_m": float(finite.mean()) if finite.size else float("nan"),
+        "median_m": float(np.median(finite)) if finite.size else float("nan"),
+    }
     for r in LOCALISATION_RADII:
         out[f"within_{r:g}"] = float((d <= r).mean()) if d.size else float("nan")
     return out
 
 
-def object_localisation(model: ParticleSplat, particles: Particles, gaussians: Gaussians, truth: np.ndarray,
-                        groups: Tensor | None = None) -> dict[str, list[float]]:
+def object_localisation(
+    model: ParticleSplat, particles: Particles, gaussians: Gaussians, truth: np.ndarray, groups: Tensor | None = None
+) -> dict[str, list[float]]:
     """Distance from each true object centre (N, 3) to the nearest object centre of the drawing particles, per
     object centre method (:data:`OBJECT_CENTRES`). gaussians: the scene's decode; groups: its
     :func:`particle_objects` labels (computed when None)."""

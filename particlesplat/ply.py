@@ -24,11 +24,26 @@ from .atomic import atomic_write
 from .errors import UserError, one_line
 from .sh import sh_degree_from_bases
 
-_PLY_TYPES = MappingProxyType({
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-})
+_PLY_TYPES = MappingProxyType(
+    {
+        "char": "i1",
+        "int8": "i1",
+        "uchar": "u1",
+        "uint8": "u1",
+        "short": "i2",
+        "int16": "i2",
+        "ushort": "u2",
+        "uint16": "u2",
+        "int": "i4",
+        "int32": "i4",
+        "uint": "u4",
+        "uint32": "u4",
+        "float": "f4",
+        "float32": "f4",
+        "double": "f8",
+        "float64": "f8",
+    }
+)
 BACKGROUND_OWNER = -1
 # Largest particle index an owner may hold: exact in float32 (the viewer's GL buffers) and small enough for
 # per-owner tables (the model has a few dozen particles; a .ply owner of 2**31 - 1 would ask for 2**31 rows)
@@ -90,19 +105,23 @@ def _read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[st
             if not elements:
                 raise PlyError(f"{path}: property before any element")
             if len(words) >= 2 and words[1] == "list":
-                raise PlyError(f"{path}: list property '{one_line(words[-1], 40)}' in element "
-                               f"'{one_line(elements[-1][0], 40)}' is not supported in a Gaussian .ply")
+                raise PlyError(
+                    f"{path}: list property '{one_line(words[-1], 40)}' in element "
+                    f"'{one_line(elements[-1][0], 40)}' is not supported in a Gaussian .ply"
+                )
             if len(words) != 3:
                 raise PlyError(f"{path}: malformed header line {shown} (expected 'property TYPE NAME')")
             if words[1] not in _PLY_TYPES:
-                raise PlyError(f"{path}: property '{one_line(words[2], 40)}' has unknown type "
-                               f"'{one_line(words[1], 40)}'")
+                raise PlyError(
+                    f"{path}: property '{one_line(words[2], 40)}' has unknown type '{one_line(words[1], 40)}'"
+                )
             elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
         else:
             raise PlyError(f"{path}: malformed header line {shown}")
     if fmt not in ("binary_little_endian", "binary_big_endian"):
-        raise PlyError(f"{path}: format '{one_line(fmt, 40)}' is not supported "
-                       "(binary_little_endian or binary_big_endian)")
+        raise PlyError(
+            f"{path}: format '{one_line(fmt, 40)}' is not supported (binary_little_endian or binary_big_endian)"
+        )
     return fmt, elements
 
 
@@ -133,8 +152,10 @@ def read_ply(path: str | PathLike) -> PlyFields:
         size = available if raw is None else len(raw)
         got, partial = divmod(size, dtype.itemsize)
         first_missing = next(name for name, _ in props if dtype.fields[name][1] + dtype[name].itemsize > partial)
-        raise PlyError(f"{path}: truncated: header declares {n} vertices ({n * dtype.itemsize} bytes), "
-                       f"file holds {size} bytes (vertex {got}, property '{first_missing}' onwards missing)")
+        raise PlyError(
+            f"{path}: truncated: header declares {n} vertices ({n * dtype.itemsize} bytes), "
+            f"file holds {size} bytes (vertex {got}, property '{first_missing}' onwards missing)"
+        )
     data = np.frombuffer(raw, dtype=dtype, count=n)
     names = {name for name, _ in props}
 
@@ -156,8 +177,9 @@ def read_ply(path: str | PathLike) -> PlyFields:
     try:
         sh_degree_from_bases(n_rest // 3 + 1)
     except ValueError:
-        raise PlyError(f"{path}: property 'f_rest_*' count {n_rest} is no SH degree "
-                       "(expected 0, 9, 24 or 45)") from None
+        raise PlyError(
+            f"{path}: property 'f_rest_*' count {n_rest} is no SH degree (expected 0, 9, 24 or 45)"
+        ) from None
     k = n_rest // 3 + 1
     means = np.stack([column("x"), column("y"), column("z")], axis=-1)
     dc = stack("f_dc_", 3)
@@ -168,8 +190,9 @@ def read_ply(path: str | PathLike) -> PlyFields:
     too_big = log_scales > np.log(np.finfo(np.float32).max)
     if too_big.any():
         vertex, axis = (int(i) for i in np.argwhere(too_big)[0])
-        raise PlyError(f"{path}: property 'scale_{axis}' at vertex {vertex} is exp({log_scales[vertex, axis]:.4g}), "
-                       "beyond float32")
+        raise PlyError(
+            f"{path}: property 'scale_{axis}' at vertex {vertex} is exp({log_scales[vertex, axis]:.4g}), beyond float32"
+        )
     scales = np.exp(log_scales)
     quats = stack("rot_", 4)
     if "owner" in names:
@@ -190,8 +213,10 @@ def _owner_column(col: np.ndarray, path: Path) -> np.ndarray:
     if bad.any():
         vertex = int(np.argmax(bad))
         value = col[vertex].item()  # a plain int or float (NaN included) in the message
-        raise PlyError(f"{path}: property 'owner' at vertex {vertex} is {value!r}: expected -1 (background) "
-                       f"or a particle index 0..{MAX_OWNER}")
+        raise PlyError(
+            f"{path}: property 'owner' at vertex {vertex} is {value!r}: expected -1 (background) "
+            f"or a particle index 0..{MAX_OWNER}"
+        )
     return wide.astype(np.int64)
 
 
@@ -211,8 +236,11 @@ def write_ply(gaussians: GaussianFields, path: str | PathLike) -> None:
             raise ValueError(f"{path}: cannot write Gaussians.{name}: non-finite value at Gaussian {row}")
     n, k = g.num, g.sh.shape[1]
     sh = g.sh.numpy()
-    props: list[tuple[str, np.ndarray]] = [("x", g.means[:, 0].numpy()), ("y", g.means[:, 1].numpy()),
-                                           ("z", g.means[:, 2].numpy())]
+    props: list[tuple[str, np.ndarray]] = [
+        ("x", g.means[:, 0].numpy()),
+        ("y", g.means[:, 1].numpy()),
+        ("z", g.means[:, 2].numpy()),
+    ]
     props += [(f"n{a}", np.zeros(n)) for a in "xyz"]
     props += [(f"f_dc_{c}", sh[:, 0, c]) for c in range(3)]
     rest = sh[:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * (k - 1))

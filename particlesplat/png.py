@@ -18,17 +18,25 @@ from .camera import Camera
 
 def camera_text(camera: Camera) -> str:
     """JSON of a camera: K, OpenCV c2w, width, height, vertical fov (degrees)."""
-    return json.dumps({"K": camera.K.detach().cpu().double().tolist(),
-                       "c2w_opencv": camera.c2w.detach().cpu().double().tolist(),
-                       "width": camera.width, "height": camera.height, "fov_y": camera.fov_y})
+    return json.dumps(
+        {
+            "K": camera.K.detach().cpu().double().tolist(),
+            "c2w_opencv": camera.c2w.detach().cpu().double().tolist(),
+            "width": camera.width,
+            "height": camera.height,
+            "fov_y": camera.fov_y,
+        }
+    )
 
 
 def png_text(camera: Camera, edits: dict, model: str, extra: dict[str, str] | None = None) -> dict[str, str]:
     """Text chunks: Software, camera (JSON), edits (YAML, particle index -> values), model, extras."""
-    text = {"Software": "ParticleSplat Studio", "camera": camera_text(camera),
-            "edits": yaml.safe_dump({int(i): {k: list(v) for k, v in a.items()} for i, a in edits.items()},
-                                    sort_keys=True),
-            "model": model}
+    text = {
+        "Software": "ParticleSplat Studio",
+        "camera": camera_text(camera),
+        "edits": yaml.safe_dump({int(i): {k: list(v) for k, v in a.items()} for i, a in edits.items()}, sort_keys=True),
+        "model": model,
+    }
     text.update(extra or {})
     return text
 
@@ -68,8 +76,9 @@ def camera_from_png(path: str | PathLike) -> Camera:
     except OSError as e:
         raise ValueError(f"{path}: not a readable image ({e})") from None
     if "camera" not in text:
-        raise ValueError(f"{path}: no 'camera' text chunk (only viewer screenshots and particlesplat render "
-                         "images carry one)")
+        raise ValueError(
+            f"{path}: no 'camera' text chunk (only viewer screenshots and particlesplat render images carry one)"
+        )
     try:
         data = json.loads(text["camera"])
         K = np.asarray(data["K"], dtype=np.float64)

@@ -54,8 +54,9 @@ def project_gaussians(gaussians: Gaussians, camera: Camera, near: float = 0.01, 
     index = torch.nonzero((z_all > near) & (z_all < far)).squeeze(1)
     p64 = p64_all[index]
     K64 = camera.K.to(torch.float64)
-    means2d = torch.stack([K64[0, 0] * p64[:, 0] / p64[:, 2] + K64[0, 2],
-                           K64[1, 1] * p64[:, 1] / p64[:, 2] + K64[1, 2]], dim=-1)
+    means2d = torch.stack(
+        [K64[0, 0] * p64[:, 0] / p64[:, 2] + K64[0, 2], K64[1, 1] * p64[:, 1] / p64[:, 2] + K64[1, 2]], dim=-1
+    )
     Rw = w2c64[:3, :3].to(dtype)
     x, y, z = p64.to(dtype).unbind(-1)
     K = K64.to(dtype)
@@ -87,4 +88,3 @@ def project_gaussians(gaussians: Gaussians, camera: Camera, near: float = 0.01, 
 def footprint_radius_sq(opacities: Tensor) -> Tensor:
     """(M,) squared Mahalanobis radius inside which o·exp(-½ r²) >= 1/255: 2 ln(255 o); < 0 if never."""
     return 2.0 * torch.log(opacities.clamp_min(1e-30) * 255.0)
-

@@ -30,8 +30,13 @@ def git_commit(where: Path | None = None) -> str | None:
         rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, timeout=5)
         if rev.returncode != 0:
             return None
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=where,
-                               capture_output=True, text=True, timeout=5)
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=where,
+            capture_output=True,
+            text=True,
+            timeout=5,
+        )
         return rev.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return None
@@ -55,9 +60,17 @@ class Provenance:
     def start(cls, data: Path, init: Path | None, device: str) -> Provenance:
         split = data / "train"
         n = sum(1 for p in split.iterdir() if p.is_dir() and not p.name.startswith("."))
-        return cls(data=str(data.resolve()), train_scenes=n, scene_list_sha256=scene_list_hash(split),
-                   init=None if init is None else str(init), wall_hours=0.0, cpu_hours=0.0,
-                   torch=str(torch.__version__), git_commit=git_commit(), device=device)
+        return cls(
+            data=str(data.resolve()),
+            train_scenes=n,
+            scene_list_sha256=scene_list_hash(split),
+            init=None if init is None else str(init),
+            wall_hours=0.0,
+            cpu_hours=0.0,
+            torch=str(torch.__version__),
+            git_commit=git_commit(),
+            device=device,
+        )
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -72,8 +85,10 @@ class RunClock:
 
     def hours(self) -> tuple[float, float]:
         """(wall, cpu) hours so far."""
-        return (self.base_wall + (time.monotonic() - self.t0) / 3600.0,
-                self.base_cpu + (time.process_time() - self.c0) / 3600.0)
+        return (
+            self.base_wall + (time.monotonic() - self.t0) / 3600.0,
+            self.base_cpu + (time.process_time() - self.c0) / 3600.0,
+        )
 
 
 def describe(prov: dict | None) -> str:
@@ -82,7 +97,9 @@ def describe(prov: dict | None) -> str:
         return "provenance: none recorded (checkpoint written before provenance was kept)"
     init = prov.get("init") or "random initialisation"
     commit = prov.get("git_commit") or "unknown commit"
-    return (f"provenance: from {init}; data {prov.get('data')} ({prov.get('train_scenes')} training scenes, "
-            f"list sha256 {str(prov.get('scene_list_sha256'))[:12]}); {prov.get('wall_hours', 0):.2f} h wall, "
-            f"{prov.get('cpu_hours', 0):.2f} CPU h on {prov.get('device')}; torch {prov.get('torch')}; "
-            f"code {commit}")
+    return (
+        f"provenance: from {init}; data {prov.get('data')} ({prov.get('train_scenes')} training scenes, "
+        f"list sha256 {str(prov.get('scene_list_sha256'))[:12]}); {prov.get('wall_hours', 0):.2f} h wall, "
+        f"{prov.get('cpu_hours', 0):.2f} CPU h on {prov.get('device')}; torch {prov.get('torch')}; "
+        f"code {commit}"
+    )

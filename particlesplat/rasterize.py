@@ -60,8 +60,15 @@ class TileBins:
         return first + tx * ty
 
 
-def bin_gaussians(means2d: Tensor, conics: Tensor, opacities: Tensor, radius: Tensor, depths: Tensor,
-                  view: Tensor, sizes: list[tuple[int, int]]) -> TileBins:
+def bin_gaussians(
+    means2d: Tensor,
+    conics: Tensor,
+    opacities: Tensor,
+    radius: Tensor,
+    depths: Tensor,
+    view: Tensor,
+    sizes: list[tuple[int, int]],
+) -> TileBins:
     """Assign Gaussians to the tiles of their view.
 
     A Gaussian is listed in a tile iff α ≥ 1/255 at one of the tile's pixel centres: candidate
@@ -98,8 +105,14 @@ def bin_gaussians(means2d: Tensor, conics: Tensor, opacities: Tensor, radius: Te
         offs = torch.arange(total, device=device) - torch.repeat_interleave(torch.cumsum(per, 0) - per, per)
         gnx = nx[g]
         tile = g_first[g] + (t0[g, 1] + offs // gnx) * g_tx[g] + t0[g, 0] + offs % gnx
-        origin = torch.cat([torch.stack(torch.meshgrid(torch.arange(ty), torch.arange(tx), indexing="ij")[::-1],
-                                        dim=-1).reshape(-1, 2) for tx, ty, _ in grids]).to(device)
+        origin = torch.cat(
+            [
+                torch.stack(torch.meshgrid(torch.arange(ty), torch.arange(tx), indexing="ij")[::-1], dim=-1).reshape(
+                    -1, 2
+                )
+                for tx, ty, _ in grids
+            ]
+        ).to(device)
         origin = origin * TILE + TILE / 2
         hit = _tile_hits(g, tile, origin, means2d.detach(), conics.detach(), opacities.detach())
         g, tile = g[hit], tile[hit]
@@ -110,8 +123,9 @@ def bin_gaussians(means2d: Tensor, conics: Tensor, opacities: Tensor, radius: Te
     return TileBins(grids, gauss, tile_sorted, count, origin, chunks)
 
 
-def _tile_hits(g: Tensor, tile: Tensor, origin: Tensor, means2d: Tensor, conics: Tensor, opacities: Tensor,
-               block: int = 1 << 16) -> Tensor:
+def _tile_hits(
+    g: Tensor, tile: Tensor, origin: Tensor, means2d: Tensor, conics: Tensor, opacities: Tensor, block: int = 1 << 16
+) -> Tensor:
     """(P,) bool: does Gaussian g[i] reach α ≥ 1/255 at a pixel centre of tile[i]? (blocks of pairs)
 
     g: (P,) int64 Gaussian rows; tile: (P,) int64 tile ids; origin: (T, 2) tile centres, pixels;
@@ -122,10 +136,10 @@ def _tile_hits(g: Tensor, tile: Tensor, origin: Tensor, means2d: Tensor, conics:
     thresh = math.log(ALPHA_MIN)
     hit = torch.empty(g.shape[0], dtype=torch.bool, device=g.device)
     for i in range(0, g.shape[0], block):
-        gi, ti = g[i:i + block], tile[i:i + block]
+        gi, ti = g[i : i + block], tile[i : i + block]
         coef = _coefficients((means2d[gi] - origin[ti].to(means2d.dtype)).to(conics.dtype), conics[gi], log_o[gi])
         # (16, 6) @ (6, B) is ~10x faster than the tall-skinny (B, 6) @ (6, 16) on CPU
-        hit[i:i + block] = (feats @ coef.T).amax(0) >= thresh - 1e-3  # margin: the raster decides exactly
+        hit[i : i + block] = (feats @ coef.T).amax(0) >= thresh - 1e-3  # margin: the raster decides exactly
     return hit
 
 
@@ -151,7 +165,7 @@ def _make_chunks(count: Tensor, list_count: Tensor | None = None) -> list[tuple[
     lengths, sizes = torch.unique_consecutive(padded, return_counts=True)
     # Buckets too small to be worth a chunk of their own are padded up into the next bucket.
     first = 0
-    for b, (length, n) in enumerate(zip(lengths.tolist(), torch.cumsum(sizes, 0).tolist())):
+    for b, (length, n) in enumerate(zip(lengths.tolist(), torch.cumsum(sizes, 0).tolist(), strict=False)):
         if b + 1 < len(lengths) and (n - first) * TILE * TILE * length < MIN_CHUNK_ELEMENTS:
             continue
         tiles = nonempty[first:n]
@@ -160,7 +174,7 @@ def _make_chunks(count: Tensor, list_count: Tensor | None = None) -> list[tuple[
         idx = torch.where(slot[None, :] < count[tiles][:, None], idx, num_pairs)
         per_chunk = max(1, CHUNK_ELEMENTS // (TILE * TILE * length))
         for i in range(0, tiles.numel(), per_chunk):
-            chunks.append((tiles[i:i + per_chunk], idx[i:i + per_chunk]))
+            chunks.append((tiles[i : i + per_chunk], idx[i : i + per_chunk]))
         first = n
     return chunks
 
@@ -217,8 +231,9 @@ class _ChunkState:
         self.weights = (self.t_excl - t_incl).mul_(_step(t_incl - T_MIN, strict=True))
 
 
-def pair_inputs(bins: TileBins, means2d: Tensor, conics: Tensor, opacities: Tensor,
-                features: Tensor) -> tuple[Tensor, Tensor]:
+def pair_inputs(
+    bins: TileBins, means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor
+) -> tuple[Tensor, Tensor]:
     """Differentiable per-pair rasterizer inputs, with a padding row appended.
 
     means2d: (M, 2) (float64 for full precision), conics: (M, 3), opacities: (M,), features: (M, C).
@@ -227,9 +242,12 @@ def pair_inputs(bins: TileBins, means2d: Tensor, conics: Tensor, opacities: Tens
     """
     rows = bins.gauss
     # the tile-local offset is formed at the precision of means2d (float64), then rounded
-    local = (means2d.index_select(0, rows) - bins.tile_origin.index_select(0, bins.pair_tile).to(means2d.dtype)
-             ).to(conics.dtype)
-    coef = _coefficients(local, conics.index_select(0, rows), torch.log(opacities.index_select(0, rows).clamp_min(1e-30)))
+    local = (means2d.index_select(0, rows) - bins.tile_origin.index_select(0, bins.pair_tile).to(means2d.dtype)).to(
+        conics.dtype
+    )
+    coef = _coefficients(
+        local, conics.index_select(0, rows), torch.log(opacities.index_select(0, rows).clamp_min(1e-30))
+    )
     pad = coef.new_zeros(1, 6)
     pad[0, 5] = _PAD_LOG_OPACITY
     f1 = _with_ones(features.index_select(0, rows))
@@ -240,8 +258,8 @@ def tiles_to_images(tile_values: Tensor, bins: TileBins, sizes: list[tuple[int, 
     """(T, TILE², C) -> per view (H, W, C) (differentiable reshapes and slices)."""
     C = tile_values.shape[-1]
     images = []
-    for (tx, ty, first), (w, h) in zip(bins.grids, sizes):
-        img = tile_values[first:first + tx * ty].reshape(ty, tx, TILE, TILE, C).permute(0, 2, 1, 3, 4)
+    for (tx, ty, first), (w, h) in zip(bins.grids, sizes, strict=False):
+        img = tile_values[first : first + tx * ty].reshape(ty, tx, TILE, TILE, C).permute(0, 2, 1, 3, 4)
         images.append(img.reshape(ty * TILE, tx * TILE, C)[:h, :w])
     return images
 

@@ -68,9 +68,17 @@ class RenderResult:
         return object_segmentation(self.owner_weights, bg, objects)
 
 
-def render(gaussians: Gaussians, camera: Camera, *, background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
-           near: float = 0.01, far: float = 1e10, owner_weights: bool = False,
-           num_owners: int | None = None, foreground: bool = False) -> RenderResult:
+def render(
+    gaussians: Gaussians,
+    camera: Camera,
+    *,
+    background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
+    near: float = 0.01,
+    far: float = 1e10,
+    owner_weights: bool = False,
+    num_owners: int | None = None,
+    foreground: bool = False,
+) -> RenderResult:
     """Render ``gaussians`` seen by ``camera``.
 
     Rules (3DGS/gsplat): EWA projection with the Jacobian's x/z and y/z clamped to the field of
@@ -93,13 +101,27 @@ def render(gaussians: Gaussians, camera: Camera, *, background: Sequence[float] 
             count as background.
         foreground: also return the differentiable weight of the Gaussians with an owner >= 0.
     """
-    return render_batch([(gaussians, camera)], background=background, near=near, far=far,
-                        owner_weights=owner_weights, num_owners=num_owners, foreground=foreground)[0]
+    return render_batch(
+        [(gaussians, camera)],
+        background=background,
+        near=near,
+        far=far,
+        owner_weights=owner_weights,
+        num_owners=num_owners,
+        foreground=foreground,
+    )[0]
 
 
-def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
-                 near: float = 0.01, far: float = 1e10, owner_weights: bool = False,
-                 num_owners: int | None = None, foreground: bool = False) -> list[RenderResult]:
+def render_batch(
+    views: Sequence[tuple[Gaussians, Camera]],
+    *,
+    background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
+    near: float = 0.01,
+    far: float = 1e10,
+    owner_weights: bool = False,
+    num_owners: int | None = None,
+    foreground: bool = False,
+) -> list[RenderResult]:
     """Render several (Gaussians, camera) pairs in one pass; same rules and results as :func:`render`.
 
     ``foreground``: also return the differentiable weight of the particles' Gaussians (owner >= 0) per
@@ -118,8 +140,9 @@ def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Seque
             gaussians.check(f"render: view {i}" if len(views) > 1 else "render")
     dtype, device = views[0][0].means.dtype, views[0][0].means.device
     bg = torch.as_tensor(background, dtype=dtype, device=device).reshape(3)
-    parts: dict[str, list[Tensor]] = {k: [] for k in ("means2d", "conics", "opac", "features", "radius", "view",
-                                                       "owner")}
+    parts: dict[str, list[Tensor]] = {
+        k: [] for k in ("means2d", "conics", "opac", "features", "radius", "view", "owner")
+    }
     sizes = []
     for v, (gaussians, camera) in enumerate(views):
         cam = camera.to(device=device, dtype=dtype)
@@ -128,9 +151,11 @@ def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Seque
         r2 = footprint_radius_sq(opac.detach())
         # half extents of the ellipse dᵀΣ⁻¹d <= r² are r·sqrt(Σ_xx), r·sqrt(Σ_yy); a hair of
         # margin keeps float rounding from dropping a boundary pixel
-        radius = torch.where(r2[:, None] >= 0,
-                             torch.sqrt(r2.clamp_min(0))[:, None] * proj.cov2d_diag.detach().sqrt() * (1 + 1e-5) + 1e-3,
-                             torch.full_like(proj.cov2d_diag, -1.0))
+        radius = torch.where(
+            r2[:, None] >= 0,
+            torch.sqrt(r2.clamp_min(0))[:, None] * proj.cov2d_diag.detach().sqrt() * (1 + 1e-5) + 1e-3,
+            torch.full_like(proj.cov2d_diag, -1.0),
+        )
         dirs = torch.nn.functional.normalize(gaussians.means[proj.index] - cam.center, dim=-1)
         colors = eval_sh_colors(gaussians.sh[proj.index], dirs)
         parts["means2d"].append(proj.means2d)
@@ -142,8 +167,9 @@ def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Seque
         parts["owner"].append(gaussians.owner[proj.index])
         sizes.append((cam.width, cam.height))
     cat = {k: torch.cat(v) for k, v in parts.items()}
-    bins = bin_gaussians(cat["means2d"], cat["conics"], cat["opac"], cat["radius"], cat["features"][:, 3],
-                         cat["view"], sizes)
+    bins = bin_gaussians(
+        cat["means2d"], cat["conics"], cat["opac"], cat["radius"], cat["features"][:, 3], cat["view"], sizes
+    )
     coef, pair_features = pair_inputs(bins, cat["means2d"], cat["conics"], cat["opac"], cat["features"])
     if owner_weights:
         # per-owner weights ride along as extra one-hot feature columns of the same pass
@@ -169,7 +195,7 @@ def render_batch(views: Sequence[tuple[Gaussians, Camera]], *, background: Seque
         if foreground:
             result.foreground = acc[..., -1]
         if owner_weights:
-            maps = acc[..., 5:5 + P + 1].detach()
+            maps = acc[..., 5 : 5 + P + 1].detach()
             result.owner_weights = maps[..., 1:].permute(2, 0, 1).contiguous()
             result.background_weight = maps[..., 0].contiguous()
         results.append(result)

@@ -10,8 +10,8 @@ import argparse
 import sys
 
 from .camera import Camera
-from .encode_scene import add_source_arguments, check_source_arguments, load_model_scene, load_ply_checked
 from .decomposition import MODES, NEEDS_PARTICLES
+from .encode_scene import add_source_arguments, check_source_arguments, load_model_scene, load_ply_checked
 from .views import View, check_fov, default_view, parse_look, scene_background
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
@@ -34,26 +34,53 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cam = parser.add_mutually_exclusive_group()
     cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
     cam.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
-    cam.add_argument("--camera-from", metavar="PNG", help="the camera of a viewer screenshot or a rendered PNG (its "
-                                                          "'camera' chunk); --width/--height rescale it")
-    parser.add_argument("--fov", type=float, help="vertical field of view in degrees (with --look or the default "
-                                                  "view); none = the scene's")
-    parser.add_argument("--width", type=int, help="image width in pixels; none = 640 (with --view and --height: "
-                                                  "from the input camera's aspect)")
-    parser.add_argument("--height", type=int, help="image height in pixels; none = 480 (with --view: from the "
-                                                   "width and the input camera's aspect, never stretched)")
-    parser.add_argument("--background", type=_background, default=None,
-                        help="background colour R,G,B (default: the model's learned background colour, if it "
-                             "has one, else 0.12,0.14,0.18)")
+    cam.add_argument(
+        "--camera-from",
+        metavar="PNG",
+        help="the camera of a viewer screenshot or a rendered PNG (its 'camera' chunk); --width/--height rescale it",
+    )
+    parser.add_argument(
+        "--fov",
+        type=float,
+        help="vertical field of view in degrees (with --look or the default view); none = the scene's",
+    )
+    parser.add_argument(
+        "--width",
+        type=int,
+        help="image width in pixels; none = 640 (with --view and --height: from the input camera's aspect)",
+    )
+    parser.add_argument(
+        "--height",
+        type=int,
+        help="image height in pixels; none = 480 (with --view: from the "
+        "width and the input camera's aspect, never stretched)",
+    )
+    parser.add_argument(
+        "--background",
+        type=_background,
+        default=None,
+        help="background colour R,G,B (default: the model's learned background colour, if it "
+        "has one, else 0.12,0.14,0.18)",
+    )
     parser.add_argument("--prune", type=float, default=0.0, help="drop Gaussians with opacity below this")
-    parser.add_argument("--out", required=True, help="output PNG (with --turntable: the animation, .gif or .webp; "
-                                                     "frames OUT_STEM_NNN.png beside it)")
-    parser.add_argument("--mode", choices=MODES, default="rgb",
-                        help="layer to render: the scene, depth, segmentation by particle or object, foreground or "
-                             "background alone, or the particles' 3D keypoints or boxes over the scene")
-    parser.add_argument("--turntable", type=int, default=0,
-                        help="N > 0: N frames orbiting the default target (or --look) once, as PNGs plus an "
-                             "animated GIF/WebP")
+    parser.add_argument(
+        "--out",
+        required=True,
+        help="output PNG (with --turntable: the animation, .gif or .webp; frames OUT_STEM_NNN.png beside it)",
+    )
+    parser.add_argument(
+        "--mode",
+        choices=MODES,
+        default="rgb",
+        help="layer to render: the scene, depth, segmentation by particle or object, foreground or "
+        "background alone, or the particles' 3D keypoints or boxes over the scene",
+    )
+    parser.add_argument(
+        "--turntable",
+        type=int,
+        default=0,
+        help="N > 0: N frames orbiting the default target (or --look) once, as PNGs plus an animated GIF/WebP",
+    )
 
 
 def _scene_and_gaussians(args: argparse.Namespace):
@@ -124,16 +151,18 @@ def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -
             width = max(1, round(height * cam.width / cam.height))
         return cam.resized(width, height), None
     base = default_view(cameras or None, None if cameras else gaussians)
-    view = View(base.target, parse_look(args.look) if args.look else base.look,
-                check_fov(args.fov) if args.fov is not None else base.fov)
+    view = View(
+        base.target,
+        parse_look(args.look) if args.look else base.look,
+        check_fov(args.fov) if args.fov is not None else base.fov,
+    )
     return view.camera(args.width or DEFAULT_WIDTH, args.height or DEFAULT_HEIGHT), view
 
 
 def run(args: argparse.Namespace) -> int:
-    from .png import png_text, save_png
-
     from .atomic import check_writable
     from .errors import EXIT_USER, one_line
+    from .png import png_text, save_png
 
     try:
         try:
@@ -149,8 +178,10 @@ def run(args: argparse.Namespace) -> int:
         g, cameras, edits, model_name, source, background, arrays = _scene_and_gaussians(args)
         camera, view = resolve_camera(args, cameras, g)
         if camera.width > MAX_SIDE or camera.height > MAX_SIDE or camera.width * camera.height > MAX_PIXELS:
-            raise ValueError(f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
-                             f"({MAX_SIDE} a side, {MAX_PIXELS} pixels)")
+            raise ValueError(
+                f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
+                f"({MAX_SIDE} a side, {MAX_PIXELS} pixels)"
+            )
     except (OSError, ValueError, KeyError) as e:
         print(f"particlesplat render: {one_line(e)}", file=sys.stderr)
         return EXIT_USER
@@ -161,17 +192,30 @@ def run(args: argparse.Namespace) -> int:
     background = background if args.background is None else args.background
     extra = {"scene": source, "mode": args.mode}
     if view is not None:
-        extra.update(look=f"{view.look.azimuth:.6g},{view.look.elevation:.6g},{view.look.distance:.6g}",
-                     fov=f"{view.fov:.6g}")
+        extra.update(
+            look=f"{view.look.azimuth:.6g},{view.look.elevation:.6g},{view.look.distance:.6g}", fov=f"{view.fov:.6g}"
+        )
     try:
         if args.turntable:
             frames, anim = write_turntable(
-                g, view, args.turntable, camera.width, camera.height, args.out, args.mode, background=background,
-                arrays=arrays, save_frame=lambda p, rgb, c: save_png(p, rgb, png_text(c, edits, model_name, extra)))
+                g,
+                view,
+                args.turntable,
+                camera.width,
+                camera.height,
+                args.out,
+                args.mode,
+                background=background,
+                arrays=arrays,
+                save_frame=lambda p, rgb, c: save_png(p, rgb, png_text(c, edits, model_name, extra)),
+            )
             print(f"saved {anim} and {len(frames)} frames {frames[0]} .. {frames[-1]} ({camera.width}x{camera.height})")
             return 0
-        path = save_png(args.out, render_mode(g, camera, args.mode, background=background, arrays=arrays),
-                        png_text(camera, edits, model_name, extra))
+        path = save_png(
+            args.out,
+            render_mode(g, camera, args.mode, background=background, arrays=arrays),
+            png_text(camera, edits, model_name, extra),
+        )
     except OSError as e:
         print(f"particlesplat render: --out {args.out}: cannot write ({one_line(e.strerror or e)})", file=sys.stderr)
         return EXIT_USER

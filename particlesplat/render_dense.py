@@ -17,8 +17,15 @@ from .gaussians import Gaussians, quats_to_rotations
 from .sh import eval_sh_colors
 
 
-def render_dense(gaussians: Gaussians, camera: Camera, *, background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
-                 near: float = 0.01, far: float = 1e10, pixel_chunk: int | None = None) -> tuple[Tensor, Tensor, Tensor]:
+def render_dense(
+    gaussians: Gaussians,
+    camera: Camera,
+    *,
+    background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
+    near: float = 0.01,
+    far: float = 1e10,
+    pixel_chunk: int | None = None,
+) -> tuple[Tensor, Tensor, Tensor]:
     """Returns rgb (H, W, 3), alpha (H, W), depth (H, W) in the dtype of ``gaussians``.
 
     ``pixel_chunk`` evaluates that many pixels at a time (for a memory-bounded forward-only
@@ -49,8 +56,7 @@ def render_dense(gaussians: Gaussians, camera: Camera, *, background: Sequence[f
     cov = T @ T.transpose(1, 2) + 0.3 * torch.eye(2, dtype=dt, device=dev)
     conic = torch.linalg.inv(cov)
     mean2d = torch.stack([fx * x / z + cx, fy * y / z + cy], dim=-1)
-    v, u = torch.meshgrid(torch.arange(H, dtype=dt, device=dev), torch.arange(W, dtype=dt, device=dev),
-                          indexing="ij")
+    v, u = torch.meshgrid(torch.arange(H, dtype=dt, device=dev), torch.arange(W, dtype=dt, device=dev), indexing="ij")
     pixels = torch.stack([u + 0.5, v + 0.5], dim=-1).reshape(-1, 1, 2)
     opac = gaussians.opacities[sel]
     dirs = torch.nn.functional.normalize(gaussians.means[sel] - cam.center, dim=-1)
@@ -59,7 +65,7 @@ def render_dense(gaussians: Gaussians, camera: Camera, *, background: Sequence[f
     step = pixels.shape[0] if pixel_chunk is None else max(1, int(pixel_chunk))
     outs = []
     for i in range(0, pixels.shape[0], step):
-        d = pixels[i:i + step] - mean2d[None]  # (p, N, 2)
+        d = pixels[i : i + step] - mean2d[None]  # (p, N, 2)
         q = torch.einsum("pni,nij,pnj->pn", d, conic, d)
         a = opac[None] * torch.exp(-0.5 * q)
         a = torch.where(a >= 1.0 / 255.0, a.clamp(max=0.99), torch.zeros_like(a))

@@ -38,8 +38,10 @@ def read_log(path: str | PathLike) -> tuple[list[dict], str | None]:
                 raise ValueError(f"a JSON {type(rec).__name__}, not an object")
         except (ValueError, RecursionError) as e:
             if i == len(lines) - 1:
-                note = (f"{path}: line {i + 1} is {'torn' if not complete else 'not a JSON object'} "
-                        f"({one_line(e, 80)}); left out")
+                note = (
+                    f"{path}: line {i + 1} is {'torn' if not complete else 'not a JSON object'} "
+                    f"({one_line(e, 80)}); left out"
+                )
                 break
             raise LogError(f"{path}: line {i + 1}: not a JSON object ({one_line(e, 80)})") from None
         records.append(rec)

@@ -23,16 +23,16 @@ from torch.utils.data import default_collate
 from tqdm import tqdm
 
 from .atomic import atomic_path, atomic_write
-from .errors import Interrupted, UserError, one_line
-from .runlog import read_log
 from .camera import Camera
 from .data.views import WARMUP
+from .errors import Interrupted, UserError, one_line
+from .metrics import near_other_label
 from .model import ModelConfig, ParticleSplat, TrainConfig, load_config, read_checkpoint, save_checkpoint
 from .model.config import ConfigError, config_to_dict, model_config_from_dict, without_removed_keys
-from .metrics import near_other_label
 from .model.losses import elbo, scene_kl, view_error
 from .provenance import Provenance, RunClock
 from .render import render_batch
+from .runlog import read_log
 
 LAST = "last.pt"
 MAX_SKIPPED = 20  # steps in a row with non-finite loss or gradients before the run stops as diverged
@@ -59,8 +59,9 @@ def recipe_path() -> Path:
     return Path(str(importlib.resources.files("particlesplat.assets").joinpath("model.yaml")))
 
 
-def render_views(gaussians: list, K: Tensor, c2w: Tensor, size: int, background: Tensor,
-                 foreground: bool = False) -> tuple[Tensor, Tensor, Tensor | None]:
+def render_views(
+    gaussians: list, K: Tensor, c2w: Tensor, size: int, background: Tensor, foreground: bool = False
+) -> tuple[Tensor, Tensor, Tensor | None]:
     """Render B scenes in their views in one rasterizer pass.
 
     gaussians: B sets; K: (B, V, 3, 3); c2w: (B, V, 4, 4); background: (3,) RGB behind the Gaussians
@@ -93,13 +94,15 @@ def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float, band: int =
     return err.flatten(1).sum(1)
 
 
-def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: bool, background: bool,
-                  size: int, cfg: ModelConfig) -> tuple[dict[str, Tensor], Tensor]:
+def training_loss(
+    model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: bool, background: bool, size: int, cfg: ModelConfig
+) -> tuple[dict[str, Tensor], Tensor]:
     """Negative ELBO of a batch (dict of (B, …) tensors from SceneDataset). Returns the loss parts and the
     target-view renders (B, T, 3, H, W) (or context renders when there are no targets)."""
     depth = batch["context_depth"] if use_depth else None
-    post, z, gaussians = model(batch["context_rgb"], depth, batch["context_K"], batch["context_c2w"],
-                               sample=True, background=background)
+    post, z, gaussians = model(
+        batch["context_rgb"], depth, batch["context_K"], batch["context_c2w"], sample=True, background=background
+    )
     C = batch["context_rgb"].shape[1]
     K = torch.cat([batch["context_K"], batch["target_K"]], 1)
     c2w = torch.cat([batch["context_c2w"], batch["target_c2w"]], 1)
@@ -109,8 +112,14 @@ def training_loss(model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: b
     gt_depth = torch.cat([batch["context_depth"], batch["target_depth"]], 1)
     B, V = gt_rgb.shape[:2]
     sup = torch.cat([torch.ones_like(batch["context_depth"]), batch["target_supervision"]], 1)
-    err = view_error(rgb_hat.flatten(0, 1), gt_rgb.flatten(0, 1), depth_hat.flatten(0, 1), gt_depth.flatten(0, 1),
-                     sup.flatten(0, 1), tc.lambda_depth).reshape(B, V)
+    err = view_error(
+        rgb_hat.flatten(0, 1),
+        gt_rgb.flatten(0, 1),
+        depth_hat.flatten(0, 1),
+        gt_depth.flatten(0, 1),
+        sup.flatten(0, 1),
+        tc.lambda_depth,
+    ).reshape(B, V)
     kl = scene_kl(post, z["z_t"], cfg, tc.beta_f)
     parts = elbo(err[:, :C], err[:, C:] if V > C else None, kl, z["z_t"], tc)
     if fg_hat is not None:  # particles cover what the floor layer cannot explain, and nothing else
@@ -161,19 +170,32 @@ def lr_factor(step: int, tc: TrainConfig) -> float:
 class Trainer:
     """Holds the model, optimiser, datasets and RNG; one instance per process."""
 
-    def __init__(self, cfg: ModelConfig, tc: TrainConfig, data: Path, out: Path, device: str, resume: bool,
-                 overwrite: bool = False):
+    def __init__(
+        self,
+        cfg: ModelConfig,
+        tc: TrainConfig,
+        data: Path,
+        out: Path,
+        device: str,
+        resume: bool,
+        overwrite: bool = False,
+    ):
         self.cfg, self.tc, self.out, self.device = cfg, tc, out, torch.device(device)
         if not resume and not overwrite and out.exists() and (not out.is_dir() or any(out.iterdir())):
-            raise FileExistsError(f"{out}: --out is not empty; pass --resume to continue the run in it, "
-                                  "--overwrite to replace it, or choose another folder")
+            raise FileExistsError(
+                f"{out}: --out is not empty; pass --resume to continue the run in it, "
+                "--overwrite to replace it, or choose another folder"
+            )
         replace(cfg, particles_per_view=tc.particles_per_view or cfg.particles_per_view).validate(
-            "train.particles_per_view with the model")
+            "train.particles_per_view with the model"
+        )
         self.provenance = Provenance.start(data, None, str(self.device))  # from random initialisation
         self.clock = RunClock()
         if tc.beta_fg > 0 and cfg.bg_static_grid == 0:
-            raise ConfigError(f"train.beta_fg: the foreground term compares with the static background layer; "
-                              f"set model.bg_static_grid > 0 or beta_fg to 0 (got {tc.beta_fg})")
+            raise ConfigError(
+                f"train.beta_fg: the foreground term compares with the static background layer; "
+                f"set model.bg_static_grid > 0 or beta_fg to 0 (got {tc.beta_fg})"
+            )
         self.distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
         if self.distributed:
             dist.init_process_group("gloo" if self.device.type == "cpu" else "nccl")
@@ -181,10 +203,17 @@ class Trainer:
         self.world = dist.get_world_size() if self.distributed else 1
         from .data import SceneDataset
 
-        self.train_sets = {c: SceneDataset(data / "train", resolution=cfg.resolution,
-                                           mode="multi" if c == 2 else "single", num_targets=tc.target_views,
-                                           flip=False, cache_size=tc.cache_scenes)
-                           for c in sorted(set(tc.context_views))}
+        self.train_sets = {
+            c: SceneDataset(
+                data / "train",
+                resolution=cfg.resolution,
+                mode="multi" if c == 2 else "single",
+                num_targets=tc.target_views,
+                flip=False,
+                cache_size=tc.cache_scenes,
+            )
+            for c in sorted(set(tc.context_views))
+        }
         self.val_dir = data / "val"
         if self.rank == 0 and self.val_dir.is_dir():
             self._check_val_scenes()
@@ -196,8 +225,10 @@ class Trainer:
         names = [n for n, _ in self.model.named_parameters()]
         unknown = [m for m in tc.freeze if not any(owns(n, m) for n in names)]
         if unknown:
-            raise ConfigError(f"train.freeze: no such module in this model: {', '.join(unknown)} "
-                              f"(modules: {', '.join(sorted({n.split('.')[0] for n in names}))})")
+            raise ConfigError(
+                f"train.freeze: no such module in this model: {', '.join(unknown)} "
+                f"(modules: {', '.join(sorted({n.split('.')[0] for n in names}))})"
+            )
         for n, p in self.model.named_parameters():  # frozen weights keep what they start with
             p.requires_grad_(not any(owns(n, m) for m in tc.freeze))
         # the learned background colour and the static background layer move at lr_background
@@ -205,8 +236,9 @@ class Trainer:
         trained = [(n, p) for n, p in self.model.named_parameters() if p.requires_grad]
         bg = [p for n, p in trained if is_bg(n)]
         rest = [p for n, p in trained if not is_bg(n)]
-        groups = ([{"params": rest, "lr": tc.lr}] if rest else []) + \
-            ([{"params": bg, "lr": tc.lr_background}] if bg else [])
+        groups = ([{"params": rest, "lr": tc.lr}] if rest else []) + (
+            [{"params": bg, "lr": tc.lr_background}] if bg else []
+        )
         if not groups:
             raise ConfigError("train.freeze: every weight is frozen, nothing would train")
         self.base_lrs = [g["lr"] for g in groups]  # each group's lr before the cosine factor
@@ -218,19 +250,24 @@ class Trainer:
         elif resume:
             raise FileNotFoundError(f"{out / LAST}: nothing to resume")
         elif (out / LAST).is_file() and not overwrite:
-            raise FileExistsError(f"{out / LAST}: this run already exists; pass --resume to continue it "
-                                  "or choose another --out")
+            raise FileExistsError(
+                f"{out / LAST}: this run already exists; pass --resume to continue it or choose another --out"
+            )
         # steps without the background or before refine_start leave weights without gradients
         unused = tc.bg_off_steps > 0 or (cfg.refine_steps > 0 and tc.refine_start > 0)
-        self.ddp = DistributedDataParallel(self.model, find_unused_parameters=unused) if self.distributed else self.model
+        self.ddp = (
+            DistributedDataParallel(self.model, find_unused_parameters=unused) if self.distributed else self.model
+        )
         if overwrite and not resume and self.rank == 0 and out.is_dir():
             self._clear_run()
 
     def _clear_run(self) -> None:
         """--overwrite: remove the earlier run's own files (log, config, checkpoints) once every check has passed,
         so its log is not continued and its step files do not mix with the new run's. Other files stay."""
-        for path in [*self.out.glob("step_*.pt"), *(self.out / n for n in ("metrics.jsonl", "config.yaml", LAST,
-                                                                           "best.pt"))]:
+        for path in [
+            *self.out.glob("step_*.pt"),
+            *(self.out / n for n in ("metrics.jsonl", "config.yaml", LAST, "best.pt")),
+        ]:
             if path.is_file():
                 path.unlink()
 
@@ -246,18 +283,22 @@ class Trainer:
 
         ds = SceneDataset(self.val_dir)
         need = max(self.tc.context_views) + 1
-        for folder in ds.scenes[:self.tc.val_scenes]:
+        for folder in ds.scenes[: self.tc.val_scenes]:
             raw = read_scene(folder)
             if raw.num_frames < need:
-                raise UserError(f"{folder}: validation scene has {raw.num_frames} frame(s); validation needs at "
-                                f"least {need} (targets apart from the context views)")
+                raise UserError(
+                    f"{folder}: validation scene has {raw.num_frames} frame(s); validation needs at "
+                    f"least {need} (targets apart from the context views)"
+                )
 
     def _check_finite(self) -> None:
         """TrainingDiverged (nothing is saved) unless every weight is finite."""
         for n, p in self.model.named_parameters():
             if not bool(torch.isfinite(p.detach()).all()):
-                raise TrainingDiverged(f"{self.out}: step {self.step}: weight '{n}' is not finite; stopped without "
-                                       f"saving (the last checkpoint in {self.out} is kept)")
+                raise TrainingDiverged(
+                    f"{self.out}: step {self.step}: weight '{n}' is not finite; stopped without "
+                    f"saving (the last checkpoint in {self.out} is kept)"
+                )
 
     def _clean_temporaries(self) -> None:
         """Remove temporary files a killed run left in the run folder (``.NAME.PID.XXXXXXXX.tmp*`` of a process
@@ -276,9 +317,18 @@ class Trainer:
             dist.all_gather_object(states, self._rng_state())
         if self.rank != 0:
             return
-        save_checkpoint(path, self.model, self.step, {"optimizer": self.opt.state_dict(), "rng": states,
-                                                      "train": config_to_dict(self.tc), "best": float(self.best),
-                                                      "provenance": self.provenance_now()})
+        save_checkpoint(
+            path,
+            self.model,
+            self.step,
+            {
+                "optimizer": self.opt.state_dict(),
+                "rng": states,
+                "train": config_to_dict(self.tc),
+                "best": float(self.best),
+                "provenance": self.provenance_now(),
+            },
+        )
 
     def provenance_now(self) -> dict:
         """The run's provenance with the hours spent up to now."""
@@ -289,8 +339,9 @@ class Trainer:
         ckpt = read_checkpoint(path)
         # through the dataclass: a key added since the checkpoint was written takes its default, a removed one
         # that held its "off" value is dropped
-        stored = model_config_from_dict(without_removed_keys(ckpt["config"], "model", f"{path}: config"),
-                                        f"{path}: config")
+        stored = model_config_from_dict(
+            without_removed_keys(ckpt["config"], "model", f"{path}: config"), f"{path}: config"
+        )
         if config_to_dict(stored) != config_to_dict(self.cfg):
             raise ValueError(f"{path}: its model config differs from --config; resume with the same config")
         self.model.load_state_dict(ckpt["state_dict"])
@@ -304,17 +355,21 @@ class Trainer:
         prov = ckpt.get("provenance")
         if isinstance(prov, dict):  # the run keeps its origin and adds this invocation's hours to its own
             if prov.get("scene_list_sha256") not in (None, self.provenance.scene_list_sha256):
-                print(f"warning: {path}: trained on another scene list ({prov.get('data')}); "
-                      f"continuing on {self.provenance.data}")
+                print(
+                    f"warning: {path}: trained on another scene list ({prov.get('data')}); "
+                    f"continuing on {self.provenance.data}"
+                )
             self.provenance.init = prov.get("init")
             self.clock = RunClock(float(prov.get("wall_hours", 0.0)), float(prov.get("cpu_hours", 0.0)))
         self._drop_log_after(self.step)
         states = ckpt.get("rng")
         if "optimizer" not in ckpt or states is None:  # a step_*.pt or best.pt copied over last.pt to roll back
             if self.rank == 0:
-                print(f"warning: {path}: no optimizer or RNG state (a step_*.pt or best.pt?): Adam's moments start "
-                      "afresh and the data order is reseeded from the step; the resume is not bit-exact",
-                      file=sys.stderr)
+                print(
+                    f"warning: {path}: no optimizer or RNG state (a step_*.pt or best.pt?): Adam's moments start "
+                    "afresh and the data order is reseeded from the step; the resume is not bit-exact",
+                    file=sys.stderr,
+                )
             torch.manual_seed(self.tc.seed + 1000 * self.rank + 7 * self.step)
             self.gen.manual_seed(self.tc.seed * 7919 + self.rank + 104729 * self.step)
             return
@@ -340,8 +395,9 @@ class Trainer:
         self.ddp.train()
         self.model.refine_enabled = self.step >= self.tc.refine_start * self.tc.steps
         with training_selection(self.model.config, self.tc):
-            parts, _ = training_loss(self.ddp, batch, self.tc, use_depth, self.step >= self.tc.bg_off_steps,
-                                     self.cfg.resolution, self.cfg)
+            parts, _ = training_loss(
+                self.ddp, batch, self.tc, use_depth, self.step >= self.tc.bg_off_steps, self.cfg.resolution, self.cfg
+            )
         self.opt.zero_grad(set_to_none=True)
         parts["loss"].backward()
         grads = [p.grad for p in self.model.parameters() if p.grad is not None]
@@ -351,7 +407,7 @@ class Trainer:
             self.step += 1
             return {"skipped": 1.0}
         factor = lr_factor(self.step, self.tc)
-        for g, base in zip(self.opt.param_groups, self.base_lrs):
+        for g, base in zip(self.opt.param_groups, self.base_lrs, strict=False):
             g["lr"] = base * factor
         if self.tc.grad_clip > 0:
             torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.tc.grad_clip)
@@ -363,8 +419,9 @@ class Trainer:
         from .evaluate import evaluate_dataset
 
         self.model.eval()
-        res = evaluate_dataset(self.model, self.val_dir, context=max(self.tc.context_views),
-                               limit=self.tc.val_scenes, progress_bar=False)
+        res = evaluate_dataset(
+            self.model, self.val_dir, context=max(self.tc.context_views), limit=self.tc.val_scenes, progress_bar=False
+        )
         self.model.train()
         return res["mean"]
 
@@ -396,8 +453,9 @@ class Trainer:
                 import yaml
 
                 # every key, resolved
-                yaml.safe_dump({"model": config_to_dict(self.cfg), "train": config_to_dict(self.tc)}, f,
-                               sort_keys=False)
+                yaml.safe_dump(
+                    {"model": config_to_dict(self.cfg), "train": config_to_dict(self.tc)}, f, sort_keys=False
+                )
             self._clean_temporaries()
         stop = {"signum": 0}
 
@@ -412,8 +470,9 @@ class Trainer:
         try:
             self._loop(end, stop)
             if stop["signum"] and self.step < end:
-                raise Interrupted(f"saved {self.out / LAST} at step {self.step}; continue with --resume",
-                                  stop["signum"])
+                raise Interrupted(
+                    f"saved {self.out / LAST} at step {self.step}; continue with --resume", stop["signum"]
+                )
         finally:
             if getattr(self, "_bar", None) is not None:
                 self._bar.close()  # ends the bar's line: an error message gets a line of its own
@@ -426,8 +485,9 @@ class Trainer:
     def _loop(self, end: int, stop: dict | None = None) -> None:
         tc = self.tc
         stop = stop if stop is not None else {}
-        self._bar = bar = tqdm(total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0,
-                               dynamic_ncols=True)
+        self._bar = bar = tqdm(
+            total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0, dynamic_ncols=True
+        )
         run_avg: dict[str, float] = {}
         skipped_in_a_row = 0
         while self.step < end:
@@ -438,19 +498,27 @@ class Trainer:
                 skipped_in_a_row += 1
                 tqdm.write(f"warning: step {self.step}: non-finite loss or gradients; update skipped")
                 if skipped_in_a_row >= MAX_SKIPPED:
-                    raise TrainingDiverged(f"{self.out}: steps {self.step - MAX_SKIPPED + 1}-{self.step}: non-finite "
-                                           "loss or gradients at every step; stopped without saving (the last "
-                                           f"checkpoint in {self.out} is kept)")
+                    raise TrainingDiverged(
+                        f"{self.out}: steps {self.step - MAX_SKIPPED + 1}-{self.step}: non-finite "
+                        "loss or gradients at every step; stopped without saving (the last "
+                        f"checkpoint in {self.out} is kept)"
+                    )
             else:
                 skipped_in_a_row = 0
                 for k, v in parts.items():
                     run_avg[k] = v if k not in run_avg else 0.9 * run_avg[k] + 0.1 * v
             if run_avg:
-                bar.set_postfix(loss=f"{run_avg['loss']:.1f}", psnr=f"{run_avg['psnr']:.2f}",
-                                active=f"{run_avg['active']:.1f}")
+                bar.set_postfix(
+                    loss=f"{run_avg['loss']:.1f}", psnr=f"{run_avg['psnr']:.2f}", active=f"{run_avg['active']:.1f}"
+                )
             if self.step % tc.log_every == 0 and run_avg:
-                self.log({"step": self.step, **{k: round(v, 5) for k, v in run_avg.items()},
-                          **({"skipped": self.skipped} if self.skipped else {})})
+                self.log(
+                    {
+                        "step": self.step,
+                        **{k: round(v, 5) for k, v in run_avg.items()},
+                        **({"skipped": self.skipped} if self.skipped else {}),
+                    }
+                )
             if self.step % tc.val_every == 0 or self.step == tc.steps:
                 self._check_finite()
                 if self.rank == 0 and self.val_dir.is_dir():
@@ -461,11 +529,16 @@ class Trainer:
                             self._save(self.out / LAST)
                         raise
                     self.log({"step": self.step, "val": m})
-                    tqdm.write(f"step {self.step}: val PSNR {m['psnr']:.2f} dB, FG-ARI {m['fg_ari']:.3f}, "
-                               f"mIoU {m['miou']:.3f}, active {m['active_particles']:.1f}")
-                    save_checkpoint(self.out / f"step_{self.step:06d}.pt", self.model, self.step,
-                                    {"val": m, "train": config_to_dict(self.tc),
-                                     "provenance": self.provenance_now()})
+                    tqdm.write(
+                        f"step {self.step}: val PSNR {m['psnr']:.2f} dB, FG-ARI {m['fg_ari']:.3f}, "
+                        f"mIoU {m['miou']:.3f}, active {m['active_particles']:.1f}"
+                    )
+                    save_checkpoint(
+                        self.out / f"step_{self.step:06d}.pt",
+                        self.model,
+                        self.step,
+                        {"val": m, "train": config_to_dict(self.tc), "provenance": self.provenance_now()},
+                    )
                     score = m["psnr"] / 30.0 + (m["fg_ari"] if math.isfinite(m["fg_ari"]) else 0.0)
                     if score > self.best:
                         self.best = score
@@ -481,19 +554,29 @@ class Trainer:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", default=None,
-                        help="YAML with 'model:' and 'train:' sections (default: the recipe the shipped "
-                             "architecture is trained with, assets/model.yaml, which documents every key)")
+    parser.add_argument(
+        "--config",
+        default=None,
+        help="YAML with 'model:' and 'train:' sections (default: the recipe the shipped "
+        "architecture is trained with, assets/model.yaml, which documents every key)",
+    )
     parser.add_argument("--data", required=True, help="dataset folder holding train/ and val/ scene folders")
-    parser.add_argument("--out", required=True, help="run folder: checkpoints (last.pt, step_*.pt, best.pt), "
-                                                     "metrics.jsonl, config.yaml")
+    parser.add_argument(
+        "--out", required=True, help="run folder: checkpoints (last.pt, step_*.pt, best.pt), metrics.jsonl, config.yaml"
+    )
     parser.add_argument("--resume", action="store_true", help="continue exactly from OUT/last.pt")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (under torchrun: one process per device)")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="train into a non-empty --out that is not resumed (its files are replaced)")
-    parser.add_argument("--stop-after", type=int, default=None,
-                        help="run at most this many steps in this invocation, checkpoint, and exit "
-                             "(continue later with --resume)")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="train into a non-empty --out that is not resumed (its files are replaced)",
+    )
+    parser.add_argument(
+        "--stop-after",
+        type=int,
+        default=None,
+        help="run at most this many steps in this invocation, checkpoint, and exit (continue later with --resume)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:

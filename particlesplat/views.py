@@ -50,8 +50,15 @@ class View:
 
     def camera(self, width: int, height: int) -> Camera:
         """The camera of this view at ``width`` x ``height`` pixels."""
-        return Camera.orbit(self.target, self.look.azimuth, self.look.elevation, self.look.distance,
-                            fov_y_deg=self.fov, width=width, height=height)
+        return Camera.orbit(
+            self.target,
+            self.look.azimuth,
+            self.look.elevation,
+            self.look.distance,
+            fov_y_deg=self.fov,
+            width=width,
+            height=height,
+        )
 
 
 def parse_look(text: str) -> Look:

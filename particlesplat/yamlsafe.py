@@ -35,8 +35,12 @@ class _SafeLoader(yaml.SafeLoader):
     def compose_node(self, parent, index):
         if self.check_event(yaml.AliasEvent):
             event = self.peek_event()
-            raise _Refused(None, None, f"alias '*{one_line(event.anchor, 40)}' is not allowed (write the value out)",
-                           event.start_mark)
+            raise _Refused(
+                None,
+                None,
+                f"alias '*{one_line(event.anchor, 40)}' is not allowed (write the value out)",
+                event.start_mark,
+            )
         return super().compose_node(parent, index)
 
     def construct_mapping(self, node, deep=False):
@@ -57,7 +61,8 @@ class _SafeLoader(yaml.SafeLoader):
 
 
 _SafeLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789"))
+    "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789")
+)
 
 
 def _describe(e: yaml.YAMLError) -> str:

@@ -9,9 +9,11 @@ PATHS = ("auto", "fetch", "blend")
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
-    parser.addoption("--compositing", default="fetch,blend",
-                     help="comma-separated compositing paths of the GL tests, from auto, fetch, blend "
-                          "(default: %(default)s)")
+    parser.addoption(
+        "--compositing",
+        default="fetch,blend",
+        help="comma-separated compositing paths of the GL tests, from auto, fetch, blend (default: %(default)s)",
+    )
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:

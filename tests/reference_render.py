@@ -39,11 +39,22 @@ _PI = math.pi
 # Real SH normalisation constants from their closed forms (3DGS sign convention below).
 _C0 = 0.5 * math.sqrt(1.0 / _PI)
 _C1 = math.sqrt(3.0 / (4.0 * _PI))
-_C2 = (0.5 * math.sqrt(15.0 / _PI), -0.5 * math.sqrt(15.0 / _PI), 0.25 * math.sqrt(5.0 / _PI),
-       -0.5 * math.sqrt(15.0 / _PI), 0.25 * math.sqrt(15.0 / _PI))
-_C3 = (-0.25 * math.sqrt(35.0 / (2.0 * _PI)), 0.5 * math.sqrt(105.0 / _PI), -0.25 * math.sqrt(21.0 / (2.0 * _PI)),
-       0.25 * math.sqrt(7.0 / _PI), -0.25 * math.sqrt(21.0 / (2.0 * _PI)), 0.25 * math.sqrt(105.0 / _PI),
-       -0.25 * math.sqrt(35.0 / (2.0 * _PI)))
+_C2 = (
+    0.5 * math.sqrt(15.0 / _PI),
+    -0.5 * math.sqrt(15.0 / _PI),
+    0.25 * math.sqrt(5.0 / _PI),
+    -0.5 * math.sqrt(15.0 / _PI),
+    0.25 * math.sqrt(15.0 / _PI),
+)
+_C3 = (
+    -0.25 * math.sqrt(35.0 / (2.0 * _PI)),
+    0.5 * math.sqrt(105.0 / _PI),
+    -0.25 * math.sqrt(21.0 / (2.0 * _PI)),
+    0.25 * math.sqrt(7.0 / _PI),
+    -0.25 * math.sqrt(21.0 / (2.0 * _PI)),
+    0.25 * math.sqrt(105.0 / _PI),
+    -0.25 * math.sqrt(35.0 / (2.0 * _PI)),
+)
 
 
 @dataclass
@@ -71,12 +82,23 @@ def sh_basis_reference(dirs: Tensor, degree: int) -> Tensor:
     if degree >= 1:
         cols += [-_C1 * y, _C1 * z, -_C1 * x]
     if degree >= 2:
-        cols += [_C2[0] * x * y, _C2[1] * y * z, _C2[2] * (2 * z * z - x * x - y * y), _C2[3] * x * z,
-                 _C2[4] * (x * x - y * y)]
+        cols += [
+            _C2[0] * x * y,
+            _C2[1] * y * z,
+            _C2[2] * (2 * z * z - x * x - y * y),
+            _C2[3] * x * z,
+            _C2[4] * (x * x - y * y),
+        ]
     if degree >= 3:
-        cols += [_C3[0] * y * (3 * x * x - y * y), _C3[1] * x * y * z, _C3[2] * y * (4 * z * z - x * x - y * y),
-                 _C3[3] * z * (2 * z * z - 3 * x * x - 3 * y * y), _C3[4] * x * (4 * z * z - x * x - y * y),
-                 _C3[5] * z * (x * x - y * y), _C3[6] * x * (x * x - 3 * y * y)]
+        cols += [
+            _C3[0] * y * (3 * x * x - y * y),
+            _C3[1] * x * y * z,
+            _C3[2] * y * (4 * z * z - x * x - y * y),
+            _C3[3] * z * (2 * z * z - 3 * x * x - 3 * y * y),
+            _C3[4] * x * (4 * z * z - x * x - y * y),
+            _C3[5] * z * (x * x - y * y),
+            _C3[6] * x * (x * x - 3 * y * y),
+        ]
     return torch.stack(cols, dim=-1)
 
 
@@ -87,9 +109,15 @@ def quat_to_rotmat_reference(quats: Tensor) -> Tensor:
     inv = torch.where(zero, torch.zeros_like(sq), torch.rsqrt(torch.where(zero, torch.ones_like(sq), sq)))
     w, x, y, z = (quats * inv).unbind(-1)
     rows = [
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - w * z),
+        2 * (x * z + w * y),
+        2 * (x * y + w * z),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - w * x),
+        2 * (x * z - w * y),
+        2 * (y * z + w * x),
+        1 - 2 * (x * x + y * y),
     ]
     return torch.stack(rows, dim=-1).reshape(-1, 3, 3)
 
@@ -101,8 +129,9 @@ def covariance_reference(quats: Tensor, scales: Tensor) -> Tensor:
     return R @ S2 @ R.transpose(-1, -2)
 
 
-def project_reference(means: Tensor, quats: Tensor, scales: Tensor, K: Tensor, w2c: Tensor,
-                      width: int, height: int) -> tuple[Tensor, Tensor, Tensor]:
+def project_reference(
+    means: Tensor, quats: Tensor, scales: Tensor, K: Tensor, w2c: Tensor, width: int, height: int
+) -> tuple[Tensor, Tensor, Tensor]:
     """EWA projection. means (N, 3), quats (N, 4), scales (N, 3), K (3, 3), w2c (4, 4).
 
     Returns mean2D (N, 2) pixels, Σ2D (N, 2, 2) px² (dilated by 0.3), camera z (N,).
@@ -115,16 +144,25 @@ def project_reference(means: Tensor, quats: Tensor, scales: Tensor, K: Tensor, w
     tx = torch.minimum(torch.maximum(x / z, -(cx / fx + FOV_MARGIN * tanx)), (width - cx) / fx + FOV_MARGIN * tanx)
     ty = torch.minimum(torch.maximum(y / z, -(cy / fy + FOV_MARGIN * tany)), (height - cy) / fy + FOV_MARGIN * tany)
     zero = torch.zeros_like(z)
-    J = torch.stack([torch.stack([fx / z, zero, -fx * tx / z], -1),
-                     torch.stack([zero, fy / z, -fy * ty / z], -1)], dim=-2)  # (N, 2, 3)
+    J = torch.stack(
+        [torch.stack([fx / z, zero, -fx * tx / z], -1), torch.stack([zero, fy / z, -fy * ty / z], -1)], dim=-2
+    )  # (N, 2, 3)
     cov_cam = Rw @ covariance_reference(quats, scales) @ Rw.T
     cov2d = J @ cov_cam @ J.transpose(-1, -2) + DILATION * torch.eye(2, dtype=means.dtype)
     mean2d = torch.stack([fx * x / z + cx, fy * y / z + cy], dim=-1)
     return mean2d, cov2d, z
 
 
-def reference_render(gaussians, camera, *, background=(0.0, 0.0, 0.0), near: float = 0.01, far: float = 1e10,
-                     num_owners: int | None = None, t_stop: float = T_STOP) -> ReferenceResult:
+def reference_render(
+    gaussians,
+    camera,
+    *,
+    background=(0.0, 0.0, 0.0),
+    near: float = 0.01,
+    far: float = 1e10,
+    num_owners: int | None = None,
+    t_stop: float = T_STOP,
+) -> ReferenceResult:
     """Render ``gaussians`` (any object with means/quats/scales/opacities/sh/owner tensors) seen by
     ``camera`` (any object with K (3,3), c2w (4,4), width, height) in float64 by brute force.
 
@@ -187,5 +225,6 @@ def reference_render(gaussians, camera, *, background=(0.0, 0.0, 0.0), near: flo
     has = acc > 0
     depth = torch.where(has, dep / torch.where(has, acc, torch.ones_like(acc)), torch.zeros_like(acc))
     owner_w = torch.stack(own).reshape(P, H, W) if P else torch.zeros(0, H, W, dtype=dt)
-    return ReferenceResult(rgb.reshape(H, W, 3), acc.reshape(H, W), depth.reshape(H, W), T.reshape(H, W), owner_w,
-                           own_bg.reshape(H, W))
+    return ReferenceResult(
+        rgb.reshape(H, W, 3), acc.reshape(H, W), depth.reshape(H, W), T.reshape(H, W), owner_w, own_bg.reshape(H, W)
+    )

@@ -20,16 +20,18 @@ def test_edit_pairs_move_remove_and_copy_one_object_on_the_floor():
     assert MOVE_RANGE[0] <= math.hypot(dx, dy) <= MOVE_RANGE[1]
     moved = pairs["move"].objects[k]  # the same instance id
     np.testing.assert_allclose(np.subtract(moved.center, obj.center), [dx, dy, 0.0], atol=1e-12)
-    assert [o for i, o in enumerate(pairs["move"].objects) if i != k] == orig.objects[:k] + orig.objects[k + 1:]
-    assert pairs["remove"].objects == orig.objects[:k] + orig.objects[k + 1:]
+    assert [o for i, o in enumerate(pairs["move"].objects) if i != k] == orig.objects[:k] + orig.objects[k + 1 :]
+    assert pairs["remove"].objects == orig.objects[:k] + orig.objects[k + 1 :]
     copy = pairs["duplicate"].objects[-1]
     assert pairs["duplicate"].objects[:-1] == orig.objects
     np.testing.assert_allclose(np.subtract(copy.center, obj.center), [*pairs["offsets"]["duplicate"], 0.0])
     for scene in (pairs["move"], pairs["duplicate"]):  # nothing overlaps on the floor
         for i, a in enumerate(scene.objects):
-            for b in scene.objects[i + 1:]:
-                assert math.hypot(a.center[0] - b.center[0], a.center[1] - b.center[1]) >= \
-                    a.footprint_radius + b.footprint_radius
+            for b in scene.objects[i + 1 :]:
+                assert (
+                    math.hypot(a.center[0] - b.center[0], a.center[1] - b.center[1])
+                    >= a.footprint_radius + b.footprint_radius
+                )
     # the pick lies on the object in its frame
     cam = scene_cameras(orig, 64)[pairs["pick"].frame]
     _, _, inst = tabletop.render_view(orig, cam.K.numpy(), cam.c2w.numpy(), 64, 64)

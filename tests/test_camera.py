@@ -135,8 +135,10 @@ def test_plucker() -> None:
     torch.testing.assert_close(m.norm(dim=-1), closest.norm(dim=-1), atol=1e-10, rtol=0)
 
 
-@pytest.mark.parametrize("eye,target", [((3.0, -4.0, 2.0), (0.5, 0.2, 0.1)), ((0.0, -2.0, 0.0), (0.0, 0.0, 0.0)),
-                                        ((-1.0, 5.0, -2.0), (0.0, 0.0, 0.3))])
+@pytest.mark.parametrize(
+    "eye,target",
+    [((3.0, -4.0, 2.0), (0.5, 0.2, 0.1)), ((0.0, -2.0, 0.0), (0.0, 0.0, 0.0)), ((-1.0, 5.0, -2.0), (0.0, 0.0, 0.3))],
+)
 def test_look_at_target_centred_no_roll(eye, target) -> None:
     cam = Camera.look_at(eye, target, fov_y_deg=50.0, width=40, height=30, dtype=DT)
     uv, z = cam.project(torch.tensor([target], dtype=DT))

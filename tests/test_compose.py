@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
+from particlesplat import Gaussians
 from particlesplat.cli import main
 from particlesplat.compose import export_object_ply, insert_object, object_gaussians, object_members, scene_objects
 from particlesplat.encode_scene import demo_scenes, encode_scene
 from particlesplat.model import load_model
 from particlesplat.move import translate
-from particlesplat import Gaussians
 from particlesplat.render import render
 from particlesplat.sh import SH_C0
 
@@ -70,14 +70,14 @@ def test_inserted_object_lands_at_the_requested_place_with_its_colour(scenes, me
     np.testing.assert_allclose(_colour(g), _colour(src), atol=1e-5)
     # B's own particles are untouched
     for name in ("z_p", "z_s", "z_d", "z_t"):
-        torch.testing.assert_close(getattr(out, name)[:b.particles.num], getattr(b.particles, name))
+        torch.testing.assert_close(getattr(out, name)[: b.particles.num], getattr(b.particles, name))
 
 
 def test_inserted_object_renders_in_its_colour_and_is_an_editable_object(scenes):
     model, a, b = scenes
     out, new = insert_object(model, b.particles, a.particles, 0, AT)
     objects = scene_objects(model, out)
-    assert len(set(objects[new].tolist())) == 1 and objects[new[0]] not in set(objects[:b.particles.num].tolist())
+    assert len(set(objects[new].tolist())) == 1 and objects[new[0]] not in set(objects[: b.particles.num].tolist())
 
     def object_rgb(particles, members, camera):
         r = render(model.decode(particles), camera, owner_weights=True, num_owners=particles.num)
@@ -108,7 +108,24 @@ def test_object_command(tmp_path):
     assert main(["object", "export", "--scene", str(scene_a), "--object", "0", "--out", str(ply)]) == 0
     assert Gaussians.load_ply(ply).num > 0
     out = tmp_path / "c.ply"
-    assert main(["object", "insert", "--scene", str(scene_b), "--from", str(scene_a), "--object", "0",
-                 "--at", "0.8,0.5", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "object",
+                "insert",
+                "--scene",
+                str(scene_b),
+                "--from",
+                str(scene_a),
+                "--object",
+                "0",
+                "--at",
+                "0.8,0.5",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     composed = Gaussians.load_ply(out)
     assert composed.num > Gaussians.load_ply(ply).num

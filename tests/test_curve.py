@@ -9,8 +9,12 @@ from particlesplat.curve import ARI_COLOUR, HEIGHT, MARGIN, PSNR_COLOUR, WIDTH, 
 
 def test_reads_val_records_and_skips_a_torn_last_line(tmp_path):
     log = tmp_path / "metrics.jsonl"
-    lines = [json.dumps({"step": 10, "loss": 1.0}), json.dumps({"step": 1000, "val": {"psnr": 25.0, "fg_ari": 0.5}}),
-             json.dumps({"step": 500, "val": {"psnr": 20.0, "fg_ari": 0.25}}), '{"step": 1010, "lo']
+    lines = [
+        json.dumps({"step": 10, "loss": 1.0}),
+        json.dumps({"step": 1000, "val": {"psnr": 25.0, "fg_ari": 0.5}}),
+        json.dumps({"step": 500, "val": {"psnr": 20.0, "fg_ari": 0.25}}),
+        '{"step": 1010, "lo',
+    ]
     log.write_text("\n".join(lines))
     assert read_validation(log) == [(500, 20.0, 0.25), (1000, 25.0, 0.5)]
     log.write_text("\n".join([lines[3], lines[1]]))  # torn in the middle: not a crash, an error naming the line

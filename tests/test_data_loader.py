@@ -43,17 +43,21 @@ def reprojection(scene: Scene, i: int, j: int) -> dict[str, float]:
 
     both_flat = visible & flat(scene.rgb[i]) & flat(scene.rgb[j])[v, u]
     colour_err = (scene.rgb[i] - scene.rgb[j][:, v, u]).abs().amax(0)
-    return {"visible": float(visible.sum()), "inside": float(inside.sum()),
-            "colour_ok": float((colour_err[both_flat] < 2.5 / 255).double().mean()),
-            "flat": float(both_flat.sum()),
-            "mask_ok": float((scene.masks[i][visible] == scene.masks[j][v, u][visible]).double().mean())}
+    return {
+        "visible": float(visible.sum()),
+        "inside": float(inside.sum()),
+        "colour_ok": float((colour_err[both_flat] < 2.5 / 255).double().mean()),
+        "flat": float(both_flat.sum()),
+        "mask_ok": float((scene.masks[i][visible] == scene.masks[j][v, u][visible]).double().mean()),
+    }
 
 
 @pytest.mark.parametrize("resolution", [None, 64, (96, 72)])
 def test_reprojection_between_frames(resolution):
     scene = load_scene(SCENE, resolution)
-    w, h = (128, 128) if resolution is None else ((resolution, resolution) if isinstance(resolution, int)
-                                                  else resolution)
+    w, h = (
+        (128, 128) if resolution is None else ((resolution, resolution) if isinstance(resolution, int) else resolution)
+    )
     assert scene.rgb.shape == (21, 3, h, w) and scene.depth.shape == (21, 1, h, w)
     assert scene.masks.shape == (21, h, w) and scene.masks.dtype == torch.int64
     for i, j in [(10, 11), (10, 13), (3, 0), (20, 16)]:
@@ -122,8 +126,9 @@ def nerfstudio_folder(tmp_path):
     frames = []
     for k, (eye, own) in enumerate([((0.5, -3.0, 1.2), {}), ((2.0, -2.0, 0.8), {"fl_x": 50.0, "cx": 21.0})]):
         _write_png(tmp_path / "images" / f"f{k}.png", rng.integers(0, 256, (30, 40, 3), dtype=np.uint8))
-        frames.append({"file_path": f"images/f{k}.png", "transform_matrix": _gl_look_at(eye, (0, 0, 0)).tolist(),
-                       **own})
+        frames.append(
+            {"file_path": f"images/f{k}.png", "transform_matrix": _gl_look_at(eye, (0, 0, 0)).tolist(), **own}
+        )
     meta = {"w": 40, "h": 30, "fl_x": 35.0, "fl_y": 33.0, "cx": 19.5, "cy": 15.5, "frames": frames}
     (tmp_path / "transforms.json").write_text(json.dumps(meta))
     return tmp_path
@@ -154,8 +159,9 @@ def test_blender_style_folder(tmp_path):
     """NeRF 'blender' folders: camera_angle_x, no w/h/cx/cy, paths without an extension."""
     _write_png(tmp_path / "train" / "r_0.png", np.full((16, 16, 3), 200, np.uint8))
     m = _gl_look_at((0, -4, 0), (0, 0, 0))
-    (tmp_path / "transforms.json").write_text(json.dumps(
-        {"camera_angle_x": 0.6911, "frames": [{"file_path": "./train/r_0", "transform_matrix": m.tolist()}]}))
+    (tmp_path / "transforms.json").write_text(
+        json.dumps({"camera_angle_x": 0.6911, "frames": [{"file_path": "./train/r_0", "transform_matrix": m.tolist()}]})
+    )
     cam = load_scene(tmp_path).cameras[0]
     assert float(cam.fx) == pytest.approx(8 / np.tan(0.6911 / 2), rel=1e-5)
     assert (float(cam.cx), float(cam.cy)) == (8.0, 8.0)
@@ -170,8 +176,16 @@ def _folder(tmp_path: Path, edit=None, depth: bool = True, size=(8, 6)) -> Path:
     frame = {"file_path": "rgb/0.png", "transform_matrix": np.eye(4).tolist()}
     if depth:
         frame["depth_file_path"] = "depth/0.png"
-    meta = {"w": w, "h": h, "fl_x": 10.0, "fl_y": 10.0, "cx": 4.0, "cy": 3.0, "depth_unit_scale_factor": 0.001,
-            "frames": [frame]}
+    meta = {
+        "w": w,
+        "h": h,
+        "fl_x": 10.0,
+        "fl_y": 10.0,
+        "cx": 4.0,
+        "cy": 3.0,
+        "depth_unit_scale_factor": 0.001,
+        "frames": [frame],
+    }
     if edit is not None:
         edit(meta)
     (tmp_path / "transforms.json").write_text(json.dumps(meta))
@@ -196,6 +210,7 @@ def _set(path: list, value):
         for key in path[:-1]:
             node = node[key]
         node[path[-1]] = value
+
     return edit
 
 
@@ -205,25 +220,41 @@ def _delete(path: list):
         for key in path[:-1]:
             node = node[key]
         del node[path[-1]]
+
     return edit
 
 
-@pytest.mark.parametrize("edit, key, message", [
-    (_delete(["frames"]), "frames", "missing key"),
-    (_set(["frames"], []), "frames", "non-empty"),
-    (_delete(["frames", 0, "file_path"]), "file_path", "missing key"),
-    (_delete(["frames", 0, "transform_matrix"]), "transform_matrix", "missing key"),
-    (_delete(["fl_x"]), "fl_x", "missing key"),
-    (_delete(["fl_y"]), "fl_y", "missing key"),
-    (_set(["fl_x"], -3.0), "fl_x", "positive"),
-    (_set(["frames", 0, "transform_matrix"], [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, float("nan")], [0, 0, 0, 1]]),
-     "transform_matrix", "non-finite"),
-    (_set(["frames", 0, "transform_matrix"], (np.eye(4) * [2, 2, 2, 1]).tolist()), "transform_matrix", "not a rigid"),
-    (_set(["frames", 0, "transform_matrix"], np.diag([1.0, 1.0, -1.0, 1.0]).tolist()), "transform_matrix",
-     "not a rigid"),
-    (_set(["frames", 0, "transform_matrix"], [[1, 0, 0], [0, 1, 0]]), "transform_matrix", "4x4"),
-    (_delete(["depth_unit_scale_factor"]), "depth_unit_scale_factor", "no key"),
-])
+@pytest.mark.parametrize(
+    "edit, key, message",
+    [
+        (_delete(["frames"]), "frames", "missing key"),
+        (_set(["frames"], []), "frames", "non-empty"),
+        (_delete(["frames", 0, "file_path"]), "file_path", "missing key"),
+        (_delete(["frames", 0, "transform_matrix"]), "transform_matrix", "missing key"),
+        (_delete(["fl_x"]), "fl_x", "missing key"),
+        (_delete(["fl_y"]), "fl_y", "missing key"),
+        (_set(["fl_x"], -3.0), "fl_x", "positive"),
+        (
+            _set(
+                ["frames", 0, "transform_matrix"], [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, float("nan")], [0, 0, 0, 1]]
+            ),
+            "transform_matrix",
+            "non-finite",
+        ),
+        (
+            _set(["frames", 0, "transform_matrix"], (np.eye(4) * [2, 2, 2, 1]).tolist()),
+            "transform_matrix",
+            "not a rigid",
+        ),
+        (
+            _set(["frames", 0, "transform_matrix"], np.diag([1.0, 1.0, -1.0, 1.0]).tolist()),
+            "transform_matrix",
+            "not a rigid",
+        ),
+        (_set(["frames", 0, "transform_matrix"], [[1, 0, 0], [0, 1, 0]]), "transform_matrix", "4x4"),
+        (_delete(["depth_unit_scale_factor"]), "depth_unit_scale_factor", "no key"),
+    ],
+)
 def test_format_errors_name_file_and_key(tmp_path, edit, key, message):
     folder = _folder(tmp_path, edit)
     with pytest.raises(SceneFormatError) as info:
@@ -268,9 +299,9 @@ def test_error_depth_size_disagrees(tmp_path):
 
 def test_error_mixed_sizes_need_a_resolution(tmp_path):
     def second_frame(meta):
-        meta["frames"].append({**meta["frames"][0], "file_path": "rgb/1.png", "w": 4, "h": 3, "cx": 2.0,
-                               "cy": 1.5})
+        meta["frames"].append({**meta["frames"][0], "file_path": "rgb/1.png", "w": 4, "h": 3, "cx": 2.0, "cy": 1.5})
         del meta["frames"][1]["depth_file_path"]
+
     folder = _folder(tmp_path, second_frame)
     _write_png(folder / "rgb" / "1.png", np.zeros((3, 4, 3), np.uint8))
     with pytest.raises(SceneFormatError, match="different sizes"):

@@ -18,9 +18,16 @@ from particlesplat.data import load_scene
 from particlesplat.data.synth import generate
 
 ASSET_SCENES = [Path(str(files("particlesplat.assets") / "scenes" / f"scene_0000{i}")) for i in range(3)]
-SPEC_COLOURS = {"red": (0.85, 0.2, 0.2), "green": (0.2, 0.7, 0.3), "blue": (0.2, 0.35, 0.85),
-                "yellow": (0.9, 0.8, 0.2), "cyan": (0.2, 0.75, 0.8), "magenta": (0.8, 0.25, 0.7),
-                "orange": (0.95, 0.5, 0.15), "white": (0.9, 0.9, 0.9)}
+SPEC_COLOURS = {
+    "red": (0.85, 0.2, 0.2),
+    "green": (0.2, 0.7, 0.3),
+    "blue": (0.2, 0.35, 0.85),
+    "yellow": (0.9, 0.8, 0.2),
+    "cyan": (0.2, 0.75, 0.8),
+    "magenta": (0.8, 0.25, 0.7),
+    "orange": (0.95, 0.5, 0.15),
+    "white": (0.9, 0.9, 0.9),
+}
 LIGHT = np.array([0.4, 0.3, 1.0]) / np.linalg.norm([0.4, 0.3, 1.0])
 
 
@@ -68,8 +75,12 @@ def test_resume_skips_whole_scenes_and_clears_partial_ones(generated, tmp_path):
 
 
 def test_cli(tmp_path, capsys):
-    assert cli_main(["synth", str(tmp_path / "d"), "--train", "1", "--val", "0", "--test", "0", "--res", "16",
-                     "--workers", "1"]) == 0
+    assert (
+        cli_main(
+            ["synth", str(tmp_path / "d"), "--train", "1", "--val", "0", "--test", "0", "--res", "16", "--workers", "1"]
+        )
+        == 0
+    )
     assert load_scene(tmp_path / "d" / "train" / "scene_00000").rgb.shape == (21, 3, 16, 16)
     (tmp_path / "plain").mkdir()  # a finished scene folder has the permissions of any new folder (umask)
     assert (tmp_path / "d" / "train" / "scene_00000").stat().st_mode == (tmp_path / "plain").stat().st_mode
@@ -129,7 +140,7 @@ def _check_scene(folder: Path) -> None:
         assert obj["center"][2] == pytest.approx(obj["size"][2])  # resting on the floor
         inside = grid + np.asarray(obj["center"])
         inside = inside[_sdf(obj, inside) < 0]
-        for other in objects[k + 1:]:
+        for other in objects[k + 1 :]:
             assert (_sdf(other, inside) > 0).all(), "objects intersect"
     scene = load_scene(folder)
     res = scene.width
@@ -138,10 +149,12 @@ def _check_scene(folder: Path) -> None:
         # cameras from the spec: azimuth -120..120 in 21 steps, on the arc about (0, 0, 0.15), no roll
         az, el = math.radians(-120 + 12 * i), math.radians(meta["elevation_deg"])
         eye = np.array([0, 0, 0.15]) + meta["distance"] * np.array(
-            [math.sin(az) * math.cos(el), -math.cos(az) * math.cos(el), math.sin(el)])
+            [math.sin(az) * math.cos(el), -math.cos(az) * math.cos(el), math.sin(el)]
+        )
         assert cam.center.double().numpy() == pytest.approx(eye, abs=1e-5)
-        assert cam.K.double().numpy() == pytest.approx(np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1]]),
-                                                       abs=1e-3)
+        assert cam.K.double().numpy() == pytest.approx(
+            np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1]]), abs=1e-3
+        )
         uv, _ = cam.project(torch.tensor([0.0, 0.0, 0.15]))
         assert uv.tolist() == pytest.approx([res / 2, res / 2], abs=1e-3)
         assert float(cam.R[2, 0]) == pytest.approx(0.0, abs=1e-6)  # no roll: image x is horizontal

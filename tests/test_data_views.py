@@ -23,8 +23,9 @@ def _draws(progress: float, mode: str, n: int = 1500) -> list[tuple[torch.Tensor
 
 
 # the paper's appendix: multi-view gap [1, 4] -> [5, 20], single-view [1, 2] -> [5, 10], max at half time
-@pytest.mark.parametrize("progress, gaps", [(0.0, (1, 4)), (0.25, (3, 12)), (0.5, (5, 20)), (0.8, (5, 20)),
-                                            (1.0, (5, 20))])
+@pytest.mark.parametrize(
+    "progress, gaps", [(0.0, (1, 4)), (0.25, (3, 12)), (0.5, (5, 20)), (0.8, (5, 20)), (1.0, (5, 20))]
+)
 def test_multi_view_gaps(progress, gaps):
     seen = set()
     for ctx, tgt in _draws(progress, "multi"):
@@ -52,7 +53,7 @@ def test_single_view_gaps(progress, gaps):
 def test_sampler_is_seeded_and_clips_short_trajectories():
     a = sample_views(21, 0.3, "multi", torch.Generator().manual_seed(5))
     b = sample_views(21, 0.3, "multi", torch.Generator().manual_seed(5))
-    assert all(torch.equal(x, y) for x, y in zip(a, b))
+    assert all(torch.equal(x, y) for x, y in zip(a, b, strict=False))
     ctx, tgt = sample_views(3, 1.0, "multi", torch.Generator().manual_seed(0))
     assert ctx.tolist() == [0, 2] and len(tgt) == 4
     with pytest.raises(ValueError, match="mode"):
@@ -64,8 +65,11 @@ def _analytic_visibility(folder: Path, scene, t: int, c: int) -> np.ndarray:
     """(H, W) bool: is target pixel t's surface point seen by context camera c? Ray-cast from the context
     camera with the scene's analytic description (not from depth maps)."""
     meta = json.loads((folder / "scene.json").read_text())
-    tab = TabletopScene([TabletopObject(**{**o, "center": tuple(o["center"]), "size": tuple(o["size"])})
-                         for o in meta["objects"]], meta["elevation_deg"], meta["distance"])
+    tab = TabletopScene(
+        [TabletopObject(**{**o, "center": tuple(o["center"]), "size": tuple(o["size"])}) for o in meta["objects"]],
+        meta["elevation_deg"],
+        meta["distance"],
+    )
     ct, cc = scene.cameras[t].to(dtype=torch.float64), scene.cameras[c].to(dtype=torch.float64)
     d = scene.depth[t, 0].double()
     _, dirs = ct.rays()

@@ -11,8 +11,15 @@ from PIL import Image
 
 from particlesplat.camera import Camera
 from particlesplat.cli import main
-from particlesplat.decomposition import (DIM, MODES, depth_image, palette, render_mode, turntable_cameras,
-                                         turntable_paths)
+from particlesplat.decomposition import (
+    DIM,
+    MODES,
+    depth_image,
+    palette,
+    render_mode,
+    turntable_cameras,
+    turntable_paths,
+)
 from particlesplat.encode_scene import encode_scene
 from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
 from particlesplat.particle_data import particle_arrays
@@ -41,8 +48,9 @@ def test_modes_shapes_and_plain_layers(scene):
     ref = render(g, cam, background=(0.1, 0.2, 0.3)).rgb.numpy()
     np.testing.assert_allclose(render_mode(g, cam, "rgb", background=(0.1, 0.2, 0.3)), ref, atol=1e-6)
     fg = render(g.subset(g.owner >= 0), cam, background=(0.1, 0.2, 0.3)).rgb.numpy()
-    np.testing.assert_allclose(render_mode(g, cam, "foreground", background=(0.1, 0.2, 0.3), arrays=arrays), fg,
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        render_mode(g, cam, "foreground", background=(0.1, 0.2, 0.3), arrays=arrays), fg, atol=1e-6
+    )
     with pytest.raises(ValueError, match="needs a model scene"):
         render_mode(g, cam, "keypoints")
     with pytest.raises(ValueError, match="--mode must be one of"):
@@ -78,8 +86,9 @@ def test_boxes_are_drawn_inside_their_projected_corners(scene):
     assert drawn.sum() > 20
     i = int(np.flatnonzero(one)[0])
     c, e = a.centroid[i].astype(np.float64), 2.0 * a.extent[i].astype(np.float64)
-    corners = torch.tensor([[c[0] + sx * e[0], c[1] + sy * e[1], c[2] + sz * e[2]]
-                            for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    corners = torch.tensor(
+        [[c[0] + sx * e[0], c[1] + sy * e[1], c[2] + sz * e[2]] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
+    )
     uv, _ = cam.to(dtype=torch.float64).project(corners)
     lo, hi = uv.min(0).values.numpy() - 2, uv.max(0).values.numpy() + 2
     v, u = np.nonzero(drawn)
@@ -114,16 +123,58 @@ def test_render_command_turntable(scene, tmp_path):
     save_checkpoint(ckpt, model, 0)
     out = tmp_path / "tt" / "spin.gif"
     scene_dir = str(data / "train" / "scene_00000")
-    assert main(["render", "--checkpoint", str(ckpt), "--scene", scene_dir, "--context", "4,16", "--mode", "objects",
-                 "--turntable", "3", "--width", "40", "--height", "30", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--checkpoint",
+                str(ckpt),
+                "--scene",
+                scene_dir,
+                "--context",
+                "4,16",
+                "--mode",
+                "objects",
+                "--turntable",
+                "3",
+                "--width",
+                "40",
+                "--height",
+                "30",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     frames = sorted(p.name for p in out.parent.glob("spin_*.png"))
     assert frames == ["spin_000.png", "spin_001.png", "spin_002.png"]
     with Image.open(out) as im:
         assert (im.n_frames, im.size) == (3, (40, 30))
     # frame 0 is the still render of the same mode from the default view
     still = tmp_path / "still.png"
-    assert main(["render", "--checkpoint", str(ckpt), "--scene", scene_dir, "--context", "4,16", "--mode", "objects",
-                 "--width", "40", "--height", "30", "--out", str(still)]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--checkpoint",
+                str(ckpt),
+                "--scene",
+                scene_dir,
+                "--context",
+                "4,16",
+                "--mode",
+                "objects",
+                "--width",
+                "40",
+                "--height",
+                "30",
+                "--out",
+                str(still),
+            ]
+        )
+        == 0
+    )
     np.testing.assert_array_equal(np.asarray(Image.open(still)), np.asarray(Image.open(out.parent / frames[0])))
     ply = tmp_path / "s.ply"
     model.decode(encode_scene(model, scene_dir, [4, 16]).particles).detach().save_ply(ply)

@@ -12,8 +12,16 @@ from particlesplat.model.particles import Particles
 def particles(n: int = 4) -> Particles:
     g = torch.Generator().manual_seed(0)
     r = lambda *s: torch.randn(*s, generator=g)  # noqa: E731
-    return Particles(z_p=r(n, 2), z_s=r(n, 2), z_d=r(n, 1), z_e=r(n, 1), z_t=torch.rand(n, 1, generator=g),
-                     z_f=r(n, 3), view=torch.zeros(n, dtype=torch.int64), background=r(1, 2, 4, 4))
+    return Particles(
+        z_p=r(n, 2),
+        z_s=r(n, 2),
+        z_d=r(n, 1),
+        z_e=r(n, 1),
+        z_t=torch.rand(n, 1, generator=g),
+        z_f=r(n, 3),
+        view=torch.zeros(n, dtype=torch.int64),
+        background=r(1, 2, 4, 4),
+    )
 
 
 def test_round_trip(tmp_path):
@@ -33,19 +41,22 @@ def test_apply_then_diff_recovers_the_edits():
     assert diff_edits(p, q) == edits
 
 
-@pytest.mark.parametrize("text,field", [
-    ("particles: {1: {z_q: [1]}}", "particles.1.z_q"),
-    ("particles: {1: {z_p: [1, 2, 3]}}", "particles.1.z_p"),
-    ("particles: {-2: {z_d: 1}}", "particles.-2"),
-    ("particles: {x: {z_d: 1}}", "particles.x"),
-    ("particles: {0: {z_t: 2.0}}", "particles.0.z_t"),
-    ("particles: {0: {z_d: [.nan]}}", "particles.0.z_d"),
-    ("particles: {0: {z_d: [yes]}}", "particles.0.z_d"),
-    ("particles: [1, 2]", "particles"),
-    ("version: 7\nparticles: {}", "version"),
-    ("particles: {}\ncolour: red", "unknown key"),
-    ("particles: {3: {z_d: 1}, '3': {z_d: 2}}", "particles.3: particle 3 is listed twice"),
-])
+@pytest.mark.parametrize(
+    "text,field",
+    [
+        ("particles: {1: {z_q: [1]}}", "particles.1.z_q"),
+        ("particles: {1: {z_p: [1, 2, 3]}}", "particles.1.z_p"),
+        ("particles: {-2: {z_d: 1}}", "particles.-2"),
+        ("particles: {x: {z_d: 1}}", "particles.x"),
+        ("particles: {0: {z_t: 2.0}}", "particles.0.z_t"),
+        ("particles: {0: {z_d: [.nan]}}", "particles.0.z_d"),
+        ("particles: {0: {z_d: [yes]}}", "particles.0.z_d"),
+        ("particles: [1, 2]", "particles"),
+        ("version: 7\nparticles: {}", "version"),
+        ("particles: {}\ncolour: red", "unknown key"),
+        ("particles: {3: {z_d: 1}, '3': {z_d: 2}}", "particles.3: particle 3 is listed twice"),
+    ],
+)
 def test_validation_names_file_and_field(tmp_path, text, field):
     path = tmp_path / "bad.yaml"
     path.write_text(text)

@@ -11,8 +11,18 @@ from model_data import TINY_MODEL, tiny_dataset
 from PIL import Image
 
 from particlesplat.cli import main
-from particlesplat.metrics import (REGIONS, adjusted_rand_index, depth_abs_rel, fg_ari, mask_regions, matched_miou,
-                                  psnr, region_errors, ssim, summarise_region_errors)
+from particlesplat.metrics import (
+    REGIONS,
+    adjusted_rand_index,
+    depth_abs_rel,
+    fg_ari,
+    mask_regions,
+    matched_miou,
+    psnr,
+    region_errors,
+    ssim,
+    summarise_region_errors,
+)
 from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
 
 
@@ -22,7 +32,7 @@ def ari_brute_force(a: list[int], b: list[int]) -> float:
     pairs = list(itertools.combinations(range(n), 2))
     same_a = [a[i] == a[j] for i, j in pairs]
     same_b = [b[i] == b[j] for i, j in pairs]
-    n11 = sum(x and y for x, y in zip(same_a, same_b))
+    n11 = sum(x and y for x, y in zip(same_a, same_b, strict=False))
     na, nb, m = sum(same_a), sum(same_b), len(pairs)
     expected = na * nb / m
     return (n11 - expected) / (0.5 * (na + nb) - expected)
@@ -68,11 +78,34 @@ def test_eval_cli_writes_json_figures_and_pruning_table(tmp_path_factory, tmp_pa
     ckpt = tmp_path / "m.pt"
     save_checkpoint(ckpt, ParticleSplat(ModelConfig(**TINY_MODEL)), step=0)
     out = tmp_path / "eval.json"
-    assert main(["eval", "--checkpoint", str(ckpt), "--data", str(data / "val"), "--json", str(out),
-                 "--figures", str(tmp_path / "fig"), "--prune"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--checkpoint",
+                str(ckpt),
+                "--data",
+                str(data / "val"),
+                "--json",
+                str(out),
+                "--figures",
+                str(tmp_path / "fig"),
+                "--prune",
+            ]
+        )
+        == 0
+    )
     res = json.loads(out.read_text())
-    assert set(res["mean"]) >= {"psnr", "ssim", "depth_abs_rel", "fg_ari", "miou", "fg_ari_particles",
-                                "miou_particles", "objects"}
+    assert set(res["mean"]) >= {
+        "psnr",
+        "ssim",
+        "depth_abs_rel",
+        "fg_ari",
+        "miou",
+        "fg_ari_particles",
+        "miou_particles",
+        "objects",
+    }
     assert res["mean"]["objects"] <= res["mean"]["active_particles"]
     assert len(res["scenes"]) == 1 and res["scenes"][0]["scene"] == "scene_00000"
     assert 0 < res["mean"]["psnr"] < 60 and -1 <= res["mean"]["fg_ari"] <= 1

@@ -26,8 +26,11 @@ def test_fitting_lowers_the_context_error_and_leaves_the_model_alone():
         total = 0.0
         for v, cam in enumerate(cs):
             r = render(g, cam, background=m.background_color())
-            total += float(view_error(r.rgb.permute(2, 0, 1)[None], rgb[v:v + 1], r.depth[None, None],
-                                      depth[v:v + 1], None, 0.5).sum())
+            total += float(
+                view_error(
+                    r.rgb.permute(2, 0, 1)[None], rgb[v : v + 1], r.depth[None, None], depth[v : v + 1], None, 0.5
+                ).sum()
+            )
         return total
 
     fitted = fit_particles(m, p, rgb, depth, steps=5, lr=0.05, latents=FITTED)

@@ -17,10 +17,14 @@ F64 = torch.float64
 
 def random_gaussians(n: int, degree: int, seed: int = 0, dtype: torch.dtype = torch.float32) -> Gaussians:
     gen = torch.Generator().manual_seed(seed)
-    return Gaussians(torch.randn(n, 3, generator=gen, dtype=dtype), torch.randn(n, 4, generator=gen, dtype=dtype),
-                     torch.rand(n, 3, generator=gen, dtype=dtype) + 0.01, torch.rand(n, generator=gen, dtype=dtype),
-                     torch.randn(n, (degree + 1) ** 2, 3, generator=gen, dtype=dtype),
-                     torch.randint(-1, 3, (n,), generator=gen))
+    return Gaussians(
+        torch.randn(n, 3, generator=gen, dtype=dtype),
+        torch.randn(n, 4, generator=gen, dtype=dtype),
+        torch.rand(n, 3, generator=gen, dtype=dtype) + 0.01,
+        torch.rand(n, generator=gen, dtype=dtype),
+        torch.randn(n, (degree + 1) ** 2, 3, generator=gen, dtype=dtype),
+        torch.randint(-1, 3, (n,), generator=gen),
+    )
 
 
 def _rot_z(theta: float) -> torch.Tensor:
@@ -40,12 +44,24 @@ def test_covariances_hand_computed() -> None:
     qx = torch.tensor([math.cos(b / 2), math.sin(b / 2), 0.0, 0.0], dtype=F64)
     w1, x1, y1, z1 = qz
     w2, x2, y2, z2 = qx
-    q = torch.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+    q = torch.stack(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
     s = torch.tensor([0.3, 0.05, 1.7], dtype=F64)
     quats = torch.stack([qz, qx, q, 3.0 * q, torch.zeros(4, dtype=F64)])  # unnormalised and zero too
-    g = Gaussians(torch.zeros(5, 3, dtype=F64), quats, s.repeat(5, 1), torch.ones(5, dtype=F64),
-                  torch.zeros(5, 1, 3, dtype=F64), torch.zeros(5, dtype=torch.int64))
+    g = Gaussians(
+        torch.zeros(5, 3, dtype=F64),
+        quats,
+        s.repeat(5, 1),
+        torch.ones(5, dtype=F64),
+        torch.zeros(5, 1, 3, dtype=F64),
+        torch.zeros(5, dtype=torch.int64),
+    )
     S = torch.diag(s)
     Rs = [_rot_z(a), _rot_x(b), _rot_z(a) @ _rot_x(b), _rot_z(a) @ _rot_x(b), torch.eye(3, dtype=F64)]
     want = torch.stack([R @ S @ S.T @ R.T for R in Rs])
@@ -62,8 +78,14 @@ def test_covariances_random_vs_reference() -> None:
     assert (torch.linalg.eigvalsh(cov) > -1e-12).all()
     # zero quaternion: identity, with finite (zero) gradients
     q = torch.zeros(1, 4, dtype=F64, requires_grad=True)
-    g0 = Gaussians(torch.zeros(1, 3, dtype=F64), q, torch.tensor([[1.0, 2.0, 3.0]], dtype=F64),
-                   torch.ones(1, dtype=F64), torch.zeros(1, 1, 3, dtype=F64), torch.zeros(1, dtype=torch.int64))
+    g0 = Gaussians(
+        torch.zeros(1, 3, dtype=F64),
+        q,
+        torch.tensor([[1.0, 2.0, 3.0]], dtype=F64),
+        torch.ones(1, dtype=F64),
+        torch.zeros(1, 1, 3, dtype=F64),
+        torch.zeros(1, dtype=torch.int64),
+    )
     torch.testing.assert_close(g0.covariances()[0], torch.diag(torch.tensor([1.0, 4.0, 9.0], dtype=F64)))
     g0.covariances().sum().backward()
     assert torch.isfinite(q.grad).all()
@@ -185,6 +207,7 @@ def test_rgb_to_sh_dc_gives_that_colour_everywhere() -> None:
     rgb = torch.tensor([[0.1, 0.5, 0.9], [1.0, 0.0, 0.25]], dtype=F64)
     sh = torch.zeros(2, 16, 3, dtype=F64)
     sh[:, 0] = rgb_to_sh_dc(rgb)
-    dirs = torch.nn.functional.normalize(torch.randn(2, 3, dtype=F64, generator=torch.Generator().manual_seed(0)),
-                                         dim=-1)
+    dirs = torch.nn.functional.normalize(
+        torch.randn(2, 3, dtype=F64, generator=torch.Generator().manual_seed(0)), dim=-1
+    )
     torch.testing.assert_close(eval_sh_colors(sh, dirs), rgb, atol=1e-12, rtol=0)

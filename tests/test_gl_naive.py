@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from viewer_helpers import egl_context, psnr
 
 from particlesplat import render
 from particlesplat.camera import Camera
 from viewer.random_gaussians import random_gaussians
-
-from viewer_helpers import egl_context, psnr
 
 pytestmark = pytest.mark.gl
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from viewer_helpers import psnr
 
 from particlesplat import render
 from particlesplat.camera import Camera
@@ -20,15 +21,21 @@ from particlesplat.rasterize import T_MIN
 from viewer.gl_caps import COMPOSITING, FETCH_EXTENSION, GLCaps, UnsupportedGL, shader_constants
 from viewer.random_gaussians import random_gaussians
 
-from viewer_helpers import psnr
-
 ROOT = Path(__file__).resolve().parents[1]
 HIDE_FETCH = {"MESA_EXTENSION_OVERRIDE": f"-{FETCH_EXTENSION}"}  # read when the driver loads: subprocesses only
 
 
 def caps(fetch: bool, **kw) -> GLCaps:
-    return GLCaps(**{"renderer": "test driver / 3.3", "framebuffer_fetch": fetch, "max_point_size": 255.0,
-                     "max_texture_size": 16384, "max_viewport": (16384, 16384), **kw})
+    return GLCaps(
+        **{
+            "renderer": "test driver / 3.3",
+            "framebuffer_fetch": fetch,
+            "max_point_size": 255.0,
+            "max_texture_size": 16384,
+            "max_viewport": (16384, 16384),
+            **kw,
+        }
+    )
 
 
 def test_compositing_resolution():
@@ -51,8 +58,14 @@ def test_shaders_take_their_constants_from_the_library():
 
 
 def run_hidden(code: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=ROOT,
-                          env={**os.environ, **HIDE_FETCH})
+    return subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=ROOT,
+        env={**os.environ, **HIDE_FETCH},
+    )
 
 
 @pytest.mark.gl
@@ -88,10 +101,25 @@ except UnsupportedGL as e:
 def test_gl_agreement_tests_pass_with_auto_and_the_extension_hidden():
     """Every GL agreement test (random sets and the shipped model's decode against particlesplat.render,
     the id pass, picking, masks, edits) with ``--compositing auto`` on a driver without the extension."""
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--compositing", "auto",
-                           "tests/test_gl_renderer.py",
-                           "tests/test_viewer_session.py::test_edit_redecodes_only_that_particle_and_matches_torch"],
-                          capture_output=True, text=True, timeout=1200, cwd=ROOT, env={**os.environ, **HIDE_FETCH})
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "--compositing",
+            "auto",
+            "tests/test_gl_renderer.py",
+            "tests/test_viewer_session.py::test_edit_redecodes_only_that_particle_and_matches_torch",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=1200,
+        cwd=ROOT,
+        env={**os.environ, **HIDE_FETCH},
+    )
     tail = proc.stdout[-3000:]
     assert proc.returncode == 0, tail + proc.stderr[-2000:]
     assert " passed" in tail and "failed" not in tail and "skipped" not in tail
@@ -103,9 +131,24 @@ def test_app_tests_pass_with_auto_and_the_extension_hidden():
     ``--compositing auto`` on a driver without the extension."""
     if not os.environ.get("DISPLAY"):
         pytest.fail("no DISPLAY: run the tests under xvfb-run (see the README's test command)")
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--compositing", "auto",
-                           "tests/test_viewer_app.py"],
-                          capture_output=True, text=True, timeout=600, cwd=ROOT, env={**os.environ, **HIDE_FETCH})
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "--compositing",
+            "auto",
+            "tests/test_viewer_app.py",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=ROOT,
+        env={**os.environ, **HIDE_FETCH},
+    )
     tail = proc.stdout[-3000:]
     assert proc.returncode == 0, tail + proc.stderr[-2000:]
     assert " passed" in tail and "failed" not in tail and "skipped" not in tail

@@ -6,17 +6,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from reference_render import reference_render
+from viewer_helpers import egl_context, psnr, small_model
 
 from particlesplat import render
 from particlesplat.camera import Camera
 from particlesplat.gaussians import Gaussians
-from viewer.gl_renderer import SplatRenderer, depth_order
-from viewer.random_gaussians import random_gaussians
-
 from particlesplat.projection import ALPHA_MAX
 from particlesplat.rasterize import T_MIN
-from reference_render import reference_render
-from viewer_helpers import egl_context, psnr, small_model
+from viewer.gl_renderer import SplatRenderer, depth_order
+from viewer.random_gaussians import random_gaussians
 
 pytestmark = pytest.mark.gl
 
@@ -28,8 +27,9 @@ def ctx():
     c.release()
 
 
-def gl_render(ctx, g: Gaussians, cam: Camera, compositing: str, primitive: str = "auto", **filt
-              ) -> tuple[np.ndarray, np.ndarray, SplatRenderer]:
+def gl_render(
+    ctx, g: Gaussians, cam: Camera, compositing: str, primitive: str = "auto", **filt
+) -> tuple[np.ndarray, np.ndarray, SplatRenderer]:
     r = SplatRenderer(ctx, color_dtype="f4", primitive=primitive, compositing=compositing)
     r.set_gaussians(g)
     if filt:
@@ -153,8 +153,14 @@ def test_replace_owner_and_filter(ctx, compositing):
     # move owner 2's Gaussians (same count: in-place row upload) and recolour them
     m = g.owner == 2
     moved = g.subset(m)
-    moved = Gaussians(moved.means + torch.tensor([0.3, 0.0, 0.1]), moved.quats, moved.scales * 1.5,
-                      moved.opacities, moved.sh.flip(-1), moved.owner)
+    moved = Gaussians(
+        moved.means + torch.tensor([0.3, 0.0, 0.1]),
+        moved.quats,
+        moved.scales * 1.5,
+        moved.opacities,
+        moved.sh.flip(-1),
+        moved.owner,
+    )
     r.replace_owner(2, moved)
     r.render(cam)
     expect = Gaussians.cat([g.subset(~m), moved])
@@ -248,14 +254,29 @@ def test_projected_splats_match_torch_projection_and_the_bench_prints_its_floor(
     assert len(s) == len(ref) and live.sum() >= 0.9 * len(ref)
     np.testing.assert_allclose(s[live][:, :2], ref[live], atol=1e-2)
     r.release()  # (its caps stay readable)
-    bench = ["--sizes", "400", "--frames", "1", "--no-scene", "--width", "64", "--height", "48", "--primitive",
-             "points", "--compositing"]
+    bench = [
+        "--sizes",
+        "400",
+        "--frames",
+        "1",
+        "--no-scene",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--primitive",
+        "points",
+        "--compositing",
+    ]
     assert bench_main([*bench, "auto,blend,fetch" if r.caps.framebuffer_fetch else "auto,blend"]) == 0
     out = capsys.readouterr().out
     assert "sprite floor ms" in out and "| random 400 | 400 | blend | points |" in out
     assert "| random 400 | 400 | naive | instanced quads |" in out  # the baseline, on the same cameras
-    psnr_db = {line.split("|")[3].strip(): float(line.split("|")[-2]) for line in out.splitlines()
-               if line.startswith("| random 400 |")}
+    psnr_db = {
+        line.split("|")[3].strip(): float(line.split("|")[-2])
+        for line in out.splitlines()
+        if line.startswith("| random 400 |")
+    }
     assert psnr_db["blend"] >= 40.0 and psnr_db["naive"] >= 20.0  # (its own rules: 3 sigma, no clamp)
     if r.caps.framebuffer_fetch:  # both paths side by side (auto is fetch here), and their ratio
         assert "| random 400 | 400 | fetch | points |" in out and psnr_db["fetch"] >= 40.0

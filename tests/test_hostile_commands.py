@@ -66,8 +66,17 @@ def test_eval_outputs_are_checked_before_the_work(tmp_path):
     for flag in ("--json", "--figures"):
         # the checkpoint does not exist either: the output is checked first, before any loading
         with pytest.raises(OSError, match=rf"{blocker}/x.*cannot write"):
-            main(["eval", "--checkpoint", str(tmp_path / "missing.pt"), "--data", str(tmp_path), flag,
-                  str(blocker / "x")])
+            main(
+                [
+                    "eval",
+                    "--checkpoint",
+                    str(tmp_path / "missing.pt"),
+                    "--data",
+                    str(tmp_path),
+                    flag,
+                    str(blocker / "x"),
+                ]
+            )
     assert _snapshot(tmp_path) == {blocker: b""}
     assert time.perf_counter() - t0 < 60  # (a hang guard, not a timing test)
 
@@ -81,8 +90,10 @@ def test_render_width_is_bounded(tmp_path):
     from viewer.random_gaussians import random_gaussians
 
     random_gaussians(50, seed=1).save_ply(tmp_path / "g.ply")
-    assert main(["render", "--ply", str(tmp_path / "g.ply"), "--width", "40000", "--out", str(tmp_path / "o.png")]) \
+    assert (
+        main(["render", "--ply", str(tmp_path / "g.ply"), "--width", "40000", "--out", str(tmp_path / "o.png")])
         == EXIT_USER
+    )
     assert not (tmp_path / "o.png").exists()
 
 
@@ -106,9 +117,18 @@ def test_run_command_policy(capsys):
 
 def test_console_script_ctrl_c_is_one_line(tmp_path):
     """SIGINT while a command works: one line on stderr, exit code 130, no traceback."""
-    proc = subprocess.Popen([sys.executable, "-c", "import time, sys; from particlesplat.errors import run_command; "
-                             "print('ready', flush=True); sys.exit(run_command('particlesplat x', "
-                             "lambda: time.sleep(60)))"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import time, sys; from particlesplat.errors import run_command; "
+            "print('ready', flush=True); sys.exit(run_command('particlesplat x', "
+            "lambda: time.sleep(60)))",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     assert proc.stdout.readline().strip() == "ready"
     time.sleep(1.0)  # let it enter the command (a signal during the print would hit the bare interpreter)
     proc.send_signal(signal.SIGINT)

@@ -27,12 +27,20 @@ from particlesplat.yamlsafe import MAX_YAML_BYTES, YamlError, load_yaml
 
 ALIAS_BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
     f"{chr(98 + i)}: &{chr(98 + i)} [*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, "
-    f"*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}]\n" for i in range(8))
+    f"*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}]\n"
+    for i in range(8)
+)
 
 
 def _gaussians(n: int = 5, owner=None) -> Gaussians:
-    g = Gaussians(torch.randn(n, 3), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), torch.full((n, 3), 0.1),
-                  torch.full((n,), 0.5), torch.zeros(n, 1, 3), torch.zeros(n, dtype=torch.int64))
+    g = Gaussians(
+        torch.randn(n, 3),
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n, 3), 0.1),
+        torch.full((n,), 0.5),
+        torch.zeros(n, 1, 3),
+        torch.zeros(n, dtype=torch.int64),
+    )
     if owner is not None:
         g.owner = torch.as_tensor(owner, dtype=torch.int64)
     return g
@@ -51,13 +59,16 @@ def test_duplicate_keys_are_refused_with_their_line():
 
 
 def test_exponent_without_dot_is_a_float():
-    assert load_yaml("lr: 1e-4\nb: -2E+3\nc: 10\nd: '1e-4'\n", "x") == {"lr": 1e-4, "b": -2000.0, "c": 10,
-                                                                        "d": "1e-4"}
+    assert load_yaml("lr: 1e-4\nb: -2E+3\nc: 10\nd: '1e-4'\n", "x") == {"lr": 1e-4, "b": -2000.0, "c": 10, "d": "1e-4"}
 
 
 def test_oversized_deep_and_python_tagged_yaml_are_one_line_errors():
-    for text in ("x" * (MAX_YAML_BYTES + 1), "[" * 5000 + "]" * 5000, "a: !!python/object/apply:os.system [ls]",
-                 "a: " + "9" * 5000):
+    for text in (
+        "x" * (MAX_YAML_BYTES + 1),
+        "[" * 5000 + "]" * 5000,
+        "a: !!python/object/apply:os.system [ls]",
+        "a: " + "9" * 5000,
+    ):
         with pytest.raises(YamlError) as info:
             load_yaml(text, "f.yaml")
         assert str(info.value).startswith("f.yaml: ") and "\n" not in str(info.value) and len(str(info.value)) < 400
@@ -104,21 +115,39 @@ def _ply_bytes(n_declared: int, rows: np.ndarray, extra_header: str = "") -> byt
 
 
 def _rows(n: int, owner_dtype: str = "<i4") -> np.ndarray:
-    names = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
-             "rot_0", "rot_1", "rot_2", "rot_3"]
+    names = [
+        "x",
+        "y",
+        "z",
+        "f_dc_0",
+        "f_dc_1",
+        "f_dc_2",
+        "opacity",
+        "scale_0",
+        "scale_1",
+        "scale_2",
+        "rot_0",
+        "rot_1",
+        "rot_2",
+        "rot_3",
+    ]
     rec = np.zeros(n, dtype=np.dtype([(k, "<f4") for k in names] + [("owner", owner_dtype)]))
     rec["rot_0"] = 1.0
     return rec
 
 
-@pytest.mark.parametrize("owner, dtype", [(2147483647, "<i4"), (-5, "<i4"), (float("nan"), "<f4"),
-                                          (2.5, "<f4"), (MAX_OWNER + 1, "<i4")])
+@pytest.mark.parametrize(
+    "owner, dtype", [(2147483647, "<i4"), (-5, "<i4"), (float("nan"), "<f4"), (2.5, "<f4"), (MAX_OWNER + 1, "<i4")]
+)
 def test_ply_owner_outside_the_particle_range_is_refused(tmp_path, owner, dtype):
     rows = _rows(3, dtype)
     rows["owner"][1] = owner
     (tmp_path / "o.ply").write_bytes(_ply_bytes(3, rows))
-    with pytest.raises(PlyError, match=r"o\.ply: property 'owner' at vertex 1 is .*expected -1 \(background\) or a "
-                                       rf"particle index 0\.\.{MAX_OWNER}"):
+    with pytest.raises(
+        PlyError,
+        match=r"o\.ply: property 'owner' at vertex 1 is .*expected -1 \(background\) or a "
+        rf"particle index 0\.\.{MAX_OWNER}",
+    ):
         Gaussians.load_ply(tmp_path / "o.ply")
 
 
@@ -131,8 +160,11 @@ def test_ply_owner_in_range_round_trips(tmp_path):
 
 def test_ply_vertex_count_is_checked_against_the_file_size(tmp_path):
     (tmp_path / "lie.ply").write_bytes(_ply_bytes(10**9, _rows(4)))
-    with pytest.raises(PlyError, match=r"lie\.ply: truncated: header declares 1000000000 vertices .* file holds 240 "
-                                       r"bytes \(vertex 4, property 'x' onwards missing\)"):
+    with pytest.raises(
+        PlyError,
+        match=r"lie\.ply: truncated: header declares 1000000000 vertices .* file holds 240 "
+        r"bytes \(vertex 4, property 'x' onwards missing\)",
+    ):
         Gaussians.load_ply(tmp_path / "lie.ply")
 
 
@@ -146,14 +178,17 @@ def test_ply_header_without_end_and_without_newline_is_bounded(tmp_path):
 
 
 # ---------------------------------------------------------------------------- the renderer's edge
-@pytest.mark.parametrize("field, value, message", [
-    ("sh", float("nan"), "sh: non-finite value at Gaussian 2"),
-    ("quats", float("inf"), "quats: non-finite value at Gaussian 2"),
-    ("quats", float("nan"), "quats: non-finite value at Gaussian 2"),
-    ("scales", float("nan"), "scales: non-finite value at Gaussian 2"),
-    ("scales", -1.0, "scales: negative value at Gaussian 2"),
-    ("means", float("inf"), "means: non-finite value at Gaussian 2"),
-])
+@pytest.mark.parametrize(
+    "field, value, message",
+    [
+        ("sh", float("nan"), "sh: non-finite value at Gaussian 2"),
+        ("quats", float("inf"), "quats: non-finite value at Gaussian 2"),
+        ("quats", float("nan"), "quats: non-finite value at Gaussian 2"),
+        ("scales", float("nan"), "scales: non-finite value at Gaussian 2"),
+        ("scales", -1.0, "scales: negative value at Gaussian 2"),
+        ("means", float("inf"), "means: non-finite value at Gaussian 2"),
+    ],
+)
 def test_render_refuses_non_finite_gaussians(field, value, message):
     from particlesplat import render
     from particlesplat.views import default_view
@@ -209,12 +244,17 @@ def test_check_writable_names_an_unwritable_folder(tmp_path):
 # ---------------------------------------------------------------------------- scene images
 def _png_bomb(path, width: int, height: int) -> None:
     """A valid-looking grey PNG whose header declares width x height pixels (the data stream is tiny)."""
+
     def chunk(kind: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
 
     raw = zlib.compress(b"\0" * (width + 1) * 4)
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
-                     + chunk(b"IDAT", raw) + chunk(b"IEND", b""))
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+        + chunk(b"IDAT", raw)
+        + chunk(b"IEND", b"")
+    )
 
 
 @pytest.fixture(scope="module")
@@ -241,8 +281,11 @@ def test_decompression_bomb_names_the_file_and_key(scene):
     for w, h in ((100000, 100000), (5000, 5000)):  # beyond PIL's own limit, and beyond ours only
         _png_bomb(image, w, h)
         assert w * h > MAX_IMAGE_PIXELS
-        with pytest.raises(SceneFormatError, match=r"transforms\.json: frames\[1\]: key 'file_path': image .* "
-                                                   r"(declares more pixels|is \d+x\d+ pixels)"):
+        with pytest.raises(
+            SceneFormatError,
+            match=r"transforms\.json: frames\[1\]: key 'file_path': image .* "
+            r"(declares more pixels|is \d+x\d+ pixels)",
+        ):
             read_scene(scene)
 
 
@@ -266,14 +309,17 @@ def test_scene_paths_stay_inside_the_folder(scene, bad):
 
 
 # ---------------------------------------------------------------------------- configs
-@pytest.mark.parametrize("key, value, message", [
-    ("refine_hidden", 40000, r"refine_hidden: must be in \[1, 4096\] \(got 40000\)"),
-    ("resolution", 1048576, r"resolution: must be in \[16, 1024\]"),
-    ("transformer_heads", 0, r"transformer_heads: must be in \[1, 64\] \(got 0\)"),
-    ("token_dim", -4, r"token_dim: must be in \[1, 2048\] \(got -4\)"),
-    ("d_max", float("inf"), r"d_max: must be a finite number \(got inf\)"),
-    ("prior_depth_mean", float("nan"), r"prior_depth_mean: must be a finite number \(got nan\)"),
-])
+@pytest.mark.parametrize(
+    "key, value, message",
+    [
+        ("refine_hidden", 40000, r"refine_hidden: must be in \[1, 4096\] \(got 40000\)"),
+        ("resolution", 1048576, r"resolution: must be in \[16, 1024\]"),
+        ("transformer_heads", 0, r"transformer_heads: must be in \[1, 64\] \(got 0\)"),
+        ("token_dim", -4, r"token_dim: must be in \[1, 2048\] \(got -4\)"),
+        ("d_max", float("inf"), r"d_max: must be a finite number \(got inf\)"),
+        ("prior_depth_mean", float("nan"), r"prior_depth_mean: must be a finite number \(got nan\)"),
+    ],
+)
 def test_model_config_ranges_and_finite_values(key, value, message):
     from particlesplat.model.config import ConfigError, model_config_from_dict
 
@@ -286,8 +332,11 @@ def test_train_config_val_scenes_and_quoted_number():
 
     with pytest.raises(ConfigError, match=r"train\.val_scenes: must be in \[1, 1000000\] \(got -1\)"):
         train_config_from_dict({"val_scenes": -1}, "c.yaml: train")
-    with pytest.raises(ConfigError, match=r"train\.lr: expected float, got '1e-4' \(text, not a number: write it "
-                                          r"without quotes, e\.g\. 1\.0e-4"):
+    with pytest.raises(
+        ConfigError,
+        match=r"train\.lr: expected float, got '1e-4' \(text, not a number: write it "
+        r"without quotes, e\.g\. 1\.0e-4",
+    ):
         train_config_from_dict({"lr": "1e-4"}, "c.yaml: train")
 
 
@@ -335,14 +384,22 @@ def test_checkpoint_round_trip_loads(tiny_ckpt):
     assert load_model(tiny_ckpt).config.resolution == 32
 
 
-@pytest.mark.parametrize("change, message", [
-    (lambda c: c["state_dict"].__setitem__(next(iter(c["state_dict"])), torch.full((2,), float("nan"))),
-     r"bad\.pt: state_dict\.\S+: non-finite weights"),
-    (lambda c: c.__setitem__("state_dict", [1, 2]), r"bad\.pt: state_dict: expected a mapping of names to tensors, "
-                                                    r"got list"),
-    (lambda c: c["config"].__setitem__("resolution", 64), r"bad\.pt: config: changed after the weights were saved"),
-    (lambda c: c.__setitem__("config", "x" * 1000), r"bad\.pt: config: expected a mapping, got str"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (
+            lambda c: c["state_dict"].__setitem__(next(iter(c["state_dict"])), torch.full((2,), float("nan"))),
+            r"bad\.pt: state_dict\.\S+: non-finite weights",
+        ),
+        (
+            lambda c: c.__setitem__("state_dict", [1, 2]),
+            r"bad\.pt: state_dict: expected a mapping of names to tensors, "
+            r"got list",
+        ),
+        (lambda c: c["config"].__setitem__("resolution", 64), r"bad\.pt: config: changed after the weights were saved"),
+        (lambda c: c.__setitem__("config", "x" * 1000), r"bad\.pt: config: expected a mapping, got str"),
+    ],
+)
 def test_checkpoint_tampering_is_refused(tiny_ckpt, tmp_path, change, message):
     from particlesplat.model import load_model
     from particlesplat.model.io import CheckpointError
@@ -385,10 +442,15 @@ def test_edit_values_beyond_float64_or_float32_in_both_formats():
         validate_edits({1: {"z_d": [10**400]}})  # an integer beyond float64: no OverflowError
     with pytest.raises(EditsError, match=r"e\.yaml: operations\[0\]: particles\.0\.z_d: 1e\+300 is beyond float32"):
         parse_edit_file({"version": 2, "operations": [{"particle": 0, "set": {"z_d": [1e300]}}]}, "e.yaml")
-    with pytest.raises(EditsError, match=r"e\.yaml: operations\[0\]\.translate: expected 3 finite number\(s\) "
-                                         r"\(float32"):
-        parse_edit_file({"version": 2, "operations": [{"pick": {"frame": 0, "pixel": [1, 2]},
-                                                       "translate": [1e300, 0, 0]}]}, "e.yaml")
+    with pytest.raises(
+        EditsError,
+        match=r"e\.yaml: operations\[0\]\.translate: expected 3 finite number\(s\) "
+        r"\(float32",
+    ):
+        parse_edit_file(
+            {"version": 2, "operations": [{"pick": {"frame": 0, "pixel": [1, 2]}, "translate": [1e300, 0, 0]}]},
+            "e.yaml",
+        )
 
 
 def test_scene_path_of_a_megabyte_is_one_short_line(scene):

@@ -27,8 +27,14 @@ def _train(cfg, data, out, *extra) -> int:
 
 
 def _trainer(data, out, **tc) -> Trainer:
-    return Trainer(ModelConfig(**TINY_MODEL), TrainConfig(**{"batch_size": 1, "target_views": 1, "steps": 4,
-                                                             "val_scenes": 1, **tc}), Path(data), out, "cpu", False)
+    return Trainer(
+        ModelConfig(**TINY_MODEL),
+        TrainConfig(**{"batch_size": 1, "target_views": 1, "steps": 4, "val_scenes": 1, **tc}),
+        Path(data),
+        out,
+        "cpu",
+        False,
+    )
 
 
 def test_read_log_leaves_out_a_torn_last_line_and_names_it(tmp_path):
@@ -100,14 +106,22 @@ def test_stale_temporaries_are_cleaned(tmp_path_factory, tmp_path):
     data = tiny_dataset(tmp_path_factory)
     out = tmp_path / "o"
     out.mkdir()
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
-                          text=True).stdout.strip()
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    ).stdout.strip()
     stale = [out / f".last.pt.{dead}.0123abcd.tmp.pt", out / "best.pt.tmp"]
     live = out / f".last.pt.{os.getppid()}.0123abcd.tmp.pt"  # a process that still runs: left alone
     for p in [*stale, live]:
         p.write_bytes(b"x")
-    tr = Trainer(ModelConfig(**TINY_MODEL), TrainConfig(batch_size=1, target_views=1, steps=1, val_every=5),
-                 Path(data), out, "cpu", False, overwrite=True)
+    tr = Trainer(
+        ModelConfig(**TINY_MODEL),
+        TrainConfig(batch_size=1, target_views=1, steps=1, val_every=5),
+        Path(data),
+        out,
+        "cpu",
+        False,
+        overwrite=True,
+    )
     tr.run()
     assert not any(p.exists() for p in stale) and live.exists()
 
@@ -127,9 +141,23 @@ def test_signal_saves_a_checkpoint_and_exits_in_one_line(tmp_path_factory, tmp_p
     data = tiny_dataset(tmp_path_factory)
     cfg = tiny_config(tmp_path / "tiny.yaml", steps=100000, val_every=100000, ckpt_every=100000)
     out = tmp_path / "r"
-    proc = subprocess.Popen([sys.executable, "-m", "particlesplat.cli", "train", "--config", str(cfg), "--data",
-                             str(data), "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "particlesplat.cli",
+            "train",
+            "--config",
+            str(cfg),
+            "--data",
+            str(data),
+            "--out",
+            str(out),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.time() + 240
     while not (out / "metrics.jsonl").is_file() and time.time() < deadline and proc.poll() is None:
         time.sleep(0.2)  # log_every 1: the first step is done

@@ -52,16 +52,38 @@ def test_insert_is_an_editable_object_and_replays(setup, tmp_path):
     ed.redo()
     assert ed.num_particles == n + len(new) and ed.object_offset(n) == pytest.approx((0.0, 0.0, 0.0), abs=1e-6)
     # particlesplat render replays it
-    assert main(["render", "--scene", str(b.path), "--context", "4,16", "--edits", str(path), "--width", "64",
-                 "--height", "48", "--out", str(tmp_path / "r.png")]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--scene",
+                str(b.path),
+                "--context",
+                "4,16",
+                "--edits",
+                str(path),
+                "--width",
+                "64",
+                "--height",
+                "48",
+                "--out",
+                str(tmp_path / "r.png"),
+            ]
+        )
+        == 0
+    )
 
 
 def test_insert_entries_are_checked(setup):
     model, b, ins = setup
     ok = {"version": 2, "operations": [{"insert": {"scene": "A", "object": 1, "at": [0.1, 0.2]}}]}
     assert parse_edit_file(ok).operations[0].insert == Insert("A", 1, (0.1, 0.2), None)
-    for bad in ({"scene": "A", "object": 1}, {"scene": "A", "object": -1, "at": [0, 0]},
-                {"scene": "A", "object": 1, "at": [0, 0], "context": "4,16"}, {"scene": "A", "object": 1, "at": [0]}):
+    for bad in (
+        {"scene": "A", "object": 1},
+        {"scene": "A", "object": -1, "at": [0, 0]},
+        {"scene": "A", "object": 1, "at": [0, 0], "context": "4,16"},
+        {"scene": "A", "object": 1, "at": [0]},
+    ):
         with pytest.raises(EditsError, match="e.yaml: operations\\[0\\].insert"):
             parse_edit_file({"version": 2, "operations": [{"insert": bad}]}, "e.yaml")
     ed = _editor(model, b)

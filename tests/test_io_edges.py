@@ -13,8 +13,25 @@ from particlesplat import Gaussians
 from particlesplat.atomic import atomic_path, atomic_write
 from particlesplat.ply import PlyError
 
-_LAYOUT = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
-           "rot_0", "rot_1", "rot_2", "rot_3"]
+_LAYOUT = [
+    "x",
+    "y",
+    "z",
+    "nx",
+    "ny",
+    "nz",
+    "f_dc_0",
+    "f_dc_1",
+    "f_dc_2",
+    "opacity",
+    "scale_0",
+    "scale_1",
+    "scale_2",
+    "rot_0",
+    "rot_1",
+    "rot_2",
+    "rot_3",
+]
 
 
 def _write_by_hand(path, rec: np.ndarray) -> None:
@@ -63,6 +80,6 @@ def test_truncation_names_the_first_missing_property(tmp_path) -> None:
     rec = _records(3)
     _write_by_hand(tmp_path / "t.ply", rec)
     data = (tmp_path / "t.ply").read_bytes()
-    (tmp_path / "t.ply").write_bytes(data[:-4 * 5])  # the last vertex loses scale_2 and rot_0..3
+    (tmp_path / "t.ply").write_bytes(data[: -4 * 5])  # the last vertex loses scale_2 and rot_0..3
     with pytest.raises(PlyError, match=r"t\.ply: truncated.*vertex 2, property 'scale_2'"):
         Gaussians.load_ply(tmp_path / "t.ply")

@@ -15,21 +15,69 @@ PACKAGES = ("particlesplat", "viewer")
 
 # lowest first; a module is matched by its dotted name or by the longest listed package prefix
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
-    ("core", ("particlesplat.errors", "particlesplat.atomic", "particlesplat.yamlsafe", "particlesplat.camera",
-              "particlesplat.sh", "particlesplat.gaussians", "particlesplat.ply", "particlesplat.png",
-              "particlesplat.runlog")),
-    ("rendering", ("particlesplat.constants", "particlesplat.projection", "particlesplat.rasterize",
-                   "particlesplat.render_dense", "particlesplat.segmentation", "particlesplat.render",
-                   "particlesplat.views_render")),
+    (
+        "core",
+        (
+            "particlesplat.errors",
+            "particlesplat.atomic",
+            "particlesplat.yamlsafe",
+            "particlesplat.camera",
+            "particlesplat.sh",
+            "particlesplat.gaussians",
+            "particlesplat.ply",
+            "particlesplat.png",
+            "particlesplat.runlog",
+        ),
+    ),
+    (
+        "rendering",
+        (
+            "particlesplat.constants",
+            "particlesplat.projection",
+            "particlesplat.rasterize",
+            "particlesplat.render_dense",
+            "particlesplat.segmentation",
+            "particlesplat.render",
+            "particlesplat.views_render",
+        ),
+    ),
     ("model, data", ("particlesplat.model", "particlesplat.data", "particlesplat.views")),
-    ("edit", ("particlesplat.objects", "particlesplat.move", "particlesplat.edits", "particlesplat.edit_ops",
-              "particlesplat.fit", "particlesplat.encode_scene", "particlesplat.particle_data", "particlesplat.compose",
-              "particlesplat.decomposition")),
-    ("training, evaluation", ("particlesplat.provenance", "particlesplat.metrics", "particlesplat.train",
-                              "particlesplat.evaluate", "particlesplat.curve", "particlesplat.bench_render",
-                              "particlesplat.bench_edits")),
-    ("cli", ("particlesplat.cli", "particlesplat.render_cli", "particlesplat.encode_cli", "particlesplat.object_cli",
-             "particlesplat.__main__")),
+    (
+        "edit",
+        (
+            "particlesplat.objects",
+            "particlesplat.move",
+            "particlesplat.edits",
+            "particlesplat.edit_ops",
+            "particlesplat.fit",
+            "particlesplat.encode_scene",
+            "particlesplat.particle_data",
+            "particlesplat.compose",
+            "particlesplat.decomposition",
+        ),
+    ),
+    (
+        "training, evaluation",
+        (
+            "particlesplat.provenance",
+            "particlesplat.metrics",
+            "particlesplat.train",
+            "particlesplat.evaluate",
+            "particlesplat.curve",
+            "particlesplat.bench_render",
+            "particlesplat.bench_edits",
+        ),
+    ),
+    (
+        "cli",
+        (
+            "particlesplat.cli",
+            "particlesplat.render_cli",
+            "particlesplat.encode_cli",
+            "particlesplat.object_cli",
+            "particlesplat.__main__",
+        ),
+    ),
     ("viewer", ("viewer",)),
 ]
 # the package roots re-export a few core names lazily; importing them is importing those names
@@ -116,8 +164,13 @@ def test_library_never_imports_gui_packages():
         if not name.startswith("particlesplat"):
             continue
         for node in ast.walk(ast.parse(path.read_text())):
-            mods = [a.name for a in node.names] if isinstance(node, ast.Import) else \
-                [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else []
+            mods = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom) and not node.level
+                else []
+            )
             bad += [f"{name} imports {m}" for m in mods if m.split(".")[0] in gui]
     assert not bad, bad
 
@@ -125,8 +178,10 @@ def test_library_never_imports_gui_packages():
 def test_no_import_cycles():
     g = graph()
     # a package's __init__ importing its own submodules is how packages work, not a cycle
-    edges = {m: {d for d in deps if not (d.startswith(m + ".") and all_modules()[m].name == "__init__.py")}
-             for m, deps in g.items()}
+    edges = {
+        m: {d for d in deps if not (d.startswith(m + ".") and all_modules()[m].name == "__init__.py")}
+        for m, deps in g.items()
+    }
     state: dict[str, int] = {}
     stack: list[str] = []
     cycles: list[list[str]] = []
@@ -136,7 +191,7 @@ def test_no_import_cycles():
         stack.append(m)
         for d in sorted(edges.get(m, ())):
             if state.get(d) == 1:
-                cycles.append(stack[stack.index(d):] + [d])
+                cycles.append(stack[stack.index(d) :] + [d])
             elif d not in state:
                 visit(d)
         stack.pop()

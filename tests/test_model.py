@@ -41,8 +41,14 @@ def test_covariance_factorisation_round_trip():
     M = torch.randn(200, 3, 3, generator=gen, dtype=torch.float64)
     M[:5] = torch.diag(torch.tensor([0.2, 0.2, 0.05], dtype=torch.float64))  # repeated eigenvalues
     q, s = covariance_to_quat_scale(M)
-    g = Gaussians(torch.zeros(200, 3, dtype=torch.float64), q, s, torch.ones(200, dtype=torch.float64),
-                  torch.zeros(200, 1, 3, dtype=torch.float64), torch.zeros(200, dtype=torch.int64))
+    g = Gaussians(
+        torch.zeros(200, 3, dtype=torch.float64),
+        q,
+        s,
+        torch.ones(200, dtype=torch.float64),
+        torch.zeros(200, 1, 3, dtype=torch.float64),
+        torch.zeros(200, dtype=torch.int64),
+    )
     torch.testing.assert_close(g.covariances(), M @ M.transpose(-1, -2), rtol=1e-9, atol=1e-10)
 
 
@@ -52,8 +58,14 @@ def test_covariance_factorisation_gradient_is_the_identity_map():
     M = torch.randn(20, 3, 3, generator=gen, dtype=torch.float64, requires_grad=True)
     W = torch.randn(20, 3, 3, generator=gen, dtype=torch.float64)
     q, s = covariance_to_quat_scale(M)
-    g = Gaussians(torch.zeros(20, 3, dtype=torch.float64), q, s, torch.ones(20, dtype=torch.float64),
-                  torch.zeros(20, 1, 3, dtype=torch.float64), torch.zeros(20, dtype=torch.int64))
+    g = Gaussians(
+        torch.zeros(20, 3, dtype=torch.float64),
+        q,
+        s,
+        torch.ones(20, dtype=torch.float64),
+        torch.zeros(20, 1, 3, dtype=torch.float64),
+        torch.zeros(20, dtype=torch.int64),
+    )
     (g.covariances() * W).sum().backward()
     Md = M.detach().requires_grad_(True)
     ((Md @ Md.transpose(-1, -2)) * W).sum().backward()
@@ -102,8 +114,14 @@ def test_foreground_lifting_matches_projection_and_jacobian(depth_scale):
     depth_px = 1.0 if depth_scale == "pixel" else (0.25 + 0.4) / 2 * W / S
     jac = torch.tensor([0.25 * W / S, 0.4 * W / S, depth_px]) * float(d) / fx
     expect = torch.diag((jac * s_bar) ** 2)
-    g = Gaussians(f["means"][0], f["quats"][0], f["scales"][0], f["opacities"][0], f["sh"][0],
-                  torch.zeros(S * S, dtype=torch.int64))
+    g = Gaussians(
+        f["means"][0],
+        f["quats"][0],
+        f["scales"][0],
+        f["opacities"][0],
+        f["sh"][0],
+        torch.zeros(S * S, dtype=torch.int64),
+    )
     R = cam.R
     cov_cam = R.T @ g.covariances() @ R
     torch.testing.assert_close(cov_cam, expect.expand(S * S, 3, 3), rtol=1e-4, atol=1e-6)
@@ -119,20 +137,25 @@ def test_back_layer_sits_behind_the_front_on_the_same_ray():
     K, c2w = stack_cameras([cam])
     gen = torch.Generator().manual_seed(3)
     raw = torch.randn(1, 2 * S * S, gaussian_channels(0), generator=gen) * 0.3
-    raw[:, S * S:, 5] = 0.0  # back depth channel -> σ = 0.5
-    z = dict(z_p=torch.tensor([[0.1, 0.2]]), z_s=torch.logit(torch.tensor([[0.3, 0.2]])), z_d=torch.tensor([[0.2]]),
-             z_e=torch.tensor([[-1.0]]), z_t=torch.tensor([[0.8]]))
+    raw[:, S * S :, 5] = 0.0  # back depth channel -> σ = 0.5
+    z = dict(
+        z_p=torch.tensor([[0.1, 0.2]]),
+        z_s=torch.logit(torch.tensor([[0.3, 0.2]])),
+        z_d=torch.tensor([[0.2]]),
+        z_e=torch.tensor([[-1.0]]),
+        z_t=torch.tensor([[0.8]]),
+    )
     f = foreground_gaussians(raw, **z, K=K, c2w=c2w, cfg=cfg)
-    front = foreground_gaussians(raw[:, :S * S], **z, K=K, c2w=c2w, cfg=replace(cfg, patch_back=False))
+    front = foreground_gaussians(raw[:, : S * S], **z, K=K, c2w=c2w, cfg=replace(cfg, patch_back=False))
     assert f["means"].shape == (1, 2 * S * S, 3)
     for k in front:
-        torch.testing.assert_close(f[k][:, :S * S], front[k])
-    uv_f, z_f = cam.project(f["means"][0, :S * S])
-    uv_b, z_b = cam.project(f["means"][0, S * S:])
+        torch.testing.assert_close(f[k][:, : S * S], front[k])
+    uv_f, z_f = cam.project(f["means"][0, : S * S])
+    uv_b, z_b = cam.project(f["means"][0, S * S :])
     torch.testing.assert_close(uv_b, uv_f, rtol=1e-4, atol=1e-4)
     box = (0.3 + 0.2) / 2 * cfg.resolution / float(cam.K[0, 0]) * z_f
     torch.testing.assert_close(z_b - z_f, 0.5 * box, rtol=1e-4, atol=1e-5)
-    torch.testing.assert_close(f["opacities"][0, S * S:], 0.8 * torch.sigmoid(raw[0, S * S:, -1]))
+    torch.testing.assert_close(f["opacities"][0, S * S :], 0.8 * torch.sigmoid(raw[0, S * S :, -1]))
     m = ParticleSplat(cfg)
     assert m.fg_decoder(torch.zeros(3, cfg.d_obj)).shape == (3, 2 * S * S, gaussian_channels(0))
     assert cfg.gaussians_per_particle == 2 * S * S
@@ -227,12 +250,15 @@ def test_edit_moves_only_that_particle():
 # ------------------------------------------------------------------ loss terms
 def test_kl_terms_match_torch_distributions():
     mu, lv = torch.tensor([0.3, -1.0]), torch.tensor([-0.5, 0.2])
-    ref = torch.distributions.kl_divergence(torch.distributions.Normal(mu, torch.exp(0.5 * lv)),
-                                            torch.distributions.Normal(0.1, 0.4))
+    ref = torch.distributions.kl_divergence(
+        torch.distributions.Normal(mu, torch.exp(0.5 * lv)), torch.distributions.Normal(0.1, 0.4)
+    )
     torch.testing.assert_close(kl_normal(mu, lv, 0.1, 0.4), ref)
     a, b = torch.tensor([0.7, 3.0], dtype=torch.float64), torch.tensor([2.0, 0.4], dtype=torch.float64)
-    ref = torch.distributions.kl_divergence(torch.distributions.Beta(a, b), torch.distributions.Beta(
-        torch.tensor(0.01, dtype=torch.float64), torch.tensor(0.01, dtype=torch.float64)))
+    ref = torch.distributions.kl_divergence(
+        torch.distributions.Beta(a, b),
+        torch.distributions.Beta(torch.tensor(0.01, dtype=torch.float64), torch.tensor(0.01, dtype=torch.float64)),
+    )
     torch.testing.assert_close(kl_beta(a, b, 0.01, 0.01), ref)
 
 
@@ -247,10 +273,12 @@ def test_scene_kl_masks_geometry_but_not_transparency():
     bg = kl_normal(post["mu_bg"], post["lv_bg"], 0.0, 1.0).sum()
     torch.testing.assert_close(zero, (t_only + bg)[None])
     one = scene_kl(post, torch.ones(1, 6, 1), cfg, beta_f=0.5)
-    geo = (kl_normal(post["mu_o"], post["lv_o"], 0.0, cfg.prior_offset_std).sum()
-           + kl_normal(post["mu_s"], post["lv_s"], cfg.logit_prior_scale, cfg.prior_scale_std).sum()
-           + kl_normal(post["mu_d"], post["lv_d"], 0.0, 1.0).sum()
-           + kl_normal(post["mu_e"], post["lv_e"], cfg.logit_prior_extent, cfg.prior_extent_std).sum())
+    geo = (
+        kl_normal(post["mu_o"], post["lv_o"], 0.0, cfg.prior_offset_std).sum()
+        + kl_normal(post["mu_s"], post["lv_s"], cfg.logit_prior_scale, cfg.prior_scale_std).sum()
+        + kl_normal(post["mu_d"], post["lv_d"], 0.0, 1.0).sum()
+        + kl_normal(post["mu_e"], post["lv_e"], cfg.logit_prior_extent, cfg.prior_extent_std).sum()
+    )
     feat = kl_normal(post["mu_f"], post["lv_f"], 0.0, 1.0).sum()
     torch.testing.assert_close(one, (geo + 0.5 * feat + t_only + 0.5 * bg)[None], rtol=1e-5, atol=1e-3)
 
@@ -419,8 +447,10 @@ def test_static_layer_renders_the_floor_plane_with_its_colour_and_depth():
         m.static_bg.sh_dc.copy_(rgb_to_sh_dc(torch.tensor([0.2, 0.7, 0.4])).expand_as(m.static_bg.sh_dc))
         m.static_bg.opacity_logit.fill_(8.0)
     cam = cams(1)[0]
-    g = m.decode(m.encode(*[t[:1] if t is not None else None for t in scene_inputs(1)[:2]], [cam]),
-                 torch.tensor([], dtype=torch.long))
+    g = m.decode(
+        m.encode(*[t[:1] if t is not None else None for t in scene_inputs(1)[:2]], [cam]),
+        torch.tensor([], dtype=torch.long),
+    )
     assert len(g) == 48 * 48
     r = render(g, cam)
     centre = (slice(12, 20), slice(12, 20))
@@ -501,8 +531,11 @@ def test_shipped_yaml_documents_every_config_key():
     from particlesplat.model.config import TrainConfig
 
     text = files("particlesplat.assets").joinpath("model.yaml").read_text()
-    lines = {ln.split(":")[0].strip(): ln for ln in text.splitlines() if ln.startswith("  ") and ":" in ln
-             and not ln.strip().startswith("#")}
+    lines = {
+        ln.split(":")[0].strip(): ln
+        for ln in text.splitlines()
+        if ln.startswith("  ") and ":" in ln and not ln.strip().startswith("#")
+    }
     for cls in (ModelConfig, TrainConfig):
         for f in fields(cls):
             assert f.name in lines, f"assets/model.yaml does not list {cls.__name__}.{f.name}"

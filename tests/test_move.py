@@ -17,8 +17,9 @@ DELTA = (0.15, -0.1, 0.08)
 def scene():
     torch.manual_seed(0)
     # the front layer only, as before TINY_MODEL became the recipe's (the back layer exceeds the bound slightly)
-    model = ParticleSplat(ModelConfig(**{**TINY_MODEL, "patch_gaussians": 4, "particle_depth_scale": "cell",
-                                         "patch_back": False})).eval()
+    model = ParticleSplat(
+        ModelConfig(**{**TINY_MODEL, "patch_gaussians": 4, "particle_depth_scale": "cell", "patch_back": False})
+    ).eval()
     cams = [Camera.orbit((0.0, 0.0, 0.15), az, 30.0, 3.3, width=32, height=32) for az in (-40, 35)]
     gen = torch.Generator().manual_seed(1)
     rgb = torch.rand(2, 3, 32, 32, generator=gen)
@@ -42,7 +43,10 @@ def test_anchors_move_by_delta_and_gaussians_follow(scene):
     delta = torch.tensor(DELTA)
     torch.testing.assert_close(anchor_points(q, idx, cfg), anchor_points(p, idx, cfg) + delta, rtol=0, atol=1e-5)
     for i in idx:
-        a, b = model.decode(p, torch.tensor([i]), background=False), model.decode(q, torch.tensor([i]), background=False)
+        a, b = (
+            model.decode(p, torch.tensor([i]), background=False),
+            model.decode(q, torch.tensor([i]), background=False),
+        )
         cam = p.cameras[int(p.view[i])]
         _, zeta = cam.project(a.means)
         d = cfg.d_min + torch.sigmoid(p.z_d[i, 0]) * (cfg.d_max - cfg.d_min)

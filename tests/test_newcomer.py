@@ -31,8 +31,10 @@ def test_render_reproduces_a_png_camera(tmp_path):
 
     scene = str(demo_scenes()[0])
     a, b = tmp_path / "a.png", tmp_path / "b.png"
-    assert main(["render", "--scene", scene, "--look", "-35,25,3.1", "--width", "48", "--height", "36",
-                 "--out", str(a)]) == 0
+    assert (
+        main(["render", "--scene", scene, "--look", "-35,25,3.1", "--width", "48", "--height", "36", "--out", str(a)])
+        == 0
+    )
     cam = camera_from_png(a)
     expected = Camera.orbit((0.0, 0.0, 0.0), -35.0, 25.0, 3.1, width=48, height=36)
     assert (cam.width, cam.height) == (48, 36)
@@ -61,23 +63,30 @@ def test_camera_from_png_errors_name_the_file(tmp_path):
 
 @pytest.mark.gl
 def test_list_swatches_are_the_colours_the_segmentation_mode_draws():
+    from viewer_helpers import egl_context
+
     from viewer.gl_renderer import SplatRenderer
     from viewer.panels.objects import segmentation_colour
-    from viewer_helpers import egl_context
 
     ctx = egl_context()
     try:
         owners = [3, 7, 12]
         means = torch.tensor([[-0.4, 0.0, 0.0], [0.0, 0.0, 0.0], [0.4, 0.0, 0.0]])
-        g = Gaussians(means, torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(3, 1), torch.full((3, 3), 0.06),
-                      torch.full((3,), 0.999), torch.zeros(3, 1, 3), torch.tensor(owners))
+        g = Gaussians(
+            means,
+            torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(3, 1),
+            torch.full((3, 3), 0.06),
+            torch.full((3,), 0.999),
+            torch.zeros(3, 1, 3),
+            torch.tensor(owners),
+        )
         cam = Camera.look_at((0.0, -3.0, 0.0), (0.0, 0.0, 0.0), fov_y_deg=30.0, width=96, height=64)
         r = SplatRenderer(ctx)
         r.set_gaussians(g)
         r.render(cam, color_mode=1)
         rgba = r.read_rgba()  # premultiplied: the colour is rgb / alpha
         uv, _ = cam.project(means)
-        for (u, v), owner in zip(uv.tolist(), owners):
+        for (u, v), owner in zip(uv.tolist(), owners, strict=False):
             px = rgba[int(v), int(u)]
             assert px[3] > 0.9
             np.testing.assert_allclose(px[:3] / px[3], segmentation_colour(owner), atol=0.01)

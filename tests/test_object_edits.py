@@ -7,8 +7,17 @@ import pytest
 import torch
 import yaml
 
-from particlesplat.edit_ops import (EditOp, EditsError, Pick, PickError, SceneEditor, load_edit_file,
-                                    parse_edit_file, save_edit_file, scene_mismatch)
+from particlesplat.edit_ops import (
+    EditOp,
+    EditsError,
+    Pick,
+    PickError,
+    SceneEditor,
+    load_edit_file,
+    parse_edit_file,
+    save_edit_file,
+    scene_mismatch,
+)
 from particlesplat.encode_scene import demo_scenes, load_model_scene
 from particlesplat.move import anchor_points
 
@@ -79,11 +88,13 @@ def test_translate_moves_the_objects_centroid_by_the_requested_metres(scene):
     delta = torch.tensor([0.25, -0.15, 0.0], dtype=torch.float64)
     before_c, before_a = centroid(ed, members), anchor_points(ed.particles, members, ed.model.config)
     ed.move_object(label, delta.tolist())
-    torch.testing.assert_close(anchor_points(ed.particles, members, ed.model.config).double(),
-                               before_a.double() + delta, rtol=0, atol=1e-4)
+    torch.testing.assert_close(
+        anchor_points(ed.particles, members, ed.model.config).double(), before_a.double() + delta, rtol=0, atol=1e-4
+    )
     assert float((centroid(ed, members) - before_c - delta).norm()) < 0.02  # the perspective bound of move.py
-    torch.testing.assert_close(torch.tensor(ed.object_offset(members[0]), dtype=torch.float64), delta, rtol=0,
-                               atol=1e-4)
+    torch.testing.assert_close(
+        torch.tensor(ed.object_offset(members[0]), dtype=torch.float64), delta, rtol=0, atol=1e-4
+    )
     # the object's pixels in an input frame follow: its projected centroid moves as the centroid does
     assert ed.undo() and not ed.undo()
 
@@ -98,11 +109,14 @@ def test_remove_and_duplicate_are_undoable_and_the_copy_is_an_object(scene):
     assert ed.object_members(copy) == list(range(n, n + len(members)))
     offset = torch.tensor([0.0, 0.5, 0.0], dtype=torch.float64)
     cfg = ed.model.config
-    torch.testing.assert_close(anchor_points(ed.particles, ed.object_members(copy), cfg).double(),
-                               anchor_points(ed.particles, members, cfg).double() + offset, rtol=0, atol=1e-4)
+    torch.testing.assert_close(
+        anchor_points(ed.particles, ed.object_members(copy), cfg).double(),
+        anchor_points(ed.particles, members, cfg).double() + offset,
+        rtol=0,
+        atol=1e-4,
+    )
     # Gaussians off the anchor depth move up to |offset| x (depth spread) / depth (move.py): 10 % of 0.5 m here
-    torch.testing.assert_close(centroid(ed, ed.object_members(copy)) - centroid(ed, members), offset, rtol=0,
-                               atol=0.05)
+    torch.testing.assert_close(centroid(ed, ed.object_members(copy)) - centroid(ed, members), offset, rtol=0, atol=0.05)
     ed.remove_object(label)
     g = ed.decode()
     assert not bool(torch.isin(g.owner, torch.tensor(members)).any())
@@ -147,8 +161,13 @@ def test_version_1_still_loads_and_bad_files_name_the_field(scene, tmp_path):
     with pytest.raises(EditsError, match=r"f.yaml: operations\[0\].translate: expected 3"):
         parse_edit_file(bad, "f.yaml")
     with pytest.raises(EditsError, match=r"operations\[0\]: expected pick and exactly one"):
-        parse_edit_file({"version": 2, "operations": [{"pick": {"frame": 4, "pixel": [3, 4]}, "remove": True,
-                                                       "translate": [0, 0, 0]}]}, "f.yaml")
+        parse_edit_file(
+            {
+                "version": 2,
+                "operations": [{"pick": {"frame": 4, "pixel": [3, 4]}, "remove": True, "translate": [0, 0, 0]}],
+            },
+            "f.yaml",
+        )
     with pytest.raises(EditsError, match="version: expected 1 or 2"):
         parse_edit_file({"version": 3, "operations": []}, "f.yaml")
     ops = [EditOp("remove", pick=Pick(4, (0, 0)))]

@@ -12,8 +12,7 @@ from particlesplat.encode_scene import demo_scenes, encode_scene
 from particlesplat.model import load_model
 from particlesplat.move import anchor_points
 from viewer.session import SceneSession
-from viewer.tools.object_tools import (FloorDrag, convex_hull, floor_point, gl_projection, gl_view,
-                                       object_centre)
+from viewer.tools.object_tools import FloorDrag, convex_hull, floor_point, gl_projection, gl_view, object_centre
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +48,7 @@ def test_convex_hull_of_a_square_with_inner_points():
     pts = np.array([[0, 0], [2, 0], [2, 2], [0, 2], [1, 1], [0.5, 1.5], [1, 0]], dtype=float)
     hull = convex_hull(pts)
     assert {tuple(p) for p in hull} == {(0, 0), (2, 0), (2, 2), (0, 2)}
-    area = 0.5 * sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(hull, np.roll(hull, -1, 0)))
+    area = 0.5 * sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(hull, np.roll(hull, -1, 0), strict=False))
     assert area == pytest.approx(4.0)  # counter-clockwise
 
 
@@ -74,8 +73,9 @@ def test_floor_drag_slides_the_object_on_its_plane_as_one_undo_step(session_part
     drag.stop()
     s.end_gesture()
     assert len(s.history.undo) == n_ops + 1
-    expected = floor_point(cam, *path[-1], drag.height or float(centre[2])) - floor_point(cam, float(u), float(v),
-                                                                                          float(centre[2]))
+    expected = floor_point(cam, *path[-1], drag.height or float(centre[2])) - floor_point(
+        cam, float(u), float(v), float(centre[2])
+    )
     assert abs(float(expected[2])) < 1e-9
     moved = anchor_points(s.particles, members, model.config).double() - a0
     np.testing.assert_allclose(moved.numpy(), expected[None].expand_as(moved).numpy(), atol=1e-4)

@@ -15,8 +15,14 @@ def gaussians(means, scale, owner, opacity=0.9) -> Gaussians:
     m = torch.as_tensor(means, dtype=torch.float32).reshape(-1, 3)
     n = m.shape[0]
     op = torch.as_tensor(opacity, dtype=torch.float32).expand(n).clone()
-    return Gaussians(m, torch.tensor([[1.0, 0, 0, 0]]).expand(n, 4).clone(), torch.full((n, 3), float(scale)), op,
-                     torch.zeros(n, 1, 3), torch.as_tensor(owner, dtype=torch.int64).reshape(n))
+    return Gaussians(
+        m,
+        torch.tensor([[1.0, 0, 0, 0]]).expand(n, 4).clone(),
+        torch.full((n, 3), float(scale)),
+        op,
+        torch.zeros(n, 1, 3),
+        torch.as_tensor(owner, dtype=torch.int64).reshape(n),
+    )
 
 
 def sphere_points(centre, radius, n, seed, hemisphere):
@@ -53,8 +59,12 @@ def test_touching_is_within_reach_times_the_sum_of_the_largest_stds(distance, gr
 def test_transparent_and_background_gaussians_do_not_join_objects():
     """A faint Gaussian (opacity below ``opaque``) and a background Gaussian between two particles
     bridge nothing; an inactive particle (no opaque Gaussian) stays its own object."""
-    g = gaussians([[0, 0, 0], [0.05, 0, 0], [0.1, 0, 0], [0.05, 0.01, 0], [3, 3, 3]], 0.03,
-                  [0, 2, 1, -1, 3], opacity=[0.9, 0.1, 0.9, 0.9, 0.05])
+    g = gaussians(
+        [[0, 0, 0], [0.05, 0, 0], [0.1, 0, 0], [0.05, 0.01, 0], [3, 3, 3]],
+        0.03,
+        [0, 2, 1, -1, 3],
+        opacity=[0.9, 0.1, 0.9, 0.9, 0.05],
+    )
     assert particle_objects(g, 4).tolist() == [0, 1, 2, 3]
     g.opacities[1] = 0.5  # now particle 2 is opaque and touches both: one chain 0-2-1
     assert particle_objects(g, 4).tolist() == [0, 0, 0, 3]
@@ -76,8 +86,14 @@ def test_objects_a_few_centimetres_apart_stay_apart():
     parts = []
     for k, centre in enumerate(([0, 0, 0.2], [0.44, 0, 0.2])):
         for h in (+1, -1):
-            parts.append(torch.cat([sphere_points(centre, 0.2, 150, 10 * k + 2 * (h > 0), h),
-                                    sphere_points(centre, 0.2, 100, 10 * k + 1 + 2 * (h > 0), -h)]))
+            parts.append(
+                torch.cat(
+                    [
+                        sphere_points(centre, 0.2, 150, 10 * k + 2 * (h > 0), h),
+                        sphere_points(centre, 0.2, 100, 10 * k + 1 + 2 * (h > 0), -h),
+                    ]
+                )
+            )
     g = gaussians(torch.cat(parts), 0.03, [0] * 250 + [1] * 250 + [2] * 250 + [3] * 250)
     assert particle_objects(g, 4).tolist() == [0, 0, 2, 2]
     assert particle_objects(g, 4, overlap=0.0).tolist() == [0, 0, 0, 0]

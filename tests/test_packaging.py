@@ -27,28 +27,49 @@ def test_shaders_and_assets_are_package_resources() -> None:
 
 def test_library_never_imports_the_viewer_or_gl() -> None:
     names = [m.name for m in pkgutil.walk_packages(particlesplat.__path__, "particlesplat.")]
-    code = ("import importlib, sys\n"
-            f"for name in {names!r}:\n"
-            "    importlib.import_module(name)\n"
-            "bad = [m for m in sys.modules if m.split('.')[0] in ('viewer', 'moderngl', 'glfw', 'imgui_bundle', 'OpenGL')]\n"
-            "print(','.join(bad))\n")
+    code = (
+        "import importlib, sys\n"
+        f"for name in {names!r}:\n"
+        "    importlib.import_module(name)\n"
+        "gui = ('viewer', 'moderngl', 'glfw', 'imgui_bundle', 'OpenGL')\n"
+        "bad = [m for m in sys.modules if m.split('.')[0] in gui]\n"
+        "print(','.join(bad))\n"
+    )
     proc = _run(code)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "", f"particlesplat imported: {proc.stdout.strip()}"
 
 
-@pytest.mark.parametrize("argv", [[], ["--help"], ["synth", "--help"], ["train", "--help"], ["eval", "--help"],
-                                  ["render", "--help"], ["bench", "--help"], ["bench", "render", "--help"],
-                                  ["bench", "viewer", "--help"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        [],
+        ["--help"],
+        ["synth", "--help"],
+        ["train", "--help"],
+        ["eval", "--help"],
+        ["render", "--help"],
+        ["bench", "--help"],
+        ["bench", "render", "--help"],
+        ["bench", "viewer", "--help"],
+    ],
+)
 def test_cli_help_everywhere(argv: list[str]) -> None:
-    proc = subprocess.run([sys.executable, "-m", "particlesplat.cli", *argv], capture_output=True, text=True,
-                          cwd="/", timeout=300, env={**os.environ, "PYTHONWARNINGS": "ignore"})
+    proc = subprocess.run(
+        [sys.executable, "-m", "particlesplat.cli", *argv],
+        capture_output=True,
+        text=True,
+        cwd="/",
+        timeout=300,
+        env={**os.environ, "PYTHONWARNINGS": "ignore"},
+    )
     assert proc.returncode == 0, proc.stderr
     assert "usage" in proc.stdout.lower()
 
 
 def test_cli_unknown_command_fails_clearly() -> None:
-    proc = subprocess.run([sys.executable, "-m", "particlesplat.cli", "frobnicate"], capture_output=True, text=True,
-                          cwd="/", timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-m", "particlesplat.cli", "frobnicate"], capture_output=True, text=True, cwd="/", timeout=300
+    )
     assert proc.returncode == 2
     assert "unknown command 'frobnicate'" in proc.stderr

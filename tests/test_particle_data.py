@@ -16,8 +16,15 @@ from particlesplat.data import read_scene
 from particlesplat.encode_cli import encode_batch, encode_folder, find_scenes
 from particlesplat.gaussians import Gaussians
 from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
-from particlesplat.particle_data import (ParticleArrays, dense_objects, drawing_particles, encode_scene_arrays,
-                                         object_centres, particle_arrays, weighted_stats)
+from particlesplat.particle_data import (
+    ParticleArrays,
+    dense_objects,
+    drawing_particles,
+    encode_scene_arrays,
+    object_centres,
+    particle_arrays,
+    weighted_stats,
+)
 
 
 @pytest.fixture(scope="module")
@@ -40,8 +47,14 @@ def encoded(model, data):
 def _gaussians(means, opacities, owner, sh_dc=None) -> Gaussians:
     n = means.shape[0]
     sh = torch.zeros(n, 1, 3, dtype=means.dtype) if sh_dc is None else sh_dc[:, None, :]
-    return Gaussians(means, torch.tensor([[1.0, 0, 0, 0]], dtype=means.dtype).repeat(n, 1),
-                     torch.full((n, 3), 0.01, dtype=means.dtype), opacities, sh, owner)
+    return Gaussians(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]], dtype=means.dtype).repeat(n, 1),
+        torch.full((n, 3), 0.01, dtype=means.dtype),
+        opacities,
+        sh,
+        owner,
+    )
 
 
 def test_weighted_stats_match_brute_force():
@@ -65,10 +78,25 @@ def test_weighted_stats_match_brute_force():
 def test_arrays_have_the_issue_layout(encoded, model):
     a, _ = encoded
     P, D = a.num_particles, model.config.d_obj if hasattr(model.config, "d_obj") else a.z_f.shape[1]
-    shapes = {"z_p": (P, 2), "z_s": (P, 2), "z_d": (P, 1), "z_e": (P, 1), "z_t": (P, 1), "z_f": (P, a.z_f.shape[1]),
-              "view": (P,), "anchor": (P, 3), "centroid": (P, 3), "extent": (P, 3), "colour": (P, 3),
-              "active": (P,), "object": (P,), "object_centroid": (a.num_objects, 3),
-              "object_extent": (a.num_objects, 3), "K": (2, 3, 3), "c2w": (2, 4, 4)}
+    shapes = {
+        "z_p": (P, 2),
+        "z_s": (P, 2),
+        "z_d": (P, 1),
+        "z_e": (P, 1),
+        "z_t": (P, 1),
+        "z_f": (P, a.z_f.shape[1]),
+        "view": (P,),
+        "anchor": (P, 3),
+        "centroid": (P, 3),
+        "extent": (P, 3),
+        "colour": (P, 3),
+        "active": (P,),
+        "object": (P,),
+        "object_centroid": (a.num_objects, 3),
+        "object_extent": (a.num_objects, 3),
+        "K": (2, 3, 3),
+        "c2w": (2, 4, 4),
+    }
     assert D > 0
     for name, shape in shapes.items():
         assert getattr(a, name).shape == shape, name
@@ -84,8 +112,12 @@ def test_anchor_reprojects_to_z_p_at_depth_d(encoded, model):
     a, _ = encoded
     cfg = model.config
     for i in range(a.num_particles):
-        cam = Camera(torch.tensor(a.K[a.view[i]], dtype=torch.float64),
-                     torch.tensor(a.c2w[a.view[i]], dtype=torch.float64), cfg.resolution, cfg.resolution)
+        cam = Camera(
+            torch.tensor(a.K[a.view[i]], dtype=torch.float64),
+            torch.tensor(a.c2w[a.view[i]], dtype=torch.float64),
+            cfg.resolution,
+            cfg.resolution,
+        )
         uv, z = cam.project(torch.tensor(a.anchor[i], dtype=torch.float64))
         expect_uv = (a.z_p[i].astype(np.float64) + 1.0) * 0.5 * cfg.resolution
         d = cfg.d_min + (cfg.d_max - cfg.d_min) / (1.0 + np.exp(-float(a.z_d[i, 0])))
@@ -130,8 +162,9 @@ def test_active_means_the_particle_draws(model, data):
     active = drawing_particles(p, g, model.config.bg_mask_threshold)
     assert not bool(active[0]) and bool(active[1])
     # a particle whose Gaussians are all below the renderer's 1/255 cut-off does not draw either
-    faint = Gaussians(g.means, g.quats, g.scales, torch.where(g.owner == 1, torch.zeros_like(g.opacities),
-                                                               g.opacities), g.sh, g.owner)
+    faint = Gaussians(
+        g.means, g.quats, g.scales, torch.where(g.owner == 1, torch.zeros_like(g.opacities), g.opacities), g.sh, g.owner
+    )
     assert not bool(drawing_particles(p, faint, model.config.bg_mask_threshold)[1])
     # the arrays agree: an inactive particle has no object
     a = particle_arrays(model, p)
@@ -153,8 +186,11 @@ def test_resting_centre_analytic():
     obj[:50, 0] += 0.1  # half the column shifted in x with opacity 1, half at 0.5: mean x = 0.3 + 0.1 * 50/75.5
     op = torch.cat([torch.ones(50), torch.full((51,), 0.5)]).double()
     floor = torch.stack([torch.rand(30).double(), torch.rand(30).double(), torch.full((30,), 0.1).double()], -1)
-    g = _gaussians(torch.cat([obj, floor]), torch.cat([op, torch.ones(30).double()]),
-                   torch.cat([torch.zeros(101, dtype=torch.int64), torch.full((30,), -1)]))
+    g = _gaussians(
+        torch.cat([obj, floor]),
+        torch.cat([op, torch.ones(30).double()]),
+        torch.cat([torch.zeros(101, dtype=torch.int64), torch.full((30,), -1)]),
+    )
     centre, _ = object_centres(g, torch.tensor([0]), 1, "resting")
     assert centre[0].tolist() == pytest.approx([0.3 + 0.1 * 50 / 75.5, -0.2, 0.1 + 0.5 * 0.95 * 2 * h], abs=1e-9)
     with pytest.raises(ValueError, match="object centre method"):
@@ -182,7 +218,7 @@ def test_encode_batch_equals_single_encode(model, data):
     paths = [data / "train" / "scene_00000", data / "train" / "scene_00001", data / "val" / "scene_00000"]
     scenes = [read_scene(p).select([4, 16], model.config.resolution) for p in paths]
     batched = encode_batch(model, scenes)
-    for sc, pb in zip(scenes, batched):
+    for sc, pb in zip(scenes, batched, strict=False):
         ps = model.encode(sc.rgb, sc.depth, sc.cameras)
         for name in ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f", "background"):
             torch.testing.assert_close(getattr(pb, name), getattr(ps, name), atol=1e-5, rtol=1e-4)
@@ -192,8 +228,27 @@ def test_encode_command_resumes_and_mirrors_folders(model, data, tmp_path):
     ckpt = tmp_path / "m.pt"
     save_checkpoint(ckpt, model, 0)
     out = tmp_path / "out"
-    assert main(["encode", "--data", str(data), "--out", str(out), "--checkpoint", str(ckpt), "--batch", "2",
-                 "--context", "4,16", "--device", "cpu", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "encode",
+                "--data",
+                str(data),
+                "--out",
+                str(out),
+                "--checkpoint",
+                str(ckpt),
+                "--batch",
+                "2",
+                "--context",
+                "4,16",
+                "--device",
+                "cpu",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     files = sorted(p.relative_to(out).as_posix() for p in out.rglob("*.npz"))
     assert files == ["train/scene_00000.npz", "train/scene_00001.npz", "val/scene_00000.npz"]
     assert not [p for p in out.rglob("*") if p.name.startswith(".")]  # no temporaries left

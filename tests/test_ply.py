@@ -18,9 +18,14 @@ from particlesplat.ply import PlyError
 
 def random_gaussians(n: int, degree: int, seed: int = 0) -> Gaussians:
     gen = torch.Generator().manual_seed(seed)
-    return Gaussians(torch.randn(n, 3, generator=gen) * 3, torch.randn(n, 4, generator=gen),
-                     torch.exp(torch.randn(n, 3, generator=gen)) * 0.1, 0.01 + 0.98 * torch.rand(n, generator=gen),
-                     torch.randn(n, (degree + 1) ** 2, 3, generator=gen), torch.randint(-1, 7, (n,), generator=gen))
+    return Gaussians(
+        torch.randn(n, 3, generator=gen) * 3,
+        torch.randn(n, 4, generator=gen),
+        torch.exp(torch.randn(n, 3, generator=gen)) * 0.1,
+        0.01 + 0.98 * torch.rand(n, generator=gen),
+        torch.randn(n, (degree + 1) ** 2, 3, generator=gen),
+        torch.randint(-1, 7, (n,), generator=gen),
+    )
 
 
 def layout_names(degree: int, owner: bool) -> list[str]:
@@ -32,9 +37,17 @@ def layout_names(degree: int, owner: bool) -> list[str]:
     return names + (["owner"] if owner else [])
 
 
-def write_by_hand(path: Path, rows: list[dict[str, float]], names: list[str], *, endian: str = "<",
-                  int_props: tuple[str, ...] = (), uchar_props: tuple[str, ...] = (), extra_header: str = "",
-                  truncate: int = 0) -> None:
+def write_by_hand(
+    path: Path,
+    rows: list[dict[str, float]],
+    names: list[str],
+    *,
+    endian: str = "<",
+    int_props: tuple[str, ...] = (),
+    uchar_props: tuple[str, ...] = (),
+    extra_header: str = "",
+    truncate: int = 0,
+) -> None:
     """A binary .ply written with struct, one row per vertex: floats, except ``int_props`` (int32)
     and ``uchar_props`` (uint8)."""
     fmt = "binary_little_endian" if endian == "<" else "binary_big_endian"
@@ -42,10 +55,15 @@ def write_by_hand(path: Path, rows: list[dict[str, float]], names: list[str], *,
     header = f"ply\nformat {fmt} 1.0\ncomment written by hand\nelement vertex {len(rows)}\n"
     header += "".join(f"property {kind.get(n, ('float', 'f'))[0]} {n}\n" for n in names)
     header += extra_header + "end_header\n"
-    body = b"".join(struct.pack(endian + "".join(kind.get(n, ("float", "f"))[1] for n in names),
-                                *[int(r[n]) if n in kind else r[n] for n in names]) for r in rows)
+    body = b"".join(
+        struct.pack(
+            endian + "".join(kind.get(n, ("float", "f"))[1] for n in names),
+            *[int(r[n]) if n in kind else r[n] for n in names],
+        )
+        for r in rows
+    )
     data = header.encode("ascii") + body
-    path.write_bytes(data[:len(data) - truncate] if truncate else data)
+    path.write_bytes(data[: len(data) - truncate] if truncate else data)
 
 
 def hand_rows(degree: int) -> tuple[list[dict[str, float]], dict[str, np.ndarray]]:
@@ -66,9 +84,13 @@ def hand_rows(degree: int) -> tuple[list[dict[str, float]], dict[str, np.ndarray
         for i, q in enumerate([0.5, -0.5, 0.25, 0.75] if v == 0 else [0.0, 1.0, 0.0, 0.0]):
             r[f"rot_{i}"] = q
         rows.append(r)
-    want = {"means": np.array([[1.5, -2.25, 0.125], [2.5, -2.25, 0.25]]), "sh": sh,
-            "opacities": np.array(opac), "scales": np.array(scales),
-            "quats": np.array([[0.5, -0.5, 0.25, 0.75], [0.0, 1.0, 0.0, 0.0]])}
+    want = {
+        "means": np.array([[1.5, -2.25, 0.125], [2.5, -2.25, 0.25]]),
+        "sh": sh,
+        "opacities": np.array(opac),
+        "scales": np.array(scales),
+        "quats": np.array([[0.5, -0.5, 0.25, 0.75], [0.0, 1.0, 0.0, 0.0]]),
+    }
     return rows, want
 
 
@@ -153,8 +175,14 @@ def test_hand_laid_out_big_endian_with_owner_and_extra_element(tmp_path: Path) -
     rows[0]["owner"], rows[1]["owner"] = 3, 0
     path = tmp_path / "hand_be.ply"
     # other tools may add elements after the vertices (declared after it in the header)
-    write_by_hand(path, rows, layout_names(1, owner=True), endian=">", int_props=("owner",),
-                  extra_header="element extra 0\nproperty float foo\n")
+    write_by_hand(
+        path,
+        rows,
+        layout_names(1, owner=True),
+        endian=">",
+        int_props=("owner",),
+        extra_header="element extra 0\nproperty float foo\n",
+    )
     g = Gaussians.load_ply(path)
     assert_matches(g, want)
     assert g.owner.tolist() == [3, 0]
@@ -292,8 +320,10 @@ def test_failed_write_leaves_existing_file_intact(tmp_path: Path, monkeypatch: p
     assert torch.equal(back.means, old.means)
 
 
-@pytest.mark.parametrize("bad_line", ["element vertex two", "element vertex -1", "property float", "format",
-                                      "property float x extra", "vertex 3"])
+@pytest.mark.parametrize(
+    "bad_line",
+    ["element vertex two", "element vertex -1", "property float", "format", "property float x extra", "vertex 3"],
+)
 def test_malformed_header_line_is_rejected(tmp_path: Path, bad_line: str) -> None:
     rows, _ = hand_rows(0)
     path = tmp_path / "malformed.ply"

@@ -15,9 +15,20 @@ def test_any_norm_gives_the_unit_rotation(scale: float, dtype: torch.dtype) -> N
     q = torch.tensor([[0.3, -0.5, 0.7, 0.2], [1.0, 0.0, 0.0, 1.0]], dtype=torch.float64)
     unit = q / q.norm(dim=-1, keepdim=True)
     w, x, y, z = unit.unbind(-1)
-    expect = torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                          2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                          2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1).reshape(-1, 3, 3)
+    expect = torch.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        ],
+        -1,
+    ).reshape(-1, 3, 3)
     got = quats_to_rotations((q * scale).to(dtype))
     assert torch.allclose(got.double(), expect, atol=1e-6 if dtype == torch.float32 else 1e-12)
 
@@ -34,10 +45,13 @@ def test_render_is_invariant_to_quaternion_scale() -> None:
     gen = torch.Generator().manual_seed(0)
     n = 50
     q = torch.randn(n, 4, generator=gen, dtype=torch.float64)
-    base = dict(means=torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.4,
-                scales=torch.rand(n, 3, generator=gen, dtype=torch.float64) * 0.2 + 0.01,
-                opacities=torch.rand(n, generator=gen, dtype=torch.float64),
-                sh=torch.randn(n, 1, 3, generator=gen, dtype=torch.float64), owner=torch.zeros(n, dtype=torch.int64))
+    base = dict(
+        means=torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.4,
+        scales=torch.rand(n, 3, generator=gen, dtype=torch.float64) * 0.2 + 0.01,
+        opacities=torch.rand(n, generator=gen, dtype=torch.float64),
+        sh=torch.randn(n, 1, 3, generator=gen, dtype=torch.float64),
+        owner=torch.zeros(n, dtype=torch.int64),
+    )
     cam = Camera.orbit((0, 0, 0), 10, 20, 3.0, width=24, height=20, dtype=torch.float64)
     ref = render(Gaussians(quats=q / q.norm(dim=-1, keepdim=True), **base), cam)
     tiny = render(Gaussians(quats=q * 1e-14, **base), cam)

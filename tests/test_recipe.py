@@ -127,21 +127,32 @@ def test_checkpoints_hold_provenance_and_resume_adds_hours(tmp_path_factory, tmp
     assert first["scene_list_sha256"] == hashlib.sha256("".join(f"{n}\n" for n in names).encode()).hexdigest()
     assert first["wall_hours"] > 0 and first["cpu_hours"] > 0
     assert type(first["torch"]) is str and first["torch"] == str(torch.__version__)
-    assert read_checkpoint(tmp_path / "r" / "step_000002.pt")["provenance"]["scene_list_sha256"] == \
-        first["scene_list_sha256"]
+    assert (
+        read_checkpoint(tmp_path / "r" / "step_000002.pt")["provenance"]["scene_list_sha256"]
+        == first["scene_list_sha256"]
+    )
     assert main([*argv, "--resume"]) == 0
     second = read_checkpoint(tmp_path / "r" / "last.pt")
     assert second["step"] == 4
     prov = second["provenance"]
     assert prov["wall_hours"] > first["wall_hours"] and prov["cpu_hours"] >= first["cpu_hours"]
-    assert {k: prov[k] for k in ("init", "data", "scene_list_sha256", "torch")} == \
-        {k: first[k] for k in ("init", "data", "scene_list_sha256", "torch")}
+    assert {k: prov[k] for k in ("init", "data", "scene_list_sha256", "torch")} == {
+        k: first[k] for k in ("init", "data", "scene_list_sha256", "torch")
+    }
 
 
 # ------------------------------------------------------------------ checkpoints of removed branches
-LEGACY_OFF = {"kp_selection": "residual", "kp_cross_view": False, "bg_detail": 0, "bg_detail_threshold": 0.05,
-              "bg_copy_input": False, "patch_refine": 0, "patch_cell_mlp": 0, "patch_copy_input": False,
-              "patch_copy_threshold": 0.3}
+LEGACY_OFF = {
+    "kp_selection": "residual",
+    "kp_cross_view": False,
+    "bg_detail": 0,
+    "bg_detail_threshold": 0.05,
+    "bg_copy_input": False,
+    "patch_refine": 0,
+    "patch_cell_mlp": 0,
+    "patch_copy_input": False,
+    "patch_copy_threshold": 0.3,
+}
 
 
 def _old_checkpoint(path: Path, **config) -> Path:
@@ -161,15 +172,29 @@ def test_removed_keys_at_their_off_value_are_dropped(tmp_path):
     fresh.load_state_dict(torch.load(path, weights_only=True)["state_dict"])
     cams = [Camera.orbit((0, 0, 0.15), az, 30, 3.3, width=32, height=32) for az in (-20, 20)]
     rgb, depth = torch.rand(2, 3, 32, 32), torch.rand(2, 1, 32, 32) + 3.0
-    torch.testing.assert_close(model.decode(model.encode(rgb, depth, cams)).means,
-                               fresh.eval().decode(fresh.encode(rgb, depth, cams)).means, rtol=0, atol=0)
+    torch.testing.assert_close(
+        model.decode(model.encode(rgb, depth, cams)).means,
+        fresh.eval().decode(fresh.encode(rgb, depth, cams)).means,
+        rtol=0,
+        atol=0,
+    )
     train = without_removed_keys({**asdict(TrainConfig()), "beta_coarse": 2.5}, "train", "old.pt: train")
     assert train == asdict(TrainConfig())
 
 
-@pytest.mark.parametrize("key,value", [("bg_detail", 2), ("bg_copy_input", True), ("kp_cross_view", True),
-                                       ("patch_refine", 1), ("patch_cell_mlp", 64), ("patch_copy_input", True),
-                                       ("kp_selection", "presence"), ("bg_detail", False)])
+@pytest.mark.parametrize(
+    "key,value",
+    [
+        ("bg_detail", 2),
+        ("bg_copy_input", True),
+        ("kp_cross_view", True),
+        ("patch_refine", 1),
+        ("patch_cell_mlp", 64),
+        ("patch_copy_input", True),
+        ("kp_selection", "presence"),
+        ("bg_detail", False),
+    ],
+)
 def test_removed_keys_that_switch_a_branch_on_are_refused_by_name(tmp_path, key, value):
     path = _old_checkpoint(tmp_path / "on.pt", **{**LEGACY_OFF, key: value})
     with pytest.raises(ConfigError, match=rf"on\.pt: config\.{key}: {value!r} switches on a branch"):

@@ -39,7 +39,7 @@ def test_refinement_starts_as_the_identity_and_keeps_the_bounds():
     assert bool(((c.z_s - centre).abs() <= cfg.scale_logit_bound + 1e-6).all())
     assert bool((c.z_t > a.z_t).all())  # Beta(a e, b / e): the mean's odds grow by e^2
     odds = lambda t: t / (1 - t)  # noqa: E731
-    torch.testing.assert_close(odds(c.z_t.double()), odds(a.z_t.double()) * torch.e ** 2, rtol=1e-4, atol=0)
+    torch.testing.assert_close(odds(c.z_t.double()), odds(a.z_t.double()) * torch.e**2, rtol=1e-4, atol=0)
     assert (c.z_p - a.z_p).abs().max() <= 2 * cfg.offset_bound + 1e-6  # both within ±offset_bound of the keypoint
 
 
@@ -93,8 +93,17 @@ def test_refiner_sees_the_view_and_the_render_of_the_current_means(glimpse):
     for n in range(N):
         v = int(p.view[n])
         r = render(g, cs[v], background=bg, owner_weights=True, num_owners=N)
-        image = torch.cat([rgb[v], depth[v] / cfg.d_max, torch.ones_like(depth[v]), r.rgb.permute(2, 0, 1),
-                           r.depth[None] / cfg.d_max, r.alpha[None], r.owner_weights[n][None]])
+        image = torch.cat(
+            [
+                rgb[v],
+                depth[v] / cfg.d_max,
+                torch.ones_like(depth[v]),
+                r.rgb.permute(2, 0, 1),
+                r.depth[None] / cfg.d_max,
+                r.alpha[None],
+                r.owner_weights[n][None],
+            ]
+        )
         theta = torch.zeros(1, 2, 3)
         theta[0, 0, 0], theta[0, 1, 1] = (BOX_MARGIN * torch.sigmoid(p.z_s[n])).tolist()
         theta[0, :, 2] = p.z_p[n]
@@ -116,9 +125,17 @@ def test_refinement_trains_end_to_end():
     from particlesplat.model.geometry import stack_cameras
 
     K, c2w = stack_cameras(cs)
-    batch = {"context_rgb": rgb[None], "context_depth": depth[None], "context_K": K[None], "context_c2w": c2w[None],
-             "target_rgb": rgb[None, :1], "target_depth": depth[None, :1], "target_K": K[None, :1],
-             "target_c2w": c2w[None, :1], "target_supervision": torch.ones_like(depth[None, :1])}
+    batch = {
+        "context_rgb": rgb[None],
+        "context_depth": depth[None],
+        "context_K": K[None],
+        "context_c2w": c2w[None],
+        "target_rgb": rgb[None, :1],
+        "target_depth": depth[None, :1],
+        "target_K": K[None, :1],
+        "target_c2w": c2w[None, :1],
+        "target_supervision": torch.ones_like(depth[None, :1]),
+    }
     parts, _ = training_loss(refined, batch, TrainConfig(beta_fg=0.0), True, True, 32, refined.config)
     parts["loss"].backward()
     assert refined.refiner.out.weight.grad.abs().max() > 0

@@ -4,11 +4,11 @@ gradcheck and the hard-case suite of issue 2."""
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 import os
 import subprocess
 import sys
 import textwrap
+from dataclasses import replace
 
 import pytest
 import torch
@@ -23,8 +23,9 @@ SH_C0 = 0.5 / math.sqrt(math.pi)
 
 
 # ---------------------------------------------------------------------------------------------- helpers
-def make(means, quats=None, scales=None, opacities=None, sh=None, owner=None, *, dtype=F32,
-         degree: int = 0, seed: int = 0) -> Gaussians:
+def make(
+    means, quats=None, scales=None, opacities=None, sh=None, owner=None, *, dtype=F32, degree: int = 0, seed: int = 0
+) -> Gaussians:
     """Gaussians from array-likes; missing fields get defaults (identity, 0.1 m, 0.7, random colours)."""
     means = torch.as_tensor(means, dtype=F64).reshape(-1, 3)
     n = means.shape[0]
@@ -36,9 +37,14 @@ def make(means, quats=None, scales=None, opacities=None, sh=None, owner=None, *,
         sh = torch.randn(n, (degree + 1) ** 2, 3, generator=gen, dtype=F64) * 0.5
     owner = torch.zeros(n, dtype=torch.int64) if owner is None else owner
     as_t = lambda x, s: torch.as_tensor(x, dtype=F64).reshape(s).to(dtype)  # noqa: E731
-    return Gaussians(means.to(dtype), as_t(quats, (n, 4)), as_t(scales, (n, 3)), as_t(opacities, (n,)),
-                     torch.as_tensor(sh, dtype=F64).reshape(n, -1, 3).to(dtype),
-                     torch.as_tensor(owner, dtype=torch.int64).reshape(n))
+    return Gaussians(
+        means.to(dtype),
+        as_t(quats, (n, 4)),
+        as_t(scales, (n, 3)),
+        as_t(opacities, (n,)),
+        torch.as_tensor(sh, dtype=F64).reshape(n, -1, 3).to(dtype),
+        torch.as_tensor(owner, dtype=torch.int64).reshape(n),
+    )
 
 
 def pinhole(width: int = 37, height: int = 23, f: float = 30.0) -> Camera:
@@ -50,8 +56,9 @@ def pinhole(width: int = 37, height: int = 23, f: float = 30.0) -> Camera:
 def random_scene(seed: int, n: int, degree: int, width: int = 37, height: int = 23) -> tuple[Gaussians, Camera]:
     """Random float32 Gaussians in front of a look-at camera (float64 camera)."""
     gen = torch.Generator().manual_seed(seed)
-    cam = Camera.look_at((0.3 * seed - 0.4, -4.0, 1.0), (0.0, 0.1, 0.0), fov_y_deg=45.0, width=width,
-                         height=height, dtype=F64)
+    cam = Camera.look_at(
+        (0.3 * seed - 0.4, -4.0, 1.0), (0.0, 0.1, 0.0), fov_y_deg=45.0, width=width, height=height, dtype=F64
+    )
     means = (torch.rand(n, 3, generator=gen, dtype=F64) - 0.5) * 3.0
     quats = torch.randn(n, 4, generator=gen, dtype=F64)
     scales = torch.exp(torch.randn(n, 3, generator=gen, dtype=F64) * 0.5) * 0.12
@@ -70,8 +77,11 @@ def leaves(gs: Gaussians, dtype: torch.dtype) -> tuple[dict[str, torch.Tensor], 
 def weights(h: int, w: int, seed: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Random float64 projection weights for rgb (h, w, 3), alpha (h, w) and depth (h, w)."""
     gen = torch.Generator().manual_seed(seed)
-    return (torch.randn(h, w, 3, generator=gen, dtype=F64), torch.randn(h, w, generator=gen, dtype=F64),
-            torch.randn(h, w, generator=gen, dtype=F64))
+    return (
+        torch.randn(h, w, 3, generator=gen, dtype=F64),
+        torch.randn(h, w, generator=gen, dtype=F64),
+        torch.randn(h, w, generator=gen, dtype=F64),
+    )
 
 
 def loss_of(res, wts) -> torch.Tensor:
@@ -91,8 +101,7 @@ def assert_images_close(res, ref: ReferenceResult, atol: float, depth_rtol: floa
         assert err.max().item() <= atol, f"{name}: max abs error {err.max().item():.3e} > {atol:.1e}"
 
 
-def assert_grads_close(got: dict[str, torch.Tensor], want: dict[str, torch.Tensor], rtol: float,
-                       atol: float) -> None:
+def assert_grads_close(got: dict[str, torch.Tensor], want: dict[str, torch.Tensor], rtol: float, atol: float) -> None:
     """Per field: finite, and |got - want| <= rtol * max|want| + atol."""
     for f in FIELDS:
         g = got[f].grad
@@ -106,8 +115,16 @@ def assert_grads_close(got: dict[str, torch.Tensor], want: dict[str, torch.Tenso
         assert err <= tol, f"grad {f}: max abs error {err:.3e} > {tol:.3e} (max |g| {w.abs().max().item():.3e})"
 
 
-def check_against_reference(gs: Gaussians, cam: Camera, *, atol: float = 1e-5, depth_rtol: float = 0.0,
-                            grads: bool = True, check64: bool = True, **kw) -> ReferenceResult:
+def check_against_reference(
+    gs: Gaussians,
+    cam: Camera,
+    *,
+    atol: float = 1e-5,
+    depth_rtol: float = 0.0,
+    grads: bool = True,
+    check64: bool = True,
+    **kw,
+) -> ReferenceResult:
     """float32 render vs float64 brute force (outputs and gradients), and the float64 render too.
 
     ``depth_rtol`` only for depths where float32 cannot hold 1e-5 m (points 1e4 m away)."""
@@ -187,8 +204,11 @@ def test_foreground_weight_matches_reference_and_has_the_opacity_gradient() -> N
         for sgn in (1, -1):
             o = g64.opacities.clone()
             o[i] += sgn * h
-            vals.append(float((render(replace(g64, opacities=o), cam, background=BG, foreground=True).foreground
-                               * weights).sum()))
+            vals.append(
+                float(
+                    (render(replace(g64, opacities=o), cam, background=BG, foreground=True).foreground * weights).sum()
+                )
+            )
         assert float(opac.grad[i]) == pytest.approx((vals[0] - vals[1]) / (2 * h), rel=1e-4, abs=1e-7)
 
 
@@ -219,8 +239,12 @@ def test_owner_weights_and_segmentation_match_reference() -> None:
 
 def test_segmentation_clear_cases() -> None:
     cam = pinhole(21, 15)
-    gs = make([[-0.3, 0.0, 2.0], [0.3, 0.0, 2.0], [0.0, 0.0, 1.5]], scales=[[0.08] * 3, [0.08] * 3, [0.02] * 3],
-              opacities=[0.95, 0.95, 0.99], owner=[0, 2, -1])
+    gs = make(
+        [[-0.3, 0.0, 2.0], [0.3, 0.0, 2.0], [0.0, 0.0, 1.5]],
+        scales=[[0.08] * 3, [0.08] * 3, [0.02] * 3],
+        opacities=[0.95, 0.95, 0.99],
+        owner=[0, 2, -1],
+    )
     res = render(gs, cam, owner_weights=True)
     seg = res.segmentation()
     u0, u1 = int(10.5 - 30 * 0.15), int(10.5 + 30 * 0.15)
@@ -256,8 +280,9 @@ def test_analytic_isotropic_facing_camera() -> None:
     alpha = torch.where(inside, o * torch.exp(-0.5 * r2 / s2), torch.zeros_like(r2))
     torch.testing.assert_close(res.alpha, alpha, atol=1e-12, rtol=0)
     assert abs(float(res.alpha[16, 16]) - o) < 1e-12  # peak
-    torch.testing.assert_close(res.depth, torch.where(inside, torch.full_like(r2, z), torch.zeros_like(r2)),
-                               atol=1e-12, rtol=0)
+    torch.testing.assert_close(
+        res.depth, torch.where(inside, torch.full_like(r2, z), torch.zeros_like(r2)), atol=1e-12, rtol=0
+    )
     want = alpha[..., None] * color + (1 - alpha[..., None]) * torch.tensor(BG, dtype=F64)
     torch.testing.assert_close(res.rgb, want, atol=1e-12, rtol=0)
     # opacity 1: the peak is clamped to 0.99
@@ -341,8 +366,11 @@ def test_analytic_compositing_and_termination() -> None:
     assert abs(float(res.alpha[16, 16]) - (1 - T)) < 1e-12
     assert abs(float(res.depth[16, 16]) - (a1 * 2.0 + a2 * (1 - a1) * 3.0) / (1 - T)) < 1e-12
     # two Gaussians, no termination
-    res2 = render(make([[0.0, 0.0, 3.0], [0.0, 0.0, 2.0]], scales=[[0.3] * 3] * 2, opacities=[0.6, 0.5],
-                       sh=sh[:2], dtype=F64), cam, background=BG)
+    res2 = render(
+        make([[0.0, 0.0, 3.0], [0.0, 0.0, 2.0]], scales=[[0.3] * 3] * 2, opacities=[0.6, 0.5], sh=sh[:2], dtype=F64),
+        cam,
+        background=BG,
+    )
     rgb2 = 0.5 * cols[1] + 0.6 * 0.5 * cols[0] + 0.5 * 0.4 * torch.tensor(BG, dtype=F64)
     torch.testing.assert_close(res2.rgb[16, 16], rgb2, atol=1e-12, rtol=0)
     assert abs(float(res2.depth[16, 16]) - (0.5 * 2.0 + 0.3 * 3.0) / 0.8) < 1e-12
@@ -364,8 +392,7 @@ def test_sh_view_dependence_matches_reference() -> None:
 
 
 # ---------------------------------------------------------------------------------------------- gradients
-def _gradcheck(renderer, cam: Camera, params: tuple[torch.Tensor, ...], owner: torch.Tensor,
-               fast_mode: bool) -> bool:
+def _gradcheck(renderer, cam: Camera, params: tuple[torch.Tensor, ...], owner: torch.Tensor, fast_mode: bool) -> bool:
     """torch.autograd.gradcheck of ``renderer`` w.r.t. (means, quats, scales, opacities, sh)."""
 
     def fn(m, q, s, o, c):
@@ -380,10 +407,13 @@ def test_gradcheck_float64() -> None:
     """Smooth configuration: every pixel well inside every footprint, no clamp, no termination."""
     cam = pinhole(9, 7, 12.0)
     gen = torch.Generator().manual_seed(3)
-    params = (torch.tensor([[0.05, -0.02, 2.0], [-0.1, 0.08, 2.5], [0.12, 0.1, 3.1]], dtype=F64),
-              torch.randn(3, 4, generator=gen, dtype=F64),
-              torch.tensor([[0.9, 0.6, 0.5], [0.7, 1.1, 0.8], [1.0, 0.8, 1.2]], dtype=F64),
-              torch.tensor([0.5, 0.6, 0.7], dtype=F64), torch.randn(3, 4, 3, generator=gen, dtype=F64) * 0.2)
+    params = (
+        torch.tensor([[0.05, -0.02, 2.0], [-0.1, 0.08, 2.5], [0.12, 0.1, 3.1]], dtype=F64),
+        torch.randn(3, 4, generator=gen, dtype=F64),
+        torch.tensor([[0.9, 0.6, 0.5], [0.7, 1.1, 0.8], [1.0, 0.8, 1.2]], dtype=F64),
+        torch.tensor([0.5, 0.6, 0.7], dtype=F64),
+        torch.randn(3, 4, 3, generator=gen, dtype=F64) * 0.2,
+    )
     owner = torch.tensor([0, 1, -1])
     ref = reference_render(make(*params, owner, dtype=F64), cam)
     assert ref.alpha.min() > 0.5 and ref.transmittance.min() > 1e-3  # every pixel, every Gaussian counts
@@ -391,19 +421,25 @@ def test_gradcheck_float64() -> None:
 
 
 def test_gradcheck_float64_full_jacobian_small() -> None:
-    params = (torch.tensor([[0.03, -0.02, 1.5], [-0.05, 0.04, 2.0]], dtype=F64),
-              torch.tensor([[0.9, 0.1, -0.3, 0.2], [0.5, -0.5, 0.4, 0.1]], dtype=F64),
-              torch.tensor([[0.6, 0.4, 0.5], [0.5, 0.7, 0.3]], dtype=F64), torch.tensor([0.45, 0.65], dtype=F64),
-              torch.tensor([[[0.3, -0.1, 0.2]], [[-0.2, 0.4, 0.1]]], dtype=F64))
+    params = (
+        torch.tensor([[0.03, -0.02, 1.5], [-0.05, 0.04, 2.0]], dtype=F64),
+        torch.tensor([[0.9, 0.1, -0.3, 0.2], [0.5, -0.5, 0.4, 0.1]], dtype=F64),
+        torch.tensor([[0.6, 0.4, 0.5], [0.5, 0.7, 0.3]], dtype=F64),
+        torch.tensor([0.45, 0.65], dtype=F64),
+        torch.tensor([[[0.3, -0.1, 0.2]], [[-0.2, 0.4, 0.1]]], dtype=F64),
+    )
     assert _gradcheck(render, pinhole(5, 4, 8.0), params, torch.tensor([0, 0]), fast_mode=False)
 
 
 def test_reference_gradcheck() -> None:
     """The reference's own autograd (used as gradient truth above) against finite differences."""
-    params = (torch.tensor([[0.05, -0.02, 2.0], [-0.1, 0.08, 2.5]], dtype=F64),
-              torch.tensor([[0.9, 0.1, -0.3, 0.2], [0.5, -0.5, 0.4, 0.1]], dtype=F64),
-              torch.tensor([[0.9, 0.6, 0.5], [0.7, 1.1, 0.8]], dtype=F64), torch.tensor([0.5, 0.6], dtype=F64),
-              torch.randn(2, 4, 3, generator=torch.Generator().manual_seed(0), dtype=F64) * 0.2)
+    params = (
+        torch.tensor([[0.05, -0.02, 2.0], [-0.1, 0.08, 2.5]], dtype=F64),
+        torch.tensor([[0.9, 0.1, -0.3, 0.2], [0.5, -0.5, 0.4, 0.1]], dtype=F64),
+        torch.tensor([[0.9, 0.6, 0.5], [0.7, 1.1, 0.8]], dtype=F64),
+        torch.tensor([0.5, 0.6], dtype=F64),
+        torch.randn(2, 4, 3, generator=torch.Generator().manual_seed(0), dtype=F64) * 0.2,
+    )
     assert _gradcheck(reference_render, pinhole(6, 5, 10.0), params, torch.tensor([0, 1]), fast_mode=True)
 
 
@@ -411,8 +447,12 @@ def test_reference_gradcheck() -> None:
 def test_hard_behind_camera() -> None:
     cam = pinhole()
     # big splats behind the camera (their mirrored footprint would cover the image) + one in front
-    gs = make([[0.0, 0.0, -2.0], [0.3, -0.2, -0.5], [0.1, 0.1, 0.0], [0.0, 0.0, 3.0]],
-              scales=[[1.0] * 3, [0.5] * 3, [0.2] * 3, [0.2] * 3], opacities=[0.9, 0.9, 0.9, 0.8], degree=1)
+    gs = make(
+        [[0.0, 0.0, -2.0], [0.3, -0.2, -0.5], [0.1, 0.1, 0.0], [0.0, 0.0, 3.0]],
+        scales=[[1.0] * 3, [0.5] * 3, [0.2] * 3, [0.2] * 3],
+        opacities=[0.9, 0.9, 0.9, 0.8],
+        degree=1,
+    )
     check_against_reference(gs, cam, background=BG)
     only_front = render(gs.subset(torch.tensor([3])), cam)
     res = render(gs, cam)
@@ -425,21 +465,32 @@ def test_hard_behind_camera() -> None:
 def test_hard_at_and_straddling_near_plane() -> None:
     cam = pinhole()
     # near = 0.25 (exact in float32): z == near is culled (strict), z slightly above is kept
-    gs = make([[0.0, 0.0, 0.25], [0.05, 0.0, 0.3], [0.0, 0.05, 0.2], [0.0, 0.0, 2.0]],
-              scales=[[0.3] * 3, [0.4, 0.2, 0.3], [0.5] * 3, [0.3] * 3], opacities=[0.8, 0.6, 0.9, 0.7], degree=2)
+    gs = make(
+        [[0.0, 0.0, 0.25], [0.05, 0.0, 0.3], [0.0, 0.05, 0.2], [0.0, 0.0, 2.0]],
+        scales=[[0.3] * 3, [0.4, 0.2, 0.3], [0.5] * 3, [0.3] * 3],
+        opacities=[0.8, 0.6, 0.9, 0.7],
+        degree=2,
+    )
     ref = check_against_reference(gs, cam, background=BG, near=0.25)
     without = reference_render(gs.subset(torch.tensor([1, 3])), cam, background=BG, near=0.25)
     torch.testing.assert_close(ref.rgb, without.rgb, atol=0, rtol=0)
     # the default near plane 0.01, splats exactly at it and straddling it
-    gs2 = make([[0.0, 0.0, 0.01], [0.001, 0.0, 0.0100001], [0.0, 0.0, 0.005], [0.0, 0.0, 2.0]],
-               scales=[[0.02] * 3, [0.02] * 3, [0.05] * 3, [0.3] * 3], opacities=[0.8, 0.6, 0.9, 0.7])
+    gs2 = make(
+        [[0.0, 0.0, 0.01], [0.001, 0.0, 0.0100001], [0.0, 0.0, 0.005], [0.0, 0.0, 2.0]],
+        scales=[[0.02] * 3, [0.02] * 3, [0.05] * 3, [0.3] * 3],
+        opacities=[0.8, 0.6, 0.9, 0.7],
+    )
     check_against_reference(gs2, cam, background=BG)
 
 
 def test_hard_zero_scale() -> None:
     cam = pinhole()
-    gs = make([[0.0, 0.0, 2.0], [0.2, 0.1, 2.5], [-0.3, -0.1, 3.0]],
-              scales=[[0.0, 0.0, 0.0], [0.0, 0.2, 0.1], [0.1, 0.1, 0.1]], opacities=[0.9, 0.8, 0.6], degree=1)
+    gs = make(
+        [[0.0, 0.0, 2.0], [0.2, 0.1, 2.5], [-0.3, -0.1, 3.0]],
+        scales=[[0.0, 0.0, 0.0], [0.0, 0.2, 0.1], [0.1, 0.1, 0.1]],
+        opacities=[0.9, 0.8, 0.6],
+        degree=1,
+    )
     ref = check_against_reference(gs, cam, background=BG)
     # a zero-scale splat is a 0.3 px² dot
     assert ref.alpha[11, 18] > 0.8
@@ -454,8 +505,14 @@ def test_hard_needles(seed: int, shape: tuple[float, float, float]) -> None:
     means = (torch.rand(n, 3, generator=gen, dtype=F64) - 0.5) * torch.tensor([2.0, 1.2, 1.0], dtype=F64)
     means[:, 2] += 3.0
     scales = torch.tensor([shape], dtype=F64).repeat(n, 1)[:, torch.randperm(3, generator=gen)]
-    gs = make(means, torch.randn(n, 4, generator=gen, dtype=F64), scales,
-              0.2 + 0.7 * torch.rand(n, generator=gen, dtype=F64), degree=1, seed=seed)
+    gs = make(
+        means,
+        torch.randn(n, 4, generator=gen, dtype=F64),
+        scales,
+        0.2 + 0.7 * torch.rand(n, generator=gen, dtype=F64),
+        degree=1,
+        seed=seed,
+    )
     ref = check_against_reference(gs, pinhole(), background=BG)
     assert ref.alpha.max() > 0.5
 
@@ -476,8 +533,13 @@ def test_hard_zero_quaternion_is_identity() -> None:
 def test_hard_quaternion_norms(norm: float) -> None:
     """Quaternions are normalised on use whatever their (non-zero) norm: tiny and huge ones too."""
     q = torch.tensor([[0.7, 0.1, -0.2, 0.68], [0.3, 0.9, 0.1, -0.3]], dtype=F64)
-    gs = make([[0.1, 0.0, 2.0], [-0.2, 0.1, 2.5]], quats=q * norm, scales=[[0.4, 0.1, 0.2], [0.1, 0.3, 0.05]],
-              opacities=[0.8, 0.6], degree=1)
+    gs = make(
+        [[0.1, 0.0, 2.0], [-0.2, 0.1, 2.5]],
+        quats=q * norm,
+        scales=[[0.4, 0.1, 0.2], [0.1, 0.3, 0.05]],
+        opacities=[0.8, 0.6],
+        degree=1,
+    )
     ref = check_against_reference(gs, pinhole(), background=BG)
     unit = reference_render(make(gs.means, q, gs.scales, gs.opacities, gs.sh, dtype=F64), pinhole(), background=BG)
     torch.testing.assert_close(ref.alpha, unit.alpha, atol=1e-6, rtol=0)
@@ -485,8 +547,12 @@ def test_hard_quaternion_norms(norm: float) -> None:
 
 def test_hard_opacity_zero_and_one() -> None:
     cam = pinhole()
-    gs = make([[0.0, 0.0, 2.0], [0.15, 0.05, 2.5], [-0.2, 0.0, 3.0], [0.0, 0.1, 1.5]],
-              scales=[[0.3] * 3, [0.2] * 3, [0.25] * 3, [0.05] * 3], opacities=[0.0, 1.0, 1.0, 0.0], degree=1)
+    gs = make(
+        [[0.0, 0.0, 2.0], [0.15, 0.05, 2.5], [-0.2, 0.0, 3.0], [0.0, 0.1, 1.5]],
+        scales=[[0.3] * 3, [0.2] * 3, [0.25] * 3, [0.05] * 3],
+        opacities=[0.0, 1.0, 1.0, 0.0],
+        degree=1,
+    )
     ref = check_against_reference(gs, cam, background=BG)
     assert abs(float(ref.alpha.detach().max()) - 0.99) < 0.01
     res = render(make([[0.0, 0.0, 2.0]], scales=[[0.3] * 3], opacities=[0.0]), cam, background=BG)
@@ -534,8 +600,12 @@ def test_hard_thousand_splats_stacked_float32_gradients() -> None:
     gen = torch.Generator().manual_seed(1)
     z = 1.0 + torch.rand(n, generator=gen, dtype=F64) * 3.0
     means = torch.stack([0.013 * z, -0.007 * z, z], -1)
-    gs = make(means, scales=torch.full((n, 3), 0.05, dtype=F64),
-              opacities=0.3 + 0.6 * torch.rand(n, generator=gen, dtype=F64), degree=1)
+    gs = make(
+        means,
+        scales=torch.full((n, 3), 0.05, dtype=F64),
+        opacities=0.3 + 0.6 * torch.rand(n, generator=gen, dtype=F64),
+        degree=1,
+    )
     check_against_reference(gs, cam, background=BG, check64=False)
 
 
@@ -563,10 +633,13 @@ def test_hard_splat_covering_whole_screen() -> None:
 def test_hard_centre_off_screen_footprint_on_screen() -> None:
     cam = pinhole()
     # centres left of, above, and far right of the image, one behind the right edge
-    gs = make([[-1.5, 0.0, 2.0], [0.0, -1.2, 2.0], [4.0, 0.3, 2.0], [0.7, 0.1, 2.0]],
-              quats=[[0.9, 0.1, 0.2, 0.3], [1.0, 0.0, 0.0, 0.0], [0.7, -0.3, 0.1, 0.2], [1.0, 0.0, 0.0, 0.0]],
-              scales=[[0.6, 0.4, 0.5], [0.5] * 3, [1.5, 1.0, 1.2], [0.2] * 3], opacities=[0.9, 0.8, 0.9, 0.7],
-              degree=1)
+    gs = make(
+        [[-1.5, 0.0, 2.0], [0.0, -1.2, 2.0], [4.0, 0.3, 2.0], [0.7, 0.1, 2.0]],
+        quats=[[0.9, 0.1, 0.2, 0.3], [1.0, 0.0, 0.0, 0.0], [0.7, -0.3, 0.1, 0.2], [1.0, 0.0, 0.0, 0.0]],
+        scales=[[0.6, 0.4, 0.5], [0.5] * 3, [1.5, 1.0, 1.2], [0.2] * 3],
+        opacities=[0.9, 0.8, 0.9, 0.7],
+        degree=1,
+    )
     uv, _ = cam.project(gs.means.double())
     assert ((uv[:, 0] < 0) | (uv[:, 0] > 37) | (uv[:, 1] < 0) | (uv[:, 1] > 23))[:3].all()
     ref = check_against_reference(gs, cam, background=BG)
@@ -575,9 +648,13 @@ def test_hard_centre_off_screen_footprint_on_screen() -> None:
 
 def test_hard_camera_inside_splat() -> None:
     cam = Camera.look_at((0.1, -0.2, 0.05), (0.0, 1.0, 0.0), width=37, height=23, dtype=F64)
-    gs = make([[0.0, 0.3, 0.0], [0.2, 2.0, 0.1], [-0.1, 0.5, -0.1]],
-              quats=[[0.8, 0.2, -0.1, 0.3], [1.0, 0.0, 0.0, 0.0], [0.6, 0.0, 0.5, 0.1]],
-              scales=[[1.0, 2.0, 1.5], [0.2] * 3, [0.8, 0.6, 0.9]], opacities=[0.5, 0.9, 0.4], degree=3)
+    gs = make(
+        [[0.0, 0.3, 0.0], [0.2, 2.0, 0.1], [-0.1, 0.5, -0.1]],
+        quats=[[0.8, 0.2, -0.1, 0.3], [1.0, 0.0, 0.0, 0.0], [0.6, 0.0, 0.5, 0.1]],
+        scales=[[1.0, 2.0, 1.5], [0.2] * 3, [0.8, 0.6, 0.9]],
+        opacities=[0.5, 0.9, 0.4],
+        degree=3,
+    )
     assert (cam.world_to_camera(gs.means.double())[:, 2] > 0.01).all()
     ref = check_against_reference(gs, cam, background=BG)
     assert ref.alpha.min() > 0.3
@@ -587,19 +664,23 @@ def test_hard_points_far_away() -> None:
     gen = torch.Generator().manual_seed(2)
     n = 20
     cam = Camera.look_at((0.0, -1e4, 0.0), (0.0, 0.0, 0.0), fov_y_deg=20.0, width=37, height=23, dtype=F64)
-    means = (torch.rand(n, 3, generator=gen, dtype=F64) - 0.5) * torch.tensor([3000.0, 2000.0, 2000.0],
-                                                                               dtype=F64)
-    gs = make(means, torch.randn(n, 4, generator=gen, dtype=F64),
-              60.0 + 150.0 * torch.rand(n, 3, generator=gen, dtype=F64),
-              0.3 + 0.6 * torch.rand(n, generator=gen, dtype=F64), degree=1)
+    means = (torch.rand(n, 3, generator=gen, dtype=F64) - 0.5) * torch.tensor([3000.0, 2000.0, 2000.0], dtype=F64)
+    gs = make(
+        means,
+        torch.randn(n, 4, generator=gen, dtype=F64),
+        60.0 + 150.0 * torch.rand(n, 3, generator=gen, dtype=F64),
+        0.3 + 0.6 * torch.rand(n, generator=gen, dtype=F64),
+        degree=1,
+    )
     # float32 spacing at 1e4 m is 1e-3 m: depth is held to 2e-6 relative there
     ref = check_against_reference(gs, cam, background=BG, depth_rtol=2e-6)
     assert ref.alpha.max() > 0.3 and ref.depth.max() > 9e3
     # a camera at the origin looking at points 1e4 m away
     cam2 = pinhole(37, 23, 2000.0)
     means2 = torch.cat([means[:, :2] * 0.05, 1e4 + means[:, 2:]], dim=1)  # within ±15 px of the centre
-    ref2 = check_against_reference(make(means2, gs.quats, gs.scales * 0.1, gs.opacities, gs.sh), cam2,
-                                   background=BG, depth_rtol=2e-6)
+    ref2 = check_against_reference(
+        make(means2, gs.quats, gs.scales * 0.1, gs.opacities, gs.sh), cam2, background=BG, depth_rtol=2e-6
+    )
     assert ref2.alpha.max() > 0.3
 
 
@@ -638,8 +719,13 @@ def test_memory_is_bounded_for_200k_gaussians() -> None:
         after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         print((after - before) // 1024, float(r.alpha.mean()))
     """)
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
-                         env={"OMP_NUM_THREADS": "2", **os.environ})
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={"OMP_NUM_THREADS": "2", **os.environ},
+    )
     assert out.returncode == 0, out.stderr
     grew_mb, mean_alpha = out.stdout.split()
     assert float(mean_alpha) > 0.5
@@ -650,9 +736,14 @@ def test_memory_is_bounded_for_200k_gaussians() -> None:
 def test_many_gaussians_many_tiles_with_termination() -> None:
     """400 Gaussians over a 64x48 image: long, uneven per-tile lists, many pixels terminating."""
     gs, cam = random_scene(7, 400, 1, width=64, height=48)
-    gs = make(gs.means, gs.quats, gs.scales * 1.5, 0.6 + 0.39 * torch.rand(400, generator=torch.Generator()
-                                                                            .manual_seed(0), dtype=F64),
-              gs.sh, gs.owner)
+    gs = make(
+        gs.means,
+        gs.quats,
+        gs.scales * 1.5,
+        0.6 + 0.39 * torch.rand(400, generator=torch.Generator().manual_seed(0), dtype=F64),
+        gs.sh,
+        gs.owner,
+    )
     ref = check_against_reference(gs, cam, background=BG)
     assert (ref.transmittance < 2e-3).float().mean() > 0.05  # termination is exercised
 
@@ -662,23 +753,40 @@ def test_long_thin_splats_across_tiles() -> None:
     gen = torch.Generator().manual_seed(4)
     n = 30
     cam = pinhole(64, 48, 50.0)
-    means = torch.cat([(torch.rand(n, 2, generator=gen, dtype=F64) - 0.5) * 2.0,
-                       2.5 + torch.rand(n, 1, generator=gen, dtype=F64)], dim=1)
+    means = torch.cat(
+        [(torch.rand(n, 2, generator=gen, dtype=F64) - 0.5) * 2.0, 2.5 + torch.rand(n, 1, generator=gen, dtype=F64)],
+        dim=1,
+    )
     scales = torch.tensor([[0.6, 0.01, 0.02]], dtype=F64).repeat(n, 1)
-    gs = make(means, torch.randn(n, 4, generator=gen, dtype=F64), scales,
-              0.5 + 0.5 * torch.rand(n, generator=gen, dtype=F64), degree=0)
+    gs = make(
+        means,
+        torch.randn(n, 4, generator=gen, dtype=F64),
+        scales,
+        0.5 + 0.5 * torch.rand(n, generator=gen, dtype=F64),
+        degree=0,
+    )
     check_against_reference(gs, cam, background=BG)
 
 
 def test_many_exact_depth_ties_across_tiles() -> None:
     gen = torch.Generator().manual_seed(5)
     n = 60
-    means = torch.cat([(torch.rand(n, 2, generator=gen, dtype=F64) - 0.5) * torch.tensor([1.4, 1.0], dtype=F64),
-                       torch.full((n, 1), 2.0, dtype=F64)], dim=1)
-    means[n // 2:, 2] = 3.0
-    gs = make(means, torch.randn(n, 4, generator=gen, dtype=F64),
-              0.05 + 0.15 * torch.rand(n, 3, generator=gen, dtype=F64),
-              0.3 + 0.69 * torch.rand(n, generator=gen, dtype=F64), degree=0, seed=5)
+    means = torch.cat(
+        [
+            (torch.rand(n, 2, generator=gen, dtype=F64) - 0.5) * torch.tensor([1.4, 1.0], dtype=F64),
+            torch.full((n, 1), 2.0, dtype=F64),
+        ],
+        dim=1,
+    )
+    means[n // 2 :, 2] = 3.0
+    gs = make(
+        means,
+        torch.randn(n, 4, generator=gen, dtype=F64),
+        0.05 + 0.15 * torch.rand(n, 3, generator=gen, dtype=F64),
+        0.3 + 0.69 * torch.rand(n, generator=gen, dtype=F64),
+        degree=0,
+        seed=5,
+    )
     cam = pinhole(48, 40, 30.0)
     check_against_reference(gs, cam, background=BG)
     perm = torch.randperm(n, generator=gen)
@@ -695,9 +803,14 @@ def test_far_plane_is_strict() -> None:
 
 def test_non_contiguous_inputs_and_tensor_background() -> None:
     gs, cam = random_scene(8, 30, 2)
-    nc = Gaussians(gs.means.T.contiguous().T, gs.quats.T.contiguous().T, gs.scales.T.contiguous().T,
-                   torch.stack([gs.opacities, gs.opacities])[0], gs.sh.transpose(1, 2).contiguous().transpose(1, 2),
-                   gs.owner)
+    nc = Gaussians(
+        gs.means.T.contiguous().T,
+        gs.quats.T.contiguous().T,
+        gs.scales.T.contiguous().T,
+        torch.stack([gs.opacities, gs.opacities])[0],
+        gs.sh.transpose(1, 2).contiguous().transpose(1, 2),
+        gs.owner,
+    )
     assert not nc.means.is_contiguous() and not nc.sh.is_contiguous()
     check_against_reference(nc, cam, background=torch.tensor(BG))
 
@@ -708,19 +821,25 @@ def test_render_batch_matches_reference_per_view() -> None:
 
     g1, c1 = random_scene(9, 40, 1, width=37, height=23)
     g2, c2 = random_scene(10, 25, 1, width=16, height=29)
-    views = [(g1, c1.to(dtype=F32)), (g2, c2.to(dtype=F32)), (g1, Camera.orbit((0.0, 0.0, 0.0), 40.0, 20.0, 4.0,
-                                                                                width=20, height=20))]
+    views = [
+        (g1, c1.to(dtype=F32)),
+        (g2, c2.to(dtype=F32)),
+        (g1, Camera.orbit((0.0, 0.0, 0.0), 40.0, 20.0, 4.0, width=20, height=20)),
+    ]
     d1, l1 = leaves(g1, F32)
     d2, l2 = leaves(g2, F32)
-    out = render_batch([(l1, views[0][1]), (l2, views[1][1]), (l1, views[2][1])], background=BG,
-                       owner_weights=True, num_owners=4)
+    out = render_batch(
+        [(l1, views[0][1]), (l2, views[1][1]), (l1, views[2][1])], background=BG, owner_weights=True, num_owners=4
+    )
     assert len(out) == 3
     r1, r2 = leaves(g1, F64), leaves(g2, F64)
-    refs = [reference_render(g, cam, background=BG, num_owners=4) for g, cam in
-            ((r1[1], views[0][1]), (r2[1], views[1][1]), (r1[1], views[2][1]))]
+    refs = [
+        reference_render(g, cam, background=BG, num_owners=4)
+        for g, cam in ((r1[1], views[0][1]), (r2[1], views[1][1]), (r1[1], views[2][1]))
+    ]
     loss = 0.0
     loss_ref = 0.0
-    for k, (res, ref) in enumerate(zip(out, refs)):
+    for k, (res, ref) in enumerate(zip(out, refs, strict=False)):
         assert_images_close(res, ref, 1e-5)
         assert (res.owner_weights.double() - ref.owner_weights).abs().max() <= 1e-5
         wts = weights(ref.alpha.shape[0], ref.alpha.shape[1], seed=k)
@@ -740,8 +859,12 @@ def test_faint_splats_at_tile_corners() -> None:
     n = 300
     W, H, f, z = 64, 48, 40.0, 2.0
     cam = pinhole(W, H, f)
-    corner = torch.stack([torch.randint(1, W // 8, (n,), generator=gen), torch.randint(1, H // 8, (n,), generator=gen)],
-                         -1).to(F64) * 8
+    corner = (
+        torch.stack(
+            [torch.randint(1, W // 8, (n,), generator=gen), torch.randint(1, H // 8, (n,), generator=gen)], -1
+        ).to(F64)
+        * 8
+    )
     uv = corner + (torch.rand(n, 2, generator=gen, dtype=F64) - 0.5) * 4.0
     xy = (uv - torch.tensor([W / 2, H / 2], dtype=F64)) / f * z
     means = torch.cat([xy, z + 0.01 * torch.arange(n, dtype=F64)[:, None] / n], dim=1)

@@ -13,9 +13,14 @@ from particlesplat.render_dense import render_dense
 def _scene(seed: int) -> tuple[Gaussians, Camera]:
     gen = torch.Generator().manual_seed(seed)
     n = 120
-    g = Gaussians(torch.randn(n, 3, generator=gen) * 0.5, torch.randn(n, 4, generator=gen),
-                  torch.rand(n, 3, generator=gen) * 0.1 + 0.005, torch.rand(n, generator=gen),
-                  torch.randn(n, 4, 3, generator=gen) * 0.3, torch.zeros(n, dtype=torch.int64))
+    g = Gaussians(
+        torch.randn(n, 3, generator=gen) * 0.5,
+        torch.randn(n, 4, generator=gen),
+        torch.rand(n, 3, generator=gen) * 0.1 + 0.005,
+        torch.rand(n, generator=gen),
+        torch.randn(n, 4, 3, generator=gen) * 0.3,
+        torch.zeros(n, dtype=torch.int64),
+    )
     return g.to(dtype=torch.float64), Camera.orbit((0, 0, 0), 25, 30, 3.0, width=29, height=19, dtype=torch.float64)
 
 

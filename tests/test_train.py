@@ -34,7 +34,7 @@ def test_interrupted_and_resumed_equals_uninterrupted(tmp_path_factory, tmp_path
     assert a["step"] == b["step"] == 4
     for k, v in a["state_dict"].items():
         assert torch.equal(v, b["state_dict"][k]), k
-    for sa, sb in zip(a["optimizer"]["state"].values(), b["optimizer"]["state"].values()):
+    for sa, sb in zip(a["optimizer"]["state"].values(), b["optimizer"]["state"].values(), strict=False):
         assert torch.equal(sa["exp_avg_sq"], sb["exp_avg_sq"])
     assert torch.equal(a["rng"][0]["torch"], b["rng"][0]["torch"])
     # the last step (index 3 of 4) ran at the end of the cosine: lr x lr_final
@@ -49,8 +49,10 @@ def test_interrupted_and_resumed_equals_uninterrupted(tmp_path_factory, tmp_path
     lines_b = [json.loads(x) for x in (tmp_path / "b" / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in lines_b] == [r["step"] for r in lines]  # nothing logged twice
     assert read_checkpoint(tmp_path / "b" / "last.pt")["best"] == read_checkpoint(tmp_path / "a" / "last.pt")["best"]
-    scores = [r["val"]["psnr"] / 30.0 + (r["val"]["fg_ari"] if r["val"]["fg_ari"] == r["val"]["fg_ari"] else 0.0)
-              for r in vals]
+    scores = [
+        r["val"]["psnr"] / 30.0 + (r["val"]["fg_ari"] if r["val"]["fg_ari"] == r["val"]["fg_ari"] else 0.0)
+        for r in vals
+    ]
     assert read_checkpoint(tmp_path / "a" / "last.pt")["best"] == pytest.approx(max(scores))  # last val included
     assert set(vals[0]["val"]) >= {"psnr", "ssim", "depth_abs_rel", "fg_ari", "miou"}
     m = load_model(tmp_path / "a" / "best.pt")
@@ -73,9 +75,10 @@ def test_resume_refuses_a_different_model_config(tmp_path_factory, tmp_path):
 def test_training_reduces_the_loss_on_one_scene(tmp_path_factory, tmp_path):
     from pathlib import Path
 
+    from model_data import TINY_MODEL
+
     from particlesplat.model import ModelConfig, TrainConfig
     from particlesplat.train import Trainer
-    from model_data import TINY_MODEL
 
     data = tiny_dataset(tmp_path_factory)
     tc = TrainConfig(batch_size=1, target_views=1, steps=60, lr=3e-3, seed=1, beta_fg=0.0)  # the reconstruction alone
@@ -98,9 +101,26 @@ def test_two_process_ddp_run(tmp_path_factory, tmp_path, model):
         cfg.write_text(yaml.safe_dump(text))
     torchrun = os.path.join(os.path.dirname(sys.executable), "torchrun")
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    proc = subprocess.run([torchrun, "--nproc_per_node=2", "--master_port=29517", "-m", "particlesplat.cli", "train",
-                           "--config", str(cfg), "--data", str(data), "--out", str(tmp_path / "ddp")],
-                          env=env, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [
+            torchrun,
+            "--nproc_per_node=2",
+            "--master_port=29517",
+            "-m",
+            "particlesplat.cli",
+            "train",
+            "--config",
+            str(cfg),
+            "--data",
+            str(data),
+            "--out",
+            str(tmp_path / "ddp"),
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     ckpt = read_checkpoint(tmp_path / "ddp" / "last.pt")
     assert ckpt["step"] == 2 and len(ckpt["rng"]) == 2
@@ -116,7 +136,7 @@ def test_lr_factor_is_a_cosine_from_one_to_lr_final():
     tc = TrainConfig(steps=101, lr_final=0.2)
     assert lr_factor(0, tc) == pytest.approx(1.0)
     assert lr_factor(50, tc) == pytest.approx(0.6)  # half-way: the mean of 1 and 0.2
-    assert lr_factor(25, tc) == pytest.approx(0.2 + 0.8 * 0.5 * (1 + 2 ** -0.5))
+    assert lr_factor(25, tc) == pytest.approx(0.2 + 0.8 * 0.5 * (1 + 2**-0.5))
     assert lr_factor(100, tc) == pytest.approx(0.2) and lr_factor(500, tc) == pytest.approx(0.2)
     assert lr_factor(37, TrainConfig(steps=101, lr_final=1.0)) == 1.0  # lr_final 1: constant
     with pytest.raises(ValueError, match="lr_final"):
@@ -157,7 +177,11 @@ def test_learned_background_is_rendered_behind_the_gaussians_and_trained():
     torch.testing.assert_close(rgb[0, 0], torch.tensor([0.2, 0.5, 0.7])[:, None, None].expand(3, 32, 32))
     (grad,) = torch.autograd.grad(rgb.sum(), bg)
     torch.testing.assert_close(grad, torch.full((3,), 32.0 * 32.0))
-    assert ParticleSplat(ModelConfig(**{**TINY_MODEL, "learned_background": False})).background_color().tolist() == [0, 0, 0]
+    assert ParticleSplat(ModelConfig(**{**TINY_MODEL, "learned_background": False})).background_color().tolist() == [
+        0,
+        0,
+        0,
+    ]
 
 
 def test_static_layer_trains_at_the_background_learning_rate(tmp_path_factory, tmp_path):
@@ -189,8 +213,10 @@ def test_foreground_error_targets_what_the_static_layer_cannot_explain():
     cam = Camera.orbit((0.0, 0.0, 0.15), 20.0, 30.0, 3.3, width=32, height=32)
     K, c2w = stack_cameras([cam])
     with torch.no_grad():
-        floor = m.decode(m.encode(torch.rand(1, 3, 32, 32), 3.0 + torch.rand(1, 1, 32, 32), [cam]),
-                         torch.tensor([], dtype=torch.long))
+        floor = m.decode(
+            m.encode(torch.rand(1, 3, 32, 32), 3.0 + torch.rand(1, 1, 32, 32), [cam]),
+            torch.tensor([], dtype=torch.long),
+        )
         r = render(floor, cam, background=m.background_color())
     rgb, depth = r.rgb.permute(2, 0, 1)[None], r.depth[None, None]
     fg = torch.rand(1, 1, 32, 32)
@@ -198,7 +224,7 @@ def test_foreground_error_targets_what_the_static_layer_cannot_explain():
     def error(fg, rgb, depth):
         return foreground_error(fg, m.static_background_error(rgb, depth, K, c2w, block=1), 0.02)
 
-    torch.testing.assert_close(error(fg, rgb, depth), (fg ** 2).flatten(1).sum(1))
+    torch.testing.assert_close(error(fg, rgb, depth), (fg**2).flatten(1).sum(1))
     rgb[..., 10:14, 5:9] = torch.tensor([0.9, 0.1, 0.1])[:, None, None]
     depth[..., 10:14, 5:9] -= 0.4
     exact = torch.zeros(1, 1, 32, 32)
@@ -229,7 +255,7 @@ def test_foreground_band_leaves_out_the_pixels_along_the_target_edge():
         for m in range(2):
             for y in range(9):
                 for x in range(12):
-                    win = target[m, 0, max(0, y - band):y + band + 1, max(0, x - band):x + band + 1]
+                    win = target[m, 0, max(0, y - band) : y + band + 1, max(0, x - band) : x + band + 1]
                     if bool((win == target[m, 0, y, x]).all()):
                         want[m] += (fg[m, 0, y, x].double() - target[m, 0, y, x]) ** 2
         torch.testing.assert_close(foreground_error(fg, err, 0.02, band=band).double(), want)
@@ -244,8 +270,14 @@ def test_foreground_term_needs_the_static_layer(tmp_path_factory, tmp_path):
     from particlesplat.train import Trainer
 
     with pytest.raises(ConfigError, match="beta_fg"):
-        Trainer(ModelConfig(**{**TINY_MODEL, "bg_static_grid": 0, "bg_per_view": True}), TrainConfig(beta_fg=0.5),
-                Path(tiny_dataset(tmp_path_factory)), tmp_path / "o", "cpu", False)
+        Trainer(
+            ModelConfig(**{**TINY_MODEL, "bg_static_grid": 0, "bg_per_view": True}),
+            TrainConfig(beta_fg=0.5),
+            Path(tiny_dataset(tmp_path_factory)),
+            tmp_path / "o",
+            "cpu",
+            False,
+        )
 
 
 def test_training_with_the_foreground_term_logs_it(tmp_path_factory, tmp_path):

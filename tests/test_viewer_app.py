@@ -12,14 +12,13 @@ import pytest
 import torch
 from imgui_bundle import imgui
 from PIL import Image
+from viewer_helpers import psnr, small_model
 
 from particlesplat import render
 from particlesplat.gaussians import Gaussians
 from particlesplat.model import save_checkpoint
 from viewer import app as A
 from viewer.random_gaussians import random_gaussians
-
-from viewer_helpers import psnr, small_model
 
 pytestmark = pytest.mark.window
 
@@ -45,8 +44,9 @@ def app(tmp_path_factory, window, compositing):
     tmp = tmp_path_factory.mktemp("app")
     ckpt = tmp / "small.pt"
     save_checkpoint(ckpt, small_model(), 0)
-    args = A.build_parser().parse_args(["--checkpoint", str(ckpt), "--size", "160x120", "--output-dir", str(tmp),
-                                        "--compositing", compositing])
+    args = A.build_parser().parse_args(
+        ["--checkpoint", str(ckpt), "--size", "160x120", "--output-dir", str(tmp), "--compositing", compositing]
+    )
     session = A.load_session(args)
     glfw.set_window_size(window, *args.size)
     a = A.App(window, session, A.initial_view(session, None, None), args, ctx=ctx)
@@ -103,8 +103,11 @@ def test_screenshot_and_export(app, tmp_path):
     assert [p.name for p in shots] == ["particlesplat_0001.png"] and len(plys) == 1
     img = Image.open(shots[0])
     assert img.size == (64, 48) and "camera" in img.text
-    ref = render(app.scene_view.visible_gaussians(app.session, app.state), app.orbit.camera(64, 48),
-                 background=app.state.background).rgb.numpy()
+    ref = render(
+        app.scene_view.visible_gaussians(app.session, app.state),
+        app.orbit.camera(64, 48),
+        background=app.state.background,
+    ).rgb.numpy()
     assert psnr(np.asarray(img.convert("RGB"), np.float64) / 255.0, ref) >= 40.0
     exported = Gaussians.load_ply(plys[0])
     assert exported.num == app.scene_view.visible_gaussians(app.session, app.state).num
@@ -279,8 +282,9 @@ def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
     from particlesplat.encode_scene import demo_scenes
 
     win, ctx = window
-    args = A.build_parser().parse_args(["--scene", str(demo_scenes()[0]), "--context", "4,16", "--size", "160x120",
-                                        "--output-dir", str(tmp_path)])
+    args = A.build_parser().parse_args(
+        ["--scene", str(demo_scenes()[0]), "--context", "4,16", "--size", "160x120", "--output-dir", str(tmp_path)]
+    )
     session = A.load_session(args)
     glfw.set_window_size(win, *args.size)
     app = A.App(win, session, A.initial_view(session, None, None), args, ctx=ctx)
@@ -298,7 +302,8 @@ def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
         cam = app.view_camera(1.0)
         uv, _ = cam.project(object_centre(session, index)[None].float())
         seg = render(session.decode(), cam, owner_weights=True, num_owners=session.num_particles).segmentation(
-            session.objects())
+            session.objects()
+        )
         ys, xs = np.nonzero((seg == int(session.objects()[index])).numpy())
         dist = np.hypot(xs + 0.5 - float(uv[0, 0]), ys + 0.5 - float(uv[0, 1]))
         dist[dist < 35.0] = np.inf  # grab the object clear of the gizmo's handles

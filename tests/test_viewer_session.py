@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from viewer_helpers import egl_context, psnr, small_model
 
 from particlesplat import render
 from particlesplat.encode_scene import demo_scenes, encode_scene
@@ -13,8 +14,6 @@ from viewer.scene_view import SceneView
 from viewer.screenshot import save_numbered, save_screenshot
 from viewer.session import SceneSession
 from viewer.state import ViewState
-
-from viewer_helpers import egl_context, psnr, small_model
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +59,7 @@ def test_move_object_moves_every_member_as_one_undo_step(encoded):
 
     model, enc = encoded
     s = SceneSession(model, enc)
-    s._objects = torch.tensor([0, 1, 0, 3, 4, 5])[:s.num_particles]  # particles 0 and 2: one object
+    s._objects = torch.tensor([0, 1, 0, 3, 4, 5])[: s.num_particles]  # particles 0 and 2: one object
     assert s.object_members(2) == [0, 2]
     before = anchor_points(s.particles, [0, 2], model.config)
     for _ in range(3):  # a drag of three steps of 0.05 m along x
@@ -161,7 +160,11 @@ def test_numbered_files_never_overwrite(tmp_path):
     assert (tmp_path / "particlesplat_0001.png").read_bytes() == b"keep"
     c = save_numbered(tmp_path, "particlesplat_", ".ply", lambda p: p.write_text("x"))
     assert c.name == "particlesplat_0001.ply"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["particlesplat_0001.ply", "particlesplat_0001.png",
-                                                         "particlesplat_0002.png", "particlesplat_0003.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "particlesplat_0001.ply",
+        "particlesplat_0001.png",
+        "particlesplat_0002.png",
+        "particlesplat_0003.png",
+    ]
     # a screenshot has the permissions of any new file (the umask's), not a temporary file's 0600
     assert a.stat().st_mode == (tmp_path / "particlesplat_0001.png").stat().st_mode

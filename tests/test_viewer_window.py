@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+from viewer_helpers import psnr, small_model
 
 from particlesplat import render
 from particlesplat.cli import main as cli_main
@@ -20,8 +21,6 @@ from particlesplat.model import save_checkpoint
 from particlesplat.views import DEFAULT_BACKGROUND, View, default_view, parse_look, scene_background
 from viewer.random_gaussians import random_gaussians
 
-from viewer_helpers import psnr, small_model
-
 pytestmark = pytest.mark.window
 
 VIEWER = str(Path(sys.executable).with_name("particlesplat-viewer"))
@@ -30,8 +29,13 @@ HIDE_FETCH = {"MESA_EXTENSION_OVERRIDE": "-GL_EXT_shader_framebuffer_fetch"}
 
 
 def run_viewer(*args: str, env: dict[str, str] | None = None) -> str:
-    proc = subprocess.run(["xvfb-run", "-a", VIEWER, *args], capture_output=True, text=True, timeout=240,
-                          env={**os.environ, **(env or {})})
+    proc = subprocess.run(
+        ["xvfb-run", "-a", VIEWER, *args],
+        capture_output=True,
+        text=True,
+        timeout=240,
+        env={**os.environ, **(env or {})},
+    )
     assert proc.returncode == 0, proc.stderr
     assert "median frame time" in proc.stdout
     return proc.stdout
@@ -46,8 +50,21 @@ def test_ply_screenshot_matches_torch(tmp_path):
     g.save_ply(tmp_path / "g.ply")
     g = Gaussians.load_ply(tmp_path / "g.ply")
     shot = tmp_path / "shot.png"
-    out = run_viewer("--ply", str(tmp_path / "g.ply"), "--frames", "4", "--orbit", "--size", "160x120",
-                     "--look", "20,25,3.0", "--fov", "50", "--screenshot", str(shot))
+    out = run_viewer(
+        "--ply",
+        str(tmp_path / "g.ply"),
+        "--frames",
+        "4",
+        "--orbit",
+        "--size",
+        "160x120",
+        "--look",
+        "20,25,3.0",
+        "--fov",
+        "50",
+        "--screenshot",
+        str(shot),
+    )
     # like a drag: moving frames at the moving scale, then the still frame
     assert "over 3 moving frames at render scale 0.5" in out and "still frame at full scale:" in out
     img = Image.open(shot)
@@ -68,24 +85,51 @@ def test_model_scene_with_edits_matches_render_cli(tmp_path, driver):
     save_edits(edits, {1: {"z_p": (0.2, -0.3)}, 4: {"z_t": (0.0,)}})
     shot, out = tmp_path / "viewer.png", tmp_path / "render.png"
     hidden = driver != "as is"
-    stdout = run_viewer("--checkpoint", str(ckpt), "--edits", str(edits), "--frames", "2", "--size", "128x96",
-                        "--screenshot", str(shot), env=HIDE_FETCH if hidden else None)
+    stdout = run_viewer(
+        "--checkpoint",
+        str(ckpt),
+        "--edits",
+        str(edits),
+        "--frames",
+        "2",
+        "--size",
+        "128x96",
+        "--screenshot",
+        str(shot),
+        env=HIDE_FETCH if hidden else None,
+    )
     if hidden:  # auto took the core-GL path
         assert "blend compositing" in stdout
-    assert cli_main(["render", "--checkpoint", str(ckpt), "--edits", str(edits), "--width", "128", "--height", "96",
-                     "--out", str(out)]) == 0
+    assert (
+        cli_main(
+            [
+                "render",
+                "--checkpoint",
+                str(ckpt),
+                "--edits",
+                str(edits),
+                "--width",
+                "128",
+                "--height",
+                "96",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     a, b = load_png(shot), load_png(out)
     assert psnr(a, b) >= 40.0
     # and the edits changed the picture: the same scene without edits differs
     plain = tmp_path / "plain.png"
-    assert cli_main(["render", "--checkpoint", str(ckpt), "--width", "128", "--height", "96",
-                     "--out", str(plain)]) == 0
+    assert cli_main(["render", "--checkpoint", str(ckpt), "--width", "128", "--height", "96", "--out", str(plain)]) == 0
     assert np.abs(load_png(plain) - b).max() > 0.01  # (an untrained model: faint particles)
 
 
 def test_viewer_rejects_bad_arguments(tmp_path):
-    proc = subprocess.run([VIEWER, "--ply", str(tmp_path / "missing.ply"), "--frames", "1"],
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [VIEWER, "--ply", str(tmp_path / "missing.ply"), "--frames", "1"], capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == 2 and "missing.ply" in proc.stderr
     proc = subprocess.run([VIEWER, "--ply", "g.ply", "--context", "4,16"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "--context needs a model scene" in proc.stderr
@@ -98,9 +142,13 @@ def test_viewer_rejects_bad_arguments(tmp_path):
 def test_forced_fetch_without_the_extension_is_a_clear_error(tmp_path):
     g = random_gaussians(50, seed=0)
     g.save_ply(tmp_path / "g.ply")
-    proc = subprocess.run(["xvfb-run", "-a", VIEWER, "--ply", str(tmp_path / "g.ply"), "--frames", "1",
-                           "--compositing", "fetch"], capture_output=True, text=True, timeout=240,
-                          env={**os.environ, **HIDE_FETCH})
+    proc = subprocess.run(
+        ["xvfb-run", "-a", VIEWER, "--ply", str(tmp_path / "g.ply"), "--frames", "1", "--compositing", "fetch"],
+        capture_output=True,
+        text=True,
+        timeout=240,
+        env={**os.environ, **HIDE_FETCH},
+    )
     assert proc.returncode == 2  # a bad argument for this driver
     assert proc.stderr.strip().splitlines() == [proc.stderr.strip()]  # one line
     assert "GL_EXT_shader_framebuffer_fetch" in proc.stderr and "--compositing auto or blend" in proc.stderr
@@ -110,19 +158,42 @@ def test_render_cli_view_and_errors(tmp_path):
     g = random_gaussians(300, seed=2)
     g.save_ply(tmp_path / "g.ply")
     out = tmp_path / "o.png"
-    assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--look", "10,20,3", "--fov", "45",
-                     "--width", "40", "--height", "30", "--out", str(out)]) == 0
+    assert (
+        cli_main(
+            [
+                "render",
+                "--ply",
+                str(tmp_path / "g.ply"),
+                "--look",
+                "10,20,3",
+                "--fov",
+                "45",
+                "--width",
+                "40",
+                "--height",
+                "30",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     base = default_view(None, Gaussians.load_ply(tmp_path / "g.ply"))
-    ref = render(Gaussians.load_ply(tmp_path / "g.ply"), View(base.target, parse_look("10,20,3"), 45.0).camera(40, 30),
-                 background=DEFAULT_BACKGROUND).rgb.numpy()
+    ref = render(
+        Gaussians.load_ply(tmp_path / "g.ply"),
+        View(base.target, parse_look("10,20,3"), 45.0).camera(40, 30),
+        background=DEFAULT_BACKGROUND,
+    ).rgb.numpy()
     assert psnr(load_png(out), ref) >= 40.0
     assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--look", "1,2", "--out", str(out)]) == 2
     assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--view", "0", "--out", str(out)]) == 2
     assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--context", "1,2", "--out", str(out)]) == 2
     # an --out that cannot be written (a folder) is a clear error, and no temporary file is left
     before = set(tmp_path.iterdir())
-    assert cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--width", "8", "--height", "8",
-                     "--out", str(tmp_path)]) == 2
+    assert (
+        cli_main(["render", "--ply", str(tmp_path / "g.ply"), "--width", "8", "--height", "8", "--out", str(tmp_path)])
+        == 2
+    )
     assert set(tmp_path.iterdir()) == before
 
 
@@ -146,8 +217,26 @@ def test_render_cli_input_view_with_edits(tmp_path):
     edits = {2: {"z_d": (1.5,)}, 3: {"z_s": (0.5, -0.5)}}
     save_edits(tmp_path / "e.yaml", edits)
     out = tmp_path / "v.png"
-    assert cli_main(["render", "--checkpoint", str(ckpt), "--edits", str(tmp_path / "e.yaml"), "--view", "3",
-                     "--width", "48", "--height", "40", "--out", str(out)]) == 0
+    assert (
+        cli_main(
+            [
+                "render",
+                "--checkpoint",
+                str(ckpt),
+                "--edits",
+                str(tmp_path / "e.yaml"),
+                "--view",
+                "3",
+                "--width",
+                "48",
+                "--height",
+                "40",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     enc = encode_scene(model, demo_scenes()[0])
     g = model.decode(apply_edits(enc.particles, edits))
     assert scene_background(model) != DEFAULT_BACKGROUND  # the model's learned colour is behind it

@@ -14,31 +14,37 @@ import sys
 import time
 from pathlib import Path
 
-from imgui_bundle import imgui  # import before glfw so both use the same GLFW library
-
 import glfw  # noqa: E402  (after imgui_bundle on purpose)
 import moderngl  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from imgui_bundle import imgui  # import before glfw so both use the same GLFW library
 
 from particlesplat.camera import Camera  # noqa: E402
 from particlesplat.encode_scene import add_source_arguments, check_source_arguments  # noqa: E402
-from particlesplat.views import (DEFAULT_FOV, View, attach_option_values, check_fov, default_view,  # noqa: E402
-                                 parse_look, scene_background)
+from particlesplat.views import (
+    DEFAULT_FOV,
+    View,
+    attach_option_values,
+    check_fov,
+    default_view,  # noqa: E402
+    parse_look,
+    scene_background,
+)
 
+from .controls import ViewportControls  # noqa: E402
 from .gl_caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
 from .gl_renderer import SplatRenderer  # noqa: E402
 from .loading import load_session, particle_swatches  # noqa: E402
 from .orbit import OrbitCamera  # noqa: E402
 from .panel import UiFields, UiRequests, clear_of_panel, draw_overlay, draw_panel  # noqa: E402
-from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noqa: E402
-from .controls import ViewportControls  # noqa: E402
-from .tools.object_tools import ObjectGizmo  # noqa: E402
 from .particle_overlay import ParticleOverlay  # noqa: E402
+from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noqa: E402
 from .scene_view import SceneView  # noqa: E402
 from .screenshot import export_ply, png_text, save_png, save_screenshot  # noqa: E402
 from .session import SceneSession  # noqa: E402
 from .state import ViewState  # noqa: E402
+from .tools.object_tools import ObjectGizmo  # noqa: E402
 
 STILL_AFTER = 0.2  # seconds without interaction before rendering at full scale
 ORBIT_STEP = 1.0  # degrees per frame with --orbit
@@ -56,22 +62,31 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="particlesplat-viewer",
-                                description="View and edit ParticleSplat scenes: orbit, select and drag particles, "
-                                            "segment, screenshot.")
+    p = argparse.ArgumentParser(
+        prog="particlesplat-viewer",
+        description="View and edit ParticleSplat scenes: orbit, select and drag particles, segment, screenshot.",
+    )
     add_source_arguments(p, ply_help="open a 3DGS .ply instead of a model scene (no particle editing)")
     p.add_argument("--frames", type=int, help="run N frames, print the median frame time and exit")
     p.add_argument("--screenshot", help="with --frames: save the last render (no UI) to this PNG")
     p.add_argument("--size", type=parse_size, default=(1280, 800), help="window size WxH (default: 1280x800)")
-    p.add_argument("--orbit", action="store_true",
-                   help="with --frames: turn the camera a little every frame, as a drag does (frames at the moving "
-                        "render scale), then draw the still full-scale frame")
+    p.add_argument(
+        "--orbit",
+        action="store_true",
+        help="with --frames: turn the camera a little every frame, as a drag does (frames at the moving "
+        "render scale), then draw the still full-scale frame",
+    )
     p.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
-    p.add_argument("--fov", type=float, help=f"vertical field of view in degrees (default: the scene's, or "
-                                             f"{DEFAULT_FOV:g})")
-    p.add_argument("--primitive", choices=("auto", "quads", "points"), default="auto",
-                   help="splat primitive: auto = point sprites when every splat fits 255 px, else oriented quads "
-                        "(both exact; the default); points = always sprites (large splats clipped)")
+    p.add_argument(
+        "--fov", type=float, help=f"vertical field of view in degrees (default: the scene's, or {DEFAULT_FOV:g})"
+    )
+    p.add_argument(
+        "--primitive",
+        choices=("auto", "quads", "points"),
+        default="auto",
+        help="splat primitive: auto = point sprites when every splat fits 255 px, else oriented quads "
+        "(both exact; the default); points = always sprites (large splats clipped)",
+    )
     p.add_argument("--compositing", choices=COMPOSITING, default="auto", help=COMPOSITING_HELP)
     p.add_argument("--output-dir", default=".", help="folder for screenshots and .ply exports (default: .)")
     p.add_argument("--no-ui", action="store_true", help="start with the panel hidden (H toggles)")
@@ -88,14 +103,16 @@ def initial_view(session: SceneSession, look: str | None, fov: float | None) -> 
 class App:
     """One window: its GL context, renderer, session, state and UI."""
 
-    def __init__(self, window, session: SceneSession, view: View, args: argparse.Namespace,
-                 ctx: moderngl.Context | None = None) -> None:
+    def __init__(
+        self, window, session: SceneSession, view: View, args: argparse.Namespace, ctx: moderngl.Context | None = None
+    ) -> None:
         self.window = window
         # (moderngl detects a window's context once: pass ``ctx`` to open another App on the same window)
         self.ctx = ctx if ctx is not None else moderngl.create_context()
         self.args = args
-        self.scene_view = SceneView(SplatRenderer(self.ctx, primitive=args.primitive, compositing=args.compositing,
-                                                  color_dtype="f4"))
+        self.scene_view = SceneView(
+            SplatRenderer(self.ctx, primitive=args.primitive, compositing=args.compositing, color_dtype="f4")
+        )
         self.session = session
         self.orbit = OrbitCamera.from_view(view)
         self.state = ViewState(panel=not args.no_ui, background=scene_background(session.model))
@@ -153,8 +170,14 @@ class App:
             self.controls.handle(self)
             if self.state.panel:
                 drawn = self.scene_view.renderer.visible_count
-                draw_panel(self.session, self.state, self.req, self.fields, self.swatches,
-                           (drawn, self.scene_view.renderer.num))
+                draw_panel(
+                    self.session,
+                    self.state,
+                    self.req,
+                    self.fields,
+                    self.swatches,
+                    (drawn, self.scene_view.renderer.num),
+                )
             if self.state.overlay:
                 draw_overlay(self.overlay_lines())
         imgui.render()
@@ -185,13 +208,17 @@ class App:
         ms = float(np.median(t)) * 1e3 if t else 0.0
         r = self.scene_view.renderer
         last = self.scene_view.last_times
-        lines = [f"{ms:6.1f} ms/frame (median of the last 30), render scale {self.render_scale():.2f}, "
-                 f"{r.compositing} compositing",
-                 f"{r.visible_count:,} of {r.num:,} Gaussians, {last.primitive or '-'}, sort {last.sort_ms:.1f} ms"]
+        lines = [
+            f"{ms:6.1f} ms/frame (median of the last 30), render scale {self.render_scale():.2f}, "
+            f"{r.compositing} compositing",
+            f"{r.visible_count:,} of {r.num:,} Gaussians, {last.primitive or '-'}, sort {last.sort_ms:.1f} ms",
+        ]
         if self.session.editable:
             active = sum(self.session.is_active(i) for i in range(self.session.num_particles))
-            lines.append(f"{active} of {self.session.num_particles} particles active"
-                         + (f", selected {self.state.selected}" if self.state.selected is not None else ""))
+            lines.append(
+                f"{active} of {self.session.num_particles} particles active"
+                + (f", selected {self.state.selected}" if self.state.selected is not None else "")
+            )
         lines.append(f"mode: {self.state.seg_mode}")
         return lines
 
@@ -221,7 +248,8 @@ class App:
             if req.load_edits:
                 warning = self.session.load_edits(self.fields.edits_path)
                 self.fields.status = f"loaded edits from {Path(self.fields.edits_path).resolve()}" + (
-                    f"; warning: {warning}" if warning else "")
+                    f"; warning: {warning}" if warning else ""
+                )
             if req.screenshot:
                 path = self.screenshot_numbered()
                 self.fields.status = f"saved screenshot {Path(path).resolve()}"
@@ -251,14 +279,16 @@ class App:
         first; autosaved edits of the new one are offered (the edits path is set: Load restores them)."""
         p = Path(path)
         args = argparse.Namespace(**vars(self.args))
-        args.scene, args.ply, args.edits, args.context = (None, str(p), None, None) if p.suffix == ".ply" else (
-            str(p), None, None, None)
+        args.scene, args.ply, args.edits, args.context = (
+            (None, str(p), None, None) if p.suffix == ".ply" else (str(p), None, None, None)
+        )
         new = load_session(args)  # a bad path leaves the current scene as it is
         kept = self.keep_unsaved()
         self.session = new
         self.swatches = particle_swatches(self.session)
-        self.state = ViewState(panel=self.state.panel, overlay=self.state.overlay,
-                               background=scene_background(self.session.model))
+        self.state = ViewState(
+            panel=self.state.panel, overlay=self.state.overlay, background=scene_background(self.session.model)
+        )
         view = initial_view(self.session, None, None)
         self.orbit = OrbitCamera.from_view(view)
         self.fields.status = f"opened {p}" + (f"; unsaved edits of the previous scene kept in {kept}" if kept else "")
@@ -278,10 +308,17 @@ class App:
 
     def screenshot_text(self, camera: Camera) -> dict[str, str]:
         look = self.orbit.view.look
-        return png_text(camera, self.session.edits(), self.session.model_name,
-                        {"look": f"{look.azimuth:.6g},{look.elevation:.6g},{look.distance:.6g}",
-                         "fov": f"{self.orbit.view.fov:.6g}", "scene": self.session.source,
-                         "segmentation": self.state.seg_mode})
+        return png_text(
+            camera,
+            self.session.edits(),
+            self.session.model_name,
+            {
+                "look": f"{look.azimuth:.6g},{look.elevation:.6g},{look.distance:.6g}",
+                "fov": f"{self.orbit.view.fov:.6g}",
+                "scene": self.session.source,
+                "segmentation": self.state.seg_mode,
+            },
+        )
 
     def screenshot_numbered(self) -> Path:
         cam = self.shot_camera()
@@ -420,9 +457,11 @@ def _main(argv: list[str] | None = None) -> int:
             steady = times[1:] if len(times) > 1 else times
             r = app.scene_view.renderer
             moving = f" moving frames at render scale {app.state.moving_scale:g}" if args.orbit else " frames"
-            print(f"median frame time: {float(np.median(steady)) * 1e3:.2f} ms over {len(steady)}{moving} "
-                  f"({r.visible_count} Gaussians, {app.framebuffer_size()[0]}x{app.framebuffer_size()[1]}, "
-                  f"{r.renderer_string}, {r.compositing} compositing)")
+            print(
+                f"median frame time: {float(np.median(steady)) * 1e3:.2f} ms over {len(steady)}{moving} "
+                f"({r.visible_count} Gaussians, {app.framebuffer_size()[0]}x{app.framebuffer_size()[1]}, "
+                f"{r.renderer_string}, {r.compositing} compositing)"
+            )
             if args.orbit:  # the motion stops: the full-scale frame
                 print(f"still frame at full scale: {app.still_frame() * 1e3:.2f} ms")
             if args.screenshot:
@@ -430,15 +469,18 @@ def _main(argv: list[str] | None = None) -> int:
                 try:
                     path = save_png(args.screenshot, app.screenshot_image(cam), app.screenshot_text(cam))
                 except OSError as e:
-                    print(f"particlesplat-viewer: --screenshot {args.screenshot}: cannot write ({e.strerror or e})",
-                          file=sys.stderr)
+                    print(
+                        f"particlesplat-viewer: --screenshot {args.screenshot}: cannot write ({e.strerror or e})",
+                        file=sys.stderr,
+                    )
                     return 2
                 print(f"saved {path}")
     finally:
         kept = app.keep_unsaved() if app is not None else None  # closing the window (or Ctrl-C) loses no edits
         if kept is not None:
-            print(f"particlesplat-viewer: unsaved edits kept in {kept} (open them with --edits {kept})",
-                  file=sys.stderr)
+            print(
+                f"particlesplat-viewer: unsaved edits kept in {kept} (open them with --edits {kept})", file=sys.stderr
+            )
         destroy_window(window)
     return 0
 

@@ -95,28 +95,50 @@ def sprite_floor_ms(ctx, renderer: SplatRenderer, width: int, height: int, frame
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="particlesplat bench viewer", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--sizes", default=",".join(str(s) for s in DEFAULT_SIZES),
-                   help="random Gaussian counts, comma-separated (default: %(default)s)")
+    p = argparse.ArgumentParser(
+        prog="particlesplat bench viewer", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument(
+        "--sizes",
+        default=",".join(str(s) for s in DEFAULT_SIZES),
+        help="random Gaussian counts, comma-separated (default: %(default)s)",
+    )
     p.add_argument("--width", type=int, default=1024, help="frame width in pixels (default: %(default)s)")
     p.add_argument("--height", type=int, default=768, help="frame height in pixels (default: %(default)s)")
     p.add_argument("--frames", type=int, default=30, help="timed frames per case (default: %(default)s)")
-    p.add_argument("--primitive", choices=("auto", "quads", "points"), default="auto",
-                   help="splat primitive (default: %(default)s, as the viewer)")
-    p.add_argument("--compositing", default="auto",
-                   help="compositing paths, comma-separated, each of auto (fetch where the driver has it), fetch, "
-                        "blend; several are measured side by side (default: %(default)s, as the viewer)")
-    p.add_argument("--moving-scale", type=float, default=0.5,
-                   help="render scale the viewer uses while the camera moves (default: %(default)s)")
-    p.add_argument("--pixel-scale", type=float, default=0.005,
-                   help="random Gaussians' scale at 20k, in units of the cube half-size (default: %(default)s)")
+    p.add_argument(
+        "--primitive",
+        choices=("auto", "quads", "points"),
+        default="auto",
+        help="splat primitive (default: %(default)s, as the viewer)",
+    )
+    p.add_argument(
+        "--compositing",
+        default="auto",
+        help="compositing paths, comma-separated, each of auto (fetch where the driver has it), fetch, "
+        "blend; several are measured side by side (default: %(default)s, as the viewer)",
+    )
+    p.add_argument(
+        "--moving-scale",
+        type=float,
+        default=0.5,
+        help="render scale the viewer uses while the camera moves (default: %(default)s)",
+    )
+    p.add_argument(
+        "--pixel-scale",
+        type=float,
+        default=0.005,
+        help="random Gaussians' scale at 20k, in units of the cube half-size (default: %(default)s)",
+    )
     p.add_argument("--checkpoint", help="model for the demo scene and the edit latency (default: shipped)")
     p.add_argument("--scene", help="scene folder (default: the first demo scene)")
     p.add_argument("--no-scene", action="store_true", help="skip the demo scene and the edit latency")
     p.add_argument("--no-baseline", action="store_true", help="skip the naive splatter")
-    p.add_argument("--no-psnr", action="store_true", help="skip the PSNR against the torch renderer (it takes "
-                                                          "~10-25 s a case on 2 cores)")
+    p.add_argument(
+        "--no-psnr",
+        action="store_true",
+        help="skip the PSNR against the torch renderer (it takes ~10-25 s a case on 2 cores)",
+    )
     return p
 
 
@@ -136,18 +158,31 @@ def _time_frames(renderers: list[SplatRenderer], cameras: list[Camera]) -> list[
             for series, v in zip(times[i], (ft.sort_ms, ft.upload_ms, ft.draw_ms, total), strict=True):
                 series.append(v)
     med = lambda v: float(np.median(v))  # noqa: E731
-    return [Row("", r.visible_count, med(sort), med(upload), med(draw), med(total), r.splat_area() / 1e6,
-                primitive=r.kind, compositing=r.compositing)
-            for r, (sort, upload, draw, total) in zip(renderers, times, strict=True)]
+    return [
+        Row(
+            "",
+            r.visible_count,
+            med(sort),
+            med(upload),
+            med(draw),
+            med(total),
+            r.splat_area() / 1e6,
+            primitive=r.kind,
+            compositing=r.compositing,
+        )
+        for r, (sort, upload, draw, total) in zip(renderers, times, strict=True)
+    ]
 
 
-def _case(renderers: list[SplatRenderer], view: View, args: argparse.Namespace,
-          baseline: NaiveSplatter | None = None) -> list[Row]:
+def _case(
+    renderers: list[SplatRenderer], view: View, args: argparse.Namespace, baseline: NaiveSplatter | None = None
+) -> list[Row]:
     """Full-size frames, then the frame time at the viewer's moving render scale, for each renderer;
     the baseline (last row) takes its turns at full size and moves at full size (its moving time is
     its frame time)."""
-    rows = _time_frames([*renderers, *([baseline] if baseline else [])],
-                        orbit_cameras(view, args.width, args.height, args.frames))
+    rows = _time_frames(
+        [*renderers, *([baseline] if baseline else [])], orbit_cameras(view, args.width, args.height, args.frames)
+    )
     w, h = round(args.width * args.moving_scale), round(args.height * args.moving_scale)
     for row, moving in zip(rows, _time_frames(renderers, orbit_cameras(view, w, h, args.frames)), strict=False):
         row.moving_ms = moving.frame_ms
@@ -179,12 +214,15 @@ def orbit_cameras(view: View, width: int, height: int, frames: int) -> list[Came
     from particlesplat.views import Look
 
     lk = view.look
-    return [replace(view, look=Look(lk.azimuth + i, lk.elevation, lk.distance)).camera(width, height)
-            for i in range(frames + 1)]
+    return [
+        replace(view, look=Look(lk.azimuth + i, lk.elevation, lk.distance)).camera(width, height)
+        for i in range(frames + 1)
+    ]
 
 
-def edit_latency(renderer: SplatRenderer, session: SceneSession, view: View, width: int, height: int,
-                 steps: int = 20) -> float:
+def edit_latency(
+    renderer: SplatRenderer, session: SceneSession, view: View, width: int, height: int, steps: int = 20
+) -> float:
     """Median ms from a z_p change of one particle to the finished frame (decode, upload, sort, draw)."""
     from .scene_view import SceneView
     from .state import ViewState
@@ -224,15 +262,25 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError:
         print(f"bench viewer: --sizes: expected comma-separated integers, got {args.sizes!r}", file=sys.stderr)
         return 2
-    if any(n < 1 for n in sizes) or args.frames < 1 or args.width < 16 or args.height < 16 or not (
-            0.0 < args.moving_scale <= 1.0):
-        print("bench viewer: sizes and --frames must be >= 1, --width/--height >= 16, --moving-scale in (0, 1]",
-              file=sys.stderr)
+    if (
+        any(n < 1 for n in sizes)
+        or args.frames < 1
+        or args.width < 16
+        or args.height < 16
+        or not (0.0 < args.moving_scale <= 1.0)
+    ):
+        print(
+            "bench viewer: sizes and --frames must be >= 1, --width/--height >= 16, --moving-scale in (0, 1]",
+            file=sys.stderr,
+        )
         return 2
     requested = [v.strip() for v in args.compositing.split(",") if v.strip()]
     if not requested or any(v not in COMPOSITING for v in requested):
-        print(f"bench viewer: --compositing: expected a comma-separated list of {', '.join(COMPOSITING)}, "
-              f"got {args.compositing!r}", file=sys.stderr)
+        print(
+            f"bench viewer: --compositing: expected a comma-separated list of {', '.join(COMPOSITING)}, "
+            f"got {args.compositing!r}",
+            file=sys.stderr,
+        )
         return 2
     ctx = moderngl.create_standalone_context(backend="egl")
     renderers: dict[str, SplatRenderer] = {}
@@ -264,8 +312,9 @@ def main(argv: list[str] | None = None) -> int:
         for row in case:
             row.name = f"random {n // 1000}k" if n % 1000 == 0 else f"random {n}"
         if not args.no_psnr:
-            for row, db in zip(case, psnr_against_torch(drawers, g, default_view(None, g).camera(
-                    args.width, args.height)), strict=True):
+            for row, db in zip(
+                case, psnr_against_torch(drawers, g, default_view(None, g).camera(args.width, args.height)), strict=True
+            ):
                 row.psnr_db = db
         rows += case
     latency: dict[str, tuple[float, float]] = {}
@@ -291,55 +340,91 @@ def main(argv: list[str] | None = None) -> int:
         for row in case:
             row.name = f"demo scene ({os.path.basename(str(scene))}, opacity >= {DEFAULT_PRUNE:g})"
         if not args.no_psnr:
-            for row, db in zip(case, psnr_against_torch(drawers, g.subset(g.opacities >= DEFAULT_PRUNE),
-                                                        view.camera(args.width, args.height)), strict=True):
+            for row, db in zip(
+                case,
+                psnr_against_torch(
+                    drawers, g.subset(g.opacities >= DEFAULT_PRUNE), view.camera(args.width, args.height)
+                ),
+                strict=True,
+            ):
                 row.psnr_db = db
         rows += case
         for path, renderer in renderers.items():
-            latency[path] = (edit_latency(renderer, session, view, args.width, args.height),
-                             edit_latency(renderer, session, view, round(args.width * args.moving_scale),
-                                          round(args.height * args.moving_scale)))
+            latency[path] = (
+                edit_latency(renderer, session, view, args.width, args.height),
+                edit_latency(
+                    renderer,
+                    session,
+                    view,
+                    round(args.width * args.moving_scale),
+                    round(args.height * args.moving_scale),
+                ),
+            )
     load1 = os.getloadavg()
     print(f"GL renderer: {renderer.renderer_string}")
-    print(f"{args.width}x{args.height}, {args.primitive}, median of {args.frames} frames, camera turning 1 deg/frame "
-          f"(every frame re-sorts); load average {load0[0]:.1f} -> {load1[0]:.1f} on {os.cpu_count()} CPUs")
+    print(
+        f"{args.width}x{args.height}, {args.primitive}, median of {args.frames} frames, camera turning 1 deg/frame "
+        f"(every frame re-sorts); load average {load0[0]:.1f} -> {load1[0]:.1f} on {os.cpu_count()} CPUs"
+    )
     print()
     num = lambda v, f: "-" if v != v else format(v, f)  # noqa: E731  (NaN: not measured)
-    print(f"| scene | Gaussians | compositing | primitive | splat area Mpx | sort ms | upload ms | draw ms | "
-          f"frame ms | frame ms at {args.moving_scale:g} scale (moving) | sprite floor ms | PSNR dB |")
+    print(
+        f"| scene | Gaussians | compositing | primitive | splat area Mpx | sort ms | upload ms | draw ms | "
+        f"frame ms | frame ms at {args.moving_scale:g} scale (moving) | sprite floor ms | PSNR dB |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r.name} | {r.gaussians:,} | {r.compositing} | {r.primitive} | {num(r.area_mpx, '.1f')} | "
-              f"{r.sort_ms:.1f} | {r.upload_ms:.2f} | {r.draw_ms:.1f} | {r.frame_ms:.1f} | {r.moving_ms:.1f} | "
-              f"{num(r.floor_ms, '.1f')} | {num(r.psnr_db, '.1f')} |")
-    print("\nsprite floor: the same point sprites (centres, sides) drawn with a constant colour and no blending, "
-          "the least a point-sprite splatter pays here before shading and compositing")
+        print(
+            f"| {r.name} | {r.gaussians:,} | {r.compositing} | {r.primitive} | {num(r.area_mpx, '.1f')} | "
+            f"{r.sort_ms:.1f} | {r.upload_ms:.2f} | {r.draw_ms:.1f} | {r.frame_ms:.1f} | {r.moving_ms:.1f} | "
+            f"{num(r.floor_ms, '.1f')} | {num(r.psnr_db, '.1f')} |"
+        )
+    print(
+        "\nsprite floor: the same point sprites (centres, sides) drawn with a constant colour and no blending, "
+        "the least a point-sprite splatter pays here before shading and compositing"
+    )
     if baseline:
-        print("naive: the baseline (instanced 3-sigma quads, covariance and SH per corner, back-to-front blending); "
-              "it moves at full resolution")
+        print(
+            "naive: the baseline (instanced 3-sigma quads, covariance and SH per corner, back-to-front blending); "
+            "it moves at full resolution"
+        )
     if not args.no_psnr:
         print("PSNR: the first camera at full size against particlesplat.render (over black)")
     paths = list(renderers)
     per_case = len(paths) + (1 if baseline else 0)
     if len(paths) > 1:
-        print(f"\nframe time ratios, {' / '.join(paths[1:])} over {paths[0]} (same cameras, the paths taking turns "
-              f"frame by frame):")
+        print(
+            f"\nframe time ratios, {' / '.join(paths[1:])} over {paths[0]} (same cameras, the paths taking turns "
+            f"frame by frame):"
+        )
         for i in range(0, len(rows), per_case):
-            base, others = rows[i], rows[i + 1: i + len(paths)]
-            print(f"- {base.name}: " + "; ".join(
-                f"{o.compositing} {o.frame_ms / base.frame_ms:.2f}x still, {o.moving_ms / base.moving_ms:.2f}x moving"
-                for o in others))
+            base, others = rows[i], rows[i + 1 : i + len(paths)]
+            print(
+                f"- {base.name}: "
+                + "; ".join(
+                    f"{o.compositing} {o.frame_ms / base.frame_ms:.2f}x still, "
+                    f"{o.moving_ms / base.moving_ms:.2f}x moving"
+                    for o in others
+                )
+            )
     if baseline:
         print("\nframe time over the naive baseline's (its full-resolution frame; same cameras, same run):")
         for i in range(0, len(rows), per_case):
-            ours, naive = rows[i: i + len(paths)], rows[i + len(paths)]
-            print(f"- {naive.name}: " + "; ".join(
-                f"{o.compositing} {o.frame_ms / naive.frame_ms:.2f}x still, {o.moving_ms / naive.frame_ms:.2f}x moving"
-                for o in ours))
+            ours, naive = rows[i : i + len(paths)], rows[i + len(paths)]
+            print(
+                f"- {naive.name}: "
+                + "; ".join(
+                    f"{o.compositing} {o.frame_ms / naive.frame_ms:.2f}x still, "
+                    f"{o.moving_ms / naive.frame_ms:.2f}x moving"
+                    for o in ours
+                )
+            )
     for path, (full, moving) in latency.items():
-        print(f"\nedit -> frame latency, {path} (drag one particle's z_p: decode it, upload its rows, sort, project, "
-              f"draw): {full:.1f} ms at {args.width}x{args.height}, {moving:.1f} ms at the moving scale "
-              f"{args.moving_scale:g} (what a drag in the viewer renders)")
+        print(
+            f"\nedit -> frame latency, {path} (drag one particle's z_p: decode it, upload its rows, sort, project, "
+            f"draw): {full:.1f} ms at {args.width}x{args.height}, {moving:.1f} ms at the moving scale "
+            f"{args.moving_scale:g} (what a drag in the viewer renders)"
+        )
     for r in drawers:
         r.release()
     ctx.release()

@@ -46,6 +46,7 @@ class ViewportHost(Protocol):
 
     def view_camera(self, scale: float = 1.0, clear_panel: bool = True) -> Camera: ...
 
+
 CLICK_SLOP = 3.0  # window pixels a press may move and still count as a click
 
 
@@ -88,8 +89,9 @@ class ViewportControls:
             if self.dragged:
                 sel = app.state.selected
                 if self.floor.active:
-                    message = self.floor.update(app.session, app.view_camera(1.0), io.mouse_pos.x * sx,
-                                                io.mouse_pos.y * sy)
+                    message = self.floor.update(
+                        app.session, app.view_camera(1.0), io.mouse_pos.x * sx, io.mouse_pos.y * sy
+                    )
                     if message:
                         app.fields.status = message
                 elif io.key_ctrl and sel is not None and app.session.editable:
@@ -175,8 +177,9 @@ class ViewportControls:
             elif imgui.is_key_pressed(K.s, False) and app.session.editable:
                 app.req.save_edits = True
             elif imgui.is_key_pressed(K.d, False) and app.session.editable:
-                app.state.selected, app.fields.status = duplicate_selected(app.session, app.state.selected,
-                                                                           app.fields.objects.copy_offset)
+                app.state.selected, app.fields.status = duplicate_selected(
+                    app.session, app.state.selected, app.fields.objects.copy_offset
+                )
             return
         pressed = lambda key: imgui.is_key_pressed(key, False)  # noqa: E731
         if pressed(K.r):

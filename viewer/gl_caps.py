@@ -25,10 +25,12 @@ Compositing = Literal["auto", "fetch", "blend"]
 COMPOSITING: tuple[str, ...] = get_args(Compositing)
 FETCH_EXTENSION = "GL_EXT_shader_framebuffer_fetch"
 
-COMPOSITING_HELP = ("splat compositing: fetch = in the fragment shader with GL_EXT_shader_framebuffer_fetch "
-                    "(exactly the torch renderer's rules), blend = fixed-function blending, core GL 3.3 only (no "
-                    "early stop at T <= 1e-4: pixels differ by <= 1e-4), auto = fetch where the driver has it "
-                    "(default: %(default)s)")
+COMPOSITING_HELP = (
+    "splat compositing: fetch = in the fragment shader with GL_EXT_shader_framebuffer_fetch "
+    "(exactly the torch renderer's rules), blend = fixed-function blending, core GL 3.3 only (no "
+    "early stop at T <= 1e-4: pixels differ by <= 1e-4), auto = fetch where the driver has it "
+    "(default: %(default)s)"
+)
 
 
 class UnsupportedGL(RuntimeError):
@@ -59,8 +61,10 @@ class GLCaps:
         if requested not in COMPOSITING:
             raise ValueError(f"compositing must be one of {COMPOSITING}, got {requested!r}")
         if requested == "fetch" and not self.framebuffer_fetch:
-            raise UnsupportedGL(f"--compositing fetch: this OpenGL driver ({self.renderer}) lacks {FETCH_EXTENSION}; "
-                                f"use --compositing auto or blend")
+            raise UnsupportedGL(
+                f"--compositing fetch: this OpenGL driver ({self.renderer}) lacks {FETCH_EXTENSION}; "
+                f"use --compositing auto or blend"
+            )
         if requested == "auto":
             return "fetch" if self.framebuffer_fetch else "blend"
         return requested
@@ -70,15 +74,18 @@ def probe(ctx) -> GLCaps:
     """Read the capabilities of a moderngl context (GL >= 3.3)."""
     info = ctx.info
     if ctx.version_code < 330:
-        raise UnsupportedGL(f"OpenGL 3.3 or newer is needed, this context is {info['GL_VERSION']} "
-                            f"({info['GL_RENDERER']})")
+        raise UnsupportedGL(
+            f"OpenGL 3.3 or newer is needed, this context is {info['GL_VERSION']} ({info['GL_RENDERER']})"
+        )
     point = info.get("GL_POINT_SIZE_RANGE") or (1.0, 1.0)
     viewport = info.get("GL_MAX_VIEWPORT_DIMS") or (4096, 4096)
-    return GLCaps(renderer=f"{info['GL_RENDERER']} / {info['GL_VERSION']}",
-                  framebuffer_fetch=FETCH_EXTENSION in ctx.extensions,
-                  max_point_size=float(point[1]),
-                  max_texture_size=int(info.get("GL_MAX_TEXTURE_SIZE") or 1024),
-                  max_viewport=(int(viewport[0]), int(viewport[1])))
+    return GLCaps(
+        renderer=f"{info['GL_RENDERER']} / {info['GL_VERSION']}",
+        framebuffer_fetch=FETCH_EXTENSION in ctx.extensions,
+        max_point_size=float(point[1]),
+        max_texture_size=int(info.get("GL_MAX_TEXTURE_SIZE") or 1024),
+        max_viewport=(int(viewport[0]), int(viewport[1])),
+    )
 
 
 def shader_constants() -> dict[str, str]:

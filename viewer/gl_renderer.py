@@ -104,7 +104,7 @@ def pack_gaussians(g: Gaussians, texels: int | None = None) -> np.ndarray:
     out[:, 0, 3] = g.opacities.numpy()
     out[:, 1:4, :3] = rot
     out[:, 1:4, 3] = g.scales.numpy()
-    out[:, 4: 4 + k, :3] = g.sh.numpy()
+    out[:, 4 : 4 + k, :3] = g.sh.numpy()
     out[:, 4, 3] = g.owner.numpy().astype(np.float32)
     return out
 
@@ -117,8 +117,12 @@ def camera_uniforms(camera: Camera) -> dict[str, tuple]:
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     w, h = camera.width, camera.height
     tan_x, tan_y = 0.5 * w / fx, 0.5 * h / fy
-    lim = (-(cx / fx + FOV_MARGIN * tan_x), (w - cx) / fx + FOV_MARGIN * tan_x,
-           -(cy / fy + FOV_MARGIN * tan_y), (h - cy) / fy + FOV_MARGIN * tan_y)
+    lim = (
+        -(cx / fx + FOV_MARGIN * tan_x),
+        (w - cx) / fx + FOV_MARGIN * tan_x,
+        -(cy / fy + FOV_MARGIN * tan_y),
+        (h - cy) / fy + FOV_MARGIN * tan_y,
+    )
     return {
         "w2c": tuple(w2c.T.reshape(-1)),  # GLSL matrices are column-major
         "cam_center": tuple(c2w[:3, 3]),
@@ -159,8 +163,17 @@ class SplatRenderer:
             context's emulate a smaller driver.
     """
 
-    def __init__(self, ctx: moderngl.Context, *, primitive: str = "auto", compositing: Compositing = "auto",
-                 color_dtype: str = "f2", near: float = 0.01, far: float = 1e10, caps: GLCaps | None = None) -> None:
+    def __init__(
+        self,
+        ctx: moderngl.Context,
+        *,
+        primitive: str = "auto",
+        compositing: Compositing = "auto",
+        color_dtype: str = "f2",
+        near: float = 0.01,
+        far: float = 1e10,
+        caps: GLCaps | None = None,
+    ) -> None:
         if primitive not in PRIMITIVES:
             raise ValueError(f"primitive must be one of {PRIMITIVES}, got {primitive!r}")
         self.ctx = ctx
@@ -174,17 +187,21 @@ class SplatRenderer:
         self._projects: dict[int, moderngl.Program] = {}  # projection program per SH coefficient count
         # programs per primitive kind and role ("splat", or the id pass with 1 or 8 attachments)
         self._progs: dict[str, dict[str | int, moderngl.Program]] = {}
-        for kind in (("quads", "points") if primitive == "auto" else (primitive,)):
+        for kind in ("quads", "points") if primitive == "auto" else (primitive,):
             vert = load_shader("splat.vert", {"MAX_KEYED": MAX_KEYED, **({"QUADS": 1} if kind == "quads" else {})})
             progs: dict[str | int, moderngl.Program] = {
-                "splat": ctx.program(vertex_shader=vert, fragment_shader=load_shader("splat.frag", mode))}
+                "splat": ctx.program(vertex_shader=vert, fragment_shader=load_shader("splat.frag", mode))
+            }
             for n in (1, ID_ATTACHMENTS):
-                progs[n] = ctx.program(vertex_shader=vert, fragment_shader=load_shader(
-                    "splat.frag", {**mode, "ID_PASS": 1, "ATTACH": n}))
+                progs[n] = ctx.program(
+                    vertex_shader=vert, fragment_shader=load_shader("splat.frag", {**mode, "ID_PASS": 1, "ATTACH": n})
+                )
             self._progs[kind] = progs
         self.kind = "quads" if primitive == "auto" else primitive  # the primitive of the current sort
-        self._blit = ctx.program(vertex_shader=load_shader("fullscreen.vert"), fragment_shader=load_shader(
-            "blit.frag", {} if self.compositing == "fetch" else {"COVERAGE_ALPHA": 1}))
+        self._blit = ctx.program(
+            vertex_shader=load_shader("fullscreen.vert"),
+            fragment_shader=load_shader("blit.frag", {} if self.compositing == "fetch" else {"COVERAGE_ALPHA": 1}),
+        )
         self._project_vaos: dict[int, moderngl.VertexArray] = {}
         self._blit_vao = ctx.vertex_array(self._blit, [])
         # data
@@ -246,16 +263,18 @@ class SplatRenderer:
         row = row_for(texels, self.caps.max_texture_size)
         rows = max(1, math.ceil(n / row))
         if 2 * rows > self.caps.max_texture_size:  # (the order texture holds 2 rows per data row)
-            raise ValueError(f"{n:,} Gaussians with {texels - 4} SH coefficients exceed this GL driver's "
-                             f"texture size ({self.caps.max_texture_size}; {self.caps.renderer})")
+            raise ValueError(
+                f"{n:,} Gaussians with {texels - 4} SH coefficients exceed this GL driver's "
+                f"texture size ({self.caps.max_texture_size}; {self.caps.renderer})"
+            )
         self._packed = packed
         self._owner = owner
         self._means = np.ascontiguousarray(packed[:, 0, :3])
         self._opacity = np.ascontiguousarray(packed[:, 0, 3])
         owners, starts, counts = np.unique(owner, return_index=True, return_counts=True)
-        self._groups = {int(o): (int(s), int(c)) for o, s, c in zip(owners, starts, counts)}
+        self._groups = {int(o): (int(s), int(c)) for o, s, c in zip(owners, starts, counts, strict=False)}
         self.row = row
-        if (self._data_tex is None or self._data_tex.size != (row * texels, rows)):
+        if self._data_tex is None or self._data_tex.size != (row * texels, rows):
             for t in [self._data_tex, *self._proj_tex]:
                 if t is not None:
                     t.release()
@@ -273,7 +292,7 @@ class SplatRenderer:
         """Upload texture rows [r0, r1) from the packed array."""
         texels, row = self._packed.shape[1], self.row
         block = np.zeros(((r1 - r0) * row, texels, 4), np.float32)
-        part = self._packed[r0 * row: r1 * row]
+        part = self._packed[r0 * row : r1 * row]
         block[: part.shape[0]] = part
         self._data_tex.write(block.tobytes(), viewport=(0, r0, row * texels, r1 - r0))
 
@@ -284,9 +303,9 @@ class SplatRenderer:
         packed = pack_gaussians(gaussians, self._packed.shape[1])
         start, count = self._groups.get(owner, (self.num, 0))
         if count == packed.shape[0] and packed.shape[1] == self._packed.shape[1] and count > 0:
-            self._packed[start: start + count] = packed
-            self._means[start: start + count] = packed[:, 0, :3]
-            self._opacity[start: start + count] = packed[:, 0, 3]
+            self._packed[start : start + count] = packed
+            self._means[start : start + count] = packed[:, 0, :3]
+            self._opacity[start : start + count] = packed[:, 0, 3]
             self._write_rows(start // self.row, (start + count - 1) // self.row + 1)
             self._data_version += 1
             self._refilter()
@@ -304,10 +323,10 @@ class SplatRenderer:
     def set_filter(self, visible_owners: np.ndarray | list[int] | None = None, min_opacity: float = 0.0) -> None:
         """Draw only Gaussians whose owner is in ``visible_owners`` (None = all; -1 = background)
         and whose opacity is >= ``min_opacity``."""
-        owners = None if visible_owners is None else np.asarray(sorted(set(int(o) for o in visible_owners)),
-                                                                np.int64)
+        owners = None if visible_owners is None else np.asarray(sorted(set(int(o) for o in visible_owners)), np.int64)
         same = (owners is None and self._visible_owners is None) or (
-            owners is not None and self._visible_owners is not None and np.array_equal(owners, self._visible_owners))
+            owners is not None and self._visible_owners is not None and np.array_equal(owners, self._visible_owners)
+        )
         if same and min_opacity == self._min_opacity:
             return
         self._visible_owners, self._min_opacity = owners, float(min_opacity)
@@ -360,8 +379,10 @@ class SplatRenderer:
         if self._drawn:
             k = self._sh_bases()
             if k not in self._projects:
-                self._projects[k] = self.ctx.program(vertex_shader=load_shader("fullscreen.vert"),
-                                                     fragment_shader=load_shader("project.frag", {"SH_BASES": k}))
+                self._projects[k] = self.ctx.program(
+                    vertex_shader=load_shader("fullscreen.vert"),
+                    fragment_shader=load_shader("project.frag", {"SH_BASES": k}),
+                )
                 self._project_vaos[k] = self.ctx.vertex_array(self._projects[k], [])
             p = self._projects[k]
             p["gaussians"] = 0
@@ -390,8 +411,9 @@ class SplatRenderer:
         alpha >= ALPHA_MIN ellipse (pixels; radius 0 = culled). Reads the projection texture back."""
         if not self._drawn:
             return np.zeros((0, 4), np.float32)
-        raw = self._proj_fbo.read(viewport=(0, 0, self.row, math.ceil(self._drawn / self.row)), components=4,
-                                  attachment=0, dtype="f4")
+        raw = self._proj_fbo.read(
+            viewport=(0, 0, self.row, math.ceil(self._drawn / self.row)), components=4, attachment=0, dtype="f4"
+        )
         return np.frombuffer(raw, np.float32).reshape(-1, 4)[: self._drawn]
 
     def _radii(self) -> np.ndarray:
@@ -452,8 +474,9 @@ class SplatRenderer:
             self._index_buf.release()
             self._index_buf = None
 
-    def _draw(self, role: str | int, uni: dict, color_mode: int = 0, owner_base: int = 0,
-              owner_key: np.ndarray | None = None) -> None:
+    def _draw(
+        self, role: str | int, uni: dict, color_mode: int = 0, owner_base: int = 0, owner_key: np.ndarray | None = None
+    ) -> None:
         """Draw the sorted splats with the program of ``role`` ("splat", or the id pass with 1 or
         8 attachments, whose first owner is ``owner_base``) into the bound framebuffer; ``owner_key``
         (MAX_KEYED,) is the colour key per owner of colour mode 2 (None: leave the uniform as it is)."""
@@ -491,7 +514,9 @@ class SplatRenderer:
         if (kind, role) not in self._vaos:
             self._vaos[(kind, role)] = (
                 self.ctx.vertex_array(prog, [], index_buffer=self._index_buf, index_element_size=4)
-                if kind == "quads" else self.ctx.vertex_array(prog, []))
+                if kind == "quads"
+                else self.ctx.vertex_array(prog, [])
+            )
         vao = self._vaos[(kind, role)]
         if kind == "quads":
             vao.render(moderngl.TRIANGLES, vertices=6 * self._drawn)
@@ -512,8 +537,9 @@ class SplatRenderer:
         for fetch; 1 - T for blend)."""
         return 1.0 - np.abs(raw_a) if self.compositing == "fetch" else raw_a.copy()
 
-    def render(self, camera: Camera, *, color_mode: int = 0, objects: Sequence[int] | None = None,
-               finish: bool = False) -> FrameTimes:
+    def render(
+        self, camera: Camera, *, color_mode: int = 0, objects: Sequence[int] | None = None, finish: bool = False
+    ) -> FrameTimes:
         """Render into the offscreen colour target (premultiplied rgb, alpha) at the camera's size.
 
         color_mode: 0 = SH colour, 1 = a colour per owner (segmentation view), 2 = a colour per object:
@@ -524,7 +550,7 @@ class SplatRenderer:
         if color_mode == 2:  # the colour keys are uploaded only for the mode that reads them
             key = np.arange(MAX_KEYED, dtype=np.float32)
             head = np.asarray(objects if objects is not None else [], np.float32)[:MAX_KEYED]
-            key[:len(head)] = head
+            key[: len(head)] = head
         times = FrameTimes()
         uni = self._prepare(camera, times)
         t0 = time.perf_counter()
@@ -551,8 +577,9 @@ class SplatRenderer:
         raw = np.frombuffer(self._mask_fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)
         return raw[::-1, :, 0].copy()
 
-    def owner_weights(self, camera: Camera, num_owners: int,
-                      region: tuple[int, int, int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def owner_weights(
+        self, camera: Camera, num_owners: int, region: tuple[int, int, int, int] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Per-owner weights sum_i T_i alpha_i for owners -1 (background) .. num_owners-1.
 
         region: (x, y, w, h) in image pixels (y down), default the whole image.
@@ -572,14 +599,15 @@ class SplatRenderer:
             self._clear(self._id_fbo)
             self._draw(ID_ATTACHMENTS, uni, owner_base=base)
             self.ctx.scissor = None
-            for i, tex in enumerate(self._id_tex):
+            for i in range(len(self._id_tex)):
                 first = base + 1 + 3 * i  # row of weights for owner base + 3 i
                 if first >= total:
                     break
-                raw = np.frombuffer(self._id_fbo.read(viewport=(x, gl_y, w, h), components=4, attachment=i,
-                                                      dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
+                raw = np.frombuffer(
+                    self._id_fbo.read(viewport=(x, gl_y, w, h), components=4, attachment=i, dtype="f4"), np.float32
+                ).reshape(h, w, 4)[::-1]
                 n = min(3, total - first)
-                weights[first: first + n] = np.moveaxis(raw[..., :n], -1, 0)
+                weights[first : first + n] = np.moveaxis(raw[..., :n], -1, 0)
                 if i == 0:
                     alpha = self._alpha(raw[..., 3])
         return weights, alpha
@@ -613,8 +641,12 @@ class SplatRenderer:
         rgba = self.read_rgba()
         return rgba[..., :3] + (1.0 - rgba[..., 3:]) * np.asarray(background, np.float32)
 
-    def blit(self, viewport: tuple[int, int, int, int], background: tuple[float, float, float],
-             mask_color: tuple[float, float, float] | None = None) -> None:
+    def blit(
+        self,
+        viewport: tuple[int, int, int, int],
+        background: tuple[float, float, float],
+        mask_color: tuple[float, float, float] | None = None,
+    ) -> None:
         """Draw the last render over ``background`` into the bound framebuffer's ``viewport``
         (x, y, w, h in GL pixels); with ``mask_color``, tint the last :meth:`render_mask`."""
         self.ctx.viewport = viewport
@@ -633,10 +665,25 @@ class SplatRenderer:
 
     def release(self) -> None:
         """Free the GL objects."""
-        objs = [self._data_tex, *self._proj_tex, self._proj_fbo, self._index_buf, self._order_tex, *self._vaos.values(),
-                self._color_fbo, self._color_tex, self._mask_fbo, self._mask_tex, self._id_fbo, *self._id_tex,
-                *self._project_vaos.values(), self._blit_vao, *self._projects.values(), self._blit,
-                *(p for progs in self._progs.values() for p in progs.values())]
+        objs = [
+            self._data_tex,
+            *self._proj_tex,
+            self._proj_fbo,
+            self._index_buf,
+            self._order_tex,
+            *self._vaos.values(),
+            self._color_fbo,
+            self._color_tex,
+            self._mask_fbo,
+            self._mask_tex,
+            self._id_fbo,
+            *self._id_tex,
+            *self._project_vaos.values(),
+            self._blit_vao,
+            *self._projects.values(),
+            self._blit,
+            *(p for progs in self._progs.values() for p in progs.values()),
+        ]
         for obj in objs:
             if obj is not None:
                 obj.release()

@@ -162,8 +162,10 @@ class NaiveSplatter:
         tex = self.ctx.texture((ROW * texels, rows), 4, packed.tobytes(), dtype="f4")
         tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         defines = "".join(f"#define {a} {b}\n" for a, b in shader_constants().items())
-        prog = self.ctx.program(vertex_shader=f"#version 330\n#define SH_BASES {k}\n{VERTEX}",
-                                fragment_shader=f"#version 330\n{defines}{FRAGMENT}")
+        prog = self.ctx.program(
+            vertex_shader=f"#version 330\n#define SH_BASES {k}\n{VERTEX}",
+            fragment_shader=f"#version 330\n{defines}{FRAGMENT}",
+        )
         prog["data"], prog["texels"], prog["row"] = 0, texels, ROW
         index = self.ctx.buffer(reserve=max(4 * n, 4))
         self._prog, self._index, self._tex = prog, index, tex
@@ -202,8 +204,12 @@ class NaiveSplatter:
         self._tex.use(0)
         self.ctx.enable(moderngl.BLEND)
         self.ctx.blend_equation = moderngl.FUNC_ADD
-        self.ctx.blend_func = (moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA, moderngl.ONE,
-                               moderngl.ONE_MINUS_SRC_ALPHA)
+        self.ctx.blend_func = (
+            moderngl.SRC_ALPHA,
+            moderngl.ONE_MINUS_SRC_ALPHA,
+            moderngl.ONE,
+            moderngl.ONE_MINUS_SRC_ALPHA,
+        )
         if len(order):
             self._vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=len(order))
         self.ctx.disable(moderngl.BLEND)
@@ -230,4 +236,3 @@ class NaiveSplatter:
         for obj in self._objs:
             obj.release()
         self._objs = []
-

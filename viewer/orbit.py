@@ -40,8 +40,9 @@ class OrbitCamera:
     def pan(self, dx_px: float, dy_px: float, viewport_height: int) -> None:
         """Move the target in the image plane so the scene follows the mouse."""
         cam = self.camera(max(viewport_height, 1), max(viewport_height, 1))
-        metres_per_px = self.view.look.distance * 2.0 * math.tan(math.radians(self.view.fov) / 2.0) / max(
-            viewport_height, 1)
+        metres_per_px = (
+            self.view.look.distance * 2.0 * math.tan(math.radians(self.view.fov) / 2.0) / max(viewport_height, 1)
+        )
         R = cam.c2w[:3, :3].double()
         shift = R[:, 0] * (-dx_px * metres_per_px) + R[:, 1] * (-dy_px * metres_per_px)
         target = torch.tensor(self.view.target, dtype=torch.float64) + shift
@@ -50,7 +51,7 @@ class OrbitCamera:
     def zoom(self, wheel_steps: float, factor: float = 0.9) -> None:
         """Scale the distance by ``factor`` per wheel step (positive = closer)."""
         look = self.view.look
-        dist = max(1e-3, look.distance * factor ** wheel_steps)
+        dist = max(1e-3, look.distance * factor**wheel_steps)
         self.view = replace(self.view, look=Look(look.azimuth, look.elevation, dist))
 
     def reset(self) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from types import MappingProxyType
+
 from imgui_bundle import imgui
 
 from particlesplat.camera import Camera
@@ -38,8 +39,9 @@ SHORTCUTS = (
     ("Esc", "deselect"),
 )
 
-DRAG_SPEED = MappingProxyType({"z_p": 0.005, "z_s": 0.02, "z_d": 0.02, "z_e": 0.02, "z_t": 0.005,
-                               "move": 0.005})  # move: metres per pixel dragged
+DRAG_SPEED = MappingProxyType(
+    {"z_p": 0.005, "z_s": 0.02, "z_d": 0.02, "z_e": 0.02, "z_t": 0.005, "move": 0.005}
+)  # move: metres per pixel dragged
 
 
 PANEL_WIDTH, PANEL_MARGIN = 400.0, 10.0  # window points: the panel docks at the right edge
@@ -96,22 +98,30 @@ def draw_overlay(text_lines: list[str]) -> None:
         y += imgui.get_text_line_height() + 2.0
 
 
-def draw_panel(session: SceneSession, state: ViewState, req: UiRequests, fields: UiFields,
-               swatches: dict[int, tuple[float, float, float]], counts: tuple[int, int]) -> None:
+def draw_panel(
+    session: SceneSession,
+    state: ViewState,
+    req: UiRequests,
+    fields: UiFields,
+    swatches: dict[int, tuple[float, float, float]],
+    counts: tuple[int, int],
+) -> None:
     """The side panel. ``swatches``: particle colours; ``counts``: (drawn, total) Gaussians."""
     vp = imgui.get_main_viewport()
     size = (float(vp.work_size.x), float(vp.work_size.y))
     cond = imgui.Cond_.always if size != fields.layout_size else imgui.Cond_.first_use_ever
     fields.layout_size = size  # the panel follows a window resize (docked right, full height)
-    imgui.set_next_window_pos(imgui.ImVec2(vp.work_pos.x + vp.work_size.x - PANEL_WIDTH - PANEL_MARGIN,
-                                           vp.work_pos.y + 8.0), cond)
+    imgui.set_next_window_pos(
+        imgui.ImVec2(vp.work_pos.x + vp.work_size.x - PANEL_WIDTH - PANEL_MARGIN, vp.work_pos.y + 8.0), cond
+    )
     imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, vp.work_size.y - 16.0), cond)
     imgui.begin("ParticleSplat")
     imgui.push_item_width(-150.0)
     if fields.status:  # at the top, where the user looks after a click (saved, exported, errors)
         error = fields.status.startswith("error")
-        imgui.push_style_color(imgui.Col_.text, imgui.ImVec4(1.0, 0.45, 0.4, 1.0) if error
-                               else imgui.ImVec4(0.55, 1.0, 0.55, 1.0))
+        imgui.push_style_color(
+            imgui.Col_.text, imgui.ImVec4(1.0, 0.45, 0.4, 1.0) if error else imgui.ImVec4(0.55, 1.0, 0.55, 1.0)
+        )
         imgui.text_wrapped(fields.status)
         imgui.pop_style_color()
         if imgui.small_button("dismiss"):
@@ -182,7 +192,9 @@ def _view_section(session: SceneSession, state: ViewState, req: UiRequests, coun
         state.background = tuple(float(c) for c in col)
 
 
-def _particles_section(session: SceneSession, state: ViewState, swatches: dict[int, tuple[float, float, float]]) -> None:
+def _particles_section(
+    session: SceneSession, state: ViewState, swatches: dict[int, tuple[float, float, float]]
+) -> None:
     if not imgui.collapsing_header("Particles", imgui.TreeNodeFlags_.default_open):
         return
     by_object = state.seg_mode is SegMode.BY_OBJECT
@@ -201,8 +213,10 @@ def _particles_section(session: SceneSession, state: ViewState, swatches: dict[i
         imgui.color_button("##swatch", imgui.ImVec4(r, g, b, 1.0), 0, imgui.ImVec2(22.0, 0.0))
         imgui.same_line()
         active = session.is_active(i)
-        imgui.text_colored(imgui.ImVec4(0.5, 1.0, 0.5, 1.0) if active else imgui.ImVec4(0.6, 0.6, 0.6, 1.0),
-                           "active  " if active else "inactive")
+        imgui.text_colored(
+            imgui.ImVec4(0.5, 1.0, 0.5, 1.0) if active else imgui.ImVec4(0.6, 0.6, 0.6, 1.0),
+            "active  " if active else "inactive",
+        )
         imgui.same_line()
         changed, visible = imgui.checkbox("##visible", i not in state.hidden)
         if changed:

@@ -10,8 +10,9 @@ from particlesplat.gaussians import Gaussians
 from particlesplat.sh import rgb_to_sh_dc
 
 
-def random_gaussians(n: int, *, seed: int = 0, sh_degree: int = 3, num_owners: int = 8,
-                     extent: float = 1.0, pixel_scale: float = 0.02) -> Gaussians:
+def random_gaussians(
+    n: int, *, seed: int = 0, sh_degree: int = 3, num_owners: int = 8, extent: float = 1.0, pixel_scale: float = 0.02
+) -> Gaussians:
     """``n`` Gaussians in a cube of half-size ``extent`` metres about the origin.
 
     Scales are log-uniform around ``pixel_scale * extent * (20000 / n)^(1/3)`` metres so the

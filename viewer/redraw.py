@@ -59,9 +59,19 @@ def install_event_callbacks(window, on_event) -> None:
     """
     import glfw
 
-    for setter in (glfw.set_cursor_pos_callback, glfw.set_mouse_button_callback, glfw.set_scroll_callback,
-                   glfw.set_key_callback, glfw.set_char_callback, glfw.set_cursor_enter_callback,
-                   glfw.set_window_focus_callback, glfw.set_window_size_callback, glfw.set_framebuffer_size_callback,
-                   glfw.set_window_refresh_callback, glfw.set_window_iconify_callback, glfw.set_drop_callback,
-                   glfw.set_window_close_callback):
+    for setter in (
+        glfw.set_cursor_pos_callback,
+        glfw.set_mouse_button_callback,
+        glfw.set_scroll_callback,
+        glfw.set_key_callback,
+        glfw.set_char_callback,
+        glfw.set_cursor_enter_callback,
+        glfw.set_window_focus_callback,
+        glfw.set_window_size_callback,
+        glfw.set_framebuffer_size_callback,
+        glfw.set_window_refresh_callback,
+        glfw.set_window_iconify_callback,
+        glfw.set_drop_callback,
+        glfw.set_window_close_callback,
+    ):
         setter(window, on_event)

@@ -40,13 +40,21 @@ class SceneView:
                     self.renderer.replace_owner(owner, session.particle_gaussians(owner))
         self.renderer.set_filter(state.visible_owners(session.owner_ids()), state.prune)
 
-    def draw(self, session: SceneSession, state: ViewState, camera: Camera, *, force: bool = False,
-             finish: bool = False) -> FrameTimes | None:
+    def draw(
+        self, session: SceneSession, state: ViewState, camera: Camera, *, force: bool = False, finish: bool = False
+    ) -> FrameTimes | None:
         """Render ``camera`` if anything changed (or ``force``); returns the timings or None."""
         self.sync(session, state)
         c2w = camera.c2w.detach().cpu().numpy().tobytes()
-        key = (c2w, camera.K.detach().cpu().numpy().tobytes(), camera.width, camera.height, session.version,
-               id(session), state.key())
+        key = (
+            c2w,
+            camera.K.detach().cpu().numpy().tobytes(),
+            camera.width,
+            camera.height,
+            session.version,
+            id(session),
+            state.key(),
+        )
         if key == self._last_key and not force:
             return None
         mode = state.color_mode()

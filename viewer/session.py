@@ -14,8 +14,7 @@ from pathlib import Path
 
 import torch
 
-from particlesplat.edit_ops import (History, Operation, SceneEditor, SetAttribute, load_edit_file,
-                                    scene_mismatch)
+from particlesplat.edit_ops import History, Operation, SceneEditor, SetAttribute, load_edit_file, scene_mismatch
 from particlesplat.encode_scene import EncodedScene
 from particlesplat.gaussians import Gaussians
 
@@ -35,15 +34,24 @@ class SceneSession(SceneEditor):
         source: the scene folder or .ply path.
     """
 
-    def __init__(self, model=None, encoded: EncodedScene | None = None, gaussians: Gaussians | None = None,
-                 model_name: str = "", source: str = "") -> None:
+    def __init__(
+        self,
+        model=None,
+        encoded: EncodedScene | None = None,
+        gaussians: Gaussians | None = None,
+        model_name: str = "",
+        source: str = "",
+    ) -> None:
         if encoded is None and gaussians is None:
             raise ValueError("SceneSession needs an encoded scene or a Gaussian set")
         if encoded is not None and model is None:
             raise ValueError("SceneSession: an encoded scene needs its model")
-        super().__init__(model, encoded.particles if encoded is not None else None,
-                         encoded.all_cameras if encoded is not None else [],
-                         encoded.context if encoded is not None else None)
+        super().__init__(
+            model,
+            encoded.particles if encoded is not None else None,
+            encoded.all_cameras if encoded is not None else [],
+            encoded.context if encoded is not None else None,
+        )
         self.encoded = encoded
         self.model_name = model_name
         self.source = source

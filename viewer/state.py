@@ -13,7 +13,6 @@ from particlesplat.views import DEFAULT_BACKGROUND
 DEFAULT_PRUNE = 0.05
 
 
-
 class SegMode(StrEnum):
     """How the scene is coloured and what of it is drawn; the value is the panel's label."""
 
@@ -81,5 +80,11 @@ class ViewState:
 
     def key(self) -> tuple:
         """Everything that changes the rendered pixels."""
-        return (self.selected if self.seg_mode is SegMode.MASK_SELECTED else None, tuple(sorted(self.hidden)),
-                self.solo, self.seg_mode, self.prune, self.background)
+        return (
+            self.selected if self.seg_mode is SegMode.MASK_SELECTED else None,
+            tuple(sorted(self.hidden)),
+            self.solo,
+            self.seg_mode,
+            self.prune,
+            self.background,
+        )

@@ -39,11 +39,20 @@ class SceneDataset(Dataset):
     global RNG (per-worker seeded by the DataLoader).
     """
 
-    def __init__(self, root_split_dir: str | PathLike, resolution: int | tuple[int, int] | None = None,
-                 mode: str = "multi", *, flip: bool = False, deterministic: bool = False, seed: int = 0,
-                 progress: float = 0.0, num_targets: int | None = None,
-                 schedule: tuple[tuple[int, int], tuple[int, int]] | None = None,
-                 cache_size: int = 256) -> None:
+    def __init__(
+        self,
+        root_split_dir: str | PathLike,
+        resolution: int | tuple[int, int] | None = None,
+        mode: str = "multi",
+        *,
+        flip: bool = False,
+        deterministic: bool = False,
+        seed: int = 0,
+        progress: float = 0.0,
+        num_targets: int | None = None,
+        schedule: tuple[tuple[int, int], tuple[int, int]] | None = None,
+        cache_size: int = 256,
+    ) -> None:
         """
         Args:
             root_split_dir: folder of scene folders (e.g. ``data/tabletop/train``).
@@ -110,11 +119,16 @@ class SceneDataset(Dataset):
             gen.manual_seed(self.seed * 1_000_003 + index)
         else:
             gen.manual_seed(int(torch.randint(0, 2**62, (1,))))
-        ctx, tgt = sample_views(raw.num_frames, self.progress, self.mode, gen, num_targets=self.num_targets,
-                                schedule=self.schedule)
+        ctx, tgt = sample_views(
+            raw.num_frames, self.progress, self.mode, gen, num_targets=self.num_targets, schedule=self.schedule
+        )
         flipped = self.flip and bool(torch.rand((), generator=gen) < 0.5)
-        item: dict[str, Tensor] = {"scene_index": torch.tensor(index), "flipped": torch.tensor(flipped),
-                                   "context_index": ctx, "target_index": tgt}
+        item: dict[str, Tensor] = {
+            "scene_index": torch.tensor(index),
+            "flipped": torch.tensor(flipped),
+            "context_index": ctx,
+            "target_index": tgt,
+        }
         views = {}
         for role, idx in (("context", ctx), ("target", tgt)):
             scene = raw.select(idx.tolist(), self.resolution)
@@ -122,8 +136,9 @@ class SceneDataset(Dataset):
             views[role] = (scene, depth)
         sup = torch.ones_like(views["target"][1])
         if self.mode == "single" and raw.has_depth:
-            sup = supervision_mask(views["target"][1], views["target"][0].cameras, views["context"][1],
-                                   views["context"][0].cameras)
+            sup = supervision_mask(
+                views["target"][1], views["target"][0].cameras, views["context"][1], views["context"][0].cameras
+            )
         for role, (scene, depth) in views.items():
             extra = [depth] + ([scene.masks] if scene.masks is not None else [])
             if role == "target":

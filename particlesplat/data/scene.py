@@ -109,8 +109,7 @@ class RawScene:
     def has_masks(self) -> bool:
         return all(m is not None for m in self.masks)
 
-    def select(self, indices: list[int] | None = None,
-               resolution: int | tuple[int, int] | None = None) -> Scene:
+    def select(self, indices: list[int] | None = None, resolution: int | tuple[int, int] | None = None) -> Scene:
         """Views ``indices`` (default: all) as a :class:`Scene`, resized to ``resolution``.
 
         Args:
@@ -129,8 +128,14 @@ class RawScene:
         rgb = torch.stack([_resize_rgb(self.rgb[i], size) for i in idx])
         depth = None
         if self.has_depth:
-            depth = torch.stack([torch.zeros(size[1], size[0]) if self.depth[i] is None
-                                 else _resize_nearest(self.depth[i], size, torch.float32) for i in idx])[:, None]
+            depth = torch.stack(
+                [
+                    torch.zeros(size[1], size[0])
+                    if self.depth[i] is None
+                    else _resize_nearest(self.depth[i], size, torch.float32)
+                    for i in idx
+                ]
+            )[:, None]
         masks = None
         if self.has_masks:
             masks = torch.stack([_resize_nearest(self.masks[i], size, torch.int64) for i in idx])
@@ -156,8 +161,10 @@ def _target_size(raw: RawScene, idx: list[int], resolution: int | tuple[int, int
     if resolution is None:
         sizes = {(raw.cameras[i].width, raw.cameras[i].height) for i in idx}
         if len(sizes) > 1:
-            raise SceneFormatError(f"{raw.path / TRANSFORMS}: frames have different sizes {sorted(sizes)}; "
-                                   "pass a resolution to resize them to one size")
+            raise SceneFormatError(
+                f"{raw.path / TRANSFORMS}: frames have different sizes {sorted(sizes)}; "
+                "pass a resolution to resize them to one size"
+            )
         return sizes.pop()
     if isinstance(resolution, int):
         resolution = (resolution, resolution)
@@ -230,8 +237,9 @@ def read_scene(path: str | PathLike) -> RawScene:
         cams.append(cam)
     have = [m is not None for m in masks]
     if any(have) and not all(have):
-        raise SceneFormatError(f"{tf_path}: frames[{have.index(False)}] has no 'instance_mask_path' "
-                               "but other frames have one")
+        raise SceneFormatError(
+            f"{tf_path}: frames[{have.index(False)}] has no 'instance_mask_path' but other frames have one"
+        )
     return RawScene(path, rgb, depth, masks, cams)
 
 
@@ -246,8 +254,9 @@ def _number(value: Any, key: str, where: str, positive: bool = False) -> float:
     except (TypeError, ValueError):
         raise SceneFormatError(f"{where}: key '{key}' must be a number, got {short_repr(value)}") from None
     if not math.isfinite(x) or (positive and x <= 0):
-        raise SceneFormatError(f"{where}: key '{key}' must be a finite{' positive' if positive else ''} "
-                               f"number, got {short_repr(value)}")
+        raise SceneFormatError(
+            f"{where}: key '{key}' must be a finite{' positive' if positive else ''} number, got {short_repr(value)}"
+        )
     return x
 
 
@@ -256,15 +265,17 @@ def _frame_camera(meta: dict, frame: dict, img_w: int, img_h: int, where: str) -
     w = img_w if _get(meta, frame, "w") is None else _number(_get(meta, frame, "w"), "w", where, True)
     h = img_h if _get(meta, frame, "h") is None else _number(_get(meta, frame, "h"), "h", where, True)
     if (w, h) != (img_w, img_h):
-        raise SceneFormatError(f"{where}: image '{frame['file_path']}' is {img_w}x{img_h} but keys 'w', 'h' "
-                               f"say {w:g}x{h:g}")
+        raise SceneFormatError(
+            f"{where}: image '{frame['file_path']}' is {img_w}x{img_h} but keys 'w', 'h' say {w:g}x{h:g}"
+        )
     fl_x, fl_y = _get(meta, frame, "fl_x"), _get(meta, frame, "fl_y")
     angle_x, angle_y = _get(meta, frame, "camera_angle_x"), _get(meta, frame, "camera_angle_y")
     if fl_x is None and angle_x is not None:  # NeRF "blender" style
         fl_x = 0.5 * w / math.tan(0.5 * _number(angle_x, "camera_angle_x", where, True))
         if fl_y is None:
-            fl_y = fl_x if angle_y is None else 0.5 * h / math.tan(0.5 * _number(angle_y, "camera_angle_y", where,
-                                                                                   True))
+            fl_y = (
+                fl_x if angle_y is None else 0.5 * h / math.tan(0.5 * _number(angle_y, "camera_angle_y", where, True))
+            )
     if fl_x is None:
         raise SceneFormatError(f"{where}: missing key 'fl_x' (or 'camera_angle_x')")
     if fl_y is None:
@@ -295,8 +306,10 @@ def _rigid_matrix(value: Any, where: str) -> np.ndarray:
     R = m[:3, :3]
     err = max(np.abs(R.T @ R - np.eye(3)).max(), np.abs(m[3] - [0, 0, 0, 1]).max())
     if err > _RIGID_TOL or np.linalg.det(R) <= 0:
-        raise SceneFormatError(f"{where}: key '{key}' is not a rigid transform (rotation must be orthonormal "
-                               f"with det +1 and the last row 0 0 0 1; error {err:.3g}, det {np.linalg.det(R):.3g})")
+        raise SceneFormatError(
+            f"{where}: key '{key}' is not a rigid transform (rotation must be orthonormal "
+            f"with det +1 and the last row 0 0 0 1; error {err:.3g}, det {np.linalg.det(R):.3g})"
+        )
     return m
 
 
@@ -308,8 +321,10 @@ def _resolve(folder: Path, rel: Any, key: str, where: str) -> Path:
         raise SceneFormatError(f"{where}: key '{key}' is a path of {len(rel)} characters ({short_repr(rel)})")
     norm = os.path.normpath(rel)
     if os.path.isabs(rel) or norm == ".." or norm.startswith(".." + os.sep) or "\0" in rel:
-        raise SceneFormatError(f"{where}: key '{key}' names {short_repr(rel)}, outside the scene folder "
-                               "(paths must be relative and stay inside it)")
+        raise SceneFormatError(
+            f"{where}: key '{key}' names {short_repr(rel)}, outside the scene folder "
+            "(paths must be relative and stay inside it)"
+        )
     p = folder / rel
     if not p.is_file() and not p.suffix and p.with_suffix(".png").is_file():  # NeRF "blender" paths
         p = p.with_suffix(".png")
@@ -327,12 +342,16 @@ def _open(p: Path, key: str, where: str) -> Image.Image:
             img = Image.open(p)
             w, h = img.size
             if w * h > MAX_IMAGE_PIXELS:
-                raise SceneFormatError(f"{where}: key '{key}': image {p} is {w}x{h} pixels, more than the "
-                                       f"{MAX_IMAGE_PIXELS} an image may have (a decompression bomb?)")
+                raise SceneFormatError(
+                    f"{where}: key '{key}': image {p} is {w}x{h} pixels, more than the "
+                    f"{MAX_IMAGE_PIXELS} an image may have (a decompression bomb?)"
+                )
             img.load()
     except (Image.DecompressionBombError, Image.DecompressionBombWarning):
-        raise SceneFormatError(f"{where}: key '{key}': image {p} declares more pixels than the "
-                               f"{MAX_IMAGE_PIXELS} an image may have (a decompression bomb?)") from None
+        raise SceneFormatError(
+            f"{where}: key '{key}': image {p} declares more pixels than the "
+            f"{MAX_IMAGE_PIXELS} an image may have (a decompression bomb?)"
+        ) from None
     except OSError as e:
         raise SceneFormatError(f"{where}: key '{key}': cannot read image {p} ({one_line(e, 200)})") from None
     return img
@@ -352,8 +371,9 @@ def _read_rgb(folder: Path, frame: dict, where: str) -> np.ndarray:
 def _check_size(arr: np.ndarray, size: tuple[int, int], key: str, p: Path, where: str) -> None:
     """arr: (H, W) image of file ``p``; SceneFormatError unless (W, H) == ``size``."""
     if (arr.shape[1], arr.shape[0]) != size:
-        raise SceneFormatError(f"{where}: key '{key}': {p} is {arr.shape[1]}x{arr.shape[0]} but the frame is "
-                               f"{size[0]}x{size[1]}")
+        raise SceneFormatError(
+            f"{where}: key '{key}': {p} is {arr.shape[1]}x{arr.shape[0]} but the frame is {size[0]}x{size[1]}"
+        )
 
 
 def _read_depth(folder: Path, meta: dict, frame: dict, size: tuple[int, int], where: str) -> np.ndarray | None:
@@ -368,8 +388,10 @@ def _read_depth(folder: Path, meta: dict, frame: dict, size: tuple[int, int], wh
     scale = _number(scale_value, "depth_unit_scale_factor", where, True)
     img = _open(p, key, where)
     if img.mode in ("L", "P", "1"):
-        raise SceneFormatError(f"{where}: key '{key}': {p} is an 8-bit image; depth must be 16-bit (or float) "
-                               "in units of depth_unit_scale_factor (8 bits would read as 16-bit units)")
+        raise SceneFormatError(
+            f"{where}: key '{key}': {p} is an 8-bit image; depth must be 16-bit (or float) "
+            "in units of depth_unit_scale_factor (8 bits would read as 16-bit units)"
+        )
     if img.mode not in ("I;16", "I;16B", "I", "F"):
         raise SceneFormatError(f"{where}: key '{key}': {p} must be a single-channel image, got mode {img.mode}")
     arr = np.asarray(img).astype(np.float64) * scale

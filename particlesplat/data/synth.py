@@ -45,9 +45,19 @@ def scene_rng(seed: int, split: str, index: int) -> np.random.Generator:
 
 def scene_cameras(scene: tabletop.TabletopScene, res: int) -> list[Camera]:
     """The scene's 21 cameras (float64, OpenCV) on its arc."""
-    return [Camera.orbit(tabletop.LOOK_AT, float(az), scene.elevation_deg, scene.distance,
-                         fov_y_deg=tabletop.FOV_Y_DEG, width=res, height=res, dtype=torch.float64)
-            for az in scene.azimuths_deg()]
+    return [
+        Camera.orbit(
+            tabletop.LOOK_AT,
+            float(az),
+            scene.elevation_deg,
+            scene.distance,
+            fov_y_deg=tabletop.FOV_Y_DEG,
+            width=res,
+            height=res,
+            dtype=torch.float64,
+        )
+        for az in scene.azimuths_deg()
+    ]
 
 
 def write_scene(folder: Path, seed: int, split: str, index: int, res: int) -> None:
@@ -79,16 +89,28 @@ def write_tabletop(folder: Path, scene: tabletop.TabletopScene, res: int, meta: 
             Image.fromarray(np.round(rgb * 255.0).astype(np.uint8), mode="RGB").save(tmp / "rgb" / f"{i:03d}.png")
             Image.fromarray(steps.astype(np.uint16)).save(tmp / "depth" / f"{i:03d}.png")
             Image.fromarray(mask.astype(np.uint8), mode="L").save(tmp / "masks" / f"{i:03d}.png")
-            frames.append({"file_path": f"rgb/{i:03d}.png", "depth_file_path": f"depth/{i:03d}.png",
-                           "instance_mask_path": f"masks/{i:03d}.png",
-                           "transform_matrix": cam.to_opengl_c2w().tolist()})
+            frames.append(
+                {
+                    "file_path": f"rgb/{i:03d}.png",
+                    "depth_file_path": f"depth/{i:03d}.png",
+                    "instance_mask_path": f"masks/{i:03d}.png",
+                    "transform_matrix": cam.to_opengl_c2w().tolist(),
+                }
+            )
         K0 = cams[0].K
-        transforms = {"camera_model": "OPENCV", "w": res, "h": res, "fl_x": float(K0[0, 0]),
-                      "fl_y": float(K0[1, 1]), "cx": float(K0[0, 2]), "cy": float(K0[1, 2]),
-                      "depth_unit_scale_factor": DEPTH_UNIT, "frames": frames}
+        transforms = {
+            "camera_model": "OPENCV",
+            "w": res,
+            "h": res,
+            "fl_x": float(K0[0, 0]),
+            "fl_y": float(K0[1, 1]),
+            "cx": float(K0[0, 2]),
+            "cy": float(K0[1, 2]),
+            "depth_unit_scale_factor": DEPTH_UNIT,
+            "frames": frames,
+        }
         (tmp / "transforms.json").write_text(json.dumps(transforms, indent=1))
-        meta = {"generator": "particlesplat.data.synth", "format_version": FORMAT_VERSION, **meta,
-                **scene.to_json()}
+        meta = {"generator": "particlesplat.data.synth", "format_version": FORMAT_VERSION, **meta, **scene.to_json()}
         (tmp / "scene.json").write_text(json.dumps(meta, indent=1))
         os.replace(tmp, folder)
     except BaseException:
@@ -118,8 +140,10 @@ def _check_manifest(out: Path, seed: int, res: int) -> None:
             raise ValueError(f"{path}: not valid JSON ({e})") from e
         for key, value in want.items():
             if have.get(key) != value:
-                raise ValueError(f"{path}: key '{key}' is {have.get(key)!r} but this run uses {value!r}; "
-                                 "use another output folder or the same settings to resume")
+                raise ValueError(
+                    f"{path}: key '{key}' is {have.get(key)!r} but this run uses {value!r}; "
+                    "use another output folder or the same settings to resume"
+                )
         return
     out.mkdir(parents=True, exist_ok=True)
     with atomic_write(path, "w") as f:
@@ -132,8 +156,9 @@ def _remove_stale_temps(split_dir: Path) -> None:
             shutil.rmtree(p, ignore_errors=True)
 
 
-def generate(out: Path, counts: dict[str, int], seed: int, res: int = 128, workers: int = 2,
-             progress: bool = True) -> list[float]:
+def generate(
+    out: Path, counts: dict[str, int], seed: int, res: int = 128, workers: int = 2, progress: bool = True
+) -> list[float]:
     """Write ``counts[split]`` scenes per split under ``out``; skip scenes that already exist.
 
     Returns the seconds each newly written scene took (worker wall time).
@@ -174,9 +199,11 @@ def generate(out: Path, counts: dict[str, int], seed: int, res: int = 128, worke
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = ("Generate the tabletop dataset (docs/dataset.md): OUT/{train,val,test}/scene_NNNNN "
-                          "folders with RGB, planar 16-bit depth and instance masks for 21 views. "
-                          "Deterministic for a seed; re-running resumes and skips finished scenes.")
+    parser.description = (
+        "Generate the tabletop dataset (docs/dataset.md): OUT/{train,val,test}/scene_NNNNN "
+        "folders with RGB, planar 16-bit depth and instance masks for 21 views. "
+        "Deterministic for a seed; re-running resumes and skips finished scenes."
+    )
     parser.add_argument("out", type=Path, help="output folder (created)")
     parser.add_argument("--train", type=int, default=1000, help="number of training scenes")
     parser.add_argument("--val", type=int, default=32, help="number of validation scenes")

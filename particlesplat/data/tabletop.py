@@ -19,11 +19,18 @@ FLOOR_HALF = 2.0
 CHECKER_CELL = 0.5
 FLOOR_GREYS = (0.55, 0.65)
 BACKGROUND = (0.12, 0.14, 0.18)
-COLOURS: Mapping[str, tuple[float, float, float]] = MappingProxyType({
-    "red": (0.85, 0.2, 0.2), "green": (0.2, 0.7, 0.3), "blue": (0.2, 0.35, 0.85),
-    "yellow": (0.9, 0.8, 0.2), "cyan": (0.2, 0.75, 0.8), "magenta": (0.8, 0.25, 0.7),
-    "orange": (0.95, 0.5, 0.15), "white": (0.9, 0.9, 0.9),
-})
+COLOURS: Mapping[str, tuple[float, float, float]] = MappingProxyType(
+    {
+        "red": (0.85, 0.2, 0.2),
+        "green": (0.2, 0.7, 0.3),
+        "blue": (0.2, 0.35, 0.85),
+        "yellow": (0.9, 0.8, 0.2),
+        "cyan": (0.2, 0.75, 0.8),
+        "magenta": (0.8, 0.25, 0.7),
+        "orange": (0.95, 0.5, 0.15),
+        "white": (0.9, 0.9, 0.9),
+    }
+)
 SHAPES = ("sphere", "box", "cylinder")
 NUM_OBJECTS = (2, 5)
 SIZE_RANGE = (0.12, 0.30)
@@ -80,9 +87,14 @@ class TabletopScene:
         return np.linspace(AZIMUTH_RANGE[0], AZIMUTH_RANGE[1], NUM_VIEWS)
 
     def to_json(self) -> dict:
-        return {"objects": [asdict(o) for o in self.objects], "elevation_deg": self.elevation_deg,
-                "distance": self.distance, "look_at": list(LOOK_AT), "azimuths_deg": self.azimuths_deg().tolist(),
-                "fov_y_deg": FOV_Y_DEG}
+        return {
+            "objects": [asdict(o) for o in self.objects],
+            "elevation_deg": self.elevation_deg,
+            "distance": self.distance,
+            "look_at": list(LOOK_AT),
+            "azimuths_deg": self.azimuths_deg().tolist(),
+            "fov_y_deg": FOV_Y_DEG,
+        }
 
 
 def sample_scene(rng: np.random.Generator) -> TabletopScene:
@@ -102,8 +114,7 @@ def sample_scene(rng: np.random.Generator) -> TabletopScene:
     return TabletopScene(objects, elevation, distance)
 
 
-def _place_object(rng: np.random.Generator, others: list[TabletopObject],
-                  tries: int = 200) -> TabletopObject | None:
+def _place_object(rng: np.random.Generator, others: list[TabletopObject], tries: int = 200) -> TabletopObject | None:
     shape = SHAPES[int(rng.integers(len(SHAPES)))]
     colour = list(COLOURS)[int(rng.integers(len(COLOURS)))]
     if shape == "sphere":
@@ -118,8 +129,11 @@ def _place_object(rng: np.random.Generator, others: list[TabletopObject],
         rad = CENTRE_RADIUS * math.sqrt(float(rng.uniform()))
         ang = float(rng.uniform(-math.pi, math.pi))
         obj = TabletopObject(shape, (rad * math.cos(ang), rad * math.sin(ang), size[2]), size, yaw, colour)
-        if all(math.hypot(obj.center[0] - o.center[0], obj.center[1] - o.center[1])
-               >= obj.footprint_radius + o.footprint_radius + _GAP for o in others):
+        if all(
+            math.hypot(obj.center[0] - o.center[0], obj.center[1] - o.center[1])
+            >= obj.footprint_radius + o.footprint_radius + _GAP
+            for o in others
+        ):
             return obj
     return None
 
@@ -183,8 +197,7 @@ def _hit_cylinder(o: np.ndarray, d: np.ndarray, obj: TabletopObject) -> tuple[np
     with np.errstate(divide="ignore", invalid="ignore"):
         t_side = (-b - np.sqrt(np.maximum(disc, 0.0))) / (2.0 * a)
         z_side = o[2] + t_side * d[:, 2]
-        t_side = np.where((a > 1e-15) & (disc >= 0) & (t_side > _EPS) & (z_side >= 0) & (z_side <= top),
-                          t_side, np.inf)
+        t_side = np.where((a > 1e-15) & (disc >= 0) & (t_side > _EPS) & (z_side >= 0) & (z_side <= top), t_side, np.inf)
         caps = []
         for zc in (top, 0.0):
             tc = (zc - o[2]) / d[:, 2]
@@ -193,8 +206,11 @@ def _hit_cylinder(o: np.ndarray, d: np.ndarray, obj: TabletopObject) -> tuple[np
     t = np.minimum(t_side, np.minimum(*caps))
     p = o + np.where(np.isfinite(t), t, 0.0)[:, None] * d
     n_side = np.stack([(p[:, 0] - cx) / r, (p[:, 1] - cy) / r, np.zeros_like(t)], axis=1)
-    n = np.where((t == t_side)[:, None], n_side,
-                 np.where((t == caps[0])[:, None], np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0])))
+    n = np.where(
+        (t == t_side)[:, None],
+        n_side,
+        np.where((t == caps[0])[:, None], np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0])),
+    )
     return t, n
 
 
@@ -210,8 +226,9 @@ def _bounding_radius(obj: TabletopObject) -> float:
     return obj.size[0]
 
 
-def trace(scene: TabletopScene, origin: np.ndarray, dirs: np.ndarray,
-          shade: bool = True) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+def trace(
+    scene: TabletopScene, origin: np.ndarray, dirs: np.ndarray, shade: bool = True
+) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
     """Cast rays from one origin.
 
     Each object is intersected exactly, but only for the rays that hit its bounding sphere.
@@ -253,8 +270,7 @@ def trace(scene: TabletopScene, origin: np.ndarray, dirs: np.ndarray,
     return colour, depth, inst.astype(np.int64)
 
 
-def pixel_rays(K: np.ndarray, c2w: np.ndarray, width: int, height: int,
-               offsets: tuple[float, ...]) -> np.ndarray:
+def pixel_rays(K: np.ndarray, c2w: np.ndarray, width: int, height: int, offsets: tuple[float, ...]) -> np.ndarray:
     """Ray directions through sub-pixel points ``(u + ou, v + ov)`` for ``ou, ov`` in ``offsets``.
 
     Args:
@@ -274,8 +290,9 @@ def pixel_rays(K: np.ndarray, c2w: np.ndarray, width: int, height: int,
     return dirs.reshape(height, s, width, s, 3)
 
 
-def render_view(scene: TabletopScene, K: np.ndarray, c2w: np.ndarray, width: int,
-                height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def render_view(
+    scene: TabletopScene, K: np.ndarray, c2w: np.ndarray, width: int, height: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Render one view: colour from 2x2 supersampling, depth and instances from the pixel-centre ray.
 
     Args:

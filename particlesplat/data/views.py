@@ -17,16 +17,19 @@ from torch import Tensor
 
 from ..camera import Camera
 
-GAP_SCHEDULES: Mapping[str, tuple[tuple[int, int], tuple[int, int]]] = MappingProxyType({
-    "multi": ((1, 4), (5, 20)),
-    "single": ((1, 2), (5, 10)),
-})
+GAP_SCHEDULES: Mapping[str, tuple[tuple[int, int], tuple[int, int]]] = MappingProxyType(
+    {
+        "multi": ((1, 4), (5, 20)),
+        "single": ((1, 2), (5, 10)),
+    }
+)
 NUM_TARGETS: Mapping[str, int] = MappingProxyType({"multi": 4, "single": 2})
 WARMUP = 0.5  # fraction of training after which the gap range is at its maximum
 
 
-def gap_range(progress: float, mode: str, schedule: tuple[tuple[int, int], tuple[int, int]] | None = None,
-              warmup: float = WARMUP) -> tuple[int, int]:
+def gap_range(
+    progress: float, mode: str, schedule: tuple[tuple[int, int], tuple[int, int]] | None = None, warmup: float = WARMUP
+) -> tuple[int, int]:
     """The (min, max) index gap allowed at ``progress`` in [0, 1] of training (linear, then flat)."""
     (a0, b0), (a1, b1) = schedule or GAP_SCHEDULES[mode]
     s = min(max(float(progress), 0.0) / warmup, 1.0) if warmup > 0 else 1.0
@@ -47,10 +50,17 @@ def _choose(candidates: Tensor, count: int, generator: torch.Generator | None) -
     return candidates[pick].sort().values
 
 
-def sample_views(num_frames: int, progress: float, mode: str = "multi", generator: torch.Generator | None = None,
-                 *, num_targets: int | None = None,
-                 schedule: tuple[tuple[int, int], tuple[int, int]] | None = None,
-                 front: int | None = None, warmup: float = WARMUP) -> tuple[Tensor, Tensor]:
+def sample_views(
+    num_frames: int,
+    progress: float,
+    mode: str = "multi",
+    generator: torch.Generator | None = None,
+    *,
+    num_targets: int | None = None,
+    schedule: tuple[tuple[int, int], tuple[int, int]] | None = None,
+    front: int | None = None,
+    warmup: float = WARMUP,
+) -> tuple[Tensor, Tensor]:
     """Pick context and target frame indices of one scene.
 
     Args:
@@ -92,8 +102,14 @@ def sample_views(num_frames: int, progress: float, mode: str = "multi", generato
     return torch.tensor([f]), _choose(candidates, count, generator)
 
 
-def supervision_mask(target_depth: Tensor, target_cams: list[Camera], context_depth: Tensor,
-                     context_cams: list[Camera], rel_tol: float = 0.01, abs_tol: float = 0.01) -> Tensor:
+def supervision_mask(
+    target_depth: Tensor,
+    target_cams: list[Camera],
+    context_depth: Tensor,
+    context_cams: list[Camera],
+    rel_tol: float = 0.01,
+    abs_tol: float = 0.01,
+) -> Tensor:
     """Splatt3R-style mask of target pixels that the context views can see.
 
     A target pixel is supervised (1) when its surface point, unprojected with the target depth,
@@ -123,8 +139,9 @@ def supervision_mask(target_depth: Tensor, target_cams: list[Camera], context_de
             uv, z = cam_c.project(points)
             # points at infinity: the direction only (rotation, no translation)
             dir_c = dirs @ cam_c.R
-            inf_uv = dir_c[..., :2] / dir_c[..., 2:].clamp_min(1e-12) * torch.stack([cam_c.fx, cam_c.fy]) \
-                + torch.stack([cam_c.cx, cam_c.cy])
+            inf_uv = dir_c[..., :2] / dir_c[..., 2:].clamp_min(1e-12) * torch.stack([cam_c.fx, cam_c.fy]) + torch.stack(
+                [cam_c.cx, cam_c.cy]
+            )
             uv = torch.where(finite[..., None], uv, inf_uv)
             front = torch.where(finite, z > 1e-6, dir_c[..., 2] > 1e-6)
             u, v = uv[..., 0].floor(), uv[..., 1].floor()

@@ -5,5 +5,15 @@ from .io import load_model, read_checkpoint, save_checkpoint
 from .particles import EDITABLE, Particles
 from .particlesplat import ParticleSplat
 
-__all__ = ["ConfigError", "EDITABLE", "ModelConfig", "ParticleSplat", "Particles", "TrainConfig", "load_config",
-           "load_model", "read_checkpoint", "save_checkpoint"]
+__all__ = [
+    "ConfigError",
+    "EDITABLE",
+    "ModelConfig",
+    "ParticleSplat",
+    "Particles",
+    "TrainConfig",
+    "load_config",
+    "load_model",
+    "read_checkpoint",
+    "save_checkpoint",
+]

@@ -18,6 +18,7 @@ class ConfigError(UserError):
 
 def _checker(cfg, where: str):
     """need(cond, key, msg): raise ConfigError naming ``where.key`` and its value unless ``cond``."""
+
     def need(cond: bool, key: str, msg: str) -> None:
         if not cond:
             raise ConfigError(f"{where}.{key}: {msg} (got {short_repr(getattr(cfg, key))})")
@@ -29,14 +30,38 @@ def _checker(cfg, where: str):
 # fits this machine, so a typo (refine_hidden: 40000, resolution: 1048576) or a hostile checkpoint config is one
 # clear line instead of gigabytes of weights; the lower ends keep divisions and tensor shapes valid.
 INT_RANGES: dict[str, tuple[int, int]] = {
-    "resolution": (16, 1024), "particles_per_view": (0, 1024), "kp_patch": (2, 1024), "glimpse_size": (4, 256),
-    "channels": (1, 1024), "d_obj": (1, 1024), "d_bg": (1, 1024), "bg_latent_stride": (1, 1024),
-    "bg_block": (1, 1024), "bg_static_grid": (0, 512), "patch_gaussians": (1, 64), "patch_base": (0, 64),
-    "patch_channels": (0, 1024), "patch_hidden": (0, 4096), "refine_steps": (0, 16), "refine_hidden": (1, 4096),
-    "refine_glimpse": (0, 256), "token_dim": (1, 2048), "transformer_layers": (0, 64), "transformer_heads": (1, 64),
-    "sh_degree": (0, 3), "batch_size": (1, 4096), "target_views": (0, 64), "steps": (1, 10**9),
-    "bg_off_steps": (0, 10**9), "log_every": (1, 10**9), "val_every": (1, 10**9), "val_scenes": (1, 10**6),
-    "ckpt_every": (1, 10**9), "seed": (0, 2**63 - 1), "num_threads": (0, 1024), "cache_scenes": (0, 10**6),
+    "resolution": (16, 1024),
+    "particles_per_view": (0, 1024),
+    "kp_patch": (2, 1024),
+    "glimpse_size": (4, 256),
+    "channels": (1, 1024),
+    "d_obj": (1, 1024),
+    "d_bg": (1, 1024),
+    "bg_latent_stride": (1, 1024),
+    "bg_block": (1, 1024),
+    "bg_static_grid": (0, 512),
+    "patch_gaussians": (1, 64),
+    "patch_base": (0, 64),
+    "patch_channels": (0, 1024),
+    "patch_hidden": (0, 4096),
+    "refine_steps": (0, 16),
+    "refine_hidden": (1, 4096),
+    "refine_glimpse": (0, 256),
+    "token_dim": (1, 2048),
+    "transformer_layers": (0, 64),
+    "transformer_heads": (1, 64),
+    "sh_degree": (0, 3),
+    "batch_size": (1, 4096),
+    "target_views": (0, 64),
+    "steps": (1, 10**9),
+    "bg_off_steps": (0, 10**9),
+    "log_every": (1, 10**9),
+    "val_every": (1, 10**9),
+    "val_scenes": (1, 10**6),
+    "ckpt_every": (1, 10**9),
+    "seed": (0, 2**63 - 1),
+    "num_threads": (0, 1024),
+    "cache_scenes": (0, 10**6),
     "fg_band": (0, 1024),
 }
 
@@ -95,10 +120,16 @@ class ModelConfig:
         need = _checker(self, where)
         need(self.resolution >= 16 and self.resolution % 16 == 0, "resolution", "must be a multiple of 16, >= 16")
         need(self.particles_per_view >= 1, "particles_per_view", "must be >= 1")
-        need(self.kp_patch >= 2 and self.resolution % self.kp_patch == 0, "kp_patch",
-             "must be >= 2 and divide the resolution")
-        need((self.resolution // self.kp_patch) ** 2 >= self.particles_per_view, "particles_per_view",
-             "must not exceed the number of keypoint proposals (resolution/kp_patch)^2")
+        need(
+            self.kp_patch >= 2 and self.resolution % self.kp_patch == 0,
+            "kp_patch",
+            "must be >= 2 and divide the resolution",
+        )
+        need(
+            (self.resolution // self.kp_patch) ** 2 >= self.particles_per_view,
+            "particles_per_view",
+            "must not exceed the number of keypoint proposals (resolution/kp_patch)^2",
+        )
         need(0.0 < self.glimpse_ratio < 1.0, "glimpse_ratio", "must be in (0, 1)")
         need(self.kp_min_separation >= 0.0, "kp_min_separation", "must be >= 0")
         need(self.offset_bound > 0.0, "offset_bound", "must be > 0")
@@ -111,20 +142,32 @@ class ModelConfig:
             need(v >= 1 and self.resolution % v == 0, key, "must divide the resolution")
         need(self.bg_static_grid >= 0, "bg_static_grid", "must be >= 0 (0 = no static background layer)")
         need(self.bg_static_extent > 0.0, "bg_static_extent", "must be > 0 (metres)")
-        need(self.bg_per_view or self.bg_static_grid > 0, "bg_per_view",
-             "false needs the static background layer (bg_static_grid > 0): nothing would draw the background")
+        need(
+            self.bg_per_view or self.bg_static_grid > 0,
+            "bg_per_view",
+            "false needs the static background layer (bg_static_grid > 0): nothing would draw the background",
+        )
         need(self.patch_gaussians >= 1, "patch_gaussians", "must be >= 1")
         base = self.patch_base or self.patch_gaussians
         ratio = self.patch_gaussians // base if self.patch_base >= 0 and base > 0 else 0
-        need(self.patch_base >= 0 and ratio >= 1 and base * ratio == self.patch_gaussians and ratio & (ratio - 1) == 0,
-             "patch_base", "must be 0 (= patch_gaussians) or patch_gaussians divided by a power of 2")
+        need(
+            self.patch_base >= 0 and ratio >= 1 and base * ratio == self.patch_gaussians and ratio & (ratio - 1) == 0,
+            "patch_base",
+            "must be 0 (= patch_gaussians) or patch_gaussians divided by a power of 2",
+        )
         need(self.patch_channels == 0 or self.patch_channels >= 4, "patch_channels", "must be 0 (= channels) or >= 4")
         need(self.patch_hidden >= 0, "patch_hidden", "must be >= 0 (0: twice the patch channels)")
         need(self.refine_steps >= 0, "refine_steps", "must be >= 0 (0: no refinement)")
-        need(self.refine_glimpse == 0 or self.refine_glimpse % 8 == 0, "refine_glimpse",
-             "must be 0 (= glimpse_size) or a multiple of 8")
-        need(self.refine_steps == 0 or self.refine_glimpse > 0 or self.glimpse_size % 8 == 0, "glimpse_size",
-             "must be a multiple of 8 with refine_steps > 0 (or set refine_glimpse)")
+        need(
+            self.refine_glimpse == 0 or self.refine_glimpse % 8 == 0,
+            "refine_glimpse",
+            "must be 0 (= glimpse_size) or a multiple of 8",
+        )
+        need(
+            self.refine_steps == 0 or self.refine_glimpse > 0 or self.glimpse_size % 8 == 0,
+            "glimpse_size",
+            "must be a multiple of 8 with refine_steps > 0 (or set refine_glimpse)",
+        )
         need(self.refine_hidden >= 1, "refine_hidden", "must be >= 1")
         need(self.particle_depth_scale in ("pixel", "cell"), "particle_depth_scale", "must be 'pixel' or 'cell'")
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
@@ -135,8 +178,14 @@ class ModelConfig:
         need(0.0 <= self.bg_mask_threshold <= 1.0, "bg_mask_threshold", "must be in [0, 1]")
         for key in ("prior_scale_mean", "prior_extent_mean"):
             need(0.0 < getattr(self, key) < 1.0, key, "is a sigmoid-space mean, must be in (0, 1)")
-        for key in ("prior_offset_std", "prior_scale_std", "prior_depth_std", "prior_extent_std", "prior_t_a",
-                    "prior_t_b"):
+        for key in (
+            "prior_offset_std",
+            "prior_scale_std",
+            "prior_depth_std",
+            "prior_extent_std",
+            "prior_t_a",
+            "prior_t_b",
+        ):
             need(getattr(self, key) > 0.0, key, "must be > 0")
 
     @property
@@ -147,7 +196,7 @@ class ModelConfig:
     @property
     def gaussians_per_particle(self) -> int:
         """S², doubled by the back layer (``patch_back``)."""
-        return self.patch_gaussians ** 2 * (2 if self.patch_back else 1)
+        return self.patch_gaussians**2 * (2 if self.patch_back else 1)
 
     @property
     def particle_decoder_channels(self) -> int:
@@ -216,8 +265,13 @@ class TrainConfig:
     def validate(self, where: str = "train") -> None:
         need = _checker(self, where)
         need(self.batch_size >= 1, "batch_size", "must be >= 1")
-        need(isinstance(self.context_views, list) and len(self.context_views) > 0
-             and all(v in (1, 2) for v in self.context_views), "context_views", "must be a list of 1s and 2s")
+        need(
+            isinstance(self.context_views, list)
+            and len(self.context_views) > 0
+            and all(v in (1, 2) for v in self.context_views),
+            "context_views",
+            "must be a list of 1s and 2s",
+        )
         need(self.target_views >= 0, "target_views", "must be >= 0")
         need(self.steps >= 1, "steps", "must be >= 1")
         need(self.lr > 0, "lr", "must be > 0")
@@ -233,8 +287,17 @@ class TrainConfig:
         need(all(isinstance(m, str) and m for m in self.freeze), "freeze", "must be a list of module names")
         for key in ("log_every", "val_every", "ckpt_every"):
             need(getattr(self, key) >= 1, key, "must be >= 1")
-        for key in ("beta_kl", "beta_f", "beta_reg", "beta_fg", "fg_threshold", "beta_rec_ctx",
-                    "beta_rec_tgt", "lambda_depth", "grad_clip"):
+        for key in (
+            "beta_kl",
+            "beta_f",
+            "beta_reg",
+            "beta_fg",
+            "fg_threshold",
+            "beta_rec_ctx",
+            "beta_rec_tgt",
+            "lambda_depth",
+            "grad_clip",
+        ):
             need(getattr(self, key) >= 0, key, "must be >= 0")
 
 
@@ -246,8 +309,9 @@ def _from_dict(cls, data: Any, where: str):
     known = {f.name: f for f in fields(cls)}
     unknown = sorted(one_line(k, 40) for k in set(data) - set(known))
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {one_line(', '.join(unknown[:5]), 200)} "
-                          f"(known: {', '.join(known)})")
+        raise ConfigError(
+            f"{where}: unknown key(s) {one_line(', '.join(unknown[:5]), 200)} (known: {', '.join(known)})"
+        )
     out = cls()
     for k, v in data.items():
         default = getattr(out, k)
@@ -287,9 +351,17 @@ def _from_dict(cls, data: Any, where: str):
 # (ANY: it only tuned a removed branch, so any value reads as off).
 ANY = object()
 REMOVED_KEYS: dict[str, dict[str, Any]] = {
-    "model": {"kp_selection": "residual", "kp_cross_view": False, "bg_detail": 0, "bg_detail_threshold": ANY,
-              "bg_copy_input": False, "patch_refine": 0, "patch_cell_mlp": 0, "patch_copy_input": False,
-              "patch_copy_threshold": ANY},
+    "model": {
+        "kp_selection": "residual",
+        "kp_cross_view": False,
+        "bg_detail": 0,
+        "bg_detail_threshold": ANY,
+        "bg_copy_input": False,
+        "patch_refine": 0,
+        "patch_cell_mlp": 0,
+        "patch_copy_input": False,
+        "patch_copy_threshold": ANY,
+    },
     "train": {"beta_coarse": ANY},
 }
 
@@ -308,8 +380,10 @@ def without_removed_keys(data: Any, section: str, where: str) -> Any:
             continue
         off = removed[k]
         if off is not ANY and not (v == off and isinstance(v, bool) == isinstance(off, bool)):
-            raise ConfigError(f"{where}.{k}: {v!r} switches on a branch this version no longer has (only "
-                              f"{off!r}, off, can be read); use the version of ParticleSplat that wrote it")
+            raise ConfigError(
+                f"{where}.{k}: {v!r} switches on a branch this version no longer has (only "
+                f"{off!r}, off, can be read); use the version of ParticleSplat that wrote it"
+            )
     return out
 
 
@@ -334,10 +408,13 @@ def load_config(path: str | PathLike) -> tuple[ModelConfig, TrainConfig]:
         raise ConfigError(f"{path}: expected a mapping with 'model' and 'train' keys")
     unknown = sorted(one_line(k, 40) for k in set(data) - {"model", "train"})
     if unknown:
-        raise ConfigError(f"{path}: unknown top-level key(s) {one_line(', '.join(unknown[:5]), 200)} "
-                          "(known: model, train)")
-    return (model_config_from_dict(data.get("model"), f"{path}: model"),
-            train_config_from_dict(data.get("train"), f"{path}: train"))
+        raise ConfigError(
+            f"{path}: unknown top-level key(s) {one_line(', '.join(unknown[:5]), 200)} (known: model, train)"
+        )
+    return (
+        model_config_from_dict(data.get("model"), f"{path}: model"),
+        train_config_from_dict(data.get("train"), f"{path}: train"),
+    )
 
 
 def config_to_dict(cfg) -> dict:

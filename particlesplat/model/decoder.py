@@ -8,8 +8,7 @@ from torch import Tensor, nn
 
 from ..sh import num_sh_bases
 from .config import ModelConfig
-from .geometry import (camera_covariance_factor, covariance_to_quat_scale, plucker_at, ray_dirs,
-                       rotate_sh_to_world)
+from .geometry import camera_covariance_factor, covariance_to_quat_scale, plucker_at, ray_dirs, rotate_sh_to_world
 
 
 def gaussian_channels(sh_degree: int) -> int:
@@ -22,8 +21,14 @@ def split_gaussian_params(raw: Tensor, sh_degree: int) -> dict[str, Tensor]:
     scale (..., 3), opacity (..., 1))."""
     k = num_sh_bases(sh_degree)
     sh, delta, dd, quat, scale, opac = torch.split(raw, [3 * k, 2, 1, 4, 3, 1], dim=-1)
-    return {"sh": sh.reshape(*sh.shape[:-1], k, 3), "delta": delta, "dd": dd, "quat": quat, "scale": scale,
-            "opacity": opac}
+    return {
+        "sh": sh.reshape(*sh.shape[:-1], k, 3),
+        "delta": delta,
+        "dd": dd,
+        "quat": quat,
+        "scale": scale,
+        "opacity": opac,
+    }
 
 
 def init_gaussian_head(conv: nn.Conv2d, sh_degree: int, opacity_logit: float, depth_logit: float = 0.0) -> None:
@@ -98,12 +103,17 @@ class BackgroundDecoder(nn.Module):
         self.cfg = cfg
         self.ray_proj = nn.Conv2d(6, c, 1)
         self.inp = nn.Conv2d(cfg.d_bg, c, 3, padding=1)
-        self.body = nn.Sequential(nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU(),
-                                  nn.Conv2d(c, c, 3, padding=1), nn.SiLU())
+        self.body = nn.Sequential(
+            nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU()
+        )
         self.head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
         mid = (3.5 - cfg.d_min) / (cfg.d_max - cfg.d_min)
-        init_gaussian_head(self.head, cfg.sh_degree, opacity_logit=3.0,
-                           depth_logit=float(torch.logit(torch.tensor(min(max(mid, 0.05), 0.95)))))
+        init_gaussian_head(
+            self.head,
+            cfg.sh_degree,
+            opacity_logit=3.0,
+            depth_logit=float(torch.logit(torch.tensor(min(max(mid, 0.05), 0.95)))),
+        )
 
     def forward(self, latent: Tensor, rays: Tensor) -> Tensor:
         """latent: (M, d_bg, h, w); rays: (M, 6, Hb, Wb) Plücker at block centres -> (M, Hb*Wb, C)."""
@@ -112,6 +122,7 @@ class BackgroundDecoder(nn.Module):
         h = self.inp(z) + self.ray_proj(rays)
         return self.head(self.body(h)).flatten(2).transpose(1, 2)
 
+
 def masked_block_mean(x: Tensor, weight: Tensor, k: int) -> tuple[Tensor, Tensor]:
     """x: (M, C, H, W); weight: (M, 1, H, W) in [0, 1] -> the weighted mean of every k×k block
     (M, C, H/k, W/k) and the block's mean weight (M, 1, H/k, W/k) (0 where nothing counts)."""
@@ -119,8 +130,17 @@ def masked_block_mean(x: Tensor, weight: Tensor, k: int) -> tuple[Tensor, Tensor
     return F.avg_pool2d(x * weight, k) / w.clamp_min(1e-6), w
 
 
-def _finish(p: dict[str, Tensor], pix: Tensor, zeta: Tensor, jac_px: Tensor, K: Tensor, c2w: Tensor,
-            opacity: Tensor, cfg: ModelConfig, depth_cell: Tensor | None = None) -> dict[str, Tensor]:
+def _finish(
+    p: dict[str, Tensor],
+    pix: Tensor,
+    zeta: Tensor,
+    jac_px: Tensor,
+    K: Tensor,
+    c2w: Tensor,
+    opacity: Tensor,
+    cfg: ModelConfig,
+    depth_cell: Tensor | None = None,
+) -> dict[str, Tensor]:
     """Lift image-plane Gaussians to the world.
 
     pix: (..., 2) pixel centres; zeta: (...) planar depth; jac_px: (..., 2) pixels per canonical unit;
@@ -148,8 +168,17 @@ def cell_centres(S: int, device, dtype) -> Tensor:
     return torch.stack([gx, gy], dim=-1).reshape(S * S, 2)
 
 
-def foreground_gaussians(raw: Tensor, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor, z_t: Tensor, K: Tensor,
-                         c2w: Tensor, cfg: ModelConfig) -> dict[str, Tensor]:
+def foreground_gaussians(
+    raw: Tensor,
+    z_p: Tensor,
+    z_s: Tensor,
+    z_d: Tensor,
+    z_e: Tensor,
+    z_t: Tensor,
+    K: Tensor,
+    c2w: Tensor,
+    cfg: ModelConfig,
+) -> dict[str, Tensor]:
     """Steps 2-3 for M particles.
 
     raw: (M, N, C) canonical patch parameters (N = S*S, row-major cells; 2*S*S with ``patch_back``);
@@ -162,7 +191,7 @@ def foreground_gaussians(raw: Tensor, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e
     """
     S = cfg.patch_gaussians
     H = W = cfg.resolution
-    p = split_gaussian_params(raw[:, :S * S], cfg.sh_degree)
+    p = split_gaussian_params(raw[:, : S * S], cfg.sh_degree)
     u = cell_centres(S, raw.device, raw.dtype)[None]
     du = (torch.sigmoid(p["delta"]) - 0.5) / S
     u_patch = 2.0 * (u + du) - 1.0
@@ -177,15 +206,23 @@ def foreground_gaussians(raw: Tensor, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e
     out = _lift_cells(p, pix, zeta, jac_px, z_t * torch.sigmoid(p["opacity"][..., 0]), K, c2w, cfg)
     if not cfg.patch_back:
         return out
-    pb = split_gaussian_params(raw[:, S * S:], cfg.sh_degree)
+    pb = split_gaussian_params(raw[:, S * S :], cfg.sh_degree)
     box = jac_px.mean(-1) * S * zeta / K[:, 0, 0, None]  # (M, N) the particle box's width in metres
     zeta_back = zeta + torch.sigmoid(pb["dd"][..., 0]) * box
     back = _lift_cells(pb, pix, zeta_back, jac_px, z_t * torch.sigmoid(pb["opacity"][..., 0]), K, c2w, cfg)
     return {k: torch.cat([out[k], back[k]], dim=1) for k in out}
 
 
-def _lift_cells(p: dict[str, Tensor], pix: Tensor, zeta: Tensor, jac_px: Tensor, opacity: Tensor, K: Tensor,
-                c2w: Tensor, cfg: ModelConfig) -> dict[str, Tensor]:
+def _lift_cells(
+    p: dict[str, Tensor],
+    pix: Tensor,
+    zeta: Tensor,
+    jac_px: Tensor,
+    opacity: Tensor,
+    K: Tensor,
+    c2w: Tensor,
+    cfg: ModelConfig,
+) -> dict[str, Tensor]:
     """Lift N cells of M particles: p split head output, pix (M, N, 2) pixels, zeta (M, N) planar metres,
     jac_px (M, 1, 2) pixels per canonical cell, opacity (M, N); K (M, 3, 3), c2w (M, 4, 4)."""
     N = pix.shape[1]

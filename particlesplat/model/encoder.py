@@ -44,10 +44,12 @@ class FusedBackbone(nn.Module):
         super().__init__()
         c = cfg.channels
         widths = [c // 2, c, c]
-        self.rgb = nn.ModuleList([conv3x3(3 + extra_in, widths[0]), conv3x3(widths[0], widths[1], 2),
-                                  conv3x3(widths[1], widths[2], 2)])
-        self.dep = nn.ModuleList([conv3x3(2, widths[0]), conv3x3(widths[0], widths[1], 2),
-                                  conv3x3(widths[1], widths[2], 2)])
+        self.rgb = nn.ModuleList(
+            [conv3x3(3 + extra_in, widths[0]), conv3x3(widths[0], widths[1], 2), conv3x3(widths[1], widths[2], 2)]
+        )
+        self.dep = nn.ModuleList(
+            [conv3x3(2, widths[0]), conv3x3(widths[0], widths[1], 2), conv3x3(widths[1], widths[2], 2)]
+        )
         self.fuse = nn.ModuleList([nn.Conv2d(w, w, 1) for w in widths])
         self.rays = nn.ModuleList([RayConditioning(w) for w in widths])
         self.out_channels = widths[-1]
@@ -55,7 +57,7 @@ class FusedBackbone(nn.Module):
     def forward(self, rgb: Tensor, dep: Tensor, rays: Tensor) -> Tensor:
         """rgb: (M, 3+extra, H, W); dep: (M, 2, H, W); rays: (M, 6, H, W) -> (M, C, H/4, W/4)."""
         h, g = rgb, dep
-        for conv_r, conv_d, fuse, ray in zip(self.rgb, self.dep, self.fuse, self.rays):
+        for conv_r, conv_d, fuse, ray in zip(self.rgb, self.dep, self.fuse, self.rays, strict=False):
             h, g = conv_r(h), conv_d(g)
             h = ray(h + fuse(g), rays)
         return h
@@ -72,8 +74,9 @@ class ParticleEncoder(nn.Module):
         self.backbone = FusedBackbone(cfg)
         self.heat = nn.Conv2d(self.backbone.out_channels, P * P + 1, 1)  # patch logits + presence logit
         g = cfg.glimpse_size
-        self.glimpse_cnn = nn.Sequential(conv3x3(5, c // 2, 2), conv3x3(c // 2, c, 2),
-                                         conv3x3(c, c, 2 if g >= 16 else 1))
+        self.glimpse_cnn = nn.Sequential(
+            conv3x3(5, c // 2, 2), conv3x3(c // 2, c, 2), conv3x3(c, c, 2 if g >= 16 else 1)
+        )
         gs = g // 8 if g >= 16 else g // 4
         hid = 4 * c
         self.glimpse_fc = nn.Sequential(nn.Linear(c * gs * gs + self.backbone.out_channels, hid), nn.SiLU())
@@ -90,7 +93,7 @@ class ParticleEncoder(nn.Module):
         b[10] = cfg.logit_prior_extent
         b[11] = -4.0
         b[12:14] = 1.0  # Beta a, b ≈ softplus(1) + … ≈ 1.3 each: z_t ≈ 0.5 at the start
-        b[14 + D:] = -4.0
+        b[14 + D :] = -4.0
         with torch.no_grad():
             self.head.bias.copy_(b)
         T = cfg.token_dim
@@ -99,10 +102,14 @@ class ParticleEncoder(nn.Module):
         nn.init.zeros_(self.film.weight)
         nn.init.zeros_(self.film.bias)
         self.bg_token = nn.Linear(c, T)
-        layer = nn.TransformerEncoderLayer(T, cfg.transformer_heads, 2 * T, dropout=0.0, batch_first=True,
-                                           norm_first=True)
-        self.transformer = nn.TransformerEncoder(layer, cfg.transformer_layers, enable_nested_tensor=False) \
-            if cfg.transformer_layers > 0 else None
+        layer = nn.TransformerEncoderLayer(
+            T, cfg.transformer_heads, 2 * T, dropout=0.0, batch_first=True, norm_first=True
+        )
+        self.transformer = (
+            nn.TransformerEncoder(layer, cfg.transformer_layers, enable_nested_tensor=False)
+            if cfg.transformer_layers > 0
+            else None
+        )
         self.refine = nn.Linear(T, 1 + D)
         nn.init.zeros_(self.refine.weight)
         nn.init.zeros_(self.refine.bias)
@@ -120,8 +127,11 @@ class ParticleEncoder(nn.Module):
         gy, gx = torch.meshgrid(ar, ar, indexing="ij")
         local = torch.stack([gx, gy], dim=-1).reshape(P * P, 2)  # pixels within a patch
         mean = prob @ local
-        cy, cx = torch.meshgrid(torch.arange(n, device=feats.device, dtype=feats.dtype) * P,
-                                torch.arange(n, device=feats.device, dtype=feats.dtype) * P, indexing="ij")
+        cy, cx = torch.meshgrid(
+            torch.arange(n, device=feats.device, dtype=feats.dtype) * P,
+            torch.arange(n, device=feats.device, dtype=feats.dtype) * P,
+            indexing="ij",
+        )
         origin = torch.stack([cx, cy], dim=-1).reshape(1, n * n, 2)
         pix = origin + mean
         return pix / cfg.resolution * 2.0 - 1.0, presence
@@ -162,17 +172,27 @@ class ParticleEncoder(nn.Module):
         d_logit = torch.logit(d_obs.clamp(0.02, 0.98)) * obs[..., 1:2]
         shift = 0.5 * presence  # the proposal's presence logit seeds the transparency (learned through z_t)
         beta_ab = F.softplus(out[..., 12:14] + torch.cat([shift, -shift], dim=-1)) + 0.05
-        return {"kp": kp, "h": h.reshape(M, L, -1),
-                "mu_o": cfg.offset_bound * torch.tanh(out[..., 0:2]), "lv_o": out[..., 2:4],
-                "mu_s": self.scale_centre + cfg.scale_logit_bound * torch.tanh(
-                    (out[..., 4:6] - self.scale_centre) / cfg.scale_logit_bound), "lv_s": out[..., 6:8],
-                "mu_d": out[..., 8:9] + d_logit.detach(), "lv_d": out[..., 9:10],
-                "mu_e": out[..., 10:11], "lv_e": out[..., 11:12],
-                "beta_a": beta_ab[..., :1], "beta_b": beta_ab[..., 1:],
-                "mu_f": out[..., 14:14 + D], "lv_f": out[..., 14 + D:]}
+        return {
+            "kp": kp,
+            "h": h.reshape(M, L, -1),
+            "mu_o": cfg.offset_bound * torch.tanh(out[..., 0:2]),
+            "lv_o": out[..., 2:4],
+            "mu_s": self.scale_centre
+            + cfg.scale_logit_bound * torch.tanh((out[..., 4:6] - self.scale_centre) / cfg.scale_logit_bound),
+            "lv_s": out[..., 6:8],
+            "mu_d": out[..., 8:9] + d_logit.detach(),
+            "lv_d": out[..., 9:10],
+            "mu_e": out[..., 10:11],
+            "lv_e": out[..., 11:12],
+            "beta_a": beta_ab[..., :1],
+            "beta_b": beta_ab[..., 1:],
+            "mu_f": out[..., 14 : 14 + D],
+            "lv_f": out[..., 14 + D :],
+        }
 
-    def interact(self, att: dict[str, Tensor], K: Tensor, c2w: Tensor, bg_feats: Tensor,
-                 n_views: int) -> dict[str, Tensor]:
+    def interact(
+        self, att: dict[str, Tensor], K: Tensor, c2w: Tensor, bg_feats: Tensor, n_views: int
+    ) -> dict[str, Tensor]:
         """Ray-FiLM + particle-interaction transformer over all context views' particles and background tokens.
 
         att: output of :meth:`attributes` for M = B*V views; K: (M, 3, 3); c2w: (M, 4, 4);
@@ -194,7 +214,7 @@ class ParticleEncoder(nn.Module):
         tok = tok.reshape(B, n_views * L, T)
         bg_tok = self.bg_token(bg_feats).reshape(B, n_views, T)
         if self.transformer is not None:
-            tok = self.transformer(torch.cat([tok, bg_tok], dim=1))[:, :n_views * L]
+            tok = self.transformer(torch.cat([tok, bg_tok], dim=1))[:, : n_views * L]
         delta = self.refine(tok)
         out = {k: v.reshape(B, n_views * L, v.shape[-1]) for k, v in att.items() if k != "h"}
         out["mu_d"] = out["mu_d"] + delta[..., :1]
@@ -242,7 +262,7 @@ class BackgroundEncoder(nn.Module):
         c = self.backbone.out_channels
         self.head = nn.Conv2d(c, 2 * cfg.d_bg, 3, padding=1)
         with torch.no_grad():
-            self.head.bias[cfg.d_bg:] = -4.0
+            self.head.bias[cfg.d_bg :] = -4.0
 
     def forward(self, rgb: Tensor, dep: Tensor, rays: Tensor, mask: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """rgb: (M, 3, H, W); dep: (M, 2, H, W); rays: (M, 6, H, W); mask: (M, 1, H, W) 1 = hidden.
@@ -255,8 +275,11 @@ class BackgroundEncoder(nn.Module):
         s = self.cfg.bg_latent_stride
         n = self.cfg.resolution // s
         if out.shape[-1] != n:
-            out = F.interpolate(out, size=(n, n), mode="bilinear", align_corners=False) if n > out.shape[-1] \
+            out = (
+                F.interpolate(out, size=(n, n), mode="bilinear", align_corners=False)
+                if n > out.shape[-1]
                 else F.adaptive_avg_pool2d(out, n)
+            )
         d = self.cfg.d_bg
         return out[:, :d], out[:, d:], feats.mean((2, 3))
 

@@ -53,8 +53,11 @@ def plucker_at(pix: Tensor, K: Tensor, c2w: Tensor) -> Tensor:
 
 def plucker_map(K: Tensor, c2w: Tensor, height: int, width: int) -> Tensor:
     """K: (B, 3, 3), c2w: (B, 4, 4) -> (B, 6, H, W) Plücker ray map at pixel centres."""
-    v, u = torch.meshgrid(torch.arange(height, device=K.device, dtype=K.dtype) + 0.5,
-                          torch.arange(width, device=K.device, dtype=K.dtype) + 0.5, indexing="ij")
+    v, u = torch.meshgrid(
+        torch.arange(height, device=K.device, dtype=K.dtype) + 0.5,
+        torch.arange(width, device=K.device, dtype=K.dtype) + 0.5,
+        indexing="ij",
+    )
     pix = torch.stack([u, v], dim=-1).reshape(1, -1, 2).expand(K.shape[0], -1, -1)
     return plucker_at(pix, K, c2w).transpose(1, 2).reshape(K.shape[0], 6, height, width)
 
@@ -126,5 +129,12 @@ def rotate_sh_to_world(sh: Tensor, R: Tensor) -> Tensor:
     return torch.cat([sh[..., :1, :], band], dim=-2)
 
 
-__all__ = ["stack_cameras", "ray_dirs", "plucker_at", "plucker_map", "covariance_to_quat_scale",
-           "camera_covariance_factor", "rotate_sh_to_world"]
+__all__ = [
+    "stack_cameras",
+    "ray_dirs",
+    "plucker_at",
+    "plucker_map",
+    "covariance_to_quat_scale",
+    "camera_covariance_factor",
+    "rotate_sh_to_world",
+]

@@ -12,16 +12,21 @@ from .config import ModelConfig, TrainConfig
 
 def kl_normal(mu: Tensor, logvar: Tensor, prior_mu: float, prior_std: float) -> Tensor:
     """KL(N(mu, exp(logvar)) || N(prior_mu, prior_std²)) elementwise. mu, logvar: (...) -> (...)."""
-    var_ratio = torch.exp(logvar) / prior_std ** 2
-    return 0.5 * (var_ratio + (mu - prior_mu) ** 2 / prior_std ** 2 - 1.0 - torch.log(var_ratio))
+    var_ratio = torch.exp(logvar) / prior_std**2
+    return 0.5 * (var_ratio + (mu - prior_mu) ** 2 / prior_std**2 - 1.0 - torch.log(var_ratio))
 
 
 def kl_beta(a: Tensor, b: Tensor, a0: float, b0: float) -> Tensor:
     """KL(Beta(a, b) || Beta(a0, b0)) elementwise, closed form. a, b: (...) -> (...)."""
     lbeta = lambda x, y: torch.lgamma(x) + torch.lgamma(y) - torch.lgamma(x + y)  # noqa: E731
     lb0 = math.lgamma(a0) + math.lgamma(b0) - math.lgamma(a0 + b0)
-    return (lb0 - lbeta(a, b) + (a - a0) * torch.digamma(a) + (b - b0) * torch.digamma(b)
-            + (a0 - a + b0 - b) * torch.digamma(a + b))
+    return (
+        lb0
+        - lbeta(a, b)
+        + (a - a0) * torch.digamma(a)
+        + (b - b0) * torch.digamma(b)
+        + (a0 - a + b0 - b) * torch.digamma(a + b)
+    )
 
 
 def scene_kl(post: dict[str, Tensor], z_t: Tensor, cfg: ModelConfig, beta_f: float) -> Tensor:
@@ -30,10 +35,12 @@ def scene_kl(post: dict[str, Tensor], z_t: Tensor, cfg: ModelConfig, beta_f: flo
     post: posterior parameters (B, N, ·) and background (B, V, d_bg, h, w); z_t: (B, N, 1) the transparency
     that masks the geometric and appearance KL terms (the Beta KL of z_t itself is unmasked).
     """
-    geo = (kl_normal(post["mu_o"], post["lv_o"], 0.0, cfg.prior_offset_std).sum(-1)
-           + kl_normal(post["mu_s"], post["lv_s"], cfg.logit_prior_scale, cfg.prior_scale_std).sum(-1)
-           + kl_normal(post["mu_d"], post["lv_d"], cfg.prior_depth_mean, cfg.prior_depth_std).sum(-1)
-           + kl_normal(post["mu_e"], post["lv_e"], cfg.logit_prior_extent, cfg.prior_extent_std).sum(-1))
+    geo = (
+        kl_normal(post["mu_o"], post["lv_o"], 0.0, cfg.prior_offset_std).sum(-1)
+        + kl_normal(post["mu_s"], post["lv_s"], cfg.logit_prior_scale, cfg.prior_scale_std).sum(-1)
+        + kl_normal(post["mu_d"], post["lv_d"], cfg.prior_depth_mean, cfg.prior_depth_std).sum(-1)
+        + kl_normal(post["mu_e"], post["lv_e"], cfg.logit_prior_extent, cfg.prior_extent_std).sum(-1)
+    )
     feat = kl_normal(post["mu_f"], post["lv_f"], 0.0, 1.0).sum(-1)
     t = kl_beta(post["beta_a"], post["beta_b"], cfg.prior_t_a, cfg.prior_t_b).sum(-1)
     mask = z_t[..., 0]
@@ -42,8 +49,9 @@ def scene_kl(post: dict[str, Tensor], z_t: Tensor, cfg: ModelConfig, beta_f: flo
     return fg + bg
 
 
-def view_error(rgb_hat: Tensor, rgb: Tensor, depth_hat: Tensor, depth: Tensor | None, mask: Tensor | None,
-               lambda_depth: float) -> Tensor:
+def view_error(
+    rgb_hat: Tensor, rgb: Tensor, depth_hat: Tensor, depth: Tensor | None, mask: Tensor | None, lambda_depth: float
+) -> Tensor:
     """𝓔(x, x̂) per view: Σ (I − Î)² + λ_D Σ_valid (D − D̂)², summed over pixels (and channels).
 
     rgb*: (B, 3, H, W); depth*: (B, 1, H, W) metres (0 = no ground truth); mask: (B, 1, H, W) or None.

@@ -13,8 +13,15 @@ from ..gaussians import BACKGROUND_OWNER, Gaussians
 from ..render import render_batch
 from ..sh import SH_C0
 from .config import ModelConfig
-from .decoder import (BackgroundDecoder, ForegroundDecoder, background_gaussians, background_rays,
-                      foreground_gaussians, masked_block_mean, split_gaussian_params)
+from .decoder import (
+    BackgroundDecoder,
+    ForegroundDecoder,
+    background_gaussians,
+    background_rays,
+    foreground_gaussians,
+    masked_block_mean,
+    split_gaussian_params,
+)
 from .encoder import BackgroundEncoder, ParticleEncoder, box_mask, depth_input
 from .geometry import plucker_map, stack_cameras
 from .particles import Particles
@@ -24,8 +31,14 @@ from .static_background import StaticBackground
 
 def _gaussians(fields: dict[str, Tensor], owner: Tensor) -> Gaussians:
     n = owner.shape[0]
-    return Gaussians(fields["means"].reshape(n, 3), fields["quats"].reshape(n, 4), fields["scales"].reshape(n, 3),
-                     fields["opacities"].reshape(n), fields["sh"].reshape(n, -1, 3), owner)
+    return Gaussians(
+        fields["means"].reshape(n, 3),
+        fields["quats"].reshape(n, 4),
+        fields["scales"].reshape(n, 3),
+        fields["opacities"].reshape(n),
+        fields["sh"].reshape(n, -1, 3),
+        owner,
+    )
 
 
 class ParticleSplat(nn.Module):
@@ -85,8 +98,12 @@ class ParticleSplat(nn.Module):
         att = self.encoder.attributes(x, dep, rays, residual)
         with torch.no_grad():
             t_mean = att["beta_a"] / (att["beta_a"] + att["beta_b"])
-            mask = box_mask(att["kp"] + att["mu_o"], torch.sigmoid(att["mu_s"]),
-                            t_mean[..., 0] > cfg.bg_mask_threshold, cfg.resolution)
+            mask = box_mask(
+                att["kp"] + att["mu_o"],
+                torch.sigmoid(att["mu_s"]),
+                t_mean[..., 0] > cfg.bg_mask_threshold,
+                cfg.resolution,
+            )
         mu_bg, lv_bg, bg_feats = self.bg_encoder(x, dep, rays, mask)
         post = self.encoder.interact(att, Kf, cf, bg_feats, V)
         post["mu_bg"] = mu_bg.reshape(B, V, *mu_bg.shape[1:])
@@ -96,8 +113,9 @@ class ParticleSplat(nn.Module):
         post["bg_error"] = pixel_err.reshape(B, V, 1, H, W)
         return post
 
-    def coarse_background_error(self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor,
-                                c2w: Tensor) -> Tensor:
+    def coarse_background_error(
+        self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor, c2w: Tensor
+    ) -> Tensor:
         """Per-block error of the plain background (unmasked input, no detail features).
 
         x: (M, 3, H, W); depth: (M, 1, H, W) metres or None; dep, rays: encoder inputs; K: (M, 3, 3);
@@ -118,8 +136,9 @@ class ParticleSplat(nn.Module):
         return err
 
     @torch.no_grad()
-    def static_background_error(self, x: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor,
-                                block: int | None = None) -> Tensor:
+    def static_background_error(
+        self, x: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, block: int | None = None
+    ) -> Tensor:
         """Per-block error of the static background layer alone, rendered into M views (no gradient).
 
         x: (M, 3, H, W); depth: (M, 1, H, W) metres (0 = none) or None; K: (M, 3, 3); c2w: (M, 4, 4).
@@ -130,8 +149,9 @@ class ParticleSplat(nn.Module):
         """
         H, W = x.shape[-2:]
         g = _gaussians(self.static_bg(), torch.full((self.static_bg.num,), BACKGROUND_OWNER, device=x.device))
-        res = render_batch([(g, Camera(K[i], c2w[i], W, H)) for i in range(x.shape[0])],
-                           background=self.background_color())
+        res = render_batch(
+            [(g, Camera(K[i], c2w[i], W, H)) for i in range(x.shape[0])], background=self.background_color()
+        )
         err = ((torch.stack([r.rgb.permute(2, 0, 1) for r in res]) - x) ** 2).sum(1, keepdim=True)
         if depth is not None:
             rendered = torch.stack([r.depth[None] for r in res])
@@ -139,15 +159,17 @@ class ParticleSplat(nn.Module):
         return F.avg_pool2d(err, block or self.config.bg_block)
 
     @torch.no_grad()
-    def background_residual(self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor,
-                            c2w: Tensor) -> Tensor:
+    def background_residual(
+        self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor, c2w: Tensor
+    ) -> Tensor:
         """Per-patch error of the plain background, where particles are needed most: the
         :meth:`coarse_background_error` averaged per keypoint patch -> (M, Q), Q = (resolution / kp_patch)^2."""
         err = self.coarse_background_error(x, depth, dep, rays, K, c2w)
         return F.adaptive_avg_pool2d(err, self.config.resolution // self.config.kp_patch).flatten(1)
 
-    def refine(self, post: dict[str, Tensor], rgb: Tensor, depth: Tensor | None, K: Tensor,
-               c2w: Tensor) -> dict[str, Tensor]:
+    def refine(
+        self, post: dict[str, Tensor], rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor
+    ) -> dict[str, Tensor]:
         """``refine_steps`` amortised corrections of the particle posterior means (:mod:`.refiner`).
 
         Each step decodes the current means and renders the context views (no gradient), then every particle
@@ -163,17 +185,28 @@ class ParticleSplat(nn.Module):
         H, W = rgb.shape[-2:]
         view = post["view"]
         N = view.shape[0]
-        observed = torch.cat([rgb, depth_input(None if depth is None else depth.flatten(0, 1), rgb.flatten(0, 1),
-                                               cfg).reshape(B, V, 2, H, W)], dim=2)[:, view]  # (B, N, 5, H, W)
+        observed = torch.cat(
+            [
+                rgb,
+                depth_input(None if depth is None else depth.flatten(0, 1), rgb.flatten(0, 1), cfg).reshape(
+                    B, V, 2, H, W
+                ),
+            ],
+            dim=2,
+        )[:, view]  # (B, N, 5, H, W)
         for _ in range(cfg.refine_steps):
             with torch.no_grad():
                 z = self.latents(post, sample=False)
                 gaussians = self.decode_batch(z, view, K, c2w)
-                res = render_batch([(g, Camera(K[b, v], c2w[b, v], W, H)) for b, g in enumerate(gaussians)
-                                    for v in range(V)], background=self.background_color(), owner_weights=True,
-                                   num_owners=N)
-                rendered = torch.stack([torch.cat([r.rgb.permute(2, 0, 1), r.depth[None] / cfg.d_max, r.alpha[None]])
-                                        for r in res]).reshape(B, V, 5, H, W)[:, view]
+                res = render_batch(
+                    [(g, Camera(K[b, v], c2w[b, v], W, H)) for b, g in enumerate(gaussians) for v in range(V)],
+                    background=self.background_color(),
+                    owner_weights=True,
+                    num_owners=N,
+                )
+                rendered = torch.stack(
+                    [torch.cat([r.rgb.permute(2, 0, 1), r.depth[None] / cfg.d_max, r.alpha[None]]) for r in res]
+                ).reshape(B, V, 5, H, W)[:, view]
                 weights = torch.stack([r.owner_weights for r in res]).reshape(B, V, N, H, W)
                 own = weights[:, view, torch.arange(N, device=view.device)][:, :, None]  # (B, N, 1, H, W)
                 centre = z["z_p"].reshape(B * N, 2)
@@ -187,18 +220,26 @@ class ParticleSplat(nn.Module):
     @staticmethod
     def latents(post: dict[str, Tensor], sample: bool) -> dict[str, Tensor]:
         """Posterior samples (reparameterised) or means: z_p, z_s, z_d, z_e, z_t, z_f (B, N, ·), bg (B, V, ·)."""
+
         def g(mu: Tensor, lv: Tensor) -> Tensor:
             return mu + torch.randn_like(mu) * torch.exp(0.5 * lv) if sample else mu
 
         a, b = post["beta_a"], post["beta_b"]
         z_t = torch.distributions.Beta(a, b).rsample() if sample else a / (a + b)
         bg = g(post["mu_bg"], post["lv_bg"])
-        return {"z_p": post["kp"] + g(post["mu_o"], post["lv_o"]), "z_s": g(post["mu_s"], post["lv_s"]),
-                "z_d": g(post["mu_d"], post["lv_d"]), "z_e": g(post["mu_e"], post["lv_e"]), "z_t": z_t,
-                "z_f": g(post["mu_f"], post["lv_f"]), "bg": bg}
+        return {
+            "z_p": post["kp"] + g(post["mu_o"], post["lv_o"]),
+            "z_s": g(post["mu_s"], post["lv_s"]),
+            "z_d": g(post["mu_d"], post["lv_d"]),
+            "z_e": g(post["mu_e"], post["lv_e"]),
+            "z_t": z_t,
+            "z_f": g(post["mu_f"], post["lv_f"]),
+            "bg": bg,
+        }
 
-    def foreground(self, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor, z_t: Tensor, z_f: Tensor, K: Tensor,
-                   c2w: Tensor) -> dict[str, Tensor]:
+    def foreground(
+        self, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor, z_t: Tensor, z_f: Tensor, K: Tensor, c2w: Tensor
+    ) -> dict[str, Tensor]:
         """M particles -> Gaussian fields (M, S*S, ·) ((M, 2*S*S, ·) with ``patch_back``). Latents (M, ·);
         K (M, 3, 3), c2w (M, 4, 4) of their views."""
         raw = self.fg_decoder(z_f)
@@ -222,8 +263,9 @@ class ParticleSplat(nn.Module):
             parts.append({k: v[None].expand(B, *v.shape) for k, v in self.static_bg().items()})
         return {k: torch.cat([p[k] for p in parts], dim=1) for k in parts[0]}
 
-    def decode_batch(self, z: dict[str, Tensor], view: Tensor, K: Tensor, c2w: Tensor,
-                     background: bool = True) -> list[Gaussians]:
+    def decode_batch(
+        self, z: dict[str, Tensor], view: Tensor, K: Tensor, c2w: Tensor, background: bool = True
+    ) -> list[Gaussians]:
         """Decode B scenes. z: from :meth:`latents`; view: (N,) particle views;
         K: (B, V, 3, 3); c2w: (B, V, 4, 4) of the context views. Returns B Gaussian sets (owner = particle)."""
         B, N = z["z_p"].shape[:2]
@@ -241,8 +283,9 @@ class ParticleSplat(nn.Module):
             owner, fields = owner_fg, fg
         return [_gaussians({k: v[b] for k, v in fields.items()}, owner) for b in range(B)]
 
-    def forward(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, sample: bool = True,
-                background: bool = True) -> tuple[dict[str, Tensor], dict[str, Tensor], list[Gaussians]]:
+    def forward(
+        self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, sample: bool = True, background: bool = True
+    ) -> tuple[dict[str, Tensor], dict[str, Tensor], list[Gaussians]]:
         """Training pass for B scenes (shapes as in :meth:`posterior`): posterior, latents (with the background
         colour to render behind the Gaussians, ``bg_color`` (3,), computed here so that under DDP every weight
         is used inside the forward pass), Gaussians per scene."""
@@ -268,20 +311,36 @@ class ParticleSplat(nn.Module):
             raise ValueError(f"encode: depth must be {(V, 1, *rgb.shape[-2:])}, got {tuple(depth.shape)}")
         for c in cameras:
             if (c.width, c.height) != tuple(rgb.shape[-2:][::-1]):
-                raise ValueError(f"encode: camera is {c.width}x{c.height} but images are "
-                                 f"{rgb.shape[-1]}x{rgb.shape[-2]}")
+                raise ValueError(
+                    f"encode: camera is {c.width}x{c.height} but images are {rgb.shape[-1]}x{rgb.shape[-2]}"
+                )
         dev = next(self.parameters()).device
         K, c2w = stack_cameras(cameras, device=dev)
         rgb_b, depth_b = rgb[None].to(dev), None if depth is None else depth[None].to(dev)
         post = self.refine(self.posterior(rgb_b, depth_b, K[None], c2w[None]), rgb_b, depth_b, K[None], c2w[None])
         z = self.latents(post, sample=False)
-        return Particles(z_p=z["z_p"][0], z_s=z["z_s"][0], z_d=z["z_d"][0], z_e=z["z_e"][0], z_t=z["z_t"][0],
-                         z_f=z["z_f"][0], view=post["view"], background=z["bg"][0],
-                         cameras=[c.to(dev) for c in cameras])
+        return Particles(
+            z_p=z["z_p"][0],
+            z_s=z["z_s"][0],
+            z_d=z["z_d"][0],
+            z_e=z["z_e"][0],
+            z_t=z["z_t"][0],
+            z_f=z["z_f"][0],
+            view=post["view"],
+            background=z["bg"][0],
+            cameras=[c.to(dev) for c in cameras],
+        )
 
     @torch.no_grad()
-    def decode(self, particles: Particles, indices: Tensor | None = None, *, background: bool = True,
-               z_t_threshold: float | None = None, opacity_threshold: float = 0.0) -> Gaussians:
+    def decode(
+        self,
+        particles: Particles,
+        indices: Tensor | None = None,
+        *,
+        background: bool = True,
+        z_t_threshold: float | None = None,
+        opacity_threshold: float = 0.0,
+    ) -> Gaussians:
         """Gaussians of one scene.
 
         indices: (M,) particle indices to decode (default all); their Gaussians get owner = index.

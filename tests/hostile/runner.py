@@ -119,9 +119,15 @@ def run_case(case: dict) -> dict:
     seconds = time.perf_counter() - t0
     after = _snapshot(case.get("watch", []))
     changed = sorted(p for p in set(before) | set(after) if before.get(p) != after.get(p))
-    return {"code": code, "stdout": got[r_out].decode("utf-8", "replace"),
-            "stderr": got[r_err].decode("utf-8", "replace"), "seconds": seconds,
-            "max_rss_mb": usage.ru_maxrss / 1024.0, "timed_out": killed, "changed": changed}
+    return {
+        "code": code,
+        "stdout": got[r_out].decode("utf-8", "replace"),
+        "stderr": got[r_err].decode("utf-8", "replace"),
+        "seconds": seconds,
+        "max_rss_mb": usage.ru_maxrss / 1024.0,
+        "timed_out": killed,
+        "changed": changed,
+    }
 
 
 def main() -> None:

@@ -24,8 +24,15 @@ import torch
 HERE = Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE), str(HERE.parent)]
 
-from hostile_files import (alias_bomb_config, alias_bomb_edits, bomb_scene, huge_owner_ply,  # noqa: E402
-                           lying_count_ply, nan_checkpoint, tear_log)
+from hostile_files import (  # noqa: E402 (found through the sys.path entry above)
+    alias_bomb_config,
+    alias_bomb_edits,
+    bomb_scene,
+    huge_owner_ply,  # noqa: E402
+    lying_count_ply,
+    nan_checkpoint,
+    tear_log,
+)
 from model_data import TINY_MODEL, tiny_config, tiny_dataset  # noqa: E402
 
 CAP_MB = 500  # address space a command may add to the parent's (the issue's target: 500 MB)
@@ -55,10 +62,18 @@ def world(tmp_path_factory) -> dict[str, Path]:
     tear_log(w / "torn_last" / "metrics.jsonl", "last")
     tear_log(w / "torn_middle" / "metrics.jsonl", "middle")
     nan_checkpoint(w / "run" / "last.pt", w / "nan_run" / "last.pt")
-    return {"w": w, "data": data, "scene": scene, "cfg": cfg,
-            "good": w / "good.pt", "nan": nan_checkpoint(w / "good.pt", w / "nan.pt"),
-            "edits": alias_bomb_edits(w / "bomb_edits.yaml"), "config": alias_bomb_config(w / "bomb_config.yaml"),
-            "owner": huge_owner_ply(w / "huge_owner.ply"), "count": lying_count_ply(w / "lying_count.ply")}
+    return {
+        "w": w,
+        "data": data,
+        "scene": scene,
+        "cfg": cfg,
+        "good": w / "good.pt",
+        "nan": nan_checkpoint(w / "good.pt", w / "nan.pt"),
+        "edits": alias_bomb_edits(w / "bomb_edits.yaml"),
+        "config": alias_bomb_config(w / "bomb_config.yaml"),
+        "owner": huge_owner_ply(w / "huge_owner.ply"),
+        "count": lying_count_ply(w / "lying_count.ply"),
+    }
 
 
 def _cases(x: dict[str, Path]) -> dict[str, dict]:
@@ -69,79 +84,173 @@ def _cases(x: dict[str, Path]) -> dict[str, dict]:
     nan_field = r"state_dict\.\S+: non-finite weights"
     train = ["train", "--config", str(x["cfg"]), "--data", str(x["data"])]
     return {
-        "alias bomb, render --edits": (PS, ["render", "--checkpoint", good, "--scene", scene, "--edits",
-                                            str(x["edits"]), "--out", out], rf"{x['edits']}: .*alias '\*a'"),
-        "alias bomb, viewer --edits": (VIEWER, ["--checkpoint", good, "--scene", scene, "--edits", str(x["edits"])],
-                                       rf"{x['edits']}: .*alias '\*a'"),
-        "alias bomb, train --config": (PS, ["train", "--config", str(x["config"]), "--data", str(x["data"]),
-                                            "--out", str(w / "new_run")], rf"{x['config']}: .*alias '\*a'"),
-        "huge owner, render --ply": (PS, ["render", "--ply", str(x["owner"]), "--out", out],
-                                     rf"{x['owner']}: property 'owner' at vertex 63 is 2147483647"),
-        "huge owner, viewer --ply": (VIEWER, ["--ply", str(x["owner"])],
-                                     rf"{x['owner']}: property 'owner' at vertex 63 is 2147483647"),
-        "lying vertex count, render --ply": (PS, ["render", "--ply", str(x["count"]), "--out", out],
-                                             rf"{x['count']}: truncated: header declares 1000000000 vertices"),
-        "lying vertex count, viewer --ply": (VIEWER, ["--ply", str(x["count"])],
-                                             rf"{x['count']}: truncated: header declares 1000000000 vertices"),
-        "decompression bomb, render --scene": (PS, ["render", "--checkpoint", good, "--scene",
-                                                    str(w / "split" / "bomb"), "--out", out], bomb),
-        "decompression bomb, eval --data": (PS, ["eval", "--checkpoint", good, "--data", str(w / "split"),
-                                                 "--json", str(w / "m.json")], bomb),
-        "decompression bomb, viewer --scene": (VIEWER, ["--checkpoint", good, "--scene", str(w / "split" / "bomb")],
-                                               bomb),
-        "decompression bomb, train validation": (PS, train[:4] + [str(w / "data"), "--out", str(w / "new_run")],
-                                                 bomb),
+        "alias bomb, render --edits": (
+            PS,
+            ["render", "--checkpoint", good, "--scene", scene, "--edits", str(x["edits"]), "--out", out],
+            rf"{x['edits']}: .*alias '\*a'",
+        ),
+        "alias bomb, viewer --edits": (
+            VIEWER,
+            ["--checkpoint", good, "--scene", scene, "--edits", str(x["edits"])],
+            rf"{x['edits']}: .*alias '\*a'",
+        ),
+        "alias bomb, train --config": (
+            PS,
+            ["train", "--config", str(x["config"]), "--data", str(x["data"]), "--out", str(w / "new_run")],
+            rf"{x['config']}: .*alias '\*a'",
+        ),
+        "huge owner, render --ply": (
+            PS,
+            ["render", "--ply", str(x["owner"]), "--out", out],
+            rf"{x['owner']}: property 'owner' at vertex 63 is 2147483647",
+        ),
+        "huge owner, viewer --ply": (
+            VIEWER,
+            ["--ply", str(x["owner"])],
+            rf"{x['owner']}: property 'owner' at vertex 63 is 2147483647",
+        ),
+        "lying vertex count, render --ply": (
+            PS,
+            ["render", "--ply", str(x["count"]), "--out", out],
+            rf"{x['count']}: truncated: header declares 1000000000 vertices",
+        ),
+        "lying vertex count, viewer --ply": (
+            VIEWER,
+            ["--ply", str(x["count"])],
+            rf"{x['count']}: truncated: header declares 1000000000 vertices",
+        ),
+        "decompression bomb, render --scene": (
+            PS,
+            ["render", "--checkpoint", good, "--scene", str(w / "split" / "bomb"), "--out", out],
+            bomb,
+        ),
+        "decompression bomb, eval --data": (
+            PS,
+            ["eval", "--checkpoint", good, "--data", str(w / "split"), "--json", str(w / "m.json")],
+            bomb,
+        ),
+        "decompression bomb, viewer --scene": (
+            VIEWER,
+            ["--checkpoint", good, "--scene", str(w / "split" / "bomb")],
+            bomb,
+        ),
+        "decompression bomb, train validation": (PS, train[:4] + [str(w / "data"), "--out", str(w / "new_run")], bomb),
         "torn log (a line before the last), train --resume": (
-            PS, train + ["--out", str(w / "torn_middle"), "--resume"],
-            rf"{w / 'torn_middle' / 'metrics.jsonl'}: line 1: not a JSON object"),
-        "NaN weights, render --checkpoint": (PS, ["render", "--checkpoint", nan, "--scene", scene, "--out", out],
-                                             rf"{nan}: {nan_field}"),
-        "NaN weights, eval --checkpoint": (PS, ["eval", "--checkpoint", nan, "--data", str(x["data"] / "val")],
-                                           rf"{nan}: {nan_field}"),
+            PS,
+            train + ["--out", str(w / "torn_middle"), "--resume"],
+            rf"{w / 'torn_middle' / 'metrics.jsonl'}: line 1: not a JSON object",
+        ),
+        "NaN weights, render --checkpoint": (
+            PS,
+            ["render", "--checkpoint", nan, "--scene", scene, "--out", out],
+            rf"{nan}: {nan_field}",
+        ),
+        "NaN weights, eval --checkpoint": (
+            PS,
+            ["eval", "--checkpoint", nan, "--data", str(x["data"] / "val")],
+            rf"{nan}: {nan_field}",
+        ),
         "NaN weights, viewer --checkpoint": (VIEWER, ["--checkpoint", nan], rf"{nan}: {nan_field}"),
-        "NaN weights, train --resume": (PS, train + ["--out", str(w / "nan_run"), "--resume"],
-                                        rf"{w / 'nan_run' / 'last.pt'}: {nan_field}"),
+        "NaN weights, train --resume": (
+            PS,
+            train + ["--out", str(w / "nan_run"), "--resume"],
+            rf"{w / 'nan_run' / 'last.pt'}: {nan_field}",
+        ),
     }
 
 
 @pytest.fixture(scope="module")
 def results(world, tmp_path_factory):
     cases = _cases(world)
-    specs = [{"entry": entry, "argv": argv, "cap_mb": CAP_MB, "timeout": 120, "watch": [str(world["w"])]}
-             for entry, argv, _ in cases.values()]
+    specs = [
+        {"entry": entry, "argv": argv, "cap_mb": CAP_MB, "timeout": 120, "watch": [str(world["w"])]}
+        for entry, argv, _ in cases.values()
+    ]
     w = world["w"]
     # a full disk (writes fail past 200 KB) while training saves its checkpoint; a torn last log line (repaired)
-    specs.append({"entry": PS, "argv": ["train", "--config", str(world["cfg"]), "--data", str(world["data"]),
-                                        "--out", str(w / "full_disk"), "--resume"],
-                  "cap_mb": CAP_MB, "fsize": 200_000, "timeout": 120, "watch": []})
-    specs.append({"entry": PS, "argv": ["train", "--config", str(world["cfg"]), "--data", str(world["data"]),
-                                        "--out", str(w / "torn_last"), "--resume", "--stop-after", "1"],
-                  "cap_mb": CAP_MB, "timeout": 120, "watch": []})
+    specs.append(
+        {
+            "entry": PS,
+            "argv": [
+                "train",
+                "--config",
+                str(world["cfg"]),
+                "--data",
+                str(world["data"]),
+                "--out",
+                str(w / "full_disk"),
+                "--resume",
+            ],
+            "cap_mb": CAP_MB,
+            "fsize": 200_000,
+            "timeout": 120,
+            "watch": [],
+        }
+    )
+    specs.append(
+        {
+            "entry": PS,
+            "argv": [
+                "train",
+                "--config",
+                str(world["cfg"]),
+                "--data",
+                str(world["data"]),
+                "--out",
+                str(w / "torn_last"),
+                "--resume",
+                "--stop-after",
+                "1",
+            ],
+            "cap_mb": CAP_MB,
+            "timeout": 120,
+            "watch": [],
+        }
+    )
     # the cap itself: 100 MB fit in it, 600 MB do not
     specs += [{"entry": "alloc", "argv": [mb], "cap_mb": CAP_MB, "timeout": 60} for mb in (100, 600)]
     io = tmp_path_factory.mktemp("runner")
     (io / "cases.json").write_text(json.dumps(specs))
     before = (w / "full_disk" / "last.pt").read_bytes()
-    proc = subprocess.run([sys.executable, str(HERE / "runner.py"), str(io / "cases.json"), str(io / "out.json")],
-                          capture_output=True, text=True, timeout=900, cwd=HERE.parent.parent)
+    proc = subprocess.run(
+        [sys.executable, str(HERE / "runner.py"), str(io / "cases.json"), str(io / "out.json")],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        cwd=HERE.parent.parent,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     res = json.loads((io / "out.json").read_text())
     if os.environ.get("HOSTILE_REPORT"):  # per case: exit code, seconds, peak RSS (the README's table)
         names = [*cases, "full disk, train --resume", "torn last log line, train --resume"]
-        Path(os.environ["HOSTILE_REPORT"]).write_text(json.dumps(
-            [{"case": n, "code": r["code"], "seconds": round(r["seconds"], 3), "max_rss_mb": round(r["max_rss_mb"])}
-             for n, r in zip(names, res)], indent=1))
-    return dict(zip(cases, res[:len(cases)])), res[len(cases)], res[len(cases) + 1], before, res[-2:]
+        Path(os.environ["HOSTILE_REPORT"]).write_text(
+            json.dumps(
+                [
+                    {
+                        "case": n,
+                        "code": r["code"],
+                        "seconds": round(r["seconds"], 3),
+                        "max_rss_mb": round(r["max_rss_mb"]),
+                    }
+                    for n, r in zip(names, res, strict=False)
+                ],
+                indent=1,
+            )
+        )
+    return dict(zip(cases, res[: len(cases)], strict=False)), res[len(cases)], res[len(cases) + 1], before, res[-2:]
 
 
 def _lines(stderr: str) -> list[str]:
     """The lines on stderr, without tqdm's progress bars."""
-    return [x for x in stderr.replace("\r", "\n").splitlines()
-            if x.strip() and not x.startswith(("train:", "eval:"))]
+    return [x for x in stderr.replace("\r", "\n").splitlines() if x.strip() and not x.startswith(("train:", "eval:"))]
 
 
-@pytest.mark.parametrize("name", list(_cases({k: Path(k) for k in ("w", "data", "scene", "cfg", "good", "nan",
-                                                                     "edits", "config", "owner", "count")})))
+@pytest.mark.parametrize(
+    "name",
+    list(
+        _cases({k: Path(k) for k in ("w", "data", "scene", "cfg", "good", "nan", "edits", "config", "owner", "count")})
+    ),
+)
 def test_hostile_file_is_one_line_exit_2_nothing_changed(results, world, name):
     import re
 

@@ -52,5 +52,7 @@ def insert_from_fields(session, fields: InsertFields) -> tuple[int, str]:
     source = encode_scene(session.model, ins.scene)
     ins = Insert(ins.scene, ins.object, ins.at, tuple(source.context))
     first = session.insert_object(source.particles, ins)
-    return first, (f"inserted object {ins.object} of {Path(ins.scene).name} as particles "
-                   f"{first}..{session.num_particles - 1} at ({ins.at[0]:g}, {ins.at[1]:g})")
+    return first, (
+        f"inserted object {ins.object} of {Path(ins.scene).name} as particles "
+        f"{first}..{session.num_particles - 1} at ({ins.at[0]:g}, {ins.at[1]:g})"
+    )

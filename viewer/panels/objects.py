@@ -8,9 +8,11 @@ from dataclasses import dataclass, field
 from particlesplat.edit_ops import PickError
 from particlesplat.move import MoveError
 
-ROTATION_NOTE = ("Rotation is not available: a particle is a patch lifted along its own view's rays, with "
-                 "position, scale, depth and depth extent but no orientation latent, so turning an object "
-                 "would show each patch edge-on instead of the object's other side.")
+ROTATION_NOTE = (
+    "Rotation is not available: a particle is a patch lifted along its own view's rays, with "
+    "position, scale, depth and depth extent but no orientation latent, so turning an object "
+    "would show each patch edge-on instead of the object's other side."
+)
 
 
 def segmentation_colour(key: int) -> tuple[float, float, float]:
@@ -39,8 +41,11 @@ def remove_selected(session, selected: int | None) -> tuple[int | None, str]:
         return selected, "select an object first (click it)"
     members = session.object_members(selected)
     session.remove_object(selected)
-    return None, f"removed the object of particle{'s' if len(members) > 1 else ''} {', '.join(map(str, members))}" \
-                 " (Ctrl+Z brings it back)"
+    return (
+        None,
+        f"removed the object of particle{'s' if len(members) > 1 else ''} {', '.join(map(str, members))}"
+        " (Ctrl+Z brings it back)",
+    )
 
 
 def duplicate_selected(session, selected: int | None, offset) -> tuple[int | None, str]:
@@ -74,7 +79,7 @@ def draw_object_section(session, selected: int, fields: ObjectFields) -> tuple[i
     changed, new = imgui.drag_float3("offset (m)", offset, 0.005, 0.0, 0.0, "%.3f")
     if changed:
         try:
-            session.move_object(selected, [a - b for a, b in zip(new, offset)], gesture="panel-offset")
+            session.move_object(selected, [a - b for a, b in zip(new, offset, strict=False)], gesture="panel-offset")
         except MoveError as e:
             message = f"error: {e}"
     if imgui.is_item_deactivated():

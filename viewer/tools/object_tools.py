@@ -175,8 +175,7 @@ class ObjectGizmo:
         """Draw the outline and the handles of particle ``index``'s object (nothing when None) seen by
         ``camera`` (framebuffer pixels; ``pixel_ratio`` = framebuffer pixels per window point) and apply a
         handle drag as a move. Returns an error message when a move was refused."""
-        from imgui_bundle import imgui
-        from imgui_bundle import imguizmo
+        from imgui_bundle import imgui, imguizmo
 
         gz = imguizmo.im_guizmo
         self.hovered = False
@@ -202,9 +201,14 @@ class ObjectGizmo:
         model[:3, 3] = self._centre.numpy()
         obj = gz.Matrix16(model.T.flatten().tolist())
         delta = gz.Matrix16(np.eye(4).flatten().tolist())
-        changed = gz.manipulate(gz.Matrix16(gl_view(camera).T.flatten().tolist()),
-                                gz.Matrix16(gl_projection(camera).T.flatten().tolist()),
-                                gz.OPERATION.translate, gz.MODE.world, obj, delta)
+        changed = gz.manipulate(
+            gz.Matrix16(gl_view(camera).T.flatten().tolist()),
+            gz.Matrix16(gl_projection(camera).T.flatten().tolist()),
+            gz.OPERATION.translate,
+            gz.MODE.world,
+            obj,
+            delta,
+        )
         using = gz.is_using()
         self.hovered = bool(gz.is_over())
         message = None
