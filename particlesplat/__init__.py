@@ -2,7 +2,7 @@
 
 from .camera import Camera
 from .gaussians import Gaussians
-from .render import RenderResult, render, render_batch
+from .renderer import RenderResult, render, render_batch
 
 __all__ = ["Camera", "Gaussians", "RenderResult", "render", "render_batch"]
 __version__ = "0.1.0"

@@ -40,7 +40,7 @@ from .edit_ops import Pick, PickError, SceneEditor
 from .encode_scene import encode_scene, parse_context
 from .metrics import psnr_of_mse
 from .move import MoveError
-from .render import render
+from .renderer import render
 
 KINDS = ("move", "remove", "duplicate")
 REGIONS = ("changed", "vacated", "view")

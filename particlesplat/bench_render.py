@@ -22,8 +22,8 @@ import torch
 
 from .camera import Camera
 from .gaussians import Gaussians
-from .render import render
 from .render_dense import render_dense
+from .renderer import render
 
 DENSE_MAX_PAIRS = 5e7  # pixels × Gaussians above which the dense fwd+bwd does not fit (~1 KB per pair)
 REFERENCE_MAX_PAIRS = 1e9  # the float64 brute force runs in pixel chunks; above this it takes minutes

@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     module.add_arguments(parser)
-    from .views import attach_option_values
+    from .viewpoints import attach_option_values
 
     args = parser.parse_args(attach_option_values(rest))  # --look -30,20,3: a negative azimuth
     return int(module.run(args) or 0)

@@ -32,8 +32,8 @@ from .atomic import atomic_path
 from .camera import Camera
 from .gaussians import Gaussians
 from .particle_data import ParticleArrays
-from .render import render
-from .views import Look, View
+from .renderer import render
+from .viewpoints import Look, View
 
 RenderMode = Literal["rgb", "depth", "particles", "objects", "foreground", "background", "keypoints", "boxes"]
 MODES: tuple[str, ...] = ("rgb", "depth", "particles", "objects", "foreground", "background", "keypoints", "boxes")

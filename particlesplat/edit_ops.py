@@ -46,7 +46,7 @@ from .errors import short_repr
 from .model.particles import EDITABLE, Particles
 from .move import MoveError, anchor_points, translate
 from .objects import particle_objects
-from .render import render
+from .renderer import render
 
 FORMAT_VERSION = 2
 OpKind = Literal["translate", "remove", "duplicate", "set", "insert"]

@@ -22,7 +22,7 @@ from .data.scene import TRANSFORMS
 from .model import Particles, ParticleSplat
 from .model.geometry import stack_cameras
 from .particle_data import OBJECT_CENTRES, file_sha256, particle_arrays
-from .views import default_context_views
+from .viewpoints import default_context_views
 
 
 def find_scenes(root: str | PathLike) -> list[Path]:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from .data import Scene, read_scene
 from .model import Particles, ParticleSplat
-from .views import default_context_views
+from .viewpoints import default_context_views
 
 # measured with the shipped model on test scenes 0-7 of the tabletop set: particlesplat eval --limit 8 [--no-depth]
 NO_DEPTH_NOTE = "the shipped model: 16.7 dB from 2 RGB views, 28.8 dB with depth, on 8 test scenes"
@@ -84,7 +84,7 @@ def encode_scene(
     model: ParticleSplat, path: str | PathLike, context: list[int] | None = None, use_depth: bool = True
 ) -> EncodedScene:
     """Load ``path`` (a scene folder), pick the context frames (default
-    :func:`particlesplat.views.default_context_views`) and encode them with ``model``."""
+    :func:`particlesplat.viewpoints.default_context_views`) and encode them with ``model``."""
     raw = read_scene(path)
     ctx = default_context_views(raw.num_frames) if context is None else list(context)
     bad = [i for i in ctx if not 0 <= i < raw.num_frames]

@@ -20,7 +20,7 @@ from .fit import DEFAULT_FIT, FITTED, fit_particles
 from .metrics import depth_abs_rel, fg_ari, matched_miou, psnr, region_errors, ssim, summarise_region_errors
 from .objects import particle_objects
 from .particle_data import OBJECT_CENTRES, localisation_summary, object_localisation, scene_object_centres
-from .render import render
+from .renderer import render
 
 PRUNE_Z_T = (0.0, 0.3, 0.5, 0.7)
 PRUNE_OPACITY = (0.0, 0.05, 0.2, 0.5)

@@ -18,7 +18,7 @@ from .camera import Camera
 from .model.geometry import stack_cameras
 from .model.losses import view_error
 from .model.particles import Particles
-from .render import render_batch
+from .renderer import render_batch
 
 # the latents a fit may move; z_t (which particles exist) and the background stay as encoded
 FITTED = ("z_p", "z_s", "z_d", "z_e", "z_f")

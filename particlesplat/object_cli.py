@@ -75,8 +75,8 @@ def run(args: argparse.Namespace) -> int:
         import torch
 
         from .png import png_text, save_png
-        from .render import render
-        from .views import default_view, scene_background
+        from .renderer import render
+        from .viewpoints import default_view, scene_background
 
         camera = default_view(enc.all_cameras).camera(640, 480)
         with torch.no_grad():

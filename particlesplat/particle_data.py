@@ -312,7 +312,7 @@ def encode_scene_arrays(
     meta: dict | None = None,
 ) -> ParticleArrays:
     """Encode the scene folder ``scene`` with ``model`` from the context frames ``context`` (None = the
-    viewer's default, :func:`particlesplat.views.default_context_views`) and return its arrays.
+    viewer's default, :func:`particlesplat.viewpoints.default_context_views`) and return its arrays.
 
     Example::
 

@@ -1,6 +1,6 @@
 """``particlesplat render``: render a (possibly edited) scene headless with the torch renderer.
 
-The default camera is the viewer's default view (:func:`particlesplat.views.default_view`);
+The default camera is the viewer's default view (:func:`particlesplat.viewpoints.default_view`);
 ``--look AZ,EL,DIST`` and ``--fov DEG`` mean what they mean in ``particlesplat-viewer``.
 """
 
@@ -12,7 +12,7 @@ import sys
 from .camera import Camera
 from .decomposition import MODES, NEEDS_PARTICLES
 from .encode_scene import add_source_arguments, check_source_arguments, load_model_scene, load_ply_checked
-from .views import View, check_fov, default_view, parse_look, scene_background
+from .viewpoints import View, check_fov, default_view, parse_look, scene_background
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
 MAX_SIDE = 8192  # pixels, as the viewer's --size

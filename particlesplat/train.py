@@ -31,7 +31,7 @@ from .model import ModelConfig, ParticleSplat, TrainConfig, load_config, read_ch
 from .model.config import ConfigError, config_to_dict, model_config_from_dict, without_removed_keys
 from .model.losses import elbo, scene_kl, view_error
 from .provenance import Provenance, RunClock
-from .render import render_batch
+from .renderer import render_batch
 from .runlog import read_log
 
 LAST = "last.pt"

@@ -14,7 +14,7 @@ from particlesplat.compose import export_object_ply, insert_object, object_gauss
 from particlesplat.encode_scene import demo_scenes, encode_scene
 from particlesplat.model import load_model
 from particlesplat.move import translate
-from particlesplat.render import render
+from particlesplat.renderer import render
 from particlesplat.sh import SH_C0
 
 AT = (0.8, 0.5)  # a free spot on scene_00000's floor

@@ -23,8 +23,8 @@ from particlesplat.decomposition import (
 from particlesplat.encode_scene import encode_scene
 from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
 from particlesplat.particle_data import particle_arrays
-from particlesplat.render import render
-from particlesplat.views import Look, View
+from particlesplat.renderer import render
+from particlesplat.viewpoints import Look, View
 
 UP = 4  # render the context view at 4x its size
 

@@ -8,7 +8,7 @@ from test_model import scene_inputs, tiny_model
 
 from particlesplat.fit import FITTED, fit_particles
 from particlesplat.model.losses import view_error
-from particlesplat.render import render
+from particlesplat.renderer import render
 
 
 def test_fitting_lowers_the_context_error_and_leaves_the_model_alone():

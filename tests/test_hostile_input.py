@@ -191,7 +191,7 @@ def test_ply_header_without_end_and_without_newline_is_bounded(tmp_path):
 )
 def test_render_refuses_non_finite_gaussians(field, value, message):
     from particlesplat import render
-    from particlesplat.views import default_view
+    from particlesplat.viewpoints import default_view
 
     g = _gaussians()
     getattr(g, field)[2].view(-1)[0] = value
@@ -202,7 +202,7 @@ def test_render_refuses_non_finite_gaussians(field, value, message):
 
 def test_render_refuses_owner_outside_range():
     from particlesplat import render
-    from particlesplat.views import default_view
+    from particlesplat.viewpoints import default_view
 
     g = _gaussians(owner=[0, -7, 1, 2, 3])
     with pytest.raises(ValueError, match=r"render: owner: -7 at Gaussian 1 is neither -1"):

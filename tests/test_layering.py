@@ -37,11 +37,10 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
             "particlesplat.rasterize",
             "particlesplat.render_dense",
             "particlesplat.segmentation",
-            "particlesplat.render",
-            "particlesplat.views_render",
+            "particlesplat.renderer",
         ),
     ),
-    ("model, data", ("particlesplat.model", "particlesplat.data", "particlesplat.views")),
+    ("model, data", ("particlesplat.model", "particlesplat.data", "particlesplat.viewpoints")),
     (
         "edit",
         (

@@ -439,7 +439,7 @@ def test_static_layer_renders_the_floor_plane_with_its_colour_and_depth():
     transmittance) and about the planar depth of the analytic floor z = 0. A render's depth is that of the
     disc centres, the nearer discs weighing most, so it lies in front of the floor by less than the discs'
     reach along the plane (3 sigma; depth changes by at most 1 m per metre along it)."""
-    from particlesplat.render import render
+    from particlesplat.renderer import render
     from particlesplat.sh import rgb_to_sh_dc
 
     m = tiny_model(**{**STATIC, "bg_static_grid": 48})
@@ -463,7 +463,7 @@ def test_static_layer_error_is_zero_on_its_own_render_and_finds_an_object():
     """The layer's own render has no error; a block whose observed depth is 0.3 m nearer (an object) has
     exactly the squared depth difference on top of its colour error, and the residual selection puts a
     particle on it."""
-    from particlesplat.render import render
+    from particlesplat.renderer import render
 
     m = tiny_model(**STATIC, particles_per_view=1)
     cam = cams(1)[0]

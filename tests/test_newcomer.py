@@ -12,7 +12,7 @@ from particlesplat.camera import Camera
 from particlesplat.encode_scene import demo_scenes
 from particlesplat.gaussians import Gaussians
 from particlesplat.png import camera_from_png, png_text, save_png
-from particlesplat.views import attach_option_values, parse_look
+from particlesplat.viewpoints import attach_option_values, parse_look
 
 
 def test_a_negative_look_value_is_attached_to_its_option():

@@ -7,7 +7,7 @@ import torch
 
 from particlesplat.gaussians import Gaussians
 from particlesplat.objects import particle_objects
-from particlesplat.render import object_segmentation
+from particlesplat.renderer import object_segmentation
 
 
 def gaussians(means, scale, owner, opacity=0.9) -> Gaussians:
@@ -166,7 +166,7 @@ def test_object_segmentation_matches_brute_force():
 def test_render_segmentation_by_objects():
     """render(...).segmentation(objects) over two particles of one object gives that object's label."""
     from particlesplat.camera import Camera
-    from particlesplat.render import render
+    from particlesplat.renderer import render
 
     f = 30.0
     K = torch.tensor([[f, 0, 10.5], [0, f, 7.5], [0, 0, 1.0]])

@@ -10,7 +10,7 @@ from test_model import TINY, scene_inputs, tiny_model
 
 from particlesplat.model import ConfigError, ModelConfig
 from particlesplat.model.refiner import BOX_MARGIN, _bounded_shift, box_glimpses
-from particlesplat.render import render
+from particlesplat.renderer import render
 
 
 def refined_pair(**kw):

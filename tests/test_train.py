@@ -206,7 +206,7 @@ def test_foreground_error_targets_what_the_static_layer_cannot_explain():
     from particlesplat.camera import Camera
     from particlesplat.model import ModelConfig, ParticleSplat
     from particlesplat.model.geometry import stack_cameras
-    from particlesplat.render import render
+    from particlesplat.renderer import render
     from particlesplat.train import foreground_error
 
     m = ParticleSplat(ModelConfig(**TINY_MODEL)).eval()

@@ -10,7 +10,7 @@ import torch
 from particlesplat.camera import Camera
 from particlesplat.data import read_scene
 from particlesplat.encode_scene import demo_scenes
-from particlesplat.views import Look, default_context_views, default_view, focus_point, look_from_eye, parse_look
+from particlesplat.viewpoints import Look, default_context_views, default_view, focus_point, look_from_eye, parse_look
 from viewer.orbit import OrbitCamera
 from viewer.random_gaussians import random_gaussians
 

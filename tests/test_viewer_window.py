@@ -18,7 +18,7 @@ from particlesplat.cli import main as cli_main
 from particlesplat.edits import save_edits
 from particlesplat.gaussians import Gaussians
 from particlesplat.model import save_checkpoint
-from particlesplat.views import DEFAULT_BACKGROUND, View, default_view, parse_look, scene_background
+from particlesplat.viewpoints import DEFAULT_BACKGROUND, View, default_view, parse_look, scene_background
 from viewer.random_gaussians import random_gaussians
 
 pytestmark = pytest.mark.window

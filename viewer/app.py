@@ -22,7 +22,7 @@ from imgui_bundle import imgui  # import before glfw so both use the same GLFW l
 
 from particlesplat.camera import Camera  # noqa: E402
 from particlesplat.encode_scene import add_source_arguments, check_source_arguments  # noqa: E402
-from particlesplat.views import (
+from particlesplat.viewpoints import (
     DEFAULT_FOV,
     View,
     attach_option_values,

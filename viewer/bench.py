@@ -25,7 +25,7 @@ from .state import DEFAULT_PRUNE
 
 if TYPE_CHECKING:  # the GL modules load only when the benchmark runs
     from particlesplat.camera import Camera
-    from particlesplat.views import View
+    from particlesplat.viewpoints import View
 
     from .gl_renderer import SplatRenderer
     from .naive import NaiveSplatter
@@ -211,7 +211,7 @@ def orbit_cameras(view: View, width: int, height: int, frames: int) -> list[Came
     """``frames + 1`` cameras turning 1 degree per frame about ``view``."""
     from dataclasses import replace
 
-    from particlesplat.views import Look
+    from particlesplat.viewpoints import Look
 
     lk = view.look
     return [
@@ -250,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(1)  # as the viewer: tiny per-particle decodes, llvmpipe owns the cores
 
-    from particlesplat.views import default_view
+    from particlesplat.viewpoints import default_view
 
     from .gl_caps import COMPOSITING, UnsupportedGL
     from .gl_renderer import SplatRenderer

@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 import torch
 
 from particlesplat.camera import Camera
-from particlesplat.views import Look, View, look_from_eye
+from particlesplat.viewpoints import Look, View, look_from_eye
 
 
 @dataclass

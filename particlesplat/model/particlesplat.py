@@ -10,7 +10,7 @@ from torch import Tensor, nn
 
 from ..camera import Camera
 from ..gaussians import BACKGROUND_OWNER, Gaussians
-from ..render import render_batch
+from ..renderer import render_batch
 from ..sh import SH_C0
 from .config import ModelConfig
 from .decoder import (
