@@ -210,3 +210,20 @@ def test_the_checker_sees_a_lazy_upward_import(tmp_path):
     found = imports_of("particlesplat.camera", pkg / "camera.py", {"particlesplat.train", "particlesplat.camera"})
     assert found == {"particlesplat.train"}
     assert layer_of("particlesplat.train") > layer_of("particlesplat.camera")
+
+
+def test_package_inits_are_lazy():
+    """Importing the edit-file module loads neither the model's networks nor the renderer."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, particlesplat.edits\n"
+        "heavy = ('particlesplat.renderer', 'particlesplat.model.encoder', 'particlesplat.data.dataset')\n"
+        "print(','.join(m for m in heavy if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == ""
+    code = "import particlesplat as p, particlesplat.model as m, particlesplat.data as d\n"
+    code += "print(p.render, m.load_model, d.load_scene)"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).returncode == 0

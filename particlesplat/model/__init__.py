@@ -1,10 +1,25 @@
-"""ParticleSplat model: latent particles encoded from posed RGB(-D) views and decoded into 3D Gaussians."""
+"""ParticleSplat model: latent particles encoded from posed RGB(-D) views and decoded into 3D Gaussians.
 
-from .config import ConfigError, ModelConfig, TrainConfig, load_config
-from .io import load_model, read_checkpoint, save_checkpoint
-from .particles import EDITABLE, Particles
-from .particlesplat import ParticleSplat
+Names are imported on first use (PEP 562), so importing one submodule does not load the others.
+"""
 
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+_EXPORTS = {
+    "ConfigError": ".config",
+    "EDITABLE": ".particles",
+    "ModelConfig": ".config",
+    "ParticleSplat": ".particlesplat",
+    "Particles": ".particles",
+    "TrainConfig": ".config",
+    "load_config": ".config",
+    "load_model": ".io",
+    "read_checkpoint": ".io",
+    "save_checkpoint": ".io",
+}
 __all__ = [
     "ConfigError",
     "EDITABLE",
@@ -17,3 +32,22 @@ __all__ = [
     "read_checkpoint",
     "save_checkpoint",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(_EXPORTS[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_EXPORTS])
+
+
+if TYPE_CHECKING:
+    from .config import ConfigError, ModelConfig, TrainConfig, load_config
+    from .io import load_model, read_checkpoint, save_checkpoint
+    from .particles import EDITABLE, Particles
+    from .particlesplat import ParticleSplat
