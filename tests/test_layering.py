@@ -19,6 +19,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
         "core",
         (
             "particlesplat.errors",
+            "particlesplat.lazy",
             "particlesplat.atomic",
             "particlesplat.yamlsafe",
             "particlesplat.camera",
