@@ -298,6 +298,9 @@ def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
 
         app.state.panel = False
         glfw.set_window_size(win, 400, 300)
+        deadline = time.monotonic() + 5.0  # the X server applies a resize when it gets to it (slow under load)
+        while glfw.get_framebuffer_size(win) != (400, 300) and time.monotonic() < deadline:
+            glfw.wait_events_timeout(0.05)
         app.run(2)
         cam = app.view_camera(1.0)
         uv, _ = cam.project(object_centre(session, index)[None].float())
