@@ -27,6 +27,7 @@ import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -41,6 +42,11 @@ from .encode_scene import encode_scene, parse_context
 from .metrics import psnr_of_mse
 from .move import MoveError
 from .renderer import render
+
+if TYPE_CHECKING:
+    from .camera import Camera
+    from .model.particles import Particles
+    from .model.particlesplat import ParticleSplat
 
 KINDS = ("move", "remove", "duplicate")
 REGIONS = ("changed", "vacated", "view")
@@ -132,7 +138,9 @@ def _dilate(mask: torch.Tensor, px: int) -> torch.Tensor:
     return F.max_pool2d(mask.float()[:, None], 2 * px + 1, stride=1, padding=px)[:, 0] > 0
 
 
-def _renders(model, particles, cameras, z_t_threshold: float | None = None) -> torch.Tensor:
+def _renders(
+    model: ParticleSplat, particles: Particles, cameras: list[Camera], z_t_threshold: float | None = None
+) -> torch.Tensor:
     """(V, 3, H, W) renders of the particles (edits applied) in ``cameras``."""
     g = model.decode(particles, z_t_threshold=z_t_threshold).detach().to("cpu")
     bg = model.background_color().detach().cpu()
@@ -147,7 +155,7 @@ def _sq_err(pred: torch.Tensor, gt: torch.Tensor, region: torch.Tensor) -> tuple
 
 
 def bench_scene(
-    model,
+    model: ParticleSplat,
     seed: int,
     split: str,
     index: int,

@@ -33,7 +33,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from os import PathLike
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import torch
 import yaml
@@ -47,6 +47,9 @@ from .model.particles import EDITABLE, Particles
 from .move import MoveError, anchor_points, translate
 from .objects import particle_objects
 from .renderer import render
+
+if TYPE_CHECKING:
+    from .model.particlesplat import ParticleSplat
 
 FORMAT_VERSION = 2
 OpKind = Literal["translate", "remove", "duplicate", "set", "insert"]
@@ -379,7 +382,7 @@ class SceneEditor:
 
     def __init__(
         self,
-        model,
+        model: ParticleSplat,
         particles: Particles | None,
         frame_cameras: list[Camera] | None = None,
         context: list[int] | None = None,
@@ -847,7 +850,7 @@ def _cat(a: Particles, b: Particles) -> Particles:
 
 
 def apply_edit_file(
-    model,
+    model: ParticleSplat,
     particles: Particles,
     frame_cameras: list[Camera],
     file: EditFile,

@@ -78,7 +78,7 @@ def encode_batch(model: ParticleSplat, scenes: list[Scene]) -> list[Particles]:
             z_e=z["z_e"][b],
             z_t=z["z_t"][b],
             z_f=z["z_f"][b],
-            view=post["view"],
+            view=post.view,
             background=z["bg"][b],
             cameras=[c.to(dev) for c in s.cameras],
         )

@@ -7,6 +7,7 @@ import json
 import math
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -21,6 +22,9 @@ from .metrics import depth_abs_rel, fg_ari, matched_miou, psnr, region_errors, s
 from .objects import particle_objects
 from .particle_data import OBJECT_CENTRES, localisation_summary, object_localisation, scene_object_centres
 from .renderer import render
+
+if TYPE_CHECKING:
+    from .model.particlesplat import ParticleSplat
 
 PRUNE_Z_T = (0.0, 0.3, 0.5, 0.7)
 PRUNE_OPACITY = (0.0, 0.05, 0.2, 0.5)
@@ -68,7 +72,7 @@ def view_psnr(pred: Tensor, gt: Tensor, sup: Tensor | None) -> float:
 
 @torch.no_grad()
 def evaluate_item(
-    model,
+    model: ParticleSplat,
     item: dict[str, Tensor],
     use_depth: bool = True,
     prune: bool = False,
@@ -212,7 +216,7 @@ def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
 
 
 def evaluate_dataset(
-    model,
+    model: ParticleSplat,
     data_dir: str | Path,
     context: int = 2,
     limit: int | None = None,

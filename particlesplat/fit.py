@@ -9,6 +9,7 @@ and FG-ARI stays; on every latent, by 0.7 dB, but the moved particles form objec
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
@@ -20,6 +21,9 @@ from .model.losses import view_error
 from .model.particles import Particles
 from .renderer import render_batch
 
+if TYPE_CHECKING:
+    from .model.particlesplat import ParticleSplat
+
 # the latents a fit may move; z_t (which particles exist) and the background stay as encoded
 FITTED = ("z_p", "z_s", "z_d", "z_e", "z_f")
 # what a fit moves unless told otherwise: the appearance alone, so the particles (and the objects they form) stay
@@ -27,7 +31,7 @@ DEFAULT_FIT = ("z_f",)
 
 
 def context_error(
-    model,
+    model: ParticleSplat,
     particles: Particles,
     rgb: Tensor,
     depth: Tensor | None,
@@ -55,7 +59,7 @@ def context_error(
 
 
 def fit_particles(
-    model,
+    model: ParticleSplat,
     particles: Particles,
     rgb: Tensor,
     depth: Tensor | None,

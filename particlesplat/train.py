@@ -95,7 +95,13 @@ def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float, band: int =
 
 
 def training_loss(
-    model, batch: dict[str, Tensor], tc: TrainConfig, use_depth: bool, background: bool, size: int, cfg: ModelConfig
+    model: ParticleSplat | DistributedDataParallel,
+    batch: dict[str, Tensor],
+    tc: TrainConfig,
+    use_depth: bool,
+    background: bool,
+    size: int,
+    cfg: ModelConfig,
 ) -> tuple[dict[str, Tensor], Tensor]:
     """Negative ELBO of a batch (dict of (B, …) tensors from SceneDataset). Returns the loss parts and the
     target-view renders (B, T, 3, H, W) (or context renders when there are no targets)."""
@@ -124,7 +130,7 @@ def training_loss(
     parts = elbo(err[:, :C], err[:, C:] if V > C else None, kl, z["z_t"], tc)
     if fg_hat is not None:  # particles cover what the floor layer cannot explain, and nothing else
         # the context views' error is the one the encoder computed (no depth on a step that drops it)
-        bg_err = post["bg_error"]
+        bg_err = post.bg_error
         if V > C:
             tgt = [batch[k].flatten(0, 1) for k in ("target_rgb", "target_depth", "target_K", "target_c2w")]
             tgt_err = net.static_background_error(*tgt, block=1).reshape(B, V - C, 1, size, size)

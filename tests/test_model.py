@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import pytest
 import torch
@@ -15,6 +15,7 @@ from particlesplat.model import ConfigError, ModelConfig, ParticleSplat, load_co
 from particlesplat.model.decoder import foreground_gaussians, gaussian_channels
 from particlesplat.model.geometry import covariance_to_quat_scale, ray_dirs, rotate_sh_to_world, stack_cameras
 from particlesplat.model.losses import kl_beta, kl_normal, scene_kl, view_error
+from particlesplat.model.posterior import ParticlePosterior, Posterior
 from particlesplat.sh import eval_sh_colors
 
 TINY = TINY_MODEL  # the recipe's model, shrunk
@@ -269,17 +270,17 @@ def test_scene_kl_masks_geometry_but_not_transparency():
     post = m.posterior(rgb[None], depth[None], K[None], c2w[None])
     cfg = m.config
     zero = scene_kl(post, torch.zeros(1, 6, 1), cfg, beta_f=1.0)
-    t_only = kl_beta(post["beta_a"], post["beta_b"], cfg.prior_t_a, cfg.prior_t_b).sum()
-    bg = kl_normal(post["mu_bg"], post["lv_bg"], 0.0, 1.0).sum()
+    t_only = kl_beta(post.beta_a, post.beta_b, cfg.prior_t_a, cfg.prior_t_b).sum()
+    bg = kl_normal(post.mu_bg, post.lv_bg, 0.0, 1.0).sum()
     torch.testing.assert_close(zero, (t_only + bg)[None])
     one = scene_kl(post, torch.ones(1, 6, 1), cfg, beta_f=0.5)
     geo = (
-        kl_normal(post["mu_o"], post["lv_o"], 0.0, cfg.prior_offset_std).sum()
-        + kl_normal(post["mu_s"], post["lv_s"], cfg.logit_prior_scale, cfg.prior_scale_std).sum()
-        + kl_normal(post["mu_d"], post["lv_d"], 0.0, 1.0).sum()
-        + kl_normal(post["mu_e"], post["lv_e"], cfg.logit_prior_extent, cfg.prior_extent_std).sum()
+        kl_normal(post.mu_o, post.lv_o, 0.0, cfg.prior_offset_std).sum()
+        + kl_normal(post.mu_s, post.lv_s, cfg.logit_prior_scale, cfg.prior_scale_std).sum()
+        + kl_normal(post.mu_d, post.lv_d, 0.0, 1.0).sum()
+        + kl_normal(post.mu_e, post.lv_e, cfg.logit_prior_extent, cfg.prior_extent_std).sum()
     )
-    feat = kl_normal(post["mu_f"], post["lv_f"], 0.0, 1.0).sum()
+    feat = kl_normal(post.mu_f, post.lv_f, 0.0, 1.0).sum()
     torch.testing.assert_close(one, (geo + 0.5 * feat + t_only + 0.5 * bg)[None], rtol=1e-5, atol=1e-3)
 
 
@@ -375,10 +376,10 @@ def test_presence_logit_seeds_the_transparency_of_the_kept_proposals():
     residual[0, [5, 40, 63]] = torch.tensor([1.0, 2.0, 3.0])
     enc.proposals = lambda feats: (kp0, presence)
     with torch.no_grad():
-        att = enc.attributes(rgb, dep, rays, residual)
-    assert torch.equal(att["kp"][0], kp0[0, [63, 40, 5]])
-    t = (att["beta_a"] / (att["beta_a"] + att["beta_b"]))[0, :, 0]
-    shift = att["beta_a"] - att["beta_b"]
+        att, _ = enc.attributes(rgb, dep, rays, residual)
+    assert torch.equal(att.kp[0], kp0[0, [63, 40, 5]])
+    t = (att.beta_a / (att.beta_a + att.beta_b))[0, :, 0]
+    shift = att.beta_a - att.beta_b
     assert bool((shift[0, 0] > shift[0, 2]).all()) and float(t[0]) > float(t[2])
 
 
@@ -402,7 +403,7 @@ def test_residual_selection_puts_particles_where_the_background_fails():
     top = set(res[0].topk(2).indices.tolist())
     assert top == {1 * 8 + 5, 6 * 8 + 2}
     post = m.posterior(rgb[None], None, K[None], c2w[None])
-    pix = (post["kp"][0] + 1) / 2 * 32
+    pix = (post.kp[0] + 1) / 2 * 32
     cells = {(int(p[1]) // 4) * 8 + int(p[0]) // 4 for p in pix}
     assert cells == top
 
@@ -481,7 +482,7 @@ def test_static_layer_error_is_zero_on_its_own_render_and_finds_an_object():
     assert float(err[0, 0, 5, 2]) == pytest.approx(float(colour) + 0.09, rel=1e-4)
     assert float(err[0, 0].flatten().topk(2).values[1]) < 1e-8  # nothing else
     post = m.posterior(obj_rgb[None], obj_depth[None], K[None], c2w[None])
-    u, v = ((post["kp"][0, 0] + 1) / 2 * 32).tolist()
+    u, v = ((post.kp[0, 0] + 1) / 2 * 32).tolist()
     assert 8 <= u < 12 and 20 <= v < 24
 
 
@@ -539,3 +540,29 @@ def test_shipped_yaml_documents_every_config_key():
     for cls in (ModelConfig, TrainConfig):
         for f in fields(cls):
             assert f.name in lines, f"assets/model.yaml does not list {cls.__name__}.{f.name}"
+
+
+def test_posterior_fields_have_the_documented_shapes():
+    m = tiny_model()
+    rgb, depth, cs = scene_inputs(2)
+    K, c2w = stack_cameras(cs)
+    post = m.posterior(rgb[None], depth[None], K[None], c2w[None])
+    cfg = m.config
+    L = cfg.particles_per_view
+    widths = {"kp": 2, "mu_o": 2, "lv_o": 2, "mu_s": 2, "lv_s": 2, "mu_d": 1, "lv_d": 1, "mu_e": 1, "lv_e": 1}
+    widths.update(beta_a=1, beta_b=1, mu_f=cfg.d_obj, lv_f=cfg.d_obj)
+    assert isinstance(post, Posterior)
+    assert [f.name for f in fields(ParticlePosterior)] == list(widths)
+    for name, w in widths.items():
+        assert tuple(getattr(post, name).shape) == (1, 2 * L, w), name
+    h = cfg.resolution // cfg.bg_latent_stride
+    assert tuple(post.mu_bg.shape) == tuple(post.lv_bg.shape) == (1, 2, cfg.d_bg, h, h)
+    assert tuple(post.bg_mask.shape) == tuple(post.bg_error.shape) == (1, 2, 1, 32, 32)
+    assert post.view.tolist() == [0] * L + [1] * L
+    assert bool((post.beta_a > 0).all() and (post.beta_b > 0).all())
+    torch.testing.assert_close(post.t_mean(), post.beta_a / (post.beta_a + post.beta_b))
+    # replace: a new posterior of the same type with only the named fields changed; the original is untouched
+    before = post.mu_d.clone()
+    moved = post.replace(mu_d=post.mu_d + 1.0)
+    assert type(moved) is Posterior and moved.mu_f is post.mu_f and moved.view is post.view
+    assert torch.equal(moved.mu_d, before + 1.0) and torch.equal(post.mu_d, before)

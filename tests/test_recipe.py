@@ -80,7 +80,7 @@ def test_refiner_gets_no_gradient_before_refine_start_and_does_after(tmp_path_fa
 
     def spy(*args, **kw):
         post = posterior(*args, **kw)
-        seen.append(post["kp"].shape[1])
+        seen.append(post.kp.shape[1])
         return post
 
     tr.model.posterior = spy

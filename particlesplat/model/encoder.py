@@ -3,12 +3,15 @@ and a per-view background encoder whose input has the boxes of active particles 
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .config import ModelConfig
 from .geometry import plucker_at, plucker_map
+from .posterior import ParticlePosterior
 
 
 def conv3x3(cin: int, cout: int, stride: int = 1) -> nn.Module:
@@ -136,12 +139,12 @@ class ParticleEncoder(nn.Module):
         pix = origin + mean
         return pix / cfg.resolution * 2.0 - 1.0, presence
 
-    def attributes(self, rgb: Tensor, dep: Tensor, rays: Tensor, residual: Tensor) -> dict[str, Tensor]:
+    def attributes(self, rgb: Tensor, dep: Tensor, rays: Tensor, residual: Tensor) -> tuple[ParticlePosterior, Tensor]:
         """Per-view particle posteriors before interaction.
 
         rgb: (M, 3, H, W); dep: (M, 2, H, W); rays: (M, 6, H, W); residual: (M, Q) per-patch error of the
         background alone (the keypoint selection's score)
-        -> dict of (M, L, ·) tensors (kp, mu_/lv_ o s d e f, beta_a, beta_b, and the glimpse embedding h).
+        -> the posteriors (M, L, ·) and the glimpse embeddings h (M, L, C).
         """
         cfg = self.cfg
         L, D = cfg.particles_per_view, cfg.d_obj
@@ -172,30 +175,30 @@ class ParticleEncoder(nn.Module):
         d_logit = torch.logit(d_obs.clamp(0.02, 0.98)) * obs[..., 1:2]
         shift = 0.5 * presence  # the proposal's presence logit seeds the transparency (learned through z_t)
         beta_ab = F.softplus(out[..., 12:14] + torch.cat([shift, -shift], dim=-1)) + 0.05
-        return {
-            "kp": kp,
-            "h": h.reshape(M, L, -1),
-            "mu_o": cfg.offset_bound * torch.tanh(out[..., 0:2]),
-            "lv_o": out[..., 2:4],
-            "mu_s": self.scale_centre
+        post = ParticlePosterior(
+            kp=kp,
+            mu_o=cfg.offset_bound * torch.tanh(out[..., 0:2]),
+            lv_o=out[..., 2:4],
+            mu_s=self.scale_centre
             + cfg.scale_logit_bound * torch.tanh((out[..., 4:6] - self.scale_centre) / cfg.scale_logit_bound),
-            "lv_s": out[..., 6:8],
-            "mu_d": out[..., 8:9] + d_logit.detach(),
-            "lv_d": out[..., 9:10],
-            "mu_e": out[..., 10:11],
-            "lv_e": out[..., 11:12],
-            "beta_a": beta_ab[..., :1],
-            "beta_b": beta_ab[..., 1:],
-            "mu_f": out[..., 14 : 14 + D],
-            "lv_f": out[..., 14 + D :],
-        }
+            lv_s=out[..., 6:8],
+            mu_d=out[..., 8:9] + d_logit.detach(),
+            lv_d=out[..., 9:10],
+            mu_e=out[..., 10:11],
+            lv_e=out[..., 11:12],
+            beta_a=beta_ab[..., :1],
+            beta_b=beta_ab[..., 1:],
+            mu_f=out[..., 14 : 14 + D],
+            lv_f=out[..., 14 + D :],
+        )
+        return post, h.reshape(M, L, -1)
 
     def interact(
-        self, att: dict[str, Tensor], K: Tensor, c2w: Tensor, bg_feats: Tensor, n_views: int
-    ) -> dict[str, Tensor]:
+        self, att: ParticlePosterior, h: Tensor, K: Tensor, c2w: Tensor, bg_feats: Tensor, n_views: int
+    ) -> ParticlePosterior:
         """Ray-FiLM + particle-interaction transformer over all context views' particles and background tokens.
 
-        att: output of :meth:`attributes` for M = B*V views; K: (M, 3, 3); c2w: (M, 4, 4);
+        att, h: output of :meth:`attributes` for M = B*V views; K: (M, 3, 3); c2w: (M, 4, 4);
         bg_feats: (M, C) pooled background features. Returns the posteriors with leading dims (B, V*L)
         (depth and feature means refined).
         """
@@ -203,10 +206,9 @@ class ParticleEncoder(nn.Module):
         L = cfg.particles_per_view
         M = K.shape[0]
         B = M // n_views
-        pix = (att["kp"] + att["mu_o"] + 1.0) * 0.5 * cfg.resolution
+        pix = (att.kp + att.mu_o + 1.0) * 0.5 * cfg.resolution
         ray = plucker_at(pix.detach(), K, c2w)  # (M, L, 6)
-        t_mean = att["beta_a"] / (att["beta_a"] + att["beta_b"])
-        desc = torch.cat([att["h"], att["mu_o"], att["mu_s"], att["mu_d"], att["mu_e"], t_mean], dim=-1)
+        desc = torch.cat([h, att.mu_o, att.mu_s, att.mu_d, att.mu_e, att.t_mean()], dim=-1)
         tok = self.token(desc)
         T = tok.shape[-1]
         gamma_beta = self.film(ray)
@@ -216,10 +218,10 @@ class ParticleEncoder(nn.Module):
         if self.transformer is not None:
             tok = self.transformer(torch.cat([tok, bg_tok], dim=1))[:, : n_views * L]
         delta = self.refine(tok)
-        out = {k: v.reshape(B, n_views * L, v.shape[-1]) for k, v in att.items() if k != "h"}
-        out["mu_d"] = out["mu_d"] + delta[..., :1]
-        out["mu_f"] = out["mu_f"] + delta[..., 1:]
-        return out
+        out = ParticlePosterior(
+            **{f.name: getattr(att, f.name).reshape(B, n_views * L, -1) for f in fields(ParticlePosterior)}
+        )
+        return out.replace(mu_d=out.mu_d + delta[..., :1], mu_f=out.mu_f + delta[..., 1:])
 
 
 def select_keypoints(kp: Tensor, score: Tensor, count: int, min_separation: float) -> Tensor:

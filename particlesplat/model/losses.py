@@ -8,6 +8,7 @@ import torch
 from torch import Tensor
 
 from .config import ModelConfig, TrainConfig
+from .posterior import Posterior
 
 
 def kl_normal(mu: Tensor, logvar: Tensor, prior_mu: float, prior_std: float) -> Tensor:
@@ -29,23 +30,23 @@ def kl_beta(a: Tensor, b: Tensor, a0: float, b0: float) -> Tensor:
     )
 
 
-def scene_kl(post: dict[str, Tensor], z_t: Tensor, cfg: ModelConfig, beta_f: float) -> Tensor:
+def scene_kl(post: Posterior, z_t: Tensor, cfg: ModelConfig, beta_f: float) -> Tensor:
     """Scene-level masked KL of the appendix, one value per scene (B,), not normalised by views.
 
     post: posterior parameters (B, N, ·) and background (B, V, d_bg, h, w); z_t: (B, N, 1) the transparency
     that masks the geometric and appearance KL terms (the Beta KL of z_t itself is unmasked).
     """
     geo = (
-        kl_normal(post["mu_o"], post["lv_o"], 0.0, cfg.prior_offset_std).sum(-1)
-        + kl_normal(post["mu_s"], post["lv_s"], cfg.logit_prior_scale, cfg.prior_scale_std).sum(-1)
-        + kl_normal(post["mu_d"], post["lv_d"], cfg.prior_depth_mean, cfg.prior_depth_std).sum(-1)
-        + kl_normal(post["mu_e"], post["lv_e"], cfg.logit_prior_extent, cfg.prior_extent_std).sum(-1)
+        kl_normal(post.mu_o, post.lv_o, 0.0, cfg.prior_offset_std).sum(-1)
+        + kl_normal(post.mu_s, post.lv_s, cfg.logit_prior_scale, cfg.prior_scale_std).sum(-1)
+        + kl_normal(post.mu_d, post.lv_d, cfg.prior_depth_mean, cfg.prior_depth_std).sum(-1)
+        + kl_normal(post.mu_e, post.lv_e, cfg.logit_prior_extent, cfg.prior_extent_std).sum(-1)
     )
-    feat = kl_normal(post["mu_f"], post["lv_f"], 0.0, 1.0).sum(-1)
-    t = kl_beta(post["beta_a"], post["beta_b"], cfg.prior_t_a, cfg.prior_t_b).sum(-1)
+    feat = kl_normal(post.mu_f, post.lv_f, 0.0, 1.0).sum(-1)
+    t = kl_beta(post.beta_a, post.beta_b, cfg.prior_t_a, cfg.prior_t_b).sum(-1)
     mask = z_t[..., 0]
     fg = ((geo + beta_f * feat) * mask + t).sum(-1)
-    bg = beta_f * kl_normal(post["mu_bg"], post["lv_bg"], 0.0, 1.0).flatten(1).sum(-1)
+    bg = beta_f * kl_normal(post.mu_bg, post.lv_bg, 0.0, 1.0).flatten(1).sum(-1)
     return fg + bg
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, fields
 
 import torch
 import torch.nn.functional as F
@@ -25,6 +25,7 @@ from .decoder import (
 from .encoder import BackgroundEncoder, ParticleEncoder, box_mask, depth_input
 from .geometry import plucker_map, stack_cameras
 from .particles import Particles
+from .posterior import ParticlePosterior, Posterior
 from .refiner import BOX_MARGIN, GLIMPSE_CHANNELS, Refiner, box_glimpses, latent_vector
 from .static_background import StaticBackground
 
@@ -67,14 +68,14 @@ class ParticleSplat(nn.Module):
         return torch.sigmoid(self.background_logit)
 
     # ------------------------------------------------------------------ batched internals
-    def posterior(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> dict[str, Tensor]:
+    def posterior(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Posterior:
         """Posterior parameters for B scenes with V context views.
 
         rgb: (B, V, 3, H, W) in [0, 1]; depth: (B, V, 1, H, W) metres (0 = missing) or None;
-        K: (B, V, 3, 3); c2w: (B, V, 4, 4) OpenCV. Returns particle posteriors (B, V*L, ·), the view
-        index (V*L,), background mean/logvar (B, V, d_bg, h, w), the background mask (B, V, 1, H, W) and
-        the background's own error per pixel, ``bg_error`` (B, V, 1, H, W): the static layer's (``bg_static_grid``)
-        per pixel, else the per-view background's per ``bg_block``² block.
+        K: (B, V, 3, 3); c2w: (B, V, 4, 4) OpenCV. Returns the :class:`Posterior`: particle posteriors
+        (B, V*L, ·), the view index (V*L,), background mean/logvar (B, V, d_bg, h, w), the background mask
+        (B, V, 1, H, W) and the background's own error per pixel, ``bg_error`` (B, V, 1, H, W): the static layer's
+        (``bg_static_grid``) per pixel, else the per-view background's per ``bg_block``² block.
         """
         cfg = self.config
         B, V = rgb.shape[:2]
@@ -95,23 +96,25 @@ class ParticleSplat(nn.Module):
                 block_err = self.coarse_background_error(x, d, dep, rays, Kf, cf)
             pixel_err = F.interpolate(block_err, scale_factor=cfg.bg_block, mode="nearest")
         residual = F.adaptive_avg_pool2d(block_err, cfg.resolution // cfg.kp_patch).flatten(1)
-        att = self.encoder.attributes(x, dep, rays, residual)
+        att, h = self.encoder.attributes(x, dep, rays, residual)
         with torch.no_grad():
-            t_mean = att["beta_a"] / (att["beta_a"] + att["beta_b"])
+            t_mean = att.t_mean()
             mask = box_mask(
-                att["kp"] + att["mu_o"],
-                torch.sigmoid(att["mu_s"]),
+                att.kp + att.mu_o,
+                torch.sigmoid(att.mu_s),
                 t_mean[..., 0] > cfg.bg_mask_threshold,
                 cfg.resolution,
             )
         mu_bg, lv_bg, bg_feats = self.bg_encoder(x, dep, rays, mask)
-        post = self.encoder.interact(att, Kf, cf, bg_feats, V)
-        post["mu_bg"] = mu_bg.reshape(B, V, *mu_bg.shape[1:])
-        post["lv_bg"] = lv_bg.reshape(B, V, *lv_bg.shape[1:])
-        post["bg_mask"] = mask.reshape(B, V, 1, H, W)
-        post["view"] = torch.arange(V, device=rgb.device).repeat_interleave(cfg.particles_per_view)
-        post["bg_error"] = pixel_err.reshape(B, V, 1, H, W)
-        return post
+        part = self.encoder.interact(att, h, Kf, cf, bg_feats, V)
+        return Posterior(
+            **{f.name: getattr(part, f.name) for f in fields(ParticlePosterior)},
+            mu_bg=mu_bg.reshape(B, V, *mu_bg.shape[1:]),
+            lv_bg=lv_bg.reshape(B, V, *lv_bg.shape[1:]),
+            bg_mask=mask.reshape(B, V, 1, H, W),
+            view=torch.arange(V, device=rgb.device).repeat_interleave(cfg.particles_per_view),
+            bg_error=pixel_err.reshape(B, V, 1, H, W),
+        )
 
     def coarse_background_error(
         self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor, c2w: Tensor
@@ -167,23 +170,21 @@ class ParticleSplat(nn.Module):
         err = self.coarse_background_error(x, depth, dep, rays, K, c2w)
         return F.adaptive_avg_pool2d(err, self.config.resolution // self.config.kp_patch).flatten(1)
 
-    def refine(
-        self, post: dict[str, Tensor], rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor
-    ) -> dict[str, Tensor]:
+    def refine(self, post: Posterior, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Posterior:
         """``refine_steps`` amortised corrections of the particle posterior means (:mod:`.refiner`).
 
         Each step decodes the current means and renders the context views (no gradient), then every particle
         compares render and observation inside its box (enlarged by :data:`BOX_MARGIN`, ``refine_glimpse_size``
         pixels across) in its own view. post: from :meth:`posterior`; rgb: (B, V, 3, H, W); depth:
         (B, V, 1, H, W) metres or None; K: (B, V, 3, 3); c2w: (B, V, 4, 4). Returns the posterior with refined
-        means (the same keys and shapes).
+        means (the same fields and shapes).
         """
         if self.refiner is None or not self.refine_enabled:
             return post
         cfg = self.config
         B, V = rgb.shape[:2]
         H, W = rgb.shape[-2:]
-        view = post["view"]
+        view = post.view
         N = view.shape[0]
         observed = torch.cat(
             [
@@ -218,22 +219,22 @@ class ParticleSplat(nn.Module):
         return post
 
     @staticmethod
-    def latents(post: dict[str, Tensor], sample: bool) -> dict[str, Tensor]:
+    def latents(post: Posterior, sample: bool) -> dict[str, Tensor]:
         """Posterior samples (reparameterised) or means: z_p, z_s, z_d, z_e, z_t, z_f (B, N, ·), bg (B, V, ·)."""
 
         def g(mu: Tensor, lv: Tensor) -> Tensor:
             return mu + torch.randn_like(mu) * torch.exp(0.5 * lv) if sample else mu
 
-        a, b = post["beta_a"], post["beta_b"]
+        a, b = post.beta_a, post.beta_b
         z_t = torch.distributions.Beta(a, b).rsample() if sample else a / (a + b)
-        bg = g(post["mu_bg"], post["lv_bg"])
+        bg = g(post.mu_bg, post.lv_bg)
         return {
-            "z_p": post["kp"] + g(post["mu_o"], post["lv_o"]),
-            "z_s": g(post["mu_s"], post["lv_s"]),
-            "z_d": g(post["mu_d"], post["lv_d"]),
-            "z_e": g(post["mu_e"], post["lv_e"]),
+            "z_p": post.kp + g(post.mu_o, post.lv_o),
+            "z_s": g(post.mu_s, post.lv_s),
+            "z_d": g(post.mu_d, post.lv_d),
+            "z_e": g(post.mu_e, post.lv_e),
             "z_t": z_t,
-            "z_f": g(post["mu_f"], post["lv_f"]),
+            "z_f": g(post.mu_f, post.lv_f),
             "bg": bg,
         }
 
@@ -285,14 +286,14 @@ class ParticleSplat(nn.Module):
 
     def forward(
         self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, sample: bool = True, background: bool = True
-    ) -> tuple[dict[str, Tensor], dict[str, Tensor], list[Gaussians]]:
+    ) -> tuple[Posterior, dict[str, Tensor], list[Gaussians]]:
         """Training pass for B scenes (shapes as in :meth:`posterior`): posterior, latents (with the background
         colour to render behind the Gaussians, ``bg_color`` (3,), computed here so that under DDP every weight
         is used inside the forward pass), Gaussians per scene."""
         post = self.refine(self.posterior(rgb, depth, K, c2w), rgb, depth, K, c2w)
         z = self.latents(post, sample)
         z["bg_color"] = self.background_color()
-        return post, z, self.decode_batch(z, post["view"], K, c2w, background)
+        return post, z, self.decode_batch(z, post.view, K, c2w, background)
 
     # ------------------------------------------------------------------ scene-level API
     @torch.no_grad()
@@ -326,7 +327,7 @@ class ParticleSplat(nn.Module):
             z_e=z["z_e"][0],
             z_t=z["z_t"][0],
             z_f=z["z_f"][0],
-            view=post["view"],
+            view=post.view,
             background=z["bg"][0],
             cameras=[c.to(dev) for c in cameras],
         )

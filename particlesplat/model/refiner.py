@@ -9,22 +9,25 @@ without refinement starts from what it drew.
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .config import ModelConfig
 from .encoder import conv3x3
+from .posterior import ParticlePosterior
 
 # observed RGB 3, depth 2 (d / d_max, valid); rendered RGB 3, depth / d_max 1, alpha 1; the particle's own weight 1
 GLIMPSE_CHANNELS = 11
+P = TypeVar("P", bound=ParticlePosterior)  # corrected() keeps the posterior's type (a full Posterior stays one)
 BOX_MARGIN = 1.25  # the refinement glimpse covers the particle's box enlarged by this factor (its edges and surround)
 
 
-def latent_vector(post: dict[str, Tensor]) -> Tensor:
+def latent_vector(post: ParticlePosterior) -> Tensor:
     """The posterior means a refinement step reads: (..., 7 + d_obj) = [mu_o 2, mu_s 2, mu_d, mu_e, E[z_t], mu_f]."""
-    t_mean = post["beta_a"] / (post["beta_a"] + post["beta_b"])
-    return torch.cat([post["mu_o"], post["mu_s"], post["mu_d"], post["mu_e"], t_mean, post["mu_f"]], dim=-1)
+    return torch.cat([post.mu_o, post.mu_s, post.mu_d, post.mu_e, post.t_mean(), post.mu_f], dim=-1)
 
 
 def box_glimpses(images: Tensor, centre: Tensor, half: Tensor, size: int) -> Tensor:
@@ -74,20 +77,20 @@ class Refiner(nn.Module):
         h = self.cnn(glimpses).flatten(1)
         return self.out(self.mlp(torch.cat([h, latents], dim=1)))
 
-    def corrected(self, post: dict[str, Tensor], delta: Tensor, scale_centre: float) -> dict[str, Tensor]:
-        """Posteriors with corrected means. post: (B, N, ·) tensors; delta: (B, N, 7 + d_obj). The offset and
-        scale means stay inside their tanh bounds; z_t's Beta(a, b) becomes Beta(a e^δ, b e^-δ) (its mean's
-        log-odds move by 2δ); log-variances are kept."""
+    def corrected(self, post: P, delta: Tensor, scale_centre: float) -> P:
+        """Posteriors with corrected means. post: (B, N, ·) particle fields; delta: (B, N, 7 + d_obj). The offset
+        and scale means stay inside their tanh bounds; z_t's Beta(a, b) becomes Beta(a e^δ, b e^-δ) (its mean's
+        log-odds move by 2δ); log-variances and the other fields are kept."""
         cfg = self.cfg
-        out = dict(post)
-        out["mu_o"] = _bounded_shift(post["mu_o"], 0.0, cfg.offset_bound, delta[..., 0:2])
-        out["mu_s"] = _bounded_shift(post["mu_s"], scale_centre, cfg.scale_logit_bound, delta[..., 2:4])
-        out["mu_d"] = post["mu_d"] + delta[..., 4:5]
-        out["mu_e"] = post["mu_e"] + delta[..., 5:6]
-        out["beta_a"] = post["beta_a"] * torch.exp(delta[..., 6:7])
-        out["beta_b"] = post["beta_b"] * torch.exp(-delta[..., 6:7])
-        out["mu_f"] = post["mu_f"] + delta[..., 7:]
-        return out
+        return post.replace(
+            mu_o=_bounded_shift(post.mu_o, 0.0, cfg.offset_bound, delta[..., 0:2]),
+            mu_s=_bounded_shift(post.mu_s, scale_centre, cfg.scale_logit_bound, delta[..., 2:4]),
+            mu_d=post.mu_d + delta[..., 4:5],
+            mu_e=post.mu_e + delta[..., 5:6],
+            beta_a=post.beta_a * torch.exp(delta[..., 6:7]),
+            beta_b=post.beta_b * torch.exp(-delta[..., 6:7]),
+            mu_f=post.mu_f + delta[..., 7:],
+        )
 
 
 __all__ = ["Refiner", "box_glimpses", "latent_vector", "GLIMPSE_CHANNELS", "BOX_MARGIN"]
