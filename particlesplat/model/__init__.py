@@ -14,6 +14,7 @@ _EXPORTS = {
     "EDITABLE": ".particles",
     "ModelConfig": ".config",
     "ParticleSplat": ".particlesplat",
+    "Posterior": ".posterior",
     "Particles": ".particles",
     "TrainConfig": ".config",
     "load_config": ".config",
@@ -27,6 +28,7 @@ __all__ = [
     "ModelConfig",
     "ParticleSplat",
     "Particles",
+    "Posterior",
     "TrainConfig",
     "load_config",
     "load_model",
@@ -43,3 +45,4 @@ if TYPE_CHECKING:
     from .io import load_model, read_checkpoint, save_checkpoint
     from .particles import EDITABLE, Particles
     from .particlesplat import ParticleSplat
+    from .posterior import Posterior
