@@ -41,7 +41,16 @@ from torch import Tensor
 
 from .atomic import atomic_write
 from .camera import Camera
-from .edits import Edits, EditsError, apply_edits, check_indices, diff_edits, finite_float32, validate_edits
+from .edits import (
+    Edits,
+    EditsError,
+    apply_edits,
+    check_indices,
+    diff_edits,
+    finite_float32,
+    read_edit_document,
+    validate_edits,
+)
 from .errors import short_repr
 from .model.particles import EDITABLE, Particles
 from .move import MoveError, anchor_points, translate
@@ -235,14 +244,7 @@ def parse_edit_file(data: Any, where: str = "edits") -> EditFile:
 def load_edit_file(path: str | PathLike) -> EditFile:
     """Read an edit file (version 1 or 2) with :func:`particlesplat.yamlsafe.read_yaml` (safe tags, no aliases,
     no duplicate keys); errors name the file and the field."""
-    from .yamlsafe import YamlError, read_yaml
-
-    path = Path(path)
-    try:
-        data = read_yaml(path, "edits file")
-    except YamlError as e:
-        raise EditsError(str(e)) from None
-    return parse_edit_file(data, str(path))
+    return parse_edit_file(read_edit_document(path), str(path))
 
 
 def op_to_yaml(op: EditOp) -> dict[str, Any]:

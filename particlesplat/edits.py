@@ -113,15 +113,18 @@ def validate_edits(data: Any, where: str = "edits") -> Edits:
     return out
 
 
-def load_edits(path: str | PathLike) -> Edits:
-    """Read and validate an edits YAML file (:func:`particlesplat.yamlsafe.read_yaml`: safe tags, no
-    aliases, no duplicate keys)."""
-    path = Path(path)
+def read_edit_document(path: str | PathLike) -> Any:
+    """The parsed YAML of an edits file, any version (:func:`particlesplat.yamlsafe.read_yaml`: safe tags, no
+    aliases, no duplicate keys); a file that cannot be read is an :class:`EditsError` naming it."""
     try:
-        data = read_yaml(path, "edits file")
+        return read_yaml(Path(path), "edits file")
     except YamlError as e:
         raise EditsError(str(e)) from None
-    return validate_edits(data, str(path))
+
+
+def load_edits(path: str | PathLike) -> Edits:
+    """Read and validate a version 1 edits file (particle index -> latent values)."""
+    return validate_edits(read_edit_document(path), str(path))
 
 
 def save_edits(path: str | PathLike, edits: Edits, *, model: str | None = None, scene: str | None = None) -> None:

@@ -4,30 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+from model_data import TINY_MODEL
 
 from particlesplat.model import ModelConfig, ParticleSplat
 
 # the recipe's branches (static floor layer, learned background, back layer, cubic cells, refinement), shrunk
-SMALL_MODEL = dict(
-    resolution=32,
-    particles_per_view=3,
-    kp_patch=4,
-    glimpse_size=8,
-    channels=8,
-    d_obj=4,
-    d_bg=2,
-    bg_latent_stride=8,
-    bg_block=4,
-    bg_static_grid=16,
-    patch_gaussians=3,
-    patch_base=0,
-    patch_channels=8,
-    patch_hidden=16,
-    refine_hidden=16,
-    token_dim=16,
-    transformer_layers=1,
-    transformer_heads=2,
-)
+SMALL_MODEL = {**TINY_MODEL, "patch_gaussians": 3, "patch_base": 0}  # odd 3x3 patches, no base grid
 
 
 def egl_context():
