@@ -1,13 +1,16 @@
 #version 330
 // Presents the offscreen render over the background colour: accumulated colour, and in alpha the
 // transmittance T (negated once a pixel stopped) or, with COVERAGE_ALPHA (blended path), 1 - T;
-// optionally tinting the pixels of a mask (weights of the selected particle, channel r).
+// with MASK, tinting the pixels of a mask (weights of the selected particle, channel r). (A separate
+// program: llvmpipe samples both sides of a uniform branch, and the mask's texture reads cost as much as
+// the image's.)
 in vec2 v_uv;
 uniform sampler2D image;
-uniform sampler2D mask;
 uniform vec3 background;
-uniform int use_mask;
+#ifdef MASK
+uniform sampler2D mask;
 uniform vec3 mask_color;
+#endif
 out vec4 frag;
 
 void main() {
@@ -17,9 +20,9 @@ void main() {
 #else
     vec3 rgb = c.rgb + abs(c.a) * background;
 #endif
-    if (use_mask == 1) {
-        float m = clamp(texture(mask, v_uv).r, 0.0, 1.0);
-        rgb = mix(rgb, mask_color, 0.55 * m);
-    }
+#ifdef MASK
+    float m = clamp(texture(mask, v_uv).r, 0.0, 1.0);
+    rgb = mix(rgb, mask_color, 0.55 * m);
+#endif
     frag = vec4(clamp(rgb, 0.0, 1.0), 1.0);
 }

@@ -43,6 +43,11 @@ layout(location = 0) OUT_QUALIFIER vec4 o[ATTACH];
 #endif
 
 void main() {
+#ifdef FLAT_FRAGMENT
+    // (profiling only: the same primitives with no footprint, no compositing; see viewer/bench/profile.py)
+    OUT(0) = vec4(v_color, 1.0);
+    return;
+#endif
     vec2 d = vec2(gl_FragCoord.x, size.y - gl_FragCoord.y) - v_center;
     float q = v_conic.x * d.x * d.x + 2.0 * v_conic.y * d.x * d.y + v_conic.z * d.y * d.y;
     float a = min(ALPHA_MAX, v_opacity * exp(-0.5 * q));

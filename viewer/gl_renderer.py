@@ -1,4 +1,4 @@
-"""The GL splat renderer: draws :class:`~particlesplat.gaussians.Gaussians` the way
+"""The GL splat renderer: draws :class:`~particlesplat.core.gaussians.Gaussians` the way
 :func:`particlesplat.render` does, fast enough for an interactive viewer on llvmpipe.
 
 Design (see shaders/):
@@ -34,9 +34,9 @@ import moderngl
 import numpy as np
 import torch
 
-from particlesplat.camera import Camera
-from particlesplat.gaussians import Gaussians
-from particlesplat.projection import DILATION, FOV_MARGIN
+from particlesplat.core.camera import Camera
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.rendering.projection import DILATION, FOV_MARGIN
 
 from .gl_caps import Compositing, GLCaps, probe, shader_constants
 
@@ -74,11 +74,17 @@ def row_for(texels: int, max_texture_size: int) -> int:
 
 @dataclass
 class FrameTimes:
-    """Timings of one :meth:`SplatRenderer.render` call in milliseconds (CPU wall time;
-    ``draw_ms`` includes the GPU work only when ``render(..., finish=True)``)."""
+    """Timings of one :meth:`SplatRenderer.render` call in milliseconds (CPU wall time). ``draw_ms``
+    includes the GPU work only with ``render(..., finish=True)``. With ``render(..., profile=True)`` every
+    GPU pass is bracketed by ``glFinish`` (which keeps llvmpipe from overlapping them: for profiles, not
+    frame times): ``project_ms`` (projection pass), ``choose_ms`` (the ``auto`` primitive's choice),
+    ``clear_ms`` (clearing the target) and ``draw_ms`` (splat pass) are then the passes' own times."""
 
     sort_ms: float = 0.0
     upload_ms: float = 0.0
+    project_ms: float = 0.0
+    choose_ms: float = 0.0
+    clear_ms: float = 0.0
     draw_ms: float = 0.0
     sorted: bool = False
     drawn: int = 0
@@ -198,12 +204,16 @@ class SplatRenderer:
                 )
             self._progs[kind] = progs
         self.kind = "quads" if primitive == "auto" else primitive  # the primitive of the current sort
-        self._blit = ctx.program(
-            vertex_shader=load_shader("fullscreen.vert"),
-            fragment_shader=load_shader("blit.frag", {} if self.compositing == "fetch" else {"COVERAGE_ALPHA": 1}),
-        )
+        coverage = {} if self.compositing == "fetch" else {"COVERAGE_ALPHA": 1}
+        self._blits = {  # without and with the mask tint
+            m: ctx.program(
+                vertex_shader=load_shader("fullscreen.vert"),
+                fragment_shader=load_shader("blit.frag", {**coverage, **({"MASK": 1} if m else {})}),
+            )
+            for m in (False, True)
+        }
         self._project_vaos: dict[int, moderngl.VertexArray] = {}
-        self._blit_vao = ctx.vertex_array(self._blit, [])
+        self._blit_vaos = {m: ctx.vertex_array(p, []) for m, p in self._blits.items()}
         # data
         self._packed = np.zeros((0, texels_for(1), 4), np.float32)
         self.row = row_for(texels_for(1), self.caps.max_texture_size)  # Gaussians per texture row
@@ -359,8 +369,9 @@ class SplatRenderer:
             self._id_fbo = self.ctx.framebuffer(color_attachments=self._id_tex)
 
     # ------------------------------------------------------------------ passes
-    def _prepare(self, camera: Camera, times: FrameTimes) -> dict[str, tuple]:
-        """Global sort and projection pass, only when the view, the data or the filter changed."""
+    def _prepare(self, camera: Camera, times: FrameTimes, profile: bool = False) -> dict[str, tuple]:
+        """Global sort and projection pass, only when the view, the data or the filter changed (``profile``:
+        bracket the GPU work with ``glFinish`` to time it)."""
         uni = camera_uniforms(camera)
         self._ensure_targets(camera.width, camera.height)
         key = (uni["w2c"], uni["intr"], uni["size"], self._data_version, self._filter_version)
@@ -374,6 +385,9 @@ class SplatRenderer:
         order = depth_order(idx[keep], z[keep])
         t1 = time.perf_counter()
         self._upload_order(order)
+        t2 = time.perf_counter()
+        if profile:
+            self.ctx.finish()
         t2 = time.perf_counter()
         times.sort_ms, times.upload_ms, times.sorted = (t1 - t0) * 1e3, (t2 - t1) * 1e3, True
         if self._drawn:
@@ -401,8 +415,12 @@ class SplatRenderer:
             self.ctx.disable(moderngl.BLEND)
             self.ctx.viewport = (0, 0, self.row, math.ceil(self._drawn / self.row))
             self._project_vaos[k].render(moderngl.TRIANGLE_STRIP, vertices=4)
+            if profile:
+                self.ctx.finish()
+        t3 = time.perf_counter()
         if self.primitive == "auto":
             self.kind = self._cheaper_primitive()
+        times.project_ms, times.choose_ms = (t3 - t2) * 1e3, (time.perf_counter() - t3) * 1e3
         self._key = key
         return uni
 
@@ -538,7 +556,13 @@ class SplatRenderer:
         return 1.0 - np.abs(raw_a) if self.compositing == "fetch" else raw_a.copy()
 
     def render(
-        self, camera: Camera, *, color_mode: int = 0, objects: Sequence[int] | None = None, finish: bool = False
+        self,
+        camera: Camera,
+        *,
+        color_mode: int = 0,
+        objects: Sequence[int] | None = None,
+        finish: bool = False,
+        profile: bool = False,
     ) -> FrameTimes:
         """Render into the offscreen colour target (premultiplied rgb, alpha) at the camera's size.
 
@@ -552,12 +576,16 @@ class SplatRenderer:
             head = np.asarray(objects if objects is not None else [], np.float32)[:MAX_KEYED]
             key[: len(head)] = head
         times = FrameTimes()
-        uni = self._prepare(camera, times)
+        uni = self._prepare(camera, times, profile)
         t0 = time.perf_counter()
         self._color_fbo.use()
         self._clear(self._color_fbo)
+        if profile:
+            self.ctx.finish()
+        times.clear_ms = (time.perf_counter() - t0) * 1e3
+        t0 = time.perf_counter()
         self._draw("splat", uni, color_mode, owner_key=key)
-        if finish:
+        if finish or profile:
             self.ctx.finish()
         times.draw_ms = (time.perf_counter() - t0) * 1e3
         times.drawn = self._drawn
@@ -651,17 +679,23 @@ class SplatRenderer:
         (x, y, w, h in GL pixels); with ``mask_color``, tint the last :meth:`render_mask`."""
         self.ctx.viewport = viewport
         self.ctx.disable(moderngl.BLEND)
-        linear = (moderngl.LINEAR, moderngl.LINEAR)
-        self._color_tex.filter = linear
+        # one texel a pixel: nearest (exact, and cheaper on llvmpipe); scaled (moving frames): linear
+        same = tuple(viewport[2:]) == tuple(self.size)
+        filt = (moderngl.NEAREST, moderngl.NEAREST) if same else (moderngl.LINEAR, moderngl.LINEAR)
+        if self._color_tex.filter != filt:
+            self._color_tex.filter = filt
         self._color_tex.use(0)
-        self._mask_tex.filter = linear
-        self._mask_tex.use(1)
-        self._blit["image"] = 0
-        self._blit["mask"] = 1
-        self._blit["background"] = tuple(background)
-        self._blit["use_mask"] = int(mask_color is not None)
-        self._blit["mask_color"] = tuple(mask_color or (1.0, 1.0, 1.0))
-        self._blit_vao.render(moderngl.TRIANGLE_STRIP, vertices=4)
+        mask = mask_color is not None
+        prog = self._blits[mask]
+        prog["image"] = 0
+        prog["background"] = tuple(background)
+        if mask:
+            if self._mask_tex.filter != filt:
+                self._mask_tex.filter = filt
+            self._mask_tex.use(1)
+            prog["mask"] = 1
+            prog["mask_color"] = tuple(mask_color)
+        self._blit_vaos[mask].render(moderngl.TRIANGLE_STRIP, vertices=4)
 
     def release(self) -> None:
         """Free the GL objects."""
@@ -679,9 +713,9 @@ class SplatRenderer:
             self._id_fbo,
             *self._id_tex,
             *self._project_vaos.values(),
-            self._blit_vao,
+            *self._blit_vaos.values(),
             *self._projects.values(),
-            self._blit,
+            *self._blits.values(),
             *(p for progs in self._progs.values() for p in progs.values()),
         ]
         for obj in objs:
