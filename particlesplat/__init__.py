@@ -7,14 +7,14 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from .lazy import lazy_exports
+from particlesplat.core.lazy import lazy_exports
 
 _EXPORTS = {
-    "Camera": ".camera",
-    "Gaussians": ".gaussians",
-    "RenderResult": ".renderer",
-    "render": ".renderer",
-    "render_batch": ".renderer",
+    "Camera": ".core.camera",
+    "Gaussians": ".core.gaussians",
+    "RenderResult": ".rendering.api",
+    "render": ".rendering.api",
+    "render_batch": ".rendering.api",
 }
 __all__ = ["Camera", "Gaussians", "RenderResult", "render", "render_batch"]
 __version__ = "0.1.0"
@@ -24,6 +24,6 @@ __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 
 if TYPE_CHECKING:
-    from .camera import Camera
-    from .gaussians import Gaussians
-    from .renderer import RenderResult, render, render_batch
+    from particlesplat.core.camera import Camera
+    from particlesplat.core.gaussians import Gaussians
+    from particlesplat.rendering.api import RenderResult, render, render_batch

@@ -14,7 +14,7 @@
 // Rules follow particlesplat.render: EWA with the Jacobian's x/z, y/z clamped to the frustum
 // widened by FOV_MARGIN, + dilation px^2, footprint alpha >= ALPHA_MIN (#defined from the
 // library's constants), near/far culling, and the
-// determinant of the 2D covariance computed without cancellation (as particlesplat.projection).
+// determinant of the 2D covariance computed without cancellation (as particlesplat.rendering.projection).
 
 uniform sampler2D gaussians;
 uniform isampler2D order;  // sorted Gaussian indices, `row` per row

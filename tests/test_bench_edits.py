@@ -7,8 +7,8 @@ import math
 import numpy as np
 import torch
 
-from particlesplat.bench_edits import MOVE_RANGE, _dilate, _interior_pixel, edit_pairs
-from particlesplat.data import tabletop
+from particlesplat.bench.edits import MOVE_RANGE, _dilate, _interior_pixel, edit_pairs
+from particlesplat.data.families import tabletop
 from particlesplat.data.synth import scene_cameras
 
 

@@ -9,13 +9,19 @@ import pytest
 import torch
 
 from particlesplat import Gaussians
-from particlesplat.cli import main
-from particlesplat.compose import export_object_ply, insert_object, object_gaussians, object_members, scene_objects
-from particlesplat.encode_scene import demo_scenes, encode_scene
+from particlesplat.cli.main import main
+from particlesplat.core.sh import SH_C0
+from particlesplat.editing.compose import (
+    export_object_ply,
+    insert_object,
+    object_gaussians,
+    object_members,
+    scene_objects,
+)
+from particlesplat.editing.move import translate
+from particlesplat.editing.open_scene import demo_scenes, encode_scene
 from particlesplat.model import load_model
-from particlesplat.move import translate
-from particlesplat.renderer import render
-from particlesplat.sh import SH_C0
+from particlesplat.rendering.api import render
 
 AT = (0.8, 0.5)  # a free spot on scene_00000's floor
 

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from particlesplat.curve import ARI_COLOUR, HEIGHT, MARGIN, PSNR_COLOUR, WIDTH, plot_curve, read_validation
+from particlesplat.training.curve import ARI_COLOUR, HEIGHT, MARGIN, PSNR_COLOUR, WIDTH, plot_curve, read_validation
 
 
 def test_reads_val_records_and_skips_a_torn_last_line(tmp_path):

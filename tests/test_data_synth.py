@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from particlesplat.cli import main as cli_main
+from particlesplat.cli.main import main as cli_main
 from particlesplat.data import load_scene
 from particlesplat.data.synth import generate
 

@@ -12,7 +12,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from particlesplat.data import SceneDataset, load_scene, sample_views, supervision_mask
-from particlesplat.data.tabletop import TabletopObject, TabletopScene, trace
+from particlesplat.data.families.tabletop import TabletopObject, TabletopScene, trace
 
 SCENES = Path(str(files("particlesplat.assets") / "scenes"))
 

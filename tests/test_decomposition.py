@@ -9,9 +9,7 @@ import torch
 from model_data import TINY_MODEL, tiny_dataset
 from PIL import Image
 
-from particlesplat.camera import Camera
-from particlesplat.cli import main
-from particlesplat.decomposition import (
+from particlesplat.analysis.figures import (
     DIM,
     MODES,
     depth_image,
@@ -20,11 +18,13 @@ from particlesplat.decomposition import (
     turntable_cameras,
     turntable_paths,
 )
-from particlesplat.encode_scene import encode_scene
+from particlesplat.analysis.particle_arrays import particle_arrays
+from particlesplat.cli.main import main
+from particlesplat.core.camera import Camera
+from particlesplat.core.viewpoints import Look, View
+from particlesplat.editing.open_scene import encode_scene
 from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
-from particlesplat.particle_data import particle_arrays
-from particlesplat.renderer import render
-from particlesplat.viewpoints import Look, View
+from particlesplat.rendering.api import render
 
 UP = 4  # render the context view at 4x its size
 

@@ -5,7 +5,14 @@ from __future__ import annotations
 import pytest
 import torch
 
-from particlesplat.edits import EditsError, apply_edits, diff_edits, load_edits, save_edits, validate_edits
+from particlesplat.editing.particle_edits import (
+    EditsError,
+    apply_edits,
+    diff_edits,
+    load_edits,
+    save_edits,
+    validate_edits,
+)
 from particlesplat.model.particles import Particles
 
 

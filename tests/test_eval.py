@@ -10,8 +10,7 @@ import torch
 from model_data import TINY_MODEL, tiny_dataset
 from PIL import Image
 
-from particlesplat.cli import main
-from particlesplat.metrics import (
+from particlesplat.analysis.metrics import (
     REGIONS,
     adjusted_rand_index,
     depth_abs_rel,
@@ -23,6 +22,7 @@ from particlesplat.metrics import (
     ssim,
     summarise_region_errors,
 )
+from particlesplat.cli.main import main
 from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
 
 
@@ -159,7 +159,7 @@ def test_region_errors_sum_and_summary_analytic():
 
 def test_eval_psnr_is_the_mean_of_per_view_psnr():
     """Two views with MSE 1e-2 and 1e-4 score 20 and 40 dB: the mean is 30 dB, not the pooled 23.0 dB."""
-    from particlesplat.evaluate import view_psnr
+    from particlesplat.analysis.evaluate import view_psnr
 
     gt = torch.full((2, 3, 4, 4), 0.5)
     pred = gt.clone()

@@ -1,4 +1,4 @@
-"""Test-time fitting of the particle latents to the context views (``particlesplat.fit``)."""
+"""Test-time fitting of the particle latents to the context views (``particlesplat.model.fit``)."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import pytest
 import torch
 from test_model import scene_inputs, tiny_model
 
-from particlesplat.fit import FITTED, fit_particles
+from particlesplat.model.fit import FITTED, fit_particles
 from particlesplat.model.losses import view_error
-from particlesplat.renderer import render
+from particlesplat.rendering.api import render
 
 
 def test_fitting_lowers_the_context_error_and_leaves_the_model_alone():

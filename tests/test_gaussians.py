@@ -10,7 +10,7 @@ import torch
 from reference_render import covariance_reference, quat_to_rotmat_reference, sh_basis_reference
 
 from particlesplat import Gaussians
-from particlesplat.sh import eval_sh_colors, num_sh_bases, rgb_to_sh_dc, sh_basis, sh_degree_from_bases
+from particlesplat.core.sh import eval_sh_colors, num_sh_bases, rgb_to_sh_dc, sh_basis, sh_degree_from_bases
 
 F64 = torch.float64
 

@@ -15,9 +15,9 @@ import pytest
 from viewer_helpers import psnr
 
 from particlesplat import render
-from particlesplat.camera import Camera
-from particlesplat.projection import ALPHA_MAX, ALPHA_MIN
-from particlesplat.rasterize import T_MIN
+from particlesplat.core.camera import Camera
+from particlesplat.rendering.projection import ALPHA_MAX, ALPHA_MIN
+from particlesplat.rendering.rasterize import T_MIN
 from viewer.gl_caps import COMPOSITING, FETCH_EXTENSION, GLCaps, UnsupportedGL, shader_constants
 from viewer.random_gaussians import random_gaussians
 

@@ -14,8 +14,8 @@ import pytest
 import torch
 from model_data import TINY_MODEL, tiny_dataset
 
-from particlesplat.cli import main
-from particlesplat.errors import EXIT_INTERRUPTED, EXIT_USER, run_command
+from particlesplat.cli.main import main
+from particlesplat.core.errors import EXIT_INTERRUPTED, EXIT_USER, run_command
 
 
 @pytest.fixture(scope="module")
@@ -121,7 +121,7 @@ def test_console_script_ctrl_c_is_one_line(tmp_path):
         [
             sys.executable,
             "-c",
-            "import time, sys; from particlesplat.errors import run_command; "
+            "import time, sys; from particlesplat.core.errors import run_command; "
             "print('ready', flush=True); sys.exit(run_command('particlesplat x', "
             "lambda: time.sleep(60)))",
         ],

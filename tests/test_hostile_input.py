@@ -16,14 +16,14 @@ import torch
 from PIL import Image
 
 from particlesplat import Gaussians
-from particlesplat.atomic import UnsafeTargetError, atomic_path, atomic_write, check_writable
+from particlesplat.core.atomic import UnsafeTargetError, atomic_path, atomic_write, check_writable
+from particlesplat.core.errors import short_repr
+from particlesplat.core.gaussians import MAX_OWNER
+from particlesplat.core.yamlsafe import MAX_YAML_BYTES, YamlError, load_yaml
 from particlesplat.data.scene import MAX_IMAGE_PIXELS, SceneFormatError, read_scene
 from particlesplat.data.synth import write_scene
-from particlesplat.edits import EditsError, load_edits, validate_edits
-from particlesplat.errors import short_repr
-from particlesplat.gaussians import MAX_OWNER
-from particlesplat.ply import PlyError
-from particlesplat.yamlsafe import MAX_YAML_BYTES, YamlError, load_yaml
+from particlesplat.editing.particle_edits import EditsError, load_edits, validate_edits
+from particlesplat.formats.ply import PlyError
 
 ALIAS_BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
     f"{chr(98 + i)}: &{chr(98 + i)} [*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, "
@@ -191,7 +191,7 @@ def test_ply_header_without_end_and_without_newline_is_bounded(tmp_path):
 )
 def test_render_refuses_non_finite_gaussians(field, value, message):
     from particlesplat import render
-    from particlesplat.viewpoints import default_view
+    from particlesplat.core.viewpoints import default_view
 
     g = _gaussians()
     getattr(g, field)[2].view(-1)[0] = value
@@ -202,7 +202,7 @@ def test_render_refuses_non_finite_gaussians(field, value, message):
 
 def test_render_refuses_owner_outside_range():
     from particlesplat import render
-    from particlesplat.viewpoints import default_view
+    from particlesplat.core.viewpoints import default_view
 
     g = _gaussians(owner=[0, -7, 1, 2, 3])
     with pytest.raises(ValueError, match=r"render: owner: -7 at Gaussian 1 is neither -1"):
@@ -436,7 +436,7 @@ def test_pickled_checkpoint_message_never_suggests_unsafe_loading(tmp_path):
 
 
 def test_edit_values_beyond_float64_or_float32_in_both_formats():
-    from particlesplat.edit_ops import parse_edit_file
+    from particlesplat.editing.editor import parse_edit_file
 
     with pytest.raises(EditsError, match=r"particles\.1\.z_d: expected finite numbers"):
         validate_edits({1: {"z_d": [10**400]}})  # an integer beyond float64: no OverflowError

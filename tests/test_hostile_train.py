@@ -16,10 +16,10 @@ import pytest
 import torch
 from model_data import TINY_MODEL, tiny_config, tiny_dataset
 
-from particlesplat.cli import main
+from particlesplat.cli.main import main
 from particlesplat.model import ModelConfig, TrainConfig, read_checkpoint
-from particlesplat.runlog import LogError, read_log
-from particlesplat.train import MAX_SKIPPED, Trainer, TrainingDiverged
+from particlesplat.training.runlog import LogError, read_log
+from particlesplat.training.trainer import MAX_SKIPPED, Trainer, TrainingDiverged
 
 
 def _train(cfg, data, out, *extra) -> int:

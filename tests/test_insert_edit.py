@@ -6,10 +6,10 @@ from __future__ import annotations
 import pytest
 import torch
 
-from particlesplat.cli import main
-from particlesplat.edit_ops import EditOp, Insert, SceneEditor, load_edit_file, parse_edit_file
-from particlesplat.edits import EditsError
-from particlesplat.encode_scene import demo_scenes, encode_scene
+from particlesplat.cli.main import main
+from particlesplat.editing.editor import EditOp, Insert, SceneEditor, load_edit_file, parse_edit_file
+from particlesplat.editing.open_scene import demo_scenes, encode_scene
+from particlesplat.editing.particle_edits import EditsError
 from particlesplat.model import load_model
 
 

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from particlesplat import Gaussians
-from particlesplat.atomic import atomic_path, atomic_write
-from particlesplat.ply import PlyError
+from particlesplat.core.atomic import atomic_path, atomic_write
+from particlesplat.formats.ply import PlyError
 
 _LAYOUT = [
     "x",

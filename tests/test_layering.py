@@ -1,8 +1,9 @@
-"""Imports go one way: core -> rendering -> model, data -> edit -> training, evaluation -> cli; the viewer on top.
+"""Imports go one way, folder by folder: core, formats -> rendering -> model, data -> editing -> analysis ->
+training, bench -> cli; the viewer on top.
 
-Every module of ``particlesplat`` and ``viewer`` has a layer below. A module may import its own layer and
-the layers under it, never one above; and the import graph between modules has no cycle, counting imports
-inside functions too (a lazy import is still an import). A new module must be given a layer here.
+A module's layer is its folder (``LAYERS`` below). A module may import its own layer and the layers under it,
+never one above; a module outside every listed folder fails; and the import graph between modules has no cycle,
+counting imports inside functions too (a lazy import is still an import).
 """
 
 from __future__ import annotations
@@ -13,74 +14,19 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("particlesplat", "viewer")
 
-# lowest first; a module is matched by its dotted name or by the longest listed package prefix
+# lowest first: a module's layer is the folder it lives in (the longest listed package prefix); a module in no
+# listed folder has no layer and fails the test
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
-    (
-        "core",
-        (
-            "particlesplat.errors",
-            "particlesplat.lazy",
-            "particlesplat.atomic",
-            "particlesplat.yamlsafe",
-            "particlesplat.camera",
-            "particlesplat.sh",
-            "particlesplat.gaussians",
-            "particlesplat.ply",
-            "particlesplat.png",
-            "particlesplat.runlog",
-        ),
-    ),
-    (
-        "rendering",
-        (
-            "particlesplat.constants",
-            "particlesplat.projection",
-            "particlesplat.rasterize",
-            "particlesplat.render_dense",
-            "particlesplat.segmentation",
-            "particlesplat.renderer",
-        ),
-    ),
-    ("model, data", ("particlesplat.model", "particlesplat.data", "particlesplat.viewpoints")),
-    (
-        "edit",
-        (
-            "particlesplat.objects",
-            "particlesplat.move",
-            "particlesplat.edits",
-            "particlesplat.edit_ops",
-            "particlesplat.fit",
-            "particlesplat.encode_scene",
-            "particlesplat.particle_data",
-            "particlesplat.compose",
-            "particlesplat.decomposition",
-        ),
-    ),
-    (
-        "training, evaluation",
-        (
-            "particlesplat.provenance",
-            "particlesplat.metrics",
-            "particlesplat.train",
-            "particlesplat.evaluate",
-            "particlesplat.curve",
-            "particlesplat.bench_render",
-            "particlesplat.bench_edits",
-        ),
-    ),
-    (
-        "cli",
-        (
-            "particlesplat.cli",
-            "particlesplat.render_cli",
-            "particlesplat.encode_cli",
-            "particlesplat.object_cli",
-            "particlesplat.__main__",
-        ),
-    ),
+    ("core, formats", ("particlesplat.core", "particlesplat.formats")),
+    ("rendering", ("particlesplat.rendering",)),
+    ("model, data", ("particlesplat.model", "particlesplat.data")),
+    ("editing", ("particlesplat.editing",)),
+    ("analysis", ("particlesplat.analysis",)),
+    ("training, bench", ("particlesplat.training", "particlesplat.bench")),
+    ("cli", ("particlesplat.cli",)),
     ("viewer", ("viewer",)),
 ]
-# the package roots re-export a few core names lazily; importing them is importing those names
+# the package roots re-export a few core and rendering names lazily; importing them is importing those names
 PACKAGE_ROOT_LAYER = {"particlesplat": "rendering"}
 
 
@@ -205,12 +151,20 @@ def test_no_import_cycles():
 
 def test_the_checker_sees_a_lazy_upward_import(tmp_path):
     """The test itself: an import inside a function is found and resolved relative to its package."""
-    pkg = tmp_path / "particlesplat"
-    pkg.mkdir()
-    (pkg / "camera.py").write_text("def f():\n    from .train import x\n")
-    found = imports_of("particlesplat.camera", pkg / "camera.py", {"particlesplat.train", "particlesplat.camera"})
-    assert found == {"particlesplat.train"}
-    assert layer_of("particlesplat.train") > layer_of("particlesplat.camera")
+    pkg = tmp_path / "particlesplat" / "core"
+    pkg.mkdir(parents=True)
+    (pkg / "camera.py").write_text("def f():\n    from ..training.trainer import x\n")
+    known = {"particlesplat.training.trainer", "particlesplat.core.camera"}
+    found = imports_of("particlesplat.core.camera", pkg / "camera.py", known)
+    assert found == {"particlesplat.training.trainer"}
+    assert layer_of("particlesplat.training.trainer") > layer_of("particlesplat.core.camera")
+
+
+def test_a_module_outside_the_layer_folders_has_no_layer():
+    """A loose module at the package root (or in a folder no layer lists) is refused, not given a layer silently."""
+    assert layer_of("particlesplat.helpers") < 0
+    assert layer_of("particlesplat.newfolder.thing") < 0
+    assert layer_of("particlesplat.core.camera") == 0
 
 
 def test_package_inits_are_lazy():
@@ -219,8 +173,8 @@ def test_package_inits_are_lazy():
     import sys
 
     code = (
-        "import sys, particlesplat.edits\n"
-        "heavy = ('particlesplat.renderer', 'particlesplat.model.encoder', 'particlesplat.data.dataset')\n"
+        "import sys, particlesplat.editing.particle_edits\n"
+        "heavy = ('particlesplat.rendering.api', 'particlesplat.model.encoder', 'particlesplat.data.dataset')\n"
         "print(','.join(m for m in heavy if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()

@@ -9,14 +9,14 @@ import pytest
 import torch
 from model_data import TINY_MODEL
 
-from particlesplat.camera import Camera
-from particlesplat.gaussians import Gaussians
+from particlesplat.core.camera import Camera
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.sh import eval_sh_colors
 from particlesplat.model import ConfigError, ModelConfig, ParticleSplat, load_config, load_model, save_checkpoint
 from particlesplat.model.decoder import foreground_gaussians, gaussian_channels
 from particlesplat.model.geometry import covariance_to_quat_scale, ray_dirs, rotate_sh_to_world, stack_cameras
 from particlesplat.model.losses import kl_beta, kl_normal, scene_kl, view_error
 from particlesplat.model.posterior import ParticlePosterior, Posterior
-from particlesplat.sh import eval_sh_colors
 
 TINY = TINY_MODEL  # the recipe's model, shrunk
 PER_VIEW = dict(bg_per_view=True, bg_static_grid=0)  # the per-view background alone (no shared floor)
@@ -440,8 +440,8 @@ def test_static_layer_renders_the_floor_plane_with_its_colour_and_depth():
     transmittance) and about the planar depth of the analytic floor z = 0. A render's depth is that of the
     disc centres, the nearer discs weighing most, so it lies in front of the floor by less than the discs'
     reach along the plane (3 sigma; depth changes by at most 1 m per metre along it)."""
-    from particlesplat.renderer import render
-    from particlesplat.sh import rgb_to_sh_dc
+    from particlesplat.core.sh import rgb_to_sh_dc
+    from particlesplat.rendering.api import render
 
     m = tiny_model(**{**STATIC, "bg_static_grid": 48})
     with torch.no_grad():
@@ -464,7 +464,7 @@ def test_static_layer_error_is_zero_on_its_own_render_and_finds_an_object():
     """The layer's own render has no error; a block whose observed depth is 0.3 m nearer (an object) has
     exactly the squared depth difference on top of its colour error, and the residual selection puts a
     particle on it."""
-    from particlesplat.renderer import render
+    from particlesplat.rendering.api import render
 
     m = tiny_model(**STATIC, particles_per_view=1)
     cam = cams(1)[0]

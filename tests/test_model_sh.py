@@ -7,10 +7,10 @@ from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from model_data import TINY_MODEL
 
 from particlesplat import Camera
+from particlesplat.core.sh import eval_sh_colors
 from particlesplat.model import ParticleSplat
 from particlesplat.model.config import ModelConfig
 from particlesplat.model.geometry import rotate_sh_to_world
-from particlesplat.sh import eval_sh_colors
 
 
 def test_rotated_coefficients_give_the_same_colour_along_the_rotated_direction() -> None:

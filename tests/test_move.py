@@ -6,9 +6,9 @@ import pytest
 import torch
 from model_data import TINY_MODEL
 
-from particlesplat.camera import Camera
+from particlesplat.core.camera import Camera
+from particlesplat.editing.move import MoveError, anchor_points, translate
 from particlesplat.model import ModelConfig, ParticleSplat
-from particlesplat.move import MoveError, anchor_points, translate
 
 DELTA = (0.15, -0.1, 0.08)
 

@@ -8,11 +8,11 @@ import pytest
 import torch
 from PIL import Image
 
-from particlesplat.camera import Camera
-from particlesplat.encode_scene import demo_scenes
-from particlesplat.gaussians import Gaussians
-from particlesplat.png import camera_from_png, png_text, save_png
-from particlesplat.viewpoints import attach_option_values, parse_look
+from particlesplat.core.camera import Camera
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.viewpoints import attach_option_values, parse_look
+from particlesplat.editing.open_scene import demo_scenes
+from particlesplat.formats.png import camera_from_png, png_text, save_png
 
 
 def test_a_negative_look_value_is_attached_to_its_option():
@@ -27,7 +27,7 @@ def test_a_negative_look_value_is_attached_to_its_option():
 
 
 def test_render_reproduces_a_png_camera(tmp_path):
-    from particlesplat.cli import main
+    from particlesplat.cli.main import main
 
     scene = str(demo_scenes()[0])
     a, b = tmp_path / "a.png", tmp_path / "b.png"
@@ -99,7 +99,7 @@ def test_a_scene_without_depth_warns(tmp_path):
     import json
     import shutil
 
-    from particlesplat.encode_scene import encode_scene
+    from particlesplat.editing.open_scene import encode_scene
     from particlesplat.model import load_model
 
     src = demo_scenes()[0]

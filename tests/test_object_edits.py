@@ -1,4 +1,4 @@
-"""Object edits (particlesplat.edit_ops): only active particles draw, picks by pixel, translate / remove /
+"""Object edits (particlesplat.editing.editor): only active particles draw, picks by pixel, translate / remove /
 duplicate as do/undo operations, version 2 edit files replayed by ``particlesplat render``."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import pytest
 import torch
 import yaml
 
-from particlesplat.edit_ops import (
+from particlesplat.editing.editor import (
     EditOp,
     EditsError,
     Pick,
@@ -18,8 +18,8 @@ from particlesplat.edit_ops import (
     save_edit_file,
     scene_mismatch,
 )
-from particlesplat.encode_scene import demo_scenes, load_model_scene
-from particlesplat.move import anchor_points
+from particlesplat.editing.move import anchor_points
+from particlesplat.editing.open_scene import demo_scenes, load_model_scene
 
 CONTEXT = "4,16"
 
@@ -181,7 +181,7 @@ def test_version_1_still_loads_and_bad_files_name_the_field(scene, tmp_path):
 
 
 def test_render_cli_replays_an_edit_file(scene, tmp_path, capsys):
-    from particlesplat.cli import main
+    from particlesplat.cli.main import main
 
     ed = editor(scene)
     label = biggest_object(ed)

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from particlesplat.camera import Camera
-from particlesplat.encode_scene import demo_scenes, encode_scene
+from particlesplat.core.camera import Camera
+from particlesplat.editing.move import anchor_points
+from particlesplat.editing.open_scene import demo_scenes, encode_scene
 from particlesplat.model import load_model
-from particlesplat.move import anchor_points
 from viewer.session import SceneSession
 from viewer.tools.object_tools import FloorDrag, convex_hull, floor_point, gl_projection, gl_view, object_centre
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from particlesplat.gaussians import Gaussians
-from particlesplat.objects import particle_objects
-from particlesplat.renderer import object_segmentation
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.editing.grouping import particle_objects
+from particlesplat.rendering.api import object_segmentation
 
 
 def gaussians(means, scale, owner, opacity=0.9) -> Gaussians:
@@ -118,7 +118,7 @@ def test_overlap_is_the_share_of_either_particles_gaussians(shared, grouped, swa
 
 def test_touching_counts_match_a_brute_force_loop(monkeypatch):
     """The chunked count against a float64 double loop over Gaussian pairs (chunk smaller than the set)."""
-    import particlesplat.objects as objects_module
+    import particlesplat.editing.grouping as objects_module
 
     gen = torch.Generator().manual_seed(3)
     M, P = 300, 5
@@ -165,8 +165,8 @@ def test_object_segmentation_matches_brute_force():
 
 def test_render_segmentation_by_objects():
     """render(...).segmentation(objects) over two particles of one object gives that object's label."""
-    from particlesplat.camera import Camera
-    from particlesplat.renderer import render
+    from particlesplat.core.camera import Camera
+    from particlesplat.rendering.api import render
 
     f = 30.0
     K = torch.tensor([[f, 0, 10.5], [0, f, 7.5], [0, 0, 1.0]])

@@ -27,6 +27,7 @@ def test_shaders_and_assets_are_package_resources() -> None:
 
 def test_library_never_imports_the_viewer_or_gl() -> None:
     names = [m.name for m in pkgutil.walk_packages(particlesplat.__path__, "particlesplat.")]
+    names = [n for n in names if not n.endswith(".__main__")]  # importing it runs the command
     code = (
         "import importlib, sys\n"
         f"for name in {names!r}:\n"
@@ -69,7 +70,11 @@ def test_cli_help_everywhere(argv: list[str]) -> None:
 
 def test_cli_unknown_command_fails_clearly() -> None:
     proc = subprocess.run(
-        [sys.executable, "-m", "particlesplat.cli", "frobnicate"], capture_output=True, text=True, cwd="/", timeout=300
+        [sys.executable, "-m", "particlesplat.cli", "frobnicate"],
+        capture_output=True,
+        text=True,
+        cwd="/",
+        timeout=300,
     )
     assert proc.returncode == 2
     assert "unknown command 'frobnicate'" in proc.stderr

@@ -10,21 +10,14 @@ import pytest
 import torch
 from model_data import TINY_MODEL, tiny_dataset
 
-from particlesplat.camera import Camera
-from particlesplat.cli import main
+from particlesplat.analysis.particle_arrays import ParticleArrays, encode_scene_arrays, particle_arrays
+from particlesplat.cli.encode import encode_batch, encode_folder, find_scenes
+from particlesplat.cli.main import main
+from particlesplat.core.camera import Camera
+from particlesplat.core.gaussians import Gaussians
 from particlesplat.data import read_scene
-from particlesplat.encode_cli import encode_batch, encode_folder, find_scenes
-from particlesplat.gaussians import Gaussians
+from particlesplat.editing.grouping import dense_objects, drawing_particles, object_centres, weighted_stats
 from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
-from particlesplat.particle_data import (
-    ParticleArrays,
-    dense_objects,
-    drawing_particles,
-    encode_scene_arrays,
-    object_centres,
-    particle_arrays,
-    weighted_stats,
-)
 
 
 @pytest.fixture(scope="module")
@@ -127,7 +120,7 @@ def test_anchor_reprojects_to_z_p_at_depth_d(encoded, model):
 
 def test_centroid_extent_colour_are_brute_force_weighted_means(encoded, model):
     a, scene = encoded
-    from particlesplat.encode_scene import encode_scene
+    from particlesplat.editing.open_scene import encode_scene
 
     enc = encode_scene(model, scene, [4, 16])
     g = model.decode(enc.particles)
@@ -153,7 +146,7 @@ def test_centroid_extent_colour_are_brute_force_weighted_means(encoded, model):
 
 
 def test_active_means_the_particle_draws(model, data):
-    from particlesplat.encode_scene import encode_scene
+    from particlesplat.editing.open_scene import encode_scene
 
     enc = encode_scene(model, data / "train" / "scene_00001", [4, 16])
     p = enc.particles.with_attribute(0, "z_t", [0.0])  # hidden: z_t below the threshold
@@ -279,7 +272,7 @@ def test_find_scenes_errors(tmp_path):
 
 
 def test_scene_object_centres_and_distances(data, tmp_path):
-    from particlesplat.particle_data import localisation_summary, nearest_distances, scene_object_centres
+    from particlesplat.analysis.particle_arrays import localisation_summary, nearest_distances, scene_object_centres
 
     scene = data / "train" / "scene_00000"
     doc = json.loads((scene / "scene.json").read_text())
@@ -300,7 +293,7 @@ def test_scene_object_centres_and_distances(data, tmp_path):
 
 
 def test_eval_reports_localisation(model, data, tmp_path):
-    from particlesplat.evaluate import evaluate_dataset
+    from particlesplat.analysis.evaluate import evaluate_dataset
 
     out = evaluate_dataset(model, data / "val", progress_bar=False)
     n_true = len(json.loads((data / "val" / "scene_00000" / "scene.json").read_text())["objects"])

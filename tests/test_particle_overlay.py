@@ -7,10 +7,10 @@ import pytest
 import torch
 from viewer_helpers import small_model
 
-from particlesplat.camera import Camera
-from particlesplat.decomposition import overlay_marks
-from particlesplat.encode_scene import demo_scenes, encode_scene
-from particlesplat.particle_data import particle_arrays
+from particlesplat.analysis.figures import overlay_marks
+from particlesplat.analysis.particle_arrays import particle_arrays
+from particlesplat.core.camera import Camera
+from particlesplat.editing.open_scene import demo_scenes, encode_scene
 from viewer.particle_overlay import ParticleOverlay
 from viewer.session import SceneSession
 from viewer.state import SEG_MODES

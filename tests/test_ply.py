@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-import particlesplat.ply as ply_module
+import particlesplat.formats.ply as ply_module
 from particlesplat import Gaussians
-from particlesplat.ply import PlyError
+from particlesplat.formats.ply import PlyError
 
 
 def random_gaussians(n: int, degree: int, seed: int = 0) -> Gaussians:

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from particlesplat import Camera, Gaussians, render
-from particlesplat.gaussians import quats_to_rotations
+from particlesplat.core.gaussians import quats_to_rotations
 
 
 @pytest.mark.parametrize("scale", [1e-30, 5e-13, 1.0, 1e20])

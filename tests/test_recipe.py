@@ -15,8 +15,8 @@ import torch
 import yaml
 from model_data import TINY_MODEL, tiny_config, tiny_dataset
 
-from particlesplat.camera import Camera
-from particlesplat.cli import main
+from particlesplat.cli.main import main
+from particlesplat.core.camera import Camera
 from particlesplat.model import ConfigError, ModelConfig, ParticleSplat, TrainConfig, load_model, read_checkpoint
 from particlesplat.model.config import REMOVED_KEYS, without_removed_keys
 from particlesplat.model.io import model_from_checkpoint
@@ -37,7 +37,7 @@ def test_config_defaults_are_the_recipe_and_the_recipe_lists_every_key():
             assert defaults[key] == value and type(defaults[key]) is type(value), f"{section}.{key}"
     # the bundled recipe is what `particlesplat train` uses without --config
     from particlesplat.model import load_config
-    from particlesplat.train import recipe_path
+    from particlesplat.training.trainer import recipe_path
 
     cfg, tc = load_config(recipe_path())
     assert cfg == ModelConfig() and tc == TrainConfig()
@@ -70,7 +70,7 @@ def test_refiner_gets_no_gradient_before_refine_start_and_does_after(tmp_path_fa
     """refine_start 0.5 of 4 steps: steps 0 and 1 leave every refiner weight without a gradient (and unchanged),
     steps 2 and 3 train it; during a step the model keeps train.particles_per_view, after it the model config
     is the inference one again."""
-    from particlesplat.train import Trainer
+    from particlesplat.training.trainer import Trainer
 
     data = tiny_dataset(tmp_path_factory)
     tc = TrainConfig(batch_size=1, target_views=1, steps=4, refine_start=0.5, num_threads=1, val_every=100)
@@ -99,7 +99,7 @@ def test_refiner_gets_no_gradient_before_refine_start_and_does_after(tmp_path_fa
 
 
 def test_training_selection_restores_the_model_config_even_on_error():
-    from particlesplat.train import training_selection
+    from particlesplat.training.trainer import training_selection
 
     cfg = ModelConfig(**TINY_MODEL)
     tc = TrainConfig(particles_per_view=5, kp_min_separation=0.4)

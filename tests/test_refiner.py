@@ -10,7 +10,7 @@ from test_model import TINY, scene_inputs, tiny_model
 
 from particlesplat.model import ConfigError, ModelConfig
 from particlesplat.model.refiner import BOX_MARGIN, _bounded_shift, box_glimpses
-from particlesplat.renderer import render
+from particlesplat.rendering.api import render
 
 
 def refined_pair(**kw):
@@ -117,7 +117,7 @@ def test_refiner_sees_the_view_and_the_render_of_the_current_means(glimpse):
 def test_refinement_trains_end_to_end():
     """Through the corrected means, the loss reaches the refiner's output layer and the encoder under it."""
     from particlesplat.model import TrainConfig
-    from particlesplat.train import training_loss
+    from particlesplat.training.trainer import training_loss
 
     _, refined = refined_pair()
     refined.train()

@@ -817,7 +817,7 @@ def test_non_contiguous_inputs_and_tensor_background() -> None:
 
 def test_render_batch_matches_reference_per_view() -> None:
     """Several views (different sizes, cameras and Gaussian sets) in one pass: each view is the brute force."""
-    from particlesplat.renderer import render_batch
+    from particlesplat.rendering.api import render_batch
 
     g1, c1 = random_scene(9, 40, 1, width=37, height=23)
     g2, c2 = random_scene(10, 25, 1, width=16, height=29)

@@ -7,7 +7,7 @@ import torch
 from reference_render import reference_render
 
 from particlesplat import Camera, Gaussians
-from particlesplat.render_dense import render_dense
+from particlesplat.rendering.dense import render_dense
 
 
 def _scene(seed: int) -> tuple[Gaussians, Camera]:

@@ -13,7 +13,7 @@ import torch
 import yaml
 from model_data import tiny_config, tiny_dataset
 
-from particlesplat.cli import main
+from particlesplat.cli.main import main
 from particlesplat.model import load_model, read_checkpoint
 
 
@@ -78,7 +78,7 @@ def test_training_reduces_the_loss_on_one_scene(tmp_path_factory, tmp_path):
     from model_data import TINY_MODEL
 
     from particlesplat.model import ModelConfig, TrainConfig
-    from particlesplat.train import Trainer
+    from particlesplat.training.trainer import Trainer
 
     data = tiny_dataset(tmp_path_factory)
     tc = TrainConfig(batch_size=1, target_views=1, steps=60, lr=3e-3, seed=1, beta_fg=0.0)  # the reconstruction alone
@@ -131,7 +131,7 @@ def test_two_process_ddp_run(tmp_path_factory, tmp_path, model):
 
 def test_lr_factor_is_a_cosine_from_one_to_lr_final():
     from particlesplat.model import TrainConfig
-    from particlesplat.train import lr_factor
+    from particlesplat.training.trainer import lr_factor
 
     tc = TrainConfig(steps=101, lr_final=0.2)
     assert lr_factor(0, tc) == pytest.approx(1.0)
@@ -146,7 +146,7 @@ def test_lr_factor_is_a_cosine_from_one_to_lr_final():
 def test_view_gaps_reach_their_full_range_after_gap_warmup():
     from particlesplat.data.views import gap_range
     from particlesplat.model import TrainConfig
-    from particlesplat.train import gap_progress
+    from particlesplat.training.trainer import gap_progress
 
     tc = TrainConfig(steps=1000, gap_warmup=0.2)
     assert gap_range(gap_progress(0, tc), "multi") == (1, 4)
@@ -161,9 +161,9 @@ def test_learned_background_is_rendered_behind_the_gaussians_and_trained():
     gradient of the summed image w.r.t. that colour is the pixel count (analytic)."""
     from model_data import TINY_MODEL
 
-    from particlesplat.gaussians import Gaussians
+    from particlesplat.core.gaussians import Gaussians
     from particlesplat.model import ModelConfig, ParticleSplat
-    from particlesplat.train import render_views
+    from particlesplat.training.trainer import render_views
 
     m = ParticleSplat(ModelConfig(**TINY_MODEL))
     with torch.no_grad():
@@ -203,11 +203,11 @@ def test_foreground_error_targets_what_the_static_layer_cannot_explain():
     makes those 16 pixels the target: with fg = 1 exactly there the error is 0, with fg = 0 it is 16."""
     from model_data import TINY_MODEL
 
-    from particlesplat.camera import Camera
+    from particlesplat.core.camera import Camera
     from particlesplat.model import ModelConfig, ParticleSplat
     from particlesplat.model.geometry import stack_cameras
-    from particlesplat.renderer import render
-    from particlesplat.train import foreground_error
+    from particlesplat.rendering.api import render
+    from particlesplat.training.trainer import foreground_error
 
     m = ParticleSplat(ModelConfig(**TINY_MODEL)).eval()
     cam = Camera.orbit((0.0, 0.0, 0.15), 20.0, 30.0, 3.3, width=32, height=32)
@@ -237,7 +237,7 @@ def test_foreground_band_leaves_out_the_pixels_along_the_target_edge():
     """A 6x6 target square in a 16x16 view with fg = 0.5 everywhere: band 0 counts all 256 pixels at 0.25;
     band 1 leaves out the square's outer ring of 20 and the 28 pixels around it (208 counted), band 2 leaves
     out 32 + 64 (160 counted); a brute-force loop over the Chebyshev neighbourhoods agrees on random targets."""
-    from particlesplat.train import foreground_error
+    from particlesplat.training.trainer import foreground_error
 
     err = torch.zeros(1, 1, 16, 16)
     err[..., 5:11, 5:11] = 1.0
@@ -267,7 +267,7 @@ def test_foreground_term_needs_the_static_layer(tmp_path_factory, tmp_path):
     from model_data import TINY_MODEL
 
     from particlesplat.model import ConfigError, ModelConfig, TrainConfig
-    from particlesplat.train import Trainer
+    from particlesplat.training.trainer import Trainer
 
     with pytest.raises(ConfigError, match="beta_fg"):
         Trainer(

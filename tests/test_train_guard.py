@@ -9,7 +9,7 @@ import sys
 import pytest
 from model_data import tiny_config, tiny_dataset
 
-from particlesplat.cli import main
+from particlesplat.cli.main import main
 from particlesplat.model import read_checkpoint
 
 

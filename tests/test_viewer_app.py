@@ -15,7 +15,7 @@ from PIL import Image
 from viewer_helpers import psnr, small_model
 
 from particlesplat import render
-from particlesplat.gaussians import Gaussians
+from particlesplat.core.gaussians import Gaussians
 from particlesplat.model import save_checkpoint
 from viewer import app as A
 from viewer.random_gaussians import random_gaussians
@@ -137,7 +137,7 @@ def test_export_object_ply(app, tmp_path):
 
 def test_insert_object_request(app):
     """The panel's "Insert object from another scene": the app encodes the scene and inserts the object (undoable)."""
-    from particlesplat.encode_scene import demo_scenes
+    from particlesplat.editing.open_scene import demo_scenes
 
     s = app.session
     n = s.num_particles
@@ -212,7 +212,7 @@ def test_open_ply_replaces_the_session(app, tmp_path):
 
 
 def test_open_keeps_unsaved_edits_and_offers_them_back(app, tmp_path):
-    from particlesplat.encode_scene import demo_scenes
+    from particlesplat.editing.open_scene import demo_scenes
 
     scene = demo_scenes()[0]
     app.fields.output_dir = str(tmp_path)
@@ -279,7 +279,7 @@ def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
     the edits save as version 2 operations."""
     import glfw
 
-    from particlesplat.encode_scene import demo_scenes
+    from particlesplat.editing.open_scene import demo_scenes
 
     win, ctx = window
     args = A.build_parser().parse_args(

@@ -8,7 +8,7 @@ import torch
 from viewer_helpers import egl_context, psnr, small_model
 
 from particlesplat import render
-from particlesplat.encode_scene import demo_scenes, encode_scene
+from particlesplat.editing.open_scene import demo_scenes, encode_scene
 from viewer.gl_renderer import SplatRenderer
 from viewer.scene_view import SceneView
 from viewer.screenshot import save_numbered, save_screenshot
@@ -42,7 +42,7 @@ def test_edit_undo_redo(encoded):
 
 
 def test_objects_are_grouped_once_on_the_encoded_scene(encoded):
-    from particlesplat.objects import particle_objects
+    from particlesplat.editing.grouping import particle_objects
 
     model, enc = encoded
     s = SceneSession(model, enc)
@@ -55,7 +55,7 @@ def test_objects_are_grouped_once_on_the_encoded_scene(encoded):
 
 
 def test_move_object_moves_every_member_as_one_undo_step(encoded):
-    from particlesplat.move import MoveError, anchor_points
+    from particlesplat.editing.move import MoveError, anchor_points
 
     model, enc = encoded
     s = SceneSession(model, enc)

@@ -7,10 +7,17 @@ import math
 import pytest
 import torch
 
-from particlesplat.camera import Camera
+from particlesplat.core.camera import Camera
+from particlesplat.core.viewpoints import (
+    Look,
+    default_context_views,
+    default_view,
+    focus_point,
+    look_from_eye,
+    parse_look,
+)
 from particlesplat.data import read_scene
-from particlesplat.encode_scene import demo_scenes
-from particlesplat.viewpoints import Look, default_context_views, default_view, focus_point, look_from_eye, parse_look
+from particlesplat.editing.open_scene import demo_scenes
 from viewer.orbit import OrbitCamera
 from viewer.random_gaussians import random_gaussians
 

@@ -14,11 +14,11 @@ from PIL import Image
 from viewer_helpers import psnr, small_model
 
 from particlesplat import render
-from particlesplat.cli import main as cli_main
-from particlesplat.edits import save_edits
-from particlesplat.gaussians import Gaussians
+from particlesplat.cli.main import main as cli_main
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.viewpoints import DEFAULT_BACKGROUND, View, default_view, parse_look, scene_background
+from particlesplat.editing.particle_edits import save_edits
 from particlesplat.model import save_checkpoint
-from particlesplat.viewpoints import DEFAULT_BACKGROUND, View, default_view, parse_look, scene_background
 from viewer.random_gaussians import random_gaussians
 
 pytestmark = pytest.mark.window
@@ -198,7 +198,7 @@ def test_render_cli_view_and_errors(tmp_path):
 
 
 def test_context_out_of_range_names_the_folder():
-    from particlesplat.encode_scene import demo_scenes, encode_scene
+    from particlesplat.editing.open_scene import demo_scenes, encode_scene
 
     scene = demo_scenes()[0]
     for bad in ([4, 40], [-1, 4], []):
@@ -208,8 +208,8 @@ def test_context_out_of_range_names_the_folder():
 
 def test_render_cli_input_view_with_edits(tmp_path):
     """`--view I` renders input camera I of the scene; edits apply to the decoded particles."""
-    from particlesplat.edits import apply_edits
-    from particlesplat.encode_scene import demo_scenes, encode_scene
+    from particlesplat.editing.open_scene import demo_scenes, encode_scene
+    from particlesplat.editing.particle_edits import apply_edits
 
     model = small_model()
     ckpt = tmp_path / "small.pt"

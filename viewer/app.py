@@ -20,9 +20,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from imgui_bundle import imgui  # import before glfw so both use the same GLFW library
 
-from particlesplat.camera import Camera  # noqa: E402
-from particlesplat.encode_scene import add_source_arguments, check_source_arguments  # noqa: E402
-from particlesplat.viewpoints import (
+from particlesplat.core.camera import Camera  # noqa: E402
+from particlesplat.core.viewpoints import (
     DEFAULT_FOV,
     View,
     attach_option_values,
@@ -31,6 +30,7 @@ from particlesplat.viewpoints import (
     parse_look,
     scene_background,
 )
+from particlesplat.editing.open_scene import add_source_arguments, check_source_arguments  # noqa: E402
 
 from .controls import ViewportControls  # noqa: E402
 from .gl_caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
@@ -412,9 +412,9 @@ def destroy_window(window) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """The viewer under the error policy (:func:`particlesplat.errors.run_command`): a bad file or argument is
+    """The viewer under the error policy (:func:`particlesplat.core.errors.run_command`): a bad file or argument is
     one line and exit code 2, Ctrl-C one line and 130; a bug keeps its traceback."""
-    from particlesplat.errors import run_command
+    from particlesplat.core.errors import run_command
 
     return run_command("particlesplat-viewer", lambda: _main(argv))
 
@@ -438,7 +438,7 @@ def _main(argv: list[str] | None = None) -> int:
         session = load_session(args)
         view = initial_view(session, args.look, args.fov)
     except (OSError, ValueError, KeyError, IndexError) as e:
-        from particlesplat.errors import EXIT_USER, one_line
+        from particlesplat.core.errors import EXIT_USER, one_line
 
         print(f"particlesplat-viewer: {one_line(e)}", file=sys.stderr)
         return EXIT_USER
@@ -448,7 +448,7 @@ def _main(argv: list[str] | None = None) -> int:
         try:
             app = App(window, session, view, args)
         except UnsupportedGL as e:  # e.g. --compositing fetch on a driver without the extension: a bad argument
-            from particlesplat.errors import EXIT_USER
+            from particlesplat.core.errors import EXIT_USER
 
             print(f"particlesplat-viewer: {e}", file=sys.stderr)
             return EXIT_USER

@@ -12,14 +12,14 @@ from typing import TYPE_CHECKING, Protocol
 import torch
 from imgui_bundle import imgui
 
-from particlesplat.move import MoveError
+from particlesplat.editing.move import MoveError
 
 from .panels.objects import duplicate_selected, remove_selected
 from .state import SEG_MODES
 from .tools.object_tools import FloorDrag
 
 if TYPE_CHECKING:
-    from particlesplat.camera import Camera
+    from particlesplat.core.camera import Camera
 
     from .orbit import OrbitCamera
     from .panel import UiFields, UiRequests

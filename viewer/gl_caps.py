@@ -18,8 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from particlesplat.projection import ALPHA_MAX, ALPHA_MIN
-from particlesplat.rasterize import T_MIN
+from particlesplat.rendering.projection import ALPHA_MAX, ALPHA_MIN
+from particlesplat.rendering.rasterize import T_MIN
 
 Compositing = Literal["auto", "fetch", "blend"]
 COMPOSITING: tuple[str, ...] = get_args(Compositing)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from particlesplat.encode_scene import load_model_scene, load_ply_checked
-from particlesplat.sh import SH_C0
+from particlesplat.core.sh import SH_C0
+from particlesplat.editing.open_scene import load_model_scene, load_ply_checked
 
 from .session import SceneSession
 

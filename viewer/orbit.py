@@ -7,8 +7,8 @@ from dataclasses import dataclass, replace
 
 import torch
 
-from particlesplat.camera import Camera
-from particlesplat.viewpoints import Look, View, look_from_eye
+from particlesplat.core.camera import Camera
+from particlesplat.core.viewpoints import Look, View, look_from_eye
 
 
 @dataclass

@@ -8,8 +8,8 @@ from types import MappingProxyType
 
 from imgui_bundle import imgui
 
-from particlesplat.camera import Camera
-from particlesplat.encode_scene import demo_scenes
+from particlesplat.core.camera import Camera
+from particlesplat.editing.open_scene import demo_scenes
 from particlesplat.model.particles import EDITABLE
 
 from .panels.insert import InsertFields, draw_insert_section

@@ -1,16 +1,16 @@
 """The "keypoints" and "boxes" segmentation modes: the particles' 3D keypoints and boxes drawn over the scene.
 
 The marks are those of ``particlesplat render --mode keypoints|boxes``
-(:func:`particlesplat.decomposition.overlay_marks`), from the scene's particle arrays
-(:func:`particlesplat.particle_data.particle_arrays`, recomputed when the particles change) projected into the
+(:func:`particlesplat.analysis.figures.overlay_marks`), from the scene's particle arrays
+(:func:`particlesplat.analysis.particle_arrays.particle_arrays`, recomputed when the particles change) projected into the
 view camera, and drawn with ImGui's background draw list (over the scene, under the panels).
 """
 
 from __future__ import annotations
 
-from particlesplat.camera import Camera
-from particlesplat.decomposition import Mark, overlay_marks
-from particlesplat.particle_data import ParticleArrays, particle_arrays
+from particlesplat.analysis.figures import Mark, overlay_marks
+from particlesplat.analysis.particle_arrays import ParticleArrays, particle_arrays
+from particlesplat.core.camera import Camera
 
 OVERLAY_MODES = ("keypoints", "boxes")
 

@@ -6,8 +6,8 @@ import math
 
 import torch
 
-from particlesplat.gaussians import Gaussians
-from particlesplat.sh import rgb_to_sh_dc
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.sh import rgb_to_sh_dc
 
 
 def random_gaussians(

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from particlesplat.camera import Camera
-from particlesplat.gaussians import Gaussians
+from particlesplat.core.camera import Camera
+from particlesplat.core.gaussians import Gaussians
 
 from .gl_renderer import FrameTimes, SplatRenderer, segmentation_from_weights
 from .session import SceneSession

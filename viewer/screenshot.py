@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from particlesplat.atomic import create_temp_file
-from particlesplat.gaussians import Gaussians
-from particlesplat.png import png_info, png_text, save_png, to_image
+from particlesplat.core.atomic import create_temp_file
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.formats.png import png_info, png_text, save_png, to_image
 
 __all__ = ["export_ply", "png_text", "save_numbered", "save_png", "save_screenshot"]
 
@@ -51,6 +51,6 @@ def save_screenshot(folder: str | PathLike, rgb: np.ndarray, text: dict[str, str
 
 def export_ply(folder: str | PathLike, gaussians: Gaussians) -> Path:
     """A numbered standard 3DGS .ply (``particlesplat_NNNN.ply``) of ``gaussians`` in ``folder``."""
-    from particlesplat.ply import write_ply
+    from particlesplat.formats.ply import write_ply
 
     return save_numbered(folder, "particlesplat_", ".ply", lambda p: write_ply(gaussians, p))

@@ -1,4 +1,4 @@
-"""The scene session: a :class:`particlesplat.edit_ops.SceneEditor` (particles, their edits as do/undo
+"""The scene session: a :class:`particlesplat.editing.editor.SceneEditor` (particles, their edits as do/undo
 operations, objects picked and moved in world metres) plus what only the viewer needs (a fixed .ply,
 names for files).
 
@@ -14,9 +14,9 @@ from pathlib import Path
 
 import torch
 
-from particlesplat.edit_ops import History, Operation, SceneEditor, SetAttribute, load_edit_file, scene_mismatch
-from particlesplat.encode_scene import EncodedScene
-from particlesplat.gaussians import Gaussians
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.editing.editor import History, Operation, SceneEditor, SetAttribute, load_edit_file, scene_mismatch
+from particlesplat.editing.open_scene import EncodedScene
 
 __all__ = ["History", "Operation", "SceneSession", "SetAttribute"]
 

@@ -6,7 +6,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-from particlesplat.viewpoints import DEFAULT_BACKGROUND
+from particlesplat.core.viewpoints import DEFAULT_BACKGROUND
 
 # Gaussians fainter than this are not drawn by default: on the 32 test scenes they are 38 % of the shipped
 # model's Gaussians (half of them of inactive particles, z_t ~ 0) and its PSNR is 28.18 dB without them, 28.15 with

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ..lazy import lazy_exports
+from particlesplat.core.lazy import lazy_exports
 
 _EXPORTS = {
     "RawScene": ".scene",
@@ -39,6 +39,6 @@ __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 
 if TYPE_CHECKING:
-    from .dataset import SceneDataset
-    from .scene import RawScene, Scene, SceneFormatError, load_scene, read_scene
-    from .views import flip_horizontal, gap_range, sample_views, supervision_mask
+    from particlesplat.data.dataset import SceneDataset
+    from particlesplat.data.scene import RawScene, Scene, SceneFormatError, load_scene, read_scene
+    from particlesplat.data.views import flip_horizontal, gap_range, sample_views, supervision_mask

@@ -11,8 +11,8 @@ import torch
 from torch import Tensor
 from torch.utils.data import Dataset
 
-from .scene import TRANSFORMS, RawScene, read_scene
-from .views import flip_horizontal, sample_views, supervision_mask
+from particlesplat.data.scene import TRANSFORMS, RawScene, read_scene
+from particlesplat.data.views import flip_horizontal, sample_views, supervision_mask
 
 
 class SceneDataset(Dataset):

@@ -23,8 +23,8 @@ import torch.nn.functional as F
 from PIL import Image
 from torch import Tensor
 
-from ..camera import Camera
-from ..errors import UserError, one_line, short_repr
+from particlesplat.core.camera import Camera
+from particlesplat.core.errors import UserError, one_line, short_repr
 
 TRANSFORMS = "transforms.json"
 _RIGID_TOL = 1e-3

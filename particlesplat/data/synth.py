@@ -8,12 +8,10 @@ leaves only whole scenes, and running the same command again skips them.
 
 from __future__ import annotations
 
-import argparse
 import json
 import multiprocessing as mp
 import os
 import shutil
-import sys
 import time
 from pathlib import Path
 from types import MappingProxyType
@@ -23,9 +21,9 @@ import torch
 from PIL import Image
 from tqdm import tqdm
 
-from ..atomic import atomic_write, temp_sibling
-from ..camera import Camera
-from . import tabletop
+from particlesplat.core.atomic import atomic_write, temp_sibling
+from particlesplat.core.camera import Camera
+from particlesplat.data.families import tabletop
 
 SPLITS = ("train", "val", "test")
 SPLIT_IDS = MappingProxyType({"train": 0, "val": 1, "test": 2})
@@ -196,35 +194,3 @@ def generate(
     finally:
         bar.close()
     return times
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = (
-        "Generate the tabletop dataset (docs/dataset.md): OUT/{train,val,test}/scene_NNNNN "
-        "folders with RGB, planar 16-bit depth and instance masks for 21 views. "
-        "Deterministic for a seed; re-running resumes and skips finished scenes."
-    )
-    parser.add_argument("out", type=Path, help="output folder (created)")
-    parser.add_argument("--train", type=int, default=1000, help="number of training scenes")
-    parser.add_argument("--val", type=int, default=32, help="number of validation scenes")
-    parser.add_argument("--test", type=int, default=32, help="number of test scenes")
-    parser.add_argument("--seed", type=int, default=0, help="dataset seed (>= 0)")
-    parser.add_argument("--res", type=int, default=128, help="image width and height in pixels")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes (1 = in this process)")
-
-
-def run(args: argparse.Namespace) -> int:
-    counts = {"train": args.train, "val": args.val, "test": args.test}
-    try:
-        times = generate(args.out, counts, args.seed, args.res, args.workers)
-    except ValueError as e:
-        print(f"particlesplat synth: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:
-        print(f"particlesplat synth: {args.out}: {e.strerror or e} ({e.filename or args.out})", file=sys.stderr)
-        return 1
-    if times:
-        print(f"wrote {len(times)} scenes to {args.out}, {np.mean(times):.2f} s per scene per worker")
-    else:
-        print(f"nothing to do: all {sum(counts.values())} scenes already exist in {args.out}")
-    return 0

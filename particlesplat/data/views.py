@@ -15,7 +15,7 @@ from types import MappingProxyType
 import torch
 from torch import Tensor
 
-from ..camera import Camera
+from particlesplat.core.camera import Camera
 
 GAP_SCHEDULES: Mapping[str, tuple[tuple[int, int], tuple[int, int]]] = MappingProxyType(
     {

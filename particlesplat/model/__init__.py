@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ..lazy import lazy_exports
+from particlesplat.core.lazy import lazy_exports
 
 _EXPORTS = {
     "ConfigError": ".config",
@@ -41,8 +41,8 @@ __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 
 if TYPE_CHECKING:
-    from .config import ConfigError, ModelConfig, TrainConfig, load_config
-    from .io import load_model, read_checkpoint, save_checkpoint
-    from .particles import EDITABLE, Particles
-    from .particlesplat import ParticleSplat
-    from .posterior import Posterior
+    from particlesplat.model.config import ConfigError, ModelConfig, TrainConfig, load_config
+    from particlesplat.model.io import load_model, read_checkpoint, save_checkpoint
+    from particlesplat.model.particles import EDITABLE, Particles
+    from particlesplat.model.particlesplat import ParticleSplat
+    from particlesplat.model.posterior import Posterior

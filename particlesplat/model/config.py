@@ -8,8 +8,8 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
-from ..errors import UserError, one_line, short_repr
-from ..yamlsafe import YamlError, read_yaml
+from particlesplat.core.errors import UserError, one_line, short_repr
+from particlesplat.core.yamlsafe import YamlError, read_yaml
 
 
 class ConfigError(UserError):

@@ -6,9 +6,15 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..sh import num_sh_bases
-from .config import ModelConfig
-from .geometry import camera_covariance_factor, covariance_to_quat_scale, plucker_at, ray_dirs, rotate_sh_to_world
+from particlesplat.core.sh import num_sh_bases
+from particlesplat.model.config import ModelConfig
+from particlesplat.model.geometry import (
+    camera_covariance_factor,
+    covariance_to_quat_scale,
+    plucker_at,
+    ray_dirs,
+    rotate_sh_to_world,
+)
 
 
 def gaussian_channels(sh_degree: int) -> int:

@@ -9,9 +9,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .config import ModelConfig
-from .geometry import plucker_at, plucker_map
-from .posterior import ParticlePosterior
+from particlesplat.model.config import ModelConfig
+from particlesplat.model.geometry import plucker_at, plucker_map
+from particlesplat.model.posterior import ParticlePosterior
 
 
 def conv3x3(cin: int, cout: int, stride: int = 1) -> nn.Module:

@@ -1,6 +1,6 @@
 """Batched camera geometry for the decoder: rays, lifting, covariances, SH rotation.
 
-Conventions follow :class:`particlesplat.camera.Camera`: OpenCV axes, pixel ``(u, v)`` has its
+Conventions follow :class:`particlesplat.core.camera.Camera`: OpenCV axes, pixel ``(u, v)`` has its
 centre at ``(u + 0.5, v + 0.5)``, rays ``R K^-1 [x, y, 1]`` have camera-z component 1.
 """
 
@@ -11,7 +11,7 @@ import torch
 from kornia.geometry.conversions import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from torch import Tensor
 
-from ..camera import Camera
+from particlesplat.core.camera import Camera
 
 
 def stack_cameras(cameras: list[Camera], device=None, dtype=torch.float32) -> tuple[Tensor, Tensor]:

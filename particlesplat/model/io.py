@@ -12,10 +12,10 @@ from pathlib import Path
 import torch
 from torch.torch_version import TorchVersion
 
-from ..atomic import atomic_path
-from ..errors import UserError, one_line
-from .config import model_config_from_dict, without_removed_keys
-from .particlesplat import ParticleSplat
+from particlesplat.core.atomic import atomic_path
+from particlesplat.core.errors import UserError, one_line
+from particlesplat.model.config import model_config_from_dict, without_removed_keys
+from particlesplat.model.particlesplat import ParticleSplat
 
 
 def save_checkpoint(path: str | PathLike, model: ParticleSplat, step: int, extra: dict | None = None) -> None:

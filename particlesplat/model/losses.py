@@ -7,8 +7,8 @@ import math
 import torch
 from torch import Tensor
 
-from .config import ModelConfig, TrainConfig
-from .posterior import Posterior
+from particlesplat.model.config import ModelConfig, TrainConfig
+from particlesplat.model.posterior import Posterior
 
 
 def kl_normal(mu: Tensor, logvar: Tensor, prior_mu: float, prior_std: float) -> Tensor:

@@ -8,7 +8,7 @@ from types import MappingProxyType
 import torch
 from torch import Tensor
 
-from ..camera import Camera
+from particlesplat.core.camera import Camera
 
 # The attributes a user may edit, in the paper's order, with their widths.
 EDITABLE = MappingProxyType({"z_p": 2, "z_s": 2, "z_d": 1, "z_e": 1, "z_t": 1})

@@ -8,12 +8,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..camera import Camera
-from ..gaussians import BACKGROUND_OWNER, Gaussians
-from ..renderer import render_batch
-from ..sh import SH_C0
-from .config import ModelConfig
-from .decoder import (
+from particlesplat.core.camera import Camera
+from particlesplat.core.gaussians import BACKGROUND_OWNER, Gaussians
+from particlesplat.core.sh import SH_C0
+from particlesplat.model.config import ModelConfig
+from particlesplat.model.decoder import (
     BackgroundDecoder,
     ForegroundDecoder,
     background_gaussians,
@@ -22,12 +21,13 @@ from .decoder import (
     masked_block_mean,
     split_gaussian_params,
 )
-from .encoder import BackgroundEncoder, ParticleEncoder, box_mask, depth_input
-from .geometry import plucker_map, stack_cameras
-from .particles import Particles
-from .posterior import ParticlePosterior, Posterior
-from .refiner import BOX_MARGIN, GLIMPSE_CHANNELS, Refiner, box_glimpses, latent_vector
-from .static_background import StaticBackground
+from particlesplat.model.encoder import BackgroundEncoder, ParticleEncoder, box_mask, depth_input
+from particlesplat.model.geometry import plucker_map, stack_cameras
+from particlesplat.model.particles import Particles
+from particlesplat.model.posterior import ParticlePosterior, Posterior
+from particlesplat.model.refiner import BOX_MARGIN, GLIMPSE_CHANNELS, Refiner, box_glimpses, latent_vector
+from particlesplat.model.static_background import StaticBackground
+from particlesplat.rendering.api import render_batch
 
 
 def _gaussians(fields: dict[str, Tensor], owner: Tensor) -> Gaussians:

@@ -15,9 +15,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .config import ModelConfig
-from .encoder import conv3x3
-from .posterior import ParticlePosterior
+from particlesplat.model.config import ModelConfig
+from particlesplat.model.encoder import conv3x3
+from particlesplat.model.posterior import ParticlePosterior
 
 # observed RGB 3, depth 2 (d / d_max, valid); rendered RGB 3, depth / d_max 1, alpha 1; the particle's own weight 1
 GLIMPSE_CHANNELS = 11

@@ -13,8 +13,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from ..sh import num_sh_bases, rgb_to_sh_dc
-from .config import ModelConfig
+from particlesplat.core.sh import num_sh_bases, rgb_to_sh_dc
+from particlesplat.model.config import ModelConfig
 
 DISC_SIGMA = 0.6  # in-plane standard deviation of a disc, in grid cells (neighbours overlap smoothly)
 DISC_FLATNESS = 0.05  # out-of-plane standard deviation relative to the in-plane one

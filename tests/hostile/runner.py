@@ -46,7 +46,7 @@ def _child(case: dict, out_fd: int, err_fd: int) -> None:
             bytearray(int(case["argv"][0]) << 20)
             code = 0
         elif case["entry"] == "particlesplat":
-            from particlesplat.cli import console_main
+            from particlesplat.cli.main import console_main
 
             sys.argv = ["particlesplat", *case["argv"]]
             code = console_main()
@@ -134,10 +134,10 @@ def main() -> None:
     cases = json.loads(open(sys.argv[1]).read())
     import torch  # noqa: F401 - imported once here, shared by every forked case
 
-    import particlesplat.cli  # noqa: F401
-    import particlesplat.evaluate  # noqa: F401
-    import particlesplat.render_cli  # noqa: F401
-    import particlesplat.train  # noqa: F401
+    import particlesplat.analysis.evaluate  # noqa: F401
+    import particlesplat.cli.main  # noqa: F401
+    import particlesplat.cli.render  # noqa: F401
+    import particlesplat.training.trainer  # noqa: F401
     import viewer.app  # noqa: F401
 
     torch.set_num_threads(1)

@@ -42,7 +42,7 @@ PS, VIEWER = "particlesplat", "particlesplat-viewer"
 @pytest.fixture(scope="module")
 def world(tmp_path_factory) -> dict[str, Path]:
     """The hostile files, beside good ones they are mixed with."""
-    from particlesplat.cli import main
+    from particlesplat.cli.main import main
     from particlesplat.model import ParticleSplat, save_checkpoint
     from particlesplat.model.config import model_config_from_dict
 

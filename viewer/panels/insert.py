@@ -1,13 +1,13 @@
 """The "Insert object" panel section: an object of another scene, placed with its centre at (x, y) on this
-scene's floor (:meth:`particlesplat.edit_ops.SceneEditor.insert_object`; saved in edit files as ``insert``)."""
+scene's floor (:meth:`particlesplat.editing.editor.SceneEditor.insert_object`; saved in edit files as ``insert``)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from particlesplat.edit_ops import Insert
-from particlesplat.encode_scene import demo_scenes, encode_scene
+from particlesplat.editing.editor import Insert
+from particlesplat.editing.open_scene import demo_scenes, encode_scene
 
 
 @dataclass

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from particlesplat.edit_ops import PickError
-from particlesplat.move import MoveError
+from particlesplat.editing.editor import PickError
+from particlesplat.editing.move import MoveError
 
 ROTATION_NOTE = (
     "Rotation is not available: a particle is a patch lifted along its own view's rays, with "

@@ -1,7 +1,7 @@
 """Moving a selected object in the world: slide it on the floor with the mouse, a world-space gizmo
 (ImGuizmo) with X / Y / Z handles at its centre, and an outline of it in the viewport.
 
-Tools get narrow dependencies: the session (a :class:`particlesplat.edit_ops.SceneEditor`), the selected
+Tools get narrow dependencies: the session (a :class:`particlesplat.editing.editor.SceneEditor`), the selected
 particle and the viewing camera; they never see the App. Every move is a do/undo operation of the session
 (one per drag, by its gesture id).
 """
@@ -12,8 +12,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from particlesplat.camera import Camera
-from particlesplat.move import MoveError
+from particlesplat.core.camera import Camera
+from particlesplat.editing.move import MoveError
 
 FLOOR_GESTURE = "floor-drag"
 GIZMO_GESTURE = "gizmo"

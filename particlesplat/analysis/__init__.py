@@ -1,0 +1,1 @@
+"""Evaluation and figures: metrics, ``eval``, layer renders and turntables, particles as arrays."""

@@ -1,0 +1,323 @@
+"""``particlesplat eval``: reconstruction, depth and decomposition metrics of a model on a folder of scenes."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+from PIL import Image
+from torch import Tensor
+from tqdm import tqdm
+
+from particlesplat.analysis.metrics import (
+    depth_abs_rel,
+    fg_ari,
+    matched_miou,
+    psnr,
+    region_errors,
+    ssim,
+    summarise_region_errors,
+)
+from particlesplat.analysis.particle_arrays import (
+    OBJECT_CENTRES,
+    localisation_summary,
+    object_localisation,
+    scene_object_centres,
+)
+from particlesplat.core.atomic import atomic_path
+from particlesplat.core.camera import Camera
+from particlesplat.editing.grouping import particle_objects
+from particlesplat.model.fit import DEFAULT_FIT, fit_particles
+from particlesplat.rendering.api import render
+
+if TYPE_CHECKING:
+    from particlesplat.model.particlesplat import ParticleSplat
+
+PRUNE_Z_T = (0.0, 0.3, 0.5, 0.7)
+PRUNE_OPACITY = (0.0, 0.05, 0.2, 0.5)
+
+
+def _cameras(K: Tensor, c2w: Tensor, size: int) -> list[Camera]:
+    """K: (V, 3, 3), c2w: (V, 4, 4) -> V cameras of size x size."""
+    return [Camera(K[i], c2w[i], size, size) for i in range(K.shape[0])]
+
+
+def _ms(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1000.0
+
+
+def render_views(
+    gaussians,
+    cameras: list[Camera],
+    num_owners: int,
+    background: Tensor | tuple[float, float, float] = (0.0, 0.0, 0.0),
+    objects: Tensor | None = None,
+) -> dict[str, Tensor]:
+    """Render ``gaussians`` in each camera over ``background`` (3,): rgb (V, 3, H, W), depth (V, 1, H, W),
+    seg (V, H, W) per particle, and with ``objects`` ((num_owners,) object label per particle) seg_objects
+    (V, H, W) per object; ms per view."""
+    rgb, depth, seg, seg_obj = [], [], [], []
+    t0 = time.perf_counter()
+    for cam in cameras:
+        r = render(gaussians, cam, background=background, owner_weights=True, num_owners=num_owners)
+        rgb.append(r.rgb.permute(2, 0, 1))
+        depth.append(r.depth[None])
+        seg.append(r.segmentation())
+        if objects is not None:
+            seg_obj.append(r.segmentation(objects))
+    ms = _ms(t0) / max(len(cameras), 1)
+    out = {"rgb": torch.stack(rgb), "depth": torch.stack(depth), "seg": torch.stack(seg), "render_ms": ms}
+    if objects is not None:
+        out["seg_objects"] = torch.stack(seg_obj)
+    return out
+
+
+def view_psnr(pred: Tensor, gt: Tensor, sup: Tensor | None) -> float:
+    """Mean over views of each view's PSNR (dB). pred, gt: (T, 3, H, W); sup: (T, 1, H, W) or None."""
+    return float(np.mean([psnr(pred[i], gt[i], None if sup is None else sup[i]) for i in range(len(gt))]))
+
+
+@torch.no_grad()
+def evaluate_item(
+    model: ParticleSplat,
+    item: dict[str, Tensor],
+    use_depth: bool = True,
+    prune: bool = False,
+    fit_steps: int = 0,
+    fit_lr: float = 0.02,
+    fit_latents: tuple[str, ...] = DEFAULT_FIT,
+    z_t_threshold: float | None = None,
+    true_centres: np.ndarray | None = None,
+) -> dict:
+    """Metrics of one dataset item (see :class:`particlesplat.data.SceneDataset`): encode its context
+    views (then, with ``fit_steps`` > 0, fit the particles to them: :func:`particlesplat.model.fit.fit_particles`),
+    decode all particles and the background, render its target views.
+
+    Returns scalars (psnr, ssim, depth_abs_rel, fg_ari, miou, fg_ari_particles, miou_particles,
+    active_particles, objects, gaussians, encode_ms, fit_ms, decode_ms, render_ms), the renders under "renders",
+    the target views' squared error per region (:func:`particlesplat.analysis.metrics.region_errors`) under
+    "region_errors" when the item has masks, and "pruning" rows when ``prune``. fg_ari and miou score the
+    segmentation into objects (particles grouped by :func:`particlesplat.editing.grouping.particle_objects`); the
+    ``_particles`` keys score the plain per-particle argmax. With ``true_centres`` (N, 3) world metres,
+    "localisation" holds, per object centre method, the distance from each true centre to the nearest object
+    centre (:func:`particlesplat.analysis.particle_arrays.object_localisation`).
+    """
+    size = model.config.resolution
+    ctx_cams = _cameras(item["context_K"], item["context_c2w"], size)
+    tgt_cams = _cameras(item["target_K"], item["target_c2w"], size)
+    depth = item["context_depth"] if use_depth and bool((item["context_depth"] > 0).any()) else None
+    t0 = time.perf_counter()
+    particles = model.encode(item["context_rgb"], depth, ctx_cams)
+    enc_ms = _ms(t0)
+    t0 = time.perf_counter()
+    particles = fit_particles(model, particles, item["context_rgb"], depth, fit_steps, fit_lr, latents=fit_latents)
+    fit_ms = _ms(t0)
+    t0 = time.perf_counter()
+    gaussians = model.decode(particles, z_t_threshold=z_t_threshold)  # None: the particles that draw
+    dec_ms = _ms(t0)
+    objects = particle_objects(gaussians, particles.num)
+    bg = model.background_color()
+    out = render_views(gaussians, tgt_cams, particles.num, bg, objects)
+    active = particles.z_t[:, 0] >= model.config.bg_mask_threshold  # the particles that draw (decode)
+    sup = item.get("target_supervision")
+    gt = item["target_rgb"]
+    res = {
+        "psnr": view_psnr(out["rgb"], gt, sup),
+        "ssim": ssim(out["rgb"], gt),
+        "depth_abs_rel": depth_abs_rel(out["depth"], item["target_depth"]),
+        "active_particles": int(active.sum()),
+        "objects": len(torch.unique(objects[active])),
+        "gaussians": len(gaussians),
+        "encode_ms": enc_ms,
+        "fit_ms": fit_ms,
+        "decode_ms": dec_ms,
+        "render_ms": out["render_ms"],
+    }
+    for key, suffix in (("seg_objects", ""), ("seg", "_particles")):
+        if "target_masks" in item:
+            masks = item["target_masks"]
+            res["fg_ari" + suffix] = float(np.nanmean([fg_ari(out[key][i], masks[i]) for i in range(len(masks))]))
+            res["miou" + suffix] = float(np.nanmean([matched_miou(out[key][i], masks[i]) for i in range(len(masks))]))
+        else:
+            res["fg_ari" + suffix] = res["miou" + suffix] = float("nan")
+    if "target_masks" in item:
+        res["region_errors"] = region_errors(out["rgb"], gt, item["target_masks"], sup)
+    res["renders"] = out
+    res["particles"] = particles
+    if true_centres is not None:
+        res["localisation"] = object_localisation(model, particles, gaussians, true_centres, objects)
+    if prune:
+        rows = []
+        for zt in PRUNE_Z_T:
+            for op in PRUNE_OPACITY:
+                g = model.decode(particles, z_t_threshold=zt, opacity_threshold=op)
+                r = render_views(g, tgt_cams, particles.num, bg)
+                rows.append(
+                    {
+                        "z_t_threshold": zt,
+                        "opacity_threshold": op,
+                        "psnr": view_psnr(r["rgb"], gt, sup),
+                        "gaussians": len(g),
+                        "render_ms": r["render_ms"],
+                    }
+                )
+        res["pruning"] = rows
+    return res
+
+
+SCALARS = (
+    "psnr",
+    "ssim",
+    "depth_abs_rel",
+    "fg_ari",
+    "miou",
+    "fg_ari_particles",
+    "miou_particles",
+    "active_particles",
+    "objects",
+    "gaussians",
+    "encode_ms",
+    "fit_ms",
+    "decode_ms",
+    "render_ms",
+)
+
+
+def _nanmean(values: list[float]) -> float:
+    v = [x for x in values if x is not None and not (isinstance(x, float) and math.isnan(x))]
+    return float(np.mean(v)) if v else float("nan")
+
+
+def _palette(n: int) -> np.ndarray:
+    rng = np.random.default_rng(7)
+    return rng.integers(40, 255, size=(max(n, 1), 3)).astype(np.uint8)
+
+
+def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
+    """PNG grid: row 1 context views, row 2 target ground truth, row 3 renders, row 4 depth, row 5 segmentation
+    into objects."""
+
+    def img(t: Tensor) -> np.ndarray:
+        return (t.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255).astype(np.uint8)
+
+    r = res["renders"]
+    T = r["rgb"].shape[0]
+    H = W = r["rgb"].shape[-1]
+    d = r["depth"][:, 0]
+    dmax = float(torch.quantile(d[d > 0], 0.98)) if bool((d > 0).any()) else 1.0
+    pal = _palette(int(r["seg_objects"].max()) + 1)
+    cols = max(T, item["context_rgb"].shape[0])
+    grid = np.zeros((5 * H, cols * W, 3), np.uint8)
+    for i in range(item["context_rgb"].shape[0]):
+        grid[0:H, i * W : (i + 1) * W] = img(item["context_rgb"][i])
+    for i in range(T):
+        grid[H : 2 * H, i * W : (i + 1) * W] = img(item["target_rgb"][i])
+        grid[2 * H : 3 * H, i * W : (i + 1) * W] = img(r["rgb"][i])
+        grid[3 * H : 4 * H, i * W : (i + 1) * W] = (np.clip(d[i].cpu().numpy() / dmax, 0, 1) * 255).astype(np.uint8)[
+            ..., None
+        ]
+        s = r["seg_objects"][i].cpu().numpy()
+        grid[4 * H : 5 * H, i * W : (i + 1) * W] = np.where(s[..., None] >= 0, pal[np.clip(s, 0, None)], 0)
+    with atomic_path(path) as tmp:
+        Image.fromarray(grid).save(tmp, format="PNG")
+
+
+def evaluate_dataset(
+    model: ParticleSplat,
+    data_dir: str | Path,
+    context: int = 2,
+    limit: int | None = None,
+    figures: Path | None = None,
+    num_figures: int = 4,
+    prune: bool = False,
+    use_depth: bool = True,
+    seed: int = 0,
+    progress_bar: bool = True,
+    fit_steps: int = 0,
+    fit_lr: float = 0.02,
+    fit_latents: tuple[str, ...] = DEFAULT_FIT,
+    z_t_threshold: float | None = None,
+) -> dict:
+    """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}.
+    ``z_t_threshold``: particles drawn (None: the model's, :meth:`ParticleSplat.decode`; 0: every one)."""
+    from particlesplat.core.atomic import check_writable
+    from particlesplat.data import SceneDataset
+
+    if limit is not None and limit < 1:
+        raise ValueError(f"--limit must be >= 1 (or absent for every scene), got {limit}")
+    if figures is not None and num_figures > 0:
+        check_writable(Path(figures) / "figure.png")  # before the work, not after it
+    ds = SceneDataset(
+        data_dir,
+        resolution=model.config.resolution,
+        mode="multi" if context == 2 else "single",
+        deterministic=True,
+        seed=seed,
+        progress=1.0,
+    )
+    n = len(ds) if limit is None else min(limit, len(ds))
+    scenes, prune_rows, regions = [], [], []
+    located: dict[str, list[float]] = {m: [] for m in OBJECT_CENTRES}
+    for i in tqdm(range(n), desc="eval", disable=not progress_bar):
+        item = ds[i]
+        if set(item["target_index"].tolist()) <= set(item["context_index"].tolist()):
+            raise ValueError(
+                f"{ds.scenes[i]}: {ds.raw(i).num_frames} frame(s): no target view apart from the "
+                f"{context} context view(s); evaluation needs at least {context + 1} frames"
+            )
+        res = evaluate_item(
+            model,
+            item,
+            use_depth=use_depth,
+            prune=prune,
+            fit_steps=fit_steps,
+            fit_lr=fit_lr,
+            fit_latents=fit_latents,
+            true_centres=scene_object_centres(ds.scenes[i]),
+            z_t_threshold=z_t_threshold,
+        )
+        if figures is not None and i < num_figures:
+            save_figure(Path(figures) / f"{ds.scenes[i].name}.png", item, res)
+        row = {"scene": ds.scenes[i].name, **{k: res[k] for k in SCALARS}}
+        if "localisation" in res:
+            row["localisation_m"] = res["localisation"]
+            for m, d in res["localisation"].items():
+                located[m] += d
+        scenes.append(row)
+        if "region_errors" in res:
+            regions.append(res["region_errors"])
+        if prune:
+            prune_rows.append(res["pruning"])
+    mean = {k: _nanmean([s[k] for s in scenes]) for k in SCALARS}
+    out = {"data": str(data_dir), "context": context, "depth": use_depth, "scenes": scenes, "mean": mean}
+    if located[OBJECT_CENTRES[0]]:  # scenes whose generator recorded the object centres
+        out["localisation"] = {m: localisation_summary(d) for m, d in located.items()}
+    if regions:  # where the squared error of the target views lies, pooled over the scenes
+        out["error_regions"] = summarise_region_errors(regions)
+    if prune:
+        table = []
+        for j, row in enumerate(prune_rows[0]):
+            table.append(
+                {
+                    "z_t_threshold": row["z_t_threshold"],
+                    "opacity_threshold": row["opacity_threshold"],
+                    **{k: _nanmean([rows[j][k] for rows in prune_rows]) for k in ("psnr", "gaussians", "render_ms")},
+                }
+            )
+        out["pruning"] = table
+    return out
+
+
+def json_safe(value):
+    """``value`` with every NaN or infinite float replaced by None (JSON ``null``: bare NaN is not JSON)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value

@@ -1,0 +1,259 @@
+"""Figures of the decomposition: a scene rendered as one of its layers, and turntables.
+
+Modes (``particlesplat render --mode``):
+
+- ``rgb``: the scene; ``depth``: expected planar depth, near bright, far dark (2nd-98th percentile of the
+  covered pixels), black where nothing draws;
+- ``particles`` / ``objects``: the per-pixel argmax over particles / objects (colour per index, the
+  background dark grey);
+- ``foreground`` / ``background``: only the particles' / only the background's Gaussians over the background
+  colour;
+- ``keypoints``: the scene dimmed, with each drawing particle's ``anchor`` (z_p at depth d) as a dot and its
+  ``centroid`` as a ring, coloured by object; ``boxes``: the scene dimmed, with each drawing particle's 3D box
+  ``centroid`` +- 2 ``extent`` (world axes) projected as 12 edges, coloured by object.
+
+The overlays come from :class:`particlesplat.analysis.particle_arrays.ParticleArrays`, projected into the view.
+"""
+
+from __future__ import annotations
+
+import colorsys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+from PIL import Image, ImageDraw
+
+from particlesplat.analysis.particle_arrays import ParticleArrays
+from particlesplat.core.atomic import atomic_path
+from particlesplat.core.camera import Camera
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.viewpoints import Look, View
+from particlesplat.rendering.api import render
+
+RenderMode = Literal["rgb", "depth", "particles", "objects", "foreground", "background", "keypoints", "boxes"]
+MODES: tuple[str, ...] = ("rgb", "depth", "particles", "objects", "foreground", "background", "keypoints", "boxes")
+NEEDS_PARTICLES: tuple[str, ...] = ("particles", "objects", "foreground", "background", "keypoints", "boxes")
+EMPTY = (0.25, 0.25, 0.25)  # the background's colour in the segmentation modes
+DIM = 0.55  # the scene's brightness under the keypoint and box overlays
+BOX_SIGMAS = 2.0  # a particle's box reaches this many standard deviations (extent) from its centroid
+ANIMATIONS = (".gif", ".webp")
+FRAME_MS = 80  # per turntable frame
+
+
+def palette(index: int) -> tuple[float, float, float]:
+    """A distinct, stable colour (RGB in [0, 1]) for index >= 0 (golden-ratio hues)."""
+    h = (index * 0.618033988749895 + 0.1) % 1.0
+    return colorsys.hsv_to_rgb(h, 0.75, 0.95)
+
+
+def _colour_map(labels: np.ndarray) -> np.ndarray:
+    """(H, W) int labels (-1 = background) -> (H, W, 3) colours."""
+    out = np.empty(labels.shape + (3,))
+    out[:] = EMPTY
+    for lab in np.unique(labels[labels >= 0]):
+        out[labels == lab] = palette(int(lab))
+    return out
+
+
+def depth_image(depth: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """(H, W) planar metres and accumulated opacity -> (H, W, 3) grey: near bright, far dark, nothing black."""
+    covered = alpha > 0.5
+    if not covered.any():
+        return np.zeros(depth.shape + (3,))
+    lo, hi = np.percentile(depth[covered], [2.0, 98.0])
+    t = np.clip((hi - depth) / max(hi - lo, 1e-6), 0.0, 1.0)
+    grey = np.where(covered, 0.15 + 0.85 * t, 0.0) * np.clip(alpha, 0.0, 1.0)
+    return np.repeat(grey[..., None], 3, axis=-1)
+
+
+def _object_labels(arrays: ParticleArrays) -> torch.Tensor:
+    """(P,) object index per particle for the segmentation (inactive particles draw nothing: label 0)."""
+    return torch.as_tensor(np.maximum(arrays.object, 0), dtype=torch.int64)
+
+
+def _project(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    uv, z = camera.project(torch.as_tensor(points, dtype=torch.float64))
+    return uv.numpy(), z.numpy()
+
+
+@dataclass(frozen=True)
+class Mark:
+    """One overlay mark in image pixels: a filled ``dot`` or a ``ring`` at ``points[0]`` with ``radius``, or a
+    ``line`` from ``points[0]`` to ``points[1]``; ``colour`` RGB in [0, 1]; ``width`` of outlines in pixels."""
+
+    kind: Literal["dot", "ring", "line"]
+    points: tuple[tuple[float, float], ...]
+    colour: tuple[float, float, float]
+    radius: float = 0.0
+    width: float = 1.0
+
+
+def overlay_marks(arrays: ParticleArrays, camera: Camera, mode: Literal["keypoints", "boxes"]) -> list[Mark]:
+    """The marks of ``mode`` for the drawing particles seen by ``camera`` (pixels of its image), coloured by
+    object: keypoints = a dot at each ``anchor`` and a ring at each ``centroid``; boxes = the 12 edges of
+    ``centroid`` +- ``BOX_SIGMAS`` x ``extent``. Points behind the camera are left out (and edges touching
+    them). Mark sizes grow with the image (one unit per 160 pixels of its smaller side)."""
+    scale = max(1.0, min(camera.width, camera.height) / 160.0)
+    cam = camera.to("cpu", torch.float64)
+    marks: list[Mark] = []
+    for i in np.flatnonzero(arrays.active):
+        colour = palette(int(arrays.object[i]))
+        if mode == "keypoints":
+            uv, z = _project(cam, np.stack([arrays.anchor[i], arrays.centroid[i]]))
+            if z[0] > 0:
+                marks.append(
+                    Mark("dot", ((float(uv[0, 0]), float(uv[0, 1])),), colour, 2.5 * scale, max(1.0, scale / 2))
+                )
+            if z[1] > 0:
+                marks.append(Mark("ring", ((float(uv[1, 0]), float(uv[1, 1])),), colour, 4.0 * scale, max(1.0, scale)))
+        else:
+            c, e = arrays.centroid[i].astype(np.float64), BOX_SIGMAS * arrays.extent[i].astype(np.float64)
+            corners = np.array(
+                [
+                    [c[0] + sx * e[0], c[1] + sy * e[1], c[2] + sz * e[2]]
+                    for sx in (-1, 1)
+                    for sy in (-1, 1)
+                    for sz in (-1, 1)
+                ]
+            )
+            uv, z = _project(cam, corners)
+            for a in range(8):
+                for b in range(a + 1, 8):
+                    if (a ^ b).bit_count() == 1 and z[a] > 0 and z[b] > 0:  # corners one axis apart: an edge
+                        marks.append(
+                            Mark(
+                                "line",
+                                ((float(uv[a, 0]), float(uv[a, 1])), (float(uv[b, 0]), float(uv[b, 1]))),
+                                colour,
+                                0.0,
+                                max(1.0, scale),
+                            )
+                        )
+    return marks
+
+
+def _overlay(base: np.ndarray, camera: Camera, arrays: ParticleArrays, mode: str) -> np.ndarray:
+    img = Image.fromarray((np.clip(base * DIM, 0, 1) * 255 + 0.5).astype(np.uint8), "RGB")
+    draw = ImageDraw.Draw(img)
+    for m in overlay_marks(arrays, camera, mode):
+        colour = tuple(int(255 * c) for c in m.colour)
+        (u, v), r, w = m.points[0], m.radius, int(m.width)
+        if m.kind == "dot":
+            draw.ellipse([u - r, v - r, u + r, v + r], fill=colour, outline=(0, 0, 0), width=w)
+        elif m.kind == "ring":
+            draw.ellipse([u - r, v - r, u + r, v + r], outline=colour, width=w)
+        else:
+            draw.line([m.points[0], m.points[1]], fill=colour, width=w)
+    return np.asarray(img).astype(np.float64) / 255.0
+
+
+@torch.no_grad()
+def render_mode(
+    gaussians: Gaussians,
+    camera: Camera,
+    mode: RenderMode,
+    *,
+    background: Sequence[float] = (0.0, 0.0, 0.0),
+    arrays: ParticleArrays | None = None,
+) -> np.ndarray:
+    """One view of ``gaussians`` (the decoded scene, owner = particle index) as ``mode`` -> (H, W, 3) in [0, 1].
+
+    ``arrays``: the scene's particle arrays, needed by every mode but rgb and depth (ValueError without).
+    """
+    if mode not in MODES:
+        raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if mode in NEEDS_PARTICLES and arrays is None:
+        raise ValueError(f"--mode {mode} needs a model scene (particles), not a .ply")
+    g = gaussians.detach().to("cpu")
+    if mode == "foreground":
+        g = g.subset(g.owner >= 0)
+    elif mode == "background":
+        g = g.subset(g.owner < 0)
+    segment = mode in ("particles", "objects")
+    P = arrays.num_particles if arrays is not None else None
+    r = render(g, camera, background=background, owner_weights=segment, num_owners=P if segment else None)
+    if mode in ("rgb", "foreground", "background"):
+        return r.rgb.numpy().astype(np.float64)
+    if mode == "depth":
+        return depth_image(r.depth.numpy(), r.alpha.numpy())
+    if segment:
+        labels = r.segmentation(_object_labels(arrays) if mode == "objects" else None).numpy()
+        return _colour_map(labels)
+    return _overlay(r.rgb.numpy().astype(np.float64), camera, arrays, mode)
+
+
+def turntable_cameras(view: View, frames: int, width: int, height: int) -> list[Camera]:
+    """``frames`` cameras orbiting ``view``'s target once (azimuth += 360 / frames each; elevation, distance
+    and field of view kept), starting at ``view``."""
+    if frames < 1:
+        raise ValueError(f"--turntable must be >= 1 frames, got {frames}")
+    return [
+        View(
+            view.target, Look(view.look.azimuth + 360.0 * i / frames, view.look.elevation, view.look.distance), view.fov
+        ).camera(width, height)
+        for i in range(frames)
+    ]
+
+
+def turntable_paths(out: str | PathLike, frames: int) -> tuple[list[Path], Path]:
+    """Where a turntable goes: frames ``<stem>_NNN.png`` beside ``out``, and the animation at ``out`` when it
+    ends in .gif or .webp, else ``<stem>.gif``."""
+    out = Path(out)
+    stem = out.with_suffix("") if out.suffix.lower() in (*ANIMATIONS, ".png") else out
+    digits = max(3, len(str(frames - 1)))
+    anim = out if out.suffix.lower() in ANIMATIONS else stem.with_suffix(".gif")
+    return [stem.parent / f"{stem.name}_{i:0{digits}d}.png" for i in range(frames)], anim
+
+
+def save_animation(frames: list[np.ndarray], path: str | PathLike, frame_ms: int = FRAME_MS) -> Path:
+    """Write (H, W, 3) frames in [0, 1] as a looping animated GIF or WebP (by suffix), atomically."""
+    path = Path(path)
+    fmt = {".gif": "GIF", ".webp": "WEBP"}.get(path.suffix.lower())
+    if fmt is None:
+        raise ValueError(f"{path}: an animation must end in .gif or .webp")
+    images = [Image.fromarray((np.clip(f, 0, 1) * 255 + 0.5).astype(np.uint8), "RGB") for f in frames]
+    extra = {"lossless": True} if fmt == "WEBP" else {"optimize": False}
+    with atomic_path(path) as tmp:
+        images[0].save(tmp, format=fmt, save_all=True, append_images=images[1:], duration=frame_ms, loop=0, **extra)
+    return path
+
+
+def write_turntable(
+    gaussians: Gaussians,
+    view: View,
+    frames: int,
+    width: int,
+    height: int,
+    out: str | PathLike,
+    mode: RenderMode = "rgb",
+    *,
+    background: Sequence[float] = (0.0, 0.0, 0.0),
+    arrays: ParticleArrays | None = None,
+    save_frame: Callable[[Path, np.ndarray, Camera], None] | None = None,
+    progress: bool = False,
+) -> tuple[list[Path], Path]:
+    """Render a turntable of ``frames`` views (:func:`turntable_cameras`) in ``mode``; write each frame as a
+    PNG (``save_frame(path, rgb, camera)``, default a plain PNG) and the animation (:func:`turntable_paths`).
+    Returns (frame paths, animation path)."""
+    from tqdm import tqdm
+
+    from particlesplat.formats.png import save_png
+
+    paths, anim = turntable_paths(out, frames)
+    images = []
+    for path, cam in tqdm(
+        list(zip(paths, turntable_cameras(view, frames, width, height), strict=False)),
+        desc="turntable",
+        unit="frame",
+        disable=not progress,
+    ):
+        rgb = render_mode(gaussians, cam, mode, background=background, arrays=arrays)
+        (save_frame or (lambda p, x, c: save_png(p, x)))(path, rgb, cam)
+        images.append(rgb)
+    save_animation(images, anim, FRAME_MS if frames > 1 else 1000)
+    return paths, anim

@@ -1,0 +1,300 @@
+"""Particles as data: the particles of one encoded scene as plain arrays for downstream learners.
+
+:func:`encode_scene_arrays` encodes a scene folder and returns a :class:`ParticleArrays`; ``particlesplat
+encode`` writes one ``.npz`` per scene with the same arrays (:meth:`ParticleArrays.save`). For P particles,
+K objects and V context views (world metres, +z up, OpenCV cameras):
+
+- ``z_p`` (P, 2), ``z_s`` (P, 2), ``z_d`` (P, 1), ``z_e`` (P, 1), ``z_t`` (P, 1), ``z_f`` (P, D): the posterior
+  means of the latents (see :class:`particlesplat.model.Particles`); ``view`` (P,) the context view of each.
+- ``anchor`` (P, 3): the world point of ``z_p`` at the particle's depth d (the point an edit moves).
+- ``centroid`` (P, 3): the opacity-weighted mean of the particle's Gaussians.
+- ``extent`` (P, 3): the opacity-weighted standard deviation of those Gaussians along world x, y, z.
+- ``colour`` (P, 3): the opacity-weighted mean of their view-independent (SH degree 0) colour, in [0, 1].
+- ``active`` (P,) bool: the particle draws (:func:`drawing_particles`).
+- ``object`` (P,) int64: the object of an active particle, 0..K-1 (particles grouped by
+  :func:`particlesplat.editing.grouping.particle_objects`, numbered by their smallest particle index); -1 when inactive.
+- ``object_centroid`` (K, 3), ``object_extent`` (K, 3): per object (:func:`object_centres`).
+- ``K`` (V, 3, 3), ``c2w`` (V, 4, 4): the context cameras at the model's resolution (pixels; OpenCV).
+- ``meta``: a JSON string (model, checkpoint SHA-256, context frames, scene path, resolution, object centre
+  method, format version).
+
+Statistics are computed in float64 and stored as float32.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from particlesplat.core.atomic import atomic_path
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.sh import SH_C0
+from particlesplat.editing.grouping import (
+    OBJECT_CENTRES,
+    ObjectCentre,
+    dense_objects,
+    drawing_particles,
+    object_centres,
+    particle_objects,
+    weighted_stats,
+)
+from particlesplat.editing.move import anchor_points
+from particlesplat.model import Particles, ParticleSplat
+
+FORMAT_VERSION = 1
+ARRAY_NAMES = (
+    "z_p",
+    "z_s",
+    "z_d",
+    "z_e",
+    "z_t",
+    "z_f",
+    "view",
+    "anchor",
+    "centroid",
+    "extent",
+    "colour",
+    "active",
+    "object",
+    "object_centroid",
+    "object_extent",
+    "K",
+    "c2w",
+)
+
+
+@dataclass
+class ParticleArrays:
+    """The particles of one scene as numpy arrays (shapes and units in the module docstring).
+
+    ``meta`` is a dict here and a JSON string in the ``.npz`` file.
+    """
+
+    z_p: np.ndarray
+    z_s: np.ndarray
+    z_d: np.ndarray
+    z_e: np.ndarray
+    z_t: np.ndarray
+    z_f: np.ndarray
+    view: np.ndarray
+    anchor: np.ndarray
+    centroid: np.ndarray
+    extent: np.ndarray
+    colour: np.ndarray
+    active: np.ndarray
+    object: np.ndarray
+    object_centroid: np.ndarray
+    object_extent: np.ndarray
+    K: np.ndarray
+    c2w: np.ndarray
+    meta: dict
+
+    @property
+    def num_particles(self) -> int:
+        return int(self.z_p.shape[0])
+
+    @property
+    def num_objects(self) -> int:
+        return int(self.object_centroid.shape[0])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The ``.npz`` contents: every array plus ``meta`` as a 0-d unicode string array."""
+        out = {name: getattr(self, name) for name in ARRAY_NAMES}
+        out["meta"] = np.array(json.dumps(self.meta, sort_keys=True))
+        return out
+
+    def save(self, path: str | PathLike) -> Path:
+        """Write an uncompressed ``.npz`` atomically (temp file, then rename). Returns the path."""
+        path = Path(path)
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez(f, **self.arrays())
+        return path
+
+    @classmethod
+    def load(cls, path: str | PathLike) -> ParticleArrays:
+        """Read a ``.npz`` written by :meth:`save` (no pickles); ValueError names the file and the array."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no such .npz file")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                missing = [n for n in (*ARRAY_NAMES, "meta") if n not in data.files]
+                if missing:
+                    raise ValueError(f"{path}: missing array(s) {', '.join(missing)}")
+                values = {n: data[n] for n in ARRAY_NAMES}
+                meta = json.loads(str(data["meta"]))
+        except (OSError, EOFError) as e:
+            raise ValueError(f"{path}: not a readable .npz file ({e})") from e
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path}: meta: not valid JSON ({e})") from e
+        return cls(**values, meta=meta)
+
+
+def file_sha256(path: str | PathLike) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def particle_arrays(
+    model: ParticleSplat,
+    particles: Particles,
+    gaussians: Gaussians | None = None,
+    *,
+    object_centre: ObjectCentre = "resting",
+    meta: dict | None = None,
+) -> ParticleArrays:
+    """The arrays of already-encoded ``particles`` (``gaussians``: their decode with the background, decoded
+    here when None). ``meta`` is merged into the recorded metadata."""
+    if gaussians is None:
+        gaussians = model.decode(particles)
+    g = gaussians.detach().to("cpu")
+    p = particles.detach().to("cpu")
+    P = p.num
+    centroid, extent, _ = weighted_stats(g.means, g.opacities, g.owner, P)
+    dc = (SH_C0 * g.sh[:, 0, :].double() + 0.5).clamp(0.0, 1.0)  # (M, 3) view-independent colour
+    fg = (g.owner >= 0) & (g.owner < P)
+    w = g.opacities.double()[fg]
+    total = torch.zeros(P, dtype=torch.float64).index_add_(0, g.owner[fg], w)
+    colour = torch.zeros(P, 3, dtype=torch.float64).index_add_(0, g.owner[fg], w[:, None] * dc[fg])
+    colour = torch.where(total[:, None] > 0, colour / torch.where(total > 0, total, 1.0)[:, None], 0.0)
+    active = drawing_particles(p, g, model.config.bg_mask_threshold)
+    objects = dense_objects(particle_objects(g, P), active)
+    num_objects = int(objects.max()) + 1 if bool((objects >= 0).any()) else 0
+    obj_centre, obj_extent = object_centres(g, objects, num_objects, object_centre)
+    anchor = anchor_points(p, list(range(P)), model.config).double()
+    K = torch.stack([c.K for c in p.cameras]).double()
+    c2w = torch.stack([c.c2w for c in p.cameras]).double()
+    info = {
+        "format_version": FORMAT_VERSION,
+        "object_centre": object_centre,
+        "resolution": int(model.config.resolution),
+        "bg_mask_threshold": float(model.config.bg_mask_threshold),
+        "units": "metres, world +z up, OpenCV cameras",
+    }
+    info.update(meta or {})
+
+    def f32(t: Tensor) -> np.ndarray:
+        return t.detach().cpu().to(torch.float32).numpy()
+
+    return ParticleArrays(
+        z_p=f32(p.z_p),
+        z_s=f32(p.z_s),
+        z_d=f32(p.z_d),
+        z_e=f32(p.z_e),
+        z_t=f32(p.z_t),
+        z_f=f32(p.z_f),
+        view=p.view.cpu().to(torch.int64).numpy(),
+        anchor=f32(anchor),
+        centroid=f32(centroid),
+        extent=f32(extent),
+        colour=f32(colour),
+        active=active.numpy().astype(bool),
+        object=objects.numpy().astype(np.int64),
+        object_centroid=f32(obj_centre).reshape(num_objects, 3),
+        object_extent=f32(obj_extent).reshape(num_objects, 3),
+        K=f32(K),
+        c2w=f32(c2w),
+        meta=info,
+    )
+
+
+def encode_scene_arrays(
+    model: ParticleSplat,
+    scene: str | PathLike,
+    context: list[int] | None = None,
+    *,
+    object_centre: ObjectCentre = "resting",
+    meta: dict | None = None,
+) -> ParticleArrays:
+    """Encode the scene folder ``scene`` with ``model`` from the context frames ``context`` (None = the
+    viewer's default, :func:`particlesplat.core.viewpoints.default_context_views`) and return its arrays.
+
+    Example::
+
+        from particlesplat.model import load_model
+        from particlesplat.analysis.particle_arrays import encode_scene_arrays
+        arrays = encode_scene_arrays(load_model(), "assets/scenes/scene_00000", [4, 16])
+        arrays.object_centroid  # (K, 3) metres
+    """
+    from particlesplat.editing.open_scene import encode_scene
+
+    enc = encode_scene(model, scene, context)
+    info = {"scene": str(enc.path), "context": [int(i) for i in enc.context]}
+    info.update(meta or {})
+    return particle_arrays(model, enc.particles, object_centre=object_centre, meta=info)
+
+
+# ---------------------------------------------------------------------------- localisation
+LOCALISATION_RADII = (0.05, 0.10, 0.15)  # metres
+
+
+def scene_object_centres(scene_dir: str | PathLike) -> np.ndarray | None:
+    """(N, 3) true object centres (world metres) recorded by the scene generator in ``scene.json``
+    (``objects[i].center``), or None when the folder has no ``scene.json`` or it lists no objects."""
+    path = Path(scene_dir) / "scene.json"
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path}: not valid JSON ({e})") from e
+    objects = doc.get("objects") if isinstance(doc, dict) else None
+    if not objects:
+        return None
+    try:
+        centres = np.array([[float(v) for v in o["center"]] for o in objects], dtype=np.float64)
+    except (KeyError, TypeError, ValueError) as e:
+        raise ValueError(f"{path}: objects[].center: expected 3 numbers per object ({e})") from e
+    if centres.shape[1:] != (3,):
+        raise ValueError(f"{path}: objects[].center: expected 3 numbers per object")
+    return centres
+
+
+def nearest_distances(truth: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """(N,) distance (metres) from each true centre (N, 3) to the nearest predicted centre (K, 3); inf when
+    K is 0."""
+    truth = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
+    predicted = np.asarray(predicted, dtype=np.float64).reshape(-1, 3)
+    if predicted.shape[0] == 0:
+        return np.full(truth.shape[0], np.inf)
+    return np.linalg.norm(truth[:, None, :] - predicted[None, :, :], axis=-1).min(axis=1)
+
+
+def localisation_summary(distances) -> dict:
+    """{"objects": N, "mean_m", "median_m" (finite distances; inf counts in the shares only),
+    "within_0.05", "within_0.1", "within_0.15": share of objects within each radius}."""
+    d = np.asarray(list(distances), dtype=np.float64)
+    finite = d[np.isfinite(d)]
+    out = {
+        "objects": int(d.size),
+        "mean_m": float(finite.mean()) if finite.size else float("nan"),
+        "median_m": float(np.median(finite)) if finite.size else float("nan"),
+    }
+    for r in LOCALISATION_RADII:
+        out[f"within_{r:g}"] = float((d <= r).mean()) if d.size else float("nan")
+    return out
+
+
+def object_localisation(
+    model: ParticleSplat, particles: Particles, gaussians: Gaussians, truth: np.ndarray, groups: Tensor | None = None
+) -> dict[str, list[float]]:
+    """Distance from each true object centre (N, 3) to the nearest object centre of the drawing particles, per
+    object centre method (:data:`OBJECT_CENTRES`). gaussians: the scene's decode; groups: its
+    :func:`particle_objects` labels (computed when None)."""
+    g = gaussians.detach().to("cpu")
+    p = particles.detach().to("cpu")
+    groups = particle_objects(g, p.num) if groups is None else groups.cpu()
+    objects = dense_objects(groups, drawing_particles(p, g, model.config.bg_mask_threshold))
+    K = int(objects.max()) + 1 if bool((objects >= 0).any()) else 0
+    return {m: nearest_distances(truth, object_centres(g, objects, K, m)[0].numpy()).tolist() for m in OBJECT_CENTRES}

@@ -1,0 +1,1 @@
+"""Benchmarks of the library: renderer speed and edit fidelity."""

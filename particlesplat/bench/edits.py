@@ -1,0 +1,341 @@
+"""``particlesplat bench edits``: edit fidelity against ground truth (the uORF scene-manipulation protocol).
+
+For each held-out tabletop scene the generator draws ground-truth pairs from one scene: one object
+translated on the floor by 0.2-0.45 m, the same object removed, and a copy of it placed elsewhere on the
+floor. The original's context views are encoded; the edit is applied as the viewer applies it (pick the
+object by a pixel of a context frame, take its object group, translate by the true displacement in world
+metres; remove; duplicate by the true offset); every other input view is rendered and compared with the
+simulator's image of the edited scene. PSNR is taken over
+
+- ``changed``: the object's old and new ground-truth masks, dilated by ``--dilate`` pixels;
+- ``vacated``: where the object was and no longer is (old mask dilated, minus the new mask);
+- ``view``: the whole image;
+
+for the edit, a no-op edit (the original's encoding, unedited) and the ceiling (the model's own encoding of
+the edited scene's context views). Squared errors are pooled over a scene's rendered views, PSNR per scene,
+then averaged over the scenes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from particlesplat.analysis.metrics import psnr_of_mse
+from particlesplat.core.atomic import atomic_write
+from particlesplat.data.families import tabletop
+from particlesplat.data.scene import read_scene
+from particlesplat.data.synth import scene_rng, write_tabletop
+from particlesplat.editing.editor import Pick, PickError, SceneEditor
+from particlesplat.editing.move import MoveError
+from particlesplat.editing.open_scene import encode_scene, parse_context
+from particlesplat.rendering.api import render
+
+if TYPE_CHECKING:
+    from particlesplat.core.camera import Camera
+    from particlesplat.model.particles import Particles
+    from particlesplat.model.particlesplat import ParticleSplat
+
+KINDS = ("move", "remove", "duplicate")
+REGIONS = ("changed", "vacated", "view")
+VARIANTS = ("edit", "noop", "ceiling")
+MOVE_RANGE = (0.2, 0.45)  # metres on the floor
+MIN_PICK_PIXELS = 20  # the object must cover this many pixels of a context frame (stored size) to be picked
+
+
+def _fits(obj: tabletop.TabletopObject, others: list[tabletop.TabletopObject]) -> bool:
+    """On the floor (inside the checkerboard, within the generator's placement disc plus a margin) and clear
+    of every other object's footprint."""
+    x, y, _ = obj.center
+    r = obj.footprint_radius
+    if max(abs(x), abs(y)) + r > tabletop.FLOOR_HALF - 0.3 or math.hypot(x, y) > tabletop.CENTRE_RADIUS + 0.3:
+        return False
+    return all(math.hypot(x - o.center[0], y - o.center[1]) >= r + o.footprint_radius + 0.02 for o in others)
+
+
+def _moved(obj: tabletop.TabletopObject, dx: float, dy: float) -> tabletop.TabletopObject:
+    return replace(obj, center=(obj.center[0] + dx, obj.center[1] + dy, obj.center[2]))
+
+
+def edit_pairs(seed: int, split: str, index: int, res: int, context: list[int]) -> dict | None:
+    """The ground-truth scenes of one held-out scene: original, moved, removed, duplicated, with the edited
+    object, the move and copy offsets (metres), and the pick (a context-frame pixel deep inside the
+    object's ground-truth mask). None if no object can be moved and copied cleanly."""
+    scene = tabletop.sample_scene(scene_rng(seed, split, index))
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 7, index]))
+    from particlesplat.data.synth import scene_cameras
+
+    cams = scene_cameras(scene, res)
+    for k in rng.permutation(len(scene.objects)):
+        k = int(k)
+        obj, others = scene.objects[k], scene.objects[:k] + scene.objects[k + 1 :]
+        pick = None
+        best = 0
+        for f in context:
+            _, _, inst = tabletop.render_view(scene, cams[f].K.numpy(), cams[f].c2w.numpy(), res, res)
+            mask = torch.from_numpy(inst == k + 1)
+            if int(mask.sum()) >= max(MIN_PICK_PIXELS, best + 1):
+                best, pick = int(mask.sum()), Pick(f, _interior_pixel(mask))
+        if pick is None:
+            continue
+        move = dup = None
+        for _ in range(200):
+            if move is None:
+                dist, ang = rng.uniform(*MOVE_RANGE), rng.uniform(-math.pi, math.pi)
+                cand = (dist * math.cos(ang), dist * math.sin(ang))
+                if _fits(_moved(obj, *cand), others):
+                    move = cand
+            if dup is None:
+                dist, ang = rng.uniform(0.3, 1.2), rng.uniform(-math.pi, math.pi)
+                cand = (dist * math.cos(ang), dist * math.sin(ang))
+                if _fits(_moved(obj, *cand), scene.objects):
+                    dup = cand
+            if move is not None and dup is not None:
+                break
+        if move is None or dup is None:
+            continue
+        return {
+            "original": scene,
+            "object": k,
+            "pick": pick,
+            "offsets": {"move": move, "duplicate": dup},
+            "move": replace(scene, objects=others[:k] + [_moved(obj, *move)] + others[k:]),
+            "remove": replace(scene, objects=list(others)),
+            "duplicate": replace(scene, objects=scene.objects + [_moved(obj, *dup)]),
+        }
+    return None
+
+
+def _interior_pixel(mask: torch.Tensor) -> tuple[int, int]:
+    """(x, y) of the pixel of ``mask`` (H, W) bool farthest inside it (ties: nearest the mask's centroid)."""
+    depth = torch.zeros(mask.shape)
+    cur = mask.float()[None, None]
+    while bool(cur.any()):
+        depth += cur[0, 0]
+        cur = -F.max_pool2d(-cur, 3, stride=1, padding=1)
+    ys, xs = torch.nonzero(depth == depth.max(), as_tuple=True)
+    cy, cx = mask.nonzero().float().mean(0)
+    i = int(((ys.float() - cy) ** 2 + (xs.float() - cx) ** 2).argmin())
+    return int(xs[i]), int(ys[i])
+
+
+def _dilate(mask: torch.Tensor, px: int) -> torch.Tensor:
+    """(V, H, W) bool grown by ``px`` pixels (square)."""
+    if px <= 0:
+        return mask
+    return F.max_pool2d(mask.float()[:, None], 2 * px + 1, stride=1, padding=px)[:, 0] > 0
+
+
+def _renders(
+    model: ParticleSplat, particles: Particles, cameras: list[Camera], z_t_threshold: float | None = None
+) -> torch.Tensor:
+    """(V, 3, H, W) renders of the particles (edits applied) in ``cameras``."""
+    g = model.decode(particles, z_t_threshold=z_t_threshold).detach().to("cpu")
+    bg = model.background_color().detach().cpu()
+    with torch.no_grad():
+        return torch.stack([render(g, c, background=bg).rgb.permute(2, 0, 1) for c in cameras])
+
+
+def _sq_err(pred: torch.Tensor, gt: torch.Tensor, region: torch.Tensor) -> tuple[float, int]:
+    """(sum of squared error over ``region`` pixels (V, H, W) and the 3 channels, number of values)."""
+    err = ((pred.clamp(0, 1) - gt) ** 2).sum(1)
+    return float(err[region].sum()), int(region.sum()) * 3
+
+
+def bench_scene(
+    model: ParticleSplat,
+    seed: int,
+    split: str,
+    index: int,
+    res: int,
+    context: list[int],
+    dilate: int,
+    work: Path,
+    z_t_threshold: float | None = None,
+) -> dict | None:
+    """Edit-fidelity PSNR of one held-out scene: {kind: {variant: {region: dB}}}, plus the pick's outcome."""
+    pairs = edit_pairs(seed, split, index, res, context)
+    if pairs is None:
+        return None
+    folders = {}
+    for name in ("original", *KINDS):
+        folders[name] = work / f"{index:05d}_{name}"
+        if not folders[name].is_dir():
+            write_tabletop(
+                folders[name], pairs[name], res, {"seed": seed, "split": split, "index": index, "edit": name}
+            )
+    enc = encode_scene(model, folders["original"], context)
+    others = [i for i in range(len(enc.all_cameras)) if i not in context]
+    size = model.config.resolution
+    noop = None
+    out: dict = {
+        "scene": f"{split}/{index:05d}",
+        "object": pairs["object"],
+        "pick": list(pairs["pick"].pixel),
+        "pick_frame": pairs["pick"].frame,
+        "offsets": pairs["offsets"],
+    }
+    k = pairs["object"] + 1
+    orig_raw = read_scene(folders["original"]).select(others, size)
+    for kind in KINDS:
+        truth = read_scene(folders[kind]).select(others, size)
+        cams = truth.cameras
+        gt = truth.rgb
+        old = orig_raw.masks == k
+        new = truth.masks == (len(pairs[kind].objects) if kind == "duplicate" else (k if kind == "move" else -1))
+        if kind == "duplicate":
+            old = torch.zeros_like(old)  # the original stays: only the copy's place changes
+        regions = {
+            "changed": _dilate(old | new, dilate),
+            "vacated": _dilate(old, dilate) & ~new,
+            "view": torch.ones_like(old),
+        }
+        editor = SceneEditor(model, enc.particles, enc.all_cameras, context, z_t_threshold)
+        status = "ok"
+        try:
+            label = editor.pick(pairs["pick"])
+            dx, dy = pairs["offsets"].get(kind, (0.0, 0.0))
+            if kind == "move":
+                editor.move_object(label, [dx, dy, 0.0])
+            elif kind == "remove":
+                editor.remove_object(label)
+            else:
+                editor.duplicate_object(label, [dx, dy, 0.0])
+        except (PickError, MoveError) as e:
+            status = f"failed: {e}"
+        if noop is None:
+            noop = _renders(model, enc.particles, cams, z_t_threshold)
+        preds = {
+            "edit": _renders(model, editor.particles, cams, z_t_threshold),
+            "noop": noop,
+            "ceiling": _renders(model, encode_scene(model, folders[kind], context).particles, cams, z_t_threshold),
+        }
+        row = {"status": status, "pixels": {r: int(m.sum()) for r, m in regions.items()}}
+        for variant, pred in preds.items():
+            row[variant] = {}
+            for region, m in regions.items():
+                s, n = _sq_err(pred, gt, m)
+                row[variant][region] = {"sse": s, "n": n, "psnr": psnr_of_mse(s / n) if n else float("nan")}
+        out[kind] = row
+    return out
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Mean over scenes of the per-scene PSNR: {kind: {variant: {region: dB}}}; vacated is not defined for
+    duplicate (nothing leaves)."""
+    table: dict = {}
+    for kind in KINDS:
+        table[kind] = {}
+        for variant in VARIANTS:
+            table[kind][variant] = {}
+            for region in REGIONS:
+                vals = [r[kind][variant][region]["psnr"] for r in rows if r[kind]["pixels"][region] > 0]
+                table[kind][variant][region] = float(np.mean(vals)) if vals else float("nan")
+        table[kind]["failed"] = sum(r[kind]["status"] != "ok" for r in rows)
+    return table
+
+
+def format_table(table: dict, n: int) -> str:
+    lines = [
+        f"edit fidelity on {n} held-out scenes (PSNR dB, mean over scenes; ceiling = the model's own encoding "
+        "of the edited scene)",
+        f"{'edit':<10} {'region':<8} {'edit':>6} {'no-op':>6} {'ceiling':>7} {'gap':>6}",
+    ]
+    for kind in KINDS:
+        for region in REGIONS:
+            if kind == "duplicate" and region == "vacated":
+                continue
+            e, o, c = (table[kind][v][region] for v in VARIANTS)
+            lines.append(f"{kind:<10} {region:<8} {e:6.2f} {o:6.2f} {c:7.2f} {c - e:6.2f}")
+        if table[kind]["failed"]:
+            lines.append(f"{kind:<10} {table[kind]['failed']} edit(s) failed (pick or move refused; scored unedited)")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="particlesplat bench edits",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped assets/model.pt)")
+    parser.add_argument("--scenes", type=int, default=12, help="held-out scenes")
+    parser.add_argument("--start", type=int, default=0, help="first scene index of the split")
+    parser.add_argument("--seed", type=int, default=0, help="dataset seed (0 = the shipped model's dataset)")
+    parser.add_argument("--split", default="test", choices=("val", "test"), help="held-out split of the generator")
+    parser.add_argument("--res", type=int, default=128, help="stored image size of the generated scenes")
+    parser.add_argument("--context", default="4,16", help="context frames")
+    parser.add_argument(
+        "--dilate", type=int, default=1, help="pixels (at the model's resolution) the object masks are grown by"
+    )
+    parser.add_argument("--work", default=None, help="folder for the generated scenes (default: a temporary one)")
+    parser.add_argument(
+        "--z-t-threshold",
+        type=float,
+        default=None,
+        help="the particles that draw (default: the model's, as the viewer; 0 = every particle, "
+        "the faint inactive ones too, as before they were dropped)",
+    )
+    parser.add_argument("--json", default="bench_edits.json", help="write per-scene and mean results here")
+    args = parser.parse_args(argv)
+    from particlesplat.core.atomic import check_writable
+    from particlesplat.model import load_model
+
+    if args.scenes < 1:
+        parser.error(f"--scenes must be >= 1, got {args.scenes}")
+    check_writable(args.json)  # before half an hour of work, not after it
+
+    torch.set_num_threads(min(2, torch.get_num_threads()))
+    model = load_model(args.checkpoint)
+    context = parse_context(args.context)
+    rows, skipped = [], []
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(args.work) if args.work else Path(tmp)
+        index = args.start
+        while len(rows) < args.scenes:
+            row = bench_scene(
+                model, args.seed, args.split, index, args.res, context, args.dilate, work, args.z_t_threshold
+            )
+            if row is None:
+                skipped.append(index)
+            else:
+                rows.append(row)
+                print(
+                    f"scene {index:3d}: move {row['move']['edit']['changed']['psnr']:.2f} / ceiling "
+                    f"{row['move']['ceiling']['changed']['psnr']:.2f} dB (changed), {row['move']['status']}",
+                    file=sys.stderr,
+                )
+            index += 1
+    table = summarise(rows)
+    print(format_table(table, len(rows)))
+    out = {
+        "checkpoint": args.checkpoint or "assets/model.pt",
+        "z_t_threshold": args.z_t_threshold,
+        "seed": args.seed,
+        "split": args.split,
+        "context": context,
+        "dilate": args.dilate,
+        "res": args.res,
+        "skipped": skipped,
+        "seconds": time.perf_counter() - t0,
+        "machine": platform.machine(),
+        "mean": table,
+        "scenes": rows,
+    }
+    with atomic_write(args.json, "w") as f:
+        json.dump(out, f, indent=1)
+    print(f"wrote {args.json}")
+    return 0

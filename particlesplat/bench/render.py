@@ -1,0 +1,184 @@
+"""``particlesplat bench render``: speed against error of the tiled renderer.
+
+Each case runs in a fresh subprocess so that its peak resident memory is its own. For every
+N and image size: forward ms, forward+backward ms, peak memory, max abs error against a float64
+dense brute force (where it fits), and the same timings of the naive dense all-pairs renderer
+(where it fits) with the speed ratio.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import time
+
+import torch
+
+from particlesplat.core.camera import Camera
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.rendering.api import render
+from particlesplat.rendering.dense import render_dense
+
+DENSE_MAX_PAIRS = 5e7  # pixels × Gaussians above which the dense fwd+bwd does not fit (~1 KB per pair)
+REFERENCE_MAX_PAIRS = 1e9  # the float64 brute force runs in pixel chunks; above this it takes minutes
+
+
+def bench_scene(n: int, size: int, seed: int = 0) -> tuple[Gaussians, Camera]:
+    """N random Gaussians (SH degree 1) filling a 2×2×1 m box seen from 3 m; a few px each at 128²."""
+    gen = torch.Generator().manual_seed(seed)
+    means = (torch.rand(n, 3, generator=gen) - 0.5) * torch.tensor([2.0, 2.0, 1.0])
+    quats = torch.randn(n, 4, generator=gen)
+    scales = torch.exp(torch.randn(n, 3, generator=gen) * 0.5) * 0.012
+    opacities = torch.rand(n, generator=gen) * 0.9 + 0.05
+    sh = torch.randn(n, 4, 3, generator=gen) * 0.3
+    owner = torch.randint(-1, 8, (n,), generator=gen)
+    cam = Camera.orbit((0.0, 0.0, 0.0), 20.0, 30.0, 3.0, width=size, height=size)
+    return Gaussians(means, quats, scales, opacities, sh, owner), cam
+
+
+def _time(fn, repeats: int) -> float:
+    fn()  # warm-up (twice: first calls initialise lazily)
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return 1000.0 * statistics.median(times)
+
+
+def _fwd_bwd(renderer, g: Gaussians, cam: Camera):
+    params = [t.detach().requires_grad_() for t in (g.means, g.quats, g.scales, g.opacities, g.sh)]
+    gg = Gaussians(*params, g.owner)
+
+    def step():
+        out = renderer(gg, cam)
+        rgb, alpha, depth = (out.rgb, out.alpha, out.depth) if hasattr(out, "rgb") else out
+        (rgb.sum() + alpha.sum() + depth.sum()).backward()
+
+    return step
+
+
+def run_case(n: int, size: int, repeats: int) -> dict:
+    """Measure one case in this process (called in a subprocess by :func:`main`)."""
+    g, cam = bench_scene(n, size)
+    base_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with torch.no_grad():
+        fwd = _time(lambda: render(g, cam), repeats)
+    fwd_bwd = _time(_fwd_bwd(render, g, cam), repeats)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    row = {
+        "n": n,
+        "size": size,
+        "fwd_ms": fwd,
+        "fwd_bwd_ms": fwd_bwd,
+        "peak_mb": peak / 1024,
+        "peak_over_base_mb": (peak - base_rss) / 1024,
+    }
+    pairs = n * size * size
+    if pairs <= REFERENCE_MAX_PAIRS:
+        with torch.no_grad():
+            out = render(g, cam)
+            ref = render_dense(
+                g.to(dtype=torch.float64), cam.to(dtype=torch.float64), pixel_chunk=max(1, int(2e7 // n))
+            )
+        err = torch.cat(
+            [
+                (a.double() - b).abs().reshape(size, size, -1)
+                for a, b in zip((out.rgb, out.alpha, out.depth), ref, strict=True)
+            ],
+            dim=-1,
+        ).amax(-1)  # (H, W)
+        row["max_abs_err"] = float(err.max())
+        row["pixels_over_1e-5"] = int((err > 1e-5).sum())
+    if pairs <= DENSE_MAX_PAIRS:
+        row["dense_fwd_bwd_ms"] = _time(_fwd_bwd(render_dense, g, cam), max(1, repeats // 3))
+        row["speedup"] = row["dense_fwd_bwd_ms"] / row["fwd_bwd_ms"]
+    return row
+
+
+def machine_line() -> str:
+    model = platform.processor() or "unknown CPU"
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return (
+        f"machine: {os.cpu_count()} cores ({model}), torch {torch.__version__}, "
+        f"{torch.get_num_threads()} threads, python {platform.python_version()}"
+    )
+
+
+def _fmt(row: dict, key: str, spec: str) -> str:
+    return format(row[key], spec) if key in row else "n/a"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="particlesplat bench render", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--n", type=int, nargs="+", default=[2000, 10000, 50000], help="Gaussian counts")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[64, 128, 512], help="square image sizes")
+    parser.add_argument("--repeats", type=int, default=5, help="timed repeats per case (median)")
+    parser.add_argument("--json", help="also write the rows to this JSON file")
+    parser.add_argument("--case", nargs=2, type=int, metavar=("N", "SIZE"), help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.case:
+        print(json.dumps(run_case(args.case[0], args.case[1], args.repeats)))
+        return 0
+    print(machine_line())
+    header = (
+        "| N | size | fwd ms | fwd+bwd ms | peak RSS MB (over start) | max abs err vs f64 brute force | "
+        "pixels > 1e-5 | dense fwd+bwd ms | speed-up vs dense |"
+    )
+    print(header)
+    print("|---" * (header.count("|") - 1) + "|")
+    rows = []
+    for n in args.n:
+        for size in args.sizes:
+            proc = subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "particlesplat.bench.render",
+                    "--case",
+                    str(n),
+                    str(size),
+                    "--repeats",
+                    str(args.repeats),
+                ],
+                capture_output=True,
+                text=True,
+            )
+            if proc.returncode != 0:
+                print(f"case N={n} size={size} failed:\n{proc.stderr}", file=sys.stderr)
+                return 1
+            row = json.loads(proc.stdout.strip().splitlines()[-1])
+            rows.append(row)
+            print(
+                f"| {n} | {size}² | {row['fwd_ms']:.1f} | {row['fwd_bwd_ms']:.1f} | "
+                f"{row['peak_mb']:.0f} ({row['peak_over_base_mb']:.0f}) | {_fmt(row, 'max_abs_err', '.1e')} | "
+                f"{_fmt(row, 'pixels_over_1e-5', 'd')} | "
+                f"{_fmt(row, 'dense_fwd_bwd_ms', '.0f')} | {_fmt(row, 'speedup', '.1f')} |",
+                flush=True,
+            )
+    if args.json:
+        from particlesplat.core.atomic import atomic_write
+
+        with atomic_write(args.json, "w") as f:
+            json.dump({"machine": machine_line(), "rows": rows}, f, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

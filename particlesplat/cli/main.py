@@ -1,0 +1,89 @@
+"""The ``particlesplat`` command: subcommands are loaded lazily from their own modules.
+
+Each subcommand module defines ``add_arguments(parser)`` and ``run(args) -> int``.
+Benchmarks are found through the ``particlesplat.bench`` entry-point group, so the library
+never imports the viewer itself.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from importlib.metadata import entry_points
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "synth": ("particlesplat.cli.synth", "generate a scene dataset"),
+    "train": ("particlesplat.cli.train", "train a ParticleSplat model"),
+    "eval": ("particlesplat.cli.eval", "evaluate a model on a folder of scenes"),
+    "render": ("particlesplat.cli.render", "render a (possibly edited) scene headless to PNG"),
+    "encode": ("particlesplat.cli.encode", "write the particles of scene folders as .npz arrays"),
+    "object": ("particlesplat.cli.object", "export an object to .ply, or insert it into another scene"),
+    "curve": ("particlesplat.cli.curve", "plot a training run's validation curve to PNG"),
+    "bench": ("", "run a benchmark: " + ", ".join(sorted(e.name for e in entry_points(group="particlesplat.bench")))),
+}
+
+
+def _top_help() -> str:
+    lines = [
+        "usage: particlesplat <command> [options]",
+        "",
+        "ParticleSplat Studio: object-centric latent particles decoded into 3D Gaussians.",
+        "",
+        "commands:",
+    ]
+    lines += [f"  {name:<8} {desc}" for name, (_, desc) in COMMANDS.items()]
+    lines += ["", "Run 'particlesplat <command> --help' for a command's options."]
+    return "\n".join(lines)
+
+
+def _run_bench(argv: list[str]) -> int:
+    benches = {e.name: e for e in entry_points(group="particlesplat.bench")}
+    if not argv or argv[0] in ("-h", "--help"):
+        print("usage: particlesplat bench <name> [options]\n\nbenchmarks:")
+        for name in sorted(benches):
+            print(f"  {name}")
+        print("\nRun 'particlesplat bench <name> --help' for its options.")
+        return 0
+    if argv[0] not in benches:
+        print(
+            f"particlesplat bench: unknown benchmark '{argv[0]}' (have: {', '.join(sorted(benches))})", file=sys.stderr
+        )
+        return 2
+    return int(benches[argv[0]].load()(argv[1:]) or 0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(_top_help())
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(f"particlesplat: unknown command '{name}'\n\n{_top_help()}", file=sys.stderr)
+        return 2
+    if name == "bench":
+        return _run_bench(rest)
+    module = importlib.import_module(COMMANDS[name][0])
+    parser = argparse.ArgumentParser(
+        prog=f"particlesplat {name}",
+        description=COMMANDS[name][1],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    module.add_arguments(parser)
+    from particlesplat.core.viewpoints import attach_option_values
+
+    args = parser.parse_args(attach_option_values(rest))  # --look -30,20,3: a negative azimuth
+    return int(module.run(args) or 0)
+
+
+def console_main() -> int:
+    """The console script under the error policy (:func:`particlesplat.core.errors.run_command`): bad input
+    (ValueError, OSError) ends with one line naming the file and the field and exit code 2, Ctrl-C with one
+    line and 130; a bug keeps its traceback. :func:`main` itself lets the exceptions through for programmatic
+    use and tests.
+    """
+    from particlesplat.core.errors import one_line, run_command
+
+    command = one_line(sys.argv[1], 40) if len(sys.argv) > 1 else ""
+    return run_command(f"particlesplat {command}".strip(), main)

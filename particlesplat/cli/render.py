@@ -1,0 +1,228 @@
+"""``particlesplat render``: render a (possibly edited) scene headless with the torch renderer.
+
+The default camera is the viewer's default view (:func:`particlesplat.core.viewpoints.default_view`);
+``--look AZ,EL,DIST`` and ``--fov DEG`` mean what they mean in ``particlesplat-viewer``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from particlesplat.analysis.figures import MODES, NEEDS_PARTICLES
+from particlesplat.core.camera import Camera
+from particlesplat.core.viewpoints import View, check_fov, default_view, parse_look, scene_background
+from particlesplat.editing.open_scene import (
+    add_source_arguments,
+    check_source_arguments,
+    load_model_scene,
+    load_ply_checked,
+)
+
+DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
+MAX_SIDE = 8192  # pixels, as the viewer's --size
+MAX_PIXELS = 4096 * 4096  # the torch renderer holds ~20 floats a pixel: ~1.3 GB at this size
+
+
+def _background(text: str) -> tuple[float, float, float]:
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--background: expected R,G,B numbers in [0, 1], got {text!r}") from None
+    if len(vals) != 3 or not all(0.0 <= v <= 1.0 for v in vals):
+        raise argparse.ArgumentTypeError(f"--background: expected R,G,B numbers in [0, 1], got {text!r}")
+    return vals  # type: ignore[return-value]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_source_arguments(parser, ply_help="render a 3DGS .ply instead of a model scene")
+    cam = parser.add_mutually_exclusive_group()
+    cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
+    cam.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
+    cam.add_argument(
+        "--camera-from",
+        metavar="PNG",
+        help="the camera of a viewer screenshot or a rendered PNG (its 'camera' chunk); --width/--height rescale it",
+    )
+    parser.add_argument(
+        "--fov",
+        type=float,
+        help="vertical field of view in degrees (with --look or the default view); none = the scene's",
+    )
+    parser.add_argument(
+        "--width",
+        type=int,
+        help="image width in pixels; none = 640 (with --view and --height: from the input camera's aspect)",
+    )
+    parser.add_argument(
+        "--height",
+        type=int,
+        help="image height in pixels; none = 480 (with --view: from the "
+        "width and the input camera's aspect, never stretched)",
+    )
+    parser.add_argument(
+        "--background",
+        type=_background,
+        default=None,
+        help="background colour R,G,B (default: the model's learned background colour, if it "
+        "has one, else 0.12,0.14,0.18)",
+    )
+    parser.add_argument("--prune", type=float, default=0.0, help="drop Gaussians with opacity below this")
+    parser.add_argument(
+        "--out",
+        required=True,
+        help="output PNG (with --turntable: the animation, .gif or .webp; frames OUT_STEM_NNN.png beside it)",
+    )
+    parser.add_argument(
+        "--mode",
+        choices=MODES,
+        default="rgb",
+        help="layer to render: the scene, depth, segmentation by particle or object, foreground or "
+        "background alone, or the particles' 3D keypoints or boxes over the scene",
+    )
+    parser.add_argument(
+        "--turntable",
+        type=int,
+        default=0,
+        help="N > 0: N frames orbiting the default target (or --look) once, as PNGs plus an animated GIF/WebP",
+    )
+
+
+def _scene_and_gaussians(args: argparse.Namespace):
+    """(Gaussians, all input cameras, edits dict, model name, source, background colour, particle arrays or None)
+    for the arguments (the arrays only for a --mode that draws from the particles)."""
+    check_source_arguments(args)
+    if args.ply:
+        return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None), None
+    from particlesplat.editing.editor import SceneEditor, load_edit_file, scene_mismatch
+
+    model, enc, name = load_model_scene(args.checkpoint, args.scene, args.context)
+    for warning in enc.warnings:
+        print(f"particlesplat render: warning: {warning}", file=sys.stderr)
+    particles, edits = enc.particles, {}
+    if args.edits:  # version 1 (particle values) or 2 (object operations, replayed as the viewer did them)
+        file = load_edit_file(args.edits)
+        warning = scene_mismatch(file, enc.path, enc.context)
+        if warning:
+            print(f"particlesplat render: warning: {args.edits}: {warning}", file=sys.stderr)
+        editor = SceneEditor(model, particles, enc.all_cameras, enc.context)
+        editor.apply_file(file, str(args.edits))
+        particles, edits = editor.particles, editor.edits()
+    g = model.decode(particles).detach().to("cpu")
+    arrays = None
+    if getattr(args, "mode", "rgb") in NEEDS_PARTICLES:
+        from particlesplat.analysis.particle_arrays import particle_arrays
+
+        arrays = particle_arrays(model, particles, g)
+    return g, enc.all_cameras, edits, name, str(enc.path), scene_background(model), arrays
+
+
+def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -> tuple[Camera, View | None]:
+    """The camera of ``--view`` / ``--look`` / ``--fov`` / default view at --width x --height.
+
+    With ``--view`` a missing --width or --height follows the input camera's aspect ratio (an
+    input view is never stretched unless both are given).
+    """
+    for name in ("width", "height"):
+        if getattr(args, name) is not None and not 1 <= getattr(args, name) <= MAX_SIDE:
+            raise ValueError(f"--{name} must be in [1, {MAX_SIDE}], got {getattr(args, name)}")
+    if getattr(args, "camera_from", None):
+        from particlesplat.formats.png import camera_from_png
+
+        if args.fov is not None:
+            raise ValueError("--fov applies to --look or the default view, not to --camera-from")
+        cam = camera_from_png(args.camera_from)
+        width, height = args.width, args.height
+        if width is None and height is None:
+            return cam, None
+        if height is None:
+            height = max(1, round(width * cam.height / cam.width))
+        elif width is None:
+            width = max(1, round(height * cam.width / cam.height))
+        return cam.resized(width, height), None
+    if args.view is not None:
+        if not cameras:
+            raise ValueError("--view needs a scene with input cameras")
+        if not 0 <= args.view < len(cameras):
+            raise ValueError(f"--view {args.view}: the scene has {len(cameras)} cameras (0..{len(cameras) - 1})")
+        if args.fov is not None:
+            raise ValueError("--fov applies to --look or the default view, not to --view")
+        cam = cameras[args.view]
+        width, height = args.width, args.height
+        if height is None:
+            width = width or DEFAULT_WIDTH
+            height = max(1, round(width * cam.height / cam.width))
+        elif width is None:
+            width = max(1, round(height * cam.width / cam.height))
+        return cam.resized(width, height), None
+    base = default_view(cameras or None, None if cameras else gaussians)
+    view = View(
+        base.target,
+        parse_look(args.look) if args.look else base.look,
+        check_fov(args.fov) if args.fov is not None else base.fov,
+    )
+    return view.camera(args.width or DEFAULT_WIDTH, args.height or DEFAULT_HEIGHT), view
+
+
+def run(args: argparse.Namespace) -> int:
+    from particlesplat.core.atomic import check_writable
+    from particlesplat.core.errors import EXIT_USER, one_line
+    from particlesplat.formats.png import png_text, save_png
+
+    try:
+        try:
+            check_writable(args.out)  # before the work, not after it
+        except OSError as e:
+            raise OSError(f"--out {one_line(e)}") from None
+        if args.turntable < 0:
+            raise ValueError(f"--turntable must be >= 0 frames, got {args.turntable}")
+        if args.turntable and args.view is not None:
+            raise ValueError("--turntable orbits the default target: use --look (or nothing), not --view")
+        if args.mode in NEEDS_PARTICLES and args.ply:
+            raise ValueError(f"--mode {args.mode} needs a model scene (particles), not --ply")
+        g, cameras, edits, model_name, source, background, arrays = _scene_and_gaussians(args)
+        camera, view = resolve_camera(args, cameras, g)
+        if camera.width > MAX_SIDE or camera.height > MAX_SIDE or camera.width * camera.height > MAX_PIXELS:
+            raise ValueError(
+                f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
+                f"({MAX_SIDE} a side, {MAX_PIXELS} pixels)"
+            )
+    except (OSError, ValueError, KeyError) as e:
+        print(f"particlesplat render: {one_line(e)}", file=sys.stderr)
+        return EXIT_USER
+    if args.prune > 0:
+        g = g.subset(g.opacities >= args.prune)
+    from particlesplat.analysis.figures import render_mode, write_turntable
+
+    background = background if args.background is None else args.background
+    extra = {"scene": source, "mode": args.mode}
+    if view is not None:
+        extra.update(
+            look=f"{view.look.azimuth:.6g},{view.look.elevation:.6g},{view.look.distance:.6g}", fov=f"{view.fov:.6g}"
+        )
+    try:
+        if args.turntable:
+            frames, anim = write_turntable(
+                g,
+                view,
+                args.turntable,
+                camera.width,
+                camera.height,
+                args.out,
+                args.mode,
+                background=background,
+                arrays=arrays,
+                save_frame=lambda p, rgb, c: save_png(p, rgb, png_text(c, edits, model_name, extra)),
+            )
+            print(f"saved {anim} and {len(frames)} frames {frames[0]} .. {frames[-1]} ({camera.width}x{camera.height})")
+            return 0
+        path = save_png(
+            args.out,
+            render_mode(g, camera, args.mode, background=background, arrays=arrays),
+            png_text(camera, edits, model_name, extra),
+        )
+    except OSError as e:
+        print(f"particlesplat render: --out {args.out}: cannot write ({one_line(e.strerror or e)})", file=sys.stderr)
+        return EXIT_USER
+    print(f"saved {path} ({camera.width}x{camera.height}, {g.num} Gaussians)")
+    return 0

@@ -1,0 +1,164 @@
+"""The default view and the ``--look AZ,EL,DIST`` / ``--fov DEG`` camera semantics shared by the
+viewer and ``particlesplat render``.
+
+A view is an orbit about a target point in a +z-up world (see :meth:`Camera.orbit_eye`):
+azimuth 0 looks along +y, positive azimuth turns counter-clockwise seen from above, elevation
+is the angle above the horizontal plane through the target, distance is in metres. ``fov`` is
+the vertical field of view in degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from particlesplat.core.camera import Camera
+from particlesplat.core.gaussians import Gaussians
+
+DEFAULT_FOV = 40.0  # degrees, vertical
+DEFAULT_ELEVATION = 25.0  # degrees, for scenes without cameras
+DEFAULT_BACKGROUND = (0.12, 0.14, 0.18)  # the viewer's and ``particlesplat render``'s background colour
+
+
+def scene_background(model=None) -> tuple[float, float, float]:
+    """The colour behind a scene: the model's learned background colour (``learned_background``), else
+    :data:`DEFAULT_BACKGROUND` (also for a .ply, ``model`` None)."""
+    if model is not None and model.config.learned_background:
+        return tuple(float(c) for c in model.background_color().detach().cpu())
+    return DEFAULT_BACKGROUND
+
+
+@dataclass(frozen=True)
+class Look:
+    """Orbit parameters: azimuth and elevation in degrees, distance in metres."""
+
+    azimuth: float
+    elevation: float
+    distance: float
+
+
+@dataclass(frozen=True)
+class View:
+    """A full orbit view: target (x, y, z) metres, look, vertical fov in degrees."""
+
+    target: tuple[float, float, float]
+    look: Look
+    fov: float
+
+    def camera(self, width: int, height: int) -> Camera:
+        """The camera of this view at ``width`` x ``height`` pixels."""
+        return Camera.orbit(
+            self.target,
+            self.look.azimuth,
+            self.look.elevation,
+            self.look.distance,
+            fov_y_deg=self.fov,
+            width=width,
+            height=height,
+        )
+
+
+def parse_look(text: str) -> Look:
+    """``"AZ,EL,DIST"`` (degrees, degrees, metres) -> :class:`Look`; ValueError names the field."""
+    parts = [p.strip() for p in str(text).split(",")]
+    if len(parts) != 3:
+        raise ValueError(f"--look: expected AZ,EL,DIST (three comma-separated numbers), got {text!r}")
+    try:
+        az, el, dist = (float(p) for p in parts)
+    except ValueError as e:
+        raise ValueError(f"--look: expected numbers AZ,EL,DIST, got {text!r}") from e
+    if not all(math.isfinite(v) for v in (az, el, dist)):
+        raise ValueError(f"--look: values must be finite, got {text!r}")
+    if not -90.0 < el < 90.0:
+        raise ValueError(f"--look: elevation must be in (-90, 90) degrees, got {el}")
+    if dist <= 0:
+        raise ValueError(f"--look: distance must be positive, got {dist}")
+    return Look(az, el, dist)
+
+
+def attach_option_values(argv: list[str], options: tuple[str, ...] = ("--look",)) -> list[str]:
+    """``["--look", "-30,20,3"]`` -> ``["--look=-30,20,3"]``: argparse takes a value that starts with ``-``
+    (a negative azimuth) for an option, so the value is attached to its option first."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in options and i + 1 < len(argv) and argv[i + 1][:1] == "-" and argv[i + 1][1:2].isdigit():
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(argv[i])
+        i += 1
+    return out
+
+
+def check_fov(fov: float) -> float:
+    """Validate a vertical field of view in degrees."""
+    if not (math.isfinite(fov) and 1.0 <= fov <= 170.0):
+        raise ValueError(f"--fov: vertical field of view must be in [1, 170] degrees, got {fov}")
+    return float(fov)
+
+
+def look_from_eye(target: Tensor, eye: Tensor) -> Look:
+    """Inverse of :meth:`Camera.orbit_eye`: target, eye (3,) -> Look."""
+    off = (eye.double() - target.double()).tolist()
+    dist = math.sqrt(sum(v * v for v in off))
+    if dist < 1e-9:
+        raise ValueError("look_from_eye: eye and target coincide")
+    el = math.degrees(math.asin(max(-1.0, min(1.0, off[2] / dist))))
+    az = math.degrees(math.atan2(off[0], -off[1]))
+    return Look(az, el, dist)
+
+
+def focus_point(cameras: list[Camera]) -> Tensor:
+    """(3,) the point closest (least squares) to all cameras' optical axes; for one camera (or
+    parallel axes) the point 3 m in front of the first camera."""
+    A = torch.zeros(3, 3, dtype=torch.float64)
+    b = torch.zeros(3, dtype=torch.float64)
+    for cam in cameras:
+        c2w = cam.c2w.detach().double().cpu()
+        d = c2w[:3, 2] / c2w[:3, 2].norm()
+        P = torch.eye(3, dtype=torch.float64) - torch.outer(d, d)
+        A += P
+        b += P @ c2w[:3, 3]
+    if len(cameras) >= 2 and float(torch.linalg.cond(A)) < 1e6:
+        return torch.linalg.solve(A, b)
+    c2w = cameras[0].c2w.detach().double().cpu()
+    return c2w[:3, 3] + 3.0 * c2w[:3, 2] / c2w[:3, 2].norm()
+
+
+def default_view(cameras: list[Camera] | None = None, gaussians: Gaussians | None = None) -> View:
+    """The default view of a scene.
+
+    With cameras (a scene folder): orbit about :func:`focus_point` of all cameras, from the
+    middle camera's direction and distance, with its vertical field of view.
+    With Gaussians only (a .ply): about the median of the means, azimuth 0, elevation 25°, at a
+    distance that frames the 90th-percentile radius in a 40° view.
+    """
+    if cameras:
+        target = focus_point(cameras)
+        mid = cameras[len(cameras) // 2]
+        look = look_from_eye(target, mid.center.detach().cpu())
+        return View(tuple(float(v) for v in target), look, round(mid.fov_y, 6))
+    if gaussians is not None and gaussians.num:
+        means = gaussians.means.detach().double().cpu()
+        target = means.median(0).values
+        radius = float(torch.quantile((means - target).norm(dim=-1), 0.9)) if means.shape[0] > 1 else 1.0
+        dist = max(radius, 1e-3) / math.tan(math.radians(DEFAULT_FOV) / 2.0) * 1.1
+        return View(tuple(float(v) for v in target), Look(0.0, DEFAULT_ELEVATION, dist), DEFAULT_FOV)
+    return View((0.0, 0.0, 0.0), Look(0.0, DEFAULT_ELEVATION, 3.0), DEFAULT_FOV)
+
+
+def default_context_views(num_frames: int) -> list[int]:
+    """The context frames the viewer and ``particlesplat render`` encode by default: two frames
+    12 apart about the middle of the trajectory (4 and 16 of 21), clipped to what exists."""
+    if num_frames < 1:
+        raise ValueError("a scene needs at least one frame")
+    if num_frames == 1:
+        return [0]
+    mid = num_frames // 2
+    left = max(0, mid - 6)
+    right = min(num_frames - 1, mid + 6)
+    return [left, right] if right > left else [left]

@@ -1,0 +1,1 @@
+"""Object edits: grouping particles into objects, moves, named do/undo operations, edit files, insert/export."""

@@ -1,0 +1,865 @@
+"""Object edits: operations on objects picked by a pixel of an input frame, their do/undo history, edit files.
+
+The viewer and ``particlesplat render --edits`` both go through :class:`SceneEditor`, so a saved file
+replays what the user did. Edit files, version 2 (version 1, particle index -> attribute values, still
+loads; see :mod:`particlesplat.editing.particle_edits`)::
+
+    version: 2
+    scene: assets/scenes/scene_00000        # optional; a warning when it names another scene
+    context: [4, 16]                        # optional: the context frames the edits were made on
+    operations:
+      - pick: {frame: 4, pixel: [61, 70]}   # the object under pixel (x, y) of input frame 4 (stored image)
+        translate: [0.20, -0.10, 0.0]       # world metres
+      - pick: {frame: 16, pixel: [40, 52]}
+        remove: true
+      - pick: {frame: 4, pixel: [30, 33]}
+        duplicate: [0.0, 0.5, 0.0]          # a copy of the object (new particles), offset in world metres
+      - particle: 3                         # one particle's attributes (the viewer's sliders)
+        set: {z_t: [0.0]}
+      - insert: {scene: assets/scenes/scene_00001, context: [4, 16], object: 0, at: [0.8, 0.5]}
+                                            # object 0 of another scene (numbered as particlesplat encode's
+                                            # `object`), its centre placed at (x, y) on this scene's floor
+
+Operations apply in order; each pick is resolved on the scene as the operations before it left it, by
+rendering that input camera and taking the object whose particles weigh most at the pixel. An object is a
+group of particles (:func:`particlesplat.editing.grouping.particle_objects`, grouped once on the scene as encoded);
+a copy is an object of its own. Rotation is not an operation: a particle is a patch lifted along its own
+view's rays (position z_p, scale z_s, depth z_d, extent z_e), with no latent for its orientation, so
+turning an object would show each view's patch edge-on rather than the object's other side.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from os import PathLike
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+import torch
+import yaml
+from torch import Tensor
+
+from particlesplat.core.atomic import atomic_write
+from particlesplat.core.camera import Camera
+from particlesplat.core.errors import short_repr
+from particlesplat.editing.grouping import particle_objects
+from particlesplat.editing.move import MoveError, anchor_points, translate
+from particlesplat.editing.particle_edits import (
+    Edits,
+    EditsError,
+    apply_edits,
+    check_indices,
+    diff_edits,
+    finite_float32,
+    read_edit_document,
+    validate_edits,
+)
+from particlesplat.model.particles import EDITABLE, Particles
+from particlesplat.rendering.api import render
+
+if TYPE_CHECKING:
+    from particlesplat.model.particlesplat import ParticleSplat
+
+FORMAT_VERSION = 2
+OpKind = Literal["translate", "remove", "duplicate", "set", "insert"]
+OBJECT_KINDS: tuple[OpKind, ...] = ("translate", "remove", "duplicate")
+PER_PARTICLE = ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f", "view")  # Particles fields with one row per particle
+MIN_PICK_PIXELS = 2  # an object must cover this many pixels of a frame to be picked there when saving
+
+
+class PickError(EditsError):
+    """A pick hits no object (or names a frame or pixel the scene does not have)."""
+
+
+@dataclass(frozen=True)
+class Pick:
+    """The object under ``pixel`` (x, y: column, row of the stored image) of input frame ``frame``."""
+
+    frame: int
+    pixel: tuple[int, int]
+
+
+@dataclass(frozen=True)
+class Insert:
+    """Object ``object`` of scene folder ``scene`` (encoded from ``context``, None = the default frames; objects
+    numbered as ``particlesplat encode``'s ``object`` array) placed with its centre at ``at`` (x, y) world
+    metres on the edited scene's floor (:func:`particlesplat.editing.compose.insert_object`)."""
+
+    scene: str
+    object: int
+    at: tuple[float, float]
+    context: tuple[int, ...] | None = None
+
+
+@dataclass(frozen=True)
+class EditOp:
+    """One operation of an edit file.
+
+    Attributes:
+        kind: translate / remove / duplicate (an object, by ``pick``) or set (a particle's attributes).
+        pick: which object (object kinds).
+        offset: (3,) world metres (translate: the move; duplicate: the copy's offset from the original).
+        particle: the particle index (set).
+        values: ((name, values), ...) absolute attribute values (set), names of ``EDITABLE``.
+        insert: the object of another scene and where it goes (insert).
+    """
+
+    kind: OpKind
+    pick: Pick | None = None
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    particle: int | None = None
+    values: tuple[tuple[str, tuple[float, ...]], ...] = ()
+    insert: Insert | None = None
+
+
+@dataclass
+class EditFile:
+    """A parsed edit file: ``operations`` (version 2) or ``particles`` (version 1 edits)."""
+
+    version: int
+    operations: list[EditOp] = field(default_factory=list)
+    particles: Edits = field(default_factory=dict)
+    scene: str | None = None
+    model: str | None = None
+    context: list[int] | None = None
+
+
+# ---------------------------------------------------------------------------------------------- files
+def _numbers(value: Any, n: int, where: str) -> tuple[float, ...]:
+    seq = value if isinstance(value, (list, tuple)) else [value]
+    if len(seq) != n or any(
+        isinstance(v, bool) or not isinstance(v, (int, float)) or not finite_float32(v) for v in seq
+    ):
+        raise EditsError(
+            f"{where}: expected {n} finite number(s) (float32: |value| <= 3.4e38), got {short_repr(value)}"
+        )
+    return tuple(float(v) for v in seq)
+
+
+def _int(value: Any, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise EditsError(f"{where}: expected a non-negative integer, got {short_repr(value)}")
+    return int(value)
+
+
+def _parse_insert(item: dict, where: str) -> Insert:
+    if set(item) != {"insert"}:
+        raise EditsError(f"{where}: an insert operation has the one key insert, got {sorted(item)}")
+    spec = item["insert"]
+    if (
+        not isinstance(spec, dict)
+        or not {"scene", "object", "at"} <= set(spec)
+        or set(spec) - {"scene", "object", "at", "context"}
+    ):
+        raise EditsError(
+            f"{where}.insert: expected {{scene: DIR, object: K, at: [x, y], context: [..] (optional)}}, "
+            f"got {short_repr(spec)}"
+        )
+    if not isinstance(spec["scene"], str) or not spec["scene"]:
+        raise EditsError(f"{where}.insert.scene: expected a scene folder, got {short_repr(spec['scene'])}")
+    context = spec.get("context")
+    if context is not None and (
+        not isinstance(context, list)
+        or not context
+        or not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in context)
+    ):
+        raise EditsError(f"{where}.insert.context: expected a list of frame indices, got {short_repr(context)}")
+    at = _numbers(spec["at"], 2, f"{where}.insert.at")
+    return Insert(
+        spec["scene"],
+        _int(spec["object"], f"{where}.insert.object"),
+        (at[0], at[1]),
+        None if context is None else tuple(context),
+    )
+
+
+def _parse_op(item: Any, where: str) -> EditOp:
+    if not isinstance(item, dict):
+        raise EditsError(f"{where}: expected a mapping (pick + translate/remove/duplicate, particle + set, or insert)")
+    if "insert" in item:
+        return EditOp("insert", insert=_parse_insert(item, where))
+    if "particle" in item:
+        unknown = set(item) - {"particle", "set"}
+        if unknown or "set" not in item:
+            raise EditsError(f"{where}: a particle operation has the keys particle and set, got {sorted(item)}")
+        index = _int(item["particle"], f"{where}.particle")
+        edits = validate_edits({index: item["set"]}, where)
+        return EditOp("set", particle=index, values=tuple(sorted(edits.get(index, {}).items())))
+    kinds = [k for k in OBJECT_KINDS if k in item]
+    unknown = set(item) - {"pick", *OBJECT_KINDS}
+    if unknown:
+        raise EditsError(
+            f"{where}: unknown key(s) {sorted(unknown)} (expected pick and one of "
+            f"{', '.join(OBJECT_KINDS)}, or particle and set)"
+        )
+    if "pick" not in item or len(kinds) != 1:
+        raise EditsError(f"{where}: expected pick and exactly one of {', '.join(OBJECT_KINDS)}")
+    pick = item["pick"]
+    if not isinstance(pick, dict) or set(pick) != {"frame", "pixel"}:
+        raise EditsError(f"{where}.pick: expected {{frame: F, pixel: [x, y]}}, got {short_repr(pick)}")
+    pixel = pick["pixel"]
+    if not isinstance(pixel, (list, tuple)) or len(pixel) != 2:
+        raise EditsError(f"{where}.pick.pixel: expected [x, y], got {short_repr(pixel)}")
+    p = Pick(
+        _int(pick["frame"], f"{where}.pick.frame"),
+        (_int(pixel[0], f"{where}.pick.pixel"), _int(pixel[1], f"{where}.pick.pixel")),
+    )
+    kind = kinds[0]
+    if kind == "remove":
+        if item["remove"] is not True:
+            raise EditsError(f"{where}.remove: expected true, got {short_repr(item['remove'])}")
+        return EditOp("remove", pick=p)
+    return EditOp(kind, pick=p, offset=_numbers(item[kind], 3, f"{where}.{kind}"))  # type: ignore[arg-type]
+
+
+def parse_edit_file(data: Any, where: str = "edits") -> EditFile:
+    """Check a parsed edit document, version 1 or 2 (a bare particle mapping is version 1)."""
+    if isinstance(data, dict) and data.get("version") == FORMAT_VERSION:
+        unknown = set(data) - {"version", "operations", "scene", "model", "context"}
+        if unknown:
+            raise EditsError(
+                f"{where}: unknown key(s) {sorted(unknown)} (expected version, operations, scene, model, context)"
+            )
+        ops = data.get("operations") or []
+        if not isinstance(ops, list):
+            raise EditsError(f"{where}: operations: expected a list, got {type(ops).__name__}")
+        context = data.get("context")
+        if context is not None and (
+            not isinstance(context, list) or not all(isinstance(c, int) and not isinstance(c, bool) for c in context)
+        ):
+            raise EditsError(f"{where}: context: expected a list of frame indices, got {short_repr(context)}")
+        return EditFile(
+            2,
+            [_parse_op(item, f"{where}: operations[{i}]") for i, item in enumerate(ops)],
+            scene=None if data.get("scene") is None else str(data["scene"]),
+            model=None if data.get("model") is None else str(data["model"]),
+            context=context,
+        )
+    if isinstance(data, dict) and "version" in data and data["version"] not in (1, FORMAT_VERSION):
+        raise EditsError(f"{where}: version: expected 1 or {FORMAT_VERSION}, got {short_repr(data['version'])}")
+    scene = data.get("scene") if isinstance(data, dict) else None
+    return EditFile(1, particles=validate_edits(data, where), scene=None if scene is None else str(scene))
+
+
+def load_edit_file(path: str | PathLike) -> EditFile:
+    """Read an edit file (version 1 or 2) with :func:`particlesplat.core.yamlsafe.read_yaml` (safe tags, no aliases,
+    no duplicate keys); errors name the file and the field."""
+    return parse_edit_file(read_edit_document(path), str(path))
+
+
+def op_to_yaml(op: EditOp) -> dict[str, Any]:
+    """The YAML mapping of one operation (inverse of the parser)."""
+    if op.kind == "set":
+        return {"particle": int(op.particle), "set": {k: [float(x) for x in v] for k, v in op.values}}
+    if op.kind == "insert":
+        spec = {
+            "scene": op.insert.scene,
+            "object": int(op.insert.object),
+            "at": [round(float(v), 6) for v in op.insert.at],
+        }
+        if op.insert.context is not None:
+            spec["context"] = [int(c) for c in op.insert.context]
+        return {"insert": spec}
+    out: dict[str, Any] = {
+        "pick": {"frame": int(op.pick.frame), "pixel": [int(op.pick.pixel[0]), int(op.pick.pixel[1])]}
+    }
+    out[op.kind] = True if op.kind == "remove" else [round(float(v), 6) for v in op.offset]
+    return out
+
+
+def save_edit_file(
+    path: str | PathLike,
+    ops: list[EditOp],
+    *,
+    scene: str | None = None,
+    model: str | None = None,
+    context: list[int] | None = None,
+) -> Path:
+    """Write a version 2 edit file atomically (temp file + rename); returns the path."""
+    doc: dict[str, Any] = {"version": FORMAT_VERSION}
+    if scene is not None:
+        doc["scene"] = str(scene)
+    if model is not None:
+        doc["model"] = str(model)
+    if context is not None:
+        doc["context"] = [int(c) for c in context]
+    doc["operations"] = [op_to_yaml(op) for op in ops]
+    with atomic_write(path, "w") as f:
+        yaml.safe_dump(doc, f, sort_keys=False, default_flow_style=None)
+    return Path(path)
+
+
+def scene_mismatch(file: EditFile, scene_path: str | PathLike, context: list[int] | None = None) -> str | None:
+    """A warning when an edit file names another scene (folder name) or other context frames, else None."""
+    notes = []
+    if file.scene is not None and Path(file.scene).name != Path(scene_path).name:
+        notes.append(f"they were made on scene {file.scene}, this is {scene_path}")
+    if file.context is not None and context is not None and list(file.context) != list(context):
+        notes.append(f"they were made with context frames {file.context}, these are {list(context)}")
+    return "; ".join(notes) or None
+
+
+# ---------------------------------------------------------------------------------------------- history
+@dataclass(frozen=True)
+class SetAttribute:
+    """One attribute change of one particle."""
+
+    index: int
+    name: str
+    old: tuple[float, ...]
+    new: tuple[float, ...]
+
+
+@dataclass
+class Operation:
+    """A do/undo step: attribute changes applied together, and particles it appends (a duplicate).
+
+    Attributes:
+        label: what the history shows.
+        changes: attribute changes (applied after ``added`` is appended).
+        open_key: set while a drag gesture may still extend this operation.
+        kind: what an edit file records it as (object kinds save a pick; set saves the changed values).
+        members: the particles of the object it acts on (object kinds).
+        offset: (3,) world metres of a translate or duplicate (a drag adds up).
+        added: particles appended by the operation (their values before ``changes``), or None.
+        added_labels: (len(added),) object labels of the appended particles.
+        sources: rows of the appended particles in :meth:`SceneEditor.origin` (insert; else those of ``members``).
+        insert: what an insert operation inserted (saved as such).
+        before: the particles as they were before the operation (to pick its object when saving).
+    """
+
+    label: str
+    changes: list[SetAttribute]
+    open_key: tuple | None = None
+    kind: OpKind = "set"
+    members: tuple[int, ...] = ()
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    added: Particles | None = None
+    added_labels: Tensor | None = None
+    before: Particles | None = None
+    sources: tuple[int, ...] = ()
+    insert: Insert | None = None
+
+
+@dataclass
+class History:
+    """Undo and redo stacks of operations."""
+
+    undo: list[Operation] = field(default_factory=list)
+    redo: list[Operation] = field(default_factory=list)
+
+
+def append_particles(particles: Particles, indices: list[int]) -> Particles:
+    """A copy of ``particles`` with copies of particles ``indices`` appended (same view, latents)."""
+    idx = torch.as_tensor(indices, dtype=torch.long, device=particles.z_p.device)
+    return replace(
+        particles,
+        **{
+            f: torch.cat([getattr(particles, f), getattr(particles, f)[idx]])
+            for f in PER_PARTICLE
+            if getattr(particles, f) is not None
+        },
+    )
+
+
+def truncate_particles(particles: Particles, num: int) -> Particles:
+    """The first ``num`` particles."""
+    return replace(
+        particles, **{f: getattr(particles, f)[:num] for f in PER_PARTICLE if getattr(particles, f) is not None}
+    )
+
+
+# ---------------------------------------------------------------------------------------------- editor
+class SceneEditor:
+    """Particles of one scene under edit, as named do/undo operations.
+
+    Args:
+        model: the ParticleSplat model that decodes the particles.
+        particles: the encoded particles (kept as the original), or None (nothing to edit).
+        frame_cameras: the scene's input cameras at their stored size, indexed by frame (picks name these).
+        context: the context frame indices (saved in edit files; picks try them first).
+        z_t_threshold: the particles that draw (None: the model's, :meth:`ParticleSplat.decode`; 0 draws the
+            inactive ones too, as before they were dropped: for measuring that).
+    """
+
+    def __init__(
+        self,
+        model: ParticleSplat,
+        particles: Particles | None,
+        frame_cameras: list[Camera] | None = None,
+        context: list[int] | None = None,
+        z_t_threshold: float | None = None,
+    ) -> None:
+        self.model = model
+        self.z_t_threshold = z_t_threshold
+        self.frame_cameras = list(frame_cameras or [])
+        self.context = list(context) if context is not None else None
+        self.history = History()
+        self.original: Particles | None = particles.detach().to("cpu") if particles is not None else None
+        self.particles: Particles | None = self.original.clone() if self.original is not None else None
+        self._objects: Tensor | None = None
+        self._source: list[int] = list(range(self.original.num)) if self.original is not None else []
+        self._inserted: Particles | None = None  # inserted particles as inserted: origin() rows past the original
+        self._changed: set[int] = set()
+        self._all_changed = True
+        self.version = 0  # bumps on every change of the Gaussians
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def editable(self) -> bool:
+        return self.particles is not None
+
+    @property
+    def num_particles(self) -> int:
+        return self.particles.num if self.particles is not None else 0
+
+    def value(self, index: int, name: str) -> tuple[float, ...]:
+        return tuple(float(v) for v in self.particles.attribute(index, name).tolist())
+
+    def origin(self) -> Particles:
+        """The particles as encoded, followed by every particle inserted from another scene as it was inserted
+        (the rows :meth:`original_value` and :meth:`object_offset` refer to)."""
+        return self.original if self._inserted is None else _cat(self.original, self._inserted)
+
+    def original_value(self, index: int, name: str) -> tuple[float, ...]:
+        """The encoded value (a copy's: that of the particle it was copied from; an inserted one's: as inserted)."""
+        return tuple(float(v) for v in self.origin().attribute(self._source[index], name).tolist())
+
+    @property
+    def active_threshold(self) -> float:
+        """z_t at and above which a particle draws: the model's ``bg_mask_threshold`` (the decoder drops
+        particles below it, :meth:`ParticleSplat.decode`), else 0.5."""
+        return float(getattr(getattr(self.model, "config", None), "bg_mask_threshold", 0.5))
+
+    def is_active(self, index: int) -> bool:
+        """Active = draws: z_t at or above :attr:`active_threshold`."""
+        return float(self.particles.z_t[index, 0]) >= self.active_threshold
+
+    def edits(self) -> Edits:
+        """Version 1 edits (absolute values) of the encoded particles; copies are not part of them."""
+        if self.particles is None:
+            return {}
+        return diff_edits(self.original, truncate_particles(self.particles, self.original.num))
+
+    def decode(self, particles: Particles | None = None):
+        """All Gaussians (edits applied, background included) on the CPU."""
+        p = self.particles if particles is None else particles
+        return self.model.decode(p, z_t_threshold=self.z_t_threshold).detach().to("cpu")
+
+    def objects(self) -> Tensor:
+        """(num_particles,) int64 object label per particle: grouped once on the scene as encoded
+        (:func:`particlesplat.editing.grouping.particle_objects`), so an edit does not regroup it; a copy's label is
+        its first particle's index."""
+        if self._objects is None:
+            self._objects = particle_objects(self.decode(self.original), self.original.num)
+        labels = self._objects
+        for op in self.history.undo:
+            if op.added_labels is not None:
+                labels = torch.cat([labels, op.added_labels])
+        return labels
+
+    def object_members(self, index: int) -> list[int]:
+        """The particles of particle ``index``'s object (:meth:`objects`), ascending."""
+        labels = self.objects()
+        return [int(j) for j in torch.nonzero(labels == labels[index]).flatten()]
+
+    def object_offset(self, index: int) -> tuple[float, float, float]:
+        """World offset (metres) of particle ``index``'s anchor from where it (or what it copies) was encoded."""
+        cfg = self.model.config
+        now = anchor_points(self.particles, [index], cfg)[0]
+        was = anchor_points(self.origin(), [self._source[index]], cfg)[0]
+        return tuple(float(v) for v in now - was)
+
+    def take_changes(self) -> set[int] | None:
+        """Particles whose Gaussians changed since the last call; None = everything (or the count) changed."""
+        if self._all_changed:
+            self._all_changed, self._changed = False, set()
+            return None
+        out, self._changed = self._changed, set()
+        return out
+
+    # ------------------------------------------------------------------ picking
+    def _frame_camera(self, frame: int, where: str) -> Camera:
+        if not 0 <= frame < len(self.frame_cameras):
+            raise PickError(f"{where}: pick.frame {frame}: the scene has frames 0..{len(self.frame_cameras) - 1}")
+        return self.frame_cameras[frame]
+
+    def object_map(self, frame: int, particles: Particles | None = None, where: str = "pick") -> Tensor:
+        """(H, W) int64 object label per pixel of input frame ``frame`` at its stored size (-1 background)."""
+        p = self.particles if particles is None else particles
+        cam = self._frame_camera(frame, where)
+        with torch.no_grad():
+            res = render(
+                self.decode(p),
+                cam.to("cpu", torch.float32),
+                background=self.model.background_color().cpu(),
+                owner_weights=True,
+                num_owners=p.num,
+            )
+        labels = self.objects()
+        return res.segmentation(labels[: p.num])
+
+    def pick(self, pick: Pick, where: str = "pick") -> int:
+        """The object label (= its first particle) under ``pick`` on the current particles; PickError names
+        ``where`` when the pixel shows no object."""
+        cam = self._frame_camera(pick.frame, where)
+        x, y = pick.pixel
+        if not (0 <= x < cam.width and 0 <= y < cam.height):
+            raise PickError(f"{where}: pick.pixel [{x}, {y}] is outside frame {pick.frame} ({cam.width}x{cam.height})")
+        label = int(self.object_map(pick.frame, where=where)[y, x])
+        if label < 0:
+            raise PickError(f"{where}: pick {{frame: {pick.frame}, pixel: [{x}, {y}]}} hits no object (background)")
+        return label
+
+    def pick_for(self, index: int, particles: Particles | None = None) -> Pick:
+        """A pixel of an input frame that picks particle ``index``'s object on ``particles`` (default: now):
+        the object's most interior pixel in the context frame (else any frame) where it covers most pixels."""
+        label = int(self.objects()[index])
+        frames = list(self.context or []) + [f for f in range(len(self.frame_cameras)) if f not in (self.context or [])]
+        best: tuple[int, int, Tensor] | None = None
+        for i, f in enumerate(frames):
+            mask = self.object_map(f, particles) == label
+            count = int(mask.sum())
+            if count >= MIN_PICK_PIXELS and (best is None or count > best[1]):
+                best = (f, count, mask)
+            if best is not None and i + 1 >= len(self.context or []):
+                break  # the context frames are searched in full, the others until one shows the object
+        if best is None:
+            raise PickError(f"object of particle {index}: not visible in any input frame, so no pick names it")
+        f, _, mask = best
+        depth = torch.zeros(mask.shape, dtype=torch.float32)
+        cur = mask.float()[None, None]
+        while bool(cur.any()):  # erosion depth: the pixel farthest inside the object
+            depth += cur[0, 0]
+            cur = -torch.nn.functional.max_pool2d(-cur, 3, stride=1, padding=1)
+        ys, xs = torch.nonzero(depth == depth.max(), as_tuple=True)
+        cy, cx = mask.nonzero().float().mean(0)
+        k = int(((ys.float() - cy) ** 2 + (xs.float() - cx) ** 2).argmin())
+        return Pick(f, (int(xs[k]), int(ys[k])))
+
+    # ------------------------------------------------------------------ operations
+    def _apply(self, op: Operation, forward: bool) -> None:
+        if forward and op.added is not None:
+            self.particles = _cat(self.particles, op.added)
+            self._source += list(op.sources) if op.sources else [self._source[i] for i in op.members]
+            self._all_changed = True
+        for ch in op.changes if forward else reversed(op.changes):
+            self.particles = self.particles.with_attribute(ch.index, ch.name, ch.new if forward else ch.old)
+            self._changed.add(ch.index)
+        if not forward and op.added is not None:
+            self.particles = truncate_particles(self.particles, self.particles.num - op.added.num)
+            del self._source[self.particles.num :]
+            self._all_changed = True
+        self.version += 1
+
+    def _push(self, op: Operation) -> None:
+        op.before = self.particles
+        self.history.undo.append(op)  # first: objects() then counts a duplicate's labels
+        self._apply(op, True)
+        self.history.redo.clear()
+
+    def _check_editable(self, index: int) -> None:
+        if not self.editable:
+            raise ValueError("this scene has no particles to edit (opened from a .ply)")
+        if not 0 <= index < self.num_particles:
+            raise IndexError(f"particle {index} out of range (0..{self.num_particles - 1})")
+
+    def _record(self, op: Operation) -> None:
+        """Apply ``op``, or, when the last operation is the open gesture ``op.open_key``, extend it (each
+        attribute keeps the old value it had when the gesture began; offsets add up)."""
+        last = self.history.undo[-1] if self.history.undo else None
+        if op.open_key is not None and last is not None and last.open_key == op.open_key:
+            merged = {(c.index, c.name): c for c in last.changes}
+            for c in op.changes:
+                first = merged.get((c.index, c.name), c)
+                merged[(c.index, c.name)] = SetAttribute(c.index, c.name, first.old, c.new)
+            last.changes = list(merged.values())
+            last.offset = tuple(a + b for a, b in zip(last.offset, op.offset, strict=False))
+            self._apply(replace(op, added=None), True)
+            return
+        self._push(op)
+
+    def set_attribute(self, index: int, name: str, value, gesture: str | None = None) -> None:
+        """Set attribute ``name`` (width of EDITABLE[name]) of particle ``index``.
+
+        gesture: an id of an ongoing drag; consecutive calls with the same gesture, index and
+        name extend one operation (one undo step per drag) until :meth:`end_gesture`.
+        """
+        self._check_editable(index)
+        if name not in EDITABLE:
+            raise KeyError(f"'{name}' is not an editable attribute ({', '.join(EDITABLE)})")
+        new = tuple(float(v) for v in (value if isinstance(value, (list, tuple)) else [value]))
+        if len(new) != EDITABLE[name]:
+            raise ValueError(f"{name} needs {EDITABLE[name]} value(s), got {len(new)}")
+        if name == "z_t":
+            new = (min(1.0, max(0.0, new[0])),)
+        old = self.value(index, name)
+        if new == old:
+            return
+        self._record(
+            Operation(
+                f"set {name} of particle {index}",
+                [SetAttribute(index, name, old, new)],
+                (gesture, index, name) if gesture is not None else None,
+            )
+        )
+
+    def _members_label(self, members: list[int]) -> str:
+        return f"particle{'s' if len(members) > 1 else ''} {', '.join(map(str, members))}"
+
+    def move_object(self, index: int, delta, gesture: str | None = None) -> None:
+        """Translate every particle of particle ``index``'s object by ``delta`` (3,) world metres (one
+        operation; consecutive calls with the same ``gesture`` extend it until :meth:`end_gesture`).
+        Raises :class:`particlesplat.editing.move.MoveError` (nothing changed) if a particle would leave the
+        model's depth range."""
+        self._check_editable(index)
+        members = self.object_members(index)
+        delta = tuple(float(v) for v in torch.as_tensor(delta, dtype=torch.float64).reshape(3).tolist())
+        target = translate(self.particles, members, delta, self.model.config)
+        changes = [
+            SetAttribute(i, name, self.value(i, name), value)
+            for i, attrs in target.items()
+            for name, value in attrs.items()
+            if value != self.value(i, name)
+        ]
+        if changes:
+            self._record(
+                Operation(
+                    f"move object of {self._members_label(members)}",
+                    changes,
+                    (gesture, "move", tuple(members)) if gesture is not None else None,
+                    kind="translate",
+                    members=tuple(members),
+                    offset=delta,
+                )
+            )
+
+    def remove_object(self, index: int) -> None:
+        """Remove particle ``index``'s object: its particles' z_t go to 0, so they no longer draw."""
+        self._check_editable(index)
+        members = self.object_members(index)
+        changes = [
+            SetAttribute(i, "z_t", self.value(i, "z_t"), (0.0,)) for i in members if self.value(i, "z_t") != (0.0,)
+        ]
+        if not changes:
+            return  # already removed
+        self.end_gesture()
+        self._push(
+            Operation(
+                f"remove object of {self._members_label(members)}", changes, kind="remove", members=tuple(members)
+            )
+        )
+
+    def duplicate_object(self, index: int, offset) -> int:
+        """Copy particle ``index``'s object (new particles, the same latents) and move the copy by ``offset``
+        (3,) world metres. Returns the copy's first particle (its object label). Raises MoveError."""
+        self._check_editable(index)
+        members = self.object_members(index)
+        offset = tuple(float(v) for v in torch.as_tensor(offset, dtype=torch.float64).reshape(3).tolist())
+        n = self.num_particles
+        grown = append_particles(self.particles, members)
+        new = list(range(n, n + len(members)))
+        target = translate(grown, new, offset, self.model.config)
+        changes = [
+            SetAttribute(i, name, tuple(float(v) for v in grown.attribute(i, name).tolist()), value)
+            for i, attrs in target.items()
+            for name, value in attrs.items()
+        ]
+        self.end_gesture()
+        added = replace(grown, **{f: getattr(grown, f)[n:] for f in PER_PARTICLE if getattr(grown, f) is not None})
+        self._push(
+            Operation(
+                f"duplicate object of {self._members_label(members)}",
+                changes,
+                kind="duplicate",
+                members=tuple(members),
+                offset=offset,
+                added=added,
+                added_labels=torch.full((len(members),), n, dtype=torch.int64),
+            )
+        )
+        return n
+
+    def insert_object(self, source: Particles, insert: Insert) -> int:
+        """Insert object ``insert.object`` of another scene's particles ``source`` (encoded with this model) with
+        its centre at ``insert.at`` on this scene's floor (:func:`particlesplat.editing.compose.insert_object`): new
+        particles, editable like the scene's own. Returns the first new particle (the object's label). Raises
+        ValueError (no such object) or MoveError."""
+        from particlesplat.editing.compose import insert_object
+
+        if not self.editable:
+            raise ValueError("this scene has no particles to edit (opened from a .ply)")
+        n = self.num_particles
+        grown, new = insert_object(self.model, self.particles, source, insert.object, insert.at)
+        added = replace(grown, **{f: getattr(grown, f)[n:] for f in PER_PARTICLE if getattr(grown, f) is not None})
+        added = added.detach().to("cpu")
+        rows = self.original.num + (0 if self._inserted is None else self._inserted.num)
+        self._inserted = added if self._inserted is None else _cat(self._inserted, added)
+        self.end_gesture()
+        self._push(
+            Operation(
+                f"insert object {insert.object} of {Path(insert.scene).name}",
+                [],
+                kind="insert",
+                added=added,
+                added_labels=torch.full((len(new),), n, dtype=torch.int64),
+                sources=tuple(range(rows, rows + len(new))),
+                insert=insert,
+            )
+        )
+        return n
+
+    def end_gesture(self) -> None:
+        """Close the open drag operation, if any."""
+        if self.history.undo:
+            self.history.undo[-1].open_key = None
+
+    def reset_particle(self, index: int) -> None:
+        """Restore all editable attributes of particle ``index`` to the encoded values."""
+        changes = [
+            SetAttribute(index, n, self.value(index, n), self.original_value(index, n))
+            for n in EDITABLE
+            if self.value(index, n) != self.original_value(index, n)
+        ]
+        if changes:
+            self.end_gesture()
+            self._push(Operation(f"reset particle {index}", changes))
+
+    def set_edits(self, edits: Edits, label: str = "load edits") -> None:
+        """Set the encoded particles to version 1 ``edits`` (absolute values; unnamed ones as encoded) in one
+        operation."""
+        check_indices(edits, self.original.num, label)
+        target = apply_edits(self.original, edits, label)
+        changes = []
+        for name in EDITABLE:
+            for index in range(self.original.num):
+                old, new = self.value(index, name), tuple(float(v) for v in target.attribute(index, name).tolist())
+                if old != new:
+                    changes.append(SetAttribute(index, name, old, new))
+        if changes:
+            self.end_gesture()
+            self._push(Operation(label, changes))
+
+    def undo(self) -> bool:
+        """Undo the last operation; False if there is none."""
+        if not self.history.undo:
+            return False
+        op = self.history.undo[-1]
+        op.open_key = None
+        self._apply(op, False)
+        self.history.undo.pop()
+        self.history.redo.append(op)
+        return True
+
+    def redo(self) -> bool:
+        """Redo the last undone operation; False if there is none."""
+        if not self.history.redo:
+            return False
+        op = self.history.redo.pop()
+        self.history.undo.append(op)
+        self._apply(op, True)
+        return True
+
+    # ------------------------------------------------------------------ edit files
+    def apply_op(self, op: EditOp, where: str = "operation") -> None:
+        """Do one edit-file operation (a pick is resolved on the current particles). Errors name ``where``."""
+        if op.kind == "set":
+            if not 0 <= op.particle < self.num_particles:
+                raise EditsError(
+                    f"{where}: particle {op.particle}: no such particle (the scene has {self.num_particles})"
+                )
+            changes = [
+                SetAttribute(op.particle, n, self.value(op.particle, n), tuple(v))
+                for n, v in op.values
+                if self.value(op.particle, n) != tuple(v)
+            ]
+            if changes:
+                self.end_gesture()
+                self._push(Operation(f"set particle {op.particle}", changes))
+            return
+        if op.kind == "insert":
+            from particlesplat.editing.open_scene import encode_scene
+
+            try:
+                source = encode_scene(
+                    self.model, op.insert.scene, None if op.insert.context is None else list(op.insert.context)
+                ).particles
+                self.insert_object(source, op.insert)
+            except (MoveError, ValueError, OSError) as e:
+                raise EditsError(f"{where}: insert: {e}") from None
+            return
+        index = self.pick(op.pick, where)
+        try:
+            if op.kind == "translate":
+                self.move_object(index, op.offset)
+                self.end_gesture()
+            elif op.kind == "remove":
+                self.remove_object(index)
+            else:
+                self.duplicate_object(index, op.offset)
+        except MoveError as e:
+            raise EditsError(f"{where}: {e}") from None
+
+    def apply_file(self, file: EditFile, where: str = "edits") -> None:
+        """Do every operation of an edit file (version 1: its particle edits as one operation). All or
+        nothing: when an operation fails, the ones before it are taken back and the error names it."""
+        if file.version == 1:
+            self.set_edits(file.particles, label=where)
+            return
+        self.end_gesture()
+        done, redo = len(self.history.undo), list(self.history.redo)
+        try:
+            for i, op in enumerate(file.operations):
+                self.apply_op(op, f"{where}: operations[{i}] ({op.kind})")
+        except Exception:
+            while len(self.history.undo) > done:
+                self.undo()
+            self.history.redo = redo
+            raise
+
+    def operations(self) -> list[EditOp]:
+        """What was done, as edit-file operations: an object operation saves a pick of its object on the
+        particles as they were before it; attribute changes save the particles' new values."""
+        out: list[EditOp] = []
+        for op in self.history.undo:
+            if op.kind == "insert":
+                out.append(EditOp("insert", insert=op.insert))
+                continue
+            if op.kind in OBJECT_KINDS:
+                out.append(EditOp(op.kind, pick=self.pick_for(op.members[0], op.before), offset=op.offset))
+                continue
+            per: dict[int, dict[str, tuple[float, ...]]] = {}
+            for c in op.changes:
+                per.setdefault(c.index, {})[c.name] = c.new
+            out += [EditOp("set", particle=i, values=tuple(sorted(v.items()))) for i, v in sorted(per.items())]
+        return out
+
+    def save(self, path: str | PathLike, *, scene: str | None = None, model: str | None = None) -> Path:
+        """Write what was done as a version 2 edit file (see :meth:`operations`)."""
+        return save_edit_file(path, self.operations(), scene=scene, model=model, context=self.context)
+
+
+def _cat(a: Particles, b: Particles) -> Particles:
+    """Particles of ``a`` then ``b`` (same scene: background and cameras of ``a``)."""
+    return replace(
+        a,
+        **{
+            f: torch.cat([getattr(a, f), getattr(b, f).to(getattr(a, f).device)])
+            for f in PER_PARTICLE
+            if getattr(a, f) is not None
+        },
+    )
+
+
+def apply_edit_file(
+    model: ParticleSplat,
+    particles: Particles,
+    frame_cameras: list[Camera],
+    file: EditFile,
+    context: list[int] | None = None,
+    where: str = "edits",
+) -> Particles:
+    """The particles after replaying an edit file (what ``particlesplat render --edits`` draws)."""
+    editor = SceneEditor(model, particles, frame_cameras, context)
+    editor.apply_file(file, where)
+    return editor.particles

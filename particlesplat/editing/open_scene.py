@@ -1,0 +1,128 @@
+"""Encode a scene folder into particles the way the viewer and ``particlesplat render`` do."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, field
+from os import PathLike
+from pathlib import Path
+
+from particlesplat.core.viewpoints import default_context_views
+from particlesplat.data import Scene, read_scene
+from particlesplat.model import Particles, ParticleSplat
+
+# measured with the shipped model on test scenes 0-7 of the tabletop set: particlesplat eval --limit 8 [--no-depth]
+NO_DEPTH_NOTE = "the shipped model: 16.7 dB from 2 RGB views, 28.8 dB with depth, on 8 test scenes"
+
+
+@dataclass
+class EncodedScene:
+    """Particles of a scene folder and what they came from.
+
+    Attributes:
+        particles: the encoded particles (posterior means).
+        scene: the context views at the model's resolution.
+        all_cameras: every camera of the folder at its native size (for the default view and
+            snapping to input views).
+        context: the context frame indices in the folder.
+        path: the scene folder.
+        warnings: what the user should know about the result (e.g. the scene has no depth).
+    """
+
+    particles: Particles
+    scene: Scene
+    all_cameras: list
+    context: list[int]
+    path: Path
+    warnings: list[str] = field(default_factory=list)
+
+
+def demo_scenes() -> list[Path]:
+    """Scene folders shipped in ``assets/scenes`` (sorted)."""
+    from importlib.resources import files
+
+    root = Path(str(files("particlesplat.assets").joinpath("scenes")))
+    return sorted(p for p in root.iterdir() if (p / "transforms.json").is_file()) if root.is_dir() else []
+
+
+def add_source_arguments(parser: argparse.ArgumentParser, ply_help: str) -> None:
+    """``--checkpoint``, ``--scene`` | ``--ply``, ``--context``, ``--edits``: what the viewer and
+    ``particlesplat render`` open (see :func:`load_model_scene`)."""
+    parser.add_argument("--checkpoint", help="model checkpoint; none = the shipped assets/model.pt")
+    src = parser.add_mutually_exclusive_group()
+    src.add_argument("--scene", help="scene folder to encode; none = the first demo scene in assets/scenes")
+    src.add_argument("--ply", help=ply_help)
+    parser.add_argument(
+        "--context", help="context frame indices of the scene, e.g. 4,16; none = two frames 12 apart about the middle"
+    )
+    parser.add_argument(
+        "--edits",
+        help="edits YAML to apply: version 2 object operations (pick by a pixel of an "
+        "input frame; translate, remove, duplicate) or version 1 particle values",
+    )
+
+
+def check_source_arguments(args: argparse.Namespace) -> None:
+    """ValueError when ``--ply`` is combined with what only a model scene has (--edits, --context)."""
+    if getattr(args, "ply", None):
+        for name in ("edits", "context"):
+            if getattr(args, name, None):
+                raise ValueError(f"--{name} needs a model scene, not --ply")
+
+
+def parse_context(text: str | None) -> list[int] | None:
+    """``"4,16"`` -> [4, 16]; None stays None (use the default)."""
+    if text is None or str(text).strip() == "":
+        return None
+    try:
+        return [int(v) for v in str(text).split(",")]
+    except ValueError:
+        raise ValueError(f"--context: expected comma-separated frame indices, got {text!r}") from None
+
+
+def encode_scene(
+    model: ParticleSplat, path: str | PathLike, context: list[int] | None = None, use_depth: bool = True
+) -> EncodedScene:
+    """Load ``path`` (a scene folder), pick the context frames (default
+    :func:`particlesplat.core.viewpoints.default_context_views`) and encode them with ``model``."""
+    raw = read_scene(path)
+    ctx = default_context_views(raw.num_frames) if context is None else list(context)
+    bad = [i for i in ctx if not 0 <= i < raw.num_frames]
+    if not ctx or bad:
+        raise ValueError(f"--context: {raw.path} has frames 0..{raw.num_frames - 1}, got {ctx}")
+    scene = raw.select(ctx, model.config.resolution)
+    depth = scene.depth if use_depth and scene.depth is not None and bool((scene.depth > 0).any()) else None
+    particles = model.encode(scene.rgb, depth, scene.cameras)
+    warnings = []
+    if use_depth and depth is None:
+        warnings.append(
+            f"{raw.path}: no depth in the context frames {ctx}: the model was trained with depth, and "
+            f"from RGB alone it reconstructs far worse ({NO_DEPTH_NOTE})"
+        )
+    return EncodedScene(particles, scene, list(raw.cameras), ctx, Path(raw.path), warnings)
+
+
+def load_model_scene(checkpoint: str | None, scene: str | PathLike | None, context: str | None = None):
+    """Load a model (None = the shipped one) and encode ``scene`` (None = the first demo scene).
+
+    Returns (model, EncodedScene, model name for PNG/YAML metadata).
+    """
+    from particlesplat.model import load_model
+
+    model = load_model(checkpoint)
+    if scene is None:
+        scenes = demo_scenes()
+        if not scenes:
+            raise FileNotFoundError("no demo scenes in assets/scenes; pass --scene DIR (or --ply FILE)")
+        scene = scenes[0]
+    return model, encode_scene(model, scene, parse_context(context)), str(checkpoint or "assets/model.pt")
+
+
+def load_ply_checked(path: str | PathLike):
+    """Gaussians of a .ply file; FileNotFoundError names the path."""
+    from particlesplat.core.gaussians import Gaussians
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: .ply file not found")
+    return Gaussians.load_ply(path)

@@ -1,0 +1,1 @@
+"""File formats: 3DGS ``.ply`` and PNG with text chunks."""

@@ -1,0 +1,93 @@
+"""PNG output with text chunks (camera, edits, model), shared by the viewer and ``particlesplat render``."""
+
+from __future__ import annotations
+
+import json
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+from PIL import Image
+from PIL.PngImagePlugin import PngInfo
+
+from particlesplat.core.atomic import atomic_path
+from particlesplat.core.camera import Camera
+
+
+def camera_text(camera: Camera) -> str:
+    """JSON of a camera: K, OpenCV c2w, width, height, vertical fov (degrees)."""
+    return json.dumps(
+        {
+            "K": camera.K.detach().cpu().double().tolist(),
+            "c2w_opencv": camera.c2w.detach().cpu().double().tolist(),
+            "width": camera.width,
+            "height": camera.height,
+            "fov_y": camera.fov_y,
+        }
+    )
+
+
+def png_text(camera: Camera, edits: dict, model: str, extra: dict[str, str] | None = None) -> dict[str, str]:
+    """Text chunks: Software, camera (JSON), edits (YAML, particle index -> values), model, extras."""
+    text = {
+        "Software": "ParticleSplat Studio",
+        "camera": camera_text(camera),
+        "edits": yaml.safe_dump({int(i): {k: list(v) for k, v in a.items()} for i, a in edits.items()}, sort_keys=True),
+        "model": model,
+    }
+    text.update(extra or {})
+    return text
+
+
+def to_image(rgb: np.ndarray) -> Image.Image:
+    """rgb: (H, W, 3) floats in [0, 1] -> 8-bit RGB image (rounded)."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"expected an (H, W, 3) image, got {rgb.shape}")
+    return Image.fromarray((np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8), "RGB")
+
+
+def png_info(text: dict[str, str]) -> PngInfo:
+    info = PngInfo()
+    for k, v in text.items():
+        info.add_itxt(k, v)
+    return info
+
+
+def save_png(path: str | PathLike, rgb: np.ndarray, text: dict[str, str] | None = None) -> Path:
+    """Write rgb (H, W, 3) in [0, 1] as an 8-bit PNG with text chunks, atomically (temp file + rename)."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        to_image(rgb).save(tmp, format="PNG", pnginfo=png_info(text or {}))
+    return path
+
+
+def camera_from_png(path: str | PathLike) -> Camera:
+    """The camera a viewer screenshot or ``particlesplat render`` image was taken with (its ``camera`` text
+    chunk, :func:`camera_text`). Errors name the file and the field."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: PNG not found")
+    try:
+        with Image.open(path) as img:
+            text = dict(getattr(img, "text", {}) or {})
+    except OSError as e:
+        raise ValueError(f"{path}: not a readable image ({e})") from None
+    if "camera" not in text:
+        raise ValueError(
+            f"{path}: no 'camera' text chunk (only viewer screenshots and particlesplat render images carry one)"
+        )
+    try:
+        data = json.loads(text["camera"])
+        K = np.asarray(data["K"], dtype=np.float64)
+        c2w = np.asarray(data["c2w_opencv"], dtype=np.float64)
+        width, height = int(data["width"]), int(data["height"])
+    except (ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"{path}: camera chunk: expected JSON with K, c2w_opencv, width, height ({e})") from None
+    if K.shape != (3, 3) or c2w.shape != (4, 4) or not (np.isfinite(K).all() and np.isfinite(c2w).all()):
+        raise ValueError(f"{path}: camera chunk: K must be 3x3 and c2w_opencv 4x4 finite numbers")
+    if not (1 <= width <= 16384 and 1 <= height <= 16384):
+        raise ValueError(f"{path}: camera chunk: width and height must be in [1, 16384], got {width}x{height}")
+    return Camera(torch.from_numpy(K).float(), torch.from_numpy(c2w).float(), width, height)

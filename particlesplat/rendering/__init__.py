@@ -1,0 +1,1 @@
+"""The differentiable torch Gaussian renderer: EWA projection, tiled rasterizer, dense reference, ``render``."""

@@ -1,0 +1,202 @@
+"""``render``: the differentiable torch reference rasterizer (3DGS / gsplat rules)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from particlesplat.core.camera import Camera
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.sh import eval_sh_colors
+from particlesplat.rendering.projection import footprint_radius_sq, project_gaussians
+from particlesplat.rendering.rasterize import RasterizeFunction, bin_gaussians, pair_inputs, tiles_to_images
+
+
+def object_segmentation(owner_weights: Tensor, background_weight: Tensor, objects: Tensor) -> Tensor:
+    """Per-pixel argmax over objects: the weights of each object's particles are summed first.
+
+    owner_weights: (P, H, W) Σ T·α per particle; background_weight: (H, W) Σ T·α of the background
+    plus the empty remainder; objects: (P,) int64 object label per particle
+    (:func:`particlesplat.editing.grouping.particle_objects`).
+    Returns (H, W) int64 object label, -1 where the background weighs most.
+    """
+    P = owner_weights.shape[0]
+    if tuple(objects.shape) != (P,):
+        raise ValueError(f"objects must have shape ({P},), got {tuple(objects.shape)}")
+    summed = torch.zeros_like(owner_weights).index_add_(0, objects.to(owner_weights.device), owner_weights)
+    scores = torch.cat([background_weight[None], summed], dim=0)  # (1 + P, H, W)
+    return scores.argmax(0) - 1
+
+
+@dataclass
+class RenderResult:
+    """One rendered view.
+
+    Attributes:
+        rgb: (H, W, 3) colour composited over the background.
+        alpha: (H, W) accumulated opacity Σ T·α.
+        depth: (H, W) expected planar camera z, Σ T·α·z / alpha, metres; 0 where alpha is 0.
+        owner_weights: (P, H, W) Σ T·α of the Gaussians of each owner 0..P-1, or None.
+            Not differentiable.
+        background_weight: (H, W) Σ T·α of the background Gaussians (owner -1), or None.
+        foreground: (H, W) Σ T·α of the Gaussians with an owner >= 0 (the particles), differentiable, or
+            None.
+    """
+
+    rgb: Tensor
+    alpha: Tensor
+    depth: Tensor
+    owner_weights: Tensor | None = None
+    background_weight: Tensor | None = None
+    foreground: Tensor | None = None
+
+    def segmentation(self, objects: Tensor | None = None) -> Tensor:
+        """(H, W) int64 argmax owner per pixel; -1 where the background (Gaussians of owner -1
+        plus the empty remainder 1 - alpha) weighs most.
+
+        objects: (P,) int64 object label per owner (:func:`particlesplat.editing.grouping.particle_objects`):
+        the weights of the owners of one object are summed and the pixel gets the object's label.
+        """
+        if self.owner_weights is None or self.background_weight is None:
+            raise ValueError("segmentation() needs render(..., owner_weights=True)")
+        bg = (self.background_weight + (1.0 - self.alpha)).detach()
+        if objects is None:
+            objects = torch.arange(self.owner_weights.shape[0], device=self.owner_weights.device)
+        return object_segmentation(self.owner_weights, bg, objects)
+
+
+def render(
+    gaussians: Gaussians,
+    camera: Camera,
+    *,
+    background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
+    near: float = 0.01,
+    far: float = 1e10,
+    owner_weights: bool = False,
+    num_owners: int | None = None,
+    foreground: bool = False,
+) -> RenderResult:
+    """Render ``gaussians`` seen by ``camera``.
+
+    Rules (3DGS/gsplat): EWA projection with the Jacobian's x/z and y/z clamped to the field of
+    view + 30 %; + 0.3 px² on the 2D covariance diagonal; α = min(0.99, o·exp(−½dᵀΣ⁻¹d)) and a
+    Gaussian contributes exactly where α ≥ 1/255; front to back by camera z, ties broken by
+    index; a pixel stops before the Gaussian that would take its transmittance to ≤ 1e-4;
+    Gaussians outside near < z < far are culled. Colours come from the SH evaluated along the
+    direction camera centre → mean.
+
+    Raises ValueError (naming the field and the Gaussian) for a non-finite value, a negative scale or
+    opacity, or an owner outside -1..MAX_OWNER (:meth:`Gaussians.check`).
+
+    Differentiable with respect to means, quats, scales, opacities and sh. Works in the
+    dtype and on the device of ``gaussians`` (the camera is converted).
+
+    Args:
+        background: (3,) colour behind everything.
+        owner_weights: also return per-owner weight maps (for masks and segmentation).
+        num_owners: P for the owner maps (default: max owner + 1); owners outside 0..P-1
+            count as background.
+        foreground: also return the differentiable weight of the Gaussians with an owner >= 0.
+    """
+    return render_batch(
+        [(gaussians, camera)],
+        background=background,
+        near=near,
+        far=far,
+        owner_weights=owner_weights,
+        num_owners=num_owners,
+        foreground=foreground,
+    )[0]
+
+
+def render_batch(
+    views: Sequence[tuple[Gaussians, Camera]],
+    *,
+    background: Sequence[float] | Tensor = (0.0, 0.0, 0.0),
+    near: float = 0.01,
+    far: float = 1e10,
+    owner_weights: bool = False,
+    num_owners: int | None = None,
+    foreground: bool = False,
+) -> list[RenderResult]:
+    """Render several (Gaussians, camera) pairs in one pass; same rules and results as :func:`render`.
+
+    ``foreground``: also return the differentiable weight of the particles' Gaussians (owner >= 0) per
+    pixel (``RenderResult.foreground``), one more feature column of the same pass.
+
+    All views share one tile list and one set of rasterizer chunks, which amortises the
+    per-call overhead when training renders many small views. The Gaussians of all views must
+    share dtype, device and SH degree.
+    """
+    if not views:
+        return []
+    checked: set[int] = set()
+    for i, (gaussians, _) in enumerate(views):  # NaN would spread to every pixel and, through clipping, every gradient
+        if id(gaussians) not in checked:  # training renders one set in several views: checked once
+            checked.add(id(gaussians))
+            gaussians.check(f"render: view {i}" if len(views) > 1 else "render")
+    dtype, device = views[0][0].means.dtype, views[0][0].means.device
+    bg = torch.as_tensor(background, dtype=dtype, device=device).reshape(3)
+    parts: dict[str, list[Tensor]] = {
+        k: [] for k in ("means2d", "conics", "opac", "features", "radius", "view", "owner")
+    }
+    sizes = []
+    for v, (gaussians, camera) in enumerate(views):
+        cam = camera.to(device=device, dtype=dtype)
+        proj = project_gaussians(gaussians, cam, near, far)
+        opac = gaussians.opacities[proj.index]
+        r2 = footprint_radius_sq(opac.detach())
+        # half extents of the ellipse dᵀΣ⁻¹d <= r² are r·sqrt(Σ_xx), r·sqrt(Σ_yy); a hair of
+        # margin keeps float rounding from dropping a boundary pixel
+        radius = torch.where(
+            r2[:, None] >= 0,
+            torch.sqrt(r2.clamp_min(0))[:, None] * proj.cov2d_diag.detach().sqrt() * (1 + 1e-5) + 1e-3,
+            torch.full_like(proj.cov2d_diag, -1.0),
+        )
+        dirs = torch.nn.functional.normalize(gaussians.means[proj.index] - cam.center, dim=-1)
+        colors = eval_sh_colors(gaussians.sh[proj.index], dirs)
+        parts["means2d"].append(proj.means2d)
+        parts["conics"].append(proj.conics)
+        parts["opac"].append(opac)
+        parts["features"].append(torch.cat([colors, proj.depths[:, None]], dim=-1))  # (M, 4)
+        parts["radius"].append(radius)
+        parts["view"].append(torch.full_like(proj.index, v))
+        parts["owner"].append(gaussians.owner[proj.index])
+        sizes.append((cam.width, cam.height))
+    cat = {k: torch.cat(v) for k, v in parts.items()}
+    bins = bin_gaussians(
+        cat["means2d"], cat["conics"], cat["opac"], cat["radius"], cat["features"][:, 3], cat["view"], sizes
+    )
+    coef, pair_features = pair_inputs(bins, cat["means2d"], cat["conics"], cat["opac"], cat["features"])
+    if owner_weights:
+        # per-owner weights ride along as extra one-hot feature columns of the same pass
+        # (slot 0 = background, 1..P = owners), so α and T are computed once
+        if num_owners is not None:
+            P = int(num_owners)
+        else:
+            P = max((int(g.owner.max()) + 1 for g, _ in views if len(g)), default=0)
+        owners = cat["owner"]
+        slot = torch.where((owners >= 0) & (owners < P), owners + 1, torch.zeros_like(owners))
+        onehot = torch.nn.functional.one_hot(slot.index_select(0, bins.gauss), P + 1).to(coef.dtype)
+        pair_features = torch.cat([pair_features, torch.cat([onehot, onehot.new_zeros(1, P + 1)])], dim=-1)
+    if foreground:
+        is_fg = (cat["owner"] >= 0).to(coef.dtype).index_select(0, bins.gauss)[:, None]
+        pair_features = torch.cat([pair_features, torch.cat([is_fg, is_fg.new_zeros(1, 1)])], dim=-1)
+    tiles = RasterizeFunction.apply(coef, pair_features, bins)
+    results = []
+    for acc in tiles_to_images(tiles, bins, sizes):
+        alpha = acc[..., 4]
+        rgb = acc[..., :3] + (1.0 - alpha)[..., None] * bg
+        depth = torch.where(alpha > 0, acc[..., 3] / alpha.clamp_min(1e-12), torch.zeros_like(alpha))
+        result = RenderResult(rgb, alpha, depth)
+        if foreground:
+            result.foreground = acc[..., -1]
+        if owner_weights:
+            maps = acc[..., 5 : 5 + P + 1].detach()
+            result.owner_weights = maps[..., 1:].permute(2, 0, 1).contiguous()
+            result.background_weight = maps[..., 0].contiguous()
+        results.append(result)
+    return results

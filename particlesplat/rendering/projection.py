@@ -1,0 +1,90 @@
+"""EWA projection of 3D Gaussians to screen-space conics (the 3DGS / gsplat rules).
+
+Everything here is plain differentiable torch; the rasterizer consumes its output.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from particlesplat.core.camera import Camera
+from particlesplat.core.gaussians import Gaussians, quats_to_rotations
+
+DILATION = 0.3  # px², added to the 2D covariance diagonal
+ALPHA_MIN = 1.0 / 255.0  # a Gaussian contributes exactly where alpha >= ALPHA_MIN
+ALPHA_MAX = 0.99
+FOV_MARGIN = 0.3  # the Jacobian's x/z, y/z are clamped to the field of view + 30 %
+
+
+@dataclass
+class Projected:
+    """The M Gaussians in front of the camera, in their original order.
+
+    Attributes:
+        index: (M,) int64 index into the input Gaussians.
+        means2d: (M, 2) float64 pixel coordinates of the centres (pixel u spans [u, u+1)).
+        conics: (M, 3) inverse 2D covariance (a, b, c) of [[a, b], [b, c]], px⁻².
+        cov2d_diag: (M, 2) diagonal of the dilated 2D covariance, px².
+        depths: (M,) planar camera z, metres.
+    """
+
+    index: Tensor
+    means2d: Tensor
+    conics: Tensor
+    cov2d_diag: Tensor
+    depths: Tensor
+
+
+def project_gaussians(gaussians: Gaussians, camera: Camera, near: float = 0.01, far: float = 1e10) -> Projected:
+    """Project the Gaussians with near < z < far (strict) by EWA splatting.
+
+    The determinant of the dilated 2D covariance is computed without cancellation:
+    det(AAᵀ + εI) = |cof(S) Rᵀ (t₀ × t₁)|² + ε tr(AAᵀ) + ε², with A = J W R S and tₖ the rows
+    of J W, so needles and edge-on discs keep full float32 precision.
+    """
+    dtype = gaussians.means.dtype
+    # Centres are projected in float64 (a per-Gaussian cost): in float32, camera coordinates of
+    # a point 3 m away carry ~3e-7 m of rounding, ~1e-4 px at 512², which α would feel.
+    w2c64 = camera.w2c.to(torch.float64)
+    p64_all = gaussians.means.to(torch.float64) @ w2c64[:3, :3].T + w2c64[:3, 3]
+    z_all = p64_all[:, 2]
+    index = torch.nonzero((z_all > near) & (z_all < far)).squeeze(1)
+    p64 = p64_all[index]
+    K64 = camera.K.to(torch.float64)
+    means2d = torch.stack(
+        [K64[0, 0] * p64[:, 0] / p64[:, 2] + K64[0, 2], K64[1, 1] * p64[:, 1] / p64[:, 2] + K64[1, 2]], dim=-1
+    )
+    Rw = w2c64[:3, :3].to(dtype)
+    x, y, z = p64.to(dtype).unbind(-1)
+    K = K64.to(dtype)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    W, H = camera.width, camera.height
+    tan_x, tan_y = 0.5 * W / fx, 0.5 * H / fy
+    xz = torch.minimum(torch.maximum(x / z, -(cx / fx + FOV_MARGIN * tan_x)), (W - cx) / fx + FOV_MARGIN * tan_x)
+    yz = torch.minimum(torch.maximum(y / z, -(cy / fy + FOV_MARGIN * tan_y)), (H - cy) / fy + FOV_MARGIN * tan_y)
+    zero = torch.zeros_like(z)
+    j0 = torch.stack([fx / z, zero, -fx * xz / z], dim=-1)  # (M, 3)
+    j1 = torch.stack([zero, fy / z, -fy * yz / z], dim=-1)
+    t0, t1 = j0 @ Rw, j1 @ Rw  # rows of J W, (M, 3)
+    R = quats_to_rotations(gaussians.quats[index])  # (M, 3, 3); zero quaternion -> identity
+    s = gaussians.scales[index]
+    a0 = (t0[:, None, :] @ R).squeeze(1) * s  # rows of A = J W R S
+    a1 = (t1[:, None, :] @ R).squeeze(1) * s
+    sxx, syy, sxy = (a0 * a0).sum(-1), (a1 * a1).sum(-1), (a0 * a1).sum(-1)
+    # (J W) rows cross product, analytically: t0 x t1 = Wᵀ (j0 x j1), j0 x j1 = fx fy / z² (x/z, y/z, 1)
+    jcross = (fx * fy / (z * z))[:, None] * torch.stack([xz, yz, torch.ones_like(z)], dim=-1)
+    cross = ((jcross @ Rw)[:, None, :] @ R).squeeze(1)  # Rᵀ Wᵀ (j0 x j1) as a row vector, (M, 3)
+    cof = torch.stack([s[:, 1] * s[:, 2], s[:, 0] * s[:, 2], s[:, 0] * s[:, 1]], dim=-1)
+    det_raw = ((cross * cof) ** 2).sum(-1)
+    a, c = sxx + DILATION, syy + DILATION
+    det = det_raw + DILATION * (sxx + syy) + DILATION * DILATION
+    conics = torch.stack([c / det, -sxy / det, a / det], dim=-1)
+    return Projected(index, means2d, conics, torch.stack([a, c], dim=-1), z)
+
+
+def footprint_radius_sq(opacities: Tensor) -> Tensor:
+    """(M,) squared Mahalanobis radius inside which o·exp(-½ r²) >= 1/255: 2 ln(255 o); < 0 if never."""
+    return 2.0 * torch.log(opacities.clamp_min(1e-30) * 255.0)

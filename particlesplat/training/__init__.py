@@ -1,0 +1,1 @@
+"""Training: the trainer, its run log and the validation curve."""

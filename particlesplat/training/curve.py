@@ -1,0 +1,75 @@
+"""``particlesplat curve``: plot a run's validation curve (PSNR and FG-ARI against step) to a small PNG.
+
+Reads ``RUN/metrics.jsonl`` (the ``val`` records ``particlesplat train`` writes); a torn last line is skipped.
+Drawn with pillow only, so the library needs no plotting package.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from PIL import Image, ImageDraw
+
+WIDTH, HEIGHT, MARGIN = 560, 300, 48
+PSNR_COLOUR, ARI_COLOUR, AXIS_COLOUR = (31, 119, 180), (214, 39, 40), (60, 60, 60)
+
+
+def read_validation(path: Path) -> list[tuple[int, float, float]]:
+    """(step, PSNR dB, FG-ARI) of every validation record in ``path`` (a metrics.jsonl), in step order."""
+    rows = []
+    lines = path.read_text().splitlines()
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError as e:
+            if number == len(lines):  # a run killed mid-write leaves a torn last line
+                continue
+            raise ValueError(f"{path}: line {number} is not JSON ({e.msg})") from e
+        if isinstance(rec, dict) and isinstance(rec.get("val"), dict):
+            v = rec["val"]
+            rows.append((int(rec["step"]), float(v["psnr"]), float(v.get("fg_ari", float("nan")))))
+    return sorted(rows)
+
+
+def plot_curve(rows: list[tuple[int, float, float]], title: str = "") -> Image.Image:
+    """A WIDTH x HEIGHT RGB plot: PSNR (left axis, dB) and FG-ARI (right axis, 0-1) against step."""
+    img = Image.new("RGB", (WIDTH, HEIGHT), "white")
+    d = ImageDraw.Draw(img)
+    x0, x1, y0, y1 = MARGIN, WIDTH - MARGIN, HEIGHT - MARGIN, MARGIN // 2 + 8
+    d.rectangle([x0, y1, x1, y0], outline=AXIS_COLOUR)
+    if title:
+        d.text((x0, 4), title, fill=AXIS_COLOUR)
+    if not rows:
+        d.text((x0 + 10, (y0 + y1) // 2), "no validation records yet", fill=AXIS_COLOUR)
+        return img
+    steps = [r[0] for r in rows]
+    s_max = max(max(steps), 1)
+    psnrs = [r[1] for r in rows]
+    p_lo, p_hi = min(15.0, min(psnrs)), max(30.0, max(psnrs))
+
+    def px(step: int) -> float:
+        return x0 + (x1 - x0) * step / s_max
+
+    def py(value: float, lo: float, hi: float) -> float:
+        return y0 - (y0 - y1) * (value - lo) / (hi - lo)
+
+    for k in range(5):  # gridlines and tick labels
+        frac = k / 4
+        y = y0 - (y0 - y1) * frac
+        d.line([x0, y, x1, y], fill=(225, 225, 225))
+        d.text((4, y - 6), f"{p_lo + frac * (p_hi - p_lo):.1f}", fill=PSNR_COLOUR)
+        d.text((x1 + 6, y - 6), f"{frac:.2f}", fill=ARI_COLOUR)
+        d.text((px(frac * s_max) - 12, y0 + 6), f"{int(frac * s_max)}", fill=AXIS_COLOUR)
+    d.text((x1 - 30, y0 + 22), "step", fill=AXIS_COLOUR)
+    for values, lo, hi, colour in ((psnrs, p_lo, p_hi, PSNR_COLOUR), ([r[2] for r in rows], 0.0, 1.0, ARI_COLOUR)):
+        pts = [(px(s), py(v, lo, hi)) for s, v in zip(steps, values, strict=True) if v == v]
+        if len(pts) > 1:
+            d.line(pts, fill=colour, width=2)
+        for x, y in pts:
+            d.ellipse([x - 2, y - 2, x + 2, y + 2], fill=colour)
+    d.text((x0, y0 + 22), "val PSNR (dB, left)", fill=PSNR_COLOUR)
+    d.text((x0 + 160, y0 + 22), "val FG-ARI (right)", fill=ARI_COLOUR)
+    return img

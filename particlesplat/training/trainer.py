@@ -1,0 +1,558 @@
+"""``particlesplat train``: optimise the multi-view ELBO on a folder of scenes, with exact resume and DDP."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import shutil
+import signal
+import sys
+import threading
+from contextlib import contextmanager
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+import torch.distributed as dist
+from torch import Tensor
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import default_collate
+from tqdm import tqdm
+
+from particlesplat.analysis.metrics import near_other_label
+from particlesplat.core.atomic import atomic_path, atomic_write
+from particlesplat.core.camera import Camera
+from particlesplat.core.errors import Interrupted, UserError, one_line
+from particlesplat.data.views import WARMUP
+from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig, read_checkpoint, save_checkpoint
+from particlesplat.model.config import ConfigError, config_to_dict, model_config_from_dict, without_removed_keys
+from particlesplat.model.losses import elbo, scene_kl, view_error
+from particlesplat.model.provenance import Provenance, RunClock
+from particlesplat.rendering.api import render_batch
+from particlesplat.training.runlog import read_log
+
+LAST = "last.pt"
+MAX_SKIPPED = 20  # steps in a row with non-finite loss or gradients before the run stops as diverged
+
+
+class TrainingDiverged(UserError):
+    """Non-finite gradients or weights that skipping steps did not cure; nothing was saved."""
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def recipe_path() -> Path:
+    """The bundled recipe (``assets/model.yaml`` in the installed ``particlesplat.assets`` package)."""
+    import importlib.resources
+
+    return Path(str(importlib.resources.files("particlesplat.assets").joinpath("model.yaml")))
+
+
+def render_views(
+    gaussians: list, K: Tensor, c2w: Tensor, size: int, background: Tensor, foreground: bool = False
+) -> tuple[Tensor, Tensor, Tensor | None]:
+    """Render B scenes in their views in one rasterizer pass.
+
+    gaussians: B sets; K: (B, V, 3, 3); c2w: (B, V, 4, 4); background: (3,) RGB behind the Gaussians
+    (differentiable) -> rgb (B, V, 3, H, W), depth (B, V, 1, H, W), and with ``foreground`` the particles'
+    weight (B, V, 1, H, W) (else None).
+    """
+    B, V = K.shape[:2]
+    views = [(g, Camera(K[b, v], c2w[b, v], size, size)) for b, g in enumerate(gaussians) for v in range(V)]
+    res = render_batch(views, background=background, foreground=foreground)
+    rgb = torch.stack([r.rgb.permute(2, 0, 1) for r in res])
+    depth = torch.stack([r.depth[None] for r in res])
+    fg = torch.stack([r.foreground[None] for r in res]).reshape(B, V, 1, size, size) if foreground else None
+    return rgb.reshape(B, V, 3, size, size), depth.reshape(B, V, 1, size, size), fg
+
+
+def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float, band: int = 0) -> Tensor:
+    """Squared error of the particles' weight against what the static background layer cannot explain.
+
+    fg: (M, 1, H, W) rendered particle weight; bg_error: (M, 1, H, W) the layer's own error per pixel
+    (:meth:`ParticleSplat.static_background_error` with ``block=1``). The target is 1 where that error is
+    at least ``threshold`` (an object stands there) and 0 elsewhere. With ``band`` > 0, pixels within
+    ``band`` px (Chebyshev) of a pixel with the other target are left out: an object's edge covers them only
+    in part, so their true weight lies between 0 and 1 and the reconstruction alone decides it. Returns (M,)
+    per-view sums over the pixels.
+    """
+    target = (bg_error >= threshold).to(fg.dtype)
+    err = (fg - target) ** 2
+    if band > 0:
+        err = err * (~near_other_label(target, band)).to(fg.dtype)  # all neighbours agree: not on an edge
+    return err.flatten(1).sum(1)
+
+
+def training_loss(
+    model: ParticleSplat | DistributedDataParallel,
+    batch: dict[str, Tensor],
+    tc: TrainConfig,
+    use_depth: bool,
+    background: bool,
+    size: int,
+    cfg: ModelConfig,
+) -> tuple[dict[str, Tensor], Tensor]:
+    """Negative ELBO of a batch (dict of (B, …) tensors from SceneDataset). Returns the loss parts and the
+    target-view renders (B, T, 3, H, W) (or context renders when there are no targets)."""
+    depth = batch["context_depth"] if use_depth else None
+    post, z, gaussians = model(
+        batch["context_rgb"], depth, batch["context_K"], batch["context_c2w"], sample=True, background=background
+    )
+    C = batch["context_rgb"].shape[1]
+    K = torch.cat([batch["context_K"], batch["target_K"]], 1)
+    c2w = torch.cat([batch["context_c2w"], batch["target_c2w"]], 1)
+    net = model.module if isinstance(model, DistributedDataParallel) else model
+    rgb_hat, depth_hat, fg_hat = render_views(gaussians, K, c2w, size, z["bg_color"], tc.beta_fg > 0)
+    gt_rgb = torch.cat([batch["context_rgb"], batch["target_rgb"]], 1)
+    gt_depth = torch.cat([batch["context_depth"], batch["target_depth"]], 1)
+    B, V = gt_rgb.shape[:2]
+    sup = torch.cat([torch.ones_like(batch["context_depth"]), batch["target_supervision"]], 1)
+    err = view_error(
+        rgb_hat.flatten(0, 1),
+        gt_rgb.flatten(0, 1),
+        depth_hat.flatten(0, 1),
+        gt_depth.flatten(0, 1),
+        sup.flatten(0, 1),
+        tc.lambda_depth,
+    ).reshape(B, V)
+    kl = scene_kl(post, z["z_t"], cfg, tc.beta_f)
+    parts = elbo(err[:, :C], err[:, C:] if V > C else None, kl, z["z_t"], tc)
+    if fg_hat is not None:  # particles cover what the floor layer cannot explain, and nothing else
+        # the context views' error is the one the encoder computed (no depth on a step that drops it)
+        bg_err = post.bg_error
+        if V > C:
+            tgt = [batch[k].flatten(0, 1) for k in ("target_rgb", "target_depth", "target_K", "target_c2w")]
+            tgt_err = net.static_background_error(*tgt, block=1).reshape(B, V - C, 1, size, size)
+            bg_err = torch.cat([bg_err, tgt_err], 1)
+        fg_err = foreground_error(fg_hat.flatten(0, 1), bg_err.flatten(0, 1), tc.fg_threshold, tc.fg_band)
+        parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
+        parts["loss"] = parts["loss"] + tc.beta_fg * parts["fg"]
+    shown = rgb_hat[:, C:] if V > C else rgb_hat
+    target = gt_rgb[:, C:] if V > C else gt_rgb
+    with torch.no_grad():
+        parts["psnr"] = -10.0 * torch.log10(((shown.clamp(0, 1) - target) ** 2).mean().clamp_min(1e-10))
+        parts["active"] = (z["z_t"] > cfg.bg_mask_threshold).float().sum(1).mean()
+    return parts, shown
+
+
+@contextmanager
+def training_selection(cfg: ModelConfig, tc: TrainConfig):
+    """Inside: the model keeps ``tc.particles_per_view`` particles per view, ``tc.kp_min_separation`` apart (0 keeps
+    the model's values); outside, the model config (what inference and checkpoints use) is unchanged."""
+    saved = (cfg.particles_per_view, cfg.kp_min_separation)
+    cfg.particles_per_view = tc.particles_per_view or cfg.particles_per_view
+    cfg.kp_min_separation = tc.kp_min_separation or cfg.kp_min_separation
+    try:
+        yield
+    finally:
+        cfg.particles_per_view, cfg.kp_min_separation = saved
+
+
+def gap_progress(step: int, tc: TrainConfig) -> float:
+    """The data sampler's progress at ``step``: its view-gap range grows linearly to the full range over the
+    first ``gap_warmup`` of the steps (0: full from the start)."""
+    done = 1.0 if tc.gap_warmup == 0 else min(step / (tc.steps * tc.gap_warmup), 1.0)
+    return 1.0 if done >= 1.0 else done * WARMUP
+
+
+def lr_factor(step: int, tc: TrainConfig) -> float:
+    """Learning-rate multiplier of optimiser step ``step`` (0-based): a cosine from 1 at step 0 to
+    ``lr_final`` at the last step (``lr_final`` 1: constant)."""
+    t = min(step / max(tc.steps - 1, 1), 1.0)
+    return tc.lr_final + (1.0 - tc.lr_final) * 0.5 * (1.0 + math.cos(math.pi * t))
+
+
+class Trainer:
+    """Holds the model, optimiser, datasets and RNG; one instance per process."""
+
+    def __init__(
+        self,
+        cfg: ModelConfig,
+        tc: TrainConfig,
+        data: Path,
+        out: Path,
+        device: str,
+        resume: bool,
+        overwrite: bool = False,
+    ):
+        self.cfg, self.tc, self.out, self.device = cfg, tc, out, torch.device(device)
+        if not resume and not overwrite and out.exists() and (not out.is_dir() or any(out.iterdir())):
+            raise FileExistsError(
+                f"{out}: --out is not empty; pass --resume to continue the run in it, "
+                "--overwrite to replace it, or choose another folder"
+            )
+        replace(cfg, particles_per_view=tc.particles_per_view or cfg.particles_per_view).validate(
+            "train.particles_per_view with the model"
+        )
+        self.provenance = Provenance.start(data, None, str(self.device))  # from random initialisation
+        self.clock = RunClock()
+        if tc.beta_fg > 0 and cfg.bg_static_grid == 0:
+            raise ConfigError(
+                f"train.beta_fg: the foreground term compares with the static background layer; "
+                f"set model.bg_static_grid > 0 or beta_fg to 0 (got {tc.beta_fg})"
+            )
+        self.distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
+        if self.distributed:
+            dist.init_process_group("gloo" if self.device.type == "cpu" else "nccl")
+        self.rank = dist.get_rank() if self.distributed else 0
+        self.world = dist.get_world_size() if self.distributed else 1
+        from particlesplat.data import SceneDataset
+
+        self.train_sets = {
+            c: SceneDataset(
+                data / "train",
+                resolution=cfg.resolution,
+                mode="multi" if c == 2 else "single",
+                num_targets=tc.target_views,
+                flip=False,
+                cache_size=tc.cache_scenes,
+            )
+            for c in sorted(set(tc.context_views))
+        }
+        self.val_dir = data / "val"
+        if self.rank == 0 and self.val_dir.is_dir():
+            self._check_val_scenes()
+        self.skipped = 0  # steps skipped for non-finite loss or gradients, this invocation
+        torch.manual_seed(tc.seed + 1000 * self.rank)
+        self.gen = torch.Generator().manual_seed(tc.seed * 7919 + self.rank)
+        self.model = ParticleSplat(cfg).to(self.device)
+        owns = lambda k, p: k == p or k.startswith(p + ".")  # noqa: E731
+        names = [n for n, _ in self.model.named_parameters()]
+        unknown = [m for m in tc.freeze if not any(owns(n, m) for n in names)]
+        if unknown:
+            raise ConfigError(
+                f"train.freeze: no such module in this model: {', '.join(unknown)} "
+                f"(modules: {', '.join(sorted({n.split('.')[0] for n in names}))})"
+            )
+        for n, p in self.model.named_parameters():  # frozen weights keep what they start with
+            p.requires_grad_(not any(owns(n, m) for m in tc.freeze))
+        # the learned background colour and the static background layer move at lr_background
+        is_bg = lambda n: n == "background_logit" or n.startswith("static_bg.")  # noqa: E731
+        trained = [(n, p) for n, p in self.model.named_parameters() if p.requires_grad]
+        bg = [p for n, p in trained if is_bg(n)]
+        rest = [p for n, p in trained if not is_bg(n)]
+        groups = ([{"params": rest, "lr": tc.lr}] if rest else []) + (
+            [{"params": bg, "lr": tc.lr_background}] if bg else []
+        )
+        if not groups:
+            raise ConfigError("train.freeze: every weight is frozen, nothing would train")
+        self.base_lrs = [g["lr"] for g in groups]  # each group's lr before the cosine factor
+        self.opt = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
+        self.step = 0
+        self.best = -math.inf
+        if resume and (out / LAST).is_file():
+            self._load(out / LAST)
+        elif resume:
+            raise FileNotFoundError(f"{out / LAST}: nothing to resume")
+        elif (out / LAST).is_file() and not overwrite:
+            raise FileExistsError(
+                f"{out / LAST}: this run already exists; pass --resume to continue it or choose another --out"
+            )
+        # steps without the background or before refine_start leave weights without gradients
+        unused = tc.bg_off_steps > 0 or (cfg.refine_steps > 0 and tc.refine_start > 0)
+        self.ddp = (
+            DistributedDataParallel(self.model, find_unused_parameters=unused) if self.distributed else self.model
+        )
+        if overwrite and not resume and self.rank == 0 and out.is_dir():
+            self._clear_run()
+
+    def _clear_run(self) -> None:
+        """--overwrite: remove the earlier run's own files (log, config, checkpoints) once every check has passed,
+        so its log is not continued and its step files do not mix with the new run's. Other files stay."""
+        for path in [
+            *self.out.glob("step_*.pt"),
+            *(self.out / n for n in ("metrics.jsonl", "config.yaml", LAST, "best.pt")),
+        ]:
+            if path.is_file():
+                path.unlink()
+
+    # ------------------------------------------------------------------ state
+    def _rng_state(self) -> dict:
+        return {"torch": torch.get_rng_state(), "gen": self.gen.get_state()}
+
+    def _check_val_scenes(self) -> None:
+        """Read the validation scenes once now: a corrupt one is found at the start, not at the first validation
+        (and not again on every resume)."""
+        from particlesplat.data.dataset import SceneDataset
+        from particlesplat.data.scene import read_scene
+
+        ds = SceneDataset(self.val_dir)
+        need = max(self.tc.context_views) + 1
+        for folder in ds.scenes[: self.tc.val_scenes]:
+            raw = read_scene(folder)
+            if raw.num_frames < need:
+                raise UserError(
+                    f"{folder}: validation scene has {raw.num_frames} frame(s); validation needs at "
+                    f"least {need} (targets apart from the context views)"
+                )
+
+    def _check_finite(self) -> None:
+        """TrainingDiverged (nothing is saved) unless every weight is finite."""
+        for n, p in self.model.named_parameters():
+            if not bool(torch.isfinite(p.detach()).all()):
+                raise TrainingDiverged(
+                    f"{self.out}: step {self.step}: weight '{n}' is not finite; stopped without "
+                    f"saving (the last checkpoint in {self.out} is kept)"
+                )
+
+    def _clean_temporaries(self) -> None:
+        """Remove temporary files a killed run left in the run folder (``.NAME.PID.XXXXXXXX.tmp*`` of a process
+        that no longer runs, and ``best.pt.tmp``)."""
+        for p in self.out.glob(".*.tmp*"):
+            m = re.match(r"^\.(.+)\.(\d+)\.[0-9a-f]{8}\.tmp", p.name)
+            if m and p.is_file() and int(m.group(2)) != os.getpid() and not _pid_alive(int(m.group(2))):
+                p.unlink(missing_ok=True)
+        (self.out / "best.pt.tmp").unlink(missing_ok=True)
+
+    def _save(self, path: Path) -> None:
+        self._check_finite()
+        states = [self._rng_state()]
+        if self.distributed:
+            states = [None] * self.world
+            dist.all_gather_object(states, self._rng_state())
+        if self.rank != 0:
+            return
+        save_checkpoint(
+            path,
+            self.model,
+            self.step,
+            {
+                "optimizer": self.opt.state_dict(),
+                "rng": states,
+                "train": config_to_dict(self.tc),
+                "best": float(self.best),
+                "provenance": self.provenance_now(),
+            },
+        )
+
+    def provenance_now(self) -> dict:
+        """The run's provenance with the hours spent up to now."""
+        wall, cpu = self.clock.hours()
+        return {**self.provenance.to_dict(), "wall_hours": round(wall, 6), "cpu_hours": round(cpu, 6)}
+
+    def _load(self, path: Path) -> None:
+        ckpt = read_checkpoint(path)
+        # through the dataclass: a key added since the checkpoint was written takes its default, a removed one
+        # that held its "off" value is dropped
+        stored = model_config_from_dict(
+            without_removed_keys(ckpt["config"], "model", f"{path}: config"), f"{path}: config"
+        )
+        if config_to_dict(stored) != config_to_dict(self.cfg):
+            raise ValueError(f"{path}: its model config differs from --config; resume with the same config")
+        self.model.load_state_dict(ckpt["state_dict"])
+        if "optimizer" in ckpt:
+            try:
+                self.opt.load_state_dict(ckpt["optimizer"])
+            except (ValueError, KeyError, TypeError, RuntimeError) as e:
+                raise UserError(f"{path}: optimizer: does not fit this run's optimiser ({one_line(e, 160)})") from None
+        self.step = int(ckpt["step"])
+        self.best = float(ckpt.get("best", -math.inf))
+        prov = ckpt.get("provenance")
+        if isinstance(prov, dict):  # the run keeps its origin and adds this invocation's hours to its own
+            if prov.get("scene_list_sha256") not in (None, self.provenance.scene_list_sha256):
+                print(
+                    f"warning: {path}: trained on another scene list ({prov.get('data')}); "
+                    f"continuing on {self.provenance.data}"
+                )
+            self.provenance.init = prov.get("init")
+            self.clock = RunClock(float(prov.get("wall_hours", 0.0)), float(prov.get("cpu_hours", 0.0)))
+        self._drop_log_after(self.step)
+        states = ckpt.get("rng")
+        if "optimizer" not in ckpt or states is None:  # a step_*.pt or best.pt copied over last.pt to roll back
+            if self.rank == 0:
+                print(
+                    f"warning: {path}: no optimizer or RNG state (a step_*.pt or best.pt?): Adam's moments start "
+                    "afresh and the data order is reseeded from the step; the resume is not bit-exact",
+                    file=sys.stderr,
+                )
+            torch.manual_seed(self.tc.seed + 1000 * self.rank + 7 * self.step)
+            self.gen.manual_seed(self.tc.seed * 7919 + self.rank + 104729 * self.step)
+            return
+        if len(states) != self.world:
+            raise ValueError(f"{path}: saved by {len(states)} process(es), resuming with {self.world}")
+        torch.set_rng_state(states[self.rank]["torch"])
+        self.gen.set_state(states[self.rank]["gen"])
+
+    # ------------------------------------------------------------------ loop
+    def batch(self) -> tuple[dict[str, Tensor], bool]:
+        ctx = self.tc.context_views[int(torch.randint(len(self.tc.context_views), (1,), generator=self.gen))]
+        ds = self.train_sets[ctx]
+        ds.set_progress(gap_progress(self.step, self.tc))
+        idx = torch.randint(len(ds), (self.tc.batch_size,), generator=self.gen).tolist()
+        items = [ds[i] for i in idx]
+        keep = [k for k in items[0] if not k.endswith("_masks")]
+        batch = default_collate([{k: it[k] for k in keep} for it in items])
+        use_depth = bool(torch.rand((), generator=self.gen) >= self.tc.depth_dropout)
+        return {k: v.to(self.device) for k, v in batch.items()}, use_depth
+
+    def train_step(self) -> dict[str, float]:
+        batch, use_depth = self.batch()
+        self.ddp.train()
+        self.model.refine_enabled = self.step >= self.tc.refine_start * self.tc.steps
+        with training_selection(self.model.config, self.tc):
+            parts, _ = training_loss(
+                self.ddp, batch, self.tc, use_depth, self.step >= self.tc.bg_off_steps, self.cfg.resolution, self.cfg
+            )
+        self.opt.zero_grad(set_to_none=True)
+        parts["loss"].backward()
+        grads = [p.grad for p in self.model.parameters() if p.grad is not None]
+        if grads and not bool(torch.stack([torch.isfinite(g).all() for g in grads]).all()):
+            # one NaN gradient would become all-NaN after clipping: skip the update, keep the weights
+            self.opt.zero_grad(set_to_none=True)
+            self.step += 1
+            return {"skipped": 1.0}
+        factor = lr_factor(self.step, self.tc)
+        for g, base in zip(self.opt.param_groups, self.base_lrs, strict=False):
+            g["lr"] = base * factor
+        if self.tc.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.tc.grad_clip)
+        self.opt.step()
+        self.step += 1
+        return {k: float(v.detach()) for k, v in parts.items()}
+
+    def validate(self) -> dict[str, float]:
+        from particlesplat.analysis.evaluate import evaluate_dataset
+
+        self.model.eval()
+        res = evaluate_dataset(
+            self.model, self.val_dir, context=max(self.tc.context_views), limit=self.tc.val_scenes, progress_bar=False
+        )
+        self.model.train()
+        return res["mean"]
+
+    def _drop_log_after(self, step: int) -> None:
+        """On resume: forget metrics.jsonl records of steps after the checkpoint (they will be logged again)."""
+        path = self.out / "metrics.jsonl"
+        if self.rank != 0 or not path.is_file():
+            return
+        records, note = read_log(path)  # a torn last line (disk full, crash) is reported and left out
+        if note:
+            print(f"warning: {note}", file=sys.stderr)
+        keep = [r for r in records if not isinstance(r.get("step"), (int, float)) or r["step"] <= step]
+        if note or len(keep) != len(records):
+            with atomic_write(path, "w") as f:
+                f.write("".join(json.dumps(r) + "\n" for r in keep))
+
+    def log(self, record: dict) -> None:
+        if self.rank == 0:
+            with open(self.out / "metrics.jsonl", "a") as f:
+                f.write(json.dumps(record) + "\n")
+
+    def run(self, stop_after: int | None = None) -> int:
+        """Train until ``steps`` (or for at most ``stop_after`` more steps, then checkpoint and return)."""
+        tc = self.tc
+        end = tc.steps if stop_after is None else min(tc.steps, self.step + stop_after)
+        if self.rank == 0:
+            self.out.mkdir(parents=True, exist_ok=True)
+            with atomic_write(self.out / "config.yaml", "w") as f:
+                import yaml
+
+                # every key, resolved
+                yaml.safe_dump(
+                    {"model": config_to_dict(self.cfg), "train": config_to_dict(self.tc)}, f, sort_keys=False
+                )
+            self._clean_temporaries()
+        stop = {"signum": 0}
+
+        def on_signal(signum, frame):  # finish the step, save, exit; a second signal stops at once
+            if stop["signum"]:
+                raise KeyboardInterrupt
+            stop["signum"] = signum
+
+        handlers = {}
+        if threading.current_thread() is threading.main_thread():
+            handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            self._loop(end, stop)
+            if stop["signum"] and self.step < end:
+                raise Interrupted(
+                    f"saved {self.out / LAST} at step {self.step}; continue with --resume", stop["signum"]
+                )
+        finally:
+            if getattr(self, "_bar", None) is not None:
+                self._bar.close()  # ends the bar's line: an error message gets a line of its own
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+        if self.distributed:
+            dist.destroy_process_group()
+        return 0
+
+    def _loop(self, end: int, stop: dict | None = None) -> None:
+        tc = self.tc
+        stop = stop if stop is not None else {}
+        self._bar = bar = tqdm(
+            total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0, dynamic_ncols=True
+        )
+        run_avg: dict[str, float] = {}
+        skipped_in_a_row = 0
+        while self.step < end:
+            parts = self.train_step()
+            bar.update(1)
+            if "skipped" in parts:
+                self.skipped += 1
+                skipped_in_a_row += 1
+                tqdm.write(f"warning: step {self.step}: non-finite loss or gradients; update skipped")
+                if skipped_in_a_row >= MAX_SKIPPED:
+                    raise TrainingDiverged(
+                        f"{self.out}: steps {self.step - MAX_SKIPPED + 1}-{self.step}: non-finite "
+                        "loss or gradients at every step; stopped without saving (the last "
+                        f"checkpoint in {self.out} is kept)"
+                    )
+            else:
+                skipped_in_a_row = 0
+                for k, v in parts.items():
+                    run_avg[k] = v if k not in run_avg else 0.9 * run_avg[k] + 0.1 * v
+            if run_avg:
+                bar.set_postfix(
+                    loss=f"{run_avg['loss']:.1f}", psnr=f"{run_avg['psnr']:.2f}", active=f"{run_avg['active']:.1f}"
+                )
+            if self.step % tc.log_every == 0 and run_avg:
+                self.log(
+                    {
+                        "step": self.step,
+                        **{k: round(v, 5) for k, v in run_avg.items()},
+                        **({"skipped": self.skipped} if self.skipped else {}),
+                    }
+                )
+            if self.step % tc.val_every == 0 or self.step == tc.steps:
+                self._check_finite()
+                if self.rank == 0 and self.val_dir.is_dir():
+                    try:
+                        m = self.validate()
+                    except BaseException:
+                        if not self.distributed:  # the steps since the last checkpoint are not lost
+                            self._save(self.out / LAST)
+                        raise
+                    self.log({"step": self.step, "val": m})
+                    tqdm.write(
+                        f"step {self.step}: val PSNR {m['psnr']:.2f} dB, FG-ARI {m['fg_ari']:.3f}, "
+                        f"mIoU {m['miou']:.3f}, active {m['active_particles']:.1f}"
+                    )
+                    save_checkpoint(
+                        self.out / f"step_{self.step:06d}.pt",
+                        self.model,
+                        self.step,
+                        {"val": m, "train": config_to_dict(self.tc), "provenance": self.provenance_now()},
+                    )
+                    score = m["psnr"] / 30.0 + (m["fg_ari"] if math.isfinite(m["fg_ari"]) else 0.0)
+                    if score > self.best:
+                        self.best = score
+                        with atomic_path(self.out / "best.pt") as tmp:
+                            shutil.copyfile(self.out / f"step_{self.step:06d}.pt", tmp)
+                if self.distributed:
+                    dist.barrier()
+            if self.step % tc.ckpt_every == 0 or self.step == end or stop.get("signum"):
+                self._save(self.out / LAST)  # after validation: it holds the best score
+            if stop.get("signum"):
+                break
+        bar.close()
