@@ -2,8 +2,8 @@
 
 The marks are those of ``particlesplat render --mode keypoints|boxes``
 (:func:`particlesplat.analysis.figures.overlay_marks`), from the scene's particle arrays
-(:func:`particlesplat.analysis.particle_arrays.particle_arrays`, recomputed when the particles change) projected into the
-view camera, and drawn with ImGui's background draw list (over the scene, under the panels).
+(:func:`particlesplat.analysis.particle_arrays.particle_arrays`, recomputed when the particles change) projected
+into the view camera, and drawn with ImGui's background draw list (over the scene, under the panels).
 """
 
 from __future__ import annotations
