@@ -249,3 +249,18 @@ def test_generate_bad_setup_is_one_line(tmp_path, env, needle):
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], proc.stderr
+
+
+def test_cli_robot_family_bad_assets_one_line(tmp_path):
+    import os
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "particlesplat.cli", "synth", "--family", "robot", str(tmp_path / "o"), "--train", "1"],
+        env={**os.environ, "PARTICLESPLAT_ROBOSUITE_ASSETS": str(tmp_path / "missing")},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and INSTALL in lines[0] and not (tmp_path / "o").exists()

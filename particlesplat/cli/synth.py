@@ -13,10 +13,12 @@ from particlesplat.data.synth import generate
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
-        "Generate the tabletop dataset (docs/dataset.md): OUT/{train,val,test}/scene_NNNNN "
-        "folders with RGB, planar 16-bit depth and instance masks for 21 views. "
-        "Deterministic for a seed; re-running resumes and skips finished scenes."
+        "Generate a scene dataset (docs/dataset.md): OUT/{train,val,test}/scene_NNNNN "
+        "folders with RGB, planar 16-bit depth and instance masks for 21 views, of the tabletop family "
+        "(the default) or the robot-workspace family (MuJoCo + robosuite's assets; test scenes carry "
+        "ground-truth edits). Deterministic for a seed; re-running resumes and skips finished scenes."
     )
+    parser.add_argument("--family", choices=("tabletop", "robot"), default="tabletop", help="scene family")
     parser.add_argument("out", type=Path, help="output folder (created)")
     parser.add_argument("--train", type=int, default=1000, help="number of training scenes")
     parser.add_argument("--val", type=int, default=32, help="number of validation scenes")
@@ -24,12 +26,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="dataset seed (>= 0)")
     parser.add_argument("--res", type=int, default=128, help="image width and height in pixels")
     parser.add_argument("--workers", type=int, default=2, help="worker processes (1 = in this process)")
+    parser.add_argument(
+        "--cameras", choices=("arc", "rlbench"), default="arc", help="robot: 21 views on an arc, or 4 RLBench-style"
+    )
+    parser.add_argument("--arm", choices=("home", "random"), default="home", help="robot: arm pose")
 
 
 def run(args: argparse.Namespace) -> int:
     counts = {"train": args.train, "val": args.val, "test": args.test}
     try:
-        times = generate(args.out, counts, args.seed, args.res, args.workers)
+        if args.family == "robot":
+            from particlesplat.data.families.robot import RobotSceneConfig
+            from particlesplat.data.families.robot_synth import generate as generate_robot
+
+            config = RobotSceneConfig(args.res, args.res, cameras=args.cameras, arm=args.arm)
+            times = [t["total"] for t in generate_robot(args.out, counts, args.seed, config, args.workers)]
+        else:
+            times = generate(args.out, counts, args.seed, args.res, args.workers)
     except ValueError as e:
         print(f"particlesplat synth: {e}", file=sys.stderr)
         return 2
