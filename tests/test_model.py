@@ -83,12 +83,11 @@ def test_sh_rotation_degree_one_matches_rotated_directions():
     torch.testing.assert_close(eval_sh_colors(rotate_sh_to_world(sh, R), d @ R.T), eval_sh_colors(sh, d))
 
 
-@pytest.mark.parametrize("depth_scale", ["pixel", "cell"])
-def test_foreground_lifting_matches_projection_and_jacobian(depth_scale):
+def test_foreground_lifting_matches_projection_and_jacobian():
     """Step 2-3 by hand: with zero head outputs the Gaussians sit at the cell centres of the particle's box,
     at planar depth d, and their covariance is (ζ/f)² J diag(s̄²) J in camera axes, where J's depth entry is
-    one pixel ("pixel") or the mean width of a canonical cell ("cell": cubic cells)."""
-    cfg = ModelConfig(**TINY, particle_depth_scale=depth_scale, patch_back=False)
+    the mean width of a canonical cell (cubic cells)."""
+    cfg = ModelConfig(**TINY, patch_back=False)
     S = cfg.patch_gaussians
     cam = cams(1)[0]
     K, c2w = stack_cameras([cam])
@@ -112,7 +111,7 @@ def test_foreground_lifting_matches_projection_and_jacobian(depth_scale):
     torch.testing.assert_close(f["opacities"][0], torch.full((S * S,), 0.7 * 0.5))
     s_bar = cfg.s_min + 0.5 * (cfg.s_max - cfg.s_min)
     fx = float(cam.K[0, 0])
-    depth_px = 1.0 if depth_scale == "pixel" else (0.25 + 0.4) / 2 * W / S
+    depth_px = (0.25 + 0.4) / 2 * W / S
     jac = torch.tensor([0.25 * W / S, 0.4 * W / S, depth_px]) * float(d) / fx
     expect = torch.diag((jac * s_bar) ** 2)
     g = Gaussians(
@@ -132,7 +131,7 @@ def test_back_layer_sits_behind_the_front_on_the_same_ray():
     """patch_back: with zero head outputs (σ = 0.5) each back Gaussian projects onto its front Gaussian's
     pixel, half the particle box's width (σ(z_s) W / f · ζ, metres, along x and y averaged) deeper; its
     opacity is z_t σ(its own opacity logit) and the front layer is exactly the layer without the back."""
-    cfg = ModelConfig(**TINY, particle_depth_scale="cell", patch_back=True)
+    cfg = ModelConfig(**TINY, patch_back=True)
     S = cfg.patch_gaussians
     cam = cams(1)[0]
     K, c2w = stack_cameras([cam])

@@ -152,7 +152,10 @@ LEGACY_OFF = {
     "patch_cell_mlp": 0,
     "patch_copy_input": False,
     "patch_copy_threshold": 0.3,
+    "particle_depth_scale": "cell",
+    "refine_glimpse": 0,
 }
+LEGACY_TRAIN_OFF = {"beta_coarse": 2.5, "fg_band": 0, "depth_dropout": 0.0, "bg_off_steps": 0, "freeze": []}
 
 
 def _old_checkpoint(path: Path, **config) -> Path:
@@ -178,7 +181,8 @@ def test_removed_keys_at_their_off_value_are_dropped(tmp_path):
         rtol=0,
         atol=0,
     )
-    train = without_removed_keys({**asdict(TrainConfig()), "beta_coarse": 2.5}, "train", "old.pt: train")
+    assert set(LEGACY_TRAIN_OFF) == set(REMOVED_KEYS["train"])
+    train = without_removed_keys({**asdict(TrainConfig()), **LEGACY_TRAIN_OFF}, "train", "old.pt: train")
     assert train == asdict(TrainConfig())
 
 
@@ -193,6 +197,8 @@ def test_removed_keys_at_their_off_value_are_dropped(tmp_path):
         ("patch_copy_input", True),
         ("kp_selection", "presence"),
         ("bg_detail", False),
+        ("particle_depth_scale", "pixel"),
+        ("refine_glimpse", 24),
     ],
 )
 def test_removed_keys_that_switch_a_branch_on_are_refused_by_name(tmp_path, key, value):
@@ -201,6 +207,14 @@ def test_removed_keys_that_switch_a_branch_on_are_refused_by_name(tmp_path, key,
         load_model(path)
     with pytest.raises(ConfigError, match=rf"on\.pt: config\.{key}"):
         model_from_checkpoint(read_checkpoint(path), str(path))
+
+
+@pytest.mark.parametrize(
+    "key,value", [("fg_band", 1), ("depth_dropout", 0.5), ("bg_off_steps", 100), ("freeze", ["encoder"])]
+)
+def test_removed_training_keys_that_switch_a_branch_on_are_refused_by_name(key, value):
+    with pytest.raises(ConfigError, match=rf"old\.pt: train\.{key}: .* switches on a branch"):
+        without_removed_keys({**asdict(TrainConfig()), key: value}, "train", "old.pt: train")
 
 
 def test_a_key_no_version_had_is_still_refused(tmp_path):

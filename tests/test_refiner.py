@@ -15,9 +15,8 @@ from particlesplat.rendering.api import render
 
 def refined_pair(**kw):
     """A tiny model with refine_steps 1 and the same model without it, sharing every other weight."""
-    glimpse = kw.pop("refine_glimpse", 0)
     plain = tiny_model(3, refine_steps=0, **kw)
-    refined = tiny_model(4, refine_steps=1, refine_hidden=16, refine_glimpse=glimpse, **kw)
+    refined = tiny_model(4, refine_steps=1, refine_hidden=16, **kw)
     missing = refined.load_state_dict(plain.state_dict(), strict=False).missing_keys
     assert missing and all(k.startswith("refiner.") for k in missing)
     return plain, refined
@@ -69,12 +68,11 @@ def test_box_glimpse_of_a_ramp_is_the_ramp_over_the_box():
     torch.testing.assert_close(out[0, 1], want_y[:, None].expand(g, g))
 
 
-@pytest.mark.parametrize("glimpse", [0, 16])
-def test_refiner_sees_the_view_and_the_render_of_the_current_means(glimpse):
+def test_refiner_sees_the_view_and_the_render_of_the_current_means():
     """The glimpses the refinement network reads equal an independent render of the plain model's decoded
     particles in their own view (colour, depth, alpha and the particle's own weight) beside the observation,
     over each particle's box enlarged by BOX_MARGIN."""
-    plain, refined = refined_pair(refine_glimpse=glimpse)
+    plain, refined = refined_pair()
     rgb, depth, cs = scene_inputs(2)
     seen = {}
 
@@ -88,7 +86,7 @@ def test_refiner_sees_the_view_and_the_render_of_the_current_means(glimpse):
     g = plain.decode(p)
     cfg = plain.config
     bg = plain.background_color()
-    size = refined.config.refine_glimpse_size
+    size = refined.config.glimpse_size
     N = p.num
     for n in range(N):
         v = int(p.view[n])
@@ -109,7 +107,7 @@ def test_refiner_sees_the_view_and_the_render_of_the_current_means(glimpse):
         theta[0, :, 2] = p.z_p[n]
         grid = F.affine_grid(theta, [1, 11, size, size], align_corners=False)
         want = F.grid_sample(image[None], grid, mode="bilinear", padding_mode="border", align_corners=False)[0]
-        assert seen["g"].shape[-1] == (glimpse or cfg.glimpse_size)
+        assert seen["g"].shape[-1] == cfg.glimpse_size
         torch.testing.assert_close(seen["g"][n], want, rtol=1e-4, atol=1e-5)
     assert seen["g"][:, 10].amax() > 0.1  # particles see their own weight
 
@@ -136,7 +134,7 @@ def test_refinement_trains_end_to_end():
         "target_c2w": c2w[None, :1],
         "target_supervision": torch.ones_like(depth[None, :1]),
     }
-    parts, _ = training_loss(refined, batch, TrainConfig(beta_fg=0.0), True, True, 32, refined.config)
+    parts, _ = training_loss(refined, batch, TrainConfig(beta_fg=0.0), 32, refined.config)
     parts["loss"].backward()
     assert refined.refiner.out.weight.grad.abs().max() > 0
     assert refined.encoder.head.weight.grad.abs().max() > 0
@@ -147,5 +145,3 @@ def test_refinement_config_errors():
         ModelConfig(**{**TINY, "refine_steps": -1}).validate()
     with pytest.raises(ConfigError, match="glimpse_size.*multiple of 8"):
         ModelConfig(**{**TINY, "glimpse_size": 12, "refine_steps": 1}).validate()
-    with pytest.raises(ConfigError, match="refine_glimpse"):
-        ModelConfig(**{**TINY, "refine_steps": 1, "refine_glimpse": 20}).validate()

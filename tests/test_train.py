@@ -233,34 +233,6 @@ def test_foreground_error_targets_what_the_static_layer_cannot_explain():
     assert float(error(torch.zeros_like(exact), rgb, depth)) == 16.0
 
 
-def test_foreground_band_leaves_out_the_pixels_along_the_target_edge():
-    """A 6x6 target square in a 16x16 view with fg = 0.5 everywhere: band 0 counts all 256 pixels at 0.25;
-    band 1 leaves out the square's outer ring of 20 and the 28 pixels around it (208 counted), band 2 leaves
-    out 32 + 64 (160 counted); a brute-force loop over the Chebyshev neighbourhoods agrees on random targets."""
-    from particlesplat.training.trainer import foreground_error
-
-    err = torch.zeros(1, 1, 16, 16)
-    err[..., 5:11, 5:11] = 1.0
-    fg = torch.full((1, 1, 16, 16), 0.5)
-    assert float(foreground_error(fg, err, 0.02)) == 256 * 0.25
-    assert float(foreground_error(fg, err, 0.02, band=1)) == (256 - 20 - 28) * 0.25
-    assert float(foreground_error(fg, err, 0.02, band=2)) == (256 - 32 - 64) * 0.25
-
-    gen = torch.Generator().manual_seed(3)
-    err = torch.rand(2, 1, 9, 12, generator=gen) * 0.04
-    fg = torch.rand(2, 1, 9, 12, generator=gen)
-    target = (err >= 0.02).double()
-    for band in (1, 2):
-        want = torch.zeros(2, dtype=torch.float64)
-        for m in range(2):
-            for y in range(9):
-                for x in range(12):
-                    win = target[m, 0, max(0, y - band) : y + band + 1, max(0, x - band) : x + band + 1]
-                    if bool((win == target[m, 0, y, x]).all()):
-                        want[m] += (fg[m, 0, y, x].double() - target[m, 0, y, x]) ** 2
-        torch.testing.assert_close(foreground_error(fg, err, 0.02, band=band).double(), want)
-
-
 def test_foreground_term_needs_the_static_layer(tmp_path_factory, tmp_path):
     from pathlib import Path
 
@@ -290,19 +262,3 @@ def test_training_with_the_foreground_term_logs_it(tmp_path_factory, tmp_path):
     fg = [r["fg"] for r in rows if "fg" in r]
     assert len(fg) == 2 and all(0.0 < v <= 3 * 32 * 32 for v in fg)
     assert all(math.isfinite(r["loss"]) for r in rows if "loss" in r)
-
-
-def test_frozen_modules_keep_their_weights(tmp_path_factory, tmp_path):
-    """train.freeze: the named modules stay bit-identical over two steps while the rest trains; a module the
-    model does not have is refused by name."""
-    data = tiny_dataset(tmp_path_factory)
-    cfg = tiny_config(tmp_path / "tiny.yaml", steps=2, val_every=5, freeze=["encoder", "bg_encoder"])
-    assert _train(cfg, data, tmp_path / "s", "--stop-after", "1") == 0
-    before = read_checkpoint(tmp_path / "s" / "last.pt")["state_dict"]
-    assert _train(cfg, data, tmp_path / "s", "--resume") == 0
-    after = read_checkpoint(tmp_path / "s" / "last.pt")["state_dict"]
-    moved = {k.split(".")[0] for k in after if not torch.equal(after[k], before[k])}
-    assert "fg_decoder" in moved and not moved & {"encoder", "bg_encoder"}
-    bad = tiny_config(tmp_path / "bad.yaml", freeze=["encoder", "bg_decoder"])  # built with bg_per_view only
-    with pytest.raises(ValueError, match="train.freeze: no such module in this model: bg_decoder"):
-        _train(bad, data, tmp_path / "b")

@@ -46,7 +46,6 @@ INT_RANGES: dict[str, tuple[int, int]] = {
     "patch_hidden": (0, 4096),
     "refine_steps": (0, 16),
     "refine_hidden": (1, 4096),
-    "refine_glimpse": (0, 256),
     "token_dim": (1, 2048),
     "transformer_layers": (0, 64),
     "transformer_heads": (1, 64),
@@ -54,7 +53,6 @@ INT_RANGES: dict[str, tuple[int, int]] = {
     "batch_size": (1, 4096),
     "target_views": (0, 64),
     "steps": (1, 10**9),
-    "bg_off_steps": (0, 10**9),
     "log_every": (1, 10**9),
     "val_every": (1, 10**9),
     "val_scenes": (1, 10**6),
@@ -62,7 +60,6 @@ INT_RANGES: dict[str, tuple[int, int]] = {
     "seed": (0, 2**63 - 1),
     "num_threads": (0, 1024),
     "cache_scenes": (0, 10**6),
-    "fg_band": (0, 1024),
 }
 
 
@@ -91,11 +88,9 @@ class ModelConfig:
     patch_base: int = 4
     patch_channels: int = 64
     patch_hidden: int = 256
-    particle_depth_scale: str = "cell"
     patch_back: bool = True
     refine_steps: int = 1
     refine_hidden: int = 256
-    refine_glimpse: int = 0
     token_dim: int = 64
     transformer_layers: int = 2
     transformer_heads: int = 4
@@ -159,17 +154,11 @@ class ModelConfig:
         need(self.patch_hidden >= 0, "patch_hidden", "must be >= 0 (0: twice the patch channels)")
         need(self.refine_steps >= 0, "refine_steps", "must be >= 0 (0: no refinement)")
         need(
-            self.refine_glimpse == 0 or self.refine_glimpse % 8 == 0,
-            "refine_glimpse",
-            "must be 0 (= glimpse_size) or a multiple of 8",
-        )
-        need(
-            self.refine_steps == 0 or self.refine_glimpse > 0 or self.glimpse_size % 8 == 0,
+            self.refine_steps == 0 or self.glimpse_size % 8 == 0,
             "glimpse_size",
-            "must be a multiple of 8 with refine_steps > 0 (or set refine_glimpse)",
+            "must be a multiple of 8 with refine_steps > 0 (the refiner's glimpse)",
         )
         need(self.refine_hidden >= 1, "refine_hidden", "must be >= 1")
-        need(self.particle_depth_scale in ("pixel", "cell"), "particle_depth_scale", "must be 'pixel' or 'cell'")
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
         need(self.transformer_layers >= 0, "transformer_layers", "must be >= 0")
         need(self.sh_degree in (0, 1), "sh_degree", "must be 0 or 1")
@@ -187,11 +176,6 @@ class ModelConfig:
             "prior_t_b",
         ):
             need(getattr(self, key) > 0.0, key, "must be > 0")
-
-    @property
-    def refine_glimpse_size(self) -> int:
-        """Pixels across the refinement glimpse (``refine_glimpse``, 0 = ``glimpse_size``)."""
-        return self.refine_glimpse or self.glimpse_size
 
     @property
     def gaussians_per_particle(self) -> int:
@@ -243,22 +227,18 @@ class TrainConfig:
     beta_reg: float = 0.1
     beta_fg: float = 0.4
     fg_threshold: float = 0.02
-    fg_band: int = 0
     beta_rec_ctx: float = 1.0
     beta_rec_tgt: float = 1.0
     lambda_depth: float = 0.5
-    depth_dropout: float = 0.0
     gap_warmup: float = 0.1
     refine_start: float = 0.5
     particles_per_view: int = 4
     kp_min_separation: float = 0.35
-    bg_off_steps: int = 0
     log_every: int = 10
     val_every: int = 500
     val_scenes: int = 12
     ckpt_every: int = 50
     seed: int = 42
-    freeze: list[str] = field(default_factory=list)
     num_threads: int = 1
     cache_scenes: int = 1100
 
@@ -277,14 +257,11 @@ class TrainConfig:
         need(self.lr > 0, "lr", "must be > 0")
         need(self.lr_background > 0, "lr_background", "must be > 0")
         need(0.0 <= self.lr_final <= 1.0, "lr_final", "must be in [0, 1]")
-        need(0.0 <= self.depth_dropout <= 1.0, "depth_dropout", "must be in [0, 1]")
         need(0.0 <= self.gap_warmup <= 1.0, "gap_warmup", "must be in [0, 1]")
         need(self.particles_per_view >= 0, "particles_per_view", "must be >= 0 (0: the model's)")
         need(self.kp_min_separation >= 0.0, "kp_min_separation", "must be >= 0 (0: the model's)")
         need(0.0 <= self.refine_start <= 1.0, "refine_start", "must be in [0, 1] (a fraction of the steps)")
         need(self.cache_scenes >= 0, "cache_scenes", "must be >= 0")
-        need(self.fg_band >= 0, "fg_band", "must be >= 0")
-        need(all(isinstance(m, str) and m for m in self.freeze), "freeze", "must be a list of module names")
         for key in ("log_every", "val_every", "ckpt_every"):
             need(getattr(self, key) >= 1, key, "must be >= 1")
         for key in (
@@ -347,8 +324,8 @@ def _from_dict(cls, data: Any, where: str):
 
 
 # Keys of experiment branches the recipe does not use; the code behind them is gone. Checkpoints written before
-# (the shipped assets/model.pt among them) still store them: each maps to the value that turned its branch off
-# (ANY: it only tuned a removed branch, so any value reads as off).
+# (the shipped assets/model.pt among them) still store them: each maps to the value that turned its branch off,
+# which is what the code now always does (ANY: it only tuned a removed branch, so any value reads as off).
 ANY = object()
 REMOVED_KEYS: dict[str, dict[str, Any]] = {
     "model": {
@@ -361,8 +338,16 @@ REMOVED_KEYS: dict[str, dict[str, Any]] = {
         "patch_cell_mlp": 0,
         "patch_copy_input": False,
         "patch_copy_threshold": ANY,
+        "particle_depth_scale": "cell",
+        "refine_glimpse": 0,
     },
-    "train": {"beta_coarse": ANY},
+    "train": {
+        "beta_coarse": ANY,
+        "fg_band": 0,
+        "depth_dropout": 0.0,
+        "bg_off_steps": 0,
+        "freeze": [],
+    },
 }
 
 

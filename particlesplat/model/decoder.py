@@ -234,12 +234,9 @@ def _lift_cells(
     N = pix.shape[1]
     Kn = K[:, None].expand(-1, N, -1, -1)
     cn = c2w[:, None].expand(-1, N, -1, -1)
-    # "cell": canonical cells are cubes (as deep as they are wide), so a particle's Gaussians have volume and
-    # do not turn into slivers seen from the side
-    depth_cell = None
-    if cfg.particle_depth_scale == "cell":
-        fx = K[:, 0, 0, None]
-        depth_cell = jac_px.mean(-1) * zeta / fx
+    # canonical cells are cubes (as deep as they are wide), so a particle's Gaussians have volume and do not
+    # turn into slivers seen from the side
+    depth_cell = jac_px.mean(-1) * zeta / K[:, 0, 0, None]
     return _finish(p, pix, zeta, jac_px.expand(-1, N, -1), Kn, cn, opacity, cfg, depth_cell)
 
 

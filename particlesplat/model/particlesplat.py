@@ -174,7 +174,7 @@ class ParticleSplat(nn.Module):
         """``refine_steps`` amortised corrections of the particle posterior means (:mod:`.refiner`).
 
         Each step decodes the current means and renders the context views (no gradient), then every particle
-        compares render and observation inside its box (enlarged by :data:`BOX_MARGIN`, ``refine_glimpse_size``
+        compares render and observation inside its box (enlarged by :data:`BOX_MARGIN`, ``glimpse_size``
         pixels across) in its own view. post: from :meth:`posterior`; rgb: (B, V, 3, H, W); depth:
         (B, V, 1, H, W) metres or None; K: (B, V, 3, 3); c2w: (B, V, 4, 4). Returns the posterior with refined
         means (the same fields and shapes).
@@ -213,7 +213,7 @@ class ParticleSplat(nn.Module):
                 centre = z["z_p"].reshape(B * N, 2)
                 half = BOX_MARGIN * torch.sigmoid(z["z_s"]).reshape(B * N, 2)
             images = torch.cat([observed, rendered, own], dim=2).reshape(B * N, GLIMPSE_CHANNELS, H, W)
-            glimpses = box_glimpses(images, centre, half, cfg.refine_glimpse_size)
+            glimpses = box_glimpses(images, centre, half, cfg.glimpse_size)
             delta = self.refiner(glimpses, latent_vector(post).reshape(B * N, -1)).reshape(B, N, -1)
             post = self.refiner.corrected(post, delta, self.encoder.scale_centre)
         return post

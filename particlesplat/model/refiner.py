@@ -61,7 +61,7 @@ class Refiner(nn.Module):
         super().__init__()
         self.cfg = cfg
         c, D = cfg.channels, cfg.d_obj
-        g = cfg.refine_glimpse_size
+        g = cfg.glimpse_size
         self.cnn = nn.Sequential(conv3x3(GLIMPSE_CHANNELS, c // 2, 2), conv3x3(c // 2, c, 2), conv3x3(c, c, 2))
         n_lat = 7 + D
         hid = cfg.refine_hidden
@@ -71,7 +71,7 @@ class Refiner(nn.Module):
         nn.init.zeros_(self.out.bias)
 
     def forward(self, glimpses: Tensor, latents: Tensor) -> Tensor:
-        """glimpses: (M, 11, g, g) (:data:`GLIMPSE_CHANNELS`, g = ``refine_glimpse_size``); latents:
+        """glimpses: (M, 11, g, g) (:data:`GLIMPSE_CHANNELS`, g = ``glimpse_size``); latents:
         (M, 7 + d_obj) (:func:`latent_vector`) -> (M, 7 + d_obj) corrections in the same layout (the z_t entry
         moves log a and -log b)."""
         h = self.cnn(glimpses).flatten(1)

@@ -10,6 +10,7 @@ import shutil
 import signal
 import sys
 import threading
+import weakref
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -21,9 +22,9 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import default_collate
 from tqdm import tqdm
 
-from particlesplat.analysis.metrics import near_other_label
 from particlesplat.core.atomic import atomic_path, atomic_write
 from particlesplat.core.camera import Camera
+from particlesplat.core.device import resolve_device
 from particlesplat.core.errors import Interrupted, UserError, one_line
 from particlesplat.data.views import WARMUP
 from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig, read_checkpoint, save_checkpoint
@@ -31,9 +32,11 @@ from particlesplat.model.config import ConfigError, config_to_dict, model_config
 from particlesplat.model.losses import elbo, scene_kl, view_error
 from particlesplat.model.provenance import Provenance, RunClock
 from particlesplat.rendering.api import render_batch
+from particlesplat.training.runlock import LOCK_NAME, RunLock
 from particlesplat.training.runlog import read_log
 
 LAST = "last.pt"
+STEP_FILE = re.compile(r"^step_\d+\.pt$")
 MAX_SKIPPED = 20  # steps in a row with non-finite loss or gradients before the run stops as diverged
 
 
@@ -76,37 +79,28 @@ def render_views(
     return rgb.reshape(B, V, 3, size, size), depth.reshape(B, V, 1, size, size), fg
 
 
-def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float, band: int = 0) -> Tensor:
+def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float) -> Tensor:
     """Squared error of the particles' weight against what the static background layer cannot explain.
 
     fg: (M, 1, H, W) rendered particle weight; bg_error: (M, 1, H, W) the layer's own error per pixel
     (:meth:`ParticleSplat.static_background_error` with ``block=1``). The target is 1 where that error is
-    at least ``threshold`` (an object stands there) and 0 elsewhere. With ``band`` > 0, pixels within
-    ``band`` px (Chebyshev) of a pixel with the other target are left out: an object's edge covers them only
-    in part, so their true weight lies between 0 and 1 and the reconstruction alone decides it. Returns (M,)
-    per-view sums over the pixels.
+    at least ``threshold`` (an object stands there) and 0 elsewhere. Returns (M,) per-view sums over the pixels.
     """
     target = (bg_error >= threshold).to(fg.dtype)
-    err = (fg - target) ** 2
-    if band > 0:
-        err = err * (~near_other_label(target, band)).to(fg.dtype)  # all neighbours agree: not on an edge
-    return err.flatten(1).sum(1)
+    return ((fg - target) ** 2).flatten(1).sum(1)
 
 
 def training_loss(
     model: ParticleSplat | DistributedDataParallel,
     batch: dict[str, Tensor],
     tc: TrainConfig,
-    use_depth: bool,
-    background: bool,
     size: int,
     cfg: ModelConfig,
 ) -> tuple[dict[str, Tensor], Tensor]:
     """Negative ELBO of a batch (dict of (B, …) tensors from SceneDataset). Returns the loss parts and the
     target-view renders (B, T, 3, H, W) (or context renders when there are no targets)."""
-    depth = batch["context_depth"] if use_depth else None
     post, z, gaussians = model(
-        batch["context_rgb"], depth, batch["context_K"], batch["context_c2w"], sample=True, background=background
+        batch["context_rgb"], batch["context_depth"], batch["context_K"], batch["context_c2w"], sample=True
     )
     C = batch["context_rgb"].shape[1]
     K = torch.cat([batch["context_K"], batch["target_K"]], 1)
@@ -134,7 +128,7 @@ def training_loss(
             tgt = [batch[k].flatten(0, 1) for k in ("target_rgb", "target_depth", "target_K", "target_c2w")]
             tgt_err = net.static_background_error(*tgt, block=1).reshape(B, V - C, 1, size, size)
             bg_err = torch.cat([bg_err, tgt_err], 1)
-        fg_err = foreground_error(fg_hat.flatten(0, 1), bg_err.flatten(0, 1), tc.fg_threshold, tc.fg_band)
+        fg_err = foreground_error(fg_hat.flatten(0, 1), bg_err.flatten(0, 1), tc.fg_threshold)
         parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
         parts["loss"] = parts["loss"] + tc.beta_fg * parts["fg"]
     shown = rgb_hat[:, C:] if V > C else rgb_hat
@@ -185,11 +179,37 @@ class Trainer:
         resume: bool,
         overwrite: bool = False,
     ):
-        self.cfg, self.tc, self.out, self.device = cfg, tc, out, torch.device(device)
-        if not resume and not overwrite and out.exists() and (not out.is_dir() or any(out.iterdir())):
+        self.cfg, self.tc, self.out = cfg, tc, out
+        self.device = device if isinstance(device, torch.device) else resolve_device(device)
+        # the folder is owned by this process before anything in it is read or deleted (a folder that does not
+        # exist yet is locked when run() creates it)
+        self.lock = RunLock(out)
+        self._release = weakref.finalize(self, self.lock.release)
+        if int(os.environ.get("RANK", "0")) == 0 and out.is_dir():
+            self.lock.acquire()
+        try:
+            self._setup(data, resume, overwrite)
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def _setup(self, data: Path, resume: bool, overwrite: bool) -> None:
+        cfg, tc, out = self.cfg, self.tc, self.out
+        self.resumed = resume
+        if out.exists() and not out.is_dir():
+            raise FileExistsError(f"{out}: --out is a file, not a folder")
+        held = [p for p in out.iterdir() if p.name != LOCK_NAME] if out.is_dir() else []
+        has_run = any(p.name in (LAST, "best.pt") or STEP_FILE.match(p.name) for p in held)
+        if not resume and not overwrite and held:
             raise FileExistsError(
                 f"{out}: --out is not empty; pass --resume to continue the run in it, "
                 "--overwrite to replace it, or choose another folder"
+            )
+        if overwrite and not resume and held and not has_run:
+            raise FileExistsError(
+                f"{out}: --overwrite replaces a training run, and this folder holds none (no last.pt, best.pt or "
+                f"step_*.pt; it holds {', '.join(sorted(p.name for p in held)[:3])}{', ...' if len(held) > 3 else ''}"
+                "); choose another --out"
             )
         replace(cfg, particles_per_view=tc.particles_per_view or cfg.particles_per_view).validate(
             "train.particles_per_view with the model"
@@ -226,26 +246,16 @@ class Trainer:
         torch.manual_seed(tc.seed + 1000 * self.rank)
         self.gen = torch.Generator().manual_seed(tc.seed * 7919 + self.rank)
         self.model = ParticleSplat(cfg).to(self.device)
-        owns = lambda k, p: k == p or k.startswith(p + ".")  # noqa: E731
-        names = [n for n, _ in self.model.named_parameters()]
-        unknown = [m for m in tc.freeze if not any(owns(n, m) for n in names)]
-        if unknown:
-            raise ConfigError(
-                f"train.freeze: no such module in this model: {', '.join(unknown)} "
-                f"(modules: {', '.join(sorted({n.split('.')[0] for n in names}))})"
-            )
-        for n, p in self.model.named_parameters():  # frozen weights keep what they start with
-            p.requires_grad_(not any(owns(n, m) for m in tc.freeze))
         # the learned background colour and the static background layer move at lr_background
         is_bg = lambda n: n == "background_logit" or n.startswith("static_bg.")  # noqa: E731
-        trained = [(n, p) for n, p in self.model.named_parameters() if p.requires_grad]
+        trained = list(self.model.named_parameters())
         bg = [p for n, p in trained if is_bg(n)]
         rest = [p for n, p in trained if not is_bg(n)]
-        groups = ([{"params": rest, "lr": tc.lr}] if rest else []) + (
-            [{"params": bg, "lr": tc.lr_background}] if bg else []
-        )
-        if not groups:
-            raise ConfigError("train.freeze: every weight is frozen, nothing would train")
+        groups = [{"params": rest, "lr": tc.lr}] + ([{"params": bg, "lr": tc.lr_background}] if bg else [])
+        # the names of the weights each optimiser group moves: a resume with another layout (another train.freeze)
+        # is refused, not continued with Adam moments of other weights
+        self.layout = [[n for n, p in trained if not is_bg(n)]] if rest else []
+        self.layout += [[n for n, p in trained if is_bg(n)]] if bg else []
         self.base_lrs = [g["lr"] for g in groups]  # each group's lr before the cosine factor
         self.opt = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
         self.step = 0
@@ -258,8 +268,8 @@ class Trainer:
             raise FileExistsError(
                 f"{out / LAST}: this run already exists; pass --resume to continue it or choose another --out"
             )
-        # steps without the background or before refine_start leave weights without gradients
-        unused = tc.bg_off_steps > 0 or (cfg.refine_steps > 0 and tc.refine_start > 0)
+        # steps before refine_start leave the refiner's weights without gradients
+        unused = cfg.refine_steps > 0 and tc.refine_start > 0
         self.ddp = (
             DistributedDataParallel(self.model, find_unused_parameters=unused) if self.distributed else self.model
         )
@@ -328,6 +338,7 @@ class Trainer:
             self.step,
             {
                 "optimizer": self.opt.state_dict(),
+                "optimizer_layout": self.layout,
                 "rng": states,
                 "train": config_to_dict(self.tc),
                 "best": float(self.best),
@@ -348,9 +359,10 @@ class Trainer:
             without_removed_keys(ckpt["config"], "model", f"{path}: config"), f"{path}: config"
         )
         if config_to_dict(stored) != config_to_dict(self.cfg):
-            raise ValueError(f"{path}: its model config differs from --config; resume with the same config")
+            raise ConfigError(f"{path}: its model config differs from --config; resume with the same config")
         self.model.load_state_dict(ckpt["state_dict"])
         if "optimizer" in ckpt:
+            self._check_layout(path, ckpt)
             try:
                 self.opt.load_state_dict(ckpt["optimizer"])
             except (ValueError, KeyError, TypeError, RuntimeError) as e:
@@ -379,12 +391,43 @@ class Trainer:
             self.gen.manual_seed(self.tc.seed * 7919 + self.rank + 104729 * self.step)
             return
         if len(states) != self.world:
-            raise ValueError(f"{path}: saved by {len(states)} process(es), resuming with {self.world}")
+            raise UserError(f"{path}: saved by {len(states)} process(es), resuming with {self.world}")
         torch.set_rng_state(states[self.rank]["torch"])
         self.gen.set_state(states[self.rank]["gen"])
 
+    def _check_layout(self, path: Path, ckpt: dict) -> None:
+        """UserError unless the checkpoint's optimiser moved the weights this run's optimiser moves, in the same
+        groups (its ``optimizer_layout``; older checkpoints: each Adam moment's shape against its weight's)."""
+        freeze = ckpt.get("train", {}).get("freeze") if isinstance(ckpt.get("train"), dict) else None
+        hint = f" (train.freeze was {freeze!r}, --config has {list(self.tc.freeze)!r})" if freeze is not None else ""
+        layout = ckpt.get("optimizer_layout")
+        if layout is not None:
+            if layout != self.layout:
+                have = {n for g in layout for n in g} if isinstance(layout, list) else set()
+                want = {n for g in self.layout for n in g}
+                diff = sorted(have ^ want)[:3]
+                raise UserError(
+                    f"{path}: optimizer_layout: the run trained other weights than this config would{hint}, e.g. "
+                    f"{', '.join(diff) or 'in other groups'}; resume with the run's train.freeze"
+                )
+            return
+        params = [p for g in self.opt.param_groups for p in g["params"]]
+        state = ckpt["optimizer"].get("state", {}) if isinstance(ckpt["optimizer"], dict) else {}
+        groups = ckpt["optimizer"].get("param_groups", []) if isinstance(ckpt["optimizer"], dict) else []
+        ids = [i for g in groups if isinstance(g, dict) for i in g.get("params", [])]
+        if len(ids) != len(params) or any(
+            isinstance(state.get(i), dict)
+            and isinstance(state[i].get("exp_avg"), torch.Tensor)
+            and tuple(state[i]["exp_avg"].shape) != tuple(p.shape)
+            for i, p in zip(ids, params, strict=False)
+        ):
+            raise UserError(
+                f"{path}: optimizer: the run trained other weights than this config would{hint}; "
+                "resume with the run's train.freeze"
+            )
+
     # ------------------------------------------------------------------ loop
-    def batch(self) -> tuple[dict[str, Tensor], bool]:
+    def batch(self) -> dict[str, Tensor]:
         ctx = self.tc.context_views[int(torch.randint(len(self.tc.context_views), (1,), generator=self.gen))]
         ds = self.train_sets[ctx]
         ds.set_progress(gap_progress(self.step, self.tc))
@@ -392,17 +435,15 @@ class Trainer:
         items = [ds[i] for i in idx]
         keep = [k for k in items[0] if not k.endswith("_masks")]
         batch = default_collate([{k: it[k] for k in keep} for it in items])
-        use_depth = bool(torch.rand((), generator=self.gen) >= self.tc.depth_dropout)
-        return {k: v.to(self.device) for k, v in batch.items()}, use_depth
+        torch.rand((), generator=self.gen)  # one draw per step keeps a seed's batches those of the recorded runs
+        return {k: v.to(self.device) for k, v in batch.items()}
 
     def train_step(self) -> dict[str, float]:
-        batch, use_depth = self.batch()
+        batch = self.batch()
         self.ddp.train()
         self.model.refine_enabled = self.step >= self.tc.refine_start * self.tc.steps
         with training_selection(self.model.config, self.tc):
-            parts, _ = training_loss(
-                self.ddp, batch, self.tc, use_depth, self.step >= self.tc.bg_off_steps, self.cfg.resolution, self.cfg
-            )
+            parts, _ = training_loss(self.ddp, batch, self.tc, self.cfg.resolution, self.cfg)
         self.opt.zero_grad(set_to_none=True)
         parts["loss"].backward()
         grads = [p.grad for p in self.model.parameters() if p.grad is not None]
@@ -445,15 +486,34 @@ class Trainer:
 
     def log(self, record: dict) -> None:
         if self.rank == 0:
-            with open(self.out / "metrics.jsonl", "a") as f:
-                f.write(json.dumps(record) + "\n")
+            path = self.out / "metrics.jsonl"
+            try:
+                with open(path, "a") as f:
+                    f.write(json.dumps(record) + "\n")
+            except OSError as e:  # a full disk: name the file (a torn last line is repaired on --resume)
+                raise OSError(e.errno, f"{path}: cannot append to the log ({e.strerror or e})") from None
 
     def run(self, stop_after: int | None = None) -> int:
         """Train until ``steps`` (or for at most ``stop_after`` more steps, then checkpoint and return)."""
+        try:
+            return self._run(stop_after)
+        finally:
+            self.lock.release()
+
+    def _run(self, stop_after: int | None) -> int:
         tc = self.tc
+        if self.resumed and self.step > tc.steps:
+            raise UserError(
+                f"{self.out / LAST}: the run is at step {self.step}, beyond train.steps {tc.steps}; "
+                "raise train.steps in --config to train further"
+            )
+        if self.resumed and self.step == tc.steps:
+            print(f"{self.out / LAST}: the run is complete (step {self.step} of {tc.steps}); nothing to train")
+            return 0
         end = tc.steps if stop_after is None else min(tc.steps, self.step + stop_after)
         if self.rank == 0:
-            self.out.mkdir(parents=True, exist_ok=True)
+            if self.lock.owner is None and int(os.environ.get("RANK", "0")) == 0:
+                self.lock.acquire()  # a new folder: owned from its creation
             with atomic_write(self.out / "config.yaml", "w") as f:
                 import yaml
 

@@ -41,8 +41,8 @@ def alias_bomb_edits(path: Path) -> Path:
 
 
 def alias_bomb_config(path: Path) -> Path:
-    """A training config whose ``train.freeze`` is an alias bomb."""
-    path.write_text("model: {}\n" + ALIAS_BOMB + "train:\n  freeze: *i\n")
+    """A training config whose ``train.context_views`` is an alias bomb."""
+    path.write_text("model: {}\n" + ALIAS_BOMB + "train:\n  context_views: *i\n")
     return path
 
 
