@@ -116,21 +116,22 @@ def test_run_command_policy(capsys):
 
 
 def test_console_script_ctrl_c_is_one_line(tmp_path):
-    """SIGINT while a command works: one line on stderr, exit code 130, no traceback."""
+    """SIGINT while a command works: one line on stderr, exit code 130, no traceback. The child says it is ready
+    from inside the command, and restores Python's SIGINT handler first: a suite started in the background passes
+    SIGINT on ignored."""
     proc = subprocess.Popen(
         [
             sys.executable,
             "-c",
-            "import time, sys; from particlesplat.core.errors import run_command; "
-            "print('ready', flush=True); sys.exit(run_command('particlesplat x', "
-            "lambda: time.sleep(60)))",
+            "import signal, time, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+            "from particlesplat.core.errors import run_command; "
+            "sys.exit(run_command('particlesplat x', lambda: (print('ready', flush=True), time.sleep(60))))",
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
     assert proc.stdout.readline().strip() == "ready"
-    time.sleep(1.0)  # let it enter the command (a signal during the print would hit the bare interpreter)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == EXIT_INTERRUPTED and err == "particlesplat x: interrupted\n"

@@ -43,6 +43,7 @@ from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noq
 from .scene_view import SceneView  # noqa: E402
 from .screenshot import export_ply, png_text, save_png, save_screenshot  # noqa: E402
 from .session import SceneSession  # noqa: E402
+from .signals import SignalStop, raise_on_stop_signals  # noqa: E402
 from .state import ViewState  # noqa: E402
 from .tools.object_tools import ObjectGizmo  # noqa: E402
 
@@ -124,6 +125,7 @@ class App:
         self.frame_times: list[float] = []
         self.swatches = particle_swatches(session)
         self.redraw = RedrawSchedule()
+        self.stop: SignalStop | None = None  # set while signals end the loop (:mod:`viewer.signals`)
         self._watch_events()
 
     def _watch_events(self) -> None:
@@ -335,7 +337,7 @@ class App:
         times = self.frame_times
         n = 0
         end = None if seconds is None else time.perf_counter() + seconds
-        while not glfw.window_should_close(self.window) and (frames is None or n < frames):
+        while not glfw.window_should_close(self.window) and (frames is None or n < frames) and not self.stopped:
             if frames is not None:
                 glfw.poll_events()
             else:
@@ -361,6 +363,11 @@ class App:
             times.append(time.perf_counter() - t0)
             n += 1
         return times
+
+    @property
+    def stopped(self) -> bool:
+        """A stop signal arrived (:class:`viewer.signals.SignalStop`): the loop ends as when the window closes."""
+        return self.stop is not None and self.stop.signum is not None
 
     def still_frame(self) -> float:
         """Draw the frame that follows a motion once it stopped (full scale); returns its seconds."""
@@ -420,6 +427,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None = None) -> int:
+    raise_on_stop_signals()  # until the window is up: Ctrl-C, SIGTERM, SIGHUP end with one line
     args = build_parser().parse_args(attach_option_values(list(sys.argv[1:] if argv is None else argv)))
     # per-particle decodes are tiny: one torch thread is ~15x faster than two fighting llvmpipe's
     torch.set_num_threads(1)
@@ -444,44 +452,65 @@ def _main(argv: list[str] | None = None) -> int:
         return EXIT_USER
     window = create_window(args.size)
     app = None
+    stop = SignalStop(glfw.post_empty_event)
+    note = ""
     try:
-        try:
-            app = App(window, session, view, args)
-        except UnsupportedGL as e:  # e.g. --compositing fetch on a driver without the extension: a bad argument
-            from particlesplat.core.errors import EXIT_USER
+        with stop:
+            try:
+                app = App(window, session, view, args)
+            except UnsupportedGL as e:  # e.g. --compositing fetch on a driver without the extension: a bad argument
+                from particlesplat.core.errors import EXIT_USER
 
-            print(f"particlesplat-viewer: {e}", file=sys.stderr)
-            return EXIT_USER
-        times = app.run(args.frames, args.orbit)
-        if args.frames is not None:
-            steady = times[1:] if len(times) > 1 else times
-            r = app.scene_view.renderer
-            moving = f" moving frames at render scale {app.state.moving_scale:g}" if args.orbit else " frames"
-            print(
-                f"median frame time: {float(np.median(steady)) * 1e3:.2f} ms over {len(steady)}{moving} "
-                f"({r.visible_count} Gaussians, {app.framebuffer_size()[0]}x{app.framebuffer_size()[1]}, "
-                f"{r.renderer_string}, {r.compositing} compositing)"
-            )
-            if args.orbit:  # the motion stops: the full-scale frame
-                print(f"still frame at full scale: {app.still_frame() * 1e3:.2f} ms")
-            if args.screenshot:
-                cam = app.view_camera(1.0)
-                try:
-                    path = save_png(args.screenshot, app.screenshot_image(cam), app.screenshot_text(cam))
-                except OSError as e:
-                    print(
-                        f"particlesplat-viewer: --screenshot {args.screenshot}: cannot write ({e.strerror or e})",
-                        file=sys.stderr,
-                    )
-                    return 2
-                print(f"saved {path}")
+                print(f"particlesplat-viewer: {e}", file=sys.stderr)
+                return EXIT_USER
+            app.stop = stop
+            if args.frames is None:
+                print(
+                    f"particlesplat-viewer: showing {app.session.source or 'the scene'}; close the window or press "
+                    "Ctrl-C here to quit",
+                    flush=True,
+                )
+            code = _run_app(app, args)
     finally:
-        kept = app.keep_unsaved() if app is not None else None  # closing the window (or Ctrl-C) loses no edits
+        kept = app.keep_unsaved() if app is not None else None  # closing the window (or a signal) loses no edits
         if kept is not None:
-            print(
-                f"particlesplat-viewer: unsaved edits kept in {kept} (open them with --edits {kept})", file=sys.stderr
-            )
+            note = f"unsaved edits kept in {kept.resolve()} (open them with --edits {kept.resolve()})"
         destroy_window(window)
+    if stop.signum is not None:  # one line: the signal and where the edits went
+        from particlesplat.core.errors import Interrupted
+
+        raise Interrupted(f"{stop.name}{'; ' + note if note else ''}", stop.signum)
+    if note:
+        print(f"particlesplat-viewer: {note}", file=sys.stderr)
+    return code
+
+
+def _run_app(app: App, args: argparse.Namespace) -> int:
+    """The frame loop until the window closes (or ``--frames``), then the benchmark's report; an exit code."""
+    times = app.run(args.frames, args.orbit)
+    if args.frames is None or app.stopped:
+        return 0
+    steady = times[1:] if len(times) > 1 else times
+    r = app.scene_view.renderer
+    moving = f" moving frames at render scale {app.state.moving_scale:g}" if args.orbit else " frames"
+    print(
+        f"median frame time: {float(np.median(steady)) * 1e3:.2f} ms over {len(steady)}{moving} "
+        f"({r.visible_count} Gaussians, {app.framebuffer_size()[0]}x{app.framebuffer_size()[1]}, "
+        f"{r.renderer_string}, {r.compositing} compositing)"
+    )
+    if args.orbit:  # the motion stops: the full-scale frame
+        print(f"still frame at full scale: {app.still_frame() * 1e3:.2f} ms")
+    if args.screenshot:
+        cam = app.view_camera(1.0)
+        try:
+            path = save_png(args.screenshot, app.screenshot_image(cam), app.screenshot_text(cam))
+        except OSError as e:
+            print(
+                f"particlesplat-viewer: --screenshot {args.screenshot}: cannot write ({e.strerror or e})",
+                file=sys.stderr,
+            )
+            return 2
+        print(f"saved {path}")
     return 0
 
 
