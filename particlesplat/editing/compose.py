@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import fields, replace
+from dataclasses import replace
 from os import PathLike
 from pathlib import Path
 
@@ -36,14 +36,10 @@ from particlesplat.editing.grouping import (
 )
 from particlesplat.editing.move import MoveError, translate
 from particlesplat.model import Particles, ParticleSplat
+from particlesplat.core.errors import OptionError
 
 LATENTS = ("z_e", "z_t", "z_f")  # copied as they are
 PLACE_TOLERANCE = 0.002  # metres: centre corrections stop below this
-
-
-def per_particle_fields() -> tuple[str, ...]:
-    """The :class:`Particles` fields with one row per particle (all but the background and the cameras)."""
-    return tuple(f.name for f in fields(Particles) if f.name not in ("background", "cameras"))
 
 
 def scene_objects(model: ParticleSplat, particles: Particles, gaussians: Gaussians | None = None) -> Tensor:
@@ -58,7 +54,7 @@ def object_members(model: ParticleSplat, particles: Particles, index: int) -> li
     objects = scene_objects(model, particles)
     K = int(objects.max()) + 1 if objects.numel() and bool((objects >= 0).any()) else 0
     if not 0 <= index < K:
-        raise ValueError(f"--object {index}: the scene has {K} objects (0..{K - 1})")
+        raise OptionError(f"--object {index}: the scene has {K} objects (0..{K - 1})")
     return (objects == index).nonzero().flatten().tolist()
 
 
@@ -114,8 +110,8 @@ def reexpress(
     its new view."""
     cfg = model.config
     delta = torch.as_tensor(delta, dtype=torch.float64).reshape(3)
-    extra = [f for f in per_particle_fields() if f not in ("z_p", "z_s", "z_d", "view", *LATENTS)]
-    rows: dict[str, list[Tensor]] = {k: [] for k in per_particle_fields()}
+    extra = [f for f in Particles.row_fields() if f not in ("z_p", "z_s", "z_d", "view", *LATENTS)]
+    rows: dict[str, list[Tensor]] = {k: [] for k in Particles.row_fields()}
     for i in members:
         ca = src.cameras[int(src.view[i])].to("cpu", torch.float64)
         vb = views[int(src.view[i])]
@@ -154,15 +150,6 @@ def reexpress(
     return replace(dst, **new)
 
 
-def append(dst: Particles, new: Particles) -> Particles:
-    """``dst``'s particles followed by ``new``'s (``new`` on dst's cameras, from :func:`reexpress`)."""
-    out = {}
-    for name in per_particle_fields():
-        a, b = getattr(dst, name), getattr(new, name)
-        out[name] = None if a is None else torch.cat([a, b.to(a.device)])
-    return replace(dst, **out)
-
-
 def insert_object(
     model: ParticleSplat,
     dst: Particles,
@@ -187,7 +174,7 @@ def insert_object(
     target = torch.tensor([float(at[0]), float(at[1]), support_b + float(centre_a[2]) - support_a], dtype=torch.float64)
     views = match_views(src, centre_a, dst, target)
     n = dst.num
-    out = append(dst, reexpress(src, members, dst, views, target - centre_a, model))
+    out = dst.cat(reexpress(src, members, dst, views, target - centre_a, model))
     new = list(range(n, out.num))
     for _ in range(iterations):
         err = target - _centre(model, out, new, method, support_b)

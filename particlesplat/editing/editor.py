@@ -63,7 +63,6 @@ if TYPE_CHECKING:
 FORMAT_VERSION = 2
 OpKind = Literal["translate", "remove", "duplicate", "set", "insert"]
 OBJECT_KINDS: tuple[OpKind, ...] = ("translate", "remove", "duplicate")
-PER_PARTICLE = ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f", "view")  # Particles fields with one row per particle
 MIN_PICK_PIXELS = 2  # an object must cover this many pixels of a frame to be picked there when saving
 
 
@@ -349,26 +348,6 @@ class History:
     redo: list[Operation] = field(default_factory=list)
 
 
-def append_particles(particles: Particles, indices: list[int]) -> Particles:
-    """A copy of ``particles`` with copies of particles ``indices`` appended (same view, latents)."""
-    idx = torch.as_tensor(indices, dtype=torch.long, device=particles.z_p.device)
-    return replace(
-        particles,
-        **{
-            f: torch.cat([getattr(particles, f), getattr(particles, f)[idx]])
-            for f in PER_PARTICLE
-            if getattr(particles, f) is not None
-        },
-    )
-
-
-def truncate_particles(particles: Particles, num: int) -> Particles:
-    """The first ``num`` particles."""
-    return replace(
-        particles, **{f: getattr(particles, f)[:num] for f in PER_PARTICLE if getattr(particles, f) is not None}
-    )
-
-
 # ---------------------------------------------------------------------------------------------- editor
 class SceneEditor:
     """Particles of one scene under edit, as named do/undo operations.
@@ -419,7 +398,7 @@ class SceneEditor:
     def origin(self) -> Particles:
         """The particles as encoded, followed by every particle inserted from another scene as it was inserted
         (the rows :meth:`original_value` and :meth:`object_offset` refer to)."""
-        return self.original if self._inserted is None else _cat(self.original, self._inserted)
+        return self.original if self._inserted is None else self.original.cat(self._inserted)
 
     def original_value(self, index: int, name: str) -> tuple[float, ...]:
         """The encoded value (a copy's: that of the particle it was copied from; an inserted one's: as inserted)."""
@@ -439,7 +418,7 @@ class SceneEditor:
         """Version 1 edits (absolute values) of the encoded particles; copies are not part of them."""
         if self.particles is None:
             return {}
-        return diff_edits(self.original, truncate_particles(self.particles, self.original.num))
+        return diff_edits(self.original, self.particles.truncate(self.original.num))
 
     def decode(self, particles: Particles | None = None):
         """All Gaussians (edits applied, background included) on the CPU."""
@@ -540,14 +519,14 @@ class SceneEditor:
     # ------------------------------------------------------------------ operations
     def _apply(self, op: Operation, forward: bool) -> None:
         if forward and op.added is not None:
-            self.particles = _cat(self.particles, op.added)
+            self.particles = self.particles.cat(op.added)
             self._source += list(op.sources) if op.sources else [self._source[i] for i in op.members]
             self._all_changed = True
         for ch in op.changes if forward else reversed(op.changes):
             self.particles = self.particles.with_attribute(ch.index, ch.name, ch.new if forward else ch.old)
             self._changed.add(ch.index)
         if not forward and op.added is not None:
-            self.particles = truncate_particles(self.particles, self.particles.num - op.added.num)
+            self.particles = self.particles.truncate(self.particles.num - op.added.num)
             del self._source[self.particles.num :]
             self._all_changed = True
         self.version += 1
@@ -657,7 +636,7 @@ class SceneEditor:
         members = self.object_members(index)
         offset = tuple(float(v) for v in torch.as_tensor(offset, dtype=torch.float64).reshape(3).tolist())
         n = self.num_particles
-        grown = append_particles(self.particles, members)
+        grown = self.particles.cat(self.particles.take(members))
         new = list(range(n, n + len(members)))
         target = translate(grown, new, offset, self.model.config)
         changes = [
@@ -666,7 +645,7 @@ class SceneEditor:
             for name, value in attrs.items()
         ]
         self.end_gesture()
-        added = replace(grown, **{f: getattr(grown, f)[n:] for f in PER_PARTICLE if getattr(grown, f) is not None})
+        added = grown.take(slice(n, None))
         self._push(
             Operation(
                 f"duplicate object of {self._members_label(members)}",
@@ -691,10 +670,10 @@ class SceneEditor:
             raise ValueError("this scene has no particles to edit (opened from a .ply)")
         n = self.num_particles
         grown, new = insert_object(self.model, self.particles, source, insert.object, insert.at)
-        added = replace(grown, **{f: getattr(grown, f)[n:] for f in PER_PARTICLE if getattr(grown, f) is not None})
+        added = grown.take(slice(n, None))
         added = added.detach().to("cpu")
         rows = self.original.num + (0 if self._inserted is None else self._inserted.num)
-        self._inserted = added if self._inserted is None else _cat(self._inserted, added)
+        self._inserted = added if self._inserted is None else self._inserted.cat(added)
         self.end_gesture()
         self._push(
             Operation(
@@ -837,18 +816,6 @@ class SceneEditor:
     def save(self, path: str | PathLike, *, scene: str | None = None, model: str | None = None) -> Path:
         """Write what was done as a version 2 edit file (see :meth:`operations`)."""
         return save_edit_file(path, self.operations(), scene=scene, model=model, context=self.context)
-
-
-def _cat(a: Particles, b: Particles) -> Particles:
-    """Particles of ``a`` then ``b`` (same scene: background and cameras of ``a``)."""
-    return replace(
-        a,
-        **{
-            f: torch.cat([getattr(a, f), getattr(b, f).to(getattr(a, f).device)])
-            for f in PER_PARTICLE
-            if getattr(a, f) is not None
-        },
-    )
 
 
 def apply_edit_file(

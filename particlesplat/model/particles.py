@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
 
@@ -47,6 +48,30 @@ class Particles:
     @property
     def num(self) -> int:
         return self.z_p.shape[0]
+
+    @classmethod
+    def row_fields(cls) -> tuple[str, ...]:
+        """The fields with one row per particle: all but ``background`` and ``cameras``."""
+        return tuple(f.name for f in fields(cls) if f.name not in ("background", "cameras"))
+
+    def _rows(self, fn) -> Particles:
+        return replace(self, **{name: fn(name, getattr(self, name)) for name in self.row_fields()})
+
+    def cat(self, other: Particles) -> Particles:
+        """These particles followed by ``other``'s (moved to this device; the background and cameras stay
+        these)."""
+        return self._rows(lambda name, t: torch.cat([t, getattr(other, name).to(t.device)]))
+
+    def take(self, rows: Tensor | Sequence[int] | slice) -> Particles:
+        """The particles ``rows`` (int64 indices, in that order, repeats allowed, or a slice) on the same
+        background and cameras."""
+        if not isinstance(rows, slice):
+            rows = torch.as_tensor(rows, dtype=torch.long, device=self.z_p.device)
+        return self._rows(lambda _, t: t[rows])
+
+    def truncate(self, num: int) -> Particles:
+        """The first ``num`` particles."""
+        return self.take(slice(0, num))
 
     def _map(self, fn) -> Particles:
         out = {f.name: fn(getattr(self, f.name)) for f in fields(self) if f.name != "cameras"}
