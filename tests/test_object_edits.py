@@ -176,8 +176,9 @@ def test_version_1_still_loads_and_bad_files_name_the_field(scene, tmp_path):
     with pytest.raises(PickError, match=r"sky.yaml: operations\[0\] \(remove\): pick .* hits no object"):
         editor(scene).apply_file(sky, str(tmp_path / "sky.yaml"))
     assert "made on scene scene_00001" in scene_mismatch(sky, "assets/scenes/scene_00000", [4, 16])
-    assert scene_mismatch(sky, "x/scene_00001", [4, 16]) is None
-    assert "context frames [4, 16]" in scene_mismatch(sky, "x/scene_00001", [3, 9])
+    assert scene_mismatch(sky, "./scene_00001", [4, 16]) is None  # the same folder, resolved
+    assert "another scene path" in scene_mismatch(sky, "x/scene_00001", [4, 16])  # the same name, another folder
+    assert "context frames [4, 16]" in scene_mismatch(sky, "scene_00001", [3, 9])
 
 
 def test_render_cli_replays_an_edit_file(scene, tmp_path, capsys):

@@ -221,8 +221,9 @@ def test_open_keeps_unsaved_edits_and_offers_them_back(app, tmp_path):
     assert app.session.unsaved
     app.req.open_path = str(scene)  # the same scene again: the edits would be gone
     app.run(1)
-    kept = tmp_path / ".particlesplat-autosave" / f"{scene.name}.edits.yaml"
-    assert kept.is_file() and f"unsaved edits of the previous scene kept in {kept}" in app.fields.status
+    kept = app.session.autosave_path(tmp_path)  # keyed by the resolved path and content of the scene
+    assert kept.name.startswith(f"{scene.name}-") and kept.is_file()
+    assert f"unsaved edits of the previous scene kept in {kept}" in app.fields.status
     assert "Load edits restores them" in app.fields.status and app.fields.edits_path == str(kept)
     assert app.session.edits() == {} and not app.session.unsaved
     app.req.load_edits = True
@@ -354,6 +355,117 @@ def test_a_signal_wakes_the_idle_loop_and_the_edits_are_autosaved(window, tmp_pa
     from viewer.signals import SignalStop
 
     win, ctx = window
+
+
+def _demo_app(window, tmp_path, scene, size=(160, 120)):
+    import glfw
+
+    win, ctx = window
+    args = A.build_parser().parse_args(
+        ["--scene", str(scene), "--context", "4,16", "--size", "x".join(map(str, size)), "--output-dir", str(tmp_path)]
+    )
+    session = A.load_session(args)
+    glfw.set_window_size(win, *size)
+    return A.App(win, session, A.initial_view(session, None, None), args, ctx=ctx)
+
+
+def _load_rgb(path) -> np.ndarray:
+    return np.asarray(Image.open(path).convert("RGB"), np.float64) / 255.0
+
+
+def test_a_screenshot_carries_its_edit_file_and_render_replays_it(window, tmp_path):
+    """After a move, a delete, a duplicate and an insert, the screenshot's 'edits' chunk is the whole version 2
+    edit file: `particlesplat render --camera-from shot.png --edits-from shot.png` reproduces the screenshot."""
+    from particlesplat.cli.main import main as cli_main
+    from particlesplat.editing.open_scene import demo_scenes
+
+    scene = demo_scenes()[0]
+    app = _demo_app(window, tmp_path, scene)
+    try:
+        s = app.session
+        g = s.decode()
+        labels = s.objects()
+        weight: dict[int, float] = {}
+        for o, w in zip(g.owner.tolist(), g.opacities.tolist(), strict=True):
+            if o >= 0:
+                weight[int(labels[o])] = weight.get(int(labels[o]), 0.0) + w
+        a, b, c = sorted(weight, key=lambda k: -weight[k])[:3]
+        s.move_object(a, [0.06, -0.04, 0.0])
+        s.end_gesture()
+        s.remove_object(b)
+        s.duplicate_object(c, [0.0, 0.12, 0.0])
+        app.fields.insert.scene = str(demo_scenes()[1])
+        app.req.insert = True
+        app.run(1)
+        assert [op.kind for op in s.history.undo] == ["translate", "remove", "duplicate", "insert"], app.fields.status
+        app.fields.shot_size = [128, 96]
+        shot = app.screenshot_numbered()
+        text = Image.open(shot).text["edits"]
+        for key in ("version: 2", "scene_sha256:", "translate:", "remove: true", "duplicate:", "insert:"):
+            assert key in text
+        out, plain = tmp_path / "replay.png", tmp_path / "plain.png"
+        prune = ["--prune", str(app.state.prune)]
+        replay = ["render", "--camera-from", str(shot), "--edits-from", str(shot), *prune]
+        assert cli_main([*replay, "--out", str(out)]) == 0
+        assert psnr(_load_rgb(shot), _load_rgb(out)) >= 40.0
+        # the edits are what makes it match: the scene without them does not
+        base = ["render", "--scene", str(scene), "--context", "4,16", "--camera-from", str(shot), *prune]
+        assert cli_main([*base, "--out", str(plain)]) == 0
+        assert psnr(_load_rgb(shot), _load_rgb(plain)) < 35.0
+    finally:
+        app.scene_view.renderer.release()
+
+
+def test_edits_are_saved_per_scene_and_another_scenes_file_is_not_replaced(window, tmp_path):
+    """Save edits writes NAME.edits.yaml of the scene shown; a file holding another scene's edits is replaced only
+    by a second Save; two scene folders of one name have their own autosaves, and loading one's edits onto the
+    other warns."""
+    import shutil
+
+    from particlesplat.editing.open_scene import demo_scenes
+
+    a_dir, b_dir = tmp_path / "train" / "scene_00000", tmp_path / "test" / "scene_00000"
+    shutil.copytree(demo_scenes()[0], a_dir)
+    shutil.copytree(demo_scenes()[0], b_dir)
+    with open(b_dir / "scene.json", "a") as f:  # another scene of the same name (its content differs)
+        f.write("\n")
+    out = tmp_path / "out"
+    app = _demo_app(window, out, a_dir)
+    try:
+        assert app.fields.edits_path == str(out / "scene_00000.edits.yaml")
+        app.session.remove_object(int(app.session.objects()[app.session.decode().owner.max()]))
+        app.req.save_edits = True
+        app.run(1)
+        saved = (out / "scene_00000.edits.yaml").read_text()
+        assert "remove: true" in saved and str(a_dir.resolve()) in saved, app.fields.status
+        app.session.move_object(0, [0.05, 0.0, 0.0])  # unsaved: autosaved when B opens
+        app.req.open_path = str(b_dir)
+        app.run(1)
+        kept_a = next((out / ".particlesplat-autosave").iterdir())
+        assert "kept in" in app.fields.status and "autosaved edits of this scene found" not in app.fields.status
+        assert app.session.autosave_path(out) != kept_a  # B does not see A's autosave
+        # B's own edits: Save to A's file is refused once, then done
+        app.session.move_object(0, [0.0, 0.05, 0.0])
+        app.fields.edits_path = str(out / "scene_00000.edits.yaml")
+        app.req.save_edits = True
+        app.run(1)
+        assert app.fields.status.startswith("error: not saved") and "another scene" in app.fields.status
+        assert (out / "scene_00000.edits.yaml").read_text() == saved
+        app.req.save_edits = True
+        app.run(1)
+        assert str(b_dir.resolve()) in (out / "scene_00000.edits.yaml").read_text(), app.fields.status
+        # A's autosave loaded onto B: a warning, by content (the names are the same)
+        app.fields.edits_path = str(kept_a)
+        app.req.load_edits = True
+        app.run(1)
+        assert "warning: they were made on scene" in app.fields.status
+        assert "another scene's content" in app.fields.status
+        # a demo scene of another name gets its own default file
+        app.req.open_path = str(demo_scenes()[1])
+        app.run(1)
+        assert app.fields.edits_path == str(out / "scene_00001.edits.yaml")
+    finally:
+        app.scene_view.renderer.release()
     ckpt = tmp_path / "small.pt"
     save_checkpoint(ckpt, small_model(), 0)
     args = A.build_parser().parse_args(["--checkpoint", str(ckpt), "--size", "160x120", "--output-dir", str(tmp_path)])

@@ -119,6 +119,7 @@ class App:
         self.state = ViewState(panel=not args.no_ui, background=scene_background(session.model))
         self.req = UiRequests()
         self.fields = UiFields(output_dir=args.output_dir)
+        self.fields.edits_path = str(session.default_edits_path(args.output_dir))
         self.controls = ViewportControls()
         self.gizmo = ObjectGizmo()  # world-space handles and outline of the selected object
         self.particle_overlay = ParticleOverlay()  # keypoints / boxes segmentation modes
@@ -245,8 +246,7 @@ class App:
             if req.open_path:
                 self.open(req.open_path)
             if req.save_edits:
-                path = self.session.save_edits(self.fields.edits_path)
-                self.fields.status = f"saved {len(self.session.history.undo)} edit operation(s) to {path.resolve()}"
+                self.save_edits()
             if req.load_edits:
                 warning = self.session.load_edits(self.fields.edits_path)
                 self.fields.status = f"loaded edits from {Path(self.fields.edits_path).resolve()}" + (
@@ -272,6 +272,21 @@ class App:
             self.fields.status = f"error: {e}"
         return True
 
+    def save_edits(self) -> Path | None:
+        """Save the edits to the 'edits YAML' path. A file that holds another scene's edits (or is no edit file)
+        is not replaced: the status line says so, and a second Save to the same path replaces it."""
+        path = self.fields.edits_path
+        conflict = self.session.foreign_edit_file(path)
+        target = str(Path(path).resolve())
+        if conflict and self.fields.confirm_overwrite != target:
+            self.fields.confirm_overwrite = target
+            self.fields.status = f"error: not saved: {conflict}. Save again to replace it, or choose another path"
+            return None
+        self.fields.confirm_overwrite = None
+        out = self.session.save_edits(path)
+        self.fields.status = f"saved {len(self.session.history.undo)} edit operation(s) to {out.resolve()}"
+        return out
+
     def keep_unsaved(self) -> Path | None:
         """Autosave the session's unsaved edits (before it is replaced or the window closes); returns the file."""
         return self.session.autosave(self.fields.output_dir)
@@ -293,7 +308,11 @@ class App:
         )
         view = initial_view(self.session, None, None)
         self.orbit = OrbitCamera.from_view(view)
-        self.fields.status = f"opened {p}" + (f"; unsaved edits of the previous scene kept in {kept}" if kept else "")
+        self.fields.status = f"opened {p}" + (
+            f"; unsaved edits of the previous scene kept in {kept.resolve()}" if kept else ""
+        )
+        self.fields.edits_path = str(self.session.default_edits_path(self.fields.output_dir))
+        self.fields.confirm_overwrite = None
         found = self.session.autosave_path(self.fields.output_dir) if self.session.editable else None
         if found is not None and found.is_file():
             self.fields.edits_path = str(found)
@@ -312,7 +331,7 @@ class App:
         look = self.orbit.view.look
         return png_text(
             camera,
-            self.session.edits(),
+            self.session.edit_chunk(),
             self.session.model_name,
             {
                 "look": f"{look.azimuth:.6g},{look.elevation:.6g},{look.distance:.6g}",
@@ -466,8 +485,8 @@ def _main(argv: list[str] | None = None) -> int:
             app.stop = stop
             if args.frames is None:
                 print(
-                    f"particlesplat-viewer: showing {app.session.source or 'the scene'}; close the window or press "
-                    "Ctrl-C here to quit",
+                    f"particlesplat-viewer: showing {app.session.source or 'the scene'}; screenshots, exports, edits "
+                    f"go to {Path(args.output_dir).resolve()}; close the window or press Ctrl-C here to quit",
                     flush=True,
                 )
             code = _run_app(app, args)

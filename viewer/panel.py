@@ -86,6 +86,7 @@ class UiFields:
     status: str = ""
     objects: ObjectFields = field(default_factory=ObjectFields)
     layout_size: tuple[float, float] = (0.0, 0.0)  # the window size the panel was last placed for
+    confirm_overwrite: str | None = None  # a file of another scene that a second Save may replace
 
 
 def draw_overlay(text_lines: list[str]) -> None:

@@ -9,16 +9,22 @@ edited particles.
 
 from __future__ import annotations
 
+import hashlib
 from os import PathLike
 from pathlib import Path
 
 import torch
 
 from particlesplat.core.gaussians import Gaussians
-from particlesplat.editing.editor import History, Operation, SceneEditor, SetAttribute, load_edit_file, scene_mismatch
+from particlesplat.editing.editor import (
+    EditsError,
+    SceneEditor,
+    load_edit_file,
+    same_scene,
+    scene_mismatch,
+)
 from particlesplat.editing.open_scene import EncodedScene
-
-__all__ = ["History", "Operation", "SceneSession", "SetAttribute"]
+from particlesplat.editing.scene_id import resolved, scene_digest
 
 AUTOSAVE_DIR = ".particlesplat-autosave"  # under the viewer's --output-dir
 
@@ -60,6 +66,21 @@ class SceneSession(SceneEditor):
         self._fixed = gaussians.detach().to("cpu") if gaussians is not None else None
         self._owner_ids: list[int] | None = None
         self._saved_token = self._history_token()
+        self._digest: str | None = None
+
+    # ------------------------------------------------------------------ identity
+    @property
+    def scene_path(self) -> str:
+        """The scene folder or .ply, resolved (absolute, symlinks followed); "" when there is none."""
+        return resolved(self.source) if self.source else ""
+
+    @property
+    def scene_sha256(self) -> str | None:
+        """The digest of the scene's content (:func:`particlesplat.editing.scene_id.scene_digest`), computed once;
+        None when the scene is no file or folder."""
+        if self._digest is None and self.source and Path(self.source).exists():
+            self._digest = scene_digest(self.source)
+        return self._digest
 
     # ------------------------------------------------------------------ queries
     @property
@@ -109,21 +130,63 @@ class SceneSession(SceneEditor):
         """Edits done since the scene was opened, its edits saved or an edit file loaded."""
         return self.editable and self._history_token() != self._saved_token
 
+    @property
+    def name(self) -> str:
+        """The scene's file or folder name (for file names)."""
+        return Path(self.source).stem if self.source.endswith(".ply") else (Path(self.source).name or "scene")
+
     def autosave_path(self, folder: str | PathLike) -> Path:
         """Where :meth:`autosave` keeps this scene's unsaved edits:
-        ``FOLDER/.particlesplat-autosave/NAME.edits.yaml``."""
-        return Path(folder) / AUTOSAVE_DIR / f"{Path(self.source).name or 'scene'}.edits.yaml"
+        ``FOLDER/.particlesplat-autosave/NAME-KEY.edits.yaml``, KEY from the resolved scene path and its content
+        (two scenes of one name, or a scene whose files changed, never share an autosave)."""
+        key = hashlib.sha256(f"{self.scene_path}\0{self.scene_sha256 or ''}".encode()).hexdigest()[:16]
+        return Path(folder) / AUTOSAVE_DIR / f"{self.name}-{key}.edits.yaml"
+
+    def default_edits_path(self, folder: str | PathLike) -> Path:
+        """Where Save edits writes by default: ``FOLDER/NAME.edits.yaml`` (one file per scene)."""
+        return Path(folder) / f"{self.name}.edits.yaml"
+
+    def _save(self, path: str | PathLike) -> Path:
+        return self.save(
+            path, scene=self.scene_path or None, model=self.model_name or None, scene_sha256=self.scene_sha256
+        )
+
+    def edit_chunk(self) -> str | dict:
+        """The whole edit file of what was done, for a screenshot's ``edits`` chunk (a .ply: no edits)."""
+        if not self.editable:
+            return {}
+        return self.edit_text(
+            scene=self.scene_path or None, model=self.model_name or None, scene_sha256=self.scene_sha256
+        )
 
     def autosave(self, folder: str | PathLike) -> Path | None:
         """Keep unsaved edits (before the scene is replaced or the window closes); returns the file, or None when
         nothing was unsaved. The session stays unsaved: the user did not save them."""
         if not self.unsaved:
             return None
-        return self.save(self.autosave_path(folder), scene=self.source or None, model=self.model_name or None)
+        path = self.autosave_path(folder)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return self._save(path)
+
+    def foreign_edit_file(self, path: str | PathLike) -> str | None:
+        """Why writing this scene's edits to ``path`` would lose something: it holds another scene's edits, or is
+        no edit file; None when it does not exist or holds edits of this scene."""
+        p = Path(path)
+        if not p.exists():
+            return None
+        try:
+            file = load_edit_file(p)
+        except (EditsError, OSError, ValueError):
+            return f"{p.resolve()} exists and is not an edit file"
+        if file.scene is None and file.scene_sha256 is None:
+            return None
+        if self.source and same_scene(file, self.source):
+            return None
+        return f"{p.resolve()} holds the edits of another scene ({file.scene or 'unnamed'})"
 
     def save_edits(self, path: str | PathLike) -> Path:
         """Write what was done as a version 2 edit file (object operations picked by pixel); returns the path."""
-        out = self.save(path, scene=self.source or None, model=self.model_name or None)
+        out = self._save(path)
         self._saved_token = self._history_token()
         return out
 

@@ -7,6 +7,7 @@ particles in order of their smallest particle index).
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from particlesplat.analysis.particle_arrays import OBJECT_CENTRES
@@ -40,7 +41,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ins.add_argument("--from", dest="source", required=True, help="scene folder A the object comes from")
     ins.add_argument("--from-context", help="context frames of A, e.g. 4,16; none = the default")
     ins.add_argument("--object", type=int, required=True, help="object index in A (as in particlesplat encode)")
-    ins.add_argument("--at", type=_xy, required=True, help="X,Y world metres on B's floor for the object's centre")
+    ins.add_argument(
+        "--at",
+        type=_xy,
+        help="X,Y world metres on B's floor for the object's centre; none = the free spot nearest B's objects",
+    )
     ins.add_argument("--centre", choices=OBJECT_CENTRES, default="resting", help="which object centre goes there")
     ins.add_argument("--out", required=True, help="output .ply of the composed scene (B with the object)")
     ins.add_argument("--png", help="also render the composed scene from B's default view to this PNG")
@@ -64,6 +69,21 @@ def run(args: argparse.Namespace) -> int:
         print(f"saved {path} (object {args.object} of {enc.path})")
         return 0
     src = encode_scene(model, args.source, parse_context(args.from_context))
+    from particlesplat.editing.compose import object_members
+    from particlesplat.editing.placement import footprints, free_spot, overlapping
+
+    radius = footprints(model, src.particles, object_members(model, src.particles, args.object))[0].radius
+    feet = footprints(model, enc.particles)
+    if args.at is None:
+        args.at = free_spot(feet, radius)
+        if args.at is None:
+            raise ValueError(f"--at: no free spot on the floor of {enc.path} for object {args.object}: give --at X,Y")
+    elif (hit := overlapping(feet, args.at, radius)) is not None:
+        print(
+            f"particlesplat object insert: warning: --at {args.at[0]:g},{args.at[1]:g} puts object {args.object} "
+            f"inside object {hit} of {enc.path} (leave --at out for a free spot)",
+            file=sys.stderr,
+        )
     particles, new = insert_object(model, enc.particles, src.particles, args.object, args.at, method=args.centre)
     g = model.decode(particles).detach().to("cpu")
     write_ply(g, Path(args.out))

@@ -45,6 +45,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the camera of a viewer screenshot or a rendered PNG (its 'camera' chunk); --width/--height rescale it",
     )
     parser.add_argument(
+    parser.add_argument(
+        "--edits-from",
+        metavar="PNG",
+        help="replay the edit file a viewer screenshot or a rendered PNG carries (its 'edits' chunk), on the scene "
+        "and context frames it names unless --scene / --context say otherwise; with --camera-from the same PNG, "
+        "this reproduces the screenshot",
+    )
         "--fov",
         type=float,
         help="vertical field of view in degrees (with --look or the default view); none = the scene's",
@@ -95,19 +102,40 @@ def _scene_and_gaussians(args: argparse.Namespace):
     if args.ply:
         return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None), None
     from particlesplat.editing.editor import SceneEditor, load_edit_file, scene_mismatch
+    from pathlib import Path
 
-    model, enc, name = load_model_scene(args.checkpoint, args.scene, args.context)
+
+    file, where = None, None
+    if getattr(args, "edits_from", None):
+        if args.edits:
+            raise ValueError("--edits and --edits-from: give one edit file")
+        from particlesplat.core.yamlsafe import load_yaml
+        from particlesplat.editing.editor import parse_edit_file
+        from particlesplat.formats.png import edits_text_from_png
+
+        where = f"{args.edits_from}: edits chunk"
+        file = parse_edit_file(load_yaml(edits_text_from_png(args.edits_from), where), where)
+    elif args.edits:  # version 1 (particle values) or 2 (object operations, replayed as the viewer did them)
+        file, where = load_edit_file(args.edits), str(args.edits)
+    scene, context = args.scene, args.context
+    if file is not None and scene is None and file.scene is not None and Path(file.scene).is_dir():
+        scene = file.scene  # the scene the edits were made on
+        if context is None and file.context is not None:
+            context = ",".join(str(int(c)) for c in file.context)
+    model, enc, name = load_model_scene(args.checkpoint, scene, context)
     for warning in enc.warnings:
         print(f"particlesplat render: warning: {warning}", file=sys.stderr)
     particles, edits = enc.particles, {}
-    if args.edits:  # version 1 (particle values) or 2 (object operations, replayed as the viewer did them)
-        file = load_edit_file(args.edits)
+    if file is not None:
         warning = scene_mismatch(file, enc.path, enc.context)
         if warning:
-            print(f"particlesplat render: warning: {args.edits}: {warning}", file=sys.stderr)
+            print(f"particlesplat render: warning: {where}: {warning}", file=sys.stderr)
+        from particlesplat.editing.scene_id import resolved, scene_digest
+
         editor = SceneEditor(model, particles, enc.all_cameras, enc.context)
-        editor.apply_file(file, str(args.edits))
-        particles, edits = editor.particles, editor.edits()
+        editor.apply_file(file, where)
+        particles = editor.particles
+        edits = editor.edit_text(scene=resolved(enc.path), model=name, scene_sha256=scene_digest(enc.path))
     g = model.decode(particles).detach().to("cpu")
     arrays = None
     if getattr(args, "mode", "rgb") in NEEDS_PARTICLES:

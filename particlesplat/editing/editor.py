@@ -5,7 +5,8 @@ replays what the user did. Edit files, version 2 (version 1, particle index -> a
 loads; see :mod:`particlesplat.editing.particle_edits`)::
 
     version: 2
-    scene: assets/scenes/scene_00000        # optional; a warning when it names another scene
+    scene: /data/scenes/scene_00000         # optional: the scene folder (resolved) the edits were made on
+    scene_sha256: 5f0c...                   # optional: its content (scene_digest); a warning when they differ
     context: [4, 16]                        # optional: the context frames the edits were made on
     operations:
       - pick: {frame: 4, pixel: [61, 70]}   # the object under pixel (x, y) of input frame 4 (stored image)
@@ -121,6 +122,7 @@ class EditFile:
     scene: str | None = None
     model: str | None = None
     context: list[int] | None = None
+    scene_sha256: str | None = None
 
 
 # ---------------------------------------------------------------------------------------------- files
@@ -214,11 +216,17 @@ def _parse_op(item: Any, where: str) -> EditOp:
 def parse_edit_file(data: Any, where: str = "edits") -> EditFile:
     """Check a parsed edit document, version 1 or 2 (a bare particle mapping is version 1)."""
     if isinstance(data, dict) and data.get("version") == FORMAT_VERSION:
-        unknown = set(data) - {"version", "operations", "scene", "model", "context"}
+        unknown = set(data) - {"version", "operations", "scene", "scene_sha256", "model", "context"}
         if unknown:
             raise EditsError(
-                f"{where}: unknown key(s) {sorted(unknown)} (expected version, operations, scene, model, context)"
+                f"{where}: unknown key(s) {sorted(unknown)} (expected version, operations, scene, scene_sha256, "
+                "model, context)"
             )
+        digest = data.get("scene_sha256")
+        if digest is not None and not (
+            isinstance(digest, str) and len(digest) == 64 and all(c in "0123456789abcdef" for c in digest)
+        ):
+            raise EditsError(f"{where}: scene_sha256: expected 64 hex digits, got {short_repr(digest)}")
         ops = data.get("operations") or []
         if not isinstance(ops, list):
             raise EditsError(f"{where}: operations: expected a list, got {type(ops).__name__}")
@@ -233,6 +241,7 @@ def parse_edit_file(data: Any, where: str = "edits") -> EditFile:
             scene=None if data.get("scene") is None else str(data["scene"]),
             model=None if data.get("model") is None else str(data["model"]),
             context=context,
+            scene_sha256=digest,
         )
     if isinstance(data, dict) and "version" in data and data["version"] not in (1, FORMAT_VERSION):
         raise EditsError(f"{where}: version: expected 1 or {FORMAT_VERSION}, got {short_repr(data['version'])}")
@@ -266,6 +275,28 @@ def op_to_yaml(op: EditOp) -> dict[str, Any]:
     return out
 
 
+def edit_file_text(
+    ops: list[EditOp],
+    *,
+    scene: str | None = None,
+    model: str | None = None,
+    context: list[int] | None = None,
+    scene_sha256: str | None = None,
+) -> str:
+    """A version 2 edit file as YAML text (what :func:`save_edit_file` writes; screenshots carry it whole)."""
+    doc: dict[str, Any] = {"version": FORMAT_VERSION}
+    if scene is not None:
+        doc["scene"] = str(scene)
+    if scene_sha256 is not None:
+        doc["scene_sha256"] = str(scene_sha256)
+    if model is not None:
+        doc["model"] = str(model)
+    if context is not None:
+        doc["context"] = [int(c) for c in context]
+    doc["operations"] = [op_to_yaml(op) for op in ops]
+    return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
+
+
 def save_edit_file(
     path: str | PathLike,
     ops: list[EditOp],
@@ -273,26 +304,38 @@ def save_edit_file(
     scene: str | None = None,
     model: str | None = None,
     context: list[int] | None = None,
+    scene_sha256: str | None = None,
 ) -> Path:
     """Write a version 2 edit file atomically (temp file + rename); returns the path."""
-    doc: dict[str, Any] = {"version": FORMAT_VERSION}
-    if scene is not None:
-        doc["scene"] = str(scene)
-    if model is not None:
-        doc["model"] = str(model)
-    if context is not None:
-        doc["context"] = [int(c) for c in context]
-    doc["operations"] = [op_to_yaml(op) for op in ops]
+    text = edit_file_text(ops, scene=scene, model=model, context=context, scene_sha256=scene_sha256)
     with atomic_write(path, "w") as f:
-        yaml.safe_dump(doc, f, sort_keys=False, default_flow_style=None)
+        f.write(text)
     return Path(path)
 
 
+def same_scene(file: EditFile, scene_path: str | PathLike) -> bool:
+    """Whether an edit file was made on the scene at ``scene_path``: by content when the file records its
+    ``scene_sha256`` (a moved or copied scene is the same scene), else by resolved path (not the folder's name:
+    ``train/scene_00000`` and ``test/scene_00000`` are two scenes). A file that names no scene matches."""
+    from particlesplat.editing.scene_id import scene_digest
+
+    if file.scene_sha256 is not None:
+        try:
+            return scene_digest(scene_path) == file.scene_sha256
+        except OSError:
+            return False
+    if file.scene is None:
+        return True
+    return Path(file.scene).expanduser().resolve() == Path(scene_path).expanduser().resolve()
+
+
 def scene_mismatch(file: EditFile, scene_path: str | PathLike, context: list[int] | None = None) -> str | None:
-    """A warning when an edit file names another scene (folder name) or other context frames, else None."""
+    """A warning when an edit file was made on another scene (:func:`same_scene`) or other context frames,
+    else None."""
     notes = []
-    if file.scene is not None and Path(file.scene).name != Path(scene_path).name:
-        notes.append(f"they were made on scene {file.scene}, this is {scene_path}")
+    if not same_scene(file, scene_path):
+        how = "another scene's content" if file.scene_sha256 is not None else "another scene path"
+        notes.append(f"they were made on scene {file.scene or '(unnamed)'} ({how}), this is {scene_path}")
     if file.context is not None and context is not None and list(file.context) != list(context):
         notes.append(f"they were made with context frames {file.context}, these are {list(context)}")
     return "; ".join(notes) or None
@@ -813,10 +856,24 @@ class SceneEditor:
             out += [EditOp("set", particle=i, values=tuple(sorted(v.items()))) for i, v in sorted(per.items())]
         return out
 
-    def save(self, path: str | PathLike, *, scene: str | None = None, model: str | None = None) -> Path:
+    def save(
+        self,
+        path: str | PathLike,
+        *,
+        scene: str | None = None,
+        model: str | None = None,
+        scene_sha256: str | None = None,
+    ) -> Path:
         """Write what was done as a version 2 edit file (see :meth:`operations`)."""
-        return save_edit_file(path, self.operations(), scene=scene, model=model, context=self.context)
+        return save_edit_file(
+            path, self.operations(), scene=scene, model=model, context=self.context, scene_sha256=scene_sha256
+        )
 
+    def edit_text(self, *, scene: str | None = None, model: str | None = None, scene_sha256: str | None = None) -> str:
+        """What :meth:`save` writes, as text (a screenshot's ``edits`` chunk)."""
+        return edit_file_text(
+            self.operations(), scene=scene, model=model, context=self.context, scene_sha256=scene_sha256
+        )
 
 def apply_edit_file(
     model: ParticleSplat,

@@ -29,12 +29,15 @@ def camera_text(camera: Camera) -> str:
     )
 
 
-def png_text(camera: Camera, edits: dict, model: str, extra: dict[str, str] | None = None) -> dict[str, str]:
-    """Text chunks: Software, camera (JSON), edits (YAML, particle index -> values), model, extras."""
+def png_text(camera: Camera, edits: str | dict, model: str, extra: dict[str, str] | None = None) -> dict[str, str]:
+    """Text chunks: Software, camera (JSON), edits, model, extras. ``edits``: a whole edit file as YAML text (what
+    ``particlesplat render --edits-from`` replays), or version 1 edits (particle index -> values) written as one."""
+    if not isinstance(edits, str):
+        edits = yaml.safe_dump({int(i): {k: list(v) for k, v in a.items()} for i, a in edits.items()}, sort_keys=True)
     text = {
         "Software": "ParticleSplat Studio",
         "camera": camera_text(camera),
-        "edits": yaml.safe_dump({int(i): {k: list(v) for k, v in a.items()} for i, a in edits.items()}, sort_keys=True),
+        "edits": edits,
         "model": model,
     }
     text.update(extra or {})
@@ -64,17 +67,33 @@ def save_png(path: str | PathLike, rgb: np.ndarray, text: dict[str, str] | None 
     return path
 
 
-def camera_from_png(path: str | PathLike) -> Camera:
-    """The camera a viewer screenshot or ``particlesplat render`` image was taken with (its ``camera`` text
-    chunk, :func:`camera_text`). Errors name the file and the field."""
+def _png_chunks(path: str | PathLike) -> dict[str, str]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: PNG not found")
     try:
         with Image.open(path) as img:
-            text = dict(getattr(img, "text", {}) or {})
+            return dict(getattr(img, "text", {}) or {})
     except OSError as e:
         raise ValueError(f"{path}: not a readable image ({e})") from None
+
+
+def edits_text_from_png(path: str | PathLike) -> str:
+    """The edit file a viewer screenshot or ``particlesplat render`` image carries (its ``edits`` text chunk, YAML).
+    Errors name the file."""
+    text = _png_chunks(path)
+    if "edits" not in text:
+        raise ValueError(
+            f"{path}: no 'edits' text chunk (only viewer screenshots and particlesplat render images carry one)"
+        )
+    return text["edits"]
+
+
+def camera_from_png(path: str | PathLike) -> Camera:
+    """The camera a viewer screenshot or ``particlesplat render`` image was taken with (its ``camera`` text
+    chunk, :func:`camera_text`). Errors name the file and the field."""
+    path = Path(path)
+    text = _png_chunks(path)
     if "camera" not in text:
         raise ValueError(
             f"{path}: no 'camera' text chunk (only viewer screenshots and particlesplat render images carry one)"

@@ -13,11 +13,13 @@ from particlesplat.editing.open_scene import demo_scenes, encode_scene
 @dataclass
 class InsertFields:
     """What the section holds between frames: the source scene folder, the object index (as ``particlesplat
-    encode`` numbers objects) and the floor position (x, y) in metres."""
+    encode`` numbers objects) and the floor position (x, y) in metres, or ``free_spot``: a place no object of this
+    scene takes (:func:`particlesplat.editing.placement.free_spot`)."""
 
     scene: str = ""
     object: int = 0
-    at: list[float] = field(default_factory=lambda: [0.8, 0.5])
+    at: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    free_spot: bool = True
 
 
 def draw_insert_section(fields: InsertFields) -> bool:
@@ -37,22 +39,45 @@ def draw_insert_section(fields: InsertFields) -> bool:
     changed, value = imgui.input_int("object", fields.object)
     if changed:
         fields.object = max(0, int(value))
-    changed, at = imgui.input_float2("at x, y (m)", fields.at, "%.3f")
-    if changed:
-        fields.at = [float(v) for v in at]
-    imgui.text_disabled("objects numbered as particlesplat encode's 'object'; the centre goes to (x, y) on the floor")
+    _, fields.free_spot = imgui.checkbox("at a free spot", fields.free_spot)
+    if not fields.free_spot:
+        changed, at = imgui.input_float2("at x, y (m)", fields.at, "%.3f")
+        if changed:
+            fields.at = [float(v) for v in at]
+    imgui.text_wrapped(
+        "Objects are numbered as particlesplat encode's 'object'. The object's centre goes to (x, y) on the floor, "
+        "or to the free spot nearest the scene's objects."
+    )
     return bool(imgui.button("Insert")) and bool(fields.scene.strip())
 
 
 def insert_from_fields(session, fields: InsertFields) -> tuple[int, str]:
-    """Encode ``fields.scene`` with the session's model (its default context frames) and insert the object:
-    returns (the new object's first particle, a status line). Errors (no such scene or object, a move out of
-    range) propagate for the app to show."""
-    ins = Insert(fields.scene.strip(), int(fields.object), (float(fields.at[0]), float(fields.at[1])))
-    source = encode_scene(session.model, ins.scene)
-    ins = Insert(ins.scene, ins.object, ins.at, tuple(source.context))
+    """Encode ``fields.scene`` with the session's model (its default context frames) and insert the object at
+    (x, y) or at a free spot: returns (the new object's first particle, a status line, which warns when the
+    object lands on another one). Errors (no such scene or object, no free spot, a move out of range) propagate
+    for the app to show."""
+    from particlesplat.editing.compose import object_members
+    from particlesplat.editing.placement import footprints, free_spot, overlapping
+
+    scene = fields.scene.strip()
+    source = encode_scene(session.model, scene)
+    members = object_members(session.model, source.particles, int(fields.object))
+    radius = footprints(session.model, source.particles, members)[0].radius
+    feet = footprints(session.model, session.particles)
+    note = ""
+    if fields.free_spot:
+        at = free_spot(feet, radius)
+        if at is None:
+            raise ValueError(f"no free spot on this scene's floor for object {fields.object} of {Path(scene).name}")
+        fields.at = [at[0], at[1]]
+    else:
+        at = (float(fields.at[0]), float(fields.at[1]))
+        hit = overlapping(feet, at, radius)
+        if hit is not None:
+            note = f"; warning: it overlaps object {hit} of this scene (tick 'at a free spot' to avoid that)"
+    ins = Insert(scene, int(fields.object), at, tuple(source.context))
     first = session.insert_object(source.particles, ins)
     return first, (
         f"inserted object {ins.object} of {Path(ins.scene).name} as particles "
-        f"{first}..{session.num_particles - 1} at ({ins.at[0]:g}, {ins.at[1]:g})"
+        f"{first}..{session.num_particles - 1} at ({ins.at[0]:g}, {ins.at[1]:g}){note}"
     )

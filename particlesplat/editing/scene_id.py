@@ -1,0 +1,32 @@
+"""What identifies a scene across edit files, autosaves and screenshots: its resolved path and a digest of its
+content (a moved or copied scene keeps its digest; two folders of the same name have different ones)."""
+
+from __future__ import annotations
+
+import hashlib
+from os import PathLike
+from pathlib import Path
+
+CHUNK = 1 << 20  # bytes read at a time
+
+
+def scene_digest(path: str | PathLike) -> str:
+    """sha256 (hex) of a scene: for a folder, every regular file under it in sorted order, each as its relative
+    path, its size and its bytes; for a file (a ``.ply``), its bytes. OSError names the path."""
+    root = Path(path)
+    h = hashlib.sha256()
+    files = [root] if root.is_file() else sorted(p for p in root.rglob("*") if p.is_file())
+    if not root.exists():
+        raise FileNotFoundError(f"{root}: scene not found")
+    for p in files:
+        rel = p.name if p == root else p.relative_to(root).as_posix()
+        h.update(rel.encode("utf-8", "surrogateescape") + b"\0" + str(p.stat().st_size).encode() + b"\0")
+        with open(p, "rb") as f:
+            while block := f.read(CHUNK):
+                h.update(block)
+    return h.hexdigest()
+
+
+def resolved(path: str | PathLike) -> str:
+    """The absolute path with symlinks resolved, as edit files and autosaves record a scene."""
+    return str(Path(path).expanduser().resolve())
