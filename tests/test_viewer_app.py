@@ -355,6 +355,29 @@ def test_a_signal_wakes_the_idle_loop_and_the_edits_are_autosaved(window, tmp_pa
     from viewer.signals import SignalStop
 
     win, ctx = window
+    ckpt = tmp_path / "small.pt"
+    save_checkpoint(ckpt, small_model(), 0)
+    args = A.build_parser().parse_args(["--checkpoint", str(ckpt), "--size", "160x120", "--output-dir", str(tmp_path)])
+    session = A.load_session(args)
+    app = A.App(win, session, A.initial_view(session, None, None), args, ctx=ctx)
+    try:
+        app.run(2)
+        session.remove_object(0)  # an unsaved edit
+        with SignalStop(glfw.post_empty_event) as stop:
+            app.stop = stop
+            app.run(seconds=0.3)  # settle: then nothing is left to draw
+            timer = threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGTERM))
+            t0 = time.perf_counter()
+            timer.start()
+            app.run(seconds=20.0)
+            elapsed = time.perf_counter() - t0
+            timer.join()
+        assert stop.signum == signal.SIGTERM
+        assert elapsed < 1.5, elapsed  # 0.5 s until the signal, then within a second
+        kept = app.keep_unsaved()
+        assert kept is not None and kept.is_file() and "remove: true" in kept.read_text()
+    finally:
+        app.scene_view.renderer.release()
 
 
 def _demo_app(window, tmp_path, scene, size=(160, 120)):
@@ -464,28 +487,5 @@ def test_edits_are_saved_per_scene_and_another_scenes_file_is_not_replaced(windo
         app.req.open_path = str(demo_scenes()[1])
         app.run(1)
         assert app.fields.edits_path == str(out / "scene_00001.edits.yaml")
-    finally:
-        app.scene_view.renderer.release()
-    ckpt = tmp_path / "small.pt"
-    save_checkpoint(ckpt, small_model(), 0)
-    args = A.build_parser().parse_args(["--checkpoint", str(ckpt), "--size", "160x120", "--output-dir", str(tmp_path)])
-    session = A.load_session(args)
-    app = A.App(win, session, A.initial_view(session, None, None), args, ctx=ctx)
-    try:
-        app.run(2)
-        session.remove_object(0)  # an unsaved edit
-        with SignalStop(glfw.post_empty_event) as stop:
-            app.stop = stop
-            app.run(seconds=0.3)  # settle: then nothing is left to draw
-            timer = threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGTERM))
-            t0 = time.perf_counter()
-            timer.start()
-            app.run(seconds=20.0)
-            elapsed = time.perf_counter() - t0
-            timer.join()
-        assert stop.signum == signal.SIGTERM
-        assert elapsed < 1.5, elapsed  # 0.5 s until the signal, then within a second
-        kept = app.keep_unsaved()
-        assert kept is not None and kept.is_file() and "remove: true" in kept.read_text()
     finally:
         app.scene_view.renderer.release()

@@ -45,13 +45,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the camera of a viewer screenshot or a rendered PNG (its 'camera' chunk); --width/--height rescale it",
     )
     parser.add_argument(
-    parser.add_argument(
         "--edits-from",
         metavar="PNG",
         help="replay the edit file a viewer screenshot or a rendered PNG carries (its 'edits' chunk), on the scene "
         "and context frames it names unless --scene / --context say otherwise; with --camera-from the same PNG, "
         "this reproduces the screenshot",
     )
+    parser.add_argument(
         "--fov",
         type=float,
         help="vertical field of view in degrees (with --look or the default view); none = the scene's",
@@ -101,9 +101,9 @@ def _scene_and_gaussians(args: argparse.Namespace):
     check_source_arguments(args)
     if args.ply:
         return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None), None
-    from particlesplat.editing.editor import SceneEditor, load_edit_file, scene_mismatch
     from pathlib import Path
 
+    from particlesplat.editing.editor import SceneEditor, load_edit_file, scene_mismatch
 
     file, where = None, None
     if getattr(args, "edits_from", None):
@@ -153,12 +153,12 @@ def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -
     """
     for name in ("width", "height"):
         if getattr(args, name) is not None and not 1 <= getattr(args, name) <= MAX_SIDE:
-            raise ValueError(f"--{name} must be in [1, {MAX_SIDE}], got {getattr(args, name)}")
+            raise OptionError(f"--{name} must be in [1, {MAX_SIDE}], got {getattr(args, name)}")
     if getattr(args, "camera_from", None):
         from particlesplat.formats.png import camera_from_png
 
         if args.fov is not None:
-            raise ValueError("--fov applies to --look or the default view, not to --camera-from")
+            raise OptionError("--fov applies to --look or the default view, not to --camera-from")
         cam = camera_from_png(args.camera_from)
         width, height = args.width, args.height
         if width is None and height is None:

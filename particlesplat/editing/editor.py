@@ -875,15 +875,3 @@ class SceneEditor:
             self.operations(), scene=scene, model=model, context=self.context, scene_sha256=scene_sha256
         )
 
-def apply_edit_file(
-    model: ParticleSplat,
-    particles: Particles,
-    frame_cameras: list[Camera],
-    file: EditFile,
-    context: list[int] | None = None,
-    where: str = "edits",
-) -> Particles:
-    """The particles after replaying an edit file (what ``particlesplat render --edits`` draws)."""
-    editor = SceneEditor(model, particles, frame_cameras, context)
-    editor.apply_file(file, where)
-    return editor.particles
