@@ -153,12 +153,12 @@ def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -
     """
     for name in ("width", "height"):
         if getattr(args, name) is not None and not 1 <= getattr(args, name) <= MAX_SIDE:
-            raise OptionError(f"--{name} must be in [1, {MAX_SIDE}], got {getattr(args, name)}")
+            raise ValueError(f"--{name} must be in [1, {MAX_SIDE}], got {getattr(args, name)}")
     if getattr(args, "camera_from", None):
         from particlesplat.formats.png import camera_from_png
 
         if args.fov is not None:
-            raise OptionError("--fov applies to --look or the default view, not to --camera-from")
+            raise ValueError("--fov applies to --look or the default view, not to --camera-from")
         cam = camera_from_png(args.camera_from)
         width, height = args.width, args.height
         if width is None and height is None:
