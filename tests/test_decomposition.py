@@ -102,6 +102,15 @@ def test_depth_image_near_is_bright():
     assert grey[0] > grey[1] > grey[2] > grey[3] == 0.0
 
 
+def test_depth_image_shows_depth_not_opacity():
+    """A floor at one depth drawn with opacity 0.59..1.0 (a checker of semi-transparent splats) is one grey."""
+    depth = np.full((4, 4), 2.0)
+    depth[0] = 1.0  # something nearer, so the range is not empty
+    alpha = np.where(np.indices((4, 4)).sum(0) % 2 == 0, 1.0, 0.59)
+    grey = depth_image(depth, alpha)[..., 0]
+    assert np.ptp(grey[1:]) == 0.0 and grey[0, 0] > grey[1, 0]
+
+
 def test_turntable_cameras_orbit_once():
     view = View((0.1, 0.0, 0.2), Look(30.0, 25.0, 3.0), 40.0)
     cams = turntable_cameras(view, 4, 32, 24)

@@ -67,7 +67,7 @@ def depth_image(depth: np.ndarray, alpha: np.ndarray) -> np.ndarray:
         return np.zeros(depth.shape + (3,))
     lo, hi = np.percentile(depth[covered], [2.0, 98.0])
     t = np.clip((hi - depth) / max(hi - lo, 1e-6), 0.0, 1.0)
-    grey = np.where(covered, 0.15 + 0.85 * t, 0.0) * np.clip(alpha, 0.0, 1.0)
+    grey = np.where(covered, 0.15 + 0.85 * t, 0.0)  # the depth alone: a semi-transparent floor is no darker
     return np.repeat(grey[..., None], 3, axis=-1)
 
 
