@@ -193,8 +193,12 @@ def test_keyboard_shortcuts(app, tmp_path):
     app.orbit.orbit(50, 0)
     press(app, K.r)
     assert app.orbit.view == app.orbit.home
-    press(app, K._3)
-    assert app.orbit.view.fov == pytest.approx(app.session.cameras[2].fov_y)
+    press(app, K._3)  # input camera 3: numbered from 0, as --context and render --view
+    cams = app.session.cameras
+    assert app.orbit.view.fov == pytest.approx(cams[3].fov_y)
+    c2w = app.orbit.camera(8, 8).c2w.double()
+    torch.testing.assert_close(c2w[:3, 2], cams[3].c2w[:3, 2].double(), atol=1e-4, rtol=0)  # its axis
+    torch.testing.assert_close(c2w[:3, 3], cams[3].c2w[:3, 3].double(), atol=1e-4, rtol=0)  # its centre
     app.fields.output_dir = str(tmp_path)
     press(app, K.p)
     assert len(list(tmp_path.glob("particlesplat_*.png"))) == 1

@@ -198,6 +198,6 @@ class ViewportControls:
             app.state.selected = None
         if pressed(K.delete) and app.session.editable:
             app.state.selected, app.fields.status = remove_selected(app.session, app.state.selected)
-        for i, key in enumerate((K._1, K._2, K._3, K._4, K._5, K._6, K._7, K._8, K._9)):
+        for i, key in enumerate((K._0, K._1, K._2, K._3, K._4, K._5, K._6, K._7, K._8, K._9)):
             if pressed(key):
-                app.req.snap_camera = i
+                app.req.snap_camera = i  # 0-based, as --context, render --view and an edit file's pick.frame

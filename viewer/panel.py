@@ -28,7 +28,7 @@ SHORTCUTS = (
     ("gizmo arrows / planes", "move the selected object along world X, Y or Z, or in a plane"),
     ("Del / Ctrl+D", "delete / duplicate the selected object"),
     ("R", "reset the view"),
-    ("1 .. 9", "snap to input camera 1 .. 9"),
+    ("0 .. 9", "snap to input camera 0 .. 9 (numbered as --context and render --view)"),
     ("Ctrl+Z / Ctrl+Shift+Z or Ctrl+Y", "undo / redo"),
     ("Ctrl+S", "save the edits to the 'edits YAML' path"),
     ("P or F12", "screenshot (no UI)"),
@@ -172,12 +172,20 @@ def _view_section(session: SceneSession, state: ViewState, req: UiRequests, coun
         req.reset_view = True
     cams = session.cameras
     if cams:
-        imgui.text("snap to input camera:")
+        imgui.text_wrapped(
+            "snap to input camera (numbered from 0, as --context, render --view and pick.frame in edit files)"
+            + (f"; context frames {', '.join(map(str, session.context))}" if session.context else "")
+        )
         for i in range(len(cams)):
             if i % 7:
                 imgui.same_line()
-            if imgui.small_button(f"{i + 1}##cam{i}"):
+            in_context = i in (session.context or [])
+            if in_context:
+                imgui.push_style_color(imgui.Col_.button, imgui.ImVec4(0.2, 0.5, 0.3, 1.0))
+            if imgui.small_button(f"{i:2d}##cam{i}"):
                 req.snap_camera = i
+            if in_context:
+                imgui.pop_style_color()
     changed, idx = imgui.combo("segmentation", SEG_MODES.index(state.seg_mode), [m.value for m in SEG_MODES])
     if changed:
         state.seg_mode = SEG_MODES[idx]
