@@ -1,6 +1,6 @@
 """Float64 brute-force per-pixel Gaussian splatting: the independent truth for the rasterizer tests.
 
-Written from the rules of 3DGS/gsplat (issue 2), sharing no code with ``particlesplat.render``,
+Written from the rules of 3DGS/gsplat, sharing no code with ``particlesplat.render``,
 ``particlesplat.core.sh`` or kornia: every pixel is composited against every Gaussian, front to back,
 in a plain loop over the depth-sorted Gaussians. Small N and small images only.
 

@@ -117,8 +117,11 @@ def test_rays_hand_computed() -> None:
 
 
 def test_plucker() -> None:
+    """The Plücker ray map (particlesplat.model.geometry.plucker_map) against the camera's own rays."""
+    from particlesplat.model.geometry import plucker_map
+
     cam = _random_camera(7, width=9, height=6)
-    pl = cam.plucker()
+    pl = plucker_map(cam.K[None], cam.c2w[None], 6, 9)[0].permute(1, 2, 0)
     assert pl.shape == (6, 9, 6)
     d, m = pl[..., :3], pl[..., 3:]
     torch.testing.assert_close(d.norm(dim=-1), torch.ones(6, 9, dtype=DT), atol=1e-12, rtol=0)

@@ -5,12 +5,11 @@ from __future__ import annotations
 import pytest
 import torch
 
+from particlesplat.editing.editor import load_edit_file
 from particlesplat.editing.particle_edits import (
     EditsError,
     apply_edits,
     diff_edits,
-    load_edits,
-    save_edits,
     validate_edits,
 )
 from particlesplat.model.particles import Particles
@@ -31,12 +30,21 @@ def particles(n: int = 4) -> Particles:
     )
 
 
-def test_round_trip(tmp_path):
-    edits = {3: {"z_p": (0.25, -0.5), "z_t": (0.0,)}, 0: {"z_d": (1.5,)}}
+def load_edits(path):
+    """The particle edits of a version 1 edit file, through the one reader of edit files."""
+    file = load_edit_file(path)
+    assert file.version == 1
+    return file.particles
+
+
+def test_a_version_1_file_loads(tmp_path):
     path = tmp_path / "e.yaml"
-    save_edits(path, edits, model="m.pt", scene="scene_0")
-    assert load_edits(path) == edits
-    assert not list(tmp_path.glob(".*"))  # no temporary left behind
+    path.write_text(
+        "version: 1\nmodel: m.pt\nscene: scene_0\nparticles:\n  3:\n    z_p: [0.25, -0.5]\n    z_t: [0.0]\n"
+        "  0:\n    z_d: [1.5]\n"
+    )
+    assert load_edits(path) == {3: {"z_p": (0.25, -0.5), "z_t": (0.0,)}, 0: {"z_d": (1.5,)}}
+    assert load_edit_file(path).scene == "scene_0"
 
 
 def test_apply_then_diff_recovers_the_edits():

@@ -1,4 +1,4 @@
-"""Hostile input at the commands (issue 22): eval's outputs and limits, render's image size, the console
+"""Hostile input at the commands: eval's outputs and limits, render's image size, the console
 script's error policy (one line, exit 2; Ctrl-C one line, exit 130)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Hostile and broken input, case by case where it is handled (issue 22): YAML, .ply, images, outputs,
+"""Hostile and broken input, case by case where it is handled: YAML, .ply, images, outputs,
 the renderer's edge, edits. Each test builds the bad input and checks the one error that names the file
 and the field (or, for outputs, that nothing was replaced)."""
 
@@ -22,7 +22,8 @@ from particlesplat.core.gaussians import MAX_OWNER
 from particlesplat.core.yamlsafe import MAX_YAML_BYTES, YamlError, load_yaml
 from particlesplat.data.scene import MAX_IMAGE_PIXELS, SceneFormatError, read_scene
 from particlesplat.data.synth import write_scene
-from particlesplat.editing.particle_edits import EditsError, load_edits, validate_edits
+from particlesplat.editing.editor import load_edit_file
+from particlesplat.editing.particle_edits import EditsError, validate_edits
 from particlesplat.formats.ply import PlyError
 
 ALIAS_BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
@@ -87,10 +88,10 @@ def test_edits_file_alias_bomb_and_duplicates_name_the_file(tmp_path):
     p = tmp_path / "e.yaml"
     p.write_text("particles:\n  0: &v {z_t: [0.5]}\n  1: *v\n")
     with pytest.raises(EditsError, match=r"e\.yaml: not valid YAML \(line 3.*alias"):
-        load_edits(p)
+        load_edit_file(p)
     p.write_text("particles:\n  0: {z_t: [0.5]}\n  0: {z_t: [0.2]}\n")
     with pytest.raises(EditsError, match=r"e\.yaml: not valid YAML \(line 3.*given twice"):
-        load_edits(p)
+        load_edit_file(p)
 
 
 def test_edit_value_beyond_float32_is_refused():

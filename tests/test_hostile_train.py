@@ -1,4 +1,4 @@
-"""Training hygiene under hostile conditions (issue 22): torn logs, roll back to a step_*.pt, non-finite
+"""Training hygiene under hostile conditions: torn logs, roll back to a step_*.pt, non-finite
 gradients and weights, stale temporaries, a corrupt validation scene, SIGINT/SIGTERM, a full disk."""
 
 from __future__ import annotations

@@ -397,7 +397,8 @@ def test_residual_selection_puts_particles_where_the_background_fails():
 
     dep = depth_input(None, rgb, m.config)
     rays = plucker_map(K, c2w, 32, 32)
-    res = m.background_residual(rgb, None, dep, rays, K, c2w)
+    err = m.coarse_background_error(rgb, None, dep, rays, K, c2w)  # the plain background's error per block
+    res = torch.nn.functional.adaptive_avg_pool2d(err, 8).flatten(1)  # per 4x4 keypoint patch
     assert res.shape == (1, 64)
     top = set(res[0].topk(2).indices.tolist())
     assert top == {1 * 8 + 5, 6 * 8 + 2}

@@ -1,5 +1,5 @@
 """``particlesplat.render`` against the independent float64 brute force, analytic cases,
-gradcheck and the hard-case suite of issue 2."""
+gradcheck and a suite of hard cases."""
 
 from __future__ import annotations
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from PIL import Image
 from viewer_helpers import psnr, small_model
 
@@ -17,7 +18,6 @@ from particlesplat import render
 from particlesplat.cli.main import main as cli_main
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.viewpoints import DEFAULT_BACKGROUND, View, default_view, parse_look, scene_background
-from particlesplat.editing.particle_edits import save_edits
 from particlesplat.model import save_checkpoint
 from viewer.random_gaussians import random_gaussians
 
@@ -26,6 +26,12 @@ pytestmark = pytest.mark.window
 VIEWER = str(Path(sys.executable).with_name("particlesplat-viewer"))
 # the driver as NVIDIA's and AMD's desktop drivers are: without framebuffer fetch
 HIDE_FETCH = {"MESA_EXTENSION_OVERRIDE": "-GL_EXT_shader_framebuffer_fetch"}
+
+
+def write_version_1_edits(path: Path, edits: dict[int, dict[str, tuple[float, ...]]]) -> None:
+    """A version 1 edit file (particle index -> values): still read, no longer written by the package."""
+    particles = {i: {k: list(v) for k, v in attrs.items()} for i, attrs in edits.items()}
+    path.write_text(yaml.safe_dump({"version": 1, "particles": particles}))
 
 
 def run_viewer(*args: str, env: dict[str, str] | None = None) -> str:
@@ -82,7 +88,7 @@ def test_model_scene_with_edits_matches_render_cli(tmp_path, driver):
     ckpt = tmp_path / "small.pt"
     save_checkpoint(ckpt, small_model(), 0)
     edits = tmp_path / "edits.yaml"
-    save_edits(edits, {1: {"z_p": (0.2, -0.3)}, 4: {"z_t": (0.0,)}})
+    write_version_1_edits(edits, {1: {"z_p": (0.2, -0.3)}, 4: {"z_t": (0.0,)}})
     shot, out = tmp_path / "viewer.png", tmp_path / "render.png"
     hidden = driver != "as is"
     stdout = run_viewer(
@@ -215,7 +221,7 @@ def test_render_cli_input_view_with_edits(tmp_path):
     ckpt = tmp_path / "small.pt"
     save_checkpoint(ckpt, model, 0)
     edits = {2: {"z_d": (1.5,)}, 3: {"z_s": (0.5, -0.5)}}
-    save_edits(tmp_path / "e.yaml", edits)
+    write_version_1_edits(tmp_path / "e.yaml", edits)
     out = tmp_path / "v.png"
     assert (
         cli_main(

@@ -9,7 +9,6 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING, Protocol
 
-import torch
 from imgui_bundle import imgui
 
 from particlesplat.editing.move import MoveError
@@ -57,7 +56,6 @@ class ViewportControls:
         self.last_move = 0.0  # perf_counter time of the last camera or particle motion
         self.press_pos: tuple[float, float] | None = None
         self.dragged = False
-        self.particle_center: torch.Tensor | None = None
         self.floor = FloorDrag()  # a plain drag that began on the selected object, or a Shift-drag
 
     def handle(self, app: ViewportHost) -> None:
@@ -80,7 +78,6 @@ class ViewportControls:
         if imgui.is_mouse_clicked(imgui.MouseButton_.left):
             self.press_pos = (io.mouse_pos.x, io.mouse_pos.y)
             self.dragged = False
-            self.particle_center = None
         if imgui.is_mouse_down(imgui.MouseButton_.left) and self.press_pos is not None and (dx or dy):
             px, py = self.press_pos
             if abs(io.mouse_pos.x - px) + abs(io.mouse_pos.y - py) > CLICK_SLOP and not self.dragged:
@@ -144,27 +141,6 @@ class ViewportControls:
         """Select the particle owning framebuffer pixel (x, y) (nothing on background)."""
         owner = app.scene_view.pick(app.session, app.view_camera(1.0), int(x), int(y))
         app.state.selected = owner if owner >= 0 and app.session.editable else None
-
-    def drag_object(self, app: ViewportHost, index: int, dx: float, dy: float) -> None:
-        """Move the object of particle ``index`` (every particle of it, :meth:`SceneSession.move_object`)
-        so it follows a screen drag of (dx, dy) framebuffer pixels: the world motion parallel to the
-        viewing camera's image plane at the particle's depth. A move out of the model's depth range is
-        refused (the status line says why)."""
-        session = app.session
-        if self.particle_center is None:
-            g = session.particle_gaussians(index)
-            w = g.opacities.clamp_min(1e-6)
-            self.particle_center = (g.means * w[:, None]).sum(0) / w.sum()
-        view_cam = app.orbit.camera(*app.framebuffer_size())
-        R = view_cam.c2w[:3, :3]
-        depth = float(view_cam.world_to_camera(self.particle_center[None].float())[0, 2].clamp_min(1e-3))
-        delta = (R[:, 0] * dx + R[:, 1] * dy) * depth / float(view_cam.fy)
-        try:
-            session.move_object(index, delta.tolist(), gesture="object-drag")
-        except MoveError as e:
-            app.fields.status = f"error: {e}"
-            return
-        self.particle_center = self.particle_center + delta
 
     @staticmethod
     def _keys(app: ViewportHost, io) -> None:

@@ -599,12 +599,6 @@ class SplatRenderer:
         self._clear(self._mask_fbo)
         self._draw(1, uni, owner_base=owner)
 
-    def read_mask(self) -> np.ndarray:
-        """The last :meth:`render_mask`: (H, W) float32 weight of that owner, image rows top down."""
-        w, h = self.size
-        raw = np.frombuffer(self._mask_fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)
-        return raw[::-1, :, 0].copy()
-
     def owner_weights(
         self, camera: Camera, num_owners: int, region: tuple[int, int, int, int] | None = None
     ) -> tuple[np.ndarray, np.ndarray]:

@@ -150,12 +150,6 @@ class Camera:
         origins = self.center.to(uv.dtype).expand_as(dirs)
         return origins, dirs
 
-    def plucker(self, uv: Tensor | None = None) -> Tensor:
-        """(H, W, 6) (or (..., 6) for ``uv``) Plücker coordinates ``(d, o x d)`` with unit ``d``."""
-        origins, dirs = self.rays(uv)
-        d = torch.nn.functional.normalize(dirs, dim=-1)
-        return torch.cat([d, torch.cross(origins, d, dim=-1)], dim=-1)
-
     # ------------------------------------------------------------------ conversions
     def resized(self, width: int, height: int) -> Camera:
         """Same view at another image size; intrinsics scale so pixel centres stay consistent.

@@ -1,4 +1,5 @@
-"""Particle edits as YAML: particle index -> absolute values of editable attributes.
+"""Particle edits: particle index -> absolute values of editable attributes, and the version 1 edit file that
+holds them (read by :func:`particlesplat.editing.editor.load_edit_file`; this version writes version 2).
 
 File format (``version: 1``)::
 
@@ -23,9 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
-from particlesplat.core.atomic import atomic_write
 from particlesplat.core.errors import UserError, one_line, short_repr
 from particlesplat.core.yamlsafe import YamlError, read_yaml
 from particlesplat.model.particles import EDITABLE, Particles
@@ -120,26 +119,6 @@ def read_edit_document(path: str | PathLike) -> Any:
         return read_yaml(Path(path), "edits file")
     except YamlError as e:
         raise EditsError(str(e)) from None
-
-
-def load_edits(path: str | PathLike) -> Edits:
-    """Read and validate a version 1 edits file (particle index -> latent values)."""
-    return validate_edits(read_edit_document(path), str(path))
-
-
-def save_edits(path: str | PathLike, edits: Edits, *, model: str | None = None, scene: str | None = None) -> None:
-    """Write edits as YAML atomically (temp file + rename)."""
-    edits = validate_edits(edits, str(path))
-    doc: dict[str, Any] = {"version": FORMAT_VERSION}
-    if model is not None:
-        doc["model"] = str(model)
-    if scene is not None:
-        doc["scene"] = str(scene)
-    doc["particles"] = {
-        int(i): {k: [float(x) for x in v] for k, v in sorted(attrs.items())} for i, attrs in sorted(edits.items())
-    }
-    with atomic_write(path, "w") as f:
-        yaml.safe_dump(doc, f, sort_keys=False, default_flow_style=None)
 
 
 def check_indices(edits: Edits, num_particles: int, where: str = "edits") -> None:

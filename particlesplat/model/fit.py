@@ -2,7 +2,7 @@
 
 An opt-in quality mode (seconds a scene on this CPU, not milliseconds): the decoder stays fixed, so the
 particles keep the shapes it can draw, and the latents move to what the views show. Measured in
-docs/model-development.md (round 9, test split): 10 Adam steps on z_f lift the novel target views by 0.6 dB,
+docs/model-development.md (test split): 10 Adam steps on z_f lift the novel target views by 0.6 dB,
 and FG-ARI stays; on every latent, by 0.7 dB, but the moved particles form objects differently (FG-ARI -0.02).
 """
 

@@ -6,7 +6,6 @@ centre at ``(u + 0.5, v + 0.5)``, rays ``R K^-1 [x, y, 1]`` have camera-z compon
 
 from __future__ import annotations
 
-import kornia
 import torch
 from kornia.geometry.conversions import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 from torch import Tensor
@@ -32,16 +31,6 @@ def ray_dirs(pix: Tensor, K: Tensor, c2w: Tensor) -> Tensor:
     y = (pix[..., 1] - cy) / fy
     d_cam = torch.stack([x, y, torch.ones_like(x)], dim=-1)
     return d_cam @ c2w[..., :3, :3].transpose(-1, -2)
-
-
-def project_to_view(points: Tensor, K: Tensor, c2w: Tensor) -> tuple[Tensor, Tensor]:
-    """World points into a camera (kornia). points: (B, N, 3); K: (B, 3, 3); c2w: (B, 4, 4) OpenCV ->
-    pixels (B, N, 2) and planar camera z (B, N) in metres (pixels are meaningless where z <= 0)."""
-    cam = kornia.geometry.transform_points(kornia.geometry.inverse_transformation(c2w), points)
-    z = cam[..., 2]
-    safe = torch.cat([cam[..., :2], torch.where(z.abs() < 1e-6, torch.full_like(z, 1e-6), z)[..., None]], dim=-1)
-    pix = kornia.geometry.camera.project_points(safe, K[:, None].expand(-1, points.shape[1], -1, -1))
-    return pix, z
 
 
 def plucker_at(pix: Tensor, K: Tensor, c2w: Tensor) -> Tensor:

@@ -161,15 +161,6 @@ class ParticleSplat(nn.Module):
             err = err + (rendered - depth) ** 2 * (depth > 0).to(x.dtype)
         return F.avg_pool2d(err, block or self.config.bg_block)
 
-    @torch.no_grad()
-    def background_residual(
-        self, x: Tensor, depth: Tensor | None, dep: Tensor, rays: Tensor, K: Tensor, c2w: Tensor
-    ) -> Tensor:
-        """Per-patch error of the plain background, where particles are needed most: the
-        :meth:`coarse_background_error` averaged per keypoint patch -> (M, Q), Q = (resolution / kp_patch)^2."""
-        err = self.coarse_background_error(x, depth, dep, rays, K, c2w)
-        return F.adaptive_avg_pool2d(err, self.config.resolution // self.config.kp_patch).flatten(1)
-
     def refine(self, post: Posterior, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Posterior:
         """``refine_steps`` amortised corrections of the particle posterior means (:mod:`.refiner`).
 

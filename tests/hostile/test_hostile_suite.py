@@ -1,4 +1,4 @@
-"""The hostile-input suite (issue 22): hostile files through every entry point, each command in its own
+"""The hostile-input suite: hostile files through every entry point, each command in its own
 process under a memory cap.
 
 The files: an alias bomb (edits file and training config), a .ply with a huge owner, a .ply that lies about
