@@ -1,5 +1,6 @@
-"""What a newcomer trial asked for: a negative --look azimuth, a screenshot's camera reproduced by
-``particlesplat render --camera-from``, list swatches in the colours the segmentation modes draw."""
+"""What a user meets around cameras and colours: a negative --look azimuth, a screenshot's camera reproduced by
+``particlesplat render --camera-from``, list swatches in the colours the segmentation modes draw, a warning for a
+scene without depth, and the default framing clear of the panel."""
 
 from __future__ import annotations
 
