@@ -21,11 +21,20 @@ def _train(cfg, data, out, *extra) -> int:
     return main(["train", "--config", str(cfg), "--data", str(data), "--out", str(out), *extra])
 
 
-def test_interrupted_and_resumed_equals_uninterrupted(tmp_path_factory, tmp_path):
+def test_interrupted_and_resumed_equals_uninterrupted(tmp_path_factory, tmp_path, capsys):
     data = tiny_dataset(tmp_path_factory)
     cfg = tiny_config(tmp_path / "tiny.yaml", lr_final=0.1)  # the lr decays: resuming must pick up the schedule
     assert _train(cfg, data, tmp_path / "a") == 0
+    assert (
+        capsys.readouterr()
+        .out.strip()
+        .endswith(
+            f"particlesplat train: done, step 4 of 4: {tmp_path / 'a' / 'last.pt'}, "
+            f"the best validation score's weights in {tmp_path / 'a' / 'best.pt'}"
+        )
+    )
     assert _train(cfg, data, tmp_path / "b", "--stop-after", "2") == 0
+    assert "particlesplat train: stopped at step 2 of 4" in capsys.readouterr().out
     assert read_checkpoint(tmp_path / "b" / "last.pt")["step"] == 2
     with open(tmp_path / "b" / "metrics.jsonl", "a") as f:  # logged after the checkpoint, then interrupted
         f.write(json.dumps({"step": 3, "loss": 1.0}) + "\n")
@@ -48,6 +57,8 @@ def test_interrupted_and_resumed_equals_uninterrupted(tmp_path_factory, tmp_path
     assert [r["step"] for r in vals] == [2, 4]
     lines_b = [json.loads(x) for x in (tmp_path / "b" / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in lines_b] == [r["step"] for r in lines]  # nothing logged twice
+    # the logged running means go on as if the run had not stopped
+    assert [r for r in lines_b if "loss" in r and r["step"] > 2] == [r for r in lines if "loss" in r and r["step"] > 2]
     assert read_checkpoint(tmp_path / "b" / "last.pt")["best"] == read_checkpoint(tmp_path / "a" / "last.pt")["best"]
     scores = [
         r["val"]["psnr"] / 30.0 + (r["val"]["fg_ari"] if r["val"]["fg_ari"] == r["val"]["fg_ari"] else 0.0)

@@ -49,4 +49,15 @@ def run(args: argparse.Namespace) -> int:
     if device.startswith("cuda") and int(os.environ.get("WORLD_SIZE", "1")) > 1:
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
     trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, overwrite=args.overwrite)
-    return trainer.run(args.stop_after)
+    code = trainer.run(args.stop_after)
+    if code == 0 and trainer.rank == 0:
+        out = Path(args.out)
+        best = f", the best validation score's weights in {out / 'best.pt'}" if (out / "best.pt").is_file() else ""
+        if trainer.step < tc.steps:
+            print(
+                f"particlesplat train: stopped at step {trainer.step} of {tc.steps}: {out / 'last.pt'} (continue "
+                f"with --resume){best}"
+            )
+        else:
+            print(f"particlesplat train: done, step {trainer.step} of {tc.steps}: {out / 'last.pt'}{best}")
+    return code

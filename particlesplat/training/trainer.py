@@ -226,6 +226,7 @@ class Trainer:
         self.opt = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
         self.step = 0
         self.best = -math.inf
+        self.run_avg: dict[str, float] = {}  # running means of the logged losses (kept across --resume)
         if resume and (out / LAST).is_file():
             self._load(out / LAST)
         elif resume:
@@ -307,6 +308,7 @@ class Trainer:
                 "rng": states,
                 "train": config_to_dict(self.tc),
                 "best": float(self.best),
+                "run_avg": {k: float(v) for k, v in self.run_avg.items()},
                 "provenance": self.provenance_now(),
             },
         )
@@ -333,6 +335,11 @@ class Trainer:
                 raise UserError(f"{path}: optimizer: does not fit this run's optimiser ({one_line(e, 160)})") from None
         self.step = int(ckpt["step"])
         self.best = float(ckpt.get("best", -math.inf))
+        run_avg = ckpt.get("run_avg")
+        if isinstance(run_avg, dict):  # the logged running means continue as if the run had not stopped
+            self.run_avg = {
+                str(k): float(v) for k, v in run_avg.items() if isinstance(v, (int, float)) and math.isfinite(v)
+            }
         prov = ckpt.get("provenance")
         if isinstance(prov, dict):  # the run keeps its origin and adds this invocation's hours to its own
             if prov.get("scene_list_sha256") not in (None, self.provenance.scene_list_sha256):
@@ -467,7 +474,7 @@ class Trainer:
         self._bar = bar = tqdm(
             total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0, dynamic_ncols=True
         )
-        run_avg: dict[str, float] = {}
+        run_avg = self.run_avg
         skipped_in_a_row = 0
         while self.step < end:
             parts = self.train_step()
