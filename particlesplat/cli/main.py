@@ -24,6 +24,18 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+class HelpFormatter(argparse.HelpFormatter):
+    """Options' help with their default appended once: not when the help already says it (``default``, ``none =``)
+    and not for a default that says nothing (None, False)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        said = "%(default)" in text or "default" in text.lower() or "none =" in text.lower()
+        if said or action.default in (None, False, argparse.SUPPRESS) or not action.option_strings:
+            return text
+        return f"{text} (default: %(default)s)"
+
+
 def _top_help() -> str:
     lines = [
         "usage: particlesplat <command> [options]",
@@ -68,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog=f"particlesplat {name}",
         description=COMMANDS[name][1],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     module.add_arguments(parser)
     from particlesplat.core.viewpoints import attach_option_values

@@ -22,11 +22,13 @@ def _xy(text: str) -> tuple[float, float]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from particlesplat.cli.main import HelpFormatter
+
     sub = parser.add_subparsers(dest="action", required=True)
     exp = sub.add_parser(
         "export",
         help="write one object's Gaussians as a standard 3DGS .ply",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     exp.add_argument("--scene", required=True, help="scene folder")
     exp.add_argument("--object", type=int, required=True, help="object index (as in particlesplat encode)")
@@ -35,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "insert",
         help="insert an object of --from into --scene at a floor position; writes the "
         "composed scene as a .ply (and a PNG)",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     ins.add_argument("--scene", required=True, help="scene folder B that receives the object")
     ins.add_argument("--from", dest="source", required=True, help="scene folder A the object comes from")
