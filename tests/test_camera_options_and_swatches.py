@@ -4,6 +4,9 @@ scene without depth, and the default framing clear of the panel."""
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -114,6 +117,11 @@ def test_a_scene_without_depth_warns(tmp_path):
     model = load_model(None)
     enc = encode_scene(model, dst, [4, 16])
     assert len(enc.warnings) == 1 and "no depth" in enc.warnings[0] and "rgb_only" in enc.warnings[0]
+    # it quotes the README's results table: PSNR of 2 RGB views and of 2 RGB-D views
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    for row in ("2 RGB views (no depth)", "2 RGB-D views"):
+        psnr = re.search(rf"^\| {re.escape(row)} \| [^|]+ \| ([0-9.]+) \|", readme, re.MULTILINE).group(1)
+        assert f"{psnr} dB" in enc.warnings[0], (row, psnr)
     assert encode_scene(model, src, [4, 16]).warnings == []
 
 
