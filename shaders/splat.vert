@@ -21,11 +21,12 @@ flat out float v_opacity;
 flat out vec3 v_color;
 flat out float v_owner;
 
+// particlesplat.core.palette: the PALETTE_* values are injected as #defines
 vec3 owner_color(float owner) {
-    if (owner < 0.0) return vec3(0.35);
-    float h = fract(owner * 0.6180339887 + 0.11);
+    if (owner < 0.0) return vec3(PALETTE_BACKGROUND);
+    float h = fract(owner * PALETTE_HUE_STEP + PALETTE_HUE_OFFSET);
     vec3 k = clamp(abs(fract(h + vec3(0.0, 2.0 / 3.0, 1.0 / 3.0)) * 6.0 - 3.0) - 1.0, 0.0, 1.0);
-    return mix(vec3(1.0), k, 0.75) * 0.95;
+    return mix(vec3(1.0), k, PALETTE_SATURATION) * PALETTE_VALUE;
 }
 
 void main() {

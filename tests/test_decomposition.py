@@ -13,7 +13,6 @@ from particlesplat.analysis.figures import (
     DIM,
     MODES,
     depth_image,
-    palette,
     render_mode,
     turntable_cameras,
     turntable_paths,
@@ -21,6 +20,7 @@ from particlesplat.analysis.figures import (
 from particlesplat.analysis.particle_arrays import particle_arrays
 from particlesplat.cli.main import main
 from particlesplat.core.camera import Camera
+from particlesplat.core.palette import colour
 from particlesplat.core.viewpoints import Look, View
 from particlesplat.editing.open_scene import encode_scene
 from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
@@ -69,7 +69,7 @@ def test_keypoints_sit_on_z_p_in_their_own_view(scene):
     for i in mine:
         u, v = ((arrays.z_p[i] + 1.0) * 0.5 * res * UP).astype(int)
         if 0 <= u < res * UP and 0 <= v < res * UP:
-            hits += int(np.abs(img[v, u] - np.array(palette(int(arrays.object[i])))).max() < 2 / 255)
+            hits += int(np.abs(img[v, u] - np.array(colour(int(arrays.object[i])))).max() < 2 / 255)
     assert hits >= max(1, len(mine) - 1)  # a later dot may cover one
 
 

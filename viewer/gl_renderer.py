@@ -34,6 +34,7 @@ import moderngl
 import numpy as np
 import torch
 
+from particlesplat.core import palette
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.rendering.projection import DILATION, FOV_MARGIN
@@ -54,10 +55,12 @@ QUAD_COST = (2.07e-3, 11.0e-6)
 
 def load_shader(name: str, defines: dict[str, str | int] | None = None) -> str:
     """Source of ``shaders/<name>`` with ``#define`` lines inserted after ``#version``: the library's
-    compositing constants (:func:`~viewer.gl_caps.shader_constants`), then ``defines``."""
+    compositing constants (:func:`~viewer.gl_caps.shader_constants`) and palette
+    (:func:`particlesplat.core.palette.shader_defines`), then ``defines``."""
     src = files("viewer.shaders").joinpath(name).read_text()
     first, rest = src.split("\n", 1)
-    lines = [f"#define {k} {v}" for k, v in {**shader_constants(), **(defines or {})}.items()]
+    constants = {**shader_constants(), **palette.shader_defines(), **(defines or {})}
+    lines = [f"#define {k} {v}" for k, v in constants.items()]
     return "\n".join([first, *lines, rest])
 
 

@@ -17,7 +17,6 @@ The overlays come from :class:`particlesplat.analysis.particle_arrays.ParticleAr
 
 from __future__ import annotations
 
-import colorsys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from os import PathLike
@@ -30,6 +29,7 @@ from PIL import Image, ImageDraw
 
 from particlesplat.analysis.particle_arrays import ParticleArrays
 from particlesplat.core.atomic import atomic_path
+from particlesplat.core import palette
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.viewpoints import Look, View
@@ -38,26 +38,10 @@ from particlesplat.rendering.api import render
 RenderMode = Literal["rgb", "depth", "particles", "objects", "foreground", "background", "keypoints", "boxes"]
 MODES: tuple[str, ...] = ("rgb", "depth", "particles", "objects", "foreground", "background", "keypoints", "boxes")
 NEEDS_PARTICLES: tuple[str, ...] = ("particles", "objects", "foreground", "background", "keypoints", "boxes")
-EMPTY = (0.25, 0.25, 0.25)  # the background's colour in the segmentation modes
 DIM = 0.55  # the scene's brightness under the keypoint and box overlays
 BOX_SIGMAS = 2.0  # a particle's box reaches this many standard deviations (extent) from its centroid
 ANIMATIONS = (".gif", ".webp")
 FRAME_MS = 80  # per turntable frame
-
-
-def palette(index: int) -> tuple[float, float, float]:
-    """A distinct, stable colour (RGB in [0, 1]) for index >= 0 (golden-ratio hues)."""
-    h = (index * 0.618033988749895 + 0.1) % 1.0
-    return colorsys.hsv_to_rgb(h, 0.75, 0.95)
-
-
-def _colour_map(labels: np.ndarray) -> np.ndarray:
-    """(H, W) int labels (-1 = background) -> (H, W, 3) colours."""
-    out = np.empty(labels.shape + (3,))
-    out[:] = EMPTY
-    for lab in np.unique(labels[labels >= 0]):
-        out[labels == lab] = palette(int(lab))
-    return out
 
 
 def depth_image(depth: np.ndarray, alpha: np.ndarray) -> np.ndarray:
@@ -102,7 +86,7 @@ def overlay_marks(arrays: ParticleArrays, camera: Camera, mode: Literal["keypoin
     cam = camera.to("cpu", torch.float64)
     marks: list[Mark] = []
     for i in np.flatnonzero(arrays.active):
-        colour = palette(int(arrays.object[i]))
+        colour = palette.colour(int(arrays.object[i]))
         if mode == "keypoints":
             uv, z = _project(cam, np.stack([arrays.anchor[i], arrays.centroid[i]]))
             if z[0] > 0:
@@ -183,7 +167,7 @@ def render_mode(
         return depth_image(r.depth.numpy(), r.alpha.numpy())
     if segment:
         labels = r.segmentation(_object_labels(arrays) if mode == "objects" else None).numpy()
-        return _colour_map(labels)
+        return palette.colour_map(labels)
     return _overlay(r.rgb.numpy().astype(np.float64), camera, arrays, mode)
 
 

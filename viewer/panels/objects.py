@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from particlesplat.core import palette
 from particlesplat.editing.editor import PickError
 from particlesplat.editing.move import MoveError
 
@@ -17,15 +18,8 @@ ROTATION_NOTE = (
 
 def segmentation_colour(key: int) -> tuple[float, float, float]:
     """The colour the "colour by particle / object" modes draw owner or object ``key`` with (the splat
-    shader's ``owner_color``: golden-ratio hues, 75 % saturated, 95 % bright); grey for the background (< 0)."""
-    if key < 0:
-        return (0.35, 0.35, 0.35)
-    h = (key * 0.6180339887 + 0.11) % 1.0
-    out = []
-    for offset in (0.0, 2.0 / 3.0, 1.0 / 3.0):
-        k = min(1.0, max(0.0, abs(((h + offset) % 1.0) * 6.0 - 3.0) - 1.0))
-        out.append((1.0 + (k - 1.0) * 0.75) * 0.95)
-    return tuple(out)  # type: ignore[return-value]
+    shader's ``owner_color``): :func:`particlesplat.core.palette.colour`."""
+    return palette.colour(key)
 
 
 @dataclass
