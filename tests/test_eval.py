@@ -6,10 +6,12 @@ import itertools
 import json
 import math
 
+import numpy as np
 import torch
 from model_data import TINY_MODEL, tiny_dataset
 from PIL import Image
 
+from particlesplat.analysis.evaluate import FIGURE_LABEL_WIDTH
 from particlesplat.analysis.metrics import (
     REGIONS,
     adjusted_rand_index,
@@ -119,7 +121,9 @@ def test_eval_cli_writes_json_figures_and_pruning_table(tmp_path_factory, tmp_pa
     assert base["gaussians"] == res["mean"]["gaussians"]
     assert all(r["gaussians"] <= base["gaussians"] for r in rows)
     img = Image.open(tmp_path / "fig" / "scene_00000.png")
-    assert img.size == (4 * 32, 5 * 32)  # 4 targets wide, 5 rows
+    assert img.size == (FIGURE_LABEL_WIDTH + 4 * 32, 5 * 32)  # a label column, 4 targets wide, 5 rows
+    labels = np.asarray(img.convert("L"))[:, :FIGURE_LABEL_WIDTH]
+    assert all((labels[r * 32 : (r + 1) * 32] > 128).any() for r in range(5))  # each row has its label
     assert main(["eval", "--checkpoint", str(ckpt), "--data", str(data / "val"), "--context", "1"]) == 0
 
 

@@ -197,9 +197,13 @@ def _palette(n: int) -> np.ndarray:
     return rng.integers(40, 255, size=(max(n, 1), 3)).astype(np.uint8)
 
 
+FIGURE_ROWS = ("context", "target", "render", "depth", "objects")  # the rows of save_figure, labelled on the left
+FIGURE_LABEL_WIDTH = 56  # pixels of the label column
+
+
 def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
-    """PNG grid: row 1 context views, row 2 target ground truth, row 3 renders, row 4 depth, row 5 segmentation
-    into objects."""
+    """PNG grid, each row labelled in a column on the left (:data:`FIGURE_ROWS`): row 1 context views, row 2 target
+    ground truth, row 3 renders, row 4 depth, row 5 segmentation into objects."""
 
     def img(t: Tensor) -> np.ndarray:
         return (t.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255).astype(np.uint8)
@@ -222,8 +226,15 @@ def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
         ]
         s = r["seg_objects"][i].cpu().numpy()
         grid[4 * H : 5 * H, i * W : (i + 1) * W] = np.where(s[..., None] >= 0, pal[np.clip(s, 0, None)], 0)
+    from PIL import ImageDraw
+
+    out = Image.new("RGB", (FIGURE_LABEL_WIDTH + grid.shape[1], grid.shape[0]), (0, 0, 0))
+    out.paste(Image.fromarray(grid), (FIGURE_LABEL_WIDTH, 0))
+    draw = ImageDraw.Draw(out)
+    for row, label in enumerate(FIGURE_ROWS):
+        draw.text((4, row * H + H // 2 - 6), label, fill=(235, 235, 235))
     with atomic_path(path) as tmp:
-        Image.fromarray(grid).save(tmp, format="PNG")
+        out.save(tmp, format="PNG")
 
 
 def evaluate_dataset(
