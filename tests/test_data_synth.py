@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from particlesplat.cli.main import main as cli_main
+from particlesplat.core.errors import run_command
 from particlesplat.data import load_scene
 from particlesplat.data.synth import generate
 
@@ -85,10 +86,18 @@ def test_cli(tmp_path, capsys):
     (tmp_path / "plain").mkdir()  # a finished scene folder has the permissions of any new folder (umask)
     assert (tmp_path / "d" / "train" / "scene_00000").stat().st_mode == (tmp_path / "plain").stat().st_mode
     (tmp_path / "file").write_text("")
-    assert cli_main(["synth", str(tmp_path / "file"), "--train", "1", "--val", "0", "--test", "0"]) == 2
-    assert "not a folder" in capsys.readouterr().err
-    assert cli_main(["synth", str(tmp_path / "e"), "--seed", "-1", "--train", "1"]) == 2
+    capsys.readouterr()
+
+    def console(*argv: str) -> int:  # the console script: the one error policy (one line, exit 2)
+        return run_command("particlesplat synth", lambda: cli_main(["synth", *argv]))
+
+    assert console(str(tmp_path / "file"), "--train", "1", "--val", "0", "--test", "0") == 2
+    assert capsys.readouterr().err.startswith(f"particlesplat synth: error: {tmp_path / 'file'}: exists and is not")
+    assert console(str(tmp_path / "e"), "--seed", "-1", "--train", "1") == 2
     assert "--seed" in capsys.readouterr().err
+    assert console(str(tmp_path / "e"), "--res", "4100", "--train", "1") == 2  # beyond the largest scene image
+    assert "--res must be in [8, 4096]" in capsys.readouterr().err
+    assert not (tmp_path / "e").exists()
 
 
 # ---------------------------------------------------------------------------- independent geometric check

@@ -98,8 +98,10 @@ def test_render_width_is_bounded(tmp_path):
 
 
 def test_run_command_policy(capsys):
+    from particlesplat.core.errors import UserError, warn_input
+
     def user():
-        raise ValueError("f.yaml: lr: bad\nsecond line")
+        raise UserError("f.yaml: lr: bad\nsecond line")
 
     def interrupted():
         raise KeyboardInterrupt
@@ -107,12 +109,26 @@ def test_run_command_policy(capsys):
     def bug():
         raise ZeroDivisionError("a bug")
 
+    def bare_value_error():  # a bug in the library, not the user's input: it keeps its traceback
+        raise ValueError("internal: shapes differ")
+
+    def warns():
+        warn_input("scene/transforms.json: frames[0]: 'fl_x' 0.001 pixels\nfor a 64x64 image")
+        return 0
+
     assert run_command("prog", user) == EXIT_USER
     assert capsys.readouterr().err == "prog: error: f.yaml: lr: bad second line\n"
     assert run_command("prog", interrupted) == EXIT_INTERRUPTED
     assert capsys.readouterr().err == "prog: interrupted\n"
     with pytest.raises(ZeroDivisionError):
         run_command("prog", bug)
+    with pytest.raises(ValueError, match="internal"):
+        run_command("prog", bare_value_error)
+    assert run_command("prog", warns) == 0
+    assert (
+        capsys.readouterr().err
+        == "prog: warning: scene/transforms.json: frames[0]: 'fl_x' 0.001 pixels for a 64x64 image\n"
+    )
 
 
 def test_console_script_ctrl_c_is_one_line(tmp_path):

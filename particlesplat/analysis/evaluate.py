@@ -30,6 +30,7 @@ from particlesplat.analysis.particle_arrays import (
 )
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.camera import Camera
+from particlesplat.core.errors import OptionError, UserError
 from particlesplat.editing.grouping import particle_objects
 from particlesplat.model.fit import DEFAULT_FIT, fit_particles
 from particlesplat.rendering.api import render
@@ -259,7 +260,7 @@ def evaluate_dataset(
     from particlesplat.data import SceneDataset
 
     if limit is not None and limit < 1:
-        raise ValueError(f"--limit must be >= 1 (or absent for every scene), got {limit}")
+        raise OptionError(f"--limit must be >= 1 (or absent for every scene), got {limit}")
     if figures is not None and num_figures > 0:
         check_writable(Path(figures) / "figure.png")  # before the work, not after it
     ds = SceneDataset(
@@ -276,7 +277,7 @@ def evaluate_dataset(
     for i in tqdm(range(n), desc="eval", disable=not progress_bar):
         item = ds[i]
         if set(item["target_index"].tolist()) <= set(item["context_index"].tolist()):
-            raise ValueError(
+            raise UserError(
                 f"{ds.scenes[i]}: {ds.raw(i).num_frames} frame(s): no target view apart from the "
                 f"{context} context view(s); evaluation needs at least {context + 1} frames"
             )

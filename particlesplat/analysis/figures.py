@@ -17,6 +17,7 @@ The overlays come from :class:`particlesplat.analysis.particle_arrays.ParticleAr
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from os import PathLike
@@ -28,9 +29,10 @@ import torch
 from PIL import Image, ImageDraw
 
 from particlesplat.analysis.particle_arrays import ParticleArrays
-from particlesplat.core.atomic import atomic_path
 from particlesplat.core import palette
+from particlesplat.core.atomic import atomic_path
 from particlesplat.core.camera import Camera
+from particlesplat.core.errors import OptionError
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.viewpoints import Look, View
 from particlesplat.rendering.api import render
@@ -150,9 +152,9 @@ def render_mode(
     ``arrays``: the scene's particle arrays, needed by every mode but rgb and depth (ValueError without).
     """
     if mode not in MODES:
-        raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
+        raise OptionError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
     if mode in NEEDS_PARTICLES and arrays is None:
-        raise ValueError(f"--mode {mode} needs a model scene (particles), not a .ply")
+        raise OptionError(f"--mode {mode} needs a model scene (particles), not a .ply")
     g = gaussians.detach().to("cpu")
     if mode == "foreground":
         g = g.subset(g.owner >= 0)
@@ -175,7 +177,7 @@ def turntable_cameras(view: View, frames: int, width: int, height: int) -> list[
     """``frames`` cameras orbiting ``view``'s target once (azimuth += 360 / frames each; elevation, distance
     and field of view kept), starting at ``view``."""
     if frames < 1:
-        raise ValueError(f"--turntable must be >= 1 frames, got {frames}")
+        raise OptionError(f"--turntable must be >= 1 frames, got {frames}")
     return [
         View(
             view.target, Look(view.look.azimuth + 360.0 * i / frames, view.look.elevation, view.look.distance), view.fov
@@ -194,17 +196,50 @@ def turntable_paths(out: str | PathLike, frames: int) -> tuple[list[Path], Path]
     return [stem.parent / f"{stem.name}_{i:0{digits}d}.png" for i in range(frames)], anim
 
 
-def save_animation(frames: list[np.ndarray], path: str | PathLike, frame_ms: int = FRAME_MS) -> Path:
-    """Write (H, W, 3) frames in [0, 1] as a looping animated GIF or WebP (by suffix), atomically."""
+def save_animation(frames: Sequence[np.ndarray | Path], path: str | PathLike, frame_ms: int = FRAME_MS) -> Path:
+    """Write frames as a looping animated GIF or WebP (by suffix), atomically. A frame is an (H, W, 3) array in
+    [0, 1] or the path of a PNG, read when the writer gets to it (a turntable streams its frames from disk)."""
     path = Path(path)
     fmt = {".gif": "GIF", ".webp": "WEBP"}.get(path.suffix.lower())
     if fmt is None:
-        raise ValueError(f"{path}: an animation must end in .gif or .webp")
-    images = [Image.fromarray((np.clip(f, 0, 1) * 255 + 0.5).astype(np.uint8), "RGB") for f in frames]
+        raise OptionError(f"{path}: an animation must end in .gif or .webp")
+
+    def image(f: np.ndarray | Path) -> Image.Image:
+        if isinstance(f, (str, Path)):
+            with Image.open(f) as img:
+                return img.convert("RGB")
+        return Image.fromarray((np.clip(f, 0, 1) * 255 + 0.5).astype(np.uint8), "RGB")
+
     extra = {"lossless": True} if fmt == "WEBP" else {"optimize": False}
+    rest = (image(f) for f in frames[1:])
     with atomic_path(path) as tmp:
-        images[0].save(tmp, format=fmt, save_all=True, append_images=images[1:], duration=frame_ms, loop=0, **extra)
+        image(frames[0]).save(tmp, format=fmt, save_all=True, append_images=rest, duration=frame_ms, loop=0, **extra)
     return path
+
+
+def turntable_memory(frames: int, width: int, height: int) -> float:
+    """Estimated peak bytes of a turntable: one frame rendered (~80 bytes a pixel: the renderer's ~20 floats) and
+    every frame held by the animation writer (a GIF keeps each as 1 byte a pixel; frames themselves are
+    written to disk as they are rendered)."""
+    return width * height * (80.0 + frames)
+
+
+def check_turntable_targets(out: str | PathLike, frames: int) -> None:
+    """OptionError naming the first turntable frame path (:func:`turntable_paths`) that exists and is not an
+    image this program rendered (its ``Software`` chunk): a turntable never replaces another file."""
+    for p in turntable_paths(out, frames)[0]:
+        if not os.path.lexists(p):
+            continue
+        try:
+            with Image.open(p) as img:
+                ours = (getattr(img, "text", {}) or {}).get("Software") == "ParticleSplat Studio"
+        except OSError:
+            ours = False
+        if not ours:
+            raise OptionError(
+                f"--turntable: {p} exists and is not a frame rendered by particlesplat; refusing to replace it "
+                "(move it, or choose another --out)"
+            )
 
 
 def write_turntable(
@@ -229,7 +264,6 @@ def write_turntable(
     from particlesplat.formats.png import save_png
 
     paths, anim = turntable_paths(out, frames)
-    images = []
     for path, cam in tqdm(
         list(zip(paths, turntable_cameras(view, frames, width, height), strict=False)),
         desc="turntable",
@@ -238,6 +272,6 @@ def write_turntable(
     ):
         rgb = render_mode(gaussians, cam, mode, background=background, arrays=arrays)
         (save_frame or (lambda p, x, c: save_png(p, x)))(path, rgb, cam)
-        images.append(rgb)
-    save_animation(images, anim, FRAME_MS if frames > 1 else 1000)
+        del rgb  # streamed: the animation reads the frames back from disk
+    save_animation(paths, anim, FRAME_MS if frames > 1 else 1000)
     return paths, anim

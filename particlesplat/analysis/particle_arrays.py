@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import zipfile
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
@@ -34,8 +35,10 @@ import torch
 from torch import Tensor
 
 from particlesplat.core.atomic import atomic_path
+from particlesplat.core.errors import UserError, one_line
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.sh import SH_C0
+from particlesplat.data.scene import SceneFormatError
 from particlesplat.editing.grouping import (
     OBJECT_CENTRES,
     ObjectCentre,
@@ -49,6 +52,12 @@ from particlesplat.editing.move import anchor_points
 from particlesplat.model import Particles, ParticleSplat
 
 FORMAT_VERSION = 1
+
+
+class ParticleArraysError(UserError):
+    """A particle ``.npz`` that cannot be read; the message names the file and the array."""
+
+
 ARRAY_NAMES = (
     "z_p",
     "z_s",
@@ -127,13 +136,17 @@ class ParticleArrays:
             with np.load(path, allow_pickle=False) as data:
                 missing = [n for n in (*ARRAY_NAMES, "meta") if n not in data.files]
                 if missing:
-                    raise ValueError(f"{path}: missing array(s) {', '.join(missing)}")
+                    raise ParticleArraysError(f"{path}: missing array(s) {', '.join(missing)}")
                 values = {n: data[n] for n in ARRAY_NAMES}
                 meta = json.loads(str(data["meta"]))
-        except (OSError, EOFError) as e:
-            raise ValueError(f"{path}: not a readable .npz file ({e})") from e
         except json.JSONDecodeError as e:
-            raise ValueError(f"{path}: meta: not valid JSON ({e})") from e
+            raise ParticleArraysError(f"{path}: meta: not valid JSON ({e})") from e
+        except ParticleArraysError:
+            raise
+        except (OSError, EOFError, ValueError, zipfile.BadZipFile) as e:  # truncated or not an .npz at all
+            raise ParticleArraysError(f"{path}: not a readable .npz file ({one_line(e, 160)})") from e
+        if not isinstance(meta, dict):
+            raise ParticleArraysError(f"{path}: meta: expected a JSON object, got {type(meta).__name__}")
         return cls(**values, meta=meta)
 
 
@@ -248,16 +261,16 @@ def scene_object_centres(scene_dir: str | PathLike) -> np.ndarray | None:
     try:
         doc = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path}: not valid JSON ({e})") from e
+        raise SceneFormatError(f"{path}: not valid JSON ({e})") from e
     objects = doc.get("objects") if isinstance(doc, dict) else None
     if not objects:
         return None
     try:
         centres = np.array([[float(v) for v in o["center"]] for o in objects], dtype=np.float64)
     except (KeyError, TypeError, ValueError) as e:
-        raise ValueError(f"{path}: objects[].center: expected 3 numbers per object ({e})") from e
+        raise SceneFormatError(f"{path}: objects[].center: expected 3 numbers per object ({e})") from e
     if centres.shape[1:] != (3,):
-        raise ValueError(f"{path}: objects[].center: expected 3 numbers per object")
+        raise SceneFormatError(f"{path}: objects[].center: expected 3 numbers per object")
     return centres
 
 

@@ -2,8 +2,11 @@
 
 ``OUT/<scene>.npz`` holds the arrays of :mod:`particlesplat.analysis.particle_arrays` (scene folders nested under
 ``--data``, e.g. ``train/scene_00000``, keep their relative path). Scenes are encoded ``--batch`` at a time
-in one forward pass; a scene whose ``.npz`` exists is skipped, so an interrupted run resumes; each file is
-written under a temporary name and renamed when complete.
+in one forward pass; each file is written under a temporary name and renamed when complete. A scene whose
+``.npz`` exists is skipped only when that file proves it is what this run would write: it opens, and its
+``meta`` records the same checkpoint (SHA-256), the same ``--context`` request, object centre and format
+version; otherwise it is encoded again (``--force``: every scene). Temporary files of an earlier run that was
+killed are removed at the start, so an interrupted run resumes cleanly.
 """
 
 from __future__ import annotations
@@ -17,7 +20,16 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from particlesplat.analysis.particle_arrays import OBJECT_CENTRES, file_sha256, particle_arrays
+from particlesplat.analysis.particle_arrays import (
+    FORMAT_VERSION,
+    OBJECT_CENTRES,
+    ParticleArrays,
+    file_sha256,
+    particle_arrays,
+)
+from particlesplat.core.atomic import stale_temporaries
+from particlesplat.core.device import DEVICE_HELP, resolve_device
+from particlesplat.core.errors import OptionError, UserError, one_line, short_repr, warn_input
 from particlesplat.core.viewpoints import default_context_views
 from particlesplat.data import Scene, read_scene
 from particlesplat.data.scene import TRANSFORMS
@@ -33,13 +45,15 @@ def find_scenes(root: str | PathLike) -> list[Path]:
         raise FileNotFoundError(f"{root}: no such folder")
     if (root / TRANSFORMS).is_file():
         return [root]
-    found, seen = [], set()
+    found, seen = [], {}
     for folder, subdirs, files in os.walk(root, followlinks=True):  # symlinked scene folders count
         real = os.path.realpath(folder)
-        if real in seen:  # a symlink cycle
+        if real in seen:  # a symlink to a folder already found (or a cycle): encoded once, under its first path
+            if TRANSFORMS in files:
+                warn_input(f"{folder}: the same scene folder as {seen[real]} (a symbolic link); encoded once, as that")
             subdirs[:] = []
             continue
-        seen.add(real)
+        seen[real] = folder
         subdirs[:] = sorted(d for d in subdirs if not d.startswith("."))
         if TRANSFORMS in files:
             found.append(Path(folder))
@@ -86,12 +100,42 @@ def encode_batch(model: ParticleSplat, scenes: list[Scene]) -> list[Particles]:
     ]
 
 
+def stale_output(path: Path, request: dict, object_centre: str) -> str | None:
+    """Why the existing ``path`` is not what this run would write (None when it is): it does not open (truncated,
+    not an .npz), or its ``meta`` records another format version, object centre or value of a ``request`` key
+    (checkpoint SHA-256, --context request)."""
+    try:
+        meta = ParticleArrays.load(path).meta
+    except (UserError, OSError) as e:
+        return one_line(e, 160)
+    want = {"format_version": FORMAT_VERSION, "object_centre": object_centre}
+    want.update({k: v for k, v in request.items() if k != "model"})  # the same weights may have another path
+    if request.get("context_request") is not None:
+        want["context"] = request["context_request"]
+    for key, value in want.items():
+        if key not in meta or meta[key] != value:
+            return f"meta.{key} is {short_repr(meta.get(key, 'absent'), 40)}, this run {short_repr(value, 40)}"
+    return None
+
+
+def check_context_memory(model: ParticleSplat, views: int, batch: int, option: str) -> None:
+    """BudgetError naming ``option`` when encoding ``batch`` scenes of ``views`` context views would not fit the
+    memory limit (:func:`particlesplat.model.io.encode_memory`)."""
+    from particlesplat.core.limits import check_memory
+    from particlesplat.model.io import encode_memory
+
+    check_memory(
+        batch * encode_memory(model.config, views),
+        f"{option}: encoding {batch} scene(s) of {views} context view(s) at {model.config.resolution}^2",
+    )
+
+
 def _load(path: Path, context: list[int] | None, resolution: int) -> Scene:
     raw = read_scene(path)
     ctx = default_context_views(raw.num_frames) if context is None else list(context)
     bad = [i for i in ctx if not 0 <= i < raw.num_frames]
     if not ctx or bad:
-        raise ValueError(f"--context: {path} has frames 0..{raw.num_frames - 1}, got {ctx}")
+        raise OptionError(f"--context: {path} has frames 0..{raw.num_frames - 1}, got {ctx}")
     scene = raw.select(ctx, resolution)
     if scene.depth is not None and not bool((scene.depth > 0).any()):
         scene.depth = None
@@ -108,17 +152,27 @@ def encode_folder(
     object_centre: str = "resting",
     meta: dict | None = None,
     progress: bool = True,
+    force: bool = False,
 ) -> dict:
     """Encode every scene under ``data`` into ``out`` (see the module docstring).
 
-    Returns {"written": n, "skipped": n, "seconds": wall time of the written scenes, "scenes_per_s": ...}.
+    ``meta`` (e.g. the checkpoint's SHA-256) is recorded in every file and, with ``context`` and
+    ``object_centre``, compared with an existing file's (:func:`stale_output`); ``force`` encodes every scene.
+
+    Returns {"written": n, "replaced": n of them over a stale file, "skipped": n, "seconds": wall time of the
+    written scenes, "scenes_per_s": ...}.
     """
     if batch < 1:
-        raise ValueError(f"--batch must be >= 1, got {batch}")
+        raise OptionError(f"--batch must be >= 1, got {batch}")
     root, out = Path(data), Path(out)
     scenes = find_scenes(root)
-    todo = [(s, output_path(root, s, out)) for s in scenes]
-    todo = [(s, p) for s, p in todo if not p.is_file()]
+    for tmp in stale_temporaries(out, recursive=True):  # a killed run's half-written files
+        tmp.unlink(missing_ok=True)
+    request = {"context_request": None if context is None else [int(i) for i in context], **(meta or {})}
+    check_context_memory(model, len(context) if context is not None else 2, batch, "--context")
+    targets = [(s, output_path(root, s, out)) for s in scenes]
+    todo = [(s, p) for s, p in targets if force or not p.is_file() or stale_output(p, request, object_centre)]
+    redone = sum(p.is_file() for _, p in todo)
     res = model.config.resolution
     t0 = time.perf_counter()
     bar = tqdm(total=len(scenes), initial=len(scenes) - len(todo), desc="encode", unit="scene", disable=not progress)
@@ -129,7 +183,7 @@ def encode_folder(
             particles = encode_batch(model, [sc for _, _, sc in pending])
             for (path, target, sc), p in zip(pending, particles, strict=False):
                 info = {"scene": str(path), "context": [int(i) for i in sc.frame_indices]}
-                info.update(meta or {})
+                info.update(request)
                 particle_arrays(model, p, object_centre=object_centre, meta=info).save(target)
                 bar.update(1)
             pending.clear()
@@ -148,6 +202,7 @@ def encode_folder(
     seconds = time.perf_counter() - t0
     return {
         "written": len(todo),
+        "replaced": redone,
         "skipped": len(scenes) - len(todo),
         "seconds": seconds,
         "scenes_per_s": len(todo) / seconds if todo and seconds > 0 else float("nan"),
@@ -161,7 +216,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--context", help="context frame indices, e.g. 4,16; none = two frames 12 apart about the middle"
     )
-    parser.add_argument("--device", choices=("cpu", "cuda"), default=None, help="none = cuda when present, else cpu")
+    parser.add_argument("--device", default=None, help=DEVICE_HELP)
     parser.add_argument(
         "--batch",
         type=int,
@@ -177,6 +232,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "'weighted' (the opacity-weighted mean of its Gaussians)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="encode every scene again (default: an existing .npz of the same checkpoint, --context, object "
+        "centre and format version is kept)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -184,13 +245,11 @@ def run(args: argparse.Namespace) -> int:
     from particlesplat.model import load_model
     from particlesplat.model.io import shipped_model_path
 
-    device = args.device or ("cuda" if torch.cuda.is_available() else "cpu")
-    if device == "cuda" and not torch.cuda.is_available():
-        raise ValueError("--device cuda: no CUDA device is available")
+    device = resolve_device(args.device)
     checkpoint = Path(args.checkpoint) if args.checkpoint else shipped_model_path()
     model = load_model(checkpoint, device=device)
     meta = {"model": str(args.checkpoint or "assets/model.pt"), "checkpoint_sha256": file_sha256(checkpoint)}
-    batch = args.batch if args.batch is not None else (8 if device == "cuda" else 1)
+    batch = args.batch if args.batch is not None else (8 if device.type == "cuda" else 1)
     stats = encode_folder(
         model,
         args.data,
@@ -200,7 +259,9 @@ def run(args: argparse.Namespace) -> int:
         object_centre=args.object_centre,
         meta=meta,
         progress=not args.no_progress,
+        force=args.force,
     )
     rate = f", {stats['scenes_per_s']:.2f} scenes/s" if stats["written"] else ""
-    print(f"wrote {stats['written']} .npz files to {args.out} ({stats['skipped']} existed){rate} on {device}")
+    again = f", {stats['replaced']} of them over a stale file" if stats["replaced"] else ""
+    print(f"wrote {stats['written']} .npz files to {args.out}{again} ({stats['skipped']} existed){rate} on {device}")
     return 0

@@ -47,20 +47,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="draw the particles with z_t at or above this (default: the model's bg_mask_threshold, "
         "as the viewer and particlesplat render draw them; 0 = every particle)",
     )
-    parser.add_argument("--device", default="cpu", help="cpu or cuda")
+    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
 
 
 def run(args: argparse.Namespace) -> int:
     from particlesplat.core.atomic import check_writable
+    from particlesplat.core.device import resolve_device
     from particlesplat.model import load_model, read_checkpoint
     from particlesplat.model.io import shipped_model_path
     from particlesplat.model.provenance import describe
 
+    device = resolve_device(args.device)
     if args.json:
         check_writable(args.json)  # before the work, not after it
     if args.figures and args.num_figures > 0:
         check_writable(Path(args.figures) / "figure.png")
-    model = load_model(args.checkpoint, device=args.device)
+    model = load_model(args.checkpoint, device=device)
     path = args.checkpoint or shipped_model_path()
     ckpt = read_checkpoint(path)
     print(f"{path}: step {ckpt['step']}; {describe(ckpt.get('provenance'))}")
@@ -83,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
         f"{len(out['scenes'])} scenes, {args.context} context view(s): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, "
         f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f} (objects; per "
         f"particle {m['fg_ari_particles']:.3f}, {m['miou_particles']:.3f}), active particles "
-        f"{m['active_particles']:.1f} in {m['objects']:.1f} objects, Gaussians {m['gaussians']:.0f}, "
+        f"{m['active_particles']:.1f} in {m['objects']:.1f} objects, Gaussians {m['gaussians']:.0f} "
+        f"({100 * m['below_support']:.1f} % of the opaque object ones > 1 cm below z = 0), "
         f"encode {m['encode_ms']:.1f} ms, "
         + (f"fit {m['fit_ms']:.0f} ms, " if args.fit_steps else "")
         + f"decode {m['decode_ms']:.1f} ms, render {m['render_ms']:.1f} ms/view"

@@ -11,6 +11,7 @@ import sys
 
 from particlesplat.analysis.figures import MODES, NEEDS_PARTICLES
 from particlesplat.core.camera import Camera
+from particlesplat.core.errors import OptionError
 from particlesplat.core.viewpoints import View, check_fov, default_view, parse_look, scene_background
 from particlesplat.editing.open_scene import (
     add_source_arguments,
@@ -153,12 +154,12 @@ def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -
     """
     for name in ("width", "height"):
         if getattr(args, name) is not None and not 1 <= getattr(args, name) <= MAX_SIDE:
-            raise ValueError(f"--{name} must be in [1, {MAX_SIDE}], got {getattr(args, name)}")
+            raise OptionError(f"--{name} must be in [1, {MAX_SIDE}], got {getattr(args, name)}")
     if getattr(args, "camera_from", None):
         from particlesplat.formats.png import camera_from_png
 
         if args.fov is not None:
-            raise ValueError("--fov applies to --look or the default view, not to --camera-from")
+            raise OptionError("--fov applies to --look or the default view, not to --camera-from")
         cam = camera_from_png(args.camera_from)
         width, height = args.width, args.height
         if width is None and height is None:
@@ -170,11 +171,11 @@ def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -
         return cam.resized(width, height), None
     if args.view is not None:
         if not cameras:
-            raise ValueError("--view needs a scene with input cameras")
+            raise OptionError("--view needs a scene with input cameras")
         if not 0 <= args.view < len(cameras):
-            raise ValueError(f"--view {args.view}: the scene has {len(cameras)} cameras (0..{len(cameras) - 1})")
+            raise OptionError(f"--view {args.view}: the scene has {len(cameras)} cameras (0..{len(cameras) - 1})")
         if args.fov is not None:
-            raise ValueError("--fov applies to --look or the default view, not to --view")
+            raise OptionError("--fov applies to --look or the default view, not to --view")
         cam = cameras[args.view]
         width, height = args.width, args.height
         if height is None:
@@ -203,18 +204,27 @@ def run(args: argparse.Namespace) -> int:
         except OSError as e:
             raise OSError(f"--out {one_line(e)}") from None
         if args.turntable < 0:
-            raise ValueError(f"--turntable must be >= 0 frames, got {args.turntable}")
+            raise OptionError(f"--turntable must be >= 0 frames, got {args.turntable}")
         if args.turntable and args.view is not None:
-            raise ValueError("--turntable orbits the default target: use --look (or nothing), not --view")
+            raise OptionError("--turntable orbits the default target: use --look (or nothing), not --view")
         if args.mode in NEEDS_PARTICLES and args.ply:
-            raise ValueError(f"--mode {args.mode} needs a model scene (particles), not --ply")
+            raise OptionError(f"--mode {args.mode} needs a model scene (particles), not --ply")
         g, cameras, edits, model_name, source, background, arrays = _scene_and_gaussians(args)
         camera, view = resolve_camera(args, cameras, g)
         if camera.width > MAX_SIDE or camera.height > MAX_SIDE or camera.width * camera.height > MAX_PIXELS:
-            raise ValueError(
+            raise OptionError(
                 f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
                 f"({MAX_SIDE} a side, {MAX_PIXELS} pixels)"
             )
+        if args.turntable:
+            from particlesplat.analysis.figures import check_turntable_targets, turntable_memory
+            from particlesplat.core.limits import check_memory
+
+            check_memory(
+                turntable_memory(args.turntable, camera.width, camera.height),
+                f"--turntable {args.turntable} frames of {camera.width}x{camera.height}",
+            )
+            check_turntable_targets(args.out, args.turntable)
     except (OSError, ValueError, KeyError) as e:
         print(f"particlesplat render: {one_line(e)}", file=sys.stderr)
         return EXIT_USER

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -34,21 +33,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     counts = {"train": args.train, "val": args.val, "test": args.test}
-    try:
-        if args.family == "robot":
-            from particlesplat.data.families.robot import RobotSceneConfig
-            from particlesplat.data.families.robot_synth import generate as generate_robot
+    # errors follow the one policy (particlesplat.core.errors.run_command): bad input, one line, exit 2
+    if args.family == "robot":
+        from particlesplat.data.families.robot import RobotSceneConfig
+        from particlesplat.data.families.robot_synth import generate as generate_robot
 
-            config = RobotSceneConfig(args.res, args.res, cameras=args.cameras, arm=args.arm)
-            times = [t["total"] for t in generate_robot(args.out, counts, args.seed, config, args.workers)]
-        else:
-            times = generate(args.out, counts, args.seed, args.res, args.workers)
-    except ValueError as e:
-        print(f"particlesplat synth: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:
-        print(f"particlesplat synth: {args.out}: {e.strerror or e} ({e.filename or args.out})", file=sys.stderr)
-        return 1
+        config = RobotSceneConfig(args.res, args.res, cameras=args.cameras, arm=args.arm)
+        times = [t["total"] for t in generate_robot(args.out, counts, args.seed, config, args.workers)]
+    else:
+        times = generate(args.out, counts, args.seed, args.res, args.workers)
     if times:
         print(f"wrote {len(times)} scenes to {args.out}, {np.mean(times):.2f} s per scene per worker")
     else:

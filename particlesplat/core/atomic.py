@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import stat
 import uuid
 from collections.abc import Iterator
@@ -62,8 +63,12 @@ def check_writable(path: str | PathLike) -> Path:
     try:
         if folder.is_dir():
             fd, tmp = create_temp_file(path)
-            os.close(fd)
-            os.unlink(tmp)
+            try:  # a real byte, flushed to the disk: a full disk fails here, not after the work
+                os.write(fd, b"\0")
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+                os.unlink(tmp)
             return path
         ancestor = folder
         while not ancestor.exists() and ancestor != ancestor.parent:
@@ -91,6 +96,33 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
+_TEMP_NAME = re.compile(r"^\.(.+)\.(\d+)\.[0-9a-f]{8}\.tmp")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def stale_temporaries(folder: str | PathLike, recursive: bool = False) -> list[Path]:
+    """Temporary files (:func:`temp_sibling` names, ``.NAME.PID.XXXXXXXX.tmp*``) under ``folder`` whose writing
+    process no longer runs: a ``kill -9`` or a power cut mid-write left them. Sorted."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    found = []
+    for p in folder.rglob(".*.tmp*") if recursive else folder.glob(".*.tmp*"):
+        m = _TEMP_NAME.match(p.name)
+        if m and p.is_file() and int(m.group(2)) != os.getpid() and not _pid_alive(int(m.group(2))):
+            found.append(p)
+    return sorted(found)
+
+
 def temp_sibling(path: Path, suffix: str = "") -> Path:
     """A fresh hidden name beside ``path`` (process id + random part) for a temporary file or folder."""
     return path.parent / f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp{suffix}"
@@ -101,6 +133,15 @@ def create_temp_file(path: Path, suffix: str = "") -> tuple[int, Path]:
     so it gets the permissions a plain ``open`` would (the umask's), unlike mkstemp's 0600."""
     tmp = temp_sibling(path, suffix)
     return os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o666), tmp
+
+
+def _name_the_file(e: BaseException, path: Path) -> None:
+    """A write that failed for want of space (or a file-size limit) says which file: raise an OSError naming
+    ``path`` in its place; other errors are left as they are."""
+    if isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+        raise OSError(
+            e.errno, f"{path}: cannot write ({e.strerror or e}); the previous file, if any, is unchanged"
+        ) from None
 
 
 @contextmanager
@@ -120,9 +161,10 @@ def atomic_write(path: str | PathLike, mode: str = "wb") -> Iterator[IO]:
         check_target(path)
         os.replace(tmp, path)
         _fsync_dir(path.parent)
-    except BaseException:
+    except BaseException as e:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        _name_the_file(e, path)
         raise
 
 
@@ -146,7 +188,8 @@ def atomic_path(path: str | PathLike) -> Iterator[Path]:
         check_target(path)
         os.replace(tmp, path)
         _fsync_dir(path.parent)
-    except BaseException:
+    except BaseException as e:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        _name_the_file(e, path)
         raise

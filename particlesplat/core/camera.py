@@ -238,3 +238,34 @@ class Camera:
         """Camera on an orbit about ``target`` (see :meth:`orbit_eye`), no roll, +z up."""
         eye = Camera.orbit_eye(target, azimuth_deg, elevation_deg, distance)
         return Camera.look_at(eye, target, fov_y_deg=fov_y_deg, width=width, height=height, dtype=dtype)
+
+
+def camera_problem(K, c2w, width: int, height: int) -> str | None:
+    """What makes a camera unusable (None when nothing does), checked in float64 for the float32 it is used in:
+    K (3, 3) intrinsics with positive focal lengths, zero skew and the last row 0 0 1; c2w (4, 4) a rigid
+    transform (orthonormal rotation, det +1, last row 0 0 0 1); every value finite and representable in float32
+    with margin (:func:`particlesplat.core.limits.float32_problem`); width and height positive."""
+    import numpy as np
+
+    from particlesplat.core.limits import FLOAT32_MAX_ABS, float32_problem
+
+    K, c2w = np.asarray(K, dtype=np.float64), np.asarray(c2w, dtype=np.float64)
+    if K.shape != (3, 3) or c2w.shape != (4, 4):
+        return f"K must be 3x3 and c2w 4x4, got {K.shape} and {c2w.shape}"
+    if not (np.isfinite(K).all() and np.isfinite(c2w).all()):
+        return "K and c2w must be finite numbers"
+    if max(np.abs(K).max(), np.abs(c2w).max()) > FLOAT32_MAX_ABS:
+        return f"K and c2w values must lie within +-{FLOAT32_MAX_ABS:g} (float32 arithmetic on them overflows)"
+    for name, v in (("fx", K[0, 0]), ("fy", K[1, 1])):
+        problem = float32_problem(v, positive=True)
+        if problem:
+            return f"focal length {name} is {problem} (got {v:g})"
+    if K[0, 1] != 0 or K[1, 0] != 0 or list(K[2]) != [0.0, 0.0, 1.0]:
+        return "K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]"
+    R = c2w[:3, :3]
+    err = max(np.abs(R.T @ R - np.eye(3)).max(), np.abs(c2w[3] - [0, 0, 0, 1]).max())
+    if err > 1e-3 or np.linalg.det(R) <= 0:
+        return f"c2w is not a rigid transform (orthonormal rotation with det +1, last row 0 0 0 1; error {err:.3g})"
+    if int(width) < 1 or int(height) < 1:
+        return f"width and height must be positive, got {width}x{height}"
+    return None

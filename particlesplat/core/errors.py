@@ -1,14 +1,17 @@
 """The error policy shared by every command and the viewer.
 
-A user-caused error (bad file, bad argument, unwritable output) is a :class:`UserError` (or one of
-the library's ``ValueError`` / ``OSError`` families): the command prints one line naming the file
-and the field and exits with :data:`EXIT_USER`. Anything else is a bug and keeps its traceback.
-Ctrl-C prints one line and exits with :data:`EXIT_INTERRUPTED`.
+A user-caused error (bad file, bad argument, unwritable output) is a :class:`UserError` (each reader has its
+subclass: ``SceneFormatError``, ``ConfigError``, ``CheckpointError``, ...) or an ``OSError`` about a path the
+user gave: the command prints one line naming the file and the field and exits with :data:`EXIT_USER`.
+Anything else, a bare ``ValueError`` included, is a bug and keeps its traceback. Ctrl-C prints one line and
+exits with :data:`EXIT_INTERRUPTED`. Warnings about legal but implausible input (:class:`InputWarning`) are
+printed as one line each.
 """
 
 from __future__ import annotations
 
 import sys
+import warnings
 from collections.abc import Callable
 
 EXIT_USER = 2  # bad input, as argparse exits on a bad argument
@@ -18,6 +21,15 @@ REPR_LIMIT = 80  # characters of a value echoed in a message
 
 class UserError(ValueError):
     """Bad input from the user; the message is one line naming the file and the field."""
+
+
+class OptionError(UserError):
+    """A command-line option with a value that cannot be used; the message names the option."""
+
+
+class InputWarning(UserWarning):
+    """Legal but implausible input (e.g. a focal length of a thousandth of a pixel); the message names the file and
+    the field. Commands print it as one line and go on."""
 
 
 class Interrupted(KeyboardInterrupt):
@@ -76,14 +88,29 @@ def one_line(message: object, limit: int = 2000) -> str:
 
 
 def is_user_error(e: BaseException) -> bool:
-    """User-caused: the library's ValueError family (file formats, configs, arguments) and OSError (missing,
-    unreadable or unwritable files). MemoryError, RuntimeError and the rest are bugs."""
-    return isinstance(e, (ValueError, OSError))
+    """User-caused: :class:`UserError` (file formats, configs, options, budgets) and OSError (missing, unreadable
+    or unwritable files, a full disk). A bare ValueError, MemoryError, RuntimeError and the rest are bugs."""
+    return isinstance(e, (UserError, OSError))
+
+
+def warn_input(message: str) -> None:
+    """Warn about legal but implausible input (:class:`InputWarning`); each distinct message is shown once."""
+    warnings.warn(message, InputWarning, stacklevel=2)
 
 
 def run_command(prog: str, fn: Callable[[], int]) -> int:
     """Run ``fn`` under the error policy: one line on stderr and exit 2 for a user error, one line and
-    exit 130 for Ctrl-C; other exceptions propagate with their traceback."""
+    exit 130 for Ctrl-C; other exceptions propagate with their traceback. An :class:`InputWarning` is one
+    line, ``PROG: warning: MESSAGE``."""
+    show = warnings.showwarning
+
+    def one_line_warning(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, InputWarning):
+            print(f"{prog}: warning: {one_line(message)}", file=sys.stderr)
+        else:
+            show(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = one_line_warning
     try:
         return int(fn() or 0)
     except KeyboardInterrupt as e:
@@ -95,3 +122,5 @@ def run_command(prog: str, fn: Callable[[], int]) -> int:
             raise
         print(f"{prog}: error: {one_line(e)}", file=sys.stderr)
         return EXIT_USER
+    finally:
+        warnings.showwarning = show

@@ -16,7 +16,9 @@ import torch
 from torch import Tensor
 
 from particlesplat.core.camera import Camera
+from particlesplat.core.errors import OptionError
 from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.limits import float32_problem
 
 DEFAULT_FOV = 40.0  # degrees, vertical
 DEFAULT_ELEVATION = 25.0  # degrees, for scenes without cameras
@@ -65,17 +67,21 @@ def parse_look(text: str) -> Look:
     """``"AZ,EL,DIST"`` (degrees, degrees, metres) -> :class:`Look`; ValueError names the field."""
     parts = [p.strip() for p in str(text).split(",")]
     if len(parts) != 3:
-        raise ValueError(f"--look: expected AZ,EL,DIST (three comma-separated numbers), got {text!r}")
+        raise OptionError(f"--look: expected AZ,EL,DIST (three comma-separated numbers), got {text!r}")
     try:
         az, el, dist = (float(p) for p in parts)
     except ValueError as e:
-        raise ValueError(f"--look: expected numbers AZ,EL,DIST, got {text!r}") from e
+        raise OptionError(f"--look: expected numbers AZ,EL,DIST, got {text!r}") from e
     if not all(math.isfinite(v) for v in (az, el, dist)):
-        raise ValueError(f"--look: values must be finite, got {text!r}")
+        raise OptionError(f"--look: values must be finite, got {text!r}")
     if not -90.0 < el < 90.0:
-        raise ValueError(f"--look: elevation must be in (-90, 90) degrees, got {el}")
+        raise OptionError(f"--look: elevation must be in (-90, 90) degrees, got {el}")
     if dist <= 0:
-        raise ValueError(f"--look: distance must be positive, got {dist}")
+        raise OptionError(f"--look: distance must be positive, got {dist}")
+    for name, v in (("azimuth", az), ("distance", dist)):
+        problem = float32_problem(v, positive=name == "distance")
+        if problem:
+            raise OptionError(f"--look: {name} is {problem}, got {v:g}")
     return Look(az, el, dist)
 
 
@@ -97,7 +103,7 @@ def attach_option_values(argv: list[str], options: tuple[str, ...] = ("--look",)
 def check_fov(fov: float) -> float:
     """Validate a vertical field of view in degrees."""
     if not (math.isfinite(fov) and 1.0 <= fov <= 170.0):
-        raise ValueError(f"--fov: vertical field of view must be in [1, 170] degrees, got {fov}")
+        raise OptionError(f"--fov: vertical field of view must be in [1, 170] degrees, got {fov}")
     return float(fov)
 
 

@@ -11,7 +11,8 @@ import torch
 from torch import Tensor
 from torch.utils.data import Dataset
 
-from particlesplat.data.scene import TRANSFORMS, RawScene, read_scene
+from particlesplat.core.errors import one_line
+from particlesplat.data.scene import TRANSFORMS, RawScene, SceneFormatError, read_scene
 from particlesplat.data.views import flip_horizontal, sample_views, supervision_mask
 
 
@@ -119,9 +120,12 @@ class SceneDataset(Dataset):
             gen.manual_seed(self.seed * 1_000_003 + index)
         else:
             gen.manual_seed(int(torch.randint(0, 2**62, (1,))))
-        ctx, tgt = sample_views(
-            raw.num_frames, self.progress, self.mode, gen, num_targets=self.num_targets, schedule=self.schedule
-        )
+        try:
+            ctx, tgt = sample_views(
+                raw.num_frames, self.progress, self.mode, gen, num_targets=self.num_targets, schedule=self.schedule
+            )
+        except ValueError as e:  # too few frames for the sampling: name the scene
+            raise SceneFormatError(f"{self.scenes[index] / TRANSFORMS}: frames: {one_line(e, 200)}") from None
         flipped = self.flip and bool(torch.rand((), generator=gen) < 0.5)
         item: dict[str, Tensor] = {
             "scene_index": torch.tensor(index),

@@ -224,17 +224,20 @@ def read_scene(path: str | PathLike) -> RawScene:
         raise SceneFormatError(f"{tf_path}: missing key 'frames'")
     if not isinstance(frames, list) or not frames:
         raise SceneFormatError(f"{tf_path}: key 'frames' must be a non-empty list")
+    for i, frame in enumerate(frames):
+        if not isinstance(frame, dict):
+            raise SceneFormatError(f"{tf_path}: frames[{i}] must be an object")
+    _check_scene_memory(path, tf_path, meta, frames)
     rgb, depth, masks, cams = [], [], [], []
     for i, frame in enumerate(frames):
         where = f"{tf_path}: frames[{i}]"
-        if not isinstance(frame, dict):
-            raise SceneFormatError(f"{where} must be an object")
         image = _read_rgb(path, frame, where)
         cam = _frame_camera(meta, frame, image.shape[1], image.shape[0], where)
         rgb.append(image)
         depth.append(_read_depth(path, meta, frame, (cam.width, cam.height), where))
         masks.append(_read_mask(path, frame, (cam.width, cam.height), where))
         cams.append(cam)
+    _warn_implausible(tf_path, cams, depth)
     have = [m is not None for m in masks]
     if any(have) and not all(have):
         raise SceneFormatError(
@@ -243,20 +246,95 @@ def read_scene(path: str | PathLike) -> RawScene:
     return RawScene(path, rgb, depth, masks, cams)
 
 
+# bytes a decoded frame holds per pixel while it is read: RGB (3 uint8) and its float copy while resizing, depth
+# (float64 while scaled, float32 kept), a mask
+BYTES_PER_PIXEL = 3 + 12 + 8 + 4 + 8
+# beyond these a scene is legal but probably wrong (a depth in millimetres read as metres, a focal length in
+# metres, a principal point far outside the image): a warning names the file and the field
+PLAUSIBLE_DEPTH_M = (1e-3, 200.0)  # median depth of a frame's valid pixels
+PLAUSIBLE_FOCAL = (0.05, 100.0)  # focal length / image width
+
+
+def _check_scene_memory(folder: Path, tf_path: Path, meta: dict, frames: list) -> None:
+    """Refuse a scene whose frames would not fit the memory limit, from the image headers, before any decoding
+    (200 frames naming one 4096 x 4096 image are 200 decoded images)."""
+    from particlesplat.core.limits import check_memory
+
+    total = 0
+    sizes: dict[Path, int] = {}
+    for i, frame in enumerate(frames):
+        rel = frame.get("file_path")
+        if not isinstance(rel, str) or not rel:
+            continue  # reported with its frame when it is read
+        try:
+            p = _resolve(folder, rel, "file_path", f"{tf_path}: frames[{i}]")
+        except (OSError, UserError):
+            continue
+        if p not in sizes:
+            try:
+                with Image.open(p) as img:
+                    sizes[p] = img.size[0] * img.size[1]
+            except (OSError, Image.DecompressionBombError, ValueError):
+                sizes[p] = 0  # reported with its frame when it is read
+        total += sizes[p]
+    check_memory(
+        total * BYTES_PER_PIXEL, f"{tf_path}: {len(frames)} frames of {total / max(len(frames), 1):,.0f} pixels each"
+    )
+
+
+def _warn_implausible(tf_path: Path, cams: list[Camera], depth: list[np.ndarray | None]) -> None:
+    """Warn (once per field) about a legal scene whose numbers are probably wrong."""
+    from particlesplat.core.errors import warn_input
+
+    lo, hi = PLAUSIBLE_FOCAL
+    for i, cam in enumerate(cams):
+        fx, fy = float(cam.K[0, 0]), float(cam.K[1, 1])
+        if not (lo * cam.width <= fx <= hi * cam.width and lo * cam.height <= fy <= hi * cam.height):
+            warn_input(
+                f"{tf_path}: frames[{i}]: 'fl_x'/'fl_y' {fx:.4g}/{fy:.4g} pixels for a {cam.width}x{cam.height} "
+                f"image (a field of view of {cam.fov_y:.3g} degrees); is the focal length in pixels?"
+            )
+            break
+    for i, cam in enumerate(cams):
+        cx, cy = float(cam.K[0, 2]), float(cam.K[1, 2])
+        if not (-cam.width <= cx <= 2 * cam.width and -cam.height <= cy <= 2 * cam.height):
+            warn_input(
+                f"{tf_path}: frames[{i}]: 'cx'/'cy' {cx:.4g}/{cy:.4g} lie far outside the {cam.width}x{cam.height} "
+                "image; the scene will be off screen"
+            )
+            break
+    for i, d in enumerate(depth):
+        if d is None or not (d > 0).any():
+            continue
+        median = float(np.median(d[d > 0]))
+        if not PLAUSIBLE_DEPTH_M[0] <= median <= PLAUSIBLE_DEPTH_M[1]:
+            warn_input(
+                f"{tf_path}: frames[{i}]: 'depth_unit_scale_factor' makes the median depth {median:.4g} m; "
+                "is it the size of one depth unit in metres (0.001 for millimetres)?"
+            )
+            break
+
+
 def _get(meta: dict, frame: dict, key: str) -> Any:
     """A frame's own value for ``key``, else the top-level one, else None."""
     return frame[key] if key in frame else meta.get(key)
 
 
 def _number(value: Any, key: str, where: str, positive: bool = False) -> float:
+    """A number, finite and usable in float32 (:func:`particlesplat.core.limits.float32_problem`)."""
+    from particlesplat.core.limits import float32_problem
+
     try:
         x = float(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise SceneFormatError(f"{where}: key '{key}' must be a number, got {short_repr(value)}") from None
     if not math.isfinite(x) or (positive and x <= 0):
         raise SceneFormatError(
             f"{where}: key '{key}' must be a finite{' positive' if positive else ''} number, got {short_repr(value)}"
         )
+    problem = float32_problem(x, positive)
+    if problem:
+        raise SceneFormatError(f"{where}: key '{key}' is {problem}, got {short_repr(value)}")
     return x
 
 
@@ -303,6 +381,12 @@ def _rigid_matrix(value: Any, where: str) -> np.ndarray:
         raise SceneFormatError(f"{where}: key '{key}' must be 4x4, got shape {m.shape}")
     if not np.isfinite(m).all():
         raise SceneFormatError(f"{where}: key '{key}' has non-finite values")
+    from particlesplat.core.limits import FLOAT32_MAX_ABS
+
+    if np.abs(m).max() > FLOAT32_MAX_ABS:
+        raise SceneFormatError(
+            f"{where}: key '{key}' has values beyond +-{FLOAT32_MAX_ABS:g} (float32 arithmetic on them overflows)"
+        )
     R = m[:3, :3]
     err = max(np.abs(R.T @ R - np.eye(3)).max(), np.abs(m[3] - [0, 0, 0, 1]).max())
     if err > _RIGID_TOL or np.linalg.det(R) <= 0:
@@ -331,6 +415,12 @@ def _resolve(folder: Path, rel: Any, key: str, where: str) -> Path:
     if not p.is_file():
         what = "a folder, not an image file" if p.is_dir() else "which does not exist"
         raise FileNotFoundError(f"{where}: key '{key}' names {p}, {what}")
+    real, inside = os.path.realpath(p), os.path.realpath(folder)
+    if os.path.commonpath([real, inside]) != inside:  # a symbolic link inside the folder pointing out of it
+        raise SceneFormatError(
+            f"{where}: key '{key}' names {short_repr(rel)}, a link to {short_repr(real)} outside the scene folder "
+            "(files must stay inside it)"
+        )
     return p
 
 
@@ -412,4 +502,9 @@ def _read_mask(folder: Path, frame: dict, size: tuple[int, int], where: str) -> 
         raise SceneFormatError(f"{where}: key '{key}': {p} must be a single-channel image, got mode {img.mode}")
     arr = np.array(img)
     _check_size(arr, size, key, p, where)
+    if arr.dtype.kind == "i" and arr.size and int(arr.min()) < 0:
+        raise SceneFormatError(
+            f"{where}: key '{key}': {p} has negative instance ids (min {int(arr.min())}); ids are 0 (background) "
+            "or positive"
+        )
     return arr

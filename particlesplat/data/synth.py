@@ -23,9 +23,15 @@ from tqdm import tqdm
 
 from particlesplat.core.atomic import atomic_write, temp_sibling
 from particlesplat.core.camera import Camera
+from particlesplat.core.errors import OptionError, UserError
+from particlesplat.core.limits import check_memory
 from particlesplat.data.families import tabletop
 
 SPLITS = ("train", "val", "test")
+MAX_RES = 4096  # a scene image may have at most 4096 x 4096 pixels (particlesplat.data.scene.MAX_IMAGE_PIXELS)
+# peak bytes a worker holds per pixel of its scene (renders of 21 views in float64 and their PNG encodings): 9.4 GB
+# measured at --res 4100 with one worker, ~560 bytes a pixel
+SYNTH_BYTES_PER_PIXEL = 560
 SPLIT_IDS = MappingProxyType({"train": 0, "val": 1, "test": 2})
 DEPTH_UNIT = 0.0002  # metres per 16-bit step: 0.2 mm resolution, 13.1 m range
 FORMAT_VERSION = 1
@@ -135,10 +141,10 @@ def _check_manifest(out: Path, seed: int, res: int) -> None:
         try:
             have = json.loads(path.read_text())
         except json.JSONDecodeError as e:
-            raise ValueError(f"{path}: not valid JSON ({e})") from e
+            raise UserError(f"{path}: not valid JSON ({e})") from e
         for key, value in want.items():
             if have.get(key) != value:
-                raise ValueError(
+                raise UserError(
                     f"{path}: key '{key}' is {have.get(key)!r} but this run uses {value!r}; "
                     "use another output folder or the same settings to resume"
                 )
@@ -162,13 +168,17 @@ def generate(
     Returns the seconds each newly written scene took (worker wall time).
     """
     if seed < 0:
-        raise ValueError(f"--seed must be >= 0, got {seed}")
-    if res < 8:
-        raise ValueError(f"--res must be >= 8, got {res}")
+        raise OptionError(f"--seed must be >= 0, got {seed}")
+    if not 8 <= res <= MAX_RES:
+        raise OptionError(f"--res must be in [8, {MAX_RES}] (the largest image a scene may hold), got {res}")
+    check_memory(
+        SYNTH_BYTES_PER_PIXEL * res * res * max(workers, 1),
+        f"--res {res} with --workers {workers}: {max(workers, 1)} scene(s) of {res}x{res} at a time",
+    )
     if any(n < 0 for n in counts.values()):
-        raise ValueError(f"scene counts must be >= 0, got {counts}")
+        raise OptionError(f"scene counts must be >= 0, got {counts}")
     if out.exists() and not out.is_dir():
-        raise ValueError(f"{out}: exists and is not a folder")
+        raise OptionError(f"{out}: exists and is not a folder")
     _check_manifest(out, seed, res)
     tasks = []
     for split in SPLITS:

@@ -679,6 +679,7 @@ class SceneEditor:
         members = self.object_members(index)
         offset = tuple(float(v) for v in torch.as_tensor(offset, dtype=torch.float64).reshape(3).tolist())
         n = self.num_particles
+        _check_room(n, len(members), "duplicate")
         grown = self.particles.cat(self.particles.take(members))
         new = list(range(n, n + len(members)))
         target = translate(grown, new, offset, self.model.config)
@@ -712,7 +713,9 @@ class SceneEditor:
         if not self.editable:
             raise ValueError("this scene has no particles to edit (opened from a .ply)")
         n = self.num_particles
+        _check_room(n, 1, "insert")
         grown, new = insert_object(self.model, self.particles, source, insert.object, insert.at)
+        _check_room(n, grown.num - n, "insert")
         added = grown.take(slice(n, None))
         added = added.detach().to("cpu")
         rows = self.original.num + (0 if self._inserted is None else self._inserted.num)
@@ -875,3 +878,14 @@ class SceneEditor:
             self.operations(), scene=scene, model=model, context=self.context, scene_sha256=scene_sha256
         )
 
+
+def _check_room(num: int, more: int, what: str) -> None:
+    """MoveError unless a scene of ``num`` particles can take ``more``: a particle index is a Gaussian's owner,
+    at most :data:`particlesplat.core.gaussians.MAX_OWNER`. The cap also bounds what one operation costs, so an
+    edit file replays in time linear in its operations."""
+    from particlesplat.core.gaussians import MAX_OWNER
+
+    if num + more > MAX_OWNER + 1:
+        raise MoveError(
+            f"{what}: the scene would have {num + more} particles, more than the {MAX_OWNER + 1} a scene may hold"
+        )

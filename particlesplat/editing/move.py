@@ -16,11 +16,12 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
+from particlesplat.core.errors import UserError
 from particlesplat.model.config import ModelConfig
 from particlesplat.model.particles import Particles
 
 
-class MoveError(ValueError):
+class MoveError(UserError):
     """A move would take a particle outside the model's depth range, or so near its view that it fills it."""
 
 

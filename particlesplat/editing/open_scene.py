@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
 
+from particlesplat.core.errors import OptionError
+from particlesplat.core.limits import check_memory
 from particlesplat.core.viewpoints import default_context_views
 from particlesplat.data import Scene, read_scene
 from particlesplat.model import Particles, ParticleSplat
@@ -67,7 +69,7 @@ def check_source_arguments(args: argparse.Namespace) -> None:
     if getattr(args, "ply", None):
         for name in ("edits", "context"):
             if getattr(args, name, None):
-                raise ValueError(f"--{name} needs a model scene, not --ply")
+                raise OptionError(f"--{name} needs a model scene, not --ply")
 
 
 def parse_context(text: str | None) -> list[int] | None:
@@ -77,7 +79,7 @@ def parse_context(text: str | None) -> list[int] | None:
     try:
         return [int(v) for v in str(text).split(",")]
     except ValueError:
-        raise ValueError(f"--context: expected comma-separated frame indices, got {text!r}") from None
+        raise OptionError(f"--context: expected comma-separated frame indices, got {text!r}") from None
 
 
 def encode_scene(
@@ -89,7 +91,12 @@ def encode_scene(
     ctx = default_context_views(raw.num_frames) if context is None else list(context)
     bad = [i for i in ctx if not 0 <= i < raw.num_frames]
     if not ctx or bad:
-        raise ValueError(f"--context: {raw.path} has frames 0..{raw.num_frames - 1}, got {ctx}")
+        raise OptionError(f"--context: {raw.path} has frames 0..{raw.num_frames - 1}, got {ctx}")
+    from particlesplat.model.io import encode_memory
+
+    check_memory(  # the encoder's memory grows with the cube of the context views
+        encode_memory(model.config, len(ctx)), f"--context: {len(ctx)} context views of {raw.path}"
+    )
     scene = raw.select(ctx, model.config.resolution)
     depth = scene.depth if use_depth and scene.depth is not None and bool((scene.depth > 0).any()) else None
     particles = model.encode(scene.rgb, depth, scene.cameras)

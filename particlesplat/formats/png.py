@@ -13,7 +13,12 @@ from PIL import Image
 from PIL.PngImagePlugin import PngInfo
 
 from particlesplat.core.atomic import atomic_path
-from particlesplat.core.camera import Camera
+from particlesplat.core.camera import Camera, camera_problem
+from particlesplat.core.errors import UserError, one_line
+
+
+class PngError(UserError):
+    """A PNG whose text chunks cannot be used; the message names the file and the chunk."""
 
 
 def camera_text(camera: Camera) -> str:
@@ -75,7 +80,7 @@ def _png_chunks(path: str | PathLike) -> dict[str, str]:
         with Image.open(path) as img:
             return dict(getattr(img, "text", {}) or {})
     except OSError as e:
-        raise ValueError(f"{path}: not a readable image ({e})") from None
+        raise PngError(f"{path}: not a readable image ({one_line(e, 160)})") from None
 
 
 def edits_text_from_png(path: str | PathLike) -> str:
@@ -83,7 +88,7 @@ def edits_text_from_png(path: str | PathLike) -> str:
     Errors name the file."""
     text = _png_chunks(path)
     if "edits" not in text:
-        raise ValueError(
+        raise PngError(
             f"{path}: no 'edits' text chunk (only viewer screenshots and particlesplat render images carry one)"
         )
     return text["edits"]
@@ -95,7 +100,7 @@ def camera_from_png(path: str | PathLike) -> Camera:
     path = Path(path)
     text = _png_chunks(path)
     if "camera" not in text:
-        raise ValueError(
+        raise PngError(
             f"{path}: no 'camera' text chunk (only viewer screenshots and particlesplat render images carry one)"
         )
     try:
@@ -103,10 +108,12 @@ def camera_from_png(path: str | PathLike) -> Camera:
         K = np.asarray(data["K"], dtype=np.float64)
         c2w = np.asarray(data["c2w_opencv"], dtype=np.float64)
         width, height = int(data["width"]), int(data["height"])
-    except (ValueError, KeyError, TypeError) as e:
-        raise ValueError(f"{path}: camera chunk: expected JSON with K, c2w_opencv, width, height ({e})") from None
-    if K.shape != (3, 3) or c2w.shape != (4, 4) or not (np.isfinite(K).all() and np.isfinite(c2w).all()):
-        raise ValueError(f"{path}: camera chunk: K must be 3x3 and c2w_opencv 4x4 finite numbers")
+    except (ValueError, KeyError, TypeError, OverflowError, RecursionError) as e:
+        detail = "nested too deeply" if isinstance(e, RecursionError) else one_line(e, 120)
+        raise PngError(f"{path}: camera chunk: expected JSON with K, c2w_opencv, width, height ({detail})") from None
+    problem = camera_problem(K, c2w, width, height)
+    if problem:
+        raise PngError(f"{path}: camera chunk: {problem}")
     if not (1 <= width <= 16384 and 1 <= height <= 16384):
-        raise ValueError(f"{path}: camera chunk: width and height must be in [1, 16384], got {width}x{height}")
+        raise PngError(f"{path}: camera chunk: width and height must be in [1, 16384], got {width}x{height}")
     return Camera(torch.from_numpy(K).float(), torch.from_numpy(c2w).float(), width, height)

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from particlesplat.core.errors import UserError, one_line, short_repr
+from particlesplat.core.limits import float32_problem
 from particlesplat.core.yamlsafe import YamlError, read_yaml
 
 
@@ -312,6 +313,8 @@ def _from_dict(cls, data: Any, where: str):
             raise ConfigError(f"{where}.{k}: expected {type(default).__name__}, got {short_repr(v)}{hint}")
         if isinstance(v, float) and not math.isfinite(v):
             raise ConfigError(f"{where}.{k}: must be a finite number (got {v})")
+        if isinstance(v, float) and float32_problem(v) is not None:  # the model computes in float32
+            raise ConfigError(f"{where}.{k}: {float32_problem(v)} (got {v:g})")
         if k in INT_RANGES and isinstance(v, int) and not isinstance(v, bool):
             lo, hi = INT_RANGES[k]
             if not lo <= v <= hi:

@@ -10,11 +10,13 @@ from os import PathLike
 from pathlib import Path
 
 import torch
+from torch.overrides import TorchFunctionMode
 from torch.torch_version import TorchVersion
 
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.errors import UserError, one_line
-from particlesplat.model.config import model_config_from_dict, without_removed_keys
+from particlesplat.core.limits import check_memory
+from particlesplat.model.config import ModelConfig, model_config_from_dict, without_removed_keys
 from particlesplat.model.particlesplat import ParticleSplat
 
 
@@ -33,9 +35,39 @@ def save_checkpoint(path: str | PathLike, model: ParticleSplat, step: int, extra
         with atomic_path(path) as tmp:
             torch.save(state, tmp)
     except RuntimeError as e:  # torch reports a failed write (disk full, file too large) as RuntimeError
+        detail = one_line(e, 160)
+        if "enforce fail" in detail or "write" in detail.lower():  # torch's C++ writer says nothing useful
+            detail = f"the write failed: the disk is full or the file too large; {free_space(Path(path).parent)}"
         raise OSError(
-            f"{path}: cannot write the checkpoint ({one_line(e, 160)}); the previous file, if any, is unchanged"
+            f"{path}: cannot write the checkpoint ({detail}); the previous file, if any, is unchanged"
         ) from None
+
+
+def free_space(folder: Path) -> str:
+    """``"N MiB free on FOLDER"`` (or that it is unknown), for messages about failed writes."""
+    import shutil
+
+    from particlesplat.core.limits import format_bytes
+
+    try:
+        return f"{format_bytes(shutil.disk_usage(folder).free)} free in {folder}"
+    except OSError:
+        return f"free space in {folder} unknown"
+
+
+# what a weight may be: dense, real, floating-point or integer (a sparse, complex or quantised tensor is refused)
+DENSE_DTYPES = (
+    torch.float16,
+    torch.bfloat16,
+    torch.float32,
+    torch.float64,
+    torch.uint8,
+    torch.int8,
+    torch.int16,
+    torch.int32,
+    torch.int64,
+    torch.bool,
+)
 
 
 class CheckpointError(UserError):
@@ -95,6 +127,11 @@ def check_state_dict(state: object, where: str) -> None:
     for k, v in state.items():
         if not isinstance(v, torch.Tensor):
             raise CheckpointError(f"{where}: state_dict.{one_line(k, 80)}: expected a tensor, got {type(v).__name__}")
+        if v.layout != torch.strided or v.is_complex() or v.is_quantized or v.dtype not in DENSE_DTYPES:
+            raise CheckpointError(
+                f"{where}: state_dict.{one_line(k, 80)}: expected a dense real tensor, got {v.layout} {v.dtype} "
+                "(weights are dense floating-point or integer tensors)"
+            )
         if v.is_floating_point() and not bool(torch.isfinite(v).all()):
             raise CheckpointError(
                 f"{where}: state_dict.{one_line(k, 80)}: non-finite weights (NaN or inf); the run "
@@ -102,9 +139,61 @@ def check_state_dict(state: object, where: str) -> None:
             )
 
 
+class _SmallTensorsOnCpu(TorchFunctionMode):
+    """Inside ``torch.device("meta")``: tensors built from Python values (``torch.tensor``) stay real, so that a
+    constructor may read them back (``float(...)``); parameters and buffers are shapes only."""
+
+    def __torch_function__(self, func, types, args=(), kwargs=None):
+        kwargs = dict(kwargs or {})
+        if func in (torch.tensor, torch.as_tensor, torch.scalar_tensor) and kwargs.get("device") is None:
+            kwargs["device"] = "cpu"
+        return func(*args, **kwargs)
+
+
+def model_values(cfg: ModelConfig) -> int | None:
+    """Number of values (parameters and buffers) the model of ``cfg`` holds, counted by building it on the meta
+    device (nothing is allocated; ~0.2 s). None when the model cannot be built that way."""
+    try:
+        with torch.device("meta"), _SmallTensorsOnCpu():
+            model = ParticleSplat(cfg)
+    except (RuntimeError, NotImplementedError, TypeError, ValueError):
+        return None
+    return sum(t.numel() for t in model.parameters()) + sum(t.numel() for t in model.buffers())
+
+
+def check_model_memory(cfg: ModelConfig, where: str, copies: int = 1) -> None:
+    """BudgetError naming ``where`` when the model of ``cfg`` (``copies`` float32 values per weight: 1 to use it,
+    4 to train it with Adam: weights, gradients and two moments) would not fit the memory limit; checked
+    before the weights are allocated."""
+    n = model_values(cfg)
+    if n is not None:
+        check_memory(
+            4.0 * copies * n,
+            f"{where}: a model of {n:,} weights (token_dim {cfg.token_dim}, transformer_layers "
+            f"{cfg.transformer_layers}){' with gradients and Adam moments' if copies > 1 else ''}",
+        )
+
+
+# Peak memory of encoding one scene of V context views (and decoding it), measured with the shipped model
+# (resolution 64, 8 particles per view) on a 2-core CPU: 34, 58, 171, 426 and 865 MB above the loaded model for
+# V = 1, 2, 4, 6, 8 (and ~2.8 GB for 12): about 21 MB * V + 1.36 MB * V^3 (the refinement renders every
+# particle's Gaussians into every view). Scaled with the pixels and particles per view.
+ENCODE_BYTES_PER_VIEW = 21e6
+ENCODE_BYTES_PER_VIEW_CUBED = 1.36e6
+
+
+def encode_memory(cfg: ModelConfig, views: int) -> float:
+    """Estimated peak bytes of encoding (and decoding) one scene of ``views`` context views with a model of
+    ``cfg`` (calibrated on the shipped model, :data:`ENCODE_BYTES_PER_VIEW`; weights not included)."""
+    pixels = (cfg.resolution / 64.0) ** 2
+    particles = max(cfg.particles_per_view, 1) / 8.0
+    return pixels * (ENCODE_BYTES_PER_VIEW * views + ENCODE_BYTES_PER_VIEW_CUBED * particles**2 * views**3)
+
+
 def model_from_checkpoint(ckpt: dict, where: str = "checkpoint", device: str | torch.device = "cpu") -> ParticleSplat:
     """Build the model a checkpoint dict describes and load its weights (eval mode)."""
     cfg = model_config_from_dict(without_removed_keys(ckpt["config"], "model", f"{where}: config"), f"{where}: config")
+    check_model_memory(cfg, f"{where}: config")
     model = ParticleSplat(cfg)
     try:
         model.load_state_dict(ckpt["state_dict"])

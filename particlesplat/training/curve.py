@@ -11,6 +11,8 @@ from pathlib import Path
 
 from PIL import Image, ImageDraw
 
+from particlesplat.training.runlog import LogError
+
 WIDTH, HEIGHT, MARGIN = 560, 300, 48
 PSNR_COLOUR, ARI_COLOUR, AXIS_COLOUR = (31, 119, 180), (214, 39, 40), (60, 60, 60)
 
@@ -27,7 +29,7 @@ def read_validation(path: Path) -> list[tuple[int, float, float]]:
         except json.JSONDecodeError as e:
             if number == len(lines):  # a run killed mid-write leaves a torn last line
                 continue
-            raise ValueError(f"{path}: line {number} is not JSON ({e.msg})") from e
+            raise LogError(f"{path}: line {number} is not JSON ({e.msg})") from e
         if isinstance(rec, dict) and isinstance(rec.get("val"), dict):
             v = rec["val"]
             rows.append((int(rec["step"]), float(v["psnr"]), float(v.get("fg_ari", float("nan")))))

@@ -1,0 +1,110 @@
+"""Limits every command checks before it works: one memory budget per job, and numbers representable in float32.
+
+Memory: a command estimates what it will hold (frames x pixels of the scenes it reads, the weights a config
+builds, Gaussians x views, context views) **before** it allocates it, and :func:`check_memory` refuses an
+estimate above :func:`memory_limit` with one line naming the input and the estimate. The limit is
+``PARTICLESPLAT_MEMORY_LIMIT`` (bytes, or with a unit: ``512M``, ``16G``) when set; otherwise half the machine's
+memory, and never more than what this process may still map (its ``RLIMIT_AS``, e.g. ``ulimit -v``).
+
+Numbers: values read from files are float64 in Python and float32 in torch; :func:`float32_problem` says what is
+wrong with a value that is not finite, or so large (or, for a positive value, so small) that float32 arithmetic
+on it (squares, products with other coordinates) overflows or underflows.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import resource
+
+from particlesplat.core.errors import UserError
+
+MEMORY_ENV = "PARTICLESPLAT_MEMORY_LIMIT"
+MACHINE_SHARE = 0.5  # the default limit: this share of the machine's memory
+# float32 reaches 3.4e38: a value at most 1e18 keeps its square (and a product of two) finite, and a positive
+# value at least 1e-18 keeps its reciprocal's square finite
+FLOAT32_MAX_ABS = 1e18
+FLOAT32_MIN_POSITIVE = 1e-18
+_UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
+
+
+class BudgetError(UserError):
+    """A job whose estimated memory exceeds the limit; the message names the input, the estimate and the limit."""
+
+
+def parse_bytes(text: str, where: str = MEMORY_ENV) -> int:
+    """``"16G"`` -> 17179869184 (units K, M, G, T of 1024; a trailing ``B`` or ``iB`` is allowed)."""
+    m = re.fullmatch(r"\s*([0-9]+(?:\.[0-9]*)?)\s*([KMGT]?)(?:I?B)?\s*", str(text).upper())
+    if not m or float(m.group(1)) <= 0:
+        raise UserError(f"{where}: expected a positive size such as 8G or 512M, got {str(text)[:40]!r}")
+    return int(float(m.group(1)) * _UNITS[m.group(2)])
+
+
+def _machine_bytes() -> int:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30
+
+
+def _mapped_bytes() -> int:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmSize:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+def memory_limit() -> tuple[int, str]:
+    """(bytes a job may hold, where that number comes from, for messages)."""
+    text = os.environ.get(MEMORY_ENV)
+    if text:
+        return parse_bytes(text), f"{MEMORY_ENV}={text.strip()[:20]}"
+    limit, source = int(_machine_bytes() * MACHINE_SHARE), "half the machine's memory"
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY:
+        room = max(soft - _mapped_bytes(), 0)
+        if room < limit:
+            limit, source = room, "the address space this process may still map (ulimit -v)"
+    return limit, source
+
+
+def format_bytes(n: float) -> str:
+    """``1.5e9`` -> ``'1.4 GiB'``."""
+    for unit, size in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if n >= size:
+            return f"{n / size:.1f} {unit}"
+    return f"{int(n)} bytes"
+
+
+def check_memory(estimate: float, what: str) -> None:
+    """BudgetError unless ``estimate`` bytes fit in :func:`memory_limit`; ``what`` names the input and how the
+    estimate was made (e.g. ``"scene/transforms.json: 200 frames, 3.4e9 pixels"``)."""
+    limit, source = memory_limit()
+    if estimate > limit:
+        raise BudgetError(
+            f"{what}: needs about {format_bytes(estimate)}, more than the memory limit of {format_bytes(limit)} "
+            f"({source}; set {MEMORY_ENV}, e.g. {MEMORY_ENV}=32G, to raise it)"
+        )
+
+
+def float32_problem(value: float, positive: bool = False) -> str | None:
+    """What is wrong with ``value`` as a float32 quantity (None when nothing is): not finite, beyond
+    :data:`FLOAT32_MAX_ABS` in size, or (``positive``) not positive or below :data:`FLOAT32_MIN_POSITIVE`."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError, OverflowError):
+        return "not a number"
+    if not math.isfinite(x):
+        return "not finite"
+    if abs(x) > FLOAT32_MAX_ABS:
+        return f"beyond +-{FLOAT32_MAX_ABS:g} (float32 arithmetic on it overflows)"
+    if positive and x <= 0:
+        return "not positive"
+    if positive and x < FLOAT32_MIN_POSITIVE:
+        return f"below {FLOAT32_MIN_POSITIVE:g} (float32 arithmetic on it underflows)"
+    return None
