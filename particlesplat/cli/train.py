@@ -8,6 +8,7 @@ from pathlib import Path
 
 import torch
 
+from particlesplat.core.device import resolve_device
 from particlesplat.model import load_config
 from particlesplat.training.trainer import Trainer, recipe_path
 
@@ -24,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out", required=True, help="run folder: checkpoints (last.pt, step_*.pt, best.pt), metrics.jsonl, config.yaml"
     )
     parser.add_argument("--resume", action="store_true", help="continue exactly from OUT/last.pt")
-    parser.add_argument("--device", default="cpu", help="cpu or cuda (under torchrun: one process per device)")
+    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (under torchrun: one process per device)")
     parser.add_argument(
         "--overwrite",
         action="store_true",
@@ -39,6 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    resolve_device(args.device)  # a typo or a missing device is one line before anything is read
     cfg, tc = load_config(args.config or recipe_path())
     if tc.num_threads > 0:
         torch.set_num_threads(tc.num_threads)

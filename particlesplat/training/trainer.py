@@ -10,6 +10,7 @@ import shutil
 import signal
 import sys
 import threading
+import weakref
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -21,18 +22,22 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import default_collate
 from tqdm import tqdm
 
-from particlesplat.core.atomic import atomic_path, atomic_write
+from particlesplat.core.atomic import atomic_path, atomic_write, stale_temporaries
 from particlesplat.core.camera import Camera
+from particlesplat.core.device import resolve_device
 from particlesplat.core.errors import Interrupted, UserError, one_line
 from particlesplat.data.views import WARMUP
 from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig, read_checkpoint, save_checkpoint
 from particlesplat.model.config import ConfigError, config_to_dict, model_config_from_dict, without_removed_keys
+from particlesplat.model.io import check_model_memory
 from particlesplat.model.losses import elbo, scene_kl, view_error
 from particlesplat.model.provenance import Provenance, RunClock
 from particlesplat.rendering.api import render_batch
+from particlesplat.training.runlock import LOCK_NAME, RunLock
 from particlesplat.training.runlog import read_log
 
 LAST = "last.pt"
+STEP_FILE = re.compile(r"^step_\d+\.pt$")
 MAX_SKIPPED = 20  # steps in a row with non-finite loss or gradients before the run stops as diverged
 
 
@@ -40,14 +45,13 @@ class TrainingDiverged(UserError):
     """Non-finite gradients or weights that skipping steps did not cure; nothing was saved."""
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
+def _is_checkpoint(name: str) -> bool:
+    """A run's checkpoint (last.pt, best.pt, step_*.pt) or a temporary of one (a run killed while saving)."""
+    if name == "best.pt.tmp":
         return True
-    return True
+    tmp = re.match(r"^\.(.+)\.\d+\.[0-9a-f]{8}\.tmp", name)
+    name = tmp.group(1) if tmp else name
+    return name in (LAST, "best.pt") or bool(STEP_FILE.match(name))
 
 
 def recipe_path() -> Path:
@@ -175,11 +179,37 @@ class Trainer:
         resume: bool,
         overwrite: bool = False,
     ):
-        self.cfg, self.tc, self.out, self.device = cfg, tc, out, torch.device(device)
-        if not resume and not overwrite and out.exists() and (not out.is_dir() or any(out.iterdir())):
+        self.cfg, self.tc, self.out = cfg, tc, out
+        self.device = device if isinstance(device, torch.device) else resolve_device(device)
+        # the folder is owned by this process before anything in it is read or deleted (a folder that does not
+        # exist yet is locked when run() creates it)
+        self.lock = RunLock(out)
+        self._release = weakref.finalize(self, self.lock.release)
+        if int(os.environ.get("RANK", "0")) == 0 and out.is_dir():
+            self.lock.acquire()
+        try:
+            self._setup(data, resume, overwrite)
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def _setup(self, data: Path, resume: bool, overwrite: bool) -> None:
+        cfg, tc, out = self.cfg, self.tc, self.out
+        self.resumed = resume
+        if out.exists() and not out.is_dir():
+            raise FileExistsError(f"{out}: --out is a file, not a folder")
+        held = [p for p in out.iterdir() if p.name != LOCK_NAME] if out.is_dir() else []
+        has_run = any(_is_checkpoint(p.name) for p in held)
+        if not resume and not overwrite and held:
             raise FileExistsError(
                 f"{out}: --out is not empty; pass --resume to continue the run in it, "
                 "--overwrite to replace it, or choose another folder"
+            )
+        if overwrite and not resume and held and not has_run:
+            raise FileExistsError(
+                f"{out}: --overwrite replaces a training run, and this folder holds none (no last.pt, best.pt or "
+                f"step_*.pt; it holds {', '.join(sorted(p.name for p in held)[:3])}{', ...' if len(held) > 3 else ''}"
+                "); choose another --out"
             )
         replace(cfg, particles_per_view=tc.particles_per_view or cfg.particles_per_view).validate(
             "train.particles_per_view with the model"
@@ -215,6 +245,7 @@ class Trainer:
         self.skipped = 0  # steps skipped for non-finite loss or gradients, this invocation
         torch.manual_seed(tc.seed + 1000 * self.rank)
         self.gen = torch.Generator().manual_seed(tc.seed * 7919 + self.rank)
+        check_model_memory(cfg, "--config: model", copies=4)  # before the weights are allocated
         self.model = ParticleSplat(cfg).to(self.device)
         # the learned background colour and the static background layer move at lr_background
         is_bg = lambda n: n == "background_logit" or n.startswith("static_bg.")  # noqa: E731
@@ -222,6 +253,10 @@ class Trainer:
         bg = [p for n, p in trained if is_bg(n)]
         rest = [p for n, p in trained if not is_bg(n)]
         groups = [{"params": rest, "lr": tc.lr}] + ([{"params": bg, "lr": tc.lr_background}] if bg else [])
+        # the names of the weights each optimiser group moves: a resume with another layout (weights frozen or
+        # grouped otherwise) is refused, not continued with Adam moments of other weights
+        self.layout = [[n for n, p in trained if not is_bg(n)]] if rest else []
+        self.layout += [[n for n, p in trained if is_bg(n)]] if bg else []
         self.base_lrs = [g["lr"] for g in groups]  # each group's lr before the cosine factor
         self.opt = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
         self.step = 0
@@ -285,10 +320,8 @@ class Trainer:
     def _clean_temporaries(self) -> None:
         """Remove temporary files a killed run left in the run folder (``.NAME.PID.XXXXXXXX.tmp*`` of a process
         that no longer runs, and ``best.pt.tmp``)."""
-        for p in self.out.glob(".*.tmp*"):
-            m = re.match(r"^\.(.+)\.(\d+)\.[0-9a-f]{8}\.tmp", p.name)
-            if m and p.is_file() and int(m.group(2)) != os.getpid() and not _pid_alive(int(m.group(2))):
-                p.unlink(missing_ok=True)
+        for p in stale_temporaries(self.out):
+            p.unlink(missing_ok=True)
         (self.out / "best.pt.tmp").unlink(missing_ok=True)
 
     def _save(self, path: Path) -> None:
@@ -305,6 +338,7 @@ class Trainer:
             self.step,
             {
                 "optimizer": self.opt.state_dict(),
+                "optimizer_layout": self.layout,
                 "rng": states,
                 "train": config_to_dict(self.tc),
                 "best": float(self.best),
@@ -326,9 +360,10 @@ class Trainer:
             without_removed_keys(ckpt["config"], "model", f"{path}: config"), f"{path}: config"
         )
         if config_to_dict(stored) != config_to_dict(self.cfg):
-            raise ValueError(f"{path}: its model config differs from --config; resume with the same config")
+            raise ConfigError(f"{path}: its model config differs from --config; resume with the same config")
         self.model.load_state_dict(ckpt["state_dict"])
         if "optimizer" in ckpt:
+            self._check_layout(path, ckpt)
             try:
                 self.opt.load_state_dict(ckpt["optimizer"])
             except (ValueError, KeyError, TypeError, RuntimeError) as e:
@@ -362,9 +397,38 @@ class Trainer:
             self.gen.manual_seed(self.tc.seed * 7919 + self.rank + 104729 * self.step)
             return
         if len(states) != self.world:
-            raise ValueError(f"{path}: saved by {len(states)} process(es), resuming with {self.world}")
+            raise UserError(f"{path}: saved by {len(states)} process(es), resuming with {self.world}")
         torch.set_rng_state(states[self.rank]["torch"])
         self.gen.set_state(states[self.rank]["gen"])
+
+    def _check_layout(self, path: Path, ckpt: dict) -> None:
+        """UserError unless the checkpoint's optimiser moved the weights this run's optimiser moves, in the same
+        groups (its ``optimizer_layout``; older checkpoints: each Adam moment's shape against its weight's)."""
+        layout = ckpt.get("optimizer_layout")
+        if layout is not None:
+            if layout != self.layout:
+                have = {n for g in layout for n in g} if isinstance(layout, list) else set()
+                want = {n for g in self.layout for n in g}
+                diff = sorted(have ^ want)[:3]
+                raise UserError(
+                    f"{path}: optimizer_layout: the run trained other weights than this run would, e.g. "
+                    f"{', '.join(diff) or 'in other groups'}; resume it with the version and config that started it"
+                )
+            return
+        params = [p for g in self.opt.param_groups for p in g["params"]]
+        state = ckpt["optimizer"].get("state", {}) if isinstance(ckpt["optimizer"], dict) else {}
+        groups = ckpt["optimizer"].get("param_groups", []) if isinstance(ckpt["optimizer"], dict) else []
+        ids = [i for g in groups if isinstance(g, dict) for i in g.get("params", [])]
+        if len(ids) != len(params) or any(
+            isinstance(state.get(i), dict)
+            and isinstance(state[i].get("exp_avg"), torch.Tensor)
+            and tuple(state[i]["exp_avg"].shape) != tuple(p.shape)
+            for i, p in zip(ids, params, strict=False)
+        ):
+            raise UserError(
+                f"{path}: optimizer: the run trained other weights than this run would (its Adam moments do not "
+                "fit them); resume it with the version and config that started it"
+            )
 
     # ------------------------------------------------------------------ loop
     def batch(self) -> dict[str, Tensor]:
@@ -426,15 +490,34 @@ class Trainer:
 
     def log(self, record: dict) -> None:
         if self.rank == 0:
-            with open(self.out / "metrics.jsonl", "a") as f:
-                f.write(json.dumps(record) + "\n")
+            path = self.out / "metrics.jsonl"
+            try:
+                with open(path, "a") as f:
+                    f.write(json.dumps(record) + "\n")
+            except OSError as e:  # a full disk: name the file (a torn last line is repaired on --resume)
+                raise OSError(e.errno, f"{path}: cannot append to the log ({e.strerror or e})") from None
 
     def run(self, stop_after: int | None = None) -> int:
         """Train until ``steps`` (or for at most ``stop_after`` more steps, then checkpoint and return)."""
+        try:
+            return self._run(stop_after)
+        finally:
+            self.lock.release()
+
+    def _run(self, stop_after: int | None) -> int:
         tc = self.tc
+        if self.resumed and self.step > tc.steps:
+            raise UserError(
+                f"{self.out / LAST}: the run is at step {self.step}, beyond train.steps {tc.steps}; "
+                "raise train.steps in --config to train further"
+            )
+        if self.resumed and self.step == tc.steps:
+            print(f"{self.out / LAST}: the run is complete (step {self.step} of {tc.steps}); nothing to train")
+            return 0
         end = tc.steps if stop_after is None else min(tc.steps, self.step + stop_after)
         if self.rank == 0:
-            self.out.mkdir(parents=True, exist_ok=True)
+            if self.lock.owner is None and int(os.environ.get("RANK", "0")) == 0:
+                self.lock.acquire()  # a new folder: owned from its creation
             with atomic_write(self.out / "config.yaml", "w") as f:
                 import yaml
 
