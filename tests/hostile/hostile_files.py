@@ -109,3 +109,69 @@ def tear_log(path: Path, where: str) -> Path:
     else:
         path.write_text(lines[0][: len(lines[0]) // 2] + "\n" + "".join(lines[1:]))
     return path
+
+
+def scene_with(good_scene: Path, folder: Path, edit) -> Path:
+    """A copy of ``good_scene`` whose transforms.json is changed by ``edit(meta, folder)``."""
+    import json
+
+    shutil.copytree(good_scene, folder)
+    meta = json.loads((folder / "transforms.json").read_text())
+    edit(meta, folder)
+    (folder / "transforms.json").write_text(json.dumps(meta))
+    return folder
+
+
+def many_frames_one_image(good_scene: Path, folder: Path, frames: int = 200, side: int = 4096) -> Path:
+    """A few-KB scene whose ``frames`` frames all name one ``side`` x ``side`` image (decoded: frames x 50 MB)."""
+
+    def edit(meta, f):
+        png_bomb(f / "big.png", side, side)
+        frame = {**meta["frames"][0], "file_path": "big.png", "w": side, "h": side}
+        frame.pop("depth_file_path", None)
+        frame.pop("instance_mask_path", None)
+        meta["frames"] = [dict(frame) for _ in range(frames)]
+
+    return scene_with(good_scene, folder, edit)
+
+
+def big_config_checkpoint(good: Path, path: Path, **model) -> Path:
+    """A copy of checkpoint ``good`` (a few KB of weights) whose config, with a valid digest, builds a model of
+    ``model`` (e.g. token_dim 2048 and 64 transformer layers: ~8.6 GB of weights)."""
+    from particlesplat.model.io import config_digest
+
+    ckpt = torch.load(good, weights_only=True)
+    ckpt["config"] = {**ckpt["config"], **model}
+    ckpt["config_sha256"] = config_digest(ckpt["config"])
+    torch.save(ckpt, path)
+    return path
+
+
+def sparse_checkpoint(good: Path, path: Path) -> Path:
+    """A copy of checkpoint ``good`` whose first weight is a sparse tensor (same values)."""
+    ckpt = torch.load(good, weights_only=True)
+    first = next(k for k, v in ckpt["state_dict"].items() if v.is_floating_point() and v.dim() == 2)
+    ckpt["state_dict"][first] = ckpt["state_dict"][first].to_sparse()
+    torch.save(ckpt, path)
+    return path
+
+
+def png_with_camera(path: Path, camera_text: str) -> Path:
+    """A small PNG whose 'camera' text chunk is ``camera_text``."""
+    from PIL import Image
+    from PIL.PngImagePlugin import PngInfo
+
+    info = PngInfo()
+    info.add_itxt("camera", camera_text)
+    Image.new("RGB", (4, 4)).save(path, pnginfo=info)
+    return path
+
+
+def lock_run(run: Path, pid: int, host: str | None = None) -> Path:
+    """Write ``run``'s lock file as process ``pid`` on ``host`` (default: this host) would."""
+    import json
+    import socket
+    import time
+
+    (run / ".lock").write_text(json.dumps({"pid": pid, "host": host or socket.gethostname(), "started": time.time()}))
+    return run

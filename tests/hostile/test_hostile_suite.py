@@ -27,10 +27,16 @@ sys.path[:0] = [str(HERE), str(HERE.parent)]
 from hostile_files import (  # noqa: E402 (found through the sys.path entry above)
     alias_bomb_config,
     alias_bomb_edits,
+    big_config_checkpoint,
     bomb_scene,
     huge_owner_ply,  # noqa: E402
+    lock_run,
     lying_count_ply,
+    many_frames_one_image,
     nan_checkpoint,
+    png_with_camera,
+    scene_with,
+    sparse_checkpoint,
     tear_log,
 )
 from model_data import TINY_MODEL, tiny_config, tiny_dataset  # noqa: E402
@@ -62,6 +68,46 @@ def world(tmp_path_factory) -> dict[str, Path]:
     tear_log(w / "torn_last" / "metrics.jsonl", "last")
     tear_log(w / "torn_middle" / "metrics.jsonl", "middle")
     nan_checkpoint(w / "run" / "last.pt", w / "nan_run" / "last.pt")
+    # a run folder owned by a live process (this one) on this host; a folder of the user's own files
+    shutil.copytree(w / "run", w / "locked_run")
+    lock_run(w / "locked_run", os.getpid())
+    (w / "mine").mkdir()
+    (w / "mine" / "config.yaml").write_text("my notes\n")
+    # resume of a checkpoint whose optimiser moved other weights (e.g. a run that froze some)
+    shutil.copytree(w / "run", w / "layout_run")
+    ckpt = torch.load(w / "layout_run" / "last.pt", weights_only=True)
+    ckpt["optimizer_layout"] = [ckpt["optimizer_layout"][0][1:], *ckpt["optimizer_layout"][1:]]
+    torch.save(ckpt, w / "layout_run" / "last.pt")
+    (w / "big.yaml").write_text(
+        json.dumps({"model": {**TINY_MODEL, "token_dim": 2048, "transformer_layers": 64}, "train": {}})
+    )
+
+    def fl_x(meta, f):
+        for fr in meta["frames"]:
+            fr["fl_x"] = 1e-300
+
+    def translation(meta, f):
+        meta["frames"][0]["transform_matrix"][0][3] = 1e300
+
+    def outside_link(meta, f):
+        rel = meta["frames"][0]["file_path"]
+        target = w / "outside.png"
+        shutil.copy(f / rel, target)
+        (f / rel).unlink()
+        (f / rel).symlink_to(target)
+
+    def negative_mask(meta, f):
+        import numpy as np
+        from PIL import Image
+
+        rel = meta["frames"][0]["instance_mask_path"]
+        arr = np.asarray(Image.open(f / rel)).astype(np.int32) - 5
+        Image.fromarray(arr, "I").save(f / "mask.tif")
+        meta["frames"][0]["instance_mask_path"] = "mask.tif"
+
+    for name, edit in (("fl_x", fl_x), ("translation", translation), ("link", outside_link)):
+        scene_with(scene, w / "scenes" / name, edit)
+    scene_with(scene, w / "masks" / "mask", negative_mask)
     return {
         "w": w,
         "data": data,
@@ -73,6 +119,22 @@ def world(tmp_path_factory) -> dict[str, Path]:
         "config": alias_bomb_config(w / "bomb_config.yaml"),
         "owner": huge_owner_ply(w / "huge_owner.ply"),
         "count": lying_count_ply(w / "lying_count.ply"),
+        "many": many_frames_one_image(scene, w / "many"),
+        "big": big_config_checkpoint(w / "good.pt", w / "big.pt", token_dim=2048, transformer_layers=64),
+        "dmax": big_config_checkpoint(w / "good.pt", w / "dmax.pt", d_max=1e300),
+        "sparse": sparse_checkpoint(w / "good.pt", w / "sparse.pt"),
+        "nested": png_with_camera(w / "nested.png", "[" * 100_000 + "]" * 100_000),
+        "fx0": png_with_camera(
+            w / "fx0.png",
+            json.dumps(
+                {
+                    "K": [[0, 0, 16], [0, 40, 16], [0, 0, 1]],
+                    "c2w_opencv": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, -3], [0, 0, 0, 1]],
+                    "width": 32,
+                    "height": 32,
+                }
+            ),
+        ),
     }
 
 
@@ -155,6 +217,114 @@ def _cases(x: dict[str, Path]) -> dict[str, dict]:
             PS,
             train + ["--out", str(w / "nan_run"), "--resume"],
             rf"{w / 'nan_run' / 'last.pt'}: {nan_field}",
+        ),
+        # a run folder is owned by one process
+        "locked run folder, train --resume": (
+            PS,
+            train + ["--out", str(w / "locked_run"), "--resume"],
+            rf"{w / 'locked_run'}: in use by process {os.getpid()} on ",
+        ),
+        "locked run folder, train --overwrite": (
+            PS,
+            train + ["--out", str(w / "locked_run"), "--overwrite"],
+            rf"{w / 'locked_run'}: in use by process {os.getpid()} on ",
+        ),
+        "a folder without a run, train --overwrite": (
+            PS,
+            train + ["--out", str(w / "mine"), "--overwrite"],
+            rf"{w / 'mine'}: --overwrite replaces a training run, and this folder holds none",
+        ),
+        "another optimiser layout, train --resume": (
+            PS,
+            train + ["--out", str(w / "layout_run"), "--resume"],
+            rf"{w / 'layout_run' / 'last.pt'}: optimizer_layout: the run trained other weights",
+        ),
+        # one memory budget per job, estimated before the work
+        "200 frames of one 4096^2 image, render --scene": (
+            PS,
+            ["render", "--checkpoint", good, "--scene", str(x["many"]), "--out", out],
+            rf"{x['many']}/transforms.json: 200 frames of 16,777,216 pixels each: needs about .* more than the "
+            "memory limit",
+        ),
+        "a config of 8.6 GB of weights, render --checkpoint": (
+            PS,
+            ["render", "--checkpoint", str(x["big"]), "--scene", scene, "--out", out],
+            rf"{x['big']}: config: a model of [\d,]+ weights .*: needs about .* more than the memory limit",
+        ),
+        "a config of 8.6 GB of weights, train --config": (
+            PS,
+            ["train", "--config", str(w / "big.yaml"), "--data", str(x["data"]), "--out", str(w / "big_run")],
+            r"--config: model: a model of [\d,]+ weights .* Adam moments: needs about",
+        ),
+        "100000 turntable frames, render --turntable": (
+            PS,
+            ["render", "--checkpoint", good, "--scene", scene, "--turntable", "100000", "--out", out],
+            r"--turntable 100000 frames of 640x480: needs about .* more than the memory limit",
+        ),
+        "40 context views, render --context": (
+            PS,
+            ["render", "--checkpoint", good, "--scene", scene, "--context", ",".join(["0"] * 40), "--out", out],
+            rf"--context: 40 context views of {scene}: needs about",
+        ),
+        "--res beyond the largest image, synth": (
+            PS,
+            ["synth", str(w / "synth_out"), "--res", "4100", "--train", "1", "--val", "0", "--test", "0"],
+            r"--res must be in \[8, 4096\]",
+        ),
+        # numbers checked in the float32 they are used in
+        "fl_x 1e-300, render --scene": (
+            PS,
+            ["render", "--checkpoint", good, "--scene", str(w / "scenes" / "fl_x"), "--out", out],
+            r"frames\[0\]: key 'fl_x' is below 1e-18",
+        ),
+        "a translation of 1e300, render --scene": (
+            PS,
+            ["render", "--checkpoint", good, "--scene", str(w / "scenes" / "translation"), "--out", out],
+            r"frames\[0\]: key 'transform_matrix' has values beyond",
+        ),
+        "--look distance 1e300, render": (
+            PS,
+            ["render", "--checkpoint", good, "--scene", scene, "--look", "30,25,1e300", "--out", out],
+            r"--look: distance is beyond",
+        ),
+        "d_max 1e300 in a checkpoint's config, render": (
+            PS,
+            ["render", "--checkpoint", str(x["dmax"]), "--scene", scene, "--out", out],
+            rf"{x['dmax']}: config\.d_max: beyond",
+        ),
+        "a deeply nested camera chunk, render --camera-from": (
+            PS,
+            ["render", "--checkpoint", good, "--scene", scene, "--camera-from", str(x["nested"]), "--out", out],
+            rf"{x['nested']}: camera chunk: expected JSON .*nested too deeply",
+        ),
+        "fx = 0 in a camera chunk, render --camera-from": (
+            PS,
+            ["render", "--checkpoint", good, "--scene", scene, "--camera-from", str(x["fx0"]), "--out", out],
+            rf"{x['fx0']}: camera chunk: focal length fx is not positive",
+        ),
+        # --device, checked in one place
+        "--device typo, train": (PS, train + ["--out", str(w / "dev_run"), "--device", "cdua"], r"--device 'cdua'"),
+        "--device cuda:99, eval": (
+            PS,
+            ["eval", "--checkpoint", good, "--data", str(x["data"] / "val"), "--device", "cuda:99"],
+            r"--device cuda:99: ",
+        ),
+        # checkpoints hold dense real tensors
+        "a sparse tensor in a checkpoint, render": (
+            PS,
+            ["render", "--checkpoint", str(x["sparse"]), "--scene", scene, "--out", out],
+            rf"{x['sparse']}: state_dict\.\S+: expected a dense real tensor",
+        ),
+        # scene files stay inside the folder; instance ids are not negative
+        "a symbolic link out of the scene folder, render --scene": (
+            PS,
+            ["render", "--checkpoint", good, "--scene", str(w / "scenes" / "link"), "--out", out],
+            r"frames\[0\]: key 'file_path' names .*, a link to .* outside the scene folder",
+        ),
+        "negative instance ids, eval": (
+            PS,
+            ["eval", "--checkpoint", good, "--data", str(w / "masks")],
+            r"key 'instance_mask_path': .*mask.tif has negative instance ids",
         ),
     }
 
@@ -248,7 +418,15 @@ def _lines(stderr: str) -> list[str]:
 @pytest.mark.parametrize(
     "name",
     list(
-        _cases({k: Path(k) for k in ("w", "data", "scene", "cfg", "good", "nan", "edits", "config", "owner", "count")})
+        _cases(
+            {
+                k: Path(k)
+                for k in (
+                    *("w", "data", "scene", "cfg", "good", "nan", "edits", "config", "owner", "count", "many"),
+                    *("big", "dmax", "sparse", "nested", "fx0"),
+                )
+            }
+        )
     ),
 )
 def test_hostile_file_is_one_line_exit_2_nothing_changed(results, world, name):
