@@ -1,0 +1,62 @@
+"""``particlesplat scene check DIR``: whether a scene folder (your own capture) is in the world frame the model was
+trained in (+z up, the support surface at z = 0, metres), and the transform to apply when it is not
+(:mod:`particlesplat.analysis.world_frame`). Exit code 0 when it is, 1 when it is not, 2 for a folder that cannot be
+read."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="action", required=True)
+    check = sub.add_parser(
+        "check",
+        help="report a scene folder's up axis, scale and support height against the expected world frame",
+        description="Report a scene folder's up axis, scale, depth scale and support height against the world "
+        "frame the model was trained in (+z up, support surface at z = 0, metres), and the transform to apply.",
+    )
+    check.add_argument("scene", metavar="DIR", help="scene folder (transforms.json, images, optional depth)")
+    check.add_argument(
+        "--write",
+        metavar="FILE",
+        help="write DIR's transforms.json with the transform applied to FILE (put it in a copy of the folder "
+        "as its transforms.json)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from particlesplat.analysis.world_frame import check_world_frame, report_lines, transform_lines, transform_matrix
+    from particlesplat.core.atomic import atomic_write
+    from particlesplat.data import read_scene
+
+    scene = read_scene(args.scene)
+    report = check_world_frame(scene)
+    print(f"scene check: {scene.path} ({report.frames} frames, {report.depth_frames} with depth)")
+    for line in report_lines(report):
+        print(f"  {line}")
+    if report.ok:
+        print("matches the expected world frame (+z up, support surface at z = 0, metres)")
+    else:
+        for line in transform_lines(report):
+            print(line)
+    if args.write:
+        import numpy as np
+
+        src = Path(scene.path) / "transforms.json"
+        meta = json.loads(src.read_text())
+        for frame in meta["frames"]:
+            m = np.asarray(frame["transform_matrix"], dtype=np.float64)
+            if m.shape == (3, 4):
+                m = np.concatenate([m, [[0.0, 0.0, 0.0, 1.0]]])
+            frame["transform_matrix"] = transform_matrix(m, report).tolist()
+            if "depth_unit_scale_factor" in frame:
+                frame["depth_unit_scale_factor"] = float(frame["depth_unit_scale_factor"]) * report.scale
+        if "depth_unit_scale_factor" in meta:
+            meta["depth_unit_scale_factor"] = float(meta["depth_unit_scale_factor"]) * report.scale
+        with atomic_write(args.write, "w") as f:
+            json.dump(meta, f, indent=1)
+        print(f"wrote {args.write} ({src} with the transform applied)")
+    return 0 if report.ok else 1
