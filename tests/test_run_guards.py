@@ -181,3 +181,9 @@ def test_implausible_scene_warns_naming_the_file_and_field(tmp_path_factory, tmp
     assert any("transforms.json: frames[0]: 'fl_x'/'fl_y' 0.001" in t for t in text), text
     assert any("'cx'/'cy' -1e+06" in t for t in text), text
     assert any("'depth_unit_scale_factor' makes the median depth" in t for t in text), text
+
+
+def test_eval_fit_options_are_checked_before_the_work(tmp_path):
+    for bad in (["--fit-steps", "-1"], ["--fit-lr", "0"], ["--fit-latents", "z_p,nope"]):
+        with pytest.raises(OptionError, match="--fit-steps must be >= 0, --fit-lr > 0 and --fit-latents"):
+            main(["eval", "--data", str(tmp_path / "absent"), *bad])

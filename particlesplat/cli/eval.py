@@ -53,11 +53,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from particlesplat.core.atomic import check_writable
     from particlesplat.core.device import resolve_device
+    from particlesplat.core.errors import OptionError
     from particlesplat.model import load_model, read_checkpoint
     from particlesplat.model.io import shipped_model_path
     from particlesplat.model.provenance import describe
 
     device = resolve_device(args.device)
+    latents = tuple(k.strip() for k in args.fit_latents.split(","))
+    if args.fit_steps < 0 or not args.fit_lr > 0 or not set(latents) <= set(FITTED):
+        raise OptionError(
+            f"--fit-steps must be >= 0, --fit-lr > 0 and --fit-latents some of {','.join(FITTED)}; got "
+            f"{args.fit_steps}, {args.fit_lr:g}, {','.join(latents)[:80]}"
+        )
     if args.json:
         check_writable(args.json)  # before the work, not after it
     if args.figures and args.num_figures > 0:
@@ -77,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         use_depth=not args.no_depth,
         fit_steps=args.fit_steps,
         fit_lr=args.fit_lr,
-        fit_latents=tuple(k.strip() for k in args.fit_latents.split(",")),
+        fit_latents=latents,
         z_t_threshold=args.z_t_threshold,
     )
     m = out["mean"]
