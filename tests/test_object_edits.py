@@ -37,11 +37,13 @@ def editor(scene) -> SceneEditor:
 
 
 def biggest_object(ed: SceneEditor) -> int:
-    """The label of the object with the most opacity (a real object of the demo scene)."""
+    """The first particle of the object with the most opacity (a real object of the demo scene)."""
     g = ed.decode()
-    fg = g.owner >= 0
-    weight = torch.zeros(ed.num_particles).index_add_(0, ed.objects()[g.owner[fg]], g.opacities[fg].float())
-    return int(weight.argmax())
+    labels = ed.objects()
+    own, opacity = g.owner[g.owner >= 0], g.opacities[g.owner >= 0]
+    keep = labels[own] >= 0
+    weight = torch.zeros(ed.num_particles).index_add_(0, labels[own][keep], opacity[keep].float())
+    return int(torch.nonzero(labels == int(weight.argmax()))[0])
 
 
 def centroid(ed: SceneEditor, members: list[int]):
@@ -126,6 +128,29 @@ def test_remove_and_duplicate_are_undoable_and_the_copy_is_an_object(scene):
     assert ed.num_particles == n and ed.objects().shape == (n,)
     assert all(torch.equal(getattr(ed.particles, k), getattr(ed.original, k)) for k in ("z_p", "z_d", "z_t"))
     assert ed.redo() and ed.num_particles == n + len(members)
+
+
+def test_objects_are_numbered_and_centred_as_encode_writes_them(scene):
+    """One numbering and one centre: the editor's object numbers are ``particlesplat encode``'s ``object`` array
+    (0..K-1 by smallest particle, -1 for particles that draw nothing) and its object centre (the gizmo's) is the
+    arrays' ``object_centroid`` (the resting centre); a copy takes number K."""
+    import numpy as np
+
+    from particlesplat.analysis.particle_arrays import particle_arrays
+
+    model, enc = scene
+    ed = editor(scene)
+    arrays = particle_arrays(model, enc.particles, ed.decode())
+    assert np.array_equal(ed.objects().numpy(), arrays.object)
+    K = arrays.num_objects
+    assert K >= 2 and set(arrays.object.tolist()) == set(range(K)) | ({-1} if (arrays.object < 0).any() else set())
+    for k in range(K):
+        first = int(np.flatnonzero(arrays.object == k)[0])
+        centre = ed.object_centre(first)
+        np.testing.assert_allclose(centre.numpy(), arrays.object_centroid[k], rtol=0, atol=1e-4)
+    copy = ed.duplicate_object(biggest_object(ed), [0.0, 0.5, 0.0])
+    assert int(ed.objects()[copy]) == K
+    assert ed.pick(ed.pick_for(copy)) == copy
 
 
 def test_edit_file_round_trip_replays_the_same_particles(scene, tmp_path):

@@ -56,9 +56,11 @@ def test_floor_drag_slides_the_object_on_its_plane_as_one_undo_step(session_part
     model, enc = session_parts
     s = SceneSession(model, enc, source=str(enc.path))
     g = s.decode()
-    fg = g.owner >= 0
-    weight = torch.zeros(s.num_particles).index_add_(0, s.objects()[g.owner[fg]], g.opacities[fg].float())
-    index = int(weight.argmax())
+    labels = s.objects()
+    own, opacity = g.owner[g.owner >= 0], g.opacities[g.owner >= 0]
+    keep = labels[own] >= 0
+    weight = torch.zeros(s.num_particles).index_add_(0, labels[own][keep], opacity[keep].float())
+    index = int(torch.nonzero(labels == int(weight.argmax()))[0])  # the heaviest object's first particle
     members = s.object_members(index)
     cam = Camera.orbit((0.0, 0.0, 0.15), 10.0, 40.0, 3.4, width=320, height=240)
     centre = object_centre(s, index)

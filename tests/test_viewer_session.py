@@ -42,11 +42,13 @@ def test_edit_undo_redo(encoded):
 
 
 def test_objects_are_grouped_once_on_the_encoded_scene(encoded):
-    from particlesplat.editing.grouping import particle_objects
+    from particlesplat.editing.grouping import dense_objects, drawing_particles, particle_objects
 
     model, enc = encoded
     s = SceneSession(model, enc)
-    want = particle_objects(model.decode(enc.particles), enc.particles.num)
+    g = model.decode(enc.particles)
+    groups = particle_objects(g, enc.particles.num)  # numbered as particlesplat encode numbers them
+    want = dense_objects(groups, drawing_particles(enc.particles, g, model.config.bg_mask_threshold))
     assert torch.equal(s.objects(), want)
     s.set_attribute(0, "z_p", [0.9, 0.9])  # an edit moves a particle but does not regroup
     assert torch.equal(s.objects(), want)

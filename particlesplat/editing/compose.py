@@ -30,7 +30,7 @@ from particlesplat.editing.grouping import (
     ObjectCentre,
     dense_objects,
     drawing_particles,
-    object_centres,
+    members_centre,
     particle_objects,
     support_height,
 )
@@ -75,11 +75,10 @@ def export_object_ply(model: ParticleSplat, particles: Particles, index: int, pa
 def _centre(
     model: ParticleSplat, particles: Particles, members: list[int], method: ObjectCentre, support: float
 ) -> Tensor:
-    """(3,) float64 centre of the object made of ``members``."""
-    g = model.decode(particles, torch.tensor(members), background=False).detach().to("cpu")
-    labels = torch.full((particles.num,), -1, dtype=torch.int64)
-    labels[members] = 0
-    return object_centres(g, labels, 1, method, support)[0][0]
+    """(3,) float64 centre of the object made of ``members`` (:func:`members_centre`; the origin when it draws
+    nothing)."""
+    centre = members_centre(model, particles, members, support, method)
+    return torch.zeros(3, dtype=torch.float64) if centre is None else centre
 
 
 def _view_directions(particles: Particles, point: Tensor) -> Tensor:

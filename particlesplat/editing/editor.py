@@ -23,10 +23,11 @@ loads; see :mod:`particlesplat.editing.particle_edits`)::
 
 Operations apply in order; each pick is resolved on the scene as the operations before it left it, by
 rendering that input camera and taking the object whose particles weigh most at the pixel. An object is a
-group of particles (:func:`particlesplat.editing.grouping.particle_objects`, grouped once on the scene as encoded);
-a copy is an object of its own. Rotation is not an operation: a particle is a patch lifted along its own
-view's rays (position z_p, scale z_s, depth z_d, extent z_e), with no latent for its orientation, so
-turning an object would show each view's patch edge-on rather than the object's other side.
+group of particles (:func:`particlesplat.editing.grouping.particle_objects`, grouped once on the scene as encoded),
+numbered as ``particlesplat encode`` numbers them (:meth:`SceneEditor.objects`); a copy is an object of its own.
+Rotation is not an operation: a particle is a patch lifted along its own view's rays (position z_p, scale z_s,
+depth z_d, extent z_e), with no latent for its orientation, so turning an object would show each view's patch
+edge-on rather than the object's other side.
 """
 
 from __future__ import annotations
@@ -43,7 +44,13 @@ from torch import Tensor
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.camera import Camera
 from particlesplat.core.errors import short_repr
-from particlesplat.editing.grouping import particle_objects
+from particlesplat.editing.grouping import (
+    dense_objects,
+    drawing_particles,
+    members_centre,
+    particle_objects,
+    support_height,
+)
 from particlesplat.editing.move import MoveError, anchor_points, translate
 from particlesplat.editing.particle_edits import (
     Edits,
@@ -420,6 +427,7 @@ class SceneEditor:
         self.original: Particles | None = particles.detach().to("cpu") if particles is not None else None
         self.particles: Particles | None = self.original.clone() if self.original is not None else None
         self._objects: Tensor | None = None
+        self._support: float | None = None
         self._source: list[int] = list(range(self.original.num)) if self.original is not None else []
         self._inserted: Particles | None = None  # inserted particles as inserted: origin() rows past the original
         self._changed: set[int] = set()
@@ -469,11 +477,14 @@ class SceneEditor:
         return self.model.decode(p, z_t_threshold=self.z_t_threshold).detach().to("cpu")
 
     def objects(self) -> Tensor:
-        """(num_particles,) int64 object label per particle: grouped once on the scene as encoded
-        (:func:`particlesplat.editing.grouping.particle_objects`), so an edit does not regroup it; a copy's label is
-        its first particle's index."""
+        """(num_particles,) int64 object number per particle, the numbering ``particlesplat encode`` writes
+        (:func:`particlesplat.editing.grouping.dense_objects`: 0..K-1 in the order of each object's smallest
+        particle index, -1 for a particle that draws nothing). Grouped once on the scene as encoded, so an edit
+        does not regroup it; a copied or inserted object takes the next number."""
         if self._objects is None:
-            self._objects = particle_objects(self.decode(self.original), self.original.num)
+            g = self.decode(self.original)
+            groups = particle_objects(g, self.original.num)
+            self._objects = dense_objects(groups, drawing_particles(self.original, g, self.active_threshold))
         labels = self._objects
         for op in self.history.undo:
             if op.added_labels is not None:
@@ -481,9 +492,30 @@ class SceneEditor:
         return labels
 
     def object_members(self, index: int) -> list[int]:
-        """The particles of particle ``index``'s object (:meth:`objects`), ascending."""
+        """The particles of particle ``index``'s object (:meth:`objects`), ascending; a particle that draws
+        nothing is alone."""
         labels = self.objects()
+        if int(labels[index]) < 0:
+            return [index]
         return [int(j) for j in torch.nonzero(labels == labels[index]).flatten()]
+
+    def _next_object(self) -> int:
+        """The number a new (copied or inserted) object takes: one past the largest."""
+        labels = self.objects()
+        return int(labels.max()) + 1 if labels.numel() else 0
+
+    def support_height(self) -> float:
+        """The height objects rest on in this scene (:func:`particlesplat.editing.grouping.support_height` of the
+        scene as encoded; edits move objects, not the floor)."""
+        if self._support is None:
+            self._support = support_height(self.decode(self.original))
+        return self._support
+
+    def object_centre(self, index: int) -> Tensor | None:
+        """(3,) float64 world metres: the resting centre of particle ``index``'s object as drawn now
+        (:func:`particlesplat.editing.grouping.members_centre`, as ``particlesplat encode`` and ``eval`` place
+        objects), or None if it draws nothing."""
+        return members_centre(self.model, self.particles, self.object_members(index), self.support_height())
 
     def object_offset(self, index: int) -> tuple[float, float, float]:
         """World offset (metres) of particle ``index``'s anchor from where it (or what it copies) was encoded."""
@@ -522,8 +554,8 @@ class SceneEditor:
         return res.segmentation(labels[: p.num])
 
     def pick(self, pick: Pick, where: str = "pick") -> int:
-        """The object label (= its first particle) under ``pick`` on the current particles; PickError names
-        ``where`` when the pixel shows no object."""
+        """The first particle of the object under ``pick`` on the current particles; PickError names ``where``
+        when the pixel shows no object."""
         cam = self._frame_camera(pick.frame, where)
         x, y = pick.pixel
         if not (0 <= x < cam.width and 0 <= y < cam.height):
@@ -531,12 +563,14 @@ class SceneEditor:
         label = int(self.object_map(pick.frame, where=where)[y, x])
         if label < 0:
             raise PickError(f"{where}: pick {{frame: {pick.frame}, pixel: [{x}, {y}]}} hits no object (background)")
-        return label
+        return int(torch.nonzero(self.objects() == label)[0])
 
     def pick_for(self, index: int, particles: Particles | None = None) -> Pick:
         """A pixel of an input frame that picks particle ``index``'s object on ``particles`` (default: now):
         the object's most interior pixel in the context frame (else any frame) where it covers most pixels."""
         label = int(self.objects()[index])
+        if label < 0:
+            raise PickError(f"object of particle {index}: it draws nothing, so no pick names it")
         frames = list(self.context or []) + [f for f in range(len(self.frame_cameras)) if f not in (self.context or [])]
         best: tuple[int, int, Tensor] | None = None
         for i, f in enumerate(frames):
@@ -674,7 +708,7 @@ class SceneEditor:
 
     def duplicate_object(self, index: int, offset) -> int:
         """Copy particle ``index``'s object (new particles, the same latents) and move the copy by ``offset``
-        (3,) world metres. Returns the copy's first particle (its object label). Raises MoveError."""
+        (3,) world metres. Returns the copy's first particle. Raises MoveError."""
         self._check_editable(index)
         members = self.object_members(index)
         offset = tuple(float(v) for v in torch.as_tensor(offset, dtype=torch.float64).reshape(3).tolist())
@@ -698,7 +732,7 @@ class SceneEditor:
                 members=tuple(members),
                 offset=offset,
                 added=added,
-                added_labels=torch.full((len(members),), n, dtype=torch.int64),
+                added_labels=torch.full((len(members),), self._next_object(), dtype=torch.int64),
             )
         )
         return n
@@ -706,7 +740,7 @@ class SceneEditor:
     def insert_object(self, source: Particles, insert: Insert) -> int:
         """Insert object ``insert.object`` of another scene's particles ``source`` (encoded with this model) with
         its centre at ``insert.at`` on this scene's floor (:func:`particlesplat.editing.compose.insert_object`): new
-        particles, editable like the scene's own. Returns the first new particle (the object's label). Raises
+        particles, editable like the scene's own. Returns the first new particle. Raises
         ValueError (no such object) or MoveError."""
         from particlesplat.editing.compose import insert_object
 
@@ -727,7 +761,7 @@ class SceneEditor:
                 [],
                 kind="insert",
                 added=added,
-                added_labels=torch.full((len(new),), n, dtype=torch.int64),
+                added_labels=torch.full((len(new),), self._next_object(), dtype=torch.int64),
                 sources=tuple(range(rows, rows + len(new))),
                 insert=insert,
             )

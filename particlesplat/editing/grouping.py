@@ -8,19 +8,23 @@ overlapping pairs: an opaque Gaussian of one particle *touches* the other when i
 x (sum of the two Gaussians' largest standard deviations) of an opaque Gaussian of the other, and two
 particles overlap when at least ``overlap`` of the opaque Gaussians of either of them touch the other.
 
-Objects are labelled by their smallest particle index, so an object label is also an owner index and
-a segmentation over objects reads like one over particles.
+:func:`particle_objects` labels each group by its smallest particle index; :func:`dense_objects` turns those
+labels into the one object numbering every tool shows and writes (0..K-1 in the order of the groups' smallest
+particle index, -1 for particles that draw nothing). :func:`members_centre` is the one object centre.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import torch
 from torch import Tensor
 
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.model import Particles
+
+if TYPE_CHECKING:
+    from particlesplat.model import ParticleSplat
 
 # Defaults measured on the tabletop family (docs/model-development.md, "The overlap rule of the grouping"; 96
 # training and 32 validation scenes; pairs of particles each >= 60 % on one true object): opaque means opacity
@@ -189,3 +193,21 @@ def object_centres(
         top = float(torch.quantile(x[:, 2], TOP_QUANTILE))
         centre[k, 2] = 0.5 * (top + base)
     return centre, std
+
+
+def members_centre(
+    model: ParticleSplat,
+    particles: Particles,
+    members: list[int],
+    support: float,
+    method: ObjectCentre = "resting",
+) -> Tensor | None:
+    """(3,) float64 world metres: the centre (:func:`object_centres`, ``method``) of the object made of particles
+    ``members`` as ``particles`` draw it, resting on the support height ``support`` (:func:`support_height` of the
+    scene); None when it draws nothing."""
+    g = model.decode(particles, torch.tensor(members), background=False).detach().to("cpu")
+    if g.num == 0:
+        return None
+    labels = torch.full((particles.num,), -1, dtype=torch.int64)
+    labels[members] = 0
+    return object_centres(g, labels, 1, method, support)[0][0]

@@ -20,14 +20,18 @@ def object_segmentation(owner_weights: Tensor, background_weight: Tensor, object
 
     owner_weights: (P, H, W) Σ T·α per particle; background_weight: (H, W) Σ T·α of the background
     plus the empty remainder; objects: (P,) int64 object label per particle
-    (:func:`particlesplat.editing.grouping.particle_objects`).
+    (:func:`particlesplat.editing.grouping.particle_objects` or :func:`~particlesplat.editing.grouping.dense_objects`),
+    < 0 for a particle in no object (its weight counts as background).
     Returns (H, W) int64 object label, -1 where the background weighs most.
     """
     P = owner_weights.shape[0]
     if tuple(objects.shape) != (P,):
         raise ValueError(f"objects must have shape ({P},), got {tuple(objects.shape)}")
-    summed = torch.zeros_like(owner_weights).index_add_(0, objects.to(owner_weights.device), owner_weights)
-    scores = torch.cat([background_weight[None], summed], dim=0)  # (1 + P, H, W)
+    objects = objects.to(owner_weights.device)
+    some = objects >= 0
+    summed = torch.zeros_like(owner_weights).index_add_(0, objects[some], owner_weights[some])
+    background = background_weight + owner_weights[~some].sum(0)
+    scores = torch.cat([background[None], summed], dim=0)  # (1 + P, H, W)
     return scores.argmax(0) - 1
 
 

@@ -23,14 +23,9 @@ GL_FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV camera axes -> OpenGL (y up,
 
 
 def object_centre(session, index: int) -> Tensor | None:
-    """(3,) float64 world metres: the opacity-weighted centre of the Gaussians of particle ``index``'s object
-    as drawn now, or None if it draws nothing."""
-    members = session.object_members(index)
-    g = session.model.decode(session.particles, torch.tensor(members), background=False)
-    if g.num == 0:
-        return None
-    w = g.opacities.detach().double().cpu()
-    return (g.means.detach().double().cpu() * w[:, None]).sum(0) / w.sum().clamp_min(1e-12)
+    """(3,) float64 world metres: the centre of particle ``index``'s object as drawn now (the resting centre,
+    :meth:`particlesplat.editing.editor.SceneEditor.object_centre`), or None if it draws nothing."""
+    return session.object_centre(index)
 
 
 def floor_point(camera: Camera, x: float, y: float, height: float) -> Tensor | None:
