@@ -25,6 +25,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from particlesplat.core.errors import OptionError
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.editing.grouping import (
     ObjectCentre,
@@ -36,7 +37,6 @@ from particlesplat.editing.grouping import (
 )
 from particlesplat.editing.move import MoveError, translate
 from particlesplat.model import Particles, ParticleSplat
-from particlesplat.core.errors import OptionError
 
 LATENTS = ("z_e", "z_t", "z_f")  # copied as they are
 PLACE_TOLERANCE = 0.002  # metres: centre corrections stop below this
