@@ -8,9 +8,14 @@ into the view camera, and drawn with ImGui's background draw list (over the scen
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from particlesplat.analysis.figures import Mark, overlay_marks
 from particlesplat.analysis.particle_arrays import ParticleArrays, particle_arrays
 from particlesplat.core.camera import Camera
+
+if TYPE_CHECKING:
+    from .session import SceneSession
 
 OVERLAY_MODES = ("keypoints", "boxes")
 
@@ -22,7 +27,7 @@ class ParticleOverlay:
         self._key: tuple | None = None
         self._arrays: ParticleArrays | None = None
 
-    def arrays(self, session) -> ParticleArrays | None:
+    def arrays(self, session: SceneSession) -> ParticleArrays | None:
         """The session's particle arrays (None for a .ply: no particles)."""
         if not session.editable:
             return None
@@ -32,12 +37,12 @@ class ParticleOverlay:
             self._arrays = particle_arrays(session.model, session.particles)
         return self._arrays
 
-    def marks(self, session, mode: str, camera: Camera) -> list[Mark]:
+    def marks(self, session: SceneSession, mode: str, camera: Camera) -> list[Mark]:
         """The marks of ``mode`` (keypoints or boxes) in ``camera``'s framebuffer pixels; none otherwise."""
         arrays = self.arrays(session) if mode in OVERLAY_MODES else None
         return [] if arrays is None else overlay_marks(arrays, camera, mode)
 
-    def draw(self, session, mode: str, camera: Camera, pixel_ratio: tuple[float, float]) -> int:
+    def draw(self, session: SceneSession, mode: str, camera: Camera, pixel_ratio: tuple[float, float]) -> int:
         """Draw the marks (``pixel_ratio``: framebuffer pixels per window point). Returns how many."""
         from imgui_bundle import imgui
 

@@ -5,9 +5,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from particlesplat.editing.editor import Insert
 from particlesplat.editing.open_scene import demo_scenes, encode_scene
+
+if TYPE_CHECKING:
+    from ..session import SceneSession
 
 
 @dataclass
@@ -51,7 +55,7 @@ def draw_insert_section(fields: InsertFields) -> bool:
     return bool(imgui.button("Insert")) and bool(fields.scene.strip())
 
 
-def insert_from_fields(session, fields: InsertFields) -> tuple[int, str]:
+def insert_from_fields(session: SceneSession, fields: InsertFields) -> tuple[int, str]:
     """Encode ``fields.scene`` with the session's model (its default context frames) and insert the object at
     (x, y) or at a free spot: returns (the new object's first particle, a status line, which warns when the
     object lands on another one). Errors (no such scene or object, no free spot, a move out of range) propagate

@@ -4,10 +4,14 @@ duplicate. Every change is a do/undo operation of the session."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from particlesplat.core import palette
 from particlesplat.editing.editor import PickError
 from particlesplat.editing.move import MoveError
+
+if TYPE_CHECKING:
+    from ..session import SceneSession
 
 ROTATION_NOTE = (
     "Rotation is not available: a particle is a patch lifted along its own view's rays, with "
@@ -29,7 +33,7 @@ class ObjectFields:
     copy_offset: list[float] = field(default_factory=lambda: [0.3, 0.0, 0.0])
 
 
-def remove_selected(session, selected: int | None) -> tuple[int | None, str]:
+def remove_selected(session: SceneSession, selected: int | None) -> tuple[int | None, str]:
     """Remove the selected particle's object (one operation). Returns (new selection, status message)."""
     if selected is None or not session.editable:
         return selected, "select an object first (click it)"
@@ -42,7 +46,7 @@ def remove_selected(session, selected: int | None) -> tuple[int | None, str]:
     )
 
 
-def duplicate_selected(session, selected: int | None, offset) -> tuple[int | None, str]:
+def duplicate_selected(session: SceneSession, selected: int | None, offset) -> tuple[int | None, str]:
     """Copy the selected particle's object, moved by ``offset`` (3,) metres (one operation); the copy becomes
     the selection. Returns (new selection, status message)."""
     if selected is None or not session.editable:
@@ -59,7 +63,7 @@ def _metres(v) -> str:
     return "(" + ", ".join(f"{float(x):+.3f}" for x in v) + ") m"
 
 
-def draw_object_section(session, selected: int, fields: ObjectFields) -> tuple[int | None, str | None]:
+def draw_object_section(session: SceneSession, selected: int, fields: ObjectFields) -> tuple[int | None, str | None]:
     """The selected particle's object: members, offset (m) to type or drag, delete, duplicate.
 
     Returns (the selection after this frame, a status message or None)."""

@@ -8,12 +8,17 @@ particle and the viewing camera; they never see the App. Every move is a do/undo
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import torch
 from torch import Tensor
 
 from particlesplat.core.camera import Camera
 from particlesplat.editing.move import MoveError
+
+if TYPE_CHECKING:
+    from ..session import SceneSession
 
 FLOOR_GESTURE = "floor-drag"
 GIZMO_GESTURE = "gizmo"
@@ -22,7 +27,7 @@ OUTLINE_OPACITY = 0.1  # Gaussians at least this opaque outline the selected obj
 GL_FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV camera axes -> OpenGL (y up, looking down -z)
 
 
-def object_centre(session, index: int) -> Tensor | None:
+def object_centre(session: SceneSession, index: int) -> Tensor | None:
     """(3,) float64 world metres: the centre of particle ``index``'s object as drawn now (the resting centre,
     :meth:`particlesplat.editing.editor.SceneEditor.object_centre`), or None if it draws nothing."""
     return session.object_centre(index)
@@ -57,7 +62,7 @@ class FloorDrag:
     def active(self) -> bool:
         return self.index is not None
 
-    def start(self, session, index: int, camera: Camera, x: float, y: float) -> bool:
+    def start(self, session: SceneSession, index: int, camera: Camera, x: float, y: float) -> bool:
         """Begin sliding particle ``index``'s object from framebuffer pixel (x, y); False if it draws nothing
         or the pixel's ray misses its plane."""
         centre = object_centre(session, index)
@@ -68,7 +73,7 @@ class FloorDrag:
         self.index = index if self.last is not None else None
         return self.active
 
-    def update(self, session, camera: Camera, x: float, y: float) -> str | None:
+    def update(self, session: SceneSession, camera: Camera, x: float, y: float) -> str | None:
         """Move the object so the plane point under the mouse stays under it; an error message if the
         move was refused (nothing moved), else None."""
         if not self.active:
@@ -109,7 +114,7 @@ def gl_projection(camera: Camera, near: float = 0.01, far: float = 100.0) -> np.
     return P
 
 
-def outline(session, index: int, camera: Camera) -> np.ndarray:
+def outline(session: SceneSession, index: int, camera: Camera) -> np.ndarray:
     """(M, 2) framebuffer pixels: the convex hull of the projected centres of the selected object's
     Gaussians (opacity >= OUTLINE_OPACITY), counter-clockwise; empty if fewer than 3."""
     members = session.object_members(index)
@@ -159,14 +164,16 @@ class ObjectGizmo:
     def capturing(self) -> bool:
         return self.using or self.hovered
 
-    def _refresh(self, session, index: int, camera: Camera) -> None:
+    def _refresh(self, session: SceneSession, index: int, camera: Camera) -> None:
         key = (id(session), session.version, index, camera.c2w.detach().cpu().numpy().tobytes(), camera.width)
         if key != self._key:
             self._key = key
             self._centre = object_centre(session, index)
             self._hull = outline(session, index, camera)
 
-    def draw(self, session, index: int | None, camera: Camera, pixel_ratio: tuple[float, float]) -> str | None:
+    def draw(
+        self, session: SceneSession, index: int | None, camera: Camera, pixel_ratio: tuple[float, float]
+    ) -> str | None:
         """Draw the outline and the handles of particle ``index``'s object (nothing when None) seen by
         ``camera`` (framebuffer pixels; ``pixel_ratio`` = framebuffer pixels per window point) and apply a
         handle drag as a move. Returns an error message when a move was refused."""
