@@ -14,6 +14,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from particlesplat.analysis.metrics import (
+    below_support,
     depth_abs_rel,
     fg_ari,
     matched_miou,
@@ -133,6 +134,7 @@ def evaluate_item(
         "active_particles": int(active.sum()),
         "objects": len(torch.unique(objects[active])),
         "gaussians": len(gaussians),
+        "below_support": below_support(gaussians.means, gaussians.opacities, gaussians.owner),
         "encode_ms": enc_ms,
         "fit_ms": fit_ms,
         "decode_ms": dec_ms,
@@ -181,6 +183,7 @@ SCALARS = (
     "active_particles",
     "objects",
     "gaussians",
+    "below_support",
     "encode_ms",
     "fit_ms",
     "decode_ms",

@@ -40,6 +40,21 @@ def depth_abs_rel(pred: Tensor, target: Tensor) -> float:
     return float(((pred[valid] - target[valid]).abs() / target[valid]).mean())
 
 
+SKIRT_OPACITY = 0.5  # an object Gaussian this opaque is part of the object's visible surface
+SKIRT_MARGIN = 0.01  # metres below the support surface that count as "under" it
+
+
+def below_support(means: Tensor, opacities: Tensor, owner: Tensor, support_z: float = 0.0) -> float:
+    """Share of the opaque object Gaussians (owner >= 0, opacity > ``SKIRT_OPACITY``) whose centre lies more
+    than ``SKIRT_MARGIN`` below the support surface z = ``support_z`` (world metres, +z up): an object's
+    "skirt" under the floor or table top. means: (N, 3); opacities, owner: (N,). NaN when none is opaque."""
+    sel = (owner >= 0) & (opacities > SKIRT_OPACITY)
+    n = int(sel.sum())
+    if n == 0:
+        return float("nan")
+    return float((means[sel, 2] < support_z - SKIRT_MARGIN).sum()) / n
+
+
 def _comb2(x: Tensor) -> Tensor:
     return x * (x - 1) / 2.0
 

@@ -92,7 +92,8 @@ def run(args: argparse.Namespace) -> int:
         f"{len(out['scenes'])} scenes, {args.context} context view(s): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, "
         f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f} (objects; per "
         f"particle {m['fg_ari_particles']:.3f}, {m['miou_particles']:.3f}), active particles "
-        f"{m['active_particles']:.1f} in {m['objects']:.1f} objects, Gaussians {m['gaussians']:.0f}, "
+        f"{m['active_particles']:.1f} in {m['objects']:.1f} objects, Gaussians {m['gaussians']:.0f} "
+        f"({100 * m['below_support']:.1f} % of the opaque object ones > 1 cm below z = 0), "
         f"encode {m['encode_ms']:.1f} ms, "
         + (f"fit {m['fit_ms']:.0f} ms, " if args.fit_steps else "")
         + f"decode {m['decode_ms']:.1f} ms, render {m['render_ms']:.1f} ms/view"

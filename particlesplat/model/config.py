@@ -41,6 +41,7 @@ INT_RANGES: dict[str, tuple[int, int]] = {
     "bg_latent_stride": (1, 1024),
     "bg_block": (1, 1024),
     "bg_static_grid": (0, 512),
+    "bg_static_points": (0, 200_000),
     "patch_gaussians": (1, 64),
     "patch_base": (0, 64),
     "patch_channels": (0, 1024),
@@ -84,12 +85,14 @@ class ModelConfig:
     learned_background: bool = True
     bg_static_grid: int = 72
     bg_static_extent: float = 2.25
+    bg_static_points: int = 0
     bg_per_view: bool = False
     patch_gaussians: int = 16
     patch_base: int = 4
     patch_channels: int = 64
     patch_hidden: int = 256
     patch_back: bool = True
+    support_clamp: bool = False
     refine_steps: int = 1
     refine_hidden: int = 256
     token_dim: int = 64
@@ -138,10 +141,17 @@ class ModelConfig:
             need(v >= 1 and self.resolution % v == 0, key, "must divide the resolution")
         need(self.bg_static_grid >= 0, "bg_static_grid", "must be >= 0 (0 = no static background layer)")
         need(self.bg_static_extent > 0.0, "bg_static_extent", "must be > 0 (metres)")
+        need(self.bg_static_points >= 0, "bg_static_points", "must be >= 0 (0 = no workspace layer)")
         need(
-            self.bg_per_view or self.bg_static_grid > 0,
+            self.bg_static_grid == 0 or self.bg_static_points == 0,
+            "bg_static_points",
+            "the static layer is either the floor grid (bg_static_grid) or the workspace points; set one to 0",
+        )
+        need(
+            self.bg_per_view or self.has_static_background,
             "bg_per_view",
-            "false needs the static background layer (bg_static_grid > 0): nothing would draw the background",
+            "false needs a static background layer (bg_static_grid or bg_static_points > 0): nothing would draw "
+            "the background",
         )
         need(self.patch_gaussians >= 1, "patch_gaussians", "must be >= 1")
         base = self.patch_base or self.patch_gaussians
@@ -177,6 +187,11 @@ class ModelConfig:
             "prior_t_b",
         ):
             need(getattr(self, key) > 0.0, key, "must be > 0")
+
+    @property
+    def has_static_background(self) -> bool:
+        """A background layer shared by every scene: the floor grid or the workspace points."""
+        return self.bg_static_grid > 0 or self.bg_static_points > 0
 
     @property
     def gaussians_per_particle(self) -> int:

@@ -146,14 +146,18 @@ def _finish(
     opacity: Tensor,
     cfg: ModelConfig,
     depth_cell: Tensor | None = None,
+    support: bool = False,
 ) -> dict[str, Tensor]:
     """Lift image-plane Gaussians to the world.
 
     pix: (..., 2) pixel centres; zeta: (...) planar depth; jac_px: (..., 2) pixels per canonical unit;
     K: (..., 3, 3), c2w: (..., 4, 4) broadcast per Gaussian; opacity: (...) final α; depth_cell: (...)
-    metres per canonical unit along the camera axis, at least a pixel's width (default: a pixel's width).
+    metres per canonical unit along the camera axis, at least a pixel's width (default: a pixel's width);
+    support: no mean below the support surface z = 0 (:func:`clamp_to_support`).
     """
     dirs = ray_dirs(pix[..., None, :], K, c2w)[..., 0, :]
+    if support:
+        zeta = clamp_to_support(zeta, c2w[..., 2, 3], dirs[..., 2])
     means = c2w[..., :3, 3] + zeta[..., None] * dirs
     fx = K[..., 0, 0]
     fy = K[..., 1, 1]
@@ -165,6 +169,18 @@ def _finish(
     quats, scales = covariance_to_quat_scale(M_world)
     sh = rotate_sh_to_world(p["sh"], c2w[..., :3, :3])  # c2w already broadcasts over the Gaussians
     return {"means": means, "quats": quats, "scales": scales, "opacities": opacity, "sh": sh}
+
+
+def clamp_to_support(zeta: Tensor, origin_z: Tensor, dir_z: Tensor) -> Tensor:
+    """Planar depths (...) of points on camera rays moved, where they would lie below the support surface
+    z = 0 (the floor or table top objects rest on, world metres, +z up), to where the ray meets it.
+
+    origin_z: (...) camera height; dir_z: (...) world z of the ray direction per unit planar depth. Rays from
+    below the surface or not going down are left alone. Differentiable (a minimum).
+    """
+    down = (dir_z < 0) & (origin_z > 0)
+    hit = torch.where(down, origin_z / (-dir_z).clamp_min(1e-12), torch.full_like(zeta, float("inf")))
+    return torch.minimum(zeta, hit)
 
 
 def cell_centres(S: int, device, dtype) -> Tensor:
@@ -237,7 +253,7 @@ def _lift_cells(
     # canonical cells are cubes (as deep as they are wide), so a particle's Gaussians have volume and do not
     # turn into slivers seen from the side
     depth_cell = jac_px.mean(-1) * zeta / K[:, 0, 0, None]
-    return _finish(p, pix, zeta, jac_px.expand(-1, N, -1), Kn, cn, opacity, cfg, depth_cell)
+    return _finish(p, pix, zeta, jac_px.expand(-1, N, -1), Kn, cn, opacity, cfg, depth_cell, cfg.support_clamp)
 
 
 def block_centres(cfg: ModelConfig, device, dtype) -> Tensor:

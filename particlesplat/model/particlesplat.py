@@ -26,7 +26,7 @@ from particlesplat.model.geometry import plucker_map, stack_cameras
 from particlesplat.model.particles import Particles
 from particlesplat.model.posterior import ParticlePosterior, Posterior
 from particlesplat.model.refiner import BOX_MARGIN, GLIMPSE_CHANNELS, Refiner, box_glimpses, latent_vector
-from particlesplat.model.static_background import StaticBackground
+from particlesplat.model.static_background import StaticBackground, WorkspaceBackground
 from particlesplat.rendering.api import render_batch
 
 
@@ -54,7 +54,11 @@ class ParticleSplat(nn.Module):
         self.fg_decoder = ForegroundDecoder(config)
         # the per-view background decoder exists only where it draws (a module without gradients breaks DDP)
         self.bg_decoder = BackgroundDecoder(config) if config.bg_per_view else None
-        self.static_bg = StaticBackground(config) if config.bg_static_grid > 0 else None
+        self.static_bg: StaticBackground | WorkspaceBackground | None = None
+        if config.bg_static_grid > 0:
+            self.static_bg = StaticBackground(config)
+        elif config.bg_static_points > 0:
+            self.static_bg = WorkspaceBackground(config)
         self.refiner = Refiner(config) if config.refine_steps > 0 else None
         # training switches the refinement on at ``train.refine_start``; off, encode returns the first look
         self.refine_enabled = True

@@ -10,6 +10,8 @@ a disc learns the colour behind it or to be transparent). Its Gaussians are back
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor, nn
 
@@ -54,6 +56,64 @@ class StaticBackground(nn.Module):
             "means": self.means,
             "quats": self.quats,
             "scales": self.scales,
+            "opacities": torch.sigmoid(self.opacity_logit),
+            "sh": sh,
+        }
+
+
+WORKSPACE_STEP = 0.05  # metres a unit of a workspace Gaussian's position offset moves it (Adam steps of ~lr units)
+WORKSPACE_SCALE = 0.6  # initial standard deviation of a workspace Gaussian, in voxel edges
+WORKSPACE_MAX_SCALE = 0.15  # metres: the largest standard deviation a workspace Gaussian may grow to
+
+
+class WorkspaceBackground(nn.Module):
+    """``bg_static_points`` free 3D Gaussians of the workspace every scene of a family shares (table, arm, floor,
+    walls), learned over the whole dataset like the floor layer above but anywhere in space.
+
+    Positions start at the voxels :func:`particlesplat.data.workspace_points.workspace_points` finds in the
+    training data (:meth:`initialise`, once, before the first step); until then every Gaussian is transparent.
+    The anchors are stored in the checkpoint with the learned offsets, scales, rotations, colours and opacities.
+    """
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        n = cfg.bg_static_points
+        self.num_bases = num_sh_bases(cfg.sh_degree)
+        self.register_buffer("anchor", torch.zeros(n, 3))
+        self.offset = nn.Parameter(torch.zeros(n, 3))
+        self.log_scale = nn.Parameter(torch.full((n, 3), math.log(0.01)))
+        self.quat = nn.Parameter(torch.tensor([1.0, 0.0, 0.0, 0.0]).expand(n, 4).clone())
+        self.sh_dc = nn.Parameter(rgb_to_sh_dc(torch.full((n, 3), 0.6)))
+        self.opacity_logit = nn.Parameter(torch.full((n,), -12.0))
+
+    @property
+    def num(self) -> int:
+        return self.anchor.shape[0]
+
+    @torch.no_grad()
+    def initialise(self, points: Tensor, colours: Tensor, sizes: Tensor) -> None:
+        """points (N', 3) world metres, colours (N', 3) in [0, 1], sizes (N',) voxel edges in metres; N' <= num.
+        Gaussians beyond N' stay transparent at the first point."""
+        k = min(int(points.shape[0]), self.num)
+        if k == 0:
+            raise ValueError("workspace background: no points to start from")
+        self.anchor.zero_()
+        self.anchor[:] = points[0].to(self.anchor)
+        self.anchor[:k] = points[:k].to(self.anchor)
+        self.offset.zero_()
+        self.log_scale[:k] = torch.log(sizes[:k].to(self.anchor) * WORKSPACE_SCALE)[:, None].expand(k, 3)
+        self.sh_dc[:k] = rgb_to_sh_dc(colours[:k].to(self.anchor))
+        self.opacity_logit.fill_(-12.0)
+        self.opacity_logit[:k] = 3.0
+
+    def forward(self) -> dict[str, Tensor]:
+        """Gaussian fields: means (N, 3) world metres, quats (N, 4), scales (N, 3) metres, opacities (N,),
+        sh (N, K, 3) (view-independent colour)."""
+        sh = torch.cat([self.sh_dc[:, None], self.sh_dc.new_zeros(self.num, self.num_bases - 1, 3)], dim=1)
+        return {
+            "means": self.anchor + WORKSPACE_STEP * self.offset,
+            "quats": self.quat / self.quat.norm(dim=-1, keepdim=True).clamp_min(1e-8),
+            "scales": self.log_scale.exp().clamp(max=WORKSPACE_MAX_SCALE),
             "opacities": torch.sigmoid(self.opacity_logit),
             "sh": sh,
         }

@@ -38,6 +38,7 @@ from particlesplat.training.runlog import read_log
 
 LAST = "last.pt"
 STEP_FILE = re.compile(r"^step_\d+\.pt$")
+WORKSPACE_SCENES = 40  # training scenes the workspace layer's start is found in
 MAX_SKIPPED = 20  # steps in a row with non-finite loss or gradients before the run stops as diverged
 
 
@@ -216,10 +217,10 @@ class Trainer:
         )
         self.provenance = Provenance.start(data, None, str(self.device))  # from random initialisation
         self.clock = RunClock()
-        if tc.beta_fg > 0 and cfg.bg_static_grid == 0:
+        if tc.beta_fg > 0 and not cfg.has_static_background:
             raise ConfigError(
                 f"train.beta_fg: the foreground term compares with the static background layer; "
-                f"set model.bg_static_grid > 0 or beta_fg to 0 (got {tc.beta_fg})"
+                f"set model.bg_static_grid or model.bg_static_points > 0, or beta_fg to 0 (got {tc.beta_fg})"
             )
         self.distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
         if self.distributed:
@@ -247,6 +248,8 @@ class Trainer:
         self.gen = torch.Generator().manual_seed(tc.seed * 7919 + self.rank)
         check_model_memory(cfg, "--config: model", copies=4)  # before the weights are allocated
         self.model = ParticleSplat(cfg).to(self.device)
+        if not resume and cfg.bg_static_points > 0:
+            self._start_workspace()
         # the learned background colour and the static background layer move at lr_background
         is_bg = lambda n: n == "background_logit" or n.startswith("static_bg.")  # noqa: E731
         trained = list(self.model.named_parameters())
@@ -277,6 +280,24 @@ class Trainer:
         )
         if overwrite and not resume and self.rank == 0 and out.is_dir():
             self._clear_run()
+
+    def _start_workspace(self) -> None:
+        """Start the workspace layer (``model.bg_static_points``) at the voxels most of the first
+        ``WORKSPACE_SCENES`` training scenes share (:func:`particlesplat.data.workspace_points.workspace_points`;
+        no labels are read). Deterministic: the same data gives the same start."""
+        from particlesplat.data.workspace_points import workspace_points
+
+        scenes = next(iter(self.train_sets.values())).scenes[:WORKSPACE_SCENES]
+        found = workspace_points(scenes, self.cfg.bg_static_points)
+        layer = self.model.static_bg
+        assert layer is not None and hasattr(layer, "initialise")
+        layer.initialise(*(torch.from_numpy(a) for a in (found.points, found.colours, found.sizes)))
+        if self.rank == 0:
+            print(
+                f"workspace layer: {len(found.points)} of {self.cfg.bg_static_points} Gaussians placed from "
+                f"{len(scenes)} training scenes",
+                file=sys.stderr,
+            )
 
     def _clear_run(self) -> None:
         """--overwrite: remove the earlier run's own files (log, config, checkpoints) once every check has passed,
