@@ -114,6 +114,7 @@ def test_refiner_sees_the_view_and_the_render_of_the_current_means():
 
 def test_refinement_trains_end_to_end():
     """Through the corrected means, the loss reaches the refiner's output layer and the encoder under it."""
+    from particlesplat.data.dataset import TrainingBatch
     from particlesplat.model import TrainConfig
     from particlesplat.training.trainer import training_loss
 
@@ -123,17 +124,17 @@ def test_refinement_trains_end_to_end():
     from particlesplat.model.geometry import stack_cameras
 
     K, c2w = stack_cameras(cs)
-    batch = {
-        "context_rgb": rgb[None],
-        "context_depth": depth[None],
-        "context_K": K[None],
-        "context_c2w": c2w[None],
-        "target_rgb": rgb[None, :1],
-        "target_depth": depth[None, :1],
-        "target_K": K[None, :1],
-        "target_c2w": c2w[None, :1],
-        "target_supervision": torch.ones_like(depth[None, :1]),
-    }
+    batch = TrainingBatch(
+        context_rgb=rgb[None],
+        context_depth=depth[None],
+        context_K=K[None],
+        context_c2w=c2w[None],
+        target_rgb=rgb[None, :1],
+        target_depth=depth[None, :1],
+        target_K=K[None, :1],
+        target_c2w=c2w[None, :1],
+        target_supervision=torch.ones_like(depth[None, :1]),
+    )
     parts, _ = training_loss(refined, batch, TrainConfig(beta_fg=0.0), 32, refined.config)
     parts["loss"].backward()
     assert refined.refiner.out.weight.grad.abs().max() > 0

@@ -273,3 +273,25 @@ def test_training_with_the_foreground_term_logs_it(tmp_path_factory, tmp_path):
     fg = [r["fg"] for r in rows if "fg" in r]
     assert len(fg) == 2 and all(0.0 < v <= 3 * 32 * 32 for v in fg)
     assert all(math.isfinite(r["loss"]) for r in rows if "loss" in r)
+
+
+def test_training_batch_stacks_the_items_the_loss_reads(tmp_path_factory):
+    """TrainingBatch.collate: each field is the items' tensors stacked (what torch's default collate makes of
+    them), masks and indices left out; .to keeps every field."""
+    from dataclasses import fields
+
+    from torch.utils.data import default_collate
+
+    from particlesplat.data.dataset import SceneDataset, TrainingBatch
+
+    ds = SceneDataset(tiny_dataset(tmp_path_factory) / "train", resolution=32, deterministic=True)
+    items = [ds[0], ds[1]]
+    batch = TrainingBatch.collate(items)
+    want = default_collate(items)
+    names = [f.name for f in fields(TrainingBatch)]
+    assert "context_masks" not in names and "scene_index" not in names
+    for name in names:
+        assert torch.equal(getattr(batch, name), want[name]), name
+    assert batch.context_rgb.shape[:3] == (2, ds[0]["context_rgb"].shape[0], 3)
+    moved = batch.to("cpu")
+    assert all(torch.equal(getattr(moved, n), getattr(batch, n)) for n in names)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import multiprocessing as mp
 from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
 from os import PathLike
 from pathlib import Path
 
@@ -14,6 +16,37 @@ from torch.utils.data import Dataset
 from particlesplat.core.errors import one_line
 from particlesplat.data.scene import TRANSFORMS, RawScene, SceneFormatError, read_scene
 from particlesplat.data.views import flip_horizontal, sample_views, supervision_mask
+
+
+@dataclass(frozen=True)
+class TrainingBatch:
+    """B scenes' views for one training step: :class:`SceneDataset` items stacked (``collate``), without the
+    masks and indices the loss does not read. C context views, T target views, H x W the resolution:
+
+    - ``context_rgb`` (B, C, 3, H, W), ``target_rgb`` (B, T, 3, H, W): float32 in [0, 1].
+    - ``context_depth`` (B, C, 1, H, W), ``target_depth`` (B, T, 1, H, W): planar metres, 0 = none.
+    - ``context_K`` (B, C, 3, 3), ``target_K`` (B, T, 3, 3): intrinsics in pixels at H x W.
+    - ``context_c2w`` (B, C, 4, 4), ``target_c2w`` (B, T, 4, 4): OpenCV camera-to-world.
+    - ``target_supervision`` (B, T, 1, H, W): float32 {0, 1}; 1 where the target pixel is supervised.
+    """
+
+    context_rgb: Tensor
+    context_depth: Tensor
+    context_K: Tensor
+    context_c2w: Tensor
+    target_rgb: Tensor
+    target_depth: Tensor
+    target_K: Tensor
+    target_c2w: Tensor
+    target_supervision: Tensor
+
+    @classmethod
+    def collate(cls, items: Sequence[dict[str, Tensor]]) -> TrainingBatch:
+        """Stack the fields of ``items`` (:class:`SceneDataset` items of one view count) along a new batch axis."""
+        return cls(**{f.name: torch.stack([item[f.name] for item in items]) for f in fields(cls)})
+
+    def to(self, device: torch.device | str) -> TrainingBatch:
+        return TrainingBatch(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
 
 
 class SceneDataset(Dataset):

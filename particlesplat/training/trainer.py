@@ -19,13 +19,13 @@ import torch
 import torch.distributed as dist
 from torch import Tensor
 from torch.nn.parallel import DistributedDataParallel
-from torch.utils.data import default_collate
 from tqdm import tqdm
 
 from particlesplat.core.atomic import atomic_path, atomic_write, stale_temporaries
 from particlesplat.core.camera import Camera
 from particlesplat.core.device import resolve_device
 from particlesplat.core.errors import Interrupted, UserError, one_line
+from particlesplat.data.dataset import TrainingBatch
 from particlesplat.data.views import WARMUP
 from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig, read_checkpoint, save_checkpoint
 from particlesplat.model.config import ConfigError, config_to_dict, model_config_from_dict, without_removed_keys
@@ -93,25 +93,23 @@ def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float) -> Tensor:
 
 def training_loss(
     model: ParticleSplat | DistributedDataParallel,
-    batch: dict[str, Tensor],
+    batch: TrainingBatch,
     tc: TrainConfig,
     size: int,
     cfg: ModelConfig,
 ) -> tuple[dict[str, Tensor], Tensor]:
-    """Negative ELBO of a batch (dict of (B, …) tensors from SceneDataset). Returns the loss parts and the
-    target-view renders (B, T, 3, H, W) (or context renders when there are no targets)."""
-    post, z, gaussians = model(
-        batch["context_rgb"], batch["context_depth"], batch["context_K"], batch["context_c2w"], sample=True
-    )
-    C = batch["context_rgb"].shape[1]
-    K = torch.cat([batch["context_K"], batch["target_K"]], 1)
-    c2w = torch.cat([batch["context_c2w"], batch["target_c2w"]], 1)
+    """Negative ELBO of a batch. Returns the loss parts and the target-view renders (B, T, 3, H, W) (or context
+    renders when there are no targets)."""
+    post, z, gaussians = model(batch.context_rgb, batch.context_depth, batch.context_K, batch.context_c2w, sample=True)
+    C = batch.context_rgb.shape[1]
+    K = torch.cat([batch.context_K, batch.target_K], 1)
+    c2w = torch.cat([batch.context_c2w, batch.target_c2w], 1)
     net = model.module if isinstance(model, DistributedDataParallel) else model
     rgb_hat, depth_hat, fg_hat = render_views(gaussians, K, c2w, size, z["bg_color"], tc.beta_fg > 0)
-    gt_rgb = torch.cat([batch["context_rgb"], batch["target_rgb"]], 1)
-    gt_depth = torch.cat([batch["context_depth"], batch["target_depth"]], 1)
+    gt_rgb = torch.cat([batch.context_rgb, batch.target_rgb], 1)
+    gt_depth = torch.cat([batch.context_depth, batch.target_depth], 1)
     B, V = gt_rgb.shape[:2]
-    sup = torch.cat([torch.ones_like(batch["context_depth"]), batch["target_supervision"]], 1)
+    sup = torch.cat([torch.ones_like(batch.context_depth), batch.target_supervision], 1)
     err = view_error(
         rgb_hat.flatten(0, 1),
         gt_rgb.flatten(0, 1),
@@ -126,7 +124,7 @@ def training_loss(
         # the context views' error is the one the encoder computed (no depth on a step that drops it)
         bg_err = post.bg_error
         if V > C:
-            tgt = [batch[k].flatten(0, 1) for k in ("target_rgb", "target_depth", "target_K", "target_c2w")]
+            tgt = [t.flatten(0, 1) for t in (batch.target_rgb, batch.target_depth, batch.target_K, batch.target_c2w)]
             tgt_err = net.static_background_error(*tgt, block=1).reshape(B, V - C, 1, size, size)
             bg_err = torch.cat([bg_err, tgt_err], 1)
         fg_err = foreground_error(fg_hat.flatten(0, 1), bg_err.flatten(0, 1), tc.fg_threshold)
@@ -452,16 +450,14 @@ class Trainer:
             )
 
     # ------------------------------------------------------------------ loop
-    def batch(self) -> dict[str, Tensor]:
+    def batch(self) -> TrainingBatch:
         ctx = self.tc.context_views[int(torch.randint(len(self.tc.context_views), (1,), generator=self.gen))]
         ds = self.train_sets[ctx]
         ds.set_progress(gap_progress(self.step, self.tc))
         idx = torch.randint(len(ds), (self.tc.batch_size,), generator=self.gen).tolist()
-        items = [ds[i] for i in idx]
-        keep = [k for k in items[0] if not k.endswith("_masks")]
-        batch = default_collate([{k: it[k] for k in keep} for it in items])
+        batch = TrainingBatch.collate([ds[i] for i in idx])
         torch.rand((), generator=self.gen)  # one draw per step keeps a seed's batches those of the recorded runs
-        return {k: v.to(self.device) for k, v in batch.items()}
+        return batch.to(self.device)
 
     def train_step(self) -> dict[str, float]:
         batch = self.batch()
