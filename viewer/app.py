@@ -127,6 +127,7 @@ class App:
         self.swatches = particle_swatches(session)
         self.redraw = RedrawSchedule()
         self.stop: SignalStop | None = None  # set while signals end the loop (:mod:`viewer.signals`)
+        self._xsync = None  # the display's sync call (False: none), found on the first frame
         self._watch_events()
 
     def _watch_events(self) -> None:
@@ -193,9 +194,22 @@ class App:
         self.scene_view.present(self.state, (0, 0, fw, fh))
         backends.opengl3_render_draw_data(imgui.get_draw_data())
         glfw.swap_buffers(self.window)
+        self.display_sync()
         changed = rendered or requested
-        self.redraw.drawn(changed, self.next_wake(scale))
+        # input imgui has not taken yet (it takes one change of a key or button a frame): draw until it has,
+        # so fast taps (Ctrl+Z, Ctrl+Y) are all done now, not at the next event
+        queued = len(imgui.get_current_context().input_events_queue) > 0
+        self.redraw.drawn(changed or queued, self.next_wake(scale))
         return changed
+
+    def display_sync(self) -> None:
+        """Wait until the display server has taken the frame just swapped (X11: ``XSync``), so at most one frame
+        is ever in flight: on a busy machine a server that falls behind would otherwise keep showing frames the
+        input has overtaken (a drag going on after the mouse was released)."""
+        if self._xsync is None:
+            self._xsync = _x11_sync_function()
+        if self._xsync:
+            self._xsync()
 
     def next_wake(self, scale: float) -> float | None:
         """When to draw without input: the full-scale frame once a motion stops, the cursor of an
@@ -394,6 +408,25 @@ class App:
         t0 = time.perf_counter()
         self.frame(show_ui=not self.args.no_ui)
         return time.perf_counter() - t0
+
+
+def _x11_sync_function():
+    """A call that flushes the window's X11 connection and waits for the server to process it, or False when the
+    window is not on X11 (Wayland, macOS, Windows: their swap already waits)."""
+    import ctypes.util
+
+    try:
+        if glfw.get_platform() != glfw.PLATFORM_X11:
+            return False
+        display = glfw.get_x11_display()
+        name = ctypes.util.find_library("X11")
+        if not display or not name:
+            return False
+        xsync = ctypes.CDLL(name).XSync
+    except (AttributeError, OSError, glfw.GLFWError):  # an older glfw, no libX11
+        return False
+    xsync.argtypes, xsync.restype = [ctypes.c_void_p, ctypes.c_int], ctypes.c_int
+    return lambda: xsync(display, 0)
 
 
 def create_window(size: tuple[int, int], title: str = "ParticleSplat Studio"):

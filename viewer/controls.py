@@ -49,6 +49,16 @@ class ViewportHost(Protocol):
 CLICK_SLOP = 3.0  # window pixels a press may move and still count as a click
 
 
+def inside_hull(hull, x: float, y: float) -> bool:
+    """Whether (x, y) lies inside the convex polygon ``hull`` ((M, 2), counter-clockwise; M < 3: never)."""
+    if len(hull) < 3:
+        return False
+    for (ax, ay), (bx, by) in zip(hull, list(hull[1:]) + [hull[0]], strict=True):
+        if (bx - ax) * (y - ay) - (by - ay) * (x - ax) < 0:
+            return False
+    return True
+
+
 class ViewportControls:
     """Gesture state of the viewport (press position, drag, the dragged particle's centre)."""
 
@@ -78,7 +88,8 @@ class ViewportControls:
         if imgui.is_mouse_clicked(imgui.MouseButton_.left):
             self.press_pos = (io.mouse_pos.x, io.mouse_pos.y)
             self.dragged = False
-        if imgui.is_mouse_down(imgui.MouseButton_.left) and self.press_pos is not None and (dx or dy):
+        left_held = imgui.is_mouse_down(imgui.MouseButton_.left) or imgui.is_mouse_released(imgui.MouseButton_.left)
+        if left_held and self.press_pos is not None and (dx or dy):  # the motion that came with a release counts
             px, py = self.press_pos
             if abs(io.mouse_pos.x - px) + abs(io.mouse_pos.y - py) > CLICK_SLOP and not self.dragged:
                 self.dragged = True
@@ -114,10 +125,14 @@ class ViewportControls:
         if sel is None or not app.session.editable or io.key_ctrl:
             return
         on_object = False
-        if not io.key_shift:
+        if not io.key_shift:  # on the selected object: inside its outline, even where another object is in front
+            from .tools.object_tools import outline
+
             owner = app.scene_view.pick(app.session, app.view_camera(1.0), int(x), int(y))
             labels = app.session.objects()
-            on_object = owner >= 0 and int(labels[owner]) == int(labels[sel])
+            on_object = (owner >= 0 and int(labels[owner]) == int(labels[sel])) or inside_hull(
+                outline(app.session, sel, app.view_camera(1.0)), x, y
+            )
         if (io.key_shift or on_object) and not self.floor.start(app.session, sel, app.view_camera(1.0), x, y):
             app.fields.status = "this object cannot slide from here (it draws nothing, or the floor is out of view)"
 
