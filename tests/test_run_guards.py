@@ -187,3 +187,33 @@ def test_eval_fit_options_are_checked_before_the_work(tmp_path):
     for bad in (["--fit-steps", "-1"], ["--fit-lr", "0"], ["--fit-latents", "z_p,nope"]):
         with pytest.raises(OptionError, match="--fit-steps must be >= 0, --fit-lr > 0 and --fit-latents"):
             main(["eval", "--data", str(tmp_path / "absent"), *bad])
+
+
+def test_pick_map_sums_object_weights_in_the_rasteriser_as_the_per_particle_map_does():
+    """The editor's object map renders object labels as owners (one weight plane per object): the same labels as
+    rendering one plane per particle and summing an object's planes, on a scene grown by duplicates."""
+    from particlesplat.editing.editor import EditOp, SceneEditor
+    from particlesplat.editing.open_scene import demo_scenes, encode_scene
+    from particlesplat.model import load_model
+    from particlesplat.rendering.api import render
+
+    torch.set_num_threads(1)
+    model = load_model()
+    enc = encode_scene(model, demo_scenes()[0])
+    ed = SceneEditor(model, enc.particles, enc.all_cameras, enc.context)
+    pick = ed.pick_for(next(i for i in range(ed.num_particles) if ed.is_active(i)))
+    for i in range(3):
+        ed.apply_op(EditOp("duplicate", pick=pick, offset=(0.1 * (i + 1), 0.0, 0.0)), f"op{i}")
+    for frame in (enc.context[0], 0):
+        cam = ed.frame_cameras[frame]
+        with torch.no_grad():
+            res = render(
+                ed.decode(),
+                cam.to("cpu", torch.float32),
+                background=model.background_color().cpu(),
+                owner_weights=True,
+                num_owners=ed.num_particles,
+            )
+        want = res.segmentation(ed.objects()[: ed.num_particles])
+        got = ed.object_map(frame)
+        assert (got >= 0).any() and torch.equal(got, want), int((got != want).sum())

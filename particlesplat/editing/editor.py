@@ -542,16 +542,24 @@ class SceneEditor:
         """(H, W) int64 object label per pixel of input frame ``frame`` at its stored size (-1 background)."""
         p = self.particles if particles is None else particles
         cam = self._frame_camera(frame, where)
+        labels = self.objects()[: p.num]
+        g = self.decode(p)
+        # the rasteriser sums each object's weights itself: owners are object labels (a particle in no object
+        # draws as background, as object_segmentation counts it), so the owner weights hold one plane per object,
+        # not one per particle (a scene grown by many duplicates would need particles x pixels of them)
+        g = replace(g, owner=torch.where(g.owner >= 0, labels.to(g.owner.device)[g.owner.clamp_min(0)], g.owner))
+        count = int(labels.max()) + 1 if labels.numel() else 0
+        if count <= 0:
+            return torch.full((cam.height, cam.width), -1, dtype=torch.int64)
         with torch.no_grad():
             res = render(
-                self.decode(p),
+                g,
                 cam.to("cpu", torch.float32),
                 background=self.model.background_color().cpu(),
                 owner_weights=True,
-                num_owners=p.num,
+                num_owners=count,
             )
-        labels = self.objects()
-        return res.segmentation(labels[: p.num])
+        return res.segmentation()
 
     def pick(self, pick: Pick, where: str = "pick") -> int:
         """The first particle of the object under ``pick`` on the current particles; PickError names ``where``
