@@ -2,10 +2,14 @@
 
 For each held-out tabletop scene the generator draws ground-truth pairs from one scene: one object
 translated on the floor by 0.2-0.45 m, the same object removed, and a copy of it placed elsewhere on the
-floor. The original's context views are encoded; the edit is applied as the viewer applies it (pick the
-object by a pixel of a context frame, take its object group, translate by the true displacement in world
-metres; remove; duplicate by the true offset); every other input view is rendered and compared with the
-simulator's image of the edited scene. PSNR is taken over
+floor. With ``--data`` the ground truth is instead read from disk, where a generator wrote it beside each
+test scene (``edits.json`` and ``edits/{move,remove}/``: the robot family's test split, one object moved by
+0.10-0.20 m on the table and the same object removed, simulated and rendered from the scene's cameras).
+
+The original's context views are encoded; the edit is applied as the viewer applies it (pick the object by
+the most interior pixel of its ground-truth mask in the context frame where it is largest, take its object
+group, translate by the true displacement in world metres; remove; duplicate by the true offset); every
+other input view is rendered and compared with the simulator's image of the edited scene. PSNR is taken over
 
 - ``changed``: the object's old and new ground-truth masks, dilated by ``--dilate`` pixels;
 - ``vacated``: where the object was and no longer is (old mask dilated, minus the new mask);
@@ -21,11 +25,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import platform
 import sys
 import tempfile
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -35,8 +40,9 @@ import torch.nn.functional as F
 
 from particlesplat.analysis.metrics import psnr_of_mse
 from particlesplat.core.atomic import atomic_write
+from particlesplat.core.errors import OptionError, one_line, short_repr
 from particlesplat.data.families import tabletop
-from particlesplat.data.scene import read_scene
+from particlesplat.data.scene import SceneFormatError, read_scene
 from particlesplat.data.synth import scene_rng, write_tabletop
 from particlesplat.editing.editor import Pick, PickError, SceneEditor
 from particlesplat.editing.move import MoveError
@@ -154,6 +160,25 @@ def _sq_err(pred: torch.Tensor, gt: torch.Tensor, region: torch.Tensor) -> tuple
     return float(err[region].sum()), int(region.sum()) * 3
 
 
+@dataclass(frozen=True)
+class GroundTruth:
+    """One scene's ground-truth edits as scene folders: ``folders`` maps "original" and each edit kind the scene
+    has (:data:`KINDS`) to its folder; ``object`` is the edited object's instance id (1..K, its value in the masks),
+    ``copy`` the copy's id in the duplicate scene (0 without one), ``pick`` selects the object in a context
+    frame, ``offsets`` {kind: (dx, dy) world metres on the support}."""
+
+    label: str
+    folders: dict[str, Path]
+    object: int
+    pick: Pick
+    offsets: dict[str, tuple[float, float]]
+    copy: int = 0
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        return tuple(k for k in KINDS if k in self.folders)
+
+
 def bench_scene(
     model: ParticleSplat,
     seed: int,
@@ -165,7 +190,8 @@ def bench_scene(
     work: Path,
     z_t_threshold: float | None = None,
 ) -> dict | None:
-    """Edit-fidelity PSNR of one held-out scene: {kind: {variant: {region: dB}}}, plus the pick's outcome."""
+    """Edit-fidelity PSNR of one held-out tabletop scene of the generator: {kind: {variant: {region: dB}}}, plus
+    the pick's outcome; None if no object of the scene can be edited cleanly."""
     pairs = edit_pairs(seed, split, index, res, context)
     if pairs is None:
         return None
@@ -176,25 +202,92 @@ def bench_scene(
             write_tabletop(
                 folders[name], pairs[name], res, {"seed": seed, "split": split, "index": index, "edit": name}
             )
-    enc = encode_scene(model, folders["original"], context)
+    truth = GroundTruth(
+        f"{split}/{index:05d}",
+        folders,
+        pairs["object"] + 1,
+        pairs["pick"],
+        pairs["offsets"],
+        copy=len(pairs["duplicate"].objects),
+    )
+    return score_scene(model, truth, context, dilate, z_t_threshold)
+
+
+def read_edits(scene_dir: Path, context: list[int]) -> GroundTruth | None:
+    """The ground-truth edits written beside a scene folder (``edits.json``: ``object`` instance id, ``offset``
+    (dx, dy, dz) metres, ``move`` and ``remove`` scene folders relative to the scene's; the robot family's test
+    scenes). None if the scene has no edit (``object`` null) or the object covers fewer than
+    :data:`MIN_PICK_PIXELS` pixels of every context frame."""
+    where = scene_dir / "edits.json"
+    try:
+        info = json.loads(where.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
+        raise SceneFormatError(f"{where}: not valid JSON ({one_line(e, 200)})") from None
+    if not isinstance(info, dict) or "object" not in info:
+        raise SceneFormatError(f"{where}: must be an object with key 'object' (an instance id, or null)")
+    if info["object"] is None:
+        return None
+    k = info["object"]
+    if not isinstance(k, int) or isinstance(k, bool) or not 1 <= k <= 255:
+        raise SceneFormatError(f"{where}: key 'object' must be an instance id 1..255, got {short_repr(k)}")
+    offset = info.get("offset")
+    if (
+        not isinstance(offset, list)
+        or len(offset) != 3
+        or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in offset)
+    ):
+        raise SceneFormatError(f"{where}: key 'offset' must be 3 finite numbers (metres), got {short_repr(offset)}")
+    folders = {"original": scene_dir}
+    for kind in ("move", "remove"):
+        rel = info.get(kind)
+        norm = os.path.normpath(rel) if isinstance(rel, str) and rel else ""
+        if not norm or os.path.isabs(norm) or norm == ".." or norm.startswith(".." + os.sep):
+            raise SceneFormatError(
+                f"{where}: key '{kind}' must name a scene folder inside {scene_dir}, got {short_repr(rel)}"
+            )
+        folders[kind] = scene_dir / norm
+    raw = read_scene(scene_dir)
+    bad = [f for f in context if not 0 <= f < raw.num_frames]
+    if bad:
+        raise OptionError(f"--context: {scene_dir} has frames 0..{raw.num_frames - 1}, got {context}")
+    pick, best = None, 0
+    for f in context:
+        if raw.masks[f] is None:
+            raise SceneFormatError(f"{scene_dir}: frame {f} has no instance mask to pick the edited object by")
+        mask = torch.from_numpy(raw.masks[f] == k)
+        if int(mask.sum()) >= max(MIN_PICK_PIXELS, best + 1):
+            best, pick = int(mask.sum()), Pick(f, _interior_pixel(mask))
+    if pick is None:
+        return None
+    return GroundTruth(
+        f"{scene_dir.parent.name}/{scene_dir.name}", folders, k, pick, {"move": (float(offset[0]), float(offset[1]))}
+    )
+
+
+def score_scene(
+    model: ParticleSplat, truth: GroundTruth, context: list[int], dilate: int, z_t_threshold: float | None = None
+) -> dict:
+    """Edit-fidelity PSNR of one scene against its ground-truth folders: {kind: {variant: {region: dB}}} for the
+    scene's edit kinds, plus the pick's outcome."""
+    enc = encode_scene(model, truth.folders["original"], context)
     others = [i for i in range(len(enc.all_cameras)) if i not in context]
     size = model.config.resolution
     noop = None
     out: dict = {
-        "scene": f"{split}/{index:05d}",
-        "object": pairs["object"],
-        "pick": list(pairs["pick"].pixel),
-        "pick_frame": pairs["pick"].frame,
-        "offsets": pairs["offsets"],
+        "scene": truth.label,
+        "object": truth.object - 1,
+        "pick": list(truth.pick.pixel),
+        "pick_frame": truth.pick.frame,
+        "offsets": truth.offsets,
     }
-    k = pairs["object"] + 1
-    orig_raw = read_scene(folders["original"]).select(others, size)
-    for kind in KINDS:
-        truth = read_scene(folders[kind]).select(others, size)
-        cams = truth.cameras
-        gt = truth.rgb
+    k = truth.object
+    orig_raw = read_scene(truth.folders["original"]).select(others, size)
+    for kind in truth.kinds:
+        gt_scene = read_scene(truth.folders[kind]).select(others, size)
+        cams = gt_scene.cameras
+        gt = gt_scene.rgb
         old = orig_raw.masks == k
-        new = truth.masks == (len(pairs[kind].objects) if kind == "duplicate" else (k if kind == "move" else -1))
+        new = gt_scene.masks == {"move": k, "remove": -1, "duplicate": truth.copy}[kind]
         if kind == "duplicate":
             old = torch.zeros_like(old)  # the original stays: only the copy's place changes
         regions = {
@@ -205,8 +298,8 @@ def bench_scene(
         editor = SceneEditor(model, enc.particles, enc.all_cameras, context, z_t_threshold)
         status = "ok"
         try:
-            label = editor.pick(pairs["pick"])
-            dx, dy = pairs["offsets"].get(kind, (0.0, 0.0))
+            label = editor.pick(truth.pick)
+            dx, dy = truth.offsets.get(kind, (0.0, 0.0))
             if kind == "move":
                 editor.move_object(label, [dx, dy, 0.0])
             elif kind == "remove":
@@ -220,7 +313,9 @@ def bench_scene(
         preds = {
             "edit": _renders(model, editor.particles, cams, z_t_threshold),
             "noop": noop,
-            "ceiling": _renders(model, encode_scene(model, folders[kind], context).particles, cams, z_t_threshold),
+            "ceiling": _renders(
+                model, encode_scene(model, truth.folders[kind], context).particles, cams, z_t_threshold
+            ),
         }
         row = {"status": status, "pixels": {r: int(m.sum()) for r, m in regions.items()}}
         for variant, pred in preds.items():
@@ -236,7 +331,7 @@ def summarise(rows: list[dict]) -> dict:
     """Mean over scenes of the per-scene PSNR: {kind: {variant: {region: dB}}}; vacated is not defined for
     duplicate (nothing leaves)."""
     table: dict = {}
-    for kind in KINDS:
+    for kind in (k for k in KINDS if all(k in r for r in rows)):
         table[kind] = {}
         for variant in VARIANTS:
             table[kind][variant] = {}
@@ -253,7 +348,7 @@ def format_table(table: dict, n: int) -> str:
         "of the edited scene)",
         f"{'edit':<10} {'region':<8} {'edit':>6} {'no-op':>6} {'ceiling':>7} {'gap':>6}",
     ]
-    for kind in KINDS:
+    for kind in (k for k in KINDS if k in table):
         for region in REGIONS:
             if kind == "duplicate" and region == "vacated":
                 continue
@@ -271,8 +366,17 @@ def main(argv: list[str] | None = None) -> int:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped assets/model.pt)")
+    parser.add_argument(
+        "--data",
+        default=None,
+        help="score the ground-truth edits written beside the scenes of this folder (edits.json, edits/: the robot "
+        "family's test split, e.g. DATA/test) instead of the tabletop generator's; --seed, --split, --res and "
+        "--work are then unused",
+    )
     parser.add_argument("--scenes", type=int, default=12, help="held-out scenes")
-    parser.add_argument("--start", type=int, default=0, help="first scene index of the split")
+    parser.add_argument(
+        "--start", type=int, default=0, help="first scene: index of the split (with --data: of its scene folders)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="dataset seed (0 = the shipped model's dataset)")
     parser.add_argument("--split", default="test", choices=("val", "test"), help="held-out split of the generator")
     parser.add_argument("--res", type=int, default=128, help="stored image size of the generated scenes")
@@ -295,6 +399,17 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.scenes < 1:
         parser.error(f"--scenes must be >= 1, got {args.scenes}")
+    scene_dirs: list[Path] = []
+    if args.data is not None:
+        data = Path(args.data)
+        if not data.is_dir():
+            raise OptionError(f"--data {data}: not a folder")
+        scene_dirs = sorted(p for p in data.iterdir() if (p / "edits.json").is_file())
+        if not scene_dirs:
+            raise OptionError(
+                f"--data {data}: no scene folder in it has ground-truth edits (edits.json; the robot family writes "
+                "them for its test split)"
+            )
     check_writable(args.json)  # before half an hour of work, not after it
 
     torch.set_num_threads(min(2, torch.get_num_threads()))
@@ -305,30 +420,40 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.work) if args.work else Path(tmp)
         index = args.start
-        while len(rows) < args.scenes:
-            row = bench_scene(
-                model, args.seed, args.split, index, args.res, context, args.dilate, work, args.z_t_threshold
-            )
+        while len(rows) < args.scenes and (args.data is None or index < len(scene_dirs)):
+            if args.data is None:
+                name = f"{args.split}/{index:05d}"
+                row = bench_scene(
+                    model, args.seed, args.split, index, args.res, context, args.dilate, work, args.z_t_threshold
+                )
+            else:
+                name = str(scene_dirs[index])
+                truth = read_edits(scene_dirs[index], context)
+                row = None if truth is None else score_scene(model, truth, context, args.dilate, args.z_t_threshold)
             if row is None:
-                skipped.append(index)
+                skipped.append(name)
             else:
                 rows.append(row)
                 print(
-                    f"scene {index:3d}: move {row['move']['edit']['changed']['psnr']:.2f} / ceiling "
+                    f"{name}: move {row['move']['edit']['changed']['psnr']:.2f} / ceiling "
                     f"{row['move']['ceiling']['changed']['psnr']:.2f} dB (changed), {row['move']['status']}",
                     file=sys.stderr,
                 )
             index += 1
+    if not rows:
+        raise OptionError(
+            f"--data {args.data}: none of its scenes from --start {args.start} has an edit whose object shows in "
+            f"the context frames {context}"
+        )
     table = summarise(rows)
     print(format_table(table, len(rows)))
+    source = {"data": str(args.data)} if args.data else {"seed": args.seed, "split": args.split, "res": args.res}
     out = {
         "checkpoint": args.checkpoint or "assets/model.pt",
         "z_t_threshold": args.z_t_threshold,
-        "seed": args.seed,
-        "split": args.split,
+        **source,
         "context": context,
         "dilate": args.dilate,
-        "res": args.res,
         "skipped": skipped,
         "seconds": time.perf_counter() - t0,
         "machine": platform.machine(),
