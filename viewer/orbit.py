@@ -10,6 +10,8 @@ import torch
 from particlesplat.core.camera import Camera
 from particlesplat.core.viewpoints import Look, View, look_from_eye
 
+ZOOM_RANGE = (0.02, 50.0)  # the nearest and farthest zoom, as factors of the home view's distance
+
 
 @dataclass
 class OrbitCamera:
@@ -49,9 +51,11 @@ class OrbitCamera:
         self.view = replace(self.view, target=tuple(float(v) for v in target))
 
     def zoom(self, wheel_steps: float, factor: float = 0.9) -> None:
-        """Scale the distance by ``factor`` per wheel step (positive = closer)."""
+        """Scale the distance by ``factor`` per wheel step (positive = closer), within :data:`ZOOM_RANGE` of the
+        home view's distance (the scene's own scale: a tabletop 3 m away, a robot table 1 m away)."""
         look = self.view.look
-        dist = max(1e-3, look.distance * factor**wheel_steps)
+        lo, hi = (f * self.home.look.distance for f in ZOOM_RANGE)
+        dist = min(max(look.distance * factor**wheel_steps, lo), hi)
         self.view = replace(self.view, look=Look(look.azimuth, look.elevation, dist))
 
     def reset(self) -> None:

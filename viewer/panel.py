@@ -9,7 +9,7 @@ from types import MappingProxyType
 from imgui_bundle import imgui
 
 from particlesplat.core.camera import Camera
-from particlesplat.editing.open_scene import demo_scenes
+from particlesplat.editing.open_scene import demo_scene_name, demo_scenes
 from particlesplat.model.particles import EDITABLE
 
 from .panels.insert import InsertFields, draw_insert_section
@@ -155,7 +155,7 @@ def _scene_section(session: SceneSession, req: UiRequests, fields: UiFields) -> 
         imgui.text_wrapped(f"model: {session.model_name}")
     scenes = demo_scenes()
     if scenes:
-        names = ["(choose)"] + [p.name for p in scenes]
+        names = ["(choose)"] + [demo_scene_name(p) for p in scenes]
         current = 1 + next((i for i, p in enumerate(scenes) if str(p) == session.source), -1)
         changed, idx = imgui.combo("demo", current, names)
         if changed and idx != current and idx > 0:

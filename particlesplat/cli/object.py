@@ -97,10 +97,11 @@ def run(args: argparse.Namespace) -> int:
         import torch
 
         from particlesplat.core.viewpoints import default_view, scene_background
+        from particlesplat.data.scene_meta import read_framing
         from particlesplat.formats.png import png_text, save_png
         from particlesplat.rendering.api import render
 
-        camera = default_view(enc.all_cameras).camera(640, 480)
+        camera = default_view(enc.all_cameras, framing=read_framing(enc.path)).camera(640, 480)
         with torch.no_grad():
             res = render(g, camera, background=scene_background(model))
         text = png_text(camera, {}, str(args.checkpoint or "assets/model.pt"), {"scene": str(enc.path)})

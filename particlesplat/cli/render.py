@@ -12,7 +12,7 @@ import sys
 from particlesplat.analysis.figures import MODES, NEEDS_PARTICLES
 from particlesplat.core.camera import Camera
 from particlesplat.core.errors import OptionError
-from particlesplat.core.viewpoints import View, check_fov, default_view, parse_look, scene_background
+from particlesplat.core.viewpoints import Framing, View, check_fov, default_view, parse_look, scene_background
 from particlesplat.editing.open_scene import (
     add_source_arguments,
     check_source_arguments,
@@ -146,8 +146,11 @@ def _scene_and_gaussians(args: argparse.Namespace):
     return g, enc.all_cameras, edits, name, str(enc.path), scene_background(model), arrays
 
 
-def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -> tuple[Camera, View | None]:
-    """The camera of ``--view`` / ``--look`` / ``--fov`` / default view at --width x --height.
+def resolve_camera(
+    args: argparse.Namespace, cameras: list[Camera], gaussians, framing: Framing | None = None
+) -> tuple[Camera, View | None]:
+    """The camera of ``--view`` / ``--look`` / ``--fov`` / default view (framed by ``framing``, the scene's
+    scene.json, else by its cameras) at --width x --height.
 
     With ``--view`` a missing --width or --height follows the input camera's aspect ratio (an
     input view is never stretched unless both are given).
@@ -184,7 +187,7 @@ def resolve_camera(args: argparse.Namespace, cameras: list[Camera], gaussians) -
         elif width is None:
             width = max(1, round(height * cam.width / cam.height))
         return cam.resized(width, height), None
-    base = default_view(cameras or None, None if cameras else gaussians)
+    base = default_view(cameras or None, None if cameras else gaussians, framing)
     view = View(
         base.target,
         parse_look(args.look) if args.look else base.look,
@@ -210,7 +213,9 @@ def run(args: argparse.Namespace) -> int:
         if args.mode in NEEDS_PARTICLES and args.ply:
             raise OptionError(f"--mode {args.mode} needs a model scene (particles), not --ply")
         g, cameras, edits, model_name, source, background, arrays = _scene_and_gaussians(args)
-        camera, view = resolve_camera(args, cameras, g)
+        from particlesplat.data.scene_meta import read_framing
+
+        camera, view = resolve_camera(args, cameras, g, read_framing(source) if cameras else None)
         if camera.width > MAX_SIDE or camera.height > MAX_SIDE or camera.width * camera.height > MAX_PIXELS:
             raise OptionError(
                 f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "

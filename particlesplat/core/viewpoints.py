@@ -10,7 +10,7 @@ the vertical field of view in degrees.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -22,6 +22,7 @@ from particlesplat.core.limits import float32_problem
 
 DEFAULT_FOV = 40.0  # degrees, vertical
 DEFAULT_ELEVATION = 25.0  # degrees, for scenes without cameras
+FALLBACK_DISTANCE = 3.0  # metres: the view distance when neither cameras nor Gaussians tell the scene's scale
 DEFAULT_BACKGROUND = (0.12, 0.14, 0.18)  # the viewer's and ``particlesplat render``'s background colour
 
 
@@ -119,8 +120,9 @@ def look_from_eye(target: Tensor, eye: Tensor) -> Look:
 
 
 def focus_point(cameras: list[Camera]) -> Tensor:
-    """(3,) the point closest (least squares) to all cameras' optical axes; for one camera (or
-    parallel axes) the point 3 m in front of the first camera."""
+    """(3,) the point closest (least squares) to all cameras' optical axes; for one camera (or parallel axes)
+    the point where the first camera's axis meets the support plane z = 0 (both scene families' table or floor
+    top), or :data:`FALLBACK_DISTANCE` in front of it when it does not look down."""
     A = torch.zeros(3, 3, dtype=torch.float64)
     b = torch.zeros(3, dtype=torch.float64)
     for cam in cameras:
@@ -132,29 +134,47 @@ def focus_point(cameras: list[Camera]) -> Tensor:
     if len(cameras) >= 2 and float(torch.linalg.cond(A)) < 1e6:
         return torch.linalg.solve(A, b)
     c2w = cameras[0].c2w.detach().double().cpu()
-    return c2w[:3, 3] + 3.0 * c2w[:3, 2] / c2w[:3, 2].norm()
+    eye, axis = c2w[:3, 3], c2w[:3, 2] / c2w[:3, 2].norm()
+    t = float(-eye[2] / axis[2]) if float(axis[2]) < -1e-3 and float(eye[2]) > 0 else FALLBACK_DISTANCE
+    return eye + t * axis
 
 
-def default_view(cameras: list[Camera] | None = None, gaussians: Gaussians | None = None) -> View:
+@dataclass(frozen=True)
+class Framing:
+    """Where a scene's cameras look, as its generator records it in ``scene.json``: ``target`` (x, y, z) world
+    metres (``look_at``) and ``distance`` metres from it (None: the cameras' median distance)."""
+
+    target: tuple[float, float, float]
+    distance: float | None = None
+
+
+def default_view(
+    cameras: list[Camera] | None = None, gaussians: Gaussians | None = None, framing: Framing | None = None
+) -> View:
     """The default view of a scene.
 
-    With cameras (a scene folder): orbit about :func:`focus_point` of all cameras, from the
-    middle camera's direction and distance, with its vertical field of view.
+    With cameras (a scene folder): orbit about ``framing.target`` (else :func:`focus_point` of all cameras) at
+    ``framing.distance`` (else the cameras' median distance from the target), from the middle camera's
+    direction, with its vertical field of view: a scene's own scale (a tabletop 3 m away, a robot table 1 m away).
     With Gaussians only (a .ply): about the median of the means, azimuth 0, elevation 25°, at a
     distance that frames the 90th-percentile radius in a 40° view.
     """
     if cameras:
-        target = focus_point(cameras)
+        target = torch.tensor(framing.target, dtype=torch.float64) if framing else focus_point(cameras)
+        centres = torch.stack([c.center.detach().double().cpu() for c in cameras])
+        distance = framing.distance if framing and framing.distance else None
+        if distance is None:
+            distance = float((centres - target).norm(dim=-1).median())
         mid = cameras[len(cameras) // 2]
         look = look_from_eye(target, mid.center.detach().cpu())
-        return View(tuple(float(v) for v in target), look, round(mid.fov_y, 6))
+        return View(tuple(float(v) for v in target), replace(look, distance=distance), round(mid.fov_y, 6))
     if gaussians is not None and gaussians.num:
         means = gaussians.means.detach().double().cpu()
         target = means.median(0).values
         radius = float(torch.quantile((means - target).norm(dim=-1), 0.9)) if means.shape[0] > 1 else 1.0
         dist = max(radius, 1e-3) / math.tan(math.radians(DEFAULT_FOV) / 2.0) * 1.1
         return View(tuple(float(v) for v in target), Look(0.0, DEFAULT_ELEVATION, dist), DEFAULT_FOV)
-    return View((0.0, 0.0, 0.0), Look(0.0, DEFAULT_ELEVATION, 3.0), DEFAULT_FOV)
+    return View((0.0, 0.0, 0.0), Look(0.0, DEFAULT_ELEVATION, FALLBACK_DISTANCE), DEFAULT_FOV)
 
 
 def default_context_views(num_frames: int) -> list[int]:

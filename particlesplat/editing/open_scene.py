@@ -39,12 +39,29 @@ class EncodedScene:
     warnings: list[str] = field(default_factory=list)
 
 
+DEMO_SCENE_FOLDERS = ("scenes", "robot/scenes")  # under assets/: the tabletop family's, then the robot family's
+
+
 def demo_scenes() -> list[Path]:
-    """Scene folders shipped in ``assets/scenes`` (sorted)."""
+    """Scene folders shipped in ``assets/scenes`` and ``assets/robot/scenes`` (where it exists), each sorted,
+    the tabletop ones first (the first is the default scene)."""
     from importlib.resources import files
 
-    root = Path(str(files("particlesplat.assets").joinpath("scenes")))
-    return sorted(p for p in root.iterdir() if (p / "transforms.json").is_file()) if root.is_dir() else []
+    out: list[Path] = []
+    for sub in DEMO_SCENE_FOLDERS:
+        root = Path(str(files("particlesplat.assets").joinpath(sub)))
+        if root.is_dir():
+            out += sorted(p for p in root.iterdir() if (p / "transforms.json").is_file())
+    return out
+
+
+def demo_scene_name(path: Path) -> str:
+    """A demo scene's name in the viewer's picker: its folder name, after its family's for the robot family's
+    (``robot/scene_00000``)."""
+    from importlib.resources import files
+
+    rel = Path(path).relative_to(Path(str(files("particlesplat.assets"))))
+    return rel.name if rel.parts[0] == "scenes" else f"{rel.parts[0]}/{rel.name}"
 
 
 def add_source_arguments(parser: argparse.ArgumentParser, ply_help: str) -> None:

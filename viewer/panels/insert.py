@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from particlesplat.editing.editor import Insert
-from particlesplat.editing.open_scene import demo_scenes, encode_scene
+from particlesplat.editing.open_scene import demo_scene_name, demo_scenes, encode_scene
 
 if TYPE_CHECKING:
     from ..session import SceneSession
@@ -34,7 +34,7 @@ def draw_insert_section(fields: InsertFields) -> bool:
         return False
     scenes = demo_scenes()
     if scenes:
-        names = ["(choose)"] + [p.name for p in scenes]
+        names = ["(choose)"] + [demo_scene_name(p) for p in scenes]
         current = 1 + next((i for i, p in enumerate(scenes) if str(p) == fields.scene), -1)
         changed, idx = imgui.combo("demo##insert", current, names)
         if changed and idx > 0:
