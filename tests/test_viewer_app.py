@@ -530,3 +530,32 @@ def test_a_drag_released_in_one_burst_ends_where_the_mouse_did(app):
     app.state.panel = True
     glfw.set_cursor_pos(app.window, *start)  # where the pointer was (the next tests drive it)
     app.run(2)
+
+
+def test_the_particle_list_names_deleted_particles_and_colours_copies(app):
+    """After a duplicate the copies have the swatches of what they copy; a removed object's particles read
+    "deleted", the encoder's inactive ones "inactive"."""
+    from particlesplat.editing.open_scene import demo_scenes
+    from viewer.panel import particle_status
+
+    if not app.session.editable:  # an earlier test opened a .ply
+        app.open(str(demo_scenes()[0]))
+    s = app.session
+    app.state.selected = None
+    app.run(1)
+    n = s.num_particles
+    first = next(i for i in range(n) if s.is_active(i) and i in app.swatches)
+    members = s.object_members(first)
+    s.duplicate_object(first, [0.0, 0.0, 0.0])
+    app.run(1)
+    for k, i in enumerate(range(n, s.num_particles)):
+        if members[k] in app.swatches:
+            assert app.swatches[i] == pytest.approx(app.swatches[members[k]], abs=1e-5)
+    s.undo()
+    inactive = [i for i in range(n) if not s.is_active(i)]
+    s.remove_object(first)
+    assert all(particle_status(s, i) == "deleted" for i in members)
+    assert all(particle_status(s, i) == "inactive" for i in inactive)
+    s.undo()
+    assert particle_status(s, first) == "active"
+    app.run(1)

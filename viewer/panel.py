@@ -5,11 +5,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import Literal
 
 from imgui_bundle import imgui
 
 from particlesplat.core.camera import Camera
-from particlesplat.editing.open_scene import demo_scene_name, demo_scenes
+from particlesplat.editing.open_scene import demo_scenes
 from particlesplat.model.particles import EDITABLE
 
 from .panels.insert import InsertFields, draw_insert_section
@@ -155,13 +156,15 @@ def _scene_section(session: SceneSession, req: UiRequests, fields: UiFields) -> 
         imgui.text_wrapped(f"model: {session.model_name}")
     scenes = demo_scenes()
     if scenes:
-        names = ["(choose)"] + [demo_scene_name(p) for p in scenes]
+        names = ["(choose)"] + [p.name for p in scenes]
         current = 1 + next((i for i, p in enumerate(scenes) if str(p) == session.source), -1)
         changed, idx = imgui.combo("demo", current, names)
         if changed and idx != current and idx > 0:
             req.open_path = str(scenes[idx - 1])
-    _, fields.scene_path = imgui.input_text("folder / .ply", fields.scene_path)
-    if imgui.button("Open") and fields.scene_path.strip():
+    entered, fields.scene_path = imgui.input_text(
+        "folder / .ply", fields.scene_path, imgui.InputTextFlags_.enter_returns_true
+    )
+    if (imgui.button("Open") or entered) and fields.scene_path.strip():  # Enter in the field opens it too
         req.open_path = fields.scene_path.strip()
 
 
@@ -189,6 +192,12 @@ def _view_section(session: SceneSession, state: ViewState, req: UiRequests, coun
     changed, idx = imgui.combo("segmentation", SEG_MODES.index(state.seg_mode), [m.value for m in SEG_MODES])
     if changed:
         state.seg_mode = SEG_MODES[idx]
+    if not session.editable and state.seg_mode is not SegMode.NORMAL:
+        imgui.text_wrapped(
+            "a .ply holds Gaussians, not particles: the particle and object modes show the owner ids it stores "
+            + ("(this file stores none, so everything is background)" if not session.owner_ids() else "")
+            + "; keypoints and boxes need a model scene"
+        )
     changed, value = imgui.slider_float("prune opacity", state.prune, 0.0, 1.0, "%.3f")
     if changed:
         state.prune = max(0.0, value)
@@ -221,10 +230,10 @@ def _particles_section(
         imgui.same_line()
         imgui.color_button("##swatch", imgui.ImVec4(r, g, b, 1.0), 0, imgui.ImVec2(22.0, 0.0))
         imgui.same_line()
-        active = session.is_active(i)
+        status = particle_status(session, i)
         imgui.text_colored(
-            imgui.ImVec4(0.5, 1.0, 0.5, 1.0) if active else imgui.ImVec4(0.6, 0.6, 0.6, 1.0),
-            "active  " if active else "inactive",
+            imgui.ImVec4(0.5, 1.0, 0.5, 1.0) if status == "active" else imgui.ImVec4(0.6, 0.6, 0.6, 1.0),
+            f"{status:<8}",
         )
         imgui.same_line()
         changed, visible = imgui.checkbox("##visible", i not in state.hidden)
@@ -235,6 +244,14 @@ def _particles_section(
         if changed:
             state.solo = i if solo else None
         imgui.pop_id()
+
+
+def particle_status(session: SceneSession, i: int) -> Literal["active", "deleted", "inactive"]:
+    """How the particle list names particle ``i``: drawn, deleted (drawn as encoded, its object removed since), or
+    inactive (the encoder left it off)."""
+    if session.is_active(i):
+        return "active"
+    return "deleted" if session.original_value(i, "z_t")[0] >= session.active_threshold else "inactive"
 
 
 def _selected_section(session: SceneSession, state: ViewState, fields: UiFields) -> None:

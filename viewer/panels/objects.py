@@ -59,6 +59,15 @@ def duplicate_selected(session: SceneSession, selected: int | None, offset) -> t
     return copy, f"copied the object: new particles {', '.join(map(str, members))}, offset {_metres(offset)}"
 
 
+def hint(text: str) -> None:
+    """A greyed hint that wraps at the panel's edge (never cut off)."""
+    from imgui_bundle import imgui
+
+    imgui.push_style_color(imgui.Col_.text, imgui.get_style_color_vec4(imgui.Col_.text_disabled))
+    imgui.text_wrapped(text)
+    imgui.pop_style_color()
+
+
 def _metres(v) -> str:
     return "(" + ", ".join(f"{float(x):+.3f}" for x in v) + ") m"
 
@@ -82,7 +91,7 @@ def draw_object_section(session: SceneSession, selected: int, fields: ObjectFiel
             message = f"error: {e}"
     if imgui.is_item_deactivated():
         session.end_gesture()
-    imgui.text_disabled("world X / Y on the floor, Z up; double-click a box to type metres")
+    hint("world X / Y on the floor, Z up; double-click a box to type metres")
     if imgui.button("Delete object (Del)"):
         selected, message = remove_selected(session, selected)
         return selected, message
