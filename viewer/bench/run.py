@@ -337,11 +337,6 @@ def _print_table(rows: list[Row], args: argparse.Namespace, paths: list[str], pe
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if "--profile" in argv:
-        from .profile import main as profile_main
-
-        argv.remove("--profile")
-        return profile_main(argv)
     args = build_parser().parse_args(argv)
     from .peer import PeerError, PeerSplatter, select_egl_platform
 
