@@ -123,7 +123,9 @@ def overlay_marks(arrays: ParticleArrays, camera: Camera, mode: Literal["keypoin
     return marks
 
 
-def _overlay(base: np.ndarray, camera: Camera, arrays: ParticleArrays, mode: str) -> np.ndarray:
+def _overlay(
+    base: np.ndarray, camera: Camera, arrays: ParticleArrays, mode: Literal["keypoints", "boxes"]
+) -> np.ndarray:
     img = Image.fromarray((np.clip(base * DIM, 0, 1) * 255 + 0.5).astype(np.uint8), "RGB")
     draw = ImageDraw.Draw(img)
     for m in overlay_marks(arrays, camera, mode):
@@ -167,10 +169,11 @@ def render_mode(
         return r.rgb.numpy().astype(np.float64)
     if mode == "depth":
         return depth_image(r.depth.numpy(), r.alpha.numpy())
+    assert arrays is not None  # every other mode needs the particles (checked above)
     if segment:
         labels = r.segmentation(_object_labels(arrays) if mode == "objects" else None).numpy()
         return palette.colour_map(labels)
-    return _overlay(r.rgb.numpy().astype(np.float64), camera, arrays, mode)
+    return _overlay(r.rgb.numpy().astype(np.float64), camera, arrays, "keypoints" if mode == "keypoints" else "boxes")
 
 
 def turntable_cameras(view: View, frames: int, width: int, height: int) -> list[Camera]:

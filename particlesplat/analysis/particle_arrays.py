@@ -123,7 +123,7 @@ class ParticleArrays:
         """Write an uncompressed ``.npz`` atomically (temp file, then rename). Returns the path."""
         path = Path(path)
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            np.savez(f, **self.arrays())
+            np.savez(f, **self.arrays())  # type: ignore[arg-type]  # numpy's stub reads ** as its allow_pickle
         return path
 
     @classmethod

@@ -54,8 +54,10 @@ def _time(fn, repeats: int) -> float:
 
 
 def _fwd_bwd(renderer, g: Gaussians, cam: Camera):
-    params = [t.detach().requires_grad_() for t in (g.means, g.quats, g.scales, g.opacities, g.sh)]
-    gg = Gaussians(*params, g.owner)
+    means, quats, scales, opacities, sh = (
+        t.detach().requires_grad_() for t in (g.means, g.quats, g.scales, g.opacities, g.sh)
+    )
+    gg = Gaussians(means, quats, scales, opacities, sh, g.owner)
 
     def step():
         out = renderer(gg, cam)

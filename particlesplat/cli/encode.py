@@ -33,6 +33,7 @@ from particlesplat.core.errors import OptionError, UserError, one_line, short_re
 from particlesplat.core.viewpoints import default_context_views
 from particlesplat.data import Scene, read_scene
 from particlesplat.data.scene import TRANSFORMS
+from particlesplat.editing.grouping import ObjectCentre
 from particlesplat.model import Particles, ParticleSplat
 from particlesplat.model.geometry import stack_cameras
 
@@ -45,7 +46,8 @@ def find_scenes(root: str | PathLike) -> list[Path]:
         raise FileNotFoundError(f"{root}: no such folder")
     if (root / TRANSFORMS).is_file():
         return [root]
-    found, seen = [], {}
+    found: list[Path] = []
+    seen: dict[str, str] = {}
     for folder, subdirs, files in os.walk(root, followlinks=True):  # symlinked scene folders count
         real = os.path.realpath(folder)
         if real in seen:  # a symlink to a folder already found (or a cycle): encoded once, under its first path
@@ -78,7 +80,8 @@ def encode_batch(model: ParticleSplat, scenes: list[Scene]) -> list[Particles]:
     has_depth = [s.depth is not None for s in scenes]
     if any(has_depth) and not all(has_depth):
         raise ValueError("encode_batch: scenes with and without depth in one batch")
-    depth = torch.stack([s.depth for s in scenes]).to(dev) if all(has_depth) else None
+    depths = [s.depth for s in scenes if s.depth is not None]
+    depth = torch.stack(depths).to(dev) if len(depths) == len(scenes) else None
     cams = [stack_cameras(s.cameras, device=dev) for s in scenes]
     K = torch.stack([k for k, _ in cams])
     c2w = torch.stack([c for _, c in cams])
@@ -149,7 +152,7 @@ def encode_folder(
     *,
     context: list[int] | None = None,
     batch: int = 1,
-    object_centre: str = "resting",
+    object_centre: ObjectCentre = "resting",
     meta: dict | None = None,
     progress: bool = True,
     force: bool = False,

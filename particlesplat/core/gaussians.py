@@ -105,7 +105,10 @@ class Gaussians:
         k = max(p.sh.shape[1] for p in parts)
         shs = [torch.nn.functional.pad(p.sh, (0, 0, 0, k - p.sh.shape[1])) for p in parts]
         return Gaussians(
-            *(torch.cat([getattr(p, f) for p in parts]) for f in ("means", "quats", "scales", "opacities")),
+            torch.cat([p.means for p in parts]),
+            torch.cat([p.quats for p in parts]),
+            torch.cat([p.scales for p in parts]),
+            torch.cat([p.opacities for p in parts]),
             torch.cat(shs),
             torch.cat([p.owner for p in parts]),
         )

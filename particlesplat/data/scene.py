@@ -131,14 +131,15 @@ class RawScene:
             depth = torch.stack(
                 [
                     torch.zeros(size[1], size[0])
-                    if self.depth[i] is None
-                    else _resize_nearest(self.depth[i], size, torch.float32)
+                    if (d := self.depth[i]) is None
+                    else _resize_nearest(d, size, torch.float32)
                     for i in idx
                 ]
             )[:, None]
         masks = None
-        if self.has_masks:
-            masks = torch.stack([_resize_nearest(self.masks[i], size, torch.int64) for i in idx])
+        if self.has_masks:  # every frame has one
+            present = [m for m in (self.masks[i] for i in idx) if m is not None]
+            masks = torch.stack([_resize_nearest(m, size, torch.int64) for m in present])
         cams = [self.cameras[i].resized(*size) for i in idx]  # new objects: the cache stays untouched
         return Scene(rgb, depth, masks, cams, self.path, idx)
 

@@ -109,7 +109,6 @@ def reexpress(
     its new view."""
     cfg = model.config
     delta = torch.as_tensor(delta, dtype=torch.float64).reshape(3)
-    extra = [f for f in Particles.row_fields() if f not in ("z_p", "z_s", "z_d", "view", *LATENTS)]
     rows: dict[str, list[Tensor]] = {k: [] for k in Particles.row_fields()}
     for i in members:
         ca = src.cameras[int(src.view[i])].to("cpu", torch.float64)
@@ -138,15 +137,18 @@ def reexpress(
         for name in LATENTS:
             rows[name].append(getattr(src, name)[i].detach().cpu().to(dtype))
         rows["view"].append(torch.tensor(vb, dtype=dst.view.dtype))
-        for name in extra:  # any other per-particle field (e.g. observed cells) moves with the particle
-            if getattr(src, name) is not None:
-                rows[name].append(getattr(src, name)[i].detach().cpu())
     dev = dst.z_p.device
-    new = {k: torch.stack(v).to(dev) if v else None for k, v in rows.items()}
-    for name in extra:
-        if (new[name] is None) != (getattr(dst, name) is None):
-            raise ValueError(f"insert: the scenes' particles differ in {name} (one has it, the other not)")
-    return replace(dst, **new)
+    new = {k: torch.stack(v).to(dev) for k, v in rows.items()}
+    return replace(
+        dst,
+        z_p=new["z_p"],
+        z_s=new["z_s"],
+        z_d=new["z_d"],
+        z_e=new["z_e"],
+        z_t=new["z_t"],
+        z_f=new["z_f"],
+        view=new["view"],
+    )
 
 
 def insert_object(

@@ -40,7 +40,7 @@ SUPPORT_OPACITY = 0.5  # background Gaussians at least this opaque define the su
 TOP_QUANTILE = 0.95  # an object's top: this quantile of its opaque Gaussians' heights
 
 ObjectCentre = Literal["resting", "weighted"]
-OBJECT_CENTRES: tuple[str, ...] = ("resting", "weighted")
+OBJECT_CENTRES: tuple[ObjectCentre, ...] = ("resting", "weighted")
 
 
 def touching_counts(means: Tensor, radius: Tensor, owner: Tensor, num_particles: int) -> Tensor:

@@ -15,7 +15,7 @@ import os
 from os import PathLike
 from pathlib import Path
 from types import MappingProxyType
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import torch
@@ -70,11 +70,19 @@ class PlyFields(NamedTuple):
 class GaussianFields(Protocol):
     """What :func:`write_ply` needs of a set of Gaussians (``particlesplat.Gaussians`` has it)."""
 
-    num: int
+    means: torch.Tensor
+    quats: torch.Tensor
+    scales: torch.Tensor
+    opacities: torch.Tensor
+    sh: torch.Tensor
+    owner: torch.Tensor
+
+    @property
+    def num(self) -> int: ...
 
     def detach(self) -> GaussianFields: ...
 
-    def to(self, *args) -> GaussianFields: ...
+    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> GaussianFields: ...
 
 
 def _read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]]]:
@@ -138,9 +146,9 @@ def read_ply(path: str | PathLike) -> PlyFields:
         if not elements or elements[0][0] != "vertex":
             raise PlyError(f"{path}: the first element must be 'vertex'")
         _, n, props = elements[0]
-        names = [name for name, _ in props]
-        if len(set(names)) != len(names):
-            dup = next(name for name in names if names.count(name) > 1)
+        listed = [name for name, _ in props]
+        if len(set(listed)) != len(listed):
+            dup = next(name for name in listed if listed.count(name) > 1)
             raise PlyError(f"{path}: property '{one_line(dup, 40)}' is declared twice in element 'vertex'")
         if not props:
             raise PlyError(f"{path}: element 'vertex' has no properties")
@@ -151,7 +159,8 @@ def read_ply(path: str | PathLike) -> PlyFields:
     if raw is None or len(raw) < n * dtype.itemsize:
         size = available if raw is None else len(raw)
         got, partial = divmod(size, dtype.itemsize)
-        first_missing = next(name for name, _ in props if dtype.fields[name][1] + dtype[name].itemsize > partial)
+        fields: dict[str, Any] = dict(dtype.fields or {})  # a structured dtype: name -> (dtype, byte offset)
+        first_missing = next(name for name, _ in props if fields[name][1] + dtype[name].itemsize > partial)
         raise PlyError(
             f"{path}: truncated: header declares {n} vertices ({n * dtype.itemsize} bytes), "
             f"file holds {size} bytes (vertex {got}, property '{first_missing}' onwards missing)"

@@ -37,12 +37,16 @@ def camera_text(camera: Camera) -> str:
 def png_text(camera: Camera, edits: str | dict, model: str, extra: dict[str, str] | None = None) -> dict[str, str]:
     """Text chunks: Software, camera (JSON), edits, model, extras. ``edits``: a whole edit file as YAML text (what
     ``particlesplat render --edits-from`` replays), or version 1 edits (particle index -> values) written as one."""
-    if not isinstance(edits, str):
-        edits = yaml.safe_dump({int(i): {k: list(v) for k, v in a.items()} for i, a in edits.items()}, sort_keys=True)
+    if isinstance(edits, str):
+        edits_text = edits
+    else:
+        edits_text = yaml.safe_dump(
+            {int(i): {k: list(v) for k, v in a.items()} for i, a in edits.items()}, sort_keys=True
+        )
     text = {
         "Software": "ParticleSplat Studio",
         "camera": camera_text(camera),
-        "edits": edits,
+        "edits": edits_text,
         "model": model,
     }
     text.update(extra or {})

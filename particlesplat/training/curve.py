@@ -52,7 +52,7 @@ def plot_curve(rows: list[tuple[int, float, float]], title: str = "") -> Image.I
     psnrs = [r[1] for r in rows]
     p_lo, p_hi = min(15.0, min(psnrs)), max(30.0, max(psnrs))
 
-    def px(step: int) -> float:
+    def px(step: float) -> float:
         return x0 + (x1 - x0) * step / s_max
 
     def py(value: float, lo: float, hi: float) -> float:

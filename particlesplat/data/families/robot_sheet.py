@@ -31,7 +31,9 @@ def contact_sheet(scene_dirs: list[Path], views: list[int], thumb: int = 96) -> 
         tiles = [Image.open(d / frames[v]["file_path"]).convert("RGB").resize((thumb, thumb)) for v in views]
         mid = views[len(views) // 2]
         mask = np.asarray(Image.open(d / frames[mid]["instance_mask_path"]))
-        tiles.append(Image.fromarray(MASK_COLOURS[mask % len(MASK_COLOURS)]).resize((thumb, thumb), Image.NEAREST))
+        tiles.append(
+            Image.fromarray(MASK_COLOURS[mask % len(MASK_COLOURS)]).resize((thumb, thumb), Image.Resampling.NEAREST)
+        )
         rows.append(np.concatenate([np.asarray(t) for t in tiles], axis=1))
     return Image.fromarray(np.concatenate(rows, axis=0))
 

@@ -121,7 +121,8 @@ def _place_object(rng: np.random.Generator, others: list[TabletopObject], tries:
         r = float(rng.uniform(*SIZE_RANGE))
         size, yaw = (r, r, r), 0.0
     elif shape == "box":
-        size, yaw = tuple(float(s) for s in rng.uniform(*SIZE_RANGE, size=3)), float(rng.uniform(-math.pi, math.pi))
+        sx, sy, sz = (float(s) for s in rng.uniform(*SIZE_RANGE, size=3))
+        size, yaw = (sx, sy, sz), float(rng.uniform(-math.pi, math.pi))
     else:
         r, h = (float(s) for s in rng.uniform(*SIZE_RANGE, size=2))
         size, yaw = (r, r, h), 0.0
@@ -305,6 +306,7 @@ def render_view(
     origin = c2w[:3, 3]
     sub = pixel_rays(K, c2w, width, height, (0.25, 0.75))
     colour, _, _ = trace(scene, origin, sub.reshape(-1, 3))
+    assert colour is not None  # traced with shading
     rgb = colour.reshape(height, 2, width, 2, 3).mean(axis=(1, 3))
     centre = pixel_rays(K, c2w, width, height, (0.5,))
     _, depth, inst = trace(scene, origin, centre.reshape(-1, 3), shade=False)
