@@ -9,8 +9,13 @@ import pytest
 from particlesplat.cli.main import COMMANDS, main
 
 
+SUBCOMMANDS = {"object": ("export", "insert"), "scene": ("check",)}
+
+
 @pytest.mark.parametrize(
-    "argv", [[c] for c in COMMANDS if c not in ("bench", "object")] + [["object", "export"], ["object", "insert"]]
+    "argv",
+    [[c] for c in COMMANDS if c != "bench" and c not in SUBCOMMANDS]
+    + [[c, sub] for c, subs in SUBCOMMANDS.items() for sub in subs],
 )
 def test_help_states_each_default_once(argv, capsys):
     with pytest.raises(SystemExit) as e:
