@@ -8,7 +8,6 @@ import pytest
 
 from particlesplat.cli.main import COMMANDS, main
 
-
 SUBCOMMANDS = {"object": ("export", "insert"), "scene": ("check",)}
 
 
