@@ -71,7 +71,12 @@ def test_wheel_holds_the_model_the_scenes_and_the_shaders(wheel: Path) -> None:
     shaders = {p.name for p in (ROOT / "shaders").iterdir() if p.suffix in (".vert", ".frag", ".glsl", ".geom")}
     assert shaders and {f"viewer/shaders/{s}" for s in shaders} <= names
     # every file of every demo scene, byte for byte the ones in the repository
-    scenes = sorted(p for p in (ROOT / "assets" / "scenes").rglob("*") if p.is_file() and "__pycache__" not in p.parts)
+    scenes = sorted(
+        p
+        for folder in (ROOT / "assets" / "scenes", ROOT / "assets" / "robot" / "scenes")
+        for p in folder.rglob("*")
+        if p.is_file() and "__pycache__" not in p.parts
+    )
     assert scenes
     with zipfile.ZipFile(wheel) as z:
         for p in scenes:
