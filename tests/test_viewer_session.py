@@ -61,7 +61,7 @@ def test_move_object_moves_every_member_as_one_undo_step(encoded):
 
     model, enc = encoded
     s = SceneSession(model, enc)
-    s._objects = torch.tensor([0, 1, 0, 3, 4, 5])[: s.num_particles]  # particles 0 and 2: one object
+    s.editor._objects = torch.tensor([0, 1, 0, 3, 4, 5])[: s.num_particles]  # particles 0 and 2: one object
     assert s.object_members(2) == [0, 2]
     before = anchor_points(s.particles, [0, 2], model.config)
     for _ in range(3):  # a drag of three steps of 0.05 m along x
@@ -170,3 +170,21 @@ def test_numbered_files_never_overwrite(tmp_path):
     ]
     # a screenshot has the permissions of any new file (the umask's), not a temporary file's 0600
     assert a.stat().st_mode == (tmp_path / "particlesplat_0001.png").stat().st_mode
+
+
+def test_the_session_holds_an_editor_and_passes_its_whole_api_on(encoded):
+    """Composition, not inheritance: every public name of SceneEditor (but objects, which a .ply answers itself)
+    is passed on, and a .ply is a PlyScene with an editor that holds no particles."""
+    from particlesplat.editing.editor import SceneEditor
+    from viewer.random_gaussians import random_gaussians
+    from viewer.session import EDITOR_API, PlyScene
+
+    model, enc = encoded
+    s = SceneSession(model, enc)
+    assert not isinstance(s, SceneEditor) and isinstance(s.editor, SceneEditor) and s.ply is None
+    public = {n for n in dir(SceneEditor) if not n.startswith("_")} - {"objects"}
+    assert public <= set(EDITOR_API)
+    s.set_attribute(1, "z_p", [0.1, 0.2])
+    assert s.editor.value(1, "z_p") == s.value(1, "z_p") and len(s.editor.history.undo) == 1
+    ply = SceneSession(gaussians=random_gaussians(20, seed=3), source="x.ply")
+    assert isinstance(ply.ply, PlyScene) and not ply.editable and ply.num_particles == 0

@@ -1,10 +1,11 @@
-"""The scene session: a :class:`particlesplat.editing.editor.SceneEditor` (particles, their edits as do/undo
-operations, objects picked and moved in world metres) plus what only the viewer needs (a fixed .ply,
-names for files).
+"""The scene session: what the viewer shows and edits. It holds a
+:class:`particlesplat.editing.editor.SceneEditor` (particles, their edits as do/undo operations, objects picked and
+moved in world metres) for a model scene, or a :class:`PlyScene` (a fixed Gaussian set) for a .ply, plus what only
+the viewer needs (names and identity for files, autosaves).
 
-Panels and mouse tools change the session only through its methods; the renderer asks
-:meth:`SceneSession.take_changes` which owners to re-decode, so an edit re-decodes only the
-edited particles.
+Panels and mouse tools change the session only through its methods (the editor's, which it passes on:
+:data:`EDITOR_API`); the renderer asks :meth:`SceneSession.take_changes` which owners to re-decode, so an edit
+re-decodes only the edited particles.
 """
 
 from __future__ import annotations
@@ -28,9 +29,85 @@ from particlesplat.editing.scene_id import resolved, scene_digest
 
 AUTOSAVE_DIR = ".particlesplat-autosave"  # under the viewer's --output-dir
 
+# what the session passes on to its editor (a .ply's editor holds no particles: nothing to edit)
+EDITOR_API = (
+    "model",
+    "particles",
+    "original",
+    "history",
+    "context",
+    "frame_cameras",
+    "version",
+    "editable",
+    "num_particles",
+    "active_threshold",
+    "value",
+    "original_value",
+    "origin",
+    "is_active",
+    "edits",
+    "decode",
+    "object_members",
+    "object_offset",
+    "object_centre",
+    "support_height",
+    "take_changes",
+    "object_map",
+    "pick",
+    "pick_for",
+    "set_attribute",
+    "move_object",
+    "remove_object",
+    "duplicate_object",
+    "insert_object",
+    "end_gesture",
+    "reset_particle",
+    "set_edits",
+    "undo",
+    "redo",
+    "apply_op",
+    "apply_file",
+    "operations",
+    "save",
+    "edit_text",
+)
 
-class SceneSession(SceneEditor):
-    """What is being viewed: either a model's particles (editable) or a fixed Gaussian set (.ply).
+
+class PlyScene:
+    """A fixed Gaussian set opened from a .ply: drawn as it is, nothing to edit; each owner id it stores is its
+    own object (a plain 3DGS file stores none: everything is background).
+
+    Args:
+        gaussians: the Gaussians (checked finite; kept on the CPU).
+        source: the .ply path (named in errors).
+    """
+
+    def __init__(self, gaussians: Gaussians, source: str = "") -> None:
+        gaussians.check(source or "Gaussians")  # the GL renderer would draw NaN as nothing, or everything
+        self.gaussians = gaussians.detach().to("cpu")
+        self._owner_ids: list[int] | None = None
+
+    def num_owners(self) -> int:
+        """Max owner + 1 (0 without owners)."""
+        return int(self.gaussians.owner.max()) + 1 if self.gaussians.num else 0
+
+    def owner_ids(self) -> list[int]:
+        """The distinct owners >= 0, ascending."""
+        if self._owner_ids is None:
+            self._owner_ids = [int(o) for o in torch.unique(self.gaussians.owner) if int(o) >= 0]
+        return self._owner_ids
+
+    def objects(self) -> torch.Tensor:
+        """(num_owners,) each owner its own object."""
+        return torch.arange(self.num_owners())
+
+
+def _pass_on(name: str) -> property:
+    return property(lambda self: getattr(self.editor, name), doc=f"The editor's ``{name}`` (:class:`SceneEditor`).")
+
+
+class SceneSession:
+    """What is being viewed: a model's particles (an editor: editable) or a fixed Gaussian set (a .ply).
 
     Args:
         model: a ParticleSplat model (needed for particles).
@@ -38,6 +115,10 @@ class SceneSession(SceneEditor):
         gaussians: a fixed Gaussian set (a .ply), used when ``encoded`` is None.
         model_name: how the model is named in screenshots and edits files.
         source: the scene folder or .ply path.
+
+    Attributes:
+        editor: the scene's :class:`SceneEditor` (for a .ply, one without particles).
+        ply: the .ply's :class:`PlyScene`, or None for a model scene.
     """
 
     def __init__(
@@ -52,7 +133,7 @@ class SceneSession(SceneEditor):
             raise ValueError("SceneSession needs an encoded scene or a Gaussian set")
         if encoded is not None and model is None:
             raise ValueError("SceneSession: an encoded scene needs its model")
-        super().__init__(
+        self.editor = SceneEditor(
             model,
             encoded.particles if encoded is not None else None,
             encoded.all_cameras if encoded is not None else [],
@@ -61,10 +142,7 @@ class SceneSession(SceneEditor):
         self.encoded = encoded
         self.model_name = model_name
         self.source = source
-        if gaussians is not None:
-            gaussians.check(source or "Gaussians")  # the GL renderer would draw NaN as nothing, or everything
-        self._fixed = gaussians.detach().to("cpu") if gaussians is not None else None
-        self._owner_ids: list[int] | None = None
+        self.ply = PlyScene(gaussians, source) if encoded is None and gaussians is not None else None
         self._saved_token = self._history_token()
         self._digest: str | None = None
 
@@ -90,31 +168,21 @@ class SceneSession(SceneEditor):
 
     def num_owners(self) -> int:
         """P for owner maps: particles, or max owner + 1 of a .ply."""
-        if self.particles is not None:
-            return self.particles.num
-        return int(self._fixed.owner.max()) + 1 if self._fixed.num else 0
+        return self.ply.num_owners() if self.ply is not None else self.editor.num_particles
 
     def owner_ids(self) -> list[int]:
         """The owners >= 0 the scene holds, ascending: every particle, or the distinct owners of a .ply."""
-        if self.particles is not None:
-            return list(range(self.particles.num))
-        if self._owner_ids is None:
-            self._owner_ids = [int(o) for o in torch.unique(self._fixed.owner) if int(o) >= 0]
-        return self._owner_ids
+        return self.ply.owner_ids() if self.ply is not None else list(range(self.editor.num_particles))
 
     # ------------------------------------------------------------------ Gaussians
     def gaussians(self) -> Gaussians:
         """All Gaussians of the current state (particles with edits, plus background)."""
-        if self._fixed is not None:
-            return self._fixed
-        return self.decode()
+        return self.ply.gaussians if self.ply is not None else self.editor.decode()
 
     def objects(self) -> torch.Tensor:
         """(num_owners,) int64 object label per particle (:meth:`SceneEditor.objects`); a .ply has no
         particles to group: each owner is its own object."""
-        if self._fixed is not None:
-            return torch.arange(self.num_owners())
-        return super().objects()
+        return self.ply.objects() if self.ply is not None else self.editor.objects()
 
     def particle_gaussians(self, index: int) -> Gaussians:
         """The Gaussians of one particle (owner = index), decoded alone (none if it is inactive)."""
@@ -201,3 +269,7 @@ class SceneSession(SceneEditor):
             self.set_edits(file.particles, label=f"load {Path(path).name}")
         self._saved_token = self._history_token()
         return scene_mismatch(file, self.source, self.context) if self.source else None
+
+
+for _name in EDITOR_API:
+    setattr(SceneSession, _name, _pass_on(_name))
