@@ -63,7 +63,7 @@ def test_pick_selects_the_dominant_particle(app):
     res = render(g, cam, owner_weights=True, num_owners=app.session.num_owners())
     margin = res.owner_weights.max(0).values - (res.background_weight + 1.0 - res.alpha)
     y, x = np.unravel_index(int(margin.argmax()), margin.shape)
-    app.controls.pick(app, float(x), float(y))
+    app.controls.pick(app.viewport(), float(x), float(y))
     assert app.state.selected == int(res.owner_weights[:, y, x].argmax())
     app.state.seg_mode = "normal"
 

@@ -32,7 +32,7 @@ from particlesplat.core.viewpoints import (
 )
 from particlesplat.editing.open_scene import add_source_arguments, check_source_arguments  # noqa: E402
 
-from .controls import ViewportControls  # noqa: E402
+from .controls import Viewport, ViewportControls  # noqa: E402
 from .gl_caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
 from .gl_renderer import SplatRenderer  # noqa: E402
 from .loading import load_session, particle_swatches  # noqa: E402
@@ -172,7 +172,7 @@ class App:
             self.particle_overlay.draw(self.session, self.state.seg_mode, self.view_camera(1.0), self.pixel_ratio())
             if message:
                 self.fields.status = message
-            self.controls.handle(self)
+            self.controls.handle(self.viewport())
             if self.state.panel:
                 if self.session.num_particles != self._swatched:  # copies and inserted objects get theirs
                     self.swatches, self._swatched = particle_swatches(self.session), self.session.num_particles
@@ -243,6 +243,27 @@ class App:
         return lines
 
     # ------------------------------------------------------------------ input
+    def viewport(self) -> Viewport:
+        """What the controls work on this frame: the orbit camera, state, session, requests, the viewing camera,
+        the picker and the status line."""
+
+        def status(message: str) -> None:
+            self.fields.status = message
+
+        return Viewport(
+            orbit=self.orbit,
+            state=self.state,
+            session=self.session,
+            requests=self.req,
+            camera=lambda: self.view_camera(1.0),
+            pick=lambda x, y: self.scene_view.pick(self.session, self.view_camera(1.0), x, y),
+            status=status,
+            pixel_ratio=self.pixel_ratio(),
+            height=self.framebuffer_size()[1],
+            copy_offset=self.fields.objects.copy_offset,
+            gizmo_capturing=self.gizmo.capturing,
+        )
+
     def pixel_ratio(self) -> tuple[float, float]:
         """Framebuffer pixels per window coordinate (HiDPI)."""
         ww, wh = glfw.get_window_size(self.window)
