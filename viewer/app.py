@@ -32,6 +32,7 @@ from particlesplat.core.viewpoints import (
 )
 from particlesplat.editing.open_scene import add_source_arguments, check_source_arguments  # noqa: E402
 
+from .commands import carry_out, save_edits  # noqa: E402
 from .controls import Viewport, ViewportControls  # noqa: E402
 from .gl_caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
 from .gl_renderer import SplatRenderer  # noqa: E402
@@ -41,7 +42,7 @@ from .panel import UiFields, UiRequests, clear_of_panel, draw_overlay, draw_pane
 from .particle_overlay import ParticleOverlay  # noqa: E402
 from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noqa: E402
 from .scene_view import SceneView  # noqa: E402
-from .screenshot import export_ply, png_text, save_png, save_screenshot  # noqa: E402
+from .screenshot import png_text, save_png, save_screenshot  # noqa: E402
 from .session import SceneSession  # noqa: E402
 from .signals import SignalStop, raise_on_stop_signals  # noqa: E402
 from .state import ViewState  # noqa: E402
@@ -272,58 +273,16 @@ class App:
 
     # ------------------------------------------------------------------ requests
     def process_requests(self) -> bool:
-        """Carry out the panel's requests; returns whether there were any."""
+        """Carry out the panel's requests (:mod:`viewer.commands`); returns whether there were any."""
         req, self.req = self.req, UiRequests()
         if req == UiRequests():
             return False
-        try:
-            if req.reset_view:
-                self.orbit.reset()
-            if req.snap_camera is not None and req.snap_camera < len(self.session.cameras):
-                self.orbit.snap(self.session.cameras[req.snap_camera])
-            if req.open_path:
-                self.open(req.open_path)
-            if req.save_edits:
-                self.save_edits()
-            if req.load_edits:
-                warning = self.session.load_edits(self.fields.edits_path)
-                self.fields.status = f"loaded edits from {Path(self.fields.edits_path).resolve()}" + (
-                    f"; warning: {warning}" if warning else ""
-                )
-            if req.screenshot:
-                path = self.screenshot_numbered()
-                self.fields.status = f"saved screenshot {Path(path).resolve()}"
-            if req.export_ply:
-                path = export_ply(self.fields.output_dir, self.scene_view.visible_gaussians(self.session, self.state))
-                self.fields.status = f"exported {Path(path).resolve()}"
-            if req.insert and self.session.editable:
-                from .panels.insert import insert_from_fields
-
-                self.state.selected, self.fields.status = insert_from_fields(self.session, self.fields.insert)
-            if req.export_object and self.state.selected is not None and self.session.editable:
-                members = self.session.object_members(self.state.selected)  # its Gaussians, as drawn
-                g = self.session.model.decode(self.session.particles, torch.tensor(members), background=False)
-                g = g.subset(g.opacities >= self.state.prune).detach().to("cpu")
-                path = export_ply(self.fields.output_dir, g)
-                self.fields.status = f"exported object of particles {members} to {Path(path).resolve()}"
-        except Exception as e:  # noqa: BLE001 - a bad path or file must not close the app: show it
-            self.fields.status = f"error: {e}"
+        carry_out(self, req)
         return True
 
     def save_edits(self) -> Path | None:
-        """Save the edits to the 'edits YAML' path. A file that holds another scene's edits (or is no edit file)
-        is not replaced: the status line says so, and a second Save to the same path replaces it."""
-        path = self.fields.edits_path
-        conflict = self.session.foreign_edit_file(path)
-        target = str(Path(path).resolve())
-        if conflict and self.fields.confirm_overwrite != target:
-            self.fields.confirm_overwrite = target
-            self.fields.status = f"error: not saved: {conflict}. Save again to replace it, or choose another path"
-            return None
-        self.fields.confirm_overwrite = None
-        out = self.session.save_edits(path)
-        self.fields.status = f"saved {len(self.session.history.undo)} edit operation(s) to {out.resolve()}"
-        return out
+        """Save the edits to the 'edits YAML' path (:func:`viewer.commands.save_edits`)."""
+        return save_edits(self.session, self.fields)
 
     def keep_unsaved(self) -> Path | None:
         """Autosave the session's unsaved edits (before it is replaced or the window closes); returns the file."""

@@ -1,0 +1,87 @@
+"""The UI requests of a frame (:class:`viewer.panel.UiRequests`), carried out after it: view resets and snaps,
+opening a scene, saving and loading edits, screenshots, exports and inserts. A failure becomes the status line's
+error: a bad path or file never closes the viewer."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
+
+import torch
+
+from .screenshot import export_ply
+
+if TYPE_CHECKING:
+    from .orbit import OrbitCamera
+    from .panel import UiFields, UiRequests
+    from .scene_view import SceneView
+    from .session import SceneSession
+    from .state import ViewState
+
+
+class CommandHost(Protocol):
+    """What the commands use of the app: its scene, view and fields, opening a scene, a numbered screenshot."""
+
+    orbit: OrbitCamera
+    session: SceneSession
+    state: ViewState
+    fields: UiFields
+    scene_view: SceneView
+
+    def open(self, path: str) -> None: ...
+
+    def screenshot_numbered(self) -> Path: ...
+
+
+def carry_out(host: CommandHost, req: UiRequests) -> None:
+    """Do what ``req`` asks, in a fixed order; the status line says what was done, or the error."""
+    fields = host.fields
+    try:
+        if req.reset_view:
+            host.orbit.reset()
+        if req.snap_camera is not None and req.snap_camera < len(host.session.cameras):
+            host.orbit.snap(host.session.cameras[req.snap_camera])
+        if req.open_path:
+            host.open(req.open_path)
+        if req.save_edits:
+            save_edits(host.session, fields)
+        if req.load_edits:
+            warning = host.session.load_edits(fields.edits_path)
+            fields.status = f"loaded edits from {Path(fields.edits_path).resolve()}" + (
+                f"; warning: {warning}" if warning else ""
+            )
+        if req.screenshot:
+            path = host.screenshot_numbered()
+            fields.status = f"saved screenshot {Path(path).resolve()}"
+        if req.export_ply:
+            path = export_ply(fields.output_dir, host.scene_view.visible_gaussians(host.session, host.state))
+            fields.status = f"exported {Path(path).resolve()}"
+        if req.insert and host.session.editable:
+            from .panels.insert import insert_from_fields
+
+            host.state.selected, fields.status = insert_from_fields(host.session, fields.insert)
+        if req.export_object and host.state.selected is not None and host.session.editable:
+            session = host.session
+            members = session.object_members(host.state.selected)  # its Gaussians, as drawn
+            g = session.model.decode(session.particles, torch.tensor(members), background=False)
+            g = g.subset(g.opacities >= host.state.prune).detach().to("cpu")
+            path = export_ply(fields.output_dir, g)
+            fields.status = f"exported object of particles {members} to {Path(path).resolve()}"
+    except Exception as e:  # noqa: BLE001 - a bad path or file must not close the app: show it
+        fields.status = f"error: {e}"
+
+
+def save_edits(session: SceneSession, fields: UiFields) -> Path | None:
+    """Save the edits to the 'edits YAML' path. A file that holds another scene's edits (or is no edit file) is not
+    replaced: the status line says so, and a second Save to the same path replaces it."""
+    path = fields.edits_path
+    conflict = session.foreign_edit_file(path)
+    target = str(Path(path).resolve())
+    if conflict and fields.confirm_overwrite != target:
+        fields.confirm_overwrite = target
+        fields.status = f"error: not saved: {conflict}. Save again to replace it, or choose another path"
+        return None
+    fields.confirm_overwrite = None
+    out = session.save_edits(path)
+    fields.status = f"saved {len(session.history.undo)} edit operation(s) to {out.resolve()}"
+    return out
