@@ -1,0 +1,39 @@
+"""What the panel's sections share between frames: the requests they make of the app (carried out by
+:mod:`viewer.commands`) and the fields they hold."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .insert import InsertFields
+from .objects import ObjectFields
+
+
+@dataclass
+class UiRequests:
+    """Work the panel asks the app to do after the frame (files, scene switches)."""
+
+    open_path: str | None = None
+    screenshot: bool = False
+    export_ply: bool = False
+    export_object: bool = False  # the selected particle's object to a .ply
+    save_edits: bool = False
+    load_edits: bool = False
+    snap_camera: int | None = None
+    reset_view: bool = False
+    insert: bool = False  # an object of another scene (UiFields.insert)
+
+
+@dataclass
+class UiFields:
+    """Persistent text/number fields of the panel."""
+
+    scene_path: str = ""
+    edits_path: str = "edits.yaml"
+    output_dir: str = "."
+    shot_size: list[int] = field(default_factory=lambda: [0, 0])
+    insert: InsertFields = field(default_factory=InsertFields)
+    status: str = ""
+    objects: ObjectFields = field(default_factory=ObjectFields)
+    layout_size: tuple[float, float] = (0.0, 0.0)  # the window size the panel was last placed for
+    confirm_overwrite: str | None = None  # a file of another scene that a second Save may replace

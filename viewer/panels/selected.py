@@ -1,0 +1,54 @@
+"""The selected particle's section: its attributes (drag or reset), and its object (:mod:`viewer.panels.objects`)."""
+
+from __future__ import annotations
+
+from types import MappingProxyType
+from typing import TYPE_CHECKING
+
+from imgui_bundle import imgui
+
+from particlesplat.model.particles import EDITABLE
+
+from ..session import SceneSession
+from ..state import ViewState
+from .objects import draw_object_section
+
+if TYPE_CHECKING:
+    from .fields import UiFields
+
+DRAG_SPEED = MappingProxyType(
+    {"z_p": 0.005, "z_s": 0.02, "z_d": 0.02, "z_e": 0.02, "z_t": 0.005, "move": 0.005}
+)  # move: metres per pixel dragged
+
+
+def draw_selected_section(session: SceneSession, state: ViewState, fields: UiFields) -> None:
+    i = state.selected
+    if i is None or not 0 <= i < session.num_particles:
+        return
+    if not imgui.collapsing_header(f"Particle {i}", imgui.TreeNodeFlags_.default_open):
+        return
+    for name, width in EDITABLE.items():
+        value = list(session.value(i, name))
+        if width == 2:
+            changed, new = imgui.drag_float2(name, value, DRAG_SPEED[name])
+        elif name == "z_t":
+            changed, v = imgui.drag_float(name, value[0], DRAG_SPEED[name], 0.0, 1.0)
+            new = [v]
+        else:
+            changed, v = imgui.drag_float(name, value[0], DRAG_SPEED[name])
+            new = [v]
+        if changed:
+            session.set_attribute(i, name, new, gesture="panel")
+        if imgui.is_item_deactivated():
+            session.end_gesture()
+        imgui.same_line()
+        if imgui.small_button(f"reset##{name}"):
+            session.end_gesture()
+            session.set_attribute(i, name, session.original_value(i, name))
+            session.end_gesture()
+    if imgui.button("Reset particle to encoded values"):
+        session.reset_particle(i)
+    # the object: every particle of it (one per view that holds it), moved in world metres, deleted, copied
+    state.selected, message = draw_object_section(session, i, fields.objects)
+    if message:
+        fields.status = message

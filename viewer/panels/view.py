@@ -1,0 +1,56 @@
+"""The "View" section: reset, snapping to input cameras (numbered from 0), segmentation mode, pruning, render scale
+while moving, background."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from imgui_bundle import imgui
+
+from ..session import SceneSession
+from ..state import SEG_MODES, SegMode, ViewState
+
+if TYPE_CHECKING:
+    from .fields import UiRequests
+
+
+def draw_view_section(session: SceneSession, state: ViewState, req: UiRequests, counts: tuple[int, int]) -> None:
+    if not imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
+        return
+    if imgui.button("Reset view (R)"):
+        req.reset_view = True
+    cams = session.cameras
+    if cams:
+        imgui.text_wrapped(
+            "snap to input camera (numbered from 0, as --context, render --view and pick.frame in edit files)"
+            + (f"; context frames {', '.join(map(str, session.context))}" if session.context else "")
+        )
+        for i in range(len(cams)):
+            if i % 7:
+                imgui.same_line()
+            in_context = i in (session.context or [])
+            if in_context:
+                imgui.push_style_color(imgui.Col_.button, imgui.ImVec4(0.2, 0.5, 0.3, 1.0))
+            if imgui.small_button(f"{i:2d}##cam{i}"):
+                req.snap_camera = i
+            if in_context:
+                imgui.pop_style_color()
+    changed, idx = imgui.combo("segmentation", SEG_MODES.index(state.seg_mode), [m.value for m in SEG_MODES])
+    if changed:
+        state.seg_mode = SEG_MODES[idx]
+    if not session.editable and state.seg_mode is not SegMode.NORMAL:
+        imgui.text_wrapped(
+            "a .ply holds Gaussians, not particles: the particle and object modes show the owner ids it stores "
+            + ("(this file stores none, so everything is background)" if not session.owner_ids() else "")
+            + "; keypoints and boxes need a model scene"
+        )
+    changed, value = imgui.slider_float("prune opacity", state.prune, 0.0, 1.0, "%.3f")
+    if changed:
+        state.prune = max(0.0, value)
+    imgui.text(f"Gaussians drawn: {counts[0]:,} of {counts[1]:,}")
+    changed, value = imgui.slider_float("scale while moving", state.moving_scale, 0.25, 1.0, "%.2f")
+    if changed:
+        state.moving_scale = value
+    changed, col = imgui.color_edit3("background", list(state.background))
+    if changed:
+        state.background = tuple(float(c) for c in col)
