@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from imgui_bundle import imgui
 
-from particlesplat.editing.move import MoveError
+from particlesplat.editing.move import MoveError, stop_at_support
 
 from .panels.objects import duplicate_selected, remove_selected
 from .state import SEG_MODES
@@ -147,7 +147,8 @@ class ViewportControls:
 
     def lift_object(self, vp: Viewport, index: int, dy: float) -> None:
         """Move the object of particle ``index`` up or down (world Z) with a vertical drag of ``dy``
-        framebuffer pixels (up = up), by the metres a pixel spans at the object's depth."""
+        framebuffer pixels (up = up), by the metres a pixel spans at the object's depth; it stops at the
+        surface it rests on (:func:`particlesplat.editing.move.stop_at_support`)."""
         from .tools.object_tools import object_centre
 
         centre = object_centre(vp.session, index)
@@ -155,8 +156,16 @@ class ViewportControls:
             return
         cam = vp.camera()
         depth = float(cam.world_to_camera(centre[None].to(cam.K.dtype))[0, 2].clamp_min(1e-3))
+        dz = -dy * depth / float(cam.fy)
+        bottom = vp.session.object_bottom(index)
+        if bottom is not None:
+            dz = stop_at_support(dz, bottom, vp.session.support_height())
+        if dz == 0.0:
+            if dy > 0:
+                vp.status("the object rests on the surface: it goes no lower")
+            return
         try:
-            vp.session.move_object(index, [0.0, 0.0, -dy * depth / float(cam.fy)], gesture="lift-drag")
+            vp.session.move_object(index, [0.0, 0.0, dz], gesture="lift-drag")
         except MoveError as e:
             vp.status(f"error: {e}")
 

@@ -50,6 +50,7 @@ EDITOR_API = (
     "object_members",
     "object_offset",
     "object_centre",
+    "object_bottom",
     "support_height",
     "take_changes",
     "object_map",

@@ -45,6 +45,7 @@ from particlesplat.core.atomic import atomic_write
 from particlesplat.core.camera import Camera
 from particlesplat.core.errors import short_repr
 from particlesplat.editing.grouping import (
+    OPAQUE,
     dense_objects,
     drawing_particles,
     members_centre,
@@ -71,6 +72,7 @@ if TYPE_CHECKING:
 FORMAT_VERSION = 2
 OpKind = Literal["translate", "remove", "duplicate", "set", "insert"]
 OBJECT_KINDS: tuple[OpKind, ...] = ("translate", "remove", "duplicate")
+BOTTOM_QUANTILE = 0.02  # an object's bottom: this quantile of its opaque Gaussians' heights
 MIN_PICK_PIXELS = 2  # an object must cover this many pixels of a frame to be picked there when saving
 
 
@@ -516,6 +518,14 @@ class SceneEditor:
         (:func:`particlesplat.editing.grouping.members_centre`, as ``particlesplat encode`` and ``eval`` place
         objects), or None if it draws nothing."""
         return members_centre(self.model, self.particles, self.object_members(index), self.support_height())
+
+    def object_bottom(self, index: int) -> float | None:
+        """World height (metres) of the lowest part of particle ``index``'s object as drawn now: the
+        ``BOTTOM_QUANTILE`` of its opaque Gaussians' centres (a few stray ones do not count); None if it draws
+        nothing opaque."""
+        g = self.model.decode(self.particles, torch.tensor(self.object_members(index)), background=False)
+        z = g.means[:, 2][g.opacities >= OPAQUE].detach().double()
+        return float(torch.quantile(z, BOTTOM_QUANTILE)) if z.numel() else None
 
     def object_offset(self, index: int) -> tuple[float, float, float]:
         """World offset (metres) of particle ``index``'s anchor from where it (or what it copies) was encoded."""

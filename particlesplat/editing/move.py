@@ -69,3 +69,10 @@ def translate(
             "z_s": tuple(float(v) for v in torch.logit(scale)),
         }
     return out
+
+
+def stop_at_support(dz: float, bottom: float, support: float) -> float:
+    """The vertical move (metres, +z up) allowed of a requested ``dz`` for an object whose lowest opaque point is
+    at height ``bottom``, so that it stops at the support surface at height ``support``: any move up, a move down
+    at most to the surface, none down if it is already under it."""
+    return max(float(dz), min(0.0, float(support) - float(bottom)))
