@@ -204,7 +204,8 @@ def test_demo_scenes_list_both_families(tmp_path, monkeypatch):
     import importlib.resources
 
     real = demo_scenes()
-    assert real and all(demo_scene_name(p) == p.name for p in real if p.parent.name == "scenes")
+    assert real and all(demo_scene_name(p) == p.name for p in real if p.parent.parent.name != "robot")
+    assert all(demo_scene_name(p) == f"robot/{p.name}" for p in real if p.parent.parent.name == "robot")
     for sub in ("scenes/scene_00001", "scenes/scene_00000", "robot/scenes/scene_00000", "robot/scenes/notes"):
         (tmp_path / sub).mkdir(parents=True)
     for sub in ("scenes/scene_00001", "scenes/scene_00000", "robot/scenes/scene_00000"):
