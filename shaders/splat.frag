@@ -6,7 +6,8 @@
 // COMPOSITE_FETCH (GL_EXT_shader_framebuffer_fetch): the fragment reads its pixel, where
 // attachment 0 alpha holds the transmittance T in front of this splat (cleared to 1); it adds
 // T alpha (colour, or owner weights) and multiplies T by (1 - alpha). A pixel stops before the
-// splat that would take T to <= T_MIN: T is then stored negated and later splats are discarded.
+// splat that would take T to <= T_MIN: T is then stored negated and later splats are discarded. UNORM_T
+// (the colour pass into a normalized target, which holds [0, 1]): T is stored as 0.5 + 0.5 T, 0.5 T once stopped.
 //
 // Otherwise (core GL 3.3): the fragment writes premultiplied (alpha value, alpha) and fixed-function
 // blending with factors (ONE_MINUS_DST_ALPHA, ONE) for colour and alpha adds T alpha value, where
@@ -52,11 +53,19 @@ void main() {
     float q = v_conic.x * d.x * d.x + 2.0 * v_conic.y * d.x * d.y + v_conic.z * d.y * d.y;
     float a = min(ALPHA_MAX, v_opacity * exp(-0.5 * q));
 #ifdef COMPOSITE_FETCH
+#ifdef UNORM_T
+    float T = 2.0 * OUT(0).a - 1.0;  // <= 0 once stopped
+#else
     float T = OUT(0).a;
+#endif
     if (a < ALPHA_MIN || T <= 0.0) discard;
     float t_next = T * (1.0 - a);
     if (t_next <= T_MIN) {
+#ifdef UNORM_T
+        OUT(0).a = 0.5 * T;
+#else
         OUT(0).a = -T;
+#endif
         return;
     }
     float w = T * a;
@@ -69,7 +78,11 @@ void main() {
 #else
     OUT(0).rgb += w * v_color;
 #endif
+#ifdef UNORM_T
+    OUT(0).a = 0.5 + 0.5 * t_next;
+#else
     OUT(0).a = t_next;
+#endif
 #else
     if (a < ALPHA_MIN) discard;
 #ifdef ID_PASS
@@ -78,6 +91,8 @@ void main() {
         vec3 slot = vec3(float(3 * i), float(3 * i + 1), float(3 * i + 2));
         OUT(i) = vec4(a * vec3(equal(slot, vec3(rel))), a);
     }
+#elif defined(COLOR_SCALE)
+    OUT(0) = vec4(a * v_color / COLOR_SCALE, a);  // a normalized target: the colour over COLOR_SCALE
 #else
     OUT(0) = vec4(a * v_color, a);
 #endif

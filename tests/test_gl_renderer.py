@@ -352,3 +352,36 @@ def test_bench_against_the_peer(capsys):
     assert set(rows) == {"blend", "limacv"}
     assert float(rows["limacv"].split("|")[-2]) >= 25.0  # its own rules (3 sigma, 8-bit), same image
     assert "- random 500: blend " in out and "x moving" in out
+
+
+@pytest.mark.parametrize("seed,n,deg,ps,view", [CASES[1], CASES[3]])
+def test_the_viewers_normalized_target_shows_what_torch_shows(ctx, compositing, seed, n, deg, ps, view):
+    """The viewer's 16-bit normalized colour target (the default), read back and presented by the blit into an
+    8-bit framebuffer over a background: the torch image over that background, clamped to [0, 1] as a display
+    shows it. The close case stops pixels early (fetch keeps T as 0.5 + 0.5 T, 0.5 T once stopped)."""
+    g = random_gaussians(n, seed=seed, sh_degree=deg, pixel_scale=ps)
+    az, el, dist, fov, w, h = view
+    cam = Camera.orbit((0.1, -0.2, 0.0), az, el, dist, fov_y_deg=fov, width=w, height=h)
+    bg = (0.2, 0.3, 0.4)
+    ref = render(g, cam, background=bg)
+    shown = np.clip(ref.rgb.numpy(), 0.0, 1.0)
+    r = SplatRenderer(ctx, compositing=compositing)
+    assert r.color_dtype == "nu2"
+    r.set_gaussians(g)
+    r.render(cam)
+    assert psnr(np.clip(r.read_rgb(bg), 0.0, 1.0), shown) >= 40.0
+    # no pixel off by more than a missed early stop (a splat's alpha x colour above 1 is kept: COLOR_SCALE)
+    assert np.abs(np.clip(r.read_rgb(bg), 0.0, 1.0) - shown).max() < 0.01
+    # T in 16 bits (fetch: steps of 2 / 65535) can move a pixel's early stop by a splat, as the blend path's
+    # missing stop does: within NO_STOP_GAP
+    assert np.abs(r.read_rgba()[..., 3] - ref.alpha.numpy()).max() < 1e-3 + NO_STOP_GAP
+    if compositing == "fetch" and seed == 3:  # stopped pixels are stored below 0.5
+        raw = np.frombuffer(r._color_fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)
+        assert (raw[..., 3] < 0.5).sum() > 20
+    fbo = ctx.simple_framebuffer((w, h), components=4)
+    fbo.use()
+    r.blit((0, 0, w, h), bg)
+    blitted = np.frombuffer(fbo.read(components=3), np.uint8).reshape(h, w, 3)[::-1] / 255.0
+    assert psnr(blitted, shown) >= 40.0
+    fbo.release()
+    r.release()
