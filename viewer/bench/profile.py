@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     moving = args.moving_scale or ViewState().moving_scale
     paths = [v.strip() for v in args.compositing.split(",") if v.strip()]
     ctx = moderngl.create_standalone_context(backend="egl")
-    renderers = [SplatRenderer(ctx, primitive=args.primitive, compositing=v, color_dtype="f4") for v in paths]
+    renderers = [SplatRenderer(ctx, primitive=args.primitive, compositing=v) for v in paths]  # the viewer's target
     cases = []
     for n in [int(v) for v in args.sizes.split(",") if v.strip()]:
         g = random_gaussians(n, seed=0, pixel_scale=args.pixel_scale)

@@ -2,7 +2,9 @@
 
 Random Gaussian sets (SH degree 3) seen with the peer's default camera distance and field of view (3 m, 90°)
 and scene folders (``--scenes``: the shipped model's decode, drawn as the viewer draws it) at 1280x720 on a
-headless EGL context (the window presents the same offscreen render with one blit, under 1 ms on Xvfb).
+headless EGL context. Our frame is what the viewer does for a new camera: the render into its offscreen target
+and the blit that presents it (over the background, upscaled for moving frames) into a window-sized RGBA8
+framebuffer, up to ``glFinish``; the peer draws straight into one.
 Every frame turns the camera by 1°, so every frame re-sorts and re-projects. Each compositing path
 (``--compositing fetch,blend``) and, with ``--peer DIR``, the peer (:mod:`viewer.bench.peer`: a clone of
 limacv/GaussianSplattingViewer driven from its own modules, fed the same .ply and cameras, its draw timed
@@ -53,6 +55,7 @@ class Row:
     floor_ms: float = float("nan")
     compositing: str = ""
     psnr_db: float = float("nan")
+    blit_ms: float = 0.0
     extra: dict = field(default_factory=dict)
 
 
@@ -170,30 +173,49 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _time_frames(drawers: list, cameras: list[Camera], full: list[Camera] | None = None) -> list[Row]:
-    """Median timings over ``cameras`` (the first frame is a warm-up) for each drawer. The drawers take
-    turns on every camera (in alternating order), so a change of load on a shared machine falls on all of
-    them alike. ``full``: the same poses at full size, drawn by drawers without a render scale (the peer)."""
-    times = [([], [], [], [], []) for _ in drawers]  # sort, upload, project, draw, total
+BACKGROUND = (0.1, 0.1, 0.1)  # what our frames are presented over (the viewer's default is dark)
+
+
+def _frame(r, camera: Camera, window) -> tuple[object, float]:
+    """One frame of drawer ``r``: ours renders and presents with its blit into ``window`` (a window-sized RGBA8
+    framebuffer), the peer draws (into its own RGBA8 framebuffer), both up to ``glFinish`` (ours also before the
+    blit, to time it alone: llvmpipe does not overlap the two). Returns the drawer's FrameTimes and the ms of the
+    blit (0 for the peer)."""
+    if r.compositing == "limacv":
+        return r.render(camera, finish=True), 0.0
+    ft = r.render(camera, finish=True)
+    t0 = time.perf_counter()
+    window.use()
+    r.blit((0, 0, *window.size), BACKGROUND)
+    r.ctx.finish()
+    return ft, (time.perf_counter() - t0) * 1e3
+
+
+def _time_frames(drawers: list, cameras: list[Camera], window, full: list[Camera] | None = None) -> list[Row]:
+    """Median timings over ``cameras`` (the first frame is a warm-up) for each drawer, a frame presented into
+    ``window`` (:func:`_frame`). The drawers take turns on every camera (in alternating order), so a change of
+    load on a shared machine falls on all of them alike. ``full``: the same poses at full size, drawn by drawers
+    without a render scale (the peer)."""
+    times = [([], [], [], [], [], []) for _ in drawers]  # sort, upload, project, draw, total, blit
     pick = lambda r, k: (full or cameras)[k] if r.compositing == "limacv" else cameras[k]  # noqa: E731
     for r in drawers:
-        r.render(pick(r, 0), finish=True)  # warm-up: shader compile, first upload
+        _frame(r, pick(r, 0), window)  # warm-up: shader compile, first upload
     for k in range(1, len(cameras)):
         turn = list(enumerate(drawers))
         for i, r in turn[::-1] if k % 2 else turn:
             t0 = time.perf_counter()
-            ft = r.render(pick(r, k), finish=True)
+            ft, blit = _frame(r, pick(r, k), window)
             total = (time.perf_counter() - t0) * 1e3
-            for series, v in zip(
-                times[i], (ft.sort_ms, ft.upload_ms, ft.project_ms + ft.choose_ms, ft.draw_ms, total), strict=True
-            ):
+            values = (ft.sort_ms, ft.upload_ms, ft.project_ms + ft.choose_ms, ft.draw_ms, total, blit)
+            for series, v in zip(times[i], values, strict=True):
                 series.append(v)
     med = lambda v: float(np.median(v))  # noqa: E731
     return [
         Row(
             "",
             r.visible_count,
-            *(med(v) for v in series),
+            *(med(v) for v in series[:5]),
+            blit_ms=med(series[5]),
             area_mpx=r.splat_area() / 1e6,
             primitive=r.kind,
             compositing=r.compositing,
@@ -202,31 +224,33 @@ def _time_frames(drawers: list, cameras: list[Camera], full: list[Camera] | None
     ]
 
 
-def _case(renderers: list[SplatRenderer], peer, view: View, args: argparse.Namespace) -> list[Row]:
+def _case(renderers: list[SplatRenderer], peer, view: View, args: argparse.Namespace, window) -> list[Row]:
     """Full-size frames, then the moving frames (ours at the moving render scale, the peer at full size),
-    for each drawer, all taking turns on the same camera poses."""
+    for each drawer, all taking turns on the same camera poses, ours presented into ``window``."""
     drawers = [*renderers, *([peer] if peer else [])]
     full = orbit_cameras(view, args.width, args.height, args.frames)
-    rows = _time_frames(drawers, full)
+    rows = _time_frames(drawers, full, window)
     w, h = round(args.width * args.moving_scale), round(args.height * args.moving_scale)
-    moving = _time_frames(drawers, orbit_cameras(view, w, h, args.frames), full)
+    moving = _time_frames(drawers, orbit_cameras(view, w, h, args.frames), window, full)
     for row, m in zip(rows, moving, strict=True):
         row.moving_ms = m.frame_ms
+        row.extra["moving_blit_ms"] = m.blit_ms
     return rows
 
 
 def psnr_against_torch(renderers: list, g, camera: Camera) -> list[float]:
-    """PSNR (dB) of each renderer's image of ``camera`` against :func:`particlesplat.render` (over black)."""
+    """PSNR (dB) of each renderer's image of ``camera`` against :func:`particlesplat.render` (over black), both
+    clamped to [0, 1] as a display shows them (the viewer's colour target and the peer's RGBA8 hold no more)."""
     import torch
 
     from particlesplat import render
 
     with torch.no_grad():
-        ref = render(g, camera).rgb.numpy().astype(np.float64)
+        ref = np.clip(render(g, camera).rgb.numpy().astype(np.float64), 0.0, 1.0)
     out = []
     for r in renderers:
         r.render(camera, finish=True)
-        mse = float(np.mean((r.read_rgb().astype(np.float64) - ref) ** 2))
+        mse = float(np.mean((np.clip(r.read_rgb().astype(np.float64), 0.0, 1.0) - ref) ** 2))
         out.append(float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse))
     return out
 
@@ -279,18 +303,20 @@ def _print_table(rows: list[Row], args: argparse.Namespace, paths: list[str], pe
     num = lambda v, f: "-" if v != v else format(v, f)  # noqa: E731  (NaN: not measured)
     print(
         f"| scene | Gaussians | compositing | primitive | splat area Mpx | sort ms | upload ms | "
-        f"frame ms (still) | frame ms moving ({args.moving_scale:g} scale; limacv full) | "
+        f"frame ms (still) | frame ms moving ({args.moving_scale:g} scale; limacv full) | blit ms (still / moving) | "
         f"sprite floor ms | PSNR dB |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
+        blit = "-" if r.compositing == "limacv" else f"{r.blit_ms:.1f} / {r.extra.get('moving_blit_ms', 0.0):.1f}"
         print(
             f"| {r.name} | {r.gaussians:,} | {r.compositing} | {r.primitive} | {num(r.area_mpx, '.1f')} | "
-            f"{r.sort_ms:.1f} | {r.upload_ms:.2f} | {r.frame_ms:.1f} | {r.moving_ms:.1f} | "
+            f"{r.sort_ms:.1f} | {r.upload_ms:.2f} | {r.frame_ms:.1f} | {r.moving_ms:.1f} | {blit} | "
             f"{num(r.floor_ms, '.1f')} | {num(r.psnr_db, '.1f')} |"
         )
     print(
-        "\nframe: sort, upload, projection pass, clear and splat pass up to glFinish (per pass: "
+        "\nframe: sort, upload, projection pass, clear, splat pass and the blit presenting it into a "
+        f"{args.width}x{args.height} RGBA8 framebuffer (upscaled when moving), up to glFinish (per pass: "
         "particlesplat bench viewer --profile); sprite floor: the same point sprites (centres, sides) drawn with "
         "a constant colour and no blending, the least a point-sprite splatter pays here before shading and compositing"
     )
@@ -301,7 +327,7 @@ def _print_table(rows: list[Row], args: argparse.Namespace, paths: list[str], pe
             "sort_and_update; it moves at full resolution"
         )
     if not args.no_psnr:
-        print("PSNR: the first camera at full size against particlesplat.render (over black)")
+        print("PSNR: the first camera at full size against particlesplat.render (over black, both clamped to [0, 1])")
     per_case = len(paths) + (1 if peer else 0)
     if len(paths) > 1:
         print(
@@ -386,7 +412,7 @@ def main(argv: list[str] | None = None) -> int:
     peer = None
     try:
         for v in requested:
-            r = SplatRenderer(ctx, primitive=args.primitive, compositing=v, color_dtype="f4")
+            r = SplatRenderer(ctx, primitive=args.primitive, compositing=v)  # the viewer's colour target
             if r.compositing in renderers:
                 r.release()
             else:
@@ -400,6 +426,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench viewer: {e}", file=sys.stderr)
         return 2
     renderer = next(iter(renderers.values()))
+    window = ctx.simple_framebuffer((args.width, args.height), components=4)  # what our frames are presented into
     drawers = [*renderers.values(), *([peer] if peer else [])]
     load0 = os.getloadavg()
     rows: list[Row] = []
@@ -407,7 +434,7 @@ def main(argv: list[str] | None = None) -> int:
     def measure(name: str, g, view: View) -> list[Row]:
         for r in drawers:
             r.set_gaussians(g)
-        case = _case(list(renderers.values()), peer, view, args)
+        case = _case(list(renderers.values()), peer, view, args, window)
         cam = view.camera(args.width, args.height)
         for row, r in zip(case, renderers.values(), strict=False):
             # re-project at full size (the last frames were at the moving scale), then the floor of those splats
@@ -468,6 +495,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     for r in drawers:
         r.release()
+    window.release()
     ctx.release()
     if failure:
         print(f"\n{failure}", file=sys.stderr)
