@@ -113,7 +113,7 @@ class App:
         self.ctx = ctx if ctx is not None else moderngl.create_context()
         self.args = args
         self.scene_view = SceneView(
-            SplatRenderer(self.ctx, primitive=args.primitive, compositing=args.compositing, color_dtype="f4")
+            SplatRenderer(self.ctx, primitive=args.primitive, compositing=args.compositing)  # the default 16-bit target
         )
         self.session = session
         self.orbit = OrbitCamera.from_view(view)
