@@ -391,9 +391,10 @@ def test_a_screenshot_carries_its_edit_file_and_render_replays_it(window, tmp_pa
         labels = s.objects()
         weight: dict[int, float] = {}
         for o, w in zip(g.owner.tolist(), g.opacities.tolist(), strict=True):
-            if o >= 0:
+            if o >= 0 and int(labels[o]) >= 0:
                 weight[int(labels[o])] = weight.get(int(labels[o]), 0.0) + w
-        a, b, c = sorted(weight, key=lambda k: -weight[k])[:3]
+        # the three heaviest objects, each by its first particle
+        a, b, c = (int(torch.nonzero(labels == k)[0]) for k in sorted(weight, key=lambda k: -weight[k])[:3])
         s.move_object(a, [0.06, -0.04, 0.0])
         s.end_gesture()
         s.remove_object(b)
@@ -437,7 +438,7 @@ def test_edits_are_saved_per_scene_and_another_scenes_file_is_not_replaced(windo
     app = _demo_app(window, out, a_dir)
     try:
         assert app.fields.edits_path == str(out / "scene_00000.edits.yaml")
-        app.session.remove_object(int(app.session.objects()[app.session.decode().owner.max()]))
+        app.session.remove_object(int(app.session.decode().owner.max()))
         app.req.save_edits = True
         app.run(1)
         saved = (out / "scene_00000.edits.yaml").read_text()

@@ -96,8 +96,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def initial_view(session: SceneSession, look: str | None, fov: float | None) -> View:
-    """Default view of the session, with ``--look`` / ``--fov`` applied."""
-    base = default_view(session.cameras or None, None if session.cameras else session.gaussians())
+    """Default view of the session (framed as its scene.json records, else by its cameras), with ``--look`` /
+    ``--fov`` applied."""
+    from particlesplat.data.scene_meta import read_framing
+
+    framing = read_framing(session.source) if session.cameras and session.source else None
+    base = default_view(session.cameras or None, None if session.cameras else session.gaussians(), framing)
     lk = parse_look(look) if look else base.look
     return View(base.target, lk, check_fov(fov) if fov is not None else base.fov)
 
@@ -297,13 +301,13 @@ class App:
             (None, str(p), None, None) if p.suffix == ".ply" else (str(p), None, None, None)
         )
         new = load_session(args)  # a bad path leaves the current scene as it is
+        view = initial_view(new, None, None)  # (so does a bad scene.json)
         kept = self.keep_unsaved()
         self.session = new
         self.swatches, self._swatched = particle_swatches(self.session), self.session.num_particles
         self.state = ViewState(
             panel=self.state.panel, overlay=self.state.overlay, background=scene_background(self.session.model)
         )
-        view = initial_view(self.session, None, None)
         self.orbit = OrbitCamera.from_view(view)
         self.fields.status = f"opened {p}" + (
             f"; unsaved edits of the previous scene kept in {kept.resolve()}" if kept else ""
