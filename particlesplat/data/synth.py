@@ -18,7 +18,6 @@ from types import MappingProxyType
 
 import numpy as np
 import torch
-from PIL import Image
 from tqdm import tqdm
 
 from particlesplat.core.atomic import atomic_write, temp_sibling
@@ -26,6 +25,7 @@ from particlesplat.core.camera import Camera
 from particlesplat.core.errors import OptionError, UserError
 from particlesplat.core.limits import check_memory
 from particlesplat.data.families import tabletop
+from particlesplat.data.scene_files import write_scene_files
 
 SPLITS = ("train", "val", "test")
 MAX_RES = 4096  # a scene image may have at most 4096 x 4096 pixels (particlesplat.data.scene.MAX_IMAGE_PIXELS)
@@ -33,7 +33,6 @@ MAX_RES = 4096  # a scene image may have at most 4096 x 4096 pixels (particlespl
 # measured at --res 4100 with one worker, ~560 bytes a pixel
 SYNTH_BYTES_PER_PIXEL = 560
 SPLIT_IDS = MappingProxyType({"train": 0, "val": 1, "test": 2})
-DEPTH_UNIT = 0.0002  # metres per 16-bit step: 0.2 mm resolution, 13.1 m range
 FORMAT_VERSION = 1
 MANIFEST = "synth.json"
 
@@ -81,41 +80,16 @@ def write_tabletop(folder: Path, scene: tabletop.TabletopScene, res: int, meta: 
     tmp = temp_sibling(folder)
     tmp.mkdir()  # honours the umask (tempfile.mkdtemp would leave the finished scene folder 0700)
     try:
-        for sub in ("rgb", "depth", "masks"):
-            (tmp / sub).mkdir()
-        frames = []
-        for i, cam in enumerate(cams):
-            K, c2w = cam.K.numpy(), cam.c2w.numpy()
-            rgb, depth, mask = tabletop.render_view(scene, K, c2w, res, res)
-            steps = np.round(depth / DEPTH_UNIT)
-            if steps.max() > np.iinfo(np.uint16).max:
-                raise ValueError(f"depth {depth.max():.2f} m exceeds the 16-bit range at {DEPTH_UNIT} m/step")
-            Image.fromarray(np.round(rgb * 255.0).astype(np.uint8), mode="RGB").save(tmp / "rgb" / f"{i:03d}.png")
-            Image.fromarray(steps.astype(np.uint16)).save(tmp / "depth" / f"{i:03d}.png")
-            Image.fromarray(mask.astype(np.uint8), mode="L").save(tmp / "masks" / f"{i:03d}.png")
-            frames.append(
-                {
-                    "file_path": f"rgb/{i:03d}.png",
-                    "depth_file_path": f"depth/{i:03d}.png",
-                    "instance_mask_path": f"masks/{i:03d}.png",
-                    "transform_matrix": cam.to_opengl_c2w().tolist(),
-                }
-            )
-        K0 = cams[0].K
-        transforms = {
-            "camera_model": "OPENCV",
-            "w": res,
-            "h": res,
-            "fl_x": float(K0[0, 0]),
-            "fl_y": float(K0[1, 1]),
-            "cx": float(K0[0, 2]),
-            "cy": float(K0[1, 2]),
-            "depth_unit_scale_factor": DEPTH_UNIT,
-            "frames": frames,
-        }
-        (tmp / "transforms.json").write_text(json.dumps(transforms, indent=1))
+        views = [tabletop.render_view(scene, cam.K.numpy(), cam.c2w.numpy(), res, res) for cam in cams]
         meta = {"generator": "particlesplat.data.synth", "format_version": FORMAT_VERSION, **meta, **scene.to_json()}
-        (tmp / "scene.json").write_text(json.dumps(meta, indent=1))
+        write_scene_files(
+            tmp,
+            cams,
+            [np.round(rgb * 255.0).astype(np.uint8) for rgb, _, _ in views],
+            [depth for _, depth, _ in views],
+            [mask.astype(np.uint8) for _, _, mask in views],
+            meta,
+        )
         os.replace(tmp, folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -133,10 +107,10 @@ def _init_worker() -> None:
     torch.set_num_threads(1)
 
 
-def _check_manifest(out: Path, seed: int, res: int) -> None:
-    """Record the settings of ``out``; refuse to resume a folder made with other settings."""
+def check_manifest(out: Path, want: dict) -> None:
+    """Record the settings ``want`` of a dataset folder ``out`` in its ``synth.json`` (any generator); refuse
+    to resume a folder made with other settings."""
     path = out / MANIFEST
-    want = {"generator": "particlesplat.data.synth", "format_version": FORMAT_VERSION, "seed": seed, "res": res}
     if path.exists():
         try:
             have = json.loads(path.read_text())
@@ -179,7 +153,9 @@ def generate(
         raise OptionError(f"scene counts must be >= 0, got {counts}")
     if out.exists() and not out.is_dir():
         raise OptionError(f"{out}: exists and is not a folder")
-    _check_manifest(out, seed, res)
+    check_manifest(
+        out, {"generator": "particlesplat.data.synth", "format_version": FORMAT_VERSION, "seed": seed, "res": res}
+    )
     tasks = []
     for split in SPLITS:
         _remove_stale_temps(out / split)

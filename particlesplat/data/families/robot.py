@@ -24,9 +24,9 @@ from typing import Literal
 
 import numpy as np
 import torch
-from PIL import Image
 
 from particlesplat.core.camera import Camera
+from particlesplat.data.scene_files import write_scene_files
 
 from .robot_assets import assets_dir, import_mujoco
 from .robot_compose import (
@@ -74,7 +74,6 @@ RLBENCH_CAMERAS = {
     "overhead": ((0.0, -0.05, 1.25), (0.0, 0.0, 0.0)),
 }
 MOVE_RANGE = (0.10, 0.20)  # metres on the table
-DEPTH_UNIT = 0.0002  # metres per 16-bit step, as the tabletop family
 FORMAT_VERSION = 1
 GENERATOR = "particlesplat.data.families.robot"
 
@@ -463,40 +462,8 @@ def _arm_clear_of_table(comp: Composition) -> bool:
 
 # ------------------------------------------------------------------------------------------ scene files
 def write_views(folder: Path, views: Views, cams: Sequence[Camera], meta: dict) -> None:
-    """Write ``views`` as a scene folder's files (rgb/, depth/, masks/, transforms.json, scene.json) into the
-    existing folder ``folder``."""
-    for sub in ("rgb", "depth", "masks"):
-        (folder / sub).mkdir()
-    frames = []
-    for i, cam in enumerate(cams):
-        steps = np.round(views.depth[i].astype(np.float64) / DEPTH_UNIT)
-        if steps.max() > np.iinfo(np.uint16).max:
-            raise ValueError(f"depth {views.depth[i].max():.2f} m exceeds the 16-bit range at {DEPTH_UNIT} m/step")
-        Image.fromarray(views.rgb[i], mode="RGB").save(folder / "rgb" / f"{i:03d}.png")
-        Image.fromarray(steps.astype(np.uint16)).save(folder / "depth" / f"{i:03d}.png")
-        Image.fromarray(views.masks[i], mode="L").save(folder / "masks" / f"{i:03d}.png")
-        frames.append(
-            {
-                "file_path": f"rgb/{i:03d}.png",
-                "depth_file_path": f"depth/{i:03d}.png",
-                "instance_mask_path": f"masks/{i:03d}.png",
-                "transform_matrix": cam.to_opengl_c2w().tolist(),
-            }
-        )
-    K0 = cams[0].K
-    transforms = {
-        "camera_model": "OPENCV",
-        "w": cams[0].width,
-        "h": cams[0].height,
-        "fl_x": float(K0[0, 0]),
-        "fl_y": float(K0[1, 1]),
-        "cx": float(K0[0, 2]),
-        "cy": float(K0[1, 2]),
-        "depth_unit_scale_factor": DEPTH_UNIT,
-        "frames": frames,
-    }
-    (folder / "transforms.json").write_text(json.dumps(transforms, indent=1))
-    (folder / "scene.json").write_text(json.dumps(meta, indent=1))
+    """Write ``views`` as a scene folder's files into the existing folder ``folder``."""
+    write_scene_files(folder, cams, views.rgb, views.depth, views.masks, meta)
 
 
 # ------------------------------------------------------------------------------------------ edits

@@ -8,7 +8,6 @@ are skipped when the command runs again. Each worker process holds its own MuJoC
 
 from __future__ import annotations
 
-import json
 import multiprocessing as mp
 import shutil
 import time
@@ -19,7 +18,7 @@ from types import MappingProxyType
 import numpy as np
 from tqdm import tqdm
 
-from particlesplat.core.atomic import atomic_write
+from particlesplat.data.synth import check_manifest
 
 from .robot import ARM_POSES, CAMERA_RIGS, FORMAT_VERSION, GENERATOR, RobotSceneConfig, write_robot_scene
 from .robot_assets import assets_dir, import_mujoco
@@ -64,27 +63,6 @@ def _init_worker() -> None:
     import_mujoco()
 
 
-def _check_manifest(out: Path, seed: int, config: RobotSceneConfig) -> None:
-    """Record the settings of ``out``; refuse to resume a folder made with other settings."""
-    path = out / MANIFEST
-    want = {"generator": GENERATOR, "format_version": FORMAT_VERSION, "seed": seed, **asdict(config)}
-    if path.exists():
-        try:
-            have = json.loads(path.read_text())
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{path}: not valid JSON ({e})") from e
-        for key, value in want.items():
-            if have.get(key) != value:
-                raise ValueError(
-                    f"{path}: key '{key}' is {have.get(key)!r} but this run uses {value!r}; "
-                    "use another output folder or the same settings to resume"
-                )
-        return
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_write(path, "w") as f:
-        json.dump(want, f, indent=1)
-
-
 def generate(
     out: Path,
     counts: dict[str, int],
@@ -114,7 +92,7 @@ def generate(
         raise ValueError(f"{out}: exists and is not a folder")
     assets_dir()  # one line naming what to install, before any folder is made
     import_mujoco()
-    _check_manifest(out, seed, config)
+    check_manifest(out, {"generator": GENERATOR, "format_version": FORMAT_VERSION, "seed": seed, **asdict(config)})
     tasks = []
     for split in SPLITS:
         split_dir = out / split
