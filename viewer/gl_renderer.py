@@ -521,19 +521,10 @@ class SplatRenderer:
         """Draw the sorted splats with the program of ``role`` ("splat", or the id pass with 1 or
         8 attachments, whose first owner is ``owner_base``) into the bound framebuffer; ``owner_key``
         (MAX_KEYED,) is the colour key per owner of colour mode 2 (None: leave the uniform as it is)."""
-        kind = self.kind
-        prog = self._progs[kind][role]
+        prog = self._progs[self.kind][role]
         if "owner_base" in prog:
             prog["owner_base"] = owner_base
-        for i, t in enumerate(self._proj_tex):
-            t.use(i)
-        for i, name in enumerate(("center_tex", "conic_tex", "color_tex")):
-            if name in prog:
-                prog[name] = i
-        prog["row"] = self.row
-        prog["size"] = uni["size"]
-        if "color_mode" in prog:
-            prog["color_mode"] = color_mode
+        self.bind_projection(prog, uni, color_mode)
         if "owner_key" in prog and owner_key is not None:
             prog["owner_key"].write(owner_key.tobytes())
         if not self._drawn:
@@ -548,6 +539,19 @@ class SplatRenderer:
             self._draw_splats(prog, role)
         finally:
             self.ctx.disable(moderngl.BLEND)
+
+    def bind_projection(self, prog: moderngl.Program, uni: dict, color_mode: int = 0) -> None:
+        """Bind the projection pass's textures (centres, conics, colours) and the per-frame uniforms a splat
+        program reads (``row``, ``size``, ``color_mode``)."""
+        for i, t in enumerate(self._proj_tex):
+            t.use(i)
+        for i, name in enumerate(("center_tex", "conic_tex", "color_tex")):
+            if name in prog:
+                prog[name] = i
+        prog["row"] = self.row
+        prog["size"] = uni["size"]
+        if "color_mode" in prog:
+            prog["color_mode"] = color_mode
 
     def _draw_splats(self, prog: moderngl.Program, role: str | int) -> None:
         """Issue the draw call of the current primitive kind."""

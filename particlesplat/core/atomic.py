@@ -158,14 +158,24 @@ def atomic_write(path: str | PathLike, mode: str = "wb") -> Iterator[IO]:
             yield f
             f.flush()
             os.fsync(f.fileno())
-        check_target(path)
-        os.replace(tmp, path)
-        _fsync_dir(path.parent)
+        _put_in_place(tmp, path)
     except BaseException as e:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        _name_the_file(e, path)
+        _discard(tmp, path, e)
         raise
+
+
+def _put_in_place(tmp: str | Path, path: Path) -> None:
+    """Replace ``path`` by the finished temporary file ``tmp`` (checked again first) and fsync the folder."""
+    check_target(path)
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
+
+
+def _discard(tmp: str | Path, path: Path, error: BaseException) -> None:
+    """After a failed write: remove the temporary file and name ``path`` in ``error``."""
+    if os.path.exists(tmp):
+        os.unlink(tmp)
+    _name_the_file(error, path)
 
 
 @contextmanager
@@ -185,11 +195,7 @@ def atomic_path(path: str | PathLike) -> Iterator[Path]:
             os.fsync(fd)
         finally:
             os.close(fd)
-        check_target(path)
-        os.replace(tmp, path)
-        _fsync_dir(path.parent)
+        _put_in_place(tmp, path)
     except BaseException as e:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        _name_the_file(e, path)
+        _discard(tmp, path, e)
         raise

@@ -47,15 +47,7 @@ def _geometry_ms(renderer, uni) -> float:
     import moderngl
 
     prog = _flat_program(renderer)
-    for i, t in enumerate(renderer._proj_tex):
-        t.use(i)
-    for i, name in enumerate(("center_tex", "conic_tex", "color_tex")):
-        if name in prog:
-            prog[name] = i
-    prog["row"] = renderer.row
-    prog["size"] = uni["size"]
-    if "color_mode" in prog:
-        prog["color_mode"] = 0
+    renderer.bind_projection(prog, uni)
     renderer._color_fbo.use()
     renderer._clear(renderer._color_fbo)
     renderer.ctx.disable(moderngl.BLEND)
