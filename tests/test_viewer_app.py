@@ -523,8 +523,12 @@ def test_a_drag_released_in_one_burst_ends_where_the_mouse_did(app):
     glfw.set_cursor_pos(app.window, x, y)  # the glfw backend also reads the cursor itself
     io.add_mouse_pos_event(x, y)
     _wait_for_cursor(app.window, x, y)  # the X server applies a warp asynchronously
-    for _ in range(3):
-        glfw.poll_events()
+    deadline = time.perf_counter() + 2.0  # until imgui too sees the pointer there, with no motion left over
+    while time.perf_counter() < deadline and (
+        (io.mouse_pos.x, io.mouse_pos.y) != (x, y) or (io.mouse_delta.x, io.mouse_delta.y) != (0.0, 0.0)
+    ):
+        io.add_mouse_pos_event(x, y)
+        app.redraw.notify()
         app.run(1)
     try:
         io.add_mouse_button_event(0, True)
