@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NotRequired, TypedDict
 
 import numpy as np
 import torch
@@ -52,13 +52,23 @@ def _ms(t0: float) -> float:
     return (time.perf_counter() - t0) * 1000.0
 
 
+class ViewRenders(TypedDict):
+    """What :func:`render_views` returns: the renders of V views of H x W pixels and the time per view."""
+
+    rgb: Tensor  # (V, 3, H, W)
+    depth: Tensor  # (V, 1, H, W)
+    seg: Tensor  # (V, H, W) particle index per pixel
+    render_ms: float  # per view
+    seg_objects: NotRequired[Tensor]  # (V, H, W) object label per pixel, when render_views is given objects
+
+
 def render_views(
     gaussians,
     cameras: list[Camera],
     num_owners: int,
     background: Tensor | tuple[float, float, float] = (0.0, 0.0, 0.0),
     objects: Tensor | None = None,
-) -> dict[str, Tensor]:
+) -> ViewRenders:
     """Render ``gaussians`` in each camera over ``background`` (3,): rgb (V, 3, H, W), depth (V, 1, H, W),
     seg (V, H, W) per particle, and with ``objects`` ((num_owners,) object label per particle) seg_objects
     (V, H, W) per object; ms per view."""
@@ -72,7 +82,7 @@ def render_views(
         if objects is not None:
             seg_obj.append(r.segmentation(objects))
     ms = _ms(t0) / max(len(cameras), 1)
-    out = {"rgb": torch.stack(rgb), "depth": torch.stack(depth), "seg": torch.stack(seg), "render_ms": ms}
+    out: ViewRenders = {"rgb": torch.stack(rgb), "depth": torch.stack(depth), "seg": torch.stack(seg), "render_ms": ms}
     if objects is not None:
         out["seg_objects"] = torch.stack(seg_obj)
     return out
@@ -127,7 +137,7 @@ def evaluate_item(
     active = particles.z_t[:, 0] >= model.config.bg_mask_threshold  # the particles that draw (decode)
     sup = item.get("target_supervision")
     gt = item["target_rgb"]
-    res = {
+    res: dict[str, Any] = {
         "psnr": view_psnr(out["rgb"], gt, sup),
         "ssim": ssim(out["rgb"], gt),
         "depth_abs_rel": depth_abs_rel(out["depth"], item["target_depth"]),
@@ -140,11 +150,11 @@ def evaluate_item(
         "decode_ms": dec_ms,
         "render_ms": out["render_ms"],
     }
-    for key, suffix in (("seg_objects", ""), ("seg", "_particles")):
+    for seg, suffix in ((out["seg_objects"], ""), (out["seg"], "_particles")):
         if "target_masks" in item:
             masks = item["target_masks"]
-            res["fg_ari" + suffix] = float(np.nanmean([fg_ari(out[key][i], masks[i]) for i in range(len(masks))]))
-            res["miou" + suffix] = float(np.nanmean([matched_miou(out[key][i], masks[i]) for i in range(len(masks))]))
+            res["fg_ari" + suffix] = float(np.nanmean([fg_ari(seg[i], masks[i]) for i in range(len(masks))]))
+            res["miou" + suffix] = float(np.nanmean([matched_miou(seg[i], masks[i]) for i in range(len(masks))]))
         else:
             res["fg_ari" + suffix] = res["miou" + suffix] = float("nan")
     if "target_masks" in item:
