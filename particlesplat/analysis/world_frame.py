@@ -180,12 +180,12 @@ def check_world_frame(scene: RawScene) -> WorldFrameReport:
     distance = float(np.median(np.linalg.norm(centres - focus, axis=1)))
     pts = depth_points(scene)
     depth_frames = sum(d is not None and bool((d > 0).any()) for d in scene.depth)
-    depth_ratio = None
+    depth_ratio: float | None = None  # set exactly when there are depth points
     if len(pts):
         depths = np.concatenate([d[d > 0] for d in scene.depth if d is not None])
         depth_ratio = float(np.median(depths)) / max(distance, 1e-12)
     plane = None
-    if len(pts) and DEPTH_RATIO_RANGE[0] <= depth_ratio <= DEPTH_RATIO_RANGE[1]:
+    if depth_ratio is not None and DEPTH_RATIO_RANGE[0] <= depth_ratio <= DEPTH_RATIO_RANGE[1]:
         plane = largest_plane(pts, 0.01 * distance)
     source: UpSource
     if plane is not None:
