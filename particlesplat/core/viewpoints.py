@@ -19,6 +19,7 @@ from particlesplat.core.camera import Camera
 from particlesplat.core.errors import OptionError
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.limits import float32_problem
+from particlesplat.core.vectors import float3
 
 DEFAULT_FOV = 40.0  # degrees, vertical
 DEFAULT_ELEVATION = 25.0  # degrees, for scenes without cameras
@@ -30,7 +31,7 @@ def scene_background(model=None) -> tuple[float, float, float]:
     """The colour behind a scene: the model's learned background colour (``learned_background``), else
     :data:`DEFAULT_BACKGROUND` (also for a .ply, ``model`` None)."""
     if model is not None and model.config.learned_background:
-        return tuple(float(c) for c in model.background_color().detach().cpu())
+        return float3(model.background_color().detach().cpu())
     return DEFAULT_BACKGROUND
 
 
@@ -167,13 +168,13 @@ def default_view(
             distance = float((centres - target).norm(dim=-1).median())
         mid = cameras[len(cameras) // 2]
         look = look_from_eye(target, mid.center.detach().cpu())
-        return View(tuple(float(v) for v in target), replace(look, distance=distance), round(mid.fov_y, 6))
+        return View(float3(target), replace(look, distance=distance), round(mid.fov_y, 6))
     if gaussians is not None and gaussians.num:
         means = gaussians.means.detach().double().cpu()
         target = means.median(0).values
         radius = float(torch.quantile((means - target).norm(dim=-1), 0.9)) if means.shape[0] > 1 else 1.0
         dist = max(radius, 1e-3) / math.tan(math.radians(DEFAULT_FOV) / 2.0) * 1.1
-        return View(tuple(float(v) for v in target), Look(0.0, DEFAULT_ELEVATION, dist), DEFAULT_FOV)
+        return View(float3(target), Look(0.0, DEFAULT_ELEVATION, dist), DEFAULT_FOV)
     return View((0.0, 0.0, 0.0), Look(0.0, DEFAULT_ELEVATION, FALLBACK_DISTANCE), DEFAULT_FOV)
 
 
