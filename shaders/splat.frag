@@ -1,7 +1,7 @@
 #version 330
 // Gaussian footprint alpha = min(ALPHA_MAX, opacity exp(-q / 2)), discarded below ALPHA_MIN,
 // composited front to back as particlesplat.render (the constants are #defined from its Python
-// constants). Two ways, chosen at run time (viewer/gl_caps.py):
+// constants). Two ways, chosen at run time (viewer/gl/caps.py):
 //
 // COMPOSITE_FETCH (GL_EXT_shader_framebuffer_fetch): the fragment reads its pixel, where
 // attachment 0 alpha holds the transmittance T in front of this splat (cleared to 1); it adds

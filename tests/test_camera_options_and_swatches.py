@@ -69,7 +69,7 @@ def test_camera_from_png_errors_name_the_file(tmp_path):
 def test_list_swatches_are_the_colours_the_segmentation_mode_draws():
     from viewer_helpers import egl_context
 
-    from viewer.gl_renderer import SplatRenderer
+    from viewer.gl.renderer import SplatRenderer
     from viewer.panels.objects import segmentation_colour
 
     ctx = egl_context()

@@ -18,7 +18,7 @@ from particlesplat import render
 from particlesplat.core.camera import Camera
 from particlesplat.rendering.projection import ALPHA_MAX, ALPHA_MIN
 from particlesplat.rendering.rasterize import T_MIN
-from viewer.gl_caps import COMPOSITING, FETCH_EXTENSION, GLCaps, UnsupportedGL, shader_constants
+from viewer.gl.caps import COMPOSITING, FETCH_EXTENSION, GLCaps, UnsupportedGL, shader_constants
 from viewer.random_gaussians import random_gaussians
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,8 +74,8 @@ def test_without_the_extension_auto_takes_blend_and_fetch_is_refused():
     replaces), the probe sees no extension, auto takes blend, forcing fetch is a clear error."""
     proc = run_hidden("""
 import moderngl
-from viewer.gl_caps import UnsupportedGL, probe
-from viewer.gl_renderer import SplatRenderer, load_shader
+from viewer.gl.caps import UnsupportedGL, probe
+from viewer.gl.renderer import SplatRenderer, load_shader
 ctx = moderngl.create_standalone_context(backend="egl")
 try:
     ctx.program(vertex_shader=load_shader("splat.vert", {"MAX_KEYED": 64}),
@@ -171,7 +171,7 @@ def test_minimal_driver_limits(ctx, compositing):
     """Core GL 3.3 guarantees 1024-texel textures and 1-px points only: with those limits the data
     textures take fewer Gaussians per row, every splat is drawn as a quad, and the image is the same;
     a set too large for the textures is refused whole."""
-    from viewer.gl_renderer import SplatRenderer
+    from viewer.gl.renderer import SplatRenderer
 
     g = random_gaussians(3000, seed=2, sh_degree=3, pixel_scale=0.02)  # 20 texels a Gaussian
     cam = Camera.orbit((0.0, 0.0, 0.0), 30.0, 20.0, 3.0, width=96, height=72)

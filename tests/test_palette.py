@@ -47,7 +47,7 @@ def test_the_viewer_colours_particles_as_the_figures_do():
     from particlesplat.editing.open_scene import demo_scenes, encode_scene
     from particlesplat.model import load_model
     from particlesplat.rendering.api import render
-    from viewer.gl_renderer import SplatRenderer
+    from viewer.gl.renderer import SplatRenderer
 
     model = load_model(None)
     enc = encode_scene(model, demo_scenes()[0])

@@ -9,7 +9,7 @@ from viewer_helpers import egl_context, psnr, small_model
 
 from particlesplat import render
 from particlesplat.editing.open_scene import demo_scenes, encode_scene
-from viewer.gl_renderer import SplatRenderer
+from viewer.gl.renderer import SplatRenderer
 from viewer.scene_view import SceneView
 from viewer.screenshot import save_numbered, save_screenshot
 from viewer.session import SceneSession

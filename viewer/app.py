@@ -34,8 +34,8 @@ from particlesplat.editing.open_scene import add_source_arguments, check_source_
 
 from .commands import carry_out, save_edits  # noqa: E402
 from .controls import Viewport, ViewportControls  # noqa: E402
-from .gl_caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
-from .gl_renderer import SplatRenderer  # noqa: E402
+from .gl.caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
+from .gl.renderer import SplatRenderer  # noqa: E402
 from .loading import load_session, particle_swatches  # noqa: E402
 from .orbit import OrbitCamera  # noqa: E402
 from .panel import UiFields, UiRequests, clear_of_panel, draw_overlay, draw_panel  # noqa: E402

@@ -8,7 +8,7 @@ import torch
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
 
-from .gl_renderer import FrameTimes, SplatRenderer, segmentation_from_weights
+from .gl.renderer import FrameTimes, SplatRenderer, segmentation_from_weights
 from .session import SceneSession
 from .state import SegMode, ViewState
 

@@ -51,7 +51,7 @@ def _cwd(path: Path):
 
 class PeerSplatter:
     """limacv/GaussianSplattingViewer's ``OpenGLRenderer`` with the benchmark's part of the
-    :class:`~viewer.gl_renderer.SplatRenderer` interface (``set_gaussians``, ``render``, ``read_rgb``).
+    :class:`~viewer.gl.renderer.SplatRenderer` interface (``set_gaussians``, ``render``, ``read_rgb``).
 
     It draws into an RGBA8 framebuffer of the camera's size (what its window has), cleared to black as
     its main loop does, with the blending its renderer sets up (``SRC_ALPHA, ONE_MINUS_SRC_ALPHA``).
@@ -134,7 +134,7 @@ class PeerSplatter:
         return cam
 
     def render(self, camera: Camera, *, finish: bool = False):
-        from viewer.gl_renderer import FrameTimes
+        from viewer.gl.renderer import FrameTimes
 
         gl = self.gl
         if self.size != (camera.width, camera.height):

@@ -32,7 +32,7 @@ if TYPE_CHECKING:  # the GL modules load only when the benchmark runs
     from particlesplat.core.camera import Camera
     from particlesplat.core.viewpoints import View
 
-    from ..gl_renderer import SplatRenderer
+    from ..gl.renderer import SplatRenderer
     from ..session import SceneSession
 
 DEFAULT_SIZES = (20000, 100000)
@@ -375,8 +375,8 @@ def main(argv: list[str] | None = None) -> int:
 
     from particlesplat.core.viewpoints import Look, View, default_view
 
-    from ..gl_caps import COMPOSITING, UnsupportedGL
-    from ..gl_renderer import SplatRenderer
+    from ..gl.caps import COMPOSITING, UnsupportedGL
+    from ..gl.renderer import SplatRenderer
     from ..random_gaussians import random_gaussians
     from ..state import ViewState
 

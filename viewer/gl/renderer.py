@@ -13,7 +13,7 @@ Design (see shaders/):
   conic, the radii of the alpha >= 1/255 ellipse and the SH colour, written in sorted order.
 * A splat pass draws one point sprite (``auto`` when every splat fits the driver's point size
   and the guard band) or one oriented quad per splat into an offscreen float framebuffer, front
-  to back. Compositing (chosen per context, :mod:`viewer.gl_caps`): ``fetch`` composites in the
+  to back. Compositing (chosen per context, :mod:`viewer.gl.caps`): ``fetch`` composites in the
   fragment shader with framebuffer fetch exactly like the torch renderer (alpha clamped at
   ALPHA_MAX, footprint alpha >= ALPHA_MIN, a pixel stops before the splat that would take its
   transmittance to <= T_MIN); ``blend`` (core GL 3.3) blends premultiplied colour with
@@ -42,7 +42,7 @@ from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.rendering.projection import DILATION, FOV_MARGIN
 
-from .gl_caps import Compositing, GLCaps, probe, shader_constants
+from .caps import Compositing, GLCaps, probe, shader_constants
 
 ROW = 512  # Gaussians per row of the data and projection textures (fewer if the texture size needs it)
 ID_ATTACHMENTS = 8  # float attachments of the id pass: 3 owners each (core GL 3.3 guarantees 8)
@@ -63,7 +63,7 @@ QUAD_COST = (2.07e-3, 11.0e-6)
 
 def load_shader(name: str, defines: dict[str, str | int] | None = None) -> str:
     """Source of ``shaders/<name>`` with ``#define`` lines inserted after ``#version``: the library's
-    compositing constants (:func:`~viewer.gl_caps.shader_constants`) and palette
+    compositing constants (:func:`~viewer.gl.caps.shader_constants`) and palette
     (:func:`particlesplat.core.palette.shader_defines`), then ``defines``."""
     src = files("viewer.shaders").joinpath(name).read_text()
     first, rest = src.split("\n", 1)
@@ -172,7 +172,7 @@ class SplatRenderer:
             limit, else quads; both exact), ``"quads"`` (an oriented rectangle per Gaussian) or
             ``"points"`` (point sprites always; splats over the limit are clipped).
         compositing: ``"auto"`` (``fetch`` where the driver has framebuffer fetch, else ``blend``),
-            ``"fetch"`` (raises :class:`~viewer.gl_caps.UnsupportedGL` without it) or ``"blend"``;
+            ``"fetch"`` (raises :class:`~viewer.gl.caps.UnsupportedGL` without it) or ``"blend"``;
             :attr:`compositing` holds the path taken.
         color_dtype: ``"nu2"`` (16-bit normalized: the viewer; colour clamped at 1 at every step, which
             changes nothing a display shows, as that clamps the sum), ``"f4"`` (float32: unclamped values,
