@@ -95,12 +95,12 @@ def workspace_points(
                 edge[k] = s
     if used == 0:
         raise ValueError(f"{scene_dirs[0].parent if scene_dirs else '?'}: no scene with depth to find the workspace in")
-    keys = [k for k, n in counts.items() if n >= min_share * used]
-    keys.sort(key=lambda k: (-counts[k], k))
-    keys = keys[:max_points]
+    kept = [k for k, n in counts.items() if n >= min_share * used]  # voxel keys, most often seen first
+    kept.sort(key=lambda k: (-counts[k], k))
+    kept = kept[:max_points]
     return WorkspacePoints(
-        points=np.array([centre[k] for k in keys], dtype=np.float32).reshape(-1, 3),
-        colours=np.array([colour_sum[k] / hits[k] for k in keys], dtype=np.float32).reshape(-1, 3).clip(0, 1),
-        sizes=np.array([edge[k] for k in keys], dtype=np.float32),
-        share=np.array([counts[k] / used for k in keys], dtype=np.float32),
+        points=np.array([centre[k] for k in kept], dtype=np.float32).reshape(-1, 3),
+        colours=np.array([colour_sum[k] / hits[k] for k in kept], dtype=np.float32).reshape(-1, 3).clip(0, 1),
+        sizes=np.array([edge[k] for k in kept], dtype=np.float32),
+        share=np.array([counts[k] / used for k in kept], dtype=np.float32),
     )
