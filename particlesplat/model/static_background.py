@@ -25,6 +25,11 @@ DISC_FLATNESS = 0.05  # out-of-plane standard deviation relative to the in-plane
 class StaticBackground(nn.Module):
     """``bg_static_grid``² flat Gaussians on z = 0 with learned colour (SH DC) and opacity logits."""
 
+    # buffers, not saved (the config rebuilds them): means (N, 3) world metres, scales (N, 3) metres, quats (N, 4)
+    means: Tensor
+    scales: Tensor
+    quats: Tensor
+
     def __init__(self, cfg: ModelConfig):
         super().__init__()
         n, ext = cfg.bg_static_grid, cfg.bg_static_extent
@@ -74,6 +79,8 @@ class WorkspaceBackground(nn.Module):
     training data (:meth:`initialise`, once, before the first step); until then every Gaussian is transparent.
     The anchors are stored in the checkpoint with the learned offsets, scales, rotations, colours and opacities.
     """
+
+    anchor: Tensor  # (N, 3) world metres, a buffer
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
