@@ -37,6 +37,13 @@ def split_gaussian_params(raw: Tensor, sh_degree: int) -> dict[str, Tensor]:
     }
 
 
+def conv_bias(conv: nn.Conv2d) -> Tensor:
+    """The bias of ``conv``, a convolution made with one (``bias=True``, the default)."""
+    if conv.bias is None:
+        raise ValueError(f"expected a convolution with a bias, got {conv}")
+    return conv.bias
+
+
 def init_gaussian_head(conv: nn.Conv2d, sh_degree: int, opacity_logit: float, depth_logit: float = 0.0) -> None:
     """Small weights; biases: grey colour, identity rotation, mid scales, given opacity and depth logits."""
     k = num_sh_bases(sh_degree)
@@ -46,7 +53,7 @@ def init_gaussian_head(conv: nn.Conv2d, sh_degree: int, opacity_logit: float, de
     b[3 * k + 3] = 1.0  # quaternion w
     b[-1] = opacity_logit
     with torch.no_grad():
-        conv.bias.copy_(b)
+        conv_bias(conv).copy_(b)
 
 
 class ForegroundDecoder(nn.Module):
@@ -76,7 +83,7 @@ class ForegroundDecoder(nn.Module):
         while size < self.S:
             conv = nn.Conv2d(c, c, 3, padding=1)
             nn.init.zeros_(conv.weight)
-            nn.init.zeros_(conv.bias)
+            nn.init.zeros_(conv_bias(conv))
             self.up.append(conv)
             size *= 2
         self.conv = nn.Sequential(nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU())

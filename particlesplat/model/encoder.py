@@ -10,6 +10,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from particlesplat.model.config import ModelConfig
+from particlesplat.model.decoder import conv_bias
 from particlesplat.model.geometry import plucker_at, plucker_map
 from particlesplat.model.posterior import ParticlePosterior
 
@@ -264,7 +265,7 @@ class BackgroundEncoder(nn.Module):
         c = self.backbone.out_channels
         self.head = nn.Conv2d(c, 2 * cfg.d_bg, 3, padding=1)
         with torch.no_grad():
-            self.head.bias[cfg.d_bg :] = -4.0
+            conv_bias(self.head)[cfg.d_bg :] = -4.0
 
     def forward(self, rgb: Tensor, dep: Tensor, rays: Tensor, mask: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """rgb: (M, 3, H, W); dep: (M, 2, H, W); rays: (M, 6, H, W); mask: (M, 1, H, W) 1 = hidden.
