@@ -70,7 +70,7 @@ def test_list_swatches_are_the_colours_the_segmentation_mode_draws():
     from viewer_helpers import egl_context
 
     from viewer.gl.renderer import SplatRenderer
-    from viewer.panels.objects import segmentation_colour
+    from viewer.ui.objects import segmentation_colour
 
     ctx = egl_context()
     try:
@@ -126,7 +126,7 @@ def test_a_scene_without_depth_warns(tmp_path):
 
 
 def test_the_default_framing_keeps_the_scene_clear_of_the_panel():
-    from viewer.panel import PANEL_MARGIN, PANEL_WIDTH, clear_of_panel
+    from viewer.ui.panel import PANEL_MARGIN, PANEL_WIDTH, clear_of_panel
 
     cam = Camera.orbit((0.2, -0.1, 0.15), 30.0, 30.0, 3.3, width=2560, height=1600)
     framed = clear_of_panel(cam, 2.0)  # a HiDPI window: 2 pixels a point

@@ -29,7 +29,7 @@ def test_colours_are_golden_ratio_hues_and_a_grey_background():
 
 
 def test_the_panel_swatches_are_the_palette():
-    from viewer.panels.objects import segmentation_colour
+    from viewer.ui.objects import segmentation_colour
 
     for key in (-1, 0, 2, 17):
         assert segmentation_colour(key) == palette.colour(key)

@@ -558,7 +558,7 @@ def test_the_particle_list_names_deleted_particles_and_colours_copies(app):
     """After a duplicate the copies have the swatches of what they copy; a removed object's particles read
     "deleted", the encoder's inactive ones "inactive"."""
     from particlesplat.editing.open_scene import demo_scenes
-    from viewer.panels.particles import particle_status
+    from viewer.ui.particles import particle_status
 
     if not app.session.editable:  # an earlier test opened a .ply
         app.open(str(demo_scenes()[0]))

@@ -38,7 +38,6 @@ from .gl.caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
 from .gl.renderer import SplatRenderer  # noqa: E402
 from .loading import load_session, particle_swatches  # noqa: E402
 from .orbit import OrbitCamera  # noqa: E402
-from .panel import UiFields, UiRequests, clear_of_panel, draw_overlay, draw_panel  # noqa: E402
 from .particle_overlay import ParticleOverlay  # noqa: E402
 from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noqa: E402
 from .scene_view import SceneView  # noqa: E402
@@ -47,6 +46,7 @@ from .session import SceneSession  # noqa: E402
 from .signals import SignalStop, raise_on_stop_signals  # noqa: E402
 from .state import ViewState  # noqa: E402
 from .tools.object_tools import ObjectGizmo  # noqa: E402
+from .ui.panel import UiFields, UiRequests, clear_of_panel, draw_overlay, draw_panel  # noqa: E402
 
 STILL_AFTER = 0.2  # seconds without interaction before rendering at full scale
 ORBIT_STEP = 1.0  # degrees per frame with --orbit

@@ -1,4 +1,4 @@
-"""The UI requests of a frame (:class:`viewer.panel.UiRequests`), carried out after it: view resets and snaps,
+"""The UI requests of a frame (:class:`viewer.ui.panel.UiRequests`), carried out after it: view resets and snaps,
 opening a scene, saving and loading edits, screenshots, exports and inserts. A failure becomes the status line's
 error: a bad path or file never closes the viewer."""
 
@@ -13,10 +13,10 @@ from .screenshot import export_ply
 
 if TYPE_CHECKING:
     from .orbit import OrbitCamera
-    from .panel import UiFields, UiRequests
     from .scene_view import SceneView
     from .session import SceneSession
     from .state import ViewState
+    from .ui.panel import UiFields, UiRequests
 
 
 class CommandHost(Protocol):
@@ -57,7 +57,7 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
             path = export_ply(fields.output_dir, host.scene_view.visible_gaussians(host.session, host.state))
             fields.status = f"exported {Path(path).resolve()}"
         if req.insert and host.session.editable:
-            from .panels.insert import insert_from_fields
+            from .ui.insert import insert_from_fields
 
             host.state.selected, fields.status = insert_from_fields(host.session, fields.insert)
         if req.export_object and host.state.selected is not None and host.session.editable:

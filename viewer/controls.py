@@ -15,17 +15,17 @@ from imgui_bundle import imgui
 
 from particlesplat.editing.move import MoveError, stop_at_support
 
-from .panels.objects import duplicate_selected, remove_selected
 from .state import SEG_MODES
 from .tools.object_tools import FloorDrag
+from .ui.objects import duplicate_selected, remove_selected
 
 if TYPE_CHECKING:
     from particlesplat.core.camera import Camera
 
     from .orbit import OrbitCamera
-    from .panel import UiRequests
     from .session import SceneSession
     from .state import ViewState
+    from .ui.panel import UiRequests
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""The selected particle's section: its attributes (drag or reset), and its object (:mod:`viewer.panels.objects`)."""
+"""The selected particle's section: its attributes (drag or reset), and its object (:mod:`viewer.ui.objects`)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The ImGui panel and overlay. They read the session, view state and UI requests, and change
 them only through their methods and fields; they never touch GL or the renderer. Each section of the panel is a
-module of :mod:`viewer.panels` (scene, view, particles, selected, edits, insert, output)."""
+module of :mod:`viewer.ui` (scene, view, particles, selected, edits, insert, output)."""
 
 from __future__ import annotations
 
@@ -8,16 +8,16 @@ from imgui_bundle import imgui
 
 from particlesplat.core.camera import Camera
 
-from .panels.edits import draw_edits_section
-from .panels.fields import UiFields, UiRequests
-from .panels.insert import draw_insert_section
-from .panels.output import draw_output_section
-from .panels.particles import draw_particles_section
-from .panels.scene import draw_scene_section
-from .panels.selected import draw_selected_section
-from .panels.view import draw_view_section
-from .session import SceneSession
-from .state import ViewState
+from ..session import SceneSession
+from ..state import ViewState
+from .edits import draw_edits_section
+from .fields import UiFields, UiRequests
+from .insert import draw_insert_section
+from .output import draw_output_section
+from .particles import draw_particles_section
+from .scene import draw_scene_section
+from .selected import draw_selected_section
+from .view import draw_view_section
 
 SHORTCUTS = (
     ("left drag", "orbit"),
