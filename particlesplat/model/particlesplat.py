@@ -71,6 +71,12 @@ class ParticleSplat(nn.Module):
             return torch.zeros(3, device=next(self.parameters()).device)
         return torch.sigmoid(self.background_logit)
 
+    def _bg_decoder(self) -> BackgroundDecoder:
+        """The per-view background decoder: only a model with ``bg_per_view`` has one."""
+        if self.bg_decoder is None:
+            raise ValueError("this model has no per-view background decoder (bg_per_view is false)")
+        return self.bg_decoder
+
     # ------------------------------------------------------------------ batched internals
     def posterior(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Posterior:
         """Posterior parameters for B scenes with V context views.
@@ -132,7 +138,7 @@ class ParticleSplat(nn.Module):
         cfg = self.config
         M = x.shape[0]
         mu, _, _ = self.bg_encoder(x, dep, rays, torch.zeros_like(x[:, :1]))
-        p = split_gaussian_params(self.bg_decoder(mu, background_rays(K, c2w, cfg)), cfg.sh_degree)
+        p = split_gaussian_params(self._bg_decoder()(mu, background_rays(K, c2w, cfg)), cfg.sh_degree)
         nb = cfg.resolution // cfg.bg_block
         colour = (SH_C0 * p["sh"][..., 0, :] + 0.5).clamp(0, 1).transpose(1, 2).reshape(M, 3, nb, nb)
         err = ((colour - F.avg_pool2d(x, cfg.bg_block)) ** 2).sum(1, keepdim=True)
@@ -154,6 +160,8 @@ class ParticleSplat(nn.Module):
         layer is transparent both count). Averaged over ``block``² blocks (default ``bg_block``)
         -> (M, 1, Hb, Wb).
         """
+        if self.static_bg is None:
+            raise ValueError("this model has no static background layer (bg_static_grid and bg_static_points are 0)")
         H, W = x.shape[-2:]
         g = _gaussians(self.static_bg(), torch.full((self.static_bg.num,), BACKGROUND_OWNER, device=x.device))
         res = render_batch(
@@ -203,7 +211,7 @@ class ParticleSplat(nn.Module):
                 rendered = torch.stack(
                     [torch.cat([r.rgb.permute(2, 0, 1), r.depth[None] / cfg.d_max, r.alpha[None]]) for r in res]
                 ).reshape(B, V, 5, H, W)[:, view]
-                weights = torch.stack([r.owner_weights for r in res]).reshape(B, V, N, H, W)
+                weights = torch.stack([r.require_owner_weights() for r in res]).reshape(B, V, N, H, W)
                 own = weights[:, view, torch.arange(N, device=view.device)][:, :, None]  # (B, N, 1, H, W)
                 centre = z["z_p"].reshape(B * N, 2)
                 half = BOX_MARGIN * torch.sigmoid(z["z_s"]).reshape(B * N, 2)
@@ -243,7 +251,7 @@ class ParticleSplat(nn.Module):
 
     def background(self, bg: Tensor, K: Tensor, c2w: Tensor) -> dict[str, Tensor]:
         """bg: (M, d_bg, h, w) latents of M views; K (M, 3, 3), c2w (M, 4, 4) -> fields (M, Hb*Wb, ·)."""
-        raw = self.bg_decoder(bg, background_rays(K, c2w, self.config))
+        raw = self._bg_decoder()(bg, background_rays(K, c2w, self.config))
         return background_gaussians(raw, K, c2w, self.config)
 
     def background_fields(self, bg: Tensor, K: Tensor, c2w: Tensor) -> dict[str, Tensor]:

@@ -57,6 +57,18 @@ class RenderResult:
     background_weight: Tensor | None = None
     foreground: Tensor | None = None
 
+    def require_owner_weights(self) -> Tensor:
+        """(P, H, W) :attr:`owner_weights` of a render made with ``owner_weights=True`` (else a ValueError)."""
+        if self.owner_weights is None:
+            raise ValueError("require_owner_weights() needs render(..., owner_weights=True)")
+        return self.owner_weights
+
+    def require_foreground(self) -> Tensor:
+        """(H, W) :attr:`foreground` of a render made with ``foreground=True`` (else a ValueError)."""
+        if self.foreground is None:
+            raise ValueError("require_foreground() needs render(..., foreground=True)")
+        return self.foreground
+
     def segmentation(self, objects: Tensor | None = None) -> Tensor:
         """(H, W) int64 argmax owner per pixel; -1 where the background (Gaussians of owner -1
         plus the empty remainder 1 - alpha) weighs most.
