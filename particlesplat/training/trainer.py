@@ -14,6 +14,7 @@ import weakref
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import torch
 import torch.distributed as dist
@@ -32,6 +33,7 @@ from particlesplat.model.config import ConfigError, config_to_dict, model_config
 from particlesplat.model.io import check_model_memory
 from particlesplat.model.losses import elbo, scene_kl, view_error
 from particlesplat.model.provenance import Provenance, RunClock
+from particlesplat.model.static_background import WorkspaceBackground
 from particlesplat.rendering.api import render_batch
 from particlesplat.training.runlock import LOCK_NAME, RunLock
 from particlesplat.training.runlog import read_log
@@ -76,7 +78,7 @@ def render_views(
     res = render_batch(views, background=background, foreground=foreground)
     rgb = torch.stack([r.rgb.permute(2, 0, 1) for r in res])
     depth = torch.stack([r.depth[None] for r in res])
-    fg = torch.stack([r.foreground[None] for r in res]).reshape(B, V, 1, size, size) if foreground else None
+    fg = torch.stack([r.require_foreground()[None] for r in res]).reshape(B, V, 1, size, size) if foreground else None
     return rgb.reshape(B, V, 3, size, size), depth.reshape(B, V, 1, size, size), fg
 
 
@@ -124,8 +126,10 @@ def training_loss(
         # the context views' error is the one the encoder computed (no depth on a step that drops it)
         bg_err = post.bg_error
         if V > C:
-            tgt = [t.flatten(0, 1) for t in (batch.target_rgb, batch.target_depth, batch.target_K, batch.target_c2w)]
-            tgt_err = net.static_background_error(*tgt, block=1).reshape(B, V - C, 1, size, size)
+            rgb_t, depth_t, K_t, c2w_t = (
+                t.flatten(0, 1) for t in (batch.target_rgb, batch.target_depth, batch.target_K, batch.target_c2w)
+            )
+            tgt_err = net.static_background_error(rgb_t, depth_t, K_t, c2w_t, block=1).reshape(B, V - C, 1, size, size)
             bg_err = torch.cat([bg_err, tgt_err], 1)
         fg_err = foreground_error(fg_hat.flatten(0, 1), bg_err.flatten(0, 1), tc.fg_threshold)
         parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
@@ -253,12 +257,14 @@ class Trainer:
         trained = list(self.model.named_parameters())
         bg = [p for n, p in trained if is_bg(n)]
         rest = [p for n, p in trained if not is_bg(n)]
-        groups = [{"params": rest, "lr": tc.lr}] + ([{"params": bg, "lr": tc.lr_background}] if bg else [])
+        groups: list[dict[str, Any]] = [{"params": rest, "lr": tc.lr}]  # torch's parameter groups
+        if bg:
+            groups.append({"params": bg, "lr": tc.lr_background})
         # the names of the weights each optimiser group moves: a resume with another layout (weights frozen or
         # grouped otherwise) is refused, not continued with Adam moments of other weights
         self.layout = [[n for n, p in trained if not is_bg(n)]] if rest else []
         self.layout += [[n for n, p in trained if is_bg(n)]] if bg else []
-        self.base_lrs = [g["lr"] for g in groups]  # each group's lr before the cosine factor
+        self.base_lrs: list[float] = [g["lr"] for g in groups]  # each group's lr before the cosine factor
         self.opt = torch.optim.Adam(groups, lr=tc.lr, betas=(0.9, 0.999), eps=1e-6)
         self.step = 0
         self.best = -math.inf
@@ -288,7 +294,8 @@ class Trainer:
         scenes = next(iter(self.train_sets.values())).scenes[:WORKSPACE_SCENES]
         found = workspace_points(scenes, self.cfg.bg_static_points)
         layer = self.model.static_bg
-        assert layer is not None and hasattr(layer, "initialise")
+        if not isinstance(layer, WorkspaceBackground):
+            raise RuntimeError(f"bg_static_points is {self.cfg.bg_static_points} but the model has no workspace layer")
         layer.initialise(*(torch.from_numpy(a) for a in (found.points, found.colours, found.sizes)))
         if self.rank == 0:
             print(
@@ -345,7 +352,7 @@ class Trainer:
 
     def _save(self, path: Path) -> None:
         self._check_finite()
-        states = [self._rng_state()]
+        states: list[dict | None] = [self._rng_state()]
         if self.distributed:
             states = [None] * self.world
             dist.all_gather_object(states, self._rng_state())
