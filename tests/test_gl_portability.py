@@ -18,8 +18,8 @@ from particlesplat import render
 from particlesplat.core.camera import Camera
 from particlesplat.rendering.projection import ALPHA_MAX, ALPHA_MIN
 from particlesplat.rendering.rasterize import T_MIN
+from viewer.bench.random_gaussians import random_gaussians
 from viewer.gl.caps import COMPOSITING, FETCH_EXTENSION, GLCaps, UnsupportedGL, shader_constants
-from viewer.random_gaussians import random_gaussians
 
 ROOT = Path(__file__).resolve().parents[1]
 HIDE_FETCH = {"MESA_EXTENSION_OVERRIDE": f"-{FETCH_EXTENSION}"}  # read when the driver loads: subprocesses only

@@ -16,8 +16,8 @@ from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.rendering.projection import ALPHA_MAX
 from particlesplat.rendering.rasterize import T_MIN
+from viewer.bench.random_gaussians import random_gaussians
 from viewer.gl.renderer import SplatRenderer, depth_order
-from viewer.random_gaussians import random_gaussians
 
 pytestmark = pytest.mark.gl
 

@@ -87,7 +87,7 @@ def test_eval_json_to_a_device_is_refused(tmp_path):
 
 
 def test_render_width_is_bounded(tmp_path):
-    from viewer.random_gaussians import random_gaussians
+    from viewer.bench.random_gaussians import random_gaussians
 
     random_gaussians(50, seed=1).save_ply(tmp_path / "g.ply")
     assert (

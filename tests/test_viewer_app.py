@@ -18,7 +18,7 @@ from particlesplat import render
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.model import save_checkpoint
 from viewer import app as A
-from viewer.random_gaussians import random_gaussians
+from viewer.bench.random_gaussians import random_gaussians
 
 pytestmark = pytest.mark.window
 

@@ -176,7 +176,7 @@ def test_the_session_holds_an_editor_and_passes_its_whole_api_on(encoded):
     """Composition, not inheritance: every public name of SceneEditor (but objects, which a .ply answers itself)
     is passed on, and a .ply is a PlyScene with an editor that holds no particles."""
     from particlesplat.editing.editor import SceneEditor
-    from viewer.random_gaussians import random_gaussians
+    from viewer.bench.random_gaussians import random_gaussians
     from viewer.session import EDITOR_API, PlyScene
 
     model, enc = encoded

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from viewer.random_gaussians import random_gaussians
+from viewer.bench.random_gaussians import random_gaussians
 
 pytestmark = pytest.mark.window
 

@@ -18,8 +18,8 @@ from particlesplat.core.viewpoints import (
 )
 from particlesplat.data import read_scene
 from particlesplat.editing.open_scene import demo_scenes
+from viewer.bench.random_gaussians import random_gaussians
 from viewer.orbit import OrbitCamera
-from viewer.random_gaussians import random_gaussians
 
 
 def test_parse_look():

@@ -19,7 +19,7 @@ from particlesplat.cli.main import main as cli_main
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.viewpoints import DEFAULT_BACKGROUND, View, default_view, parse_look, scene_background
 from particlesplat.model import save_checkpoint
-from viewer.random_gaussians import random_gaussians
+from viewer.bench.random_gaussians import random_gaussians
 
 pytestmark = pytest.mark.window
 

@@ -104,8 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     from particlesplat.core.viewpoints import Look, View, default_view
 
     from ..gl.renderer import SplatRenderer
-    from ..random_gaussians import random_gaussians
     from ..state import DEFAULT_PRUNE, ViewState
+    from .random_gaussians import random_gaussians
 
     moving = args.moving_scale or ViewState().moving_scale
     paths = [v.strip() for v in args.compositing.split(",") if v.strip()]

@@ -377,8 +377,8 @@ def main(argv: list[str] | None = None) -> int:
 
     from ..gl.caps import COMPOSITING, UnsupportedGL
     from ..gl.renderer import SplatRenderer
-    from ..random_gaussians import random_gaussians
     from ..state import ViewState
+    from .random_gaussians import random_gaussians
 
     if args.moving_scale is None:
         args.moving_scale = ViewState().moving_scale
