@@ -1,5 +1,6 @@
 """Imports go one way, folder by folder: core, formats -> rendering -> model, data -> editing -> analysis ->
-training, bench -> cli; the viewer on top.
+training, bench -> cli; the viewer on top: viewer/gl (what talks to OpenGL) -> the viewer's app, ui and tools ->
+viewer/bench.
 
 A module's layer is its folder (``LAYERS`` below). A module may import its own layer and the layers under it,
 never one above; a module outside every listed folder fails; and the import graph between modules has no cycle,
@@ -24,7 +25,10 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("analysis", ("particlesplat.analysis",)),
     ("training, bench", ("particlesplat.training", "particlesplat.bench")),
     ("cli", ("particlesplat.cli",)),
-    ("viewer", ("viewer",)),
+    # the viewer: its root modules (app, session, state...), ui/ and tools/ import each other, so they are one layer
+    ("viewer gl", ("viewer.gl",)),
+    ("viewer", ("viewer", "viewer.ui", "viewer.tools")),
+    ("viewer bench", ("viewer.bench",)),
 ]
 # the package roots re-export a few core and rendering names lazily; importing them is importing those names
 PACKAGE_ROOT_LAYER = {"particlesplat": "rendering"}
@@ -89,6 +93,18 @@ def graph() -> dict[str, set[str]]:
 def test_every_module_has_a_layer():
     missing = [m for m in all_modules() if layer_of(m) < 0]
     assert not missing, f"give these modules a layer in tests/test_layering.py: {missing}"
+
+
+def test_every_viewer_folder_is_listed():
+    """The viewer's root is a layer of its own modules, so a new folder under viewer/ would join that layer without
+    anyone deciding it: each folder is listed by name, and the viewer's layers are ordered gl, the rest, bench."""
+    listed = {p for _, prefixes in LAYERS for p in prefixes}
+    folders = {f"viewer.{d.name}" for d in (ROOT / "viewer").iterdir() if (d / "__init__.py").is_file()}
+    assert folders, "no folder under viewer/"
+    assert not folders - listed, f"give these folders a layer in tests/test_layering.py: {sorted(folders - listed)}"
+    assert layer_of("particlesplat.cli.main") < layer_of("viewer.gl.renderer")
+    assert layer_of("viewer.gl.renderer") < layer_of("viewer.ui.panel") == layer_of("viewer.app")
+    assert layer_of("viewer.app") == layer_of("viewer.tools.object_tools") < layer_of("viewer.bench.run")
 
 
 def test_no_upward_imports():
