@@ -126,7 +126,7 @@ def test_turntable_cameras_orbit_once():
     assert turntable_paths("/x/t.webp", 2)[1].name == "t.webp"
 
 
-def test_render_command_turntable(scene, tmp_path):
+def test_render_command_turntable(scene, tmp_path, capsys):
     model, _, _, _, data = scene
     ckpt = tmp_path / "m.pt"
     save_checkpoint(ckpt, model, 0)
@@ -185,6 +185,12 @@ def test_render_command_turntable(scene, tmp_path):
         == 0
     )
     np.testing.assert_array_equal(np.asarray(Image.open(still)), np.asarray(Image.open(out.parent / frames[0])))
+    # a PNG's camera is one fixed camera, not an orbit: refused with one line, before the work
+    fixed = ["render", "--checkpoint", str(ckpt), "--scene", scene_dir, "--camera-from", str(still)]
+    capsys.readouterr()
+    assert main([*fixed, "--turntable", "2", "--out", str(tmp_path / "fixed.gif")]) == 2
+    assert "--turntable orbits the default target" in capsys.readouterr().err
+    assert not list(tmp_path.glob("fixed*"))
     ply = tmp_path / "s.ply"
     model.decode(encode_scene(model, scene_dir, [4, 16]).particles).detach().save_ply(ply)
     assert main(["render", "--ply", str(ply), "--mode", "boxes", "--out", str(tmp_path / "b.png")]) != 0

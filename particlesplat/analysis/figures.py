@@ -256,7 +256,7 @@ def write_turntable(
     *,
     background: Sequence[float] = (0.0, 0.0, 0.0),
     arrays: ParticleArrays | None = None,
-    save_frame: Callable[[Path, np.ndarray, Camera], None] | None = None,
+    save_frame: Callable[[Path, np.ndarray, Camera], object] | None = None,
     progress: bool = False,
 ) -> tuple[list[Path], Path]:
     """Render a turntable of ``frames`` views (:func:`turntable_cameras`) in ``mode``; write each frame as a

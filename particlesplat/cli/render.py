@@ -32,7 +32,7 @@ def _background(text: str) -> tuple[float, float, float]:
         raise argparse.ArgumentTypeError(f"--background: expected R,G,B numbers in [0, 1], got {text!r}") from None
     if len(vals) != 3 or not all(0.0 <= v <= 1.0 for v in vals):
         raise argparse.ArgumentTypeError(f"--background: expected R,G,B numbers in [0, 1], got {text!r}")
-    return vals  # type: ignore[return-value]
+    return vals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -97,8 +97,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _scene_and_gaussians(args: argparse.Namespace):
-    """(Gaussians, all input cameras, edits dict, model name, source, background colour, particle arrays or None)
-    for the arguments (the arrays only for a --mode that draws from the particles)."""
+    """(Gaussians, all input cameras, edits (the edit file's text, else {}), model name, source, background colour,
+    particle arrays or None) for the arguments (the arrays only for a --mode that draws from the particles)."""
     check_source_arguments(args)
     if args.ply:
         return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None), None
@@ -106,7 +106,7 @@ def _scene_and_gaussians(args: argparse.Namespace):
 
     from particlesplat.editing.editor import SceneEditor, load_edit_file, scene_mismatch
 
-    file, where = None, None
+    file, where = None, "edits"  # where: the edit file's name in messages
     if getattr(args, "edits_from", None):
         if args.edits:
             raise ValueError("--edits and --edits-from: give one edit file")
@@ -126,7 +126,8 @@ def _scene_and_gaussians(args: argparse.Namespace):
     model, enc, name = load_model_scene(args.checkpoint, scene, context)
     for warning in enc.warnings:
         print(f"particlesplat render: warning: {warning}", file=sys.stderr)
-    particles, edits = enc.particles, {}
+    particles = enc.particles
+    edits: str | dict = {}  # for png_text: the edit file's text, {} (no edits) without one
     if file is not None:
         warning = scene_mismatch(file, enc.path, enc.context)
         if warning:
@@ -210,6 +211,8 @@ def run(args: argparse.Namespace) -> int:
             raise OptionError(f"--turntable must be >= 0 frames, got {args.turntable}")
         if args.turntable and args.view is not None:
             raise OptionError("--turntable orbits the default target: use --look (or nothing), not --view")
+        if args.turntable and getattr(args, "camera_from", None):
+            raise OptionError("--turntable orbits the default target: use --look (or nothing), not --camera-from")
         if args.mode in NEEDS_PARTICLES and args.ply:
             raise OptionError(f"--mode {args.mode} needs a model scene (particles), not --ply")
         g, cameras, edits, model_name, source, background, arrays = _scene_and_gaussians(args)
@@ -245,6 +248,7 @@ def run(args: argparse.Namespace) -> int:
         )
     try:
         if args.turntable:
+            assert view is not None  # resolve_camera has one but for --view and --camera-from, refused above
             frames, anim = write_turntable(
                 g,
                 view,
