@@ -130,6 +130,8 @@ def test_bench_edits_data_option_bad_folders_are_one_line(tmp_path):
     _demo_copy(tmp_path)  # a scene without ground-truth edits
     with pytest.raises(OptionError, match="edits.json"):
         bench_main(["--data", str(tmp_path / "split"), "--json", str(tmp_path / "b.json")])
+    with pytest.raises(OptionError, match="--context: expected comma-separated frame indices"):
+        bench_main(["--context", "", "--json", str(tmp_path / "b.json")])
     assert not (tmp_path / "b.json").exists()
 
 

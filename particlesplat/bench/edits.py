@@ -32,7 +32,7 @@ import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -42,7 +42,7 @@ from particlesplat.analysis.metrics import psnr_of_mse
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.errors import OptionError, one_line, short_repr
 from particlesplat.data.families import tabletop
-from particlesplat.data.scene import SceneFormatError, read_scene
+from particlesplat.data.scene import Scene, SceneFormatError, read_scene
 from particlesplat.data.synth import scene_rng, write_tabletop
 from particlesplat.editing.editor import Pick, PickError, SceneEditor
 from particlesplat.editing.move import MoveError
@@ -264,6 +264,13 @@ def read_edits(scene_dir: Path, context: list[int]) -> GroundTruth | None:
     )
 
 
+def _scored_masks(scene: Scene, folder: Path) -> torch.Tensor:
+    """(V, H, W) instance masks of the scored views of ``scene`` (read from ``folder``)."""
+    if scene.masks is None:
+        raise SceneFormatError(f"{folder}: every view needs an instance mask (masks/) to score an edit by")
+    return scene.masks
+
+
 def score_scene(
     model: ParticleSplat, truth: GroundTruth, context: list[int], dilate: int, z_t_threshold: float | None = None
 ) -> dict:
@@ -282,12 +289,14 @@ def score_scene(
     }
     k = truth.object
     orig_raw = read_scene(truth.folders["original"]).select(others, size)
+    orig_masks = _scored_masks(orig_raw, truth.folders["original"])
     for kind in truth.kinds:
         gt_scene = read_scene(truth.folders[kind]).select(others, size)
         cams = gt_scene.cameras
         gt = gt_scene.rgb
-        old = orig_raw.masks == k
-        new = gt_scene.masks == {"move": k, "remove": -1, "duplicate": truth.copy}[kind]
+        gt_masks = _scored_masks(gt_scene, truth.folders[kind])
+        old = orig_masks == k
+        new = gt_masks == {"move": k, "remove": -1, "duplicate": truth.copy}[kind]
         if kind == "duplicate":
             old = torch.zeros_like(old)  # the original stays: only the copy's place changes
         regions = {
@@ -310,6 +319,8 @@ def score_scene(
             status = f"failed: {e}"
         if noop is None:
             noop = _renders(model, enc.particles, cams, z_t_threshold)
+        if editor.particles is None:  # an editor made from particles keeps (edited) particles
+            raise RuntimeError(f"{truth.label}: the editor has no particles to render")
         preds = {
             "edit": _renders(model, editor.particles, cams, z_t_threshold),
             "noop": noop,
@@ -317,7 +328,7 @@ def score_scene(
                 model, encode_scene(model, truth.folders[kind], context).particles, cams, z_t_threshold
             ),
         }
-        row = {"status": status, "pixels": {r: int(m.sum()) for r, m in regions.items()}}
+        row: dict[str, Any] = {"status": status, "pixels": {r: int(m.sum()) for r, m in regions.items()}}
         for variant, pred in preds.items():
             row[variant] = {}
             for region, m in regions.items():
@@ -399,6 +410,9 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.scenes < 1:
         parser.error(f"--scenes must be >= 1, got {args.scenes}")
+    context = parse_context(args.context)
+    if context is None:  # an empty --context: parse_context's "use the default" has no meaning here
+        raise OptionError(f"--context: expected comma-separated frame indices, got {args.context!r}")
     scene_dirs: list[Path] = []
     if args.data is not None:
         data = Path(args.data)
@@ -414,8 +428,8 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(min(2, torch.get_num_threads()))
     model = load_model(args.checkpoint)
-    context = parse_context(args.context)
-    rows, skipped = [], []
+    rows: list[dict] = []
+    skipped: list[str] = []
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.work) if args.work else Path(tmp)
