@@ -17,16 +17,17 @@ DEPTH_UNIT = 0.0002  # metres per 16-bit depth step: 0.2 mm resolution, 13.1 m r
 def write_scene_files(
     folder: Path,
     cameras: Sequence[Camera],
-    rgb: Sequence[np.ndarray],
-    depth: Sequence[np.ndarray],
-    masks: Sequence[np.ndarray],
+    rgb: Sequence[np.ndarray] | np.ndarray,
+    depth: Sequence[np.ndarray] | np.ndarray,
+    masks: Sequence[np.ndarray] | np.ndarray,
     meta: dict,
 ) -> None:
     """Write views into the existing folder ``folder``: ``rgb/``, ``depth/``, ``masks/`` PNGs,
     ``transforms.json`` (the cameras; the intrinsics of the first) and ``scene.json`` (``meta``).
 
     rgb: V arrays (H, W, 3) uint8; depth: V arrays (H, W) planar metres (0 = nothing); masks: V arrays (H, W)
-    uint8 instance ids. Raises ValueError when a depth exceeds the 16-bit range.
+    uint8 instance ids (each may also be one array of the V stacked). Raises ValueError when a depth exceeds the
+    16-bit range.
     """
     for sub in ("rgb", "depth", "masks"):
         (folder / sub).mkdir()

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from particlesplat.core.camera import Camera
+from particlesplat.core.vectors import float3, float4
 from particlesplat.data.scene_files import write_scene_files
 
 from .robot_assets import assets_dir, import_mujoco
@@ -128,6 +129,8 @@ class CameraArc:
     def cameras(self, width: int, height: int) -> list[Camera]:
         """The views (float64, OpenCV convention), in trajectory order."""
         if self.rig == "arc":
+            if self.elevation_deg is None or self.distance is None:
+                raise ValueError("an arc of cameras needs its elevation_deg and distance")
             return [
                 Camera.orbit(
                     self.look_at,
@@ -190,7 +193,7 @@ def camera_poses(cams: Sequence[Camera], mujoco) -> list[CameraPose]:
         c2w = cam.to_opengl_c2w().to(torch.float64).numpy()
         quat = np.zeros(4)
         mujoco.mju_mat2Quat(quat, np.ascontiguousarray(c2w[:3, :3]).reshape(-1))
-        poses.append(CameraPose(f"view{i:03d}", tuple(c2w[:3, 3].tolist()), tuple(quat.tolist()), cam.fov_y))
+        poses.append(CameraPose(f"view{i:03d}", float3(c2w[:3, 3]), float4(quat), cam.fov_y))
     return poses
 
 
@@ -259,7 +262,7 @@ def _draw_object(rng: np.random.Generator, used: set[str]) -> ObjectSpec:
         kind = PRIMITIVES[int(rng.integers(len(PRIMITIVES)))]
         texture = PRIMITIVE_TEXTURES[int(rng.integers(len(PRIMITIVE_TEXTURES)))]
         if kind == "box":
-            half = tuple(float(v) for v in rng.uniform(*BOX_HALF, size=3))
+            half = float3(rng.uniform(*BOX_HALF, size=3))
         else:
             r = float(rng.uniform(*CYLINDER_RADIUS))
             half = (r, r, float(rng.uniform(*CYLINDER_HALF_HEIGHT)))
@@ -405,11 +408,11 @@ def object_states(comp: Composition, specs: Sequence[ObjectSpec]) -> list[Object
                 spec.name,
                 spec.kind,
                 spec.texture,
-                tuple(float(v) for v in (lo + hi) / 2),
-                tuple(float(v) for v in lo),
-                tuple(float(v) for v in hi),
-                tuple(float(v) for v in q[:3]),
-                tuple(float(v) for v in q[3:]),
+                float3((lo + hi) / 2),
+                float3(lo),
+                float3(hi),
+                float3(q[:3]),
+                float4(q[3:]),
             )
         )
     return out
@@ -506,7 +509,7 @@ def draw_edit(rng: np.random.Generator, scene: SettledScene, mujoco) -> GroundTr
                 touching = any(_contacts(comp))
                 d.qpos[:] = saved
                 if not touching:
-                    return GroundTruthEdit(k, scene.objects[k - 1].name, tuple(float(v) for v in off))
+                    return GroundTruthEdit(k, scene.objects[k - 1].name, float3(off))
         return None
     finally:
         d.qpos[:] = saved

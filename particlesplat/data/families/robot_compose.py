@@ -14,7 +14,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -42,6 +42,9 @@ PRIMITIVE_TEXTURES = (
 PANDA_HOME = (0.0, math.pi / 16.0, 0.0, -math.pi / 2.0 - math.pi / 3.0, 0.0, math.pi - 0.2, math.pi / 4.0)
 ROBOT_SETBACK = 0.16  # metres from the table's edge to the robot base (robosuite's offset for the Panda)
 HIDDEN_GROUP = 3  # geoms in this group are never drawn
+# MuJoCo's bindings ship no type stubs: its model and data are untyped (Any) where they enter this package
+MjModel = Any  # mujoco.MjModel
+MjData = Any  # mujoco.MjData
 # contact bits: objects (type 3, affinity 1) touch table/objects (1) and the arm (affinity 2);
 # the table is type 3 so the arm (type 0, affinity 2) touching it is seen; arm-arm pairs never collide.
 OBJECT_CONTYPE, OBJECT_CONAFFINITY = 3, 1
@@ -100,8 +103,8 @@ class Composition:
         camera_ids: (V,) MuJoCo camera ids of the scene's views, in order.
     """
 
-    model: object
-    data: object
+    model: MjModel
+    data: MjData
     object_bodies: np.ndarray
     object_qpos: np.ndarray
     arm_qpos: np.ndarray
