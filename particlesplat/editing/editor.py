@@ -44,6 +44,7 @@ from torch import Tensor
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.camera import Camera
 from particlesplat.core.errors import short_repr
+from particlesplat.editing.decoded import DecodedParticles
 from particlesplat.editing.grouping import (
     OPAQUE,
     dense_objects,
@@ -65,6 +66,7 @@ from particlesplat.editing.particle_edits import (
 )
 from particlesplat.model.particles import EDITABLE, Particles
 from particlesplat.rendering.api import render
+from particlesplat.rendering.pixel import pixel_weights
 
 if TYPE_CHECKING:
     from particlesplat.model.particlesplat import ParticleSplat
@@ -74,6 +76,11 @@ OpKind = Literal["translate", "remove", "duplicate", "set", "insert"]
 OBJECT_KINDS: tuple[OpKind, ...] = ("translate", "remove", "duplicate")
 BOTTOM_QUANTILE = 0.02  # an object's bottom: this quantile of its opaque Gaussians' heights
 MIN_PICK_PIXELS = 2  # an object must cover this many pixels of a frame to be picked there when saving
+# An edited scene holds at most this many particles (64 times what two context views encode; about 0.5 M Gaussians
+# at 512 a particle). The cap bounds what one operation costs (a pick composites the Gaussians at one pixel, at
+# worst all of them), so an edit file replays in time linear in its operations.
+MAX_EDIT_PARTICLES = 1024
+ADDING_KINDS: tuple[OpKind, ...] = ("duplicate", "insert")  # operations that add particles (at least one each)
 
 
 class PickError(EditsError):
@@ -390,6 +397,7 @@ class Operation:
     before: Particles | None = None
     sources: tuple[int, ...] = ()
     insert: Insert | None = None
+    pick: Pick | None = None
 
 
 @dataclass
@@ -429,6 +437,9 @@ class SceneEditor:
         self.original: Particles | None = particles.detach().to("cpu") if particles is not None else None
         self.particles: Particles | None = self.original.clone() if self.original is not None else None
         self._objects: Tensor | None = None
+        self._labels: tuple[tuple[int, int], Tensor] | None = None  # objects() as of (version, operations done)
+        # a scene opened from a .ply has no model and no particles
+        self._decoded = DecodedParticles(model, z_t_threshold) if model is not None else None
         self._support: float | None = None
         self._source: list[int] = list(range(self.original.num)) if self.original is not None else []
         self._inserted: Particles | None = None  # inserted particles as inserted: origin() rows past the original
@@ -474,9 +485,11 @@ class SceneEditor:
         return diff_edits(self.original, self.particles.truncate(self.original.num))
 
     def decode(self, particles: Particles | None = None):
-        """All Gaussians (edits applied, background included) on the CPU."""
-        p = self.particles if particles is None else particles
-        return self.model.decode(p, z_t_threshold=self.z_t_threshold).detach().to("cpu")
+        """All Gaussians (edits applied, background included) on the CPU; of the current particles (the default)
+        from the Gaussians kept up to date edit by edit (:class:`particlesplat.editing.decoded.DecodedParticles`)."""
+        if self._decoded is not None and (particles is None or particles is self.particles):
+            return self._decoded.gaussians(self.particles)
+        return self.model.decode(particles, z_t_threshold=self.z_t_threshold).detach().to("cpu")
 
     def objects(self) -> Tensor:
         """(num_particles,) int64 object number per particle, the numbering ``particlesplat encode`` writes
@@ -487,11 +500,11 @@ class SceneEditor:
             g = self.decode(self.original)
             groups = particle_objects(g, self.original.num)
             self._objects = dense_objects(groups, drawing_particles(self.original, g, self.active_threshold))
-        labels = self._objects
-        for op in self.history.undo:
-            if op.added_labels is not None:
-                labels = torch.cat([labels, op.added_labels])
-        return labels
+        key = (self.version, len(self.history.undo))
+        if self._labels is None or self._labels[0] != key:
+            added = [op.added_labels for op in self.history.undo if op.added_labels is not None]
+            self._labels = (key, torch.cat([self._objects, *added]) if added else self._objects)
+        return self._labels[1]
 
     def object_members(self, index: int) -> list[int]:
         """The particles of particle ``index``'s object (:meth:`objects`), ascending; a particle that draws
@@ -551,9 +564,11 @@ class SceneEditor:
     def object_map(self, frame: int, particles: Particles | None = None, where: str = "pick") -> Tensor:
         """(H, W) int64 object label per pixel of input frame ``frame`` at its stored size (-1 background)."""
         p = self.particles if particles is None else particles
-        cam = self._frame_camera(frame, where)
-        labels = self.objects()[: p.num]
-        g = self.decode(p)
+        return self._label_render(self.decode(p), self._frame_camera(frame, where), self.objects()[: p.num])
+
+    def _label_render(self, g, cam: Camera, labels: Tensor) -> Tensor:
+        """(H, W) int64 object label per pixel of Gaussians ``g`` (owner = particle) seen by ``cam``; labels:
+        (particles,) object per particle."""
         # the rasteriser sums each object's weights itself: owners are object labels (a particle in no object
         # draws as background, as object_segmentation counts it), so the owner weights hold one plane per object,
         # not one per particle (a scene grown by many duplicates would need particles x pixels of them)
@@ -571,6 +586,23 @@ class SceneEditor:
             )
         return res.segmentation()
 
+    def _pixel_object(self, frame: int, cam: Camera, pixel: tuple[int, int]) -> int:
+        """The object label at ``pixel`` of frame ``frame`` on the current particles, -1 for the background, as
+        :meth:`object_map` has it there; composited from the Gaussians that reach the pixel alone, so a pick costs
+        what they cost, not what the whole scene does."""
+        if self._decoded is None:
+            raise PickError("this scene has no particles to pick (opened from a .ply)")
+        g = self._decoded.reaching(self.particles, cam, frame, pixel)
+        index, weights = pixel_weights(g, cam.to("cpu", torch.float32), pixel)
+        labels = self.objects()
+        owner = g.owner[index]
+        label = torch.where(owner >= 0, labels[owner.clamp_min(0)], owner)
+        count = int(labels.max()) + 1 if labels.numel() else 0
+        scores = torch.zeros(1 + count, dtype=torch.float64)
+        scores.index_add_(0, (label + 1).clamp_min(0), weights.double())
+        scores[0] += 1.0 - float(weights.double().sum())  # the empty remainder counts as background
+        return int(scores.argmax()) - 1
+
     def pick(self, pick: Pick, where: str = "pick") -> int:
         """The first particle of the object under ``pick`` on the current particles; PickError names ``where``
         when the pixel shows no object."""
@@ -578,7 +610,7 @@ class SceneEditor:
         x, y = pick.pixel
         if not (0 <= x < cam.width and 0 <= y < cam.height):
             raise PickError(f"{where}: pick.pixel [{x}, {y}] is outside frame {pick.frame} ({cam.width}x{cam.height})")
-        label = int(self.object_map(pick.frame, where=where)[y, x])
+        label = self._pixel_object(pick.frame, cam, (x, y))
         if label < 0:
             raise PickError(f"{where}: pick {{frame: {pick.frame}, pixel: [{x}, {y}]}} hits no object (background)")
         return int(torch.nonzero(self.objects() == label)[0])
@@ -614,14 +646,18 @@ class SceneEditor:
     # ------------------------------------------------------------------ operations
     def _apply(self, op: Operation, forward: bool) -> None:
         if forward and op.added is not None:
-            self.particles = self.particles.cat(op.added)
+            self.particles = self.particles.cat(op.added)  # the new rows are decoded on first use
             self._source += list(op.sources) if op.sources else [self._source[i] for i in op.members]
             self._all_changed = True
         for ch in op.changes if forward else reversed(op.changes):
             self.particles = self.particles.with_attribute(ch.index, ch.name, ch.new if forward else ch.old)
             self._changed.add(ch.index)
+        if self._decoded is not None:
+            self._decoded.invalidate(ch.index for ch in op.changes)
         if not forward and op.added is not None:
             self.particles = self.particles.truncate(self.particles.num - op.added.num)
+            if self._decoded is not None:
+                self._decoded.truncate(self.particles.num)
             del self._source[self.particles.num :]
             self._all_changed = True
         self.version += 1
@@ -866,6 +902,7 @@ class SceneEditor:
                 raise EditsError(f"{where}: insert: {e}") from None
             return
         index = self.pick(op.pick, where)
+        done = len(self.history.undo)
         try:
             if op.kind == "translate":
                 self.move_object(index, op.offset)
@@ -876,6 +913,8 @@ class SceneEditor:
                 self.duplicate_object(index, op.offset)
         except MoveError as e:
             raise EditsError(f"{where}: {e}") from None
+        if len(self.history.undo) > done:
+            self.history.undo[-1].pick = op.pick  # saved as it was read: a replayed file saves itself
 
     def apply_file(self, file: EditFile, where: str = "edits") -> None:
         """Do every operation of an edit file (version 1: its particle edits as one operation). All or
@@ -883,6 +922,15 @@ class SceneEditor:
         if file.version == 1:
             self.set_edits(file.particles, label=where)
             return
+        adding = [i for i, op in enumerate(file.operations) if op.kind in ADDING_KINDS]
+        room = MAX_EDIT_PARTICLES - self.num_particles
+        if len(adding) > max(room, 0):  # refused before any work: each adding operation adds a particle or more
+            i = adding[max(room, 0)]
+            raise EditsError(
+                f"{where}: operations[{i}] ({file.operations[i].kind}): the scene has {self.num_particles} particles "
+                f"and {len(adding)} operations add at least one each: more than the {MAX_EDIT_PARTICLES} an edited "
+                "scene may hold"
+            )
         self.end_gesture()
         done, redo = len(self.history.undo), list(self.history.redo)
         try:
@@ -903,7 +951,9 @@ class SceneEditor:
                 out.append(EditOp("insert", insert=op.insert))
                 continue
             if op.kind in OBJECT_KINDS:
-                out.append(EditOp(op.kind, pick=self.pick_for(op.members[0], op.before), offset=op.offset))
+                if op.pick is None:  # found once: the particles before the operation do not change
+                    op.pick = self.pick_for(op.members[0], op.before)
+                out.append(EditOp(op.kind, pick=op.pick, offset=op.offset))
                 continue
             per: dict[int, dict[str, tuple[float, ...]]] = {}
             for c in op.changes:
@@ -932,12 +982,9 @@ class SceneEditor:
 
 
 def _check_room(num: int, more: int, what: str) -> None:
-    """MoveError unless a scene of ``num`` particles can take ``more``: a particle index is a Gaussian's owner,
-    at most :data:`particlesplat.core.gaussians.MAX_OWNER`. The cap also bounds what one operation costs, so an
-    edit file replays in time linear in its operations."""
-    from particlesplat.core.gaussians import MAX_OWNER
-
-    if num + more > MAX_OWNER + 1:
+    """MoveError unless a scene of ``num`` particles can take ``more`` (:data:`MAX_EDIT_PARTICLES`)."""
+    if num + more > MAX_EDIT_PARTICLES:
         raise MoveError(
-            f"{what}: the scene would have {num + more} particles, more than the {MAX_OWNER + 1} a scene may hold"
+            f"{what}: the scene would have {num + more} particles, more than the {MAX_EDIT_PARTICLES} an edited "
+            "scene may hold"
         )

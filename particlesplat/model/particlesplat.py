@@ -353,7 +353,8 @@ class ParticleSplat(nn.Module):
         ``z_t_threshold`` None = ``config.bg_mask_threshold``: only active particles draw (an inactive one
         drew a faint copy that no object grouping took along; dropping them costs nothing on the test
         scenes, docs/object-edits.md); 0 draws every particle.
-        Decoding a subset gives exactly the same Gaussians as the full decode restricted to it.
+        Decoding a subset gives the same Gaussians as the full decode restricted to it (to float32 rounding: a
+        batch of another size may round the last bits differently).
         """
         dev = next(self.parameters()).device
         p = particles.to(dev)

@@ -11,7 +11,7 @@ from torch import Tensor
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.sh import eval_sh_colors
-from particlesplat.rendering.projection import footprint_radius_sq, project_gaussians
+from particlesplat.rendering.projection import footprint_extents, project_gaussians
 from particlesplat.rendering.rasterize import RasterizeFunction, bin_gaussians, pair_inputs, tiles_to_images
 
 
@@ -164,14 +164,7 @@ def render_batch(
         cam = camera.to(device=device, dtype=dtype)
         proj = project_gaussians(gaussians, cam, near, far)
         opac = gaussians.opacities[proj.index]
-        r2 = footprint_radius_sq(opac.detach())
-        # half extents of the ellipse dᵀΣ⁻¹d <= r² are r·sqrt(Σ_xx), r·sqrt(Σ_yy); a hair of
-        # margin keeps float rounding from dropping a boundary pixel
-        radius = torch.where(
-            r2[:, None] >= 0,
-            torch.sqrt(r2.clamp_min(0))[:, None] * proj.cov2d_diag.detach().sqrt() * (1 + 1e-5) + 1e-3,
-            torch.full_like(proj.cov2d_diag, -1.0),
-        )
+        radius = footprint_extents(proj, opac)
         dirs = torch.nn.functional.normalize(gaussians.means[proj.index] - cam.center, dim=-1)
         colors = eval_sh_colors(gaussians.sh[proj.index], dirs)
         parts["means2d"].append(proj.means2d)

@@ -88,3 +88,17 @@ def project_gaussians(gaussians: Gaussians, camera: Camera, near: float = 0.01, 
 def footprint_radius_sq(opacities: Tensor) -> Tensor:
     """(M,) squared Mahalanobis radius inside which o·exp(-½ r²) >= 1/255: 2 ln(255 o); < 0 if never."""
     return 2.0 * torch.log(opacities.clamp_min(1e-30) * 255.0)
+
+
+def footprint_extents(projected: Projected, opacities: Tensor) -> Tensor:
+    """(M, 2) half extents (pixels) of the box around each projected centre outside which α < 1/255; -1 where a
+    Gaussian reaches 1/255 nowhere. opacities: (M,) of the projected Gaussians (``opacities[projected.index]``).
+
+    The ellipse dᵀΣ⁻¹d <= r² spans r·sqrt(Σ_xx), r·sqrt(Σ_yy); a hair of margin keeps float rounding from dropping
+    a boundary pixel."""
+    r2 = footprint_radius_sq(opacities.detach())
+    return torch.where(
+        r2[:, None] >= 0,
+        torch.sqrt(r2.clamp_min(0))[:, None] * projected.cov2d_diag.detach().sqrt() * (1 + 1e-5) + 1e-3,
+        torch.full_like(projected.cov2d_diag, -1.0),
+    )

@@ -28,7 +28,7 @@ TILE = 4
 CHUNK_ELEMENTS = 1 << 18
 MIN_CHUNK_ELEMENTS = 1 << 14  # smaller buckets merge into the next one
 T_MIN = 1e-4  # a pixel stops before the Gaussian that would take T to <= T_MIN
-_EXP_FLOOR = -6.0  # exp(-6) < 1/255: clamping the exponent changes nothing and keeps exp() fast
+EXP_FLOOR = -6.0  # exp(-6) < 1/255: clamping the exponent changes nothing and keeps exp() fast
 _PAD_LOG_OPACITY = -30.0  # coefficient row of padding slots: α = 0 everywhere
 
 
@@ -220,7 +220,7 @@ class _ChunkState:
         # exponent ln o − ½ dᵀCd: one (Tb·L, 6) @ (6, 16) product (faster than a batched one)
         tb, length = coef.shape[:2]
         raw = (coef.reshape(-1, 6) @ feats.T).reshape(tb, length, -1).transpose(1, 2).contiguous()
-        raw.clamp_min_(_EXP_FLOOR).exp_()
+        raw.clamp_min_(EXP_FLOOR).exp_()
         alpha = raw.clamp_max_(ALPHA_MAX)
         alpha.mul_(_step(alpha - ALPHA_MIN, strict=False))  # α = 0 where α < 1/255
         self.alpha = alpha

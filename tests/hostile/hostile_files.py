@@ -40,6 +40,15 @@ def alias_bomb_edits(path: Path) -> Path:
     return path
 
 
+def many_duplicates_edits(path: Path, count: int = 10_000) -> Path:
+    """An edits file under the 1 MiB limit whose ``count`` duplicate operations would grow the scene without end
+    (replayed naively, each pick decodes every copy made before it)."""
+    op = "  - {pick: {frame: 0, pixel: [16, 16]}, duplicate: [0.0, 0.0, 0.0]}\n"
+    path.write_text("version: 2\noperations:\n" + op * count)
+    assert path.stat().st_size < 1 << 20
+    return path
+
+
 def alias_bomb_config(path: Path) -> Path:
     """A training config whose ``train.context_views`` is an alias bomb."""
     path.write_text("model: {}\n" + ALIAS_BOMB + "train:\n  context_views: *i\n")

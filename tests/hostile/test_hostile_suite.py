@@ -32,6 +32,7 @@ from hostile_files import (  # noqa: E402 (found through the sys.path entry abov
     huge_owner_ply,  # noqa: E402
     lock_run,
     lying_count_ply,
+    many_duplicates_edits,
     many_frames_one_image,
     nan_checkpoint,
     png_with_camera,
@@ -116,6 +117,7 @@ def world(tmp_path_factory) -> dict[str, Path]:
         "good": w / "good.pt",
         "nan": nan_checkpoint(w / "good.pt", w / "nan.pt"),
         "edits": alias_bomb_edits(w / "bomb_edits.yaml"),
+        "duplicates": many_duplicates_edits(w / "duplicates.yaml"),
         "config": alias_bomb_config(w / "bomb_config.yaml"),
         "owner": huge_owner_ply(w / "huge_owner.ply"),
         "count": lying_count_ply(w / "lying_count.ply"),
@@ -150,6 +152,11 @@ def _cases(x: dict[str, Path]) -> dict[str, dict]:
             PS,
             ["render", "--checkpoint", good, "--scene", scene, "--edits", str(x["edits"]), "--out", out],
             rf"{x['edits']}: .*alias '\*a'",
+        ),
+        "10,000 duplicates, render --edits": (
+            PS,
+            ["render", "--checkpoint", good, "--scene", scene, "--edits", str(x["duplicates"]), "--out", out],
+            rf"{x['duplicates']}: operations\[\d+\] \(duplicate\): .*more than the 1024 an edited scene may hold",
         ),
         "alias bomb, viewer --edits": (
             VIEWER,
@@ -422,7 +429,20 @@ def _lines(stderr: str) -> list[str]:
             {
                 k: Path(k)
                 for k in (
-                    *("w", "data", "scene", "cfg", "good", "nan", "edits", "config", "owner", "count", "many"),
+                    *(
+                        "w",
+                        "data",
+                        "scene",
+                        "cfg",
+                        "good",
+                        "nan",
+                        "edits",
+                        "duplicates",
+                        "config",
+                        "owner",
+                        "count",
+                        "many",
+                    ),
                     *("big", "dmax", "sparse", "nested", "fx0"),
                 )
             }
