@@ -65,8 +65,9 @@ def test_wheel_is_small(wheel: Path) -> None:
 
 def test_wheel_holds_the_model_the_scenes_and_the_shaders(wheel: Path) -> None:
     names = set(_names(wheel))
-    assert "particlesplat/assets/model.pt" in names
-    assert "particlesplat/assets/model.yaml" in names
+    for family in ("", "robot/"):  # each family's shipped model and its recipe
+        assert f"particlesplat/assets/{family}model.pt" in names
+        assert f"particlesplat/assets/{family}model.yaml" in names
     # every shader of the source tree
     shaders = {p.name for p in (ROOT / "shaders").iterdir() if p.suffix in (".vert", ".frag", ".glsl", ".geom")}
     assert shaders and {f"viewer/shaders/{s}" for s in shaders} <= names
@@ -96,7 +97,7 @@ def test_wheel_holds_the_model_the_scenes_and_the_shaders(wheel: Path) -> None:
 def test_wheel_holds_no_training_runs(wheel: Path) -> None:
     names = _names(wheel)
     checkpoints = [n for n in names if n.endswith((".pt", ".pth", ".ckpt"))]
-    assert checkpoints == ["particlesplat/assets/model.pt"], checkpoints
+    assert sorted(checkpoints) == ["particlesplat/assets/model.pt", "particlesplat/assets/robot/model.pt"], checkpoints
     assets = [n for n in names if n.startswith("particlesplat/assets/")]
     runs = [n for n in assets if "/training/" in n or "model-training" in n]
     runs += [n for n in names if n.endswith(".jsonl")]

@@ -43,6 +43,7 @@ from particlesplat.core.atomic import atomic_write
 from particlesplat.core.errors import OptionError, one_line, short_repr
 from particlesplat.data.families import tabletop
 from particlesplat.data.scene import Scene, SceneFormatError, read_scene
+from particlesplat.data.scene_meta import CHECKPOINT_HELP, default_checkpoint
 from particlesplat.data.synth import scene_rng, write_tabletop
 from particlesplat.editing.editor import Pick, PickError, SceneEditor
 from particlesplat.editing.move import MoveError
@@ -376,7 +377,11 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped assets/model.pt)")
+    parser.add_argument(
+        "--checkpoint",
+        default=None,
+        help=CHECKPOINT_HELP,
+    )
     parser.add_argument(
         "--data",
         default=None,
@@ -427,7 +432,7 @@ def main(argv: list[str] | None = None) -> int:
     check_writable(args.json)  # before half an hour of work, not after it
 
     torch.set_num_threads(min(2, torch.get_num_threads()))
-    model = load_model(args.checkpoint)
+    model = load_model(args.checkpoint or (default_checkpoint(args.data) if args.data else None))
     rows: list[dict] = []
     skipped: list[str] = []
     t0 = time.perf_counter()

@@ -33,6 +33,7 @@ from particlesplat.core.errors import OptionError, UserError, one_line, short_re
 from particlesplat.core.viewpoints import default_context_views
 from particlesplat.data import Scene, read_scene
 from particlesplat.data.scene import TRANSFORMS
+from particlesplat.data.scene_meta import CHECKPOINT_HELP
 from particlesplat.editing.grouping import ObjectCentre
 from particlesplat.model import Particles, ParticleSplat
 from particlesplat.model.geometry import stack_cameras
@@ -215,7 +216,10 @@ def encode_folder(
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, help="a scene folder, or a folder with scene folders below it")
     parser.add_argument("--out", required=True, help="output folder: OUT/<scene>.npz per scene")
-    parser.add_argument("--checkpoint", help="model checkpoint; none = the shipped assets/model.pt")
+    parser.add_argument(
+        "--checkpoint",
+        help=CHECKPOINT_HELP,
+    )
     parser.add_argument(
         "--context", help="context frame indices, e.g. 4,16; none = two frames 12 apart about the middle"
     )
@@ -244,14 +248,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from particlesplat.data.scene_meta import default_checkpoint
     from particlesplat.editing.open_scene import parse_context
     from particlesplat.model import load_model
-    from particlesplat.model.io import shipped_model_path
+    from particlesplat.model.io import shipped_model_name
 
     device = resolve_device(args.device)
-    checkpoint = Path(args.checkpoint) if args.checkpoint else shipped_model_path()
+    checkpoint = Path(args.checkpoint) if args.checkpoint else default_checkpoint(args.data)
     model = load_model(checkpoint, device=device)
-    meta = {"model": str(args.checkpoint or "assets/model.pt"), "checkpoint_sha256": file_sha256(checkpoint)}
+    meta = {"model": shipped_model_name(checkpoint), "checkpoint_sha256": file_sha256(checkpoint)}
     batch = args.batch if args.batch is not None else (8 if device.type == "cuda" else 1)
     stats = encode_folder(
         model,

@@ -9,11 +9,16 @@ from pathlib import Path
 from particlesplat.analysis.evaluate import evaluate_dataset, json_safe
 from particlesplat.analysis.particle_arrays import OBJECT_CENTRES
 from particlesplat.core.atomic import atomic_write
+from particlesplat.data.scene_meta import CHECKPOINT_HELP
 from particlesplat.model.fit import DEFAULT_FIT, FITTED
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped assets/model.pt)")
+    parser.add_argument(
+        "--checkpoint",
+        default=None,
+        help=CHECKPOINT_HELP,
+    )
     parser.add_argument("--data", required=True, help="folder of scene folders (e.g. data/tabletop/test)")
     parser.add_argument("--context", type=int, choices=(1, 2), default=2, help="number of context views")
     parser.add_argument("--no-depth", action="store_true", help="encode the context views without depth")
@@ -54,8 +59,8 @@ def run(args: argparse.Namespace) -> int:
     from particlesplat.core.atomic import check_writable
     from particlesplat.core.device import resolve_device
     from particlesplat.core.errors import OptionError
+    from particlesplat.data.scene_meta import default_checkpoint
     from particlesplat.model import load_model, read_checkpoint
-    from particlesplat.model.io import shipped_model_path
     from particlesplat.model.provenance import describe
 
     device = resolve_device(args.device)
@@ -69,8 +74,8 @@ def run(args: argparse.Namespace) -> int:
         check_writable(args.json)  # before the work, not after it
     if args.figures and args.num_figures > 0:
         check_writable(Path(args.figures) / "figure.png")
-    model = load_model(args.checkpoint, device=device)
-    path = args.checkpoint or shipped_model_path()
+    path = args.checkpoint or default_checkpoint(args.data)  # the shipped model of the data's family
+    model = load_model(path, device=device)
     ckpt = read_checkpoint(path)
     print(f"{path}: step {ckpt['step']}; {describe(ckpt.get('provenance'))}")
     out = evaluate_dataset(

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from particlesplat.analysis.particle_arrays import OBJECT_CENTRES
+from particlesplat.data.scene_meta import CHECKPOINT_HELP
 
 
 def _xy(text: str) -> tuple[float, float]:
@@ -52,19 +53,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ins.add_argument("--out", required=True, help="output .ply of the composed scene (B with the object)")
     ins.add_argument("--png", help="also render the composed scene from B's default view to this PNG")
     for p in (exp, ins):
-        p.add_argument("--checkpoint", help="model checkpoint; none = the shipped assets/model.pt")
+        p.add_argument(
+            "--checkpoint",
+            help=CHECKPOINT_HELP,
+        )
         p.add_argument(
             "--context", help="context frames of --scene, e.g. 4,16; none = two frames 12 apart about the middle"
         )
 
 
 def run(args: argparse.Namespace) -> int:
+    from particlesplat.data.scene_meta import default_checkpoint
     from particlesplat.editing.compose import export_object_ply, insert_object
     from particlesplat.editing.open_scene import encode_scene, parse_context
     from particlesplat.formats.ply import write_ply
     from particlesplat.model import load_model
 
-    model = load_model(args.checkpoint)
+    model = load_model(args.checkpoint or default_checkpoint(args.scene))
     enc = encode_scene(model, args.scene, parse_context(args.context))
     if args.action == "export":
         path = export_object_ply(model, enc.particles, args.object, args.out)

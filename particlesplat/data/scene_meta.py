@@ -1,6 +1,7 @@
 """What a scene generator records about a scene folder beyond its frames (``scene.json``, docs/dataset.md):
-here, where its cameras look (``look_at``, ``distance``), so that the default view, the orbit and ``--look``
-follow the scene's own scale rather than one family's."""
+where its cameras look (``look_at``, ``distance``), so that the default view, the orbit and ``--look`` follow the
+scene's own scale rather than one family's; and its family, so that a command without ``--checkpoint`` opens it
+with the shipped model of that family."""
 
 from __future__ import annotations
 
@@ -11,10 +12,58 @@ from pathlib import Path
 
 from particlesplat.core.errors import one_line, short_repr
 from particlesplat.core.viewpoints import Framing
+from particlesplat.data.families import family_of
 from particlesplat.data.scene import SceneFormatError
 
 SCENE_META = "scene.json"
+DATASET_META = "synth.json"  # a dataset folder's settings (particlesplat.data.synth.check_manifest)
 MAX_SCENE_META_BYTES = 16 << 20
+
+
+def _read_json(path: Path) -> object:
+    """The JSON value of a small metadata file; SceneFormatError names the file when it is too big or not JSON."""
+    size = path.stat().st_size
+    if size > MAX_SCENE_META_BYTES:
+        raise SceneFormatError(f"{path}: {size} bytes, more than the {MAX_SCENE_META_BYTES} a {path.name} may have")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
+        raise SceneFormatError(f"{path}: not valid JSON ({one_line(e, 200)})") from None
+
+
+def read_family(path: str | PathLike) -> str | None:
+    """The scene family (:data:`particlesplat.data.families.FAMILIES`) of a scene folder, a split folder or a
+    dataset folder: what the scene's ``scene.json`` records, else the dataset's ``synth.json`` (in the folder or
+    the one above it), else the first scene folder's below it. None when nothing records one."""
+    path = Path(path)
+    if not path.is_dir():
+        return None
+    candidates = [path / SCENE_META, path / DATASET_META, path.parent / DATASET_META]
+    below = sorted(p for p in path.iterdir() if p.is_dir())[:1]
+    candidates += [below[0] / SCENE_META] if below else []
+    if below:  # a dataset folder: its first split's first scene
+        deeper = sorted(p for p in below[0].iterdir() if p.is_dir())[:1]
+        candidates += [deeper[0] / SCENE_META] if deeper else []
+    for meta in candidates:
+        if meta.is_file():
+            family = family_of(_read_json(meta))
+            if family is not None:
+                return family
+    return None
+
+
+CHECKPOINT_HELP = (
+    "model checkpoint (default: the shipped model of the scenes' family: assets/model.pt, assets/robot/model.pt)"
+)
+
+
+def default_checkpoint(path: str | PathLike | None) -> Path:
+    """The shipped model for the scenes at ``path`` (:func:`read_family`; the tabletop model when no family is
+    recorded): what every command opens when ``--checkpoint`` is not given."""
+    from particlesplat.model.io import shipped_model_path
+
+    family = read_family(path) if path is not None else None
+    return shipped_model_path(family or "tabletop")
 
 
 def read_framing(folder: str | PathLike) -> Framing | None:
@@ -24,13 +73,7 @@ def read_framing(folder: str | PathLike) -> Framing | None:
     path = Path(folder) / SCENE_META
     if not path.is_file():
         return None
-    size = path.stat().st_size
-    if size > MAX_SCENE_META_BYTES:
-        raise SceneFormatError(f"{path}: {size} bytes, more than the {MAX_SCENE_META_BYTES} a {SCENE_META} may have")
-    try:
-        meta = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
-        raise SceneFormatError(f"{path}: not valid JSON ({one_line(e, 200)})") from None
+    meta = _read_json(path)
     if not isinstance(meta, dict) or meta.get("look_at") is None:
         return None
     look_at = meta["look_at"]

@@ -67,7 +67,11 @@ def demo_scene_name(path: Path) -> str:
 def add_source_arguments(parser: argparse.ArgumentParser, ply_help: str) -> None:
     """``--checkpoint``, ``--scene`` | ``--ply``, ``--context``, ``--edits``: what the viewer and
     ``particlesplat render`` open (see :func:`load_model_scene`)."""
-    parser.add_argument("--checkpoint", help="model checkpoint; none = the shipped assets/model.pt")
+    parser.add_argument(
+        "--checkpoint",
+        help="model checkpoint; none = the shipped model of the scene's family (assets/model.pt, "
+        "assets/robot/model.pt)",
+    )
     src = parser.add_mutually_exclusive_group()
     src.add_argument("--scene", help="scene folder to encode; none = the first demo scene in assets/scenes")
     src.add_argument("--ply", help=ply_help)
@@ -127,19 +131,23 @@ def encode_scene(
 
 
 def load_model_scene(checkpoint: str | None, scene: str | PathLike | None, context: str | None = None):
-    """Load a model (None = the shipped one) and encode ``scene`` (None = the first demo scene).
+    """Load a model (None = the shipped model of the scene's family) and encode ``scene`` (None = the first demo
+    scene).
 
     Returns (model, EncodedScene, model name for PNG/YAML metadata).
     """
+    from particlesplat.data.scene_meta import default_checkpoint
     from particlesplat.model import load_model
+    from particlesplat.model.io import shipped_model_name
 
-    model = load_model(checkpoint)
     if scene is None:
         scenes = demo_scenes()
         if not scenes:
             raise FileNotFoundError("no demo scenes in assets/scenes; pass --scene DIR (or --ply FILE)")
         scene = scenes[0]
-    return model, encode_scene(model, scene, parse_context(context)), str(checkpoint or "assets/model.pt")
+    path = checkpoint or default_checkpoint(scene)  # the shipped model of the scene's family
+    model = load_model(path)
+    return model, encode_scene(model, scene, parse_context(context)), shipped_model_name(path)
 
 
 def load_ply_checked(path: str | PathLike):

@@ -202,18 +202,33 @@ def model_from_checkpoint(ckpt: dict, where: str = "checkpoint", device: str | t
     return model.to(device).eval()
 
 
-def shipped_model_path() -> Path:
-    """Path of ``model.pt`` in the installed ``particlesplat.assets`` package."""
-    return Path(str(importlib.resources.files("particlesplat.assets").joinpath("model.pt")))
+SHIPPED_MODELS = {"tabletop": "model.pt", "robot": "robot/model.pt"}  # scene family -> its model in assets/
+
+
+def shipped_model_path(family: str = "tabletop") -> Path:
+    """Path of the shipped model of a scene ``family`` (:data:`SHIPPED_MODELS`) in the installed
+    ``particlesplat.assets`` package."""
+    if family not in SHIPPED_MODELS:
+        raise ValueError(f"no shipped model for scene family {family!r} (families: {', '.join(SHIPPED_MODELS)})")
+    return Path(str(importlib.resources.files("particlesplat.assets").joinpath(SHIPPED_MODELS[family])))
+
+
+def shipped_model_name(path: str | PathLike) -> str:
+    """How a model is named in screenshots, edit files and ``encode`` output: ``assets/…`` for a shipped one,
+    else the path as given."""
+    for family, rel in SHIPPED_MODELS.items():
+        if Path(path) == shipped_model_path(family):
+            return f"assets/{rel}"
+    return str(path)
 
 
 def load_model(path: str | PathLike | None = None, device: str | torch.device = "cpu") -> ParticleSplat:
-    """Load a trained model (eval mode). ``path=None`` loads the shipped ``assets/model.pt``."""
+    """Load a trained model (eval mode). ``path=None`` loads the shipped tabletop model ``assets/model.pt``."""
     if path is None:
         path = shipped_model_path()
-        if not path.is_file():
-            raise FileNotFoundError(
-                f"{path}: the shipped model is missing; train one with 'particlesplat train' or pass a checkpoint path"
-            )
+    if not Path(path).is_file() and any(Path(path) == shipped_model_path(f) for f in SHIPPED_MODELS):
+        raise FileNotFoundError(
+            f"{path}: the shipped model is missing; train one with 'particlesplat train' or pass a checkpoint path"
+        )
     ckpt = read_checkpoint(path)
     return model_from_checkpoint(ckpt, str(path), device)

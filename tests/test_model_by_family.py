@@ -1,0 +1,57 @@
+"""Without --checkpoint, a command opens a scene with the shipped model of the scene's family: a scene records its
+family (scene.json), a dataset its generator (synth.json)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+
+from particlesplat.data.scene_meta import default_checkpoint, read_family
+from particlesplat.editing.open_scene import demo_scenes, load_model_scene
+from particlesplat.model.io import shipped_model_name, shipped_model_path
+
+ROOT = Path(__file__).resolve().parents[1]
+TABLETOP, ROBOT = ROOT / "assets" / "scenes" / "scene_00000", ROOT / "assets" / "robot" / "scenes" / "scene_00000"
+
+
+def test_a_scene_folder_names_its_family():
+    assert read_family(TABLETOP) == "tabletop"  # its scene.json records the tabletop generator
+    assert read_family(ROBOT) == "robot"  # its scene.json records family: robot
+    assert read_family(ROOT / "assets" / "robot" / "scenes") == "robot"  # a split folder: its first scene's
+    assert read_family(ROOT / "docs") is None
+
+
+def test_a_dataset_folder_names_its_family_from_synth_json(tmp_path):
+    data = tmp_path / "robot_data"
+    shutil.copytree(ROBOT, data / "test" / "scene_00000")
+    (data / "test" / "scene_00000" / "scene.json").write_text("{}")  # nothing recorded in the scene itself
+    assert read_family(data) is None
+    (data / "synth.json").write_text(json.dumps({"generator": "particlesplat.data.families.robot", "seed": 0}))
+    assert read_family(data) == "robot"
+    assert read_family(data / "test") == "robot"  # a split folder: the dataset's synth.json above it
+    assert default_checkpoint(data) == shipped_model_path("robot")
+    assert default_checkpoint(tmp_path) == shipped_model_path("tabletop")  # nothing recorded: the tabletop model
+
+
+def test_a_bad_scene_json_is_named(tmp_path):
+    from particlesplat.data.scene import SceneFormatError
+
+    (tmp_path / "scene.json").write_text("{not json")
+    with pytest.raises(SceneFormatError, match=r"scene.json: not valid JSON"):
+        read_family(tmp_path)
+
+
+def test_each_family_opens_with_its_own_model():
+    torch.set_num_threads(1)
+    assert {p.name for p in demo_scenes()} >= {"scene_00000"}
+    tabletop, _, name = load_model_scene(None, TABLETOP)
+    assert name == "assets/model.pt" and tabletop.config.resolution == 64
+    robot, enc, name = load_model_scene(None, ROBOT)
+    assert name == "assets/robot/model.pt" and robot.config.resolution == 128
+    assert robot.config.bg_static_points > 0 and enc.particles.num > 0
+    assert shipped_model_name(shipped_model_path("robot")) == "assets/robot/model.pt"
+    assert shipped_model_name("runs/x/last.pt") == "runs/x/last.pt"
