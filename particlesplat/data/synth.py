@@ -13,8 +13,10 @@ import multiprocessing as mp
 import os
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
 from types import MappingProxyType
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
@@ -35,6 +37,7 @@ SYNTH_BYTES_PER_PIXEL = 560
 SPLIT_IDS = MappingProxyType({"train": 0, "val": 1, "test": 2})
 FORMAT_VERSION = 1
 MANIFEST = "synth.json"
+T = TypeVar("T")
 
 
 def scene_name(index: int) -> str:
@@ -128,19 +131,8 @@ def check_manifest(out: Path, want: dict) -> None:
         json.dump(want, f, indent=1)
 
 
-def _remove_stale_temps(split_dir: Path) -> None:
-    if split_dir.is_dir():
-        for p in split_dir.glob(".scene_*.tmp"):
-            shutil.rmtree(p, ignore_errors=True)
-
-
-def generate(
-    out: Path, counts: dict[str, int], seed: int, res: int = 128, workers: int = 2, progress: bool = True
-) -> list[float]:
-    """Write ``counts[split]`` scenes per split under ``out``; skip scenes that already exist.
-
-    Returns the seconds each newly written scene took (worker wall time).
-    """
+def check_settings(out: Path, counts: dict[str, int], seed: int, res: int, workers: int) -> None:
+    """OptionError naming the option for settings no generator can use (every family checks these)."""
     if seed < 0:
         raise OptionError(f"--seed must be >= 0, got {seed}")
     if not 8 <= res <= MAX_RES:
@@ -153,30 +145,55 @@ def generate(
         raise OptionError(f"scene counts must be >= 0, got {counts}")
     if out.exists() and not out.is_dir():
         raise OptionError(f"{out}: exists and is not a folder")
-    check_manifest(
-        out, {"generator": "particlesplat.data.synth", "format_version": FORMAT_VERSION, "seed": seed, "res": res}
-    )
-    tasks = []
+
+
+def missing_scenes(out: Path, counts: dict[str, int]) -> list[tuple[str, int]]:
+    """(split, index) of every scene not yet written under ``out``; an interrupted scene's temporary folder is
+    removed first."""
+    todo = []
     for split in SPLITS:
-        _remove_stale_temps(out / split)
-        for index in range(counts.get(split, 0)):
-            if not (out / split / scene_name(index)).is_dir():
-                tasks.append((split, index, seed, res, str(out)))
-    total = sum(counts.values())
-    bar = tqdm(total=total, initial=total - len(tasks), desc="synth", unit="scene", disable=not progress)
-    times: list[float] = []
+        if (out / split).is_dir():
+            for p in (out / split).glob(".scene_*.tmp"):
+                shutil.rmtree(p, ignore_errors=True)
+        todo += [(split, i) for i in range(counts.get(split, 0)) if not (out / split / scene_name(i)).is_dir()]
+    return todo
+
+
+def run_tasks(
+    tasks: list, work: Callable[[Any], T], init_worker: Callable[[], None], workers: int, bar: tqdm
+) -> list[T]:
+    """``work(task)`` for every task, in ``workers`` processes (forked: no re-import; each runs ``init_worker``
+    first) or in this one; the bar advances per task and is closed at the end. Returns the results as they come."""
+    out: list[T] = []
     try:
-        if workers <= 1:
-            _init_worker()
+        if workers <= 1 or len(tasks) <= 1:
+            init_worker()
             for task in tasks:
-                times.append(_work(task))
+                out.append(work(task))
                 bar.update(1)
         else:
-            method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"  # fork: no re-import
-            with mp.get_context(method).Pool(workers, initializer=_init_worker) as pool:
-                for seconds in pool.imap_unordered(_work, tasks):
-                    times.append(seconds)
+            method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+            with mp.get_context(method).Pool(workers, initializer=init_worker) as pool:
+                for result in pool.imap_unordered(work, tasks):
+                    out.append(result)
                     bar.update(1)
     finally:
         bar.close()
-    return times
+    return out
+
+
+def generate(
+    out: Path, counts: dict[str, int], seed: int, res: int = 128, workers: int = 2, progress: bool = True
+) -> list[float]:
+    """Write ``counts[split]`` scenes per split under ``out``; skip scenes that already exist.
+
+    Returns the seconds each newly written scene took (worker wall time).
+    """
+    check_settings(out, counts, seed, res, workers)
+    check_manifest(
+        out, {"generator": "particlesplat.data.synth", "format_version": FORMAT_VERSION, "seed": seed, "res": res}
+    )
+    tasks = [(split, index, seed, res, str(out)) for split, index in missing_scenes(out, counts)]
+    total = sum(counts.values())
+    bar = tqdm(total=total, initial=total - len(tasks), desc="synth", unit="scene", disable=not progress)
+    return run_tasks(tasks, _work, _init_worker, workers, bar)
