@@ -35,7 +35,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from os import PathLike
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import torch
 import yaml
@@ -44,6 +44,7 @@ from torch import Tensor
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.camera import Camera
 from particlesplat.core.errors import short_repr
+from particlesplat.core.vectors import float3
 from particlesplat.editing.decoded import DecodedParticles
 from particlesplat.editing.grouping import (
     OPAQUE,
@@ -81,6 +82,16 @@ MIN_PICK_PIXELS = 2  # an object must cover this many pixels of a frame to be pi
 # worst all of them), so an edit file replays in time linear in its operations.
 MAX_EDIT_PARTICLES = 1024
 ADDING_KINDS: tuple[OpKind, ...] = ("duplicate", "insert")  # operations that add particles (at least one each)
+NO_PARTICLES = "this scene has no particles to edit (opened from a .ply)"
+
+T = TypeVar("T")
+
+
+def _required(value: T | None, missing: str) -> T:
+    """``value``, or ValueError(``missing``) where it is None."""
+    if value is None:
+        raise ValueError(missing)
+    return value
 
 
 class PickError(EditsError):
@@ -226,7 +237,7 @@ def _parse_op(item: Any, where: str) -> EditOp:
         if item["remove"] is not True:
             raise EditsError(f"{where}.remove: expected true, got {short_repr(item['remove'])}")
         return EditOp("remove", pick=p)
-    return EditOp(kind, pick=p, offset=_numbers(item[kind], 3, f"{where}.{kind}"))  # type: ignore[arg-type]
+    return EditOp(kind, pick=p, offset=float3(_numbers(item[kind], 3, f"{where}.{kind}")))
 
 
 def parse_edit_file(data: Any, where: str = "edits") -> EditFile:
@@ -274,19 +285,20 @@ def load_edit_file(path: str | PathLike) -> EditFile:
 def op_to_yaml(op: EditOp) -> dict[str, Any]:
     """The YAML mapping of one operation (inverse of the parser)."""
     if op.kind == "set":
-        return {"particle": int(op.particle), "set": {k: [float(x) for x in v] for k, v in op.values}}
+        index = _required(op.particle, "a set operation needs its particle")
+        return {"particle": int(index), "set": {k: [float(x) for x in v] for k, v in op.values}}
     if op.kind == "insert":
+        insert = _required(op.insert, "an insert operation needs its insert")
         spec = {
-            "scene": op.insert.scene,
-            "object": int(op.insert.object),
-            "at": [round(float(v), 6) for v in op.insert.at],
+            "scene": insert.scene,
+            "object": int(insert.object),
+            "at": [round(float(v), 6) for v in insert.at],
         }
-        if op.insert.context is not None:
-            spec["context"] = [int(c) for c in op.insert.context]
+        if insert.context is not None:
+            spec["context"] = [int(c) for c in insert.context]
         return {"insert": spec}
-    out: dict[str, Any] = {
-        "pick": {"frame": int(op.pick.frame), "pixel": [int(op.pick.pixel[0]), int(op.pick.pixel[1])]}
-    }
+    pick = _required(op.pick, f"a {op.kind} operation needs its pick")
+    out: dict[str, Any] = {"pick": {"frame": int(pick.frame), "pixel": [int(pick.pixel[0]), int(pick.pixel[1])]}}
     out[op.kind] = True if op.kind == "remove" else [round(float(v), 6) for v in op.offset]
     return out
 
@@ -413,7 +425,7 @@ class SceneEditor:
     """Particles of one scene under edit, as named do/undo operations.
 
     Args:
-        model: the ParticleSplat model that decodes the particles.
+        model: the ParticleSplat model that decodes the particles, or None (a scene opened from a .ply).
         particles: the encoded particles (kept as the original), or None (nothing to edit).
         frame_cameras: the scene's input cameras at their stored size, indexed by frame (picks name these).
         context: the context frame indices (saved in edit files; picks try them first).
@@ -423,12 +435,14 @@ class SceneEditor:
 
     def __init__(
         self,
-        model: ParticleSplat,
+        model: ParticleSplat | None,
         particles: Particles | None,
         frame_cameras: list[Camera] | None = None,
         context: list[int] | None = None,
         z_t_threshold: float | None = None,
     ) -> None:
+        if model is None and particles is not None:
+            raise ValueError("SceneEditor: particles need the model that decodes them")
         self.model = model
         self.z_t_threshold = z_t_threshold
         self.frame_cameras = list(frame_cameras or [])
@@ -448,6 +462,18 @@ class SceneEditor:
         self.version = 0  # bumps on every change of the Gaussians
 
     # ------------------------------------------------------------------ queries
+    def _particles(self) -> Particles:
+        """The particles under edit; ValueError for a scene without them (opened from a .ply)."""
+        return _required(self.particles, NO_PARTICLES)
+
+    def _original(self) -> Particles:
+        """The particles as encoded; ValueError for a scene without them (opened from a .ply)."""
+        return _required(self.original, NO_PARTICLES)
+
+    def _model(self) -> ParticleSplat:
+        """The model that decodes the particles; ValueError for a scene without one (opened from a .ply)."""
+        return _required(self.model, NO_PARTICLES)
+
     @property
     def editable(self) -> bool:
         return self.particles is not None
@@ -457,12 +483,13 @@ class SceneEditor:
         return self.particles.num if self.particles is not None else 0
 
     def value(self, index: int, name: str) -> tuple[float, ...]:
-        return tuple(float(v) for v in self.particles.attribute(index, name).tolist())
+        return tuple(float(v) for v in self._particles().attribute(index, name).tolist())
 
     def origin(self) -> Particles:
         """The particles as encoded, followed by every particle inserted from another scene as it was inserted
         (the rows :meth:`original_value` and :meth:`object_offset` refer to)."""
-        return self.original if self._inserted is None else self.original.cat(self._inserted)
+        original = self._original()
+        return original if self._inserted is None else original.cat(self._inserted)
 
     def original_value(self, index: int, name: str) -> tuple[float, ...]:
         """The encoded value (a copy's: that of the particle it was copied from; an inserted one's: as inserted)."""
@@ -476,20 +503,22 @@ class SceneEditor:
 
     def is_active(self, index: int) -> bool:
         """Active = draws: z_t at or above :attr:`active_threshold`."""
-        return float(self.particles.z_t[index, 0]) >= self.active_threshold
+        return float(self._particles().z_t[index, 0]) >= self.active_threshold
 
     def edits(self) -> Edits:
         """Version 1 edits (absolute values) of the encoded particles; copies are not part of them."""
         if self.particles is None:
             return {}
-        return diff_edits(self.original, self.particles.truncate(self.original.num))
+        original = self._original()
+        return diff_edits(original, self.particles.truncate(original.num))
 
     def decode(self, particles: Particles | None = None):
         """All Gaussians (edits applied, background included) on the CPU; of the current particles (the default)
         from the Gaussians kept up to date edit by edit (:class:`particlesplat.editing.decoded.DecodedParticles`)."""
-        if self._decoded is not None and (particles is None or particles is self.particles):
-            return self._decoded.gaussians(self.particles)
-        return self.model.decode(particles, z_t_threshold=self.z_t_threshold).detach().to("cpu")
+        p = self._particles() if particles is None else particles
+        if self._decoded is not None and p is self.particles:
+            return self._decoded.gaussians(p)
+        return self._model().decode(p, z_t_threshold=self.z_t_threshold).detach().to("cpu")
 
     def objects(self) -> Tensor:
         """(num_particles,) int64 object number per particle, the numbering ``particlesplat encode`` writes
@@ -497,9 +526,10 @@ class SceneEditor:
         particle index, -1 for a particle that draws nothing). Grouped once on the scene as encoded, so an edit
         does not regroup it; a copied or inserted object takes the next number."""
         if self._objects is None:
-            g = self.decode(self.original)
-            groups = particle_objects(g, self.original.num)
-            self._objects = dense_objects(groups, drawing_particles(self.original, g, self.active_threshold))
+            original = self._original()
+            g = self.decode(original)
+            groups = particle_objects(g, original.num)
+            self._objects = dense_objects(groups, drawing_particles(original, g, self.active_threshold))
         key = (self.version, len(self.history.undo))
         if self._labels is None or self._labels[0] != key:
             added = [op.added_labels for op in self.history.undo if op.added_labels is not None]
@@ -523,29 +553,29 @@ class SceneEditor:
         """The height objects rest on in this scene (:func:`particlesplat.editing.grouping.support_height` of the
         scene as encoded; edits move objects, not the floor)."""
         if self._support is None:
-            self._support = support_height(self.decode(self.original))
+            self._support = support_height(self.decode(self._original()))
         return self._support
 
     def object_centre(self, index: int) -> Tensor | None:
         """(3,) float64 world metres: the resting centre of particle ``index``'s object as drawn now
         (:func:`particlesplat.editing.grouping.members_centre`, as ``particlesplat encode`` and ``eval`` place
         objects), or None if it draws nothing."""
-        return members_centre(self.model, self.particles, self.object_members(index), self.support_height())
+        return members_centre(self._model(), self._particles(), self.object_members(index), self.support_height())
 
     def object_bottom(self, index: int) -> float | None:
         """World height (metres) of the lowest part of particle ``index``'s object as drawn now: the
         ``BOTTOM_QUANTILE`` of its opaque Gaussians' centres (a few stray ones do not count); None if it draws
         nothing opaque."""
-        g = self.model.decode(self.particles, torch.tensor(self.object_members(index)), background=False)
+        g = self._model().decode(self._particles(), torch.tensor(self.object_members(index)), background=False)
         z = g.means[:, 2][g.opacities >= OPAQUE].detach().double()
         return float(torch.quantile(z, BOTTOM_QUANTILE)) if z.numel() else None
 
     def object_offset(self, index: int) -> tuple[float, float, float]:
         """World offset (metres) of particle ``index``'s anchor from where it (or what it copies) was encoded."""
-        cfg = self.model.config
-        now = anchor_points(self.particles, [index], cfg)[0]
+        cfg = self._model().config
+        now = anchor_points(self._particles(), [index], cfg)[0]
         was = anchor_points(self.origin(), [self._source[index]], cfg)[0]
-        return tuple(float(v) for v in now - was)
+        return float3(now - was)
 
     def take_changes(self) -> set[int] | None:
         """Particles whose Gaussians changed since the last call; None = everything (or the count) changed."""
@@ -563,7 +593,7 @@ class SceneEditor:
 
     def object_map(self, frame: int, particles: Particles | None = None, where: str = "pick") -> Tensor:
         """(H, W) int64 object label per pixel of input frame ``frame`` at its stored size (-1 background)."""
-        p = self.particles if particles is None else particles
+        p = self._particles() if particles is None else particles
         return self._label_render(self.decode(p), self._frame_camera(frame, where), self.objects()[: p.num])
 
     def _label_render(self, g, cam: Camera, labels: Tensor) -> Tensor:
@@ -580,7 +610,7 @@ class SceneEditor:
             res = render(
                 g,
                 cam.to("cpu", torch.float32),
-                background=self.model.background_color().cpu(),
+                background=self._model().background_color().cpu(),
                 owner_weights=True,
                 num_owners=count,
             )
@@ -590,7 +620,7 @@ class SceneEditor:
         """The object label at ``pixel`` of frame ``frame`` on the current particles, -1 for the background, as
         :meth:`object_map` has it there; composited from the Gaussians that reach the pixel alone, so a pick costs
         what they cost, not what the whole scene does."""
-        if self._decoded is None:
+        if self._decoded is None or self.particles is None:
             raise PickError("this scene has no particles to pick (opened from a .ply)")
         g = self._decoded.reaching(self.particles, cam, frame, pixel)
         index, weights = pixel_weights(g, cam.to("cpu", torch.float32), pixel)
@@ -645,21 +675,23 @@ class SceneEditor:
 
     # ------------------------------------------------------------------ operations
     def _apply(self, op: Operation, forward: bool) -> None:
+        particles = self._particles()
         if forward and op.added is not None:
-            self.particles = self.particles.cat(op.added)  # the new rows are decoded on first use
+            particles = particles.cat(op.added)  # the new rows are decoded on first use
             self._source += list(op.sources) if op.sources else [self._source[i] for i in op.members]
             self._all_changed = True
         for ch in op.changes if forward else reversed(op.changes):
-            self.particles = self.particles.with_attribute(ch.index, ch.name, ch.new if forward else ch.old)
+            particles = particles.with_attribute(ch.index, ch.name, ch.new if forward else ch.old)
             self._changed.add(ch.index)
         if self._decoded is not None:
             self._decoded.invalidate(ch.index for ch in op.changes)
         if not forward and op.added is not None:
-            self.particles = self.particles.truncate(self.particles.num - op.added.num)
+            particles = particles.truncate(particles.num - op.added.num)
             if self._decoded is not None:
-                self._decoded.truncate(self.particles.num)
-            del self._source[self.particles.num :]
+                self._decoded.truncate(particles.num)
+            del self._source[particles.num :]
             self._all_changed = True
+        self.particles = particles
         self.version += 1
 
     def _push(self, op: Operation) -> None:
@@ -669,10 +701,9 @@ class SceneEditor:
         self.history.redo.clear()
 
     def _check_editable(self, index: int) -> None:
-        if not self.editable:
-            raise ValueError("this scene has no particles to edit (opened from a .ply)")
-        if not 0 <= index < self.num_particles:
-            raise IndexError(f"particle {index} out of range (0..{self.num_particles - 1})")
+        num = self._particles().num
+        if not 0 <= index < num:
+            raise IndexError(f"particle {index} out of range (0..{num - 1})")
 
     def _record(self, op: Operation) -> None:
         """Apply ``op``, or, when the last operation is the open gesture ``op.open_key``, extend it (each
@@ -684,7 +715,7 @@ class SceneEditor:
                 first = merged.get((c.index, c.name), c)
                 merged[(c.index, c.name)] = SetAttribute(c.index, c.name, first.old, c.new)
             last.changes = list(merged.values())
-            last.offset = tuple(a + b for a, b in zip(last.offset, op.offset, strict=False))
+            last.offset = float3(a + b for a, b in zip(last.offset, op.offset, strict=False))
             self._apply(replace(op, added=None), True)
             return
         self._push(op)
@@ -725,7 +756,7 @@ class SceneEditor:
         self._check_editable(index)
         members = self.object_members(index)
         delta = tuple(float(v) for v in torch.as_tensor(delta, dtype=torch.float64).reshape(3).tolist())
-        target = translate(self.particles, members, delta, self.model.config)
+        target = translate(self._particles(), members, delta, self._model().config)
         changes = [
             SetAttribute(i, name, self.value(i, name), value)
             for i, attrs in target.items()
@@ -768,9 +799,10 @@ class SceneEditor:
         offset = tuple(float(v) for v in torch.as_tensor(offset, dtype=torch.float64).reshape(3).tolist())
         n = self.num_particles
         _check_room(n, len(members), "duplicate")
-        grown = self.particles.cat(self.particles.take(members))
+        particles = self._particles()
+        grown = particles.cat(particles.take(members))
         new = list(range(n, n + len(members)))
-        target = translate(grown, new, offset, self.model.config)
+        target = translate(grown, new, offset, self._model().config)
         changes = [
             SetAttribute(i, name, tuple(float(v) for v in grown.attribute(i, name).tolist()), value)
             for i, attrs in target.items()
@@ -798,15 +830,14 @@ class SceneEditor:
         ValueError (no such object) or MoveError."""
         from particlesplat.editing.compose import insert_object
 
-        if not self.editable:
-            raise ValueError("this scene has no particles to edit (opened from a .ply)")
-        n = self.num_particles
+        particles = self._particles()
+        n = particles.num
         _check_room(n, 1, "insert")
-        grown, new = insert_object(self.model, self.particles, source, insert.object, insert.at)
+        grown, new = insert_object(self._model(), particles, source, insert.object, insert.at)
         _check_room(n, grown.num - n, "insert")
         added = grown.take(slice(n, None))
         added = added.detach().to("cpu")
-        rows = self.original.num + (0 if self._inserted is None else self._inserted.num)
+        rows = self._original().num + (0 if self._inserted is None else self._inserted.num)
         self._inserted = added if self._inserted is None else self._inserted.cat(added)
         self.end_gesture()
         self._push(
@@ -841,11 +872,12 @@ class SceneEditor:
     def set_edits(self, edits: Edits, label: str = "load edits") -> None:
         """Set the encoded particles to version 1 ``edits`` (absolute values; unnamed ones as encoded) in one
         operation."""
-        check_indices(edits, self.original.num, label)
-        target = apply_edits(self.original, edits, label)
+        original = self._original()
+        check_indices(edits, original.num, label)
+        target = apply_edits(original, edits, label)
         changes = []
         for name in EDITABLE:
-            for index in range(self.original.num):
+            for index in range(original.num):
                 old, new = self.value(index, name), tuple(float(v) for v in target.attribute(index, name).tolist())
                 if old != new:
                     changes.append(SetAttribute(index, name, old, new))
@@ -877,31 +909,32 @@ class SceneEditor:
     def apply_op(self, op: EditOp, where: str = "operation") -> None:
         """Do one edit-file operation (a pick is resolved on the current particles). Errors name ``where``."""
         if op.kind == "set":
-            if not 0 <= op.particle < self.num_particles:
-                raise EditsError(
-                    f"{where}: particle {op.particle}: no such particle (the scene has {self.num_particles})"
-                )
+            particle = _required(op.particle, f"{where}: a set operation needs its particle")
+            if not 0 <= particle < self.num_particles:
+                raise EditsError(f"{where}: particle {particle}: no such particle (the scene has {self.num_particles})")
             changes = [
-                SetAttribute(op.particle, n, self.value(op.particle, n), tuple(v))
+                SetAttribute(particle, n, self.value(particle, n), tuple(v))
                 for n, v in op.values
-                if self.value(op.particle, n) != tuple(v)
+                if self.value(particle, n) != tuple(v)
             ]
             if changes:
                 self.end_gesture()
-                self._push(Operation(f"set particle {op.particle}", changes))
+                self._push(Operation(f"set particle {particle}", changes))
             return
         if op.kind == "insert":
             from particlesplat.editing.open_scene import encode_scene
 
+            insert = _required(op.insert, f"{where}: an insert operation needs its insert")
             try:
                 source = encode_scene(
-                    self.model, op.insert.scene, None if op.insert.context is None else list(op.insert.context)
+                    self._model(), insert.scene, None if insert.context is None else list(insert.context)
                 ).particles
-                self.insert_object(source, op.insert)
+                self.insert_object(source, insert)
             except (MoveError, ValueError, OSError) as e:
                 raise EditsError(f"{where}: insert: {e}") from None
             return
-        index = self.pick(op.pick, where)
+        pick = _required(op.pick, f"{where}: a {op.kind} operation needs its pick")
+        index = self.pick(pick, where)
         done = len(self.history.undo)
         try:
             if op.kind == "translate":
@@ -914,7 +947,7 @@ class SceneEditor:
         except MoveError as e:
             raise EditsError(f"{where}: {e}") from None
         if len(self.history.undo) > done:
-            self.history.undo[-1].pick = op.pick  # saved as it was read: a replayed file saves itself
+            self.history.undo[-1].pick = pick  # saved as it was read: a replayed file saves itself
 
     def apply_file(self, file: EditFile, where: str = "edits") -> None:
         """Do every operation of an edit file (version 1: its particle edits as one operation). All or
