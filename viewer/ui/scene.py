@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from imgui_bundle import imgui
@@ -27,7 +28,8 @@ def draw_scene_section(session: SceneSession, req: UiRequests, fields: UiFields)
     scenes = demo_scenes()
     if scenes:
         names = ["(choose)"] + [demo_scene_name(p) for p in scenes]
-        current = 1 + next((i for i, p in enumerate(scenes) if str(p) == session.source), -1)
+        shown = Path(session.source).resolve()  # the folder as opened: relative or not
+        current = 1 + next((i for i, p in enumerate(scenes) if p.resolve() == shown), -1)
         changed, idx = imgui.combo("demo", current, names)
         if changed and idx != current and idx > 0:
             req.open_path = str(scenes[idx - 1])
