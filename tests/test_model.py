@@ -338,8 +338,11 @@ def test_shipped_model_loads_and_matches_its_yaml():
     from dataclasses import asdict
 
     cfg = asdict(m.config)
+    # the one setting that differs: the shipped checkpoint hides what hangs more than 1 cm under the floor at
+    # decode (its recipe trains without the cut; the weights do not depend on it)
+    assert cfg["support_cut"] == 0.01 and shipped["model"]["support_cut"] == -1.0
     for k, v in shipped["model"].items():
-        assert cfg[k] == v, k
+        assert cfg[k] == v or k == "support_cut", k
     size = m.config.resolution
     rgb, depth, _ = scene_inputs(2, size)
     p = m.encode(rgb, depth, cams(2, size))

@@ -55,3 +55,17 @@ def test_each_family_opens_with_its_own_model():
     assert robot.config.bg_static_points > 0 and enc.particles.num > 0
     assert shipped_model_name(shipped_model_path("robot")) == "assets/robot/model.pt"
     assert shipped_model_name("runs/x/last.pt") == "runs/x/last.pt"
+
+
+def test_every_shipped_checkpoint_records_its_provenance():
+    from particlesplat.model import read_checkpoint
+    from particlesplat.model.provenance import describe
+
+    for family in ("tabletop", "robot"):
+        ckpt = read_checkpoint(shipped_model_path(family))  # also checks config_sha256
+        prov = ckpt.get("provenance")
+        assert prov and prov.get("data") and prov.get("scene_list_sha256"), family
+        line = describe(prov)
+        assert line.startswith("provenance: from ") and "none recorded" not in line
+    tabletop = read_checkpoint(shipped_model_path("tabletop"))["provenance"]
+    assert "staged chain" in tabletop["init"] and "hours not recorded" in describe(tabletop)

@@ -126,6 +126,26 @@ def test_decoded_particles_stay_above_the_support_with_the_clamp(clamp):
         assert low < -0.5
 
 
+def test_the_support_cut_hides_what_hangs_under_the_surface_and_nothing_else():
+    """Particles placed deep from views looking down: with ``support_cut`` 0.01 every Gaussian more than 1 cm
+    under z = 0 has opacity 0, and every other Gaussian is exactly as without the cut."""
+    torch.manual_seed(0)
+    base = {**TINY_MODEL, "d_min": 1.0, "d_max": 12.0}
+    model = ParticleSplat(ModelConfig(**base)).eval()
+    cut = ParticleSplat(ModelConfig(**{**base, "support_cut": 0.01})).eval()
+    cut.load_state_dict(model.state_dict())
+    cams = [Camera.orbit((0, 0, 0.15), az, 35, 3.3, width=32, height=32) for az in (-30, 30)]
+    with torch.no_grad():
+        p = model.encode(torch.rand(2, 3, 32, 32), None, cams)
+        p = dataclasses.replace(p, z_d=torch.linspace(-2, 2, p.num)[:, None], z_t=torch.ones_like(p.z_t))
+        g, h = model.decode(p, background=False), cut.decode(p, background=False)
+    under = g.means[:, 2] < -0.01
+    assert 0 < int(under.sum()) < g.num  # some hang under the surface, some do not
+    assert torch.equal(g.means, h.means) and bool((h.opacities[under] == 0).all())
+    assert torch.equal(g.opacities[~under], h.opacities[~under])
+    assert below_support(h.means, h.opacities, h.owner) == 0.0 < below_support(g.means, g.opacities, g.owner)
+
+
 def test_below_support_counts_opaque_object_gaussians_under_the_surface():
     means = torch.tensor([[0, 0, -0.5], [0, 0, -0.005], [0, 0, 0.2], [0, 0, -0.5], [0, 0, -0.5]], dtype=torch.float32)
     opac = torch.tensor([0.9, 0.9, 0.9, 0.2, 0.9])

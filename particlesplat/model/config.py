@@ -93,6 +93,7 @@ class ModelConfig:
     patch_hidden: int = 256
     patch_back: bool = True
     support_clamp: bool = False
+    support_cut: float = -1.0
     refine_steps: int = 1
     refine_hidden: int = 256
     token_dim: int = 64
@@ -153,6 +154,7 @@ class ModelConfig:
             "false needs a static background layer (bg_static_grid or bg_static_points > 0): nothing would draw "
             "the background",
         )
+        need(self.support_cut < 1.0, "support_cut", "must be < 1 (metres below the support surface; < 0 = off)")
         need(self.patch_gaussians >= 1, "patch_gaussians", "must be >= 1")
         base = self.patch_base or self.patch_gaussians
         ratio = self.patch_gaussians // base if self.patch_base >= 0 and base > 0 else 0

@@ -154,18 +154,22 @@ def _finish(
     cfg: ModelConfig,
     depth_cell: Tensor | None = None,
     support: bool = False,
+    cut: float = -1.0,
 ) -> dict[str, Tensor]:
     """Lift image-plane Gaussians to the world.
 
     pix: (..., 2) pixel centres; zeta: (...) planar depth; jac_px: (..., 2) pixels per canonical unit;
     K: (..., 3, 3), c2w: (..., 4, 4) broadcast per Gaussian; opacity: (...) final α; depth_cell: (...)
     metres per canonical unit along the camera axis, at least a pixel's width (default: a pixel's width);
-    support: no mean below the support surface z = 0 (:func:`clamp_to_support`).
+    support: no mean below the support surface z = 0 (:func:`clamp_to_support`); cut: a Gaussian whose mean lies
+    more than ``cut`` metres below it does not draw (opacity 0; < 0 = off).
     """
     dirs = ray_dirs(pix[..., None, :], K, c2w)[..., 0, :]
     if support:
         zeta = clamp_to_support(zeta, c2w[..., 2, 3], dirs[..., 2])
     means = c2w[..., :3, 3] + zeta[..., None] * dirs
+    if cut >= 0.0:
+        opacity = torch.where(means[..., 2] < -cut, torch.zeros_like(opacity), opacity)
     fx = K[..., 0, 0]
     fy = K[..., 1, 1]
     jac_z = zeta / fx if depth_cell is None else torch.maximum(zeta / fx, depth_cell)
@@ -260,7 +264,8 @@ def _lift_cells(
     # canonical cells are cubes (as deep as they are wide), so a particle's Gaussians have volume and do not
     # turn into slivers seen from the side
     depth_cell = jac_px.mean(-1) * zeta / K[:, 0, 0, None]
-    return _finish(p, pix, zeta, jac_px.expand(-1, N, -1), Kn, cn, opacity, cfg, depth_cell, cfg.support_clamp)
+    jac = jac_px.expand(-1, N, -1)
+    return _finish(p, pix, zeta, jac, Kn, cn, opacity, cfg, depth_cell, cfg.support_clamp, cfg.support_cut)
 
 
 def block_centres(cfg: ModelConfig, device, dtype) -> Tensor:

@@ -97,9 +97,14 @@ def describe(prov: dict | None) -> str:
         return "provenance: none recorded (checkpoint written before provenance was kept)"
     init = prov.get("init") or "random initialisation"
     commit = prov.get("git_commit") or "unknown commit"
+    wall, cpu = prov.get("wall_hours"), prov.get("cpu_hours")
+    cost = (
+        f"{wall:.2f} h wall, {cpu:.2f} CPU h"
+        if isinstance(wall, (int, float)) and isinstance(cpu, (int, float))
+        else "hours not recorded"
+    )
     return (
         f"provenance: from {init}; data {prov.get('data')} ({prov.get('train_scenes')} training scenes, "
-        f"list sha256 {str(prov.get('scene_list_sha256'))[:12]}); {prov.get('wall_hours', 0):.2f} h wall, "
-        f"{prov.get('cpu_hours', 0):.2f} CPU h on {prov.get('device')}; torch {prov.get('torch')}; "
-        f"code {commit}"
+        f"list sha256 {str(prov.get('scene_list_sha256'))[:12]}); {cost} on {prov.get('device')}; "
+        f"torch {prov.get('torch')}; code {commit}"
     )
