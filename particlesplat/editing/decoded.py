@@ -3,7 +3,8 @@
 An editor decodes its scene for every pick, render and export. Decoding every particle each time made an edit
 file replay in time that grew with the square of its operations (each duplicate adds particles that every later
 pick decodes again). :class:`DecodedParticles` keeps each particle's Gaussians and decodes a particle again only
-when it changes (:meth:`ParticleSplat.decode` of a subset equals the full decode restricted to it), and keeps
+when it changes (:meth:`ParticleSplat.decode` of a subset equals the full decode restricted to it, to float32
+rounding), and keeps
 each particle's footprint box per camera, so that a pick looks only at the particles that reach its pixel.
 """
 
@@ -26,7 +27,8 @@ class DecodedParticles:
     """Per-particle Gaussians of one scene's particles, on the CPU.
 
     Rows are decoded with every particle drawing; :meth:`gaussians` keeps those of the particles at or above
-    ``z_t_threshold``, so the result equals ``model.decode(particles, z_t_threshold=z_t_threshold)``.
+    ``z_t_threshold``, so the result equals ``model.decode(particles, z_t_threshold=z_t_threshold)`` (to float32
+    rounding: the rows were decoded in batches of other sizes).
 
     Args:
         model: the model that decodes the particles.
