@@ -171,8 +171,10 @@ def test_dense_objects_numbering():
 
 
 def test_resting_centre_analytic():
-    """A column of Gaussians from z = 0 to 2h over a floor at z = 0.1: the top is the 0.95 quantile
-    0.95 * 2h (+ 0.1 below it), the centre half-way to the floor; x, y the opacity-weighted mean."""
+    """A column of Gaussians from z = 0.1 to 0.1 + 2h standing on a support at z = 0.1: the top is the 0.95
+    quantile 0.95 * 2h (+ 0.1 below it), the centre half-way to the support; x, y the opacity-weighted mean. The
+    support is the world frame's (z = 0) unless given: background Gaussians far below it (a robot workspace's
+    floor under its table) do not move it."""
     h = 0.2
     z = torch.linspace(0.1, 0.1 + 2 * h, 101, dtype=torch.float64)
     obj = torch.stack([torch.full_like(z, 0.3), torch.full_like(z, -0.2), z], -1)
@@ -184,8 +186,16 @@ def test_resting_centre_analytic():
         torch.cat([op, torch.ones(30).double()]),
         torch.cat([torch.zeros(101, dtype=torch.int64), torch.full((30,), -1)]),
     )
-    centre, _ = object_centres(g, torch.tensor([0]), 1, "resting")
+    centre, _ = object_centres(g, torch.tensor([0]), 1, "resting", support=0.1)
     assert centre[0].tolist() == pytest.approx([0.3 + 0.1 * 50 / 75.5, -0.2, 0.1 + 0.5 * 0.95 * 2 * h], abs=1e-9)
+    below = _gaussians(g.means - torch.tensor([0.0, 0.0, 0.1]).double(), g.opacities, g.owner)  # stands on z = 0
+    below = _gaussians(
+        torch.cat([below.means, floor - torch.tensor([0.0, 0.0, 0.9]).double()]),  # and a floor at z = -0.8
+        torch.cat([below.opacities, torch.ones(30).double()]),
+        torch.cat([below.owner, torch.full((30,), -1)]),
+    )
+    centre, _ = object_centres(below, torch.tensor([0]), 1, "resting")
+    assert float(centre[0, 2]) == pytest.approx(0.5 * 0.95 * 2 * h, abs=1e-9)
     with pytest.raises(ValueError, match="object centre method"):
         object_centres(g, torch.tensor([0]), 1, "middle")
 

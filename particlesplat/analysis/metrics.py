@@ -10,6 +10,8 @@ import torch.nn.functional as F
 from kornia.metrics import ssim as kornia_ssim
 from torch import Tensor
 
+from particlesplat.core.world import SUPPORT_Z
+
 
 def psnr_of_mse(mse: float) -> float:
     """PSNR in dB of a mean squared error of [0, 1] images (floored at 1e-10: 100 dB)."""
@@ -44,7 +46,7 @@ SKIRT_OPACITY = 0.5  # an object Gaussian this opaque is part of the object's vi
 SKIRT_MARGIN = 0.01  # metres below the support surface that count as "under" it
 
 
-def below_support(means: Tensor, opacities: Tensor, owner: Tensor, support_z: float = 0.0) -> float:
+def below_support(means: Tensor, opacities: Tensor, owner: Tensor, support_z: float = SUPPORT_Z) -> float:
     """Share of the opaque object Gaussians (owner >= 0, opacity > ``SKIRT_OPACITY``) whose centre lies more
     than ``SKIRT_MARGIN`` below the support surface z = ``support_z`` (world metres, +z up): an object's
     "skirt" under the floor or table top. means: (N, 3); opacities, owner: (N,). NaN when none is opaque."""

@@ -27,13 +27,13 @@ from torch import Tensor
 
 from particlesplat.core.errors import OptionError
 from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.world import SUPPORT_Z
 from particlesplat.editing.grouping import (
     ObjectCentre,
     dense_objects,
     drawing_particles,
     members_centre,
     particle_objects,
-    support_height,
 )
 from particlesplat.editing.move import MoveError, translate
 from particlesplat.model import Particles, ParticleSplat
@@ -165,20 +165,18 @@ def insert_object(
     ``at`` = (x, y) world metres on B's floor.
 
     The centre (``method``, see :func:`particlesplat.editing.grouping.object_centres`) goes to (x, y, z) with z at
-    the object's height above A's support measured from B's support (:func:`support_height` of each scene).
+    the object's height in A: both scenes' objects rest on the support surface z = 0 of the shared world frame.
     Returns (B's particles with the object's appended, the new particle indices).
     """
     members = object_members(model, src, index)
-    support_a = support_height(model.decode(src).detach().to("cpu"))
-    support_b = support_height(model.decode(dst).detach().to("cpu"))
-    centre_a = _centre(model, src, members, method, support_a)
-    target = torch.tensor([float(at[0]), float(at[1]), support_b + float(centre_a[2]) - support_a], dtype=torch.float64)
+    centre_a = _centre(model, src, members, method, SUPPORT_Z)
+    target = torch.tensor([float(at[0]), float(at[1]), float(centre_a[2])], dtype=torch.float64)
     views = match_views(src, centre_a, dst, target)
     n = dst.num
     out = dst.cat(reexpress(src, members, dst, views, target - centre_a, model))
     new = list(range(n, out.num))
     for _ in range(iterations):
-        err = target - _centre(model, out, new, method, support_b)
+        err = target - _centre(model, out, new, method, SUPPORT_Z)
         if float(err.norm()) < PLACE_TOLERANCE:
             break
         for i, attrs in translate(out, new, err, model.config).items():

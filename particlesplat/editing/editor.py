@@ -45,6 +45,7 @@ from particlesplat.core.atomic import atomic_write
 from particlesplat.core.camera import Camera
 from particlesplat.core.errors import short_repr
 from particlesplat.core.vectors import float3
+from particlesplat.core.world import SUPPORT_Z
 from particlesplat.editing.decoded import DecodedParticles
 from particlesplat.editing.grouping import (
     OPAQUE,
@@ -52,7 +53,6 @@ from particlesplat.editing.grouping import (
     drawing_particles,
     members_centre,
     particle_objects,
-    support_height,
 )
 from particlesplat.editing.move import MoveError, anchor_points, translate
 from particlesplat.editing.particle_edits import (
@@ -454,7 +454,6 @@ class SceneEditor:
         self._labels: tuple[tuple[int, int], Tensor] | None = None  # objects() as of (version, operations done)
         # a scene opened from a .ply has no model and no particles
         self._decoded = DecodedParticles(model, z_t_threshold) if model is not None else None
-        self._support: float | None = None
         self._source: list[int] = list(range(self.original.num)) if self.original is not None else []
         self._inserted: Particles | None = None  # inserted particles as inserted: origin() rows past the original
         self._changed: set[int] = set()
@@ -550,11 +549,9 @@ class SceneEditor:
         return int(labels.max()) + 1 if labels.numel() else 0
 
     def support_height(self) -> float:
-        """The height objects rest on in this scene (:func:`particlesplat.editing.grouping.support_height` of the
-        scene as encoded; edits move objects, not the floor)."""
-        if self._support is None:
-            self._support = support_height(self.decode(self._original()))
-        return self._support
+        """The height (world z, metres) objects rest on: the support surface of the shared world frame
+        (:data:`particlesplat.core.world.SUPPORT_Z`; the tabletop's floor, the robot's table top)."""
+        return SUPPORT_Z
 
     def object_centre(self, index: int) -> Tensor | None:
         """(3,) float64 world metres: the resting centre of particle ``index``'s object as drawn now

@@ -21,6 +21,7 @@ import torch
 from torch import Tensor
 
 from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.world import SUPPORT_Z
 from particlesplat.model import Particles
 
 if TYPE_CHECKING:
@@ -36,7 +37,6 @@ REACH = 1.0
 OVERLAP = 0.3
 CHUNK = 2048  # Gaussians per block of the pairwise distance test (bounds its memory)
 DRAW_OPACITY = 1.0 / 255.0  # a Gaussian draws nowhere below this opacity (the renderer's alpha cut-off)
-SUPPORT_OPACITY = 0.5  # background Gaussians at least this opaque define the support height
 TOP_QUANTILE = 0.95  # an object's top: this quantile of its opaque Gaussians' heights
 
 ObjectCentre = Literal["resting", "weighted"]
@@ -141,15 +141,6 @@ def dense_objects(groups: Tensor, active: Tensor) -> Tensor:
     return out
 
 
-def support_height(gaussians: Gaussians) -> float:
-    """The height (world z, metres) objects rest on: the median z of the background Gaussians of opacity >=
-    ``SUPPORT_OPACITY``; 0 when there are none."""
-    bg = (gaussians.owner < 0) & (gaussians.opacities >= SUPPORT_OPACITY)
-    if not bool(bg.any()):
-        return 0.0
-    return float(gaussians.means[bg][:, 2].double().median())
-
-
 def object_centres(
     gaussians: Gaussians,
     objects: Tensor,
@@ -165,9 +156,9 @@ def object_centres(
     - ``"weighted"``: the opacity-weighted mean of the object's Gaussians. The Gaussians cover the surfaces
       the context views see, so this lies above and in front of the true centre.
     - ``"resting"``: x, y of the opacity-weighted mean of the object's opaque Gaussians (opacity >= 0.2), and
-      z half-way between the support height (:func:`support_height`, or ``support``) and the object's top
-      (the 0.95 quantile of those Gaussians' z): the centre of an object standing on the support, which
-      holds for the tabletop scenes (+z up).
+      z half-way between the support surface (``support``, default
+      :data:`particlesplat.core.world.SUPPORT_Z`) and the object's top (the 0.95 quantile of those Gaussians'
+      z): the centre of an object standing on the support, as objects stand in every scene family.
     """
     if method not in OBJECT_CENTRES:
         raise ValueError(f"object centre method must be one of {', '.join(OBJECT_CENTRES)}, got {method!r}")
@@ -178,7 +169,7 @@ def object_centres(
     mean, std, _ = weighted_stats(gaussians.means, gaussians.opacities, group, num_objects)
     if method == "weighted" or num_objects == 0:
         return mean, std
-    base = support_height(gaussians) if support is None else float(support)
+    base = SUPPORT_Z if support is None else float(support)
     opaque = gaussians.opacities >= OPAQUE
     centre = mean.clone()
     for k in range(num_objects):
@@ -203,8 +194,8 @@ def members_centre(
     method: ObjectCentre = "resting",
 ) -> Tensor | None:
     """(3,) float64 world metres: the centre (:func:`object_centres`, ``method``) of the object made of particles
-    ``members`` as ``particles`` draw it, resting on the support height ``support`` (:func:`support_height` of the
-    scene); None when it draws nothing."""
+    ``members`` as ``particles`` draw it, resting on the support surface at height ``support`` (metres); None when
+    it draws nothing."""
     g = model.decode(particles, torch.tensor(members), background=False).detach().to("cpu")
     if g.num == 0:
         return None

@@ -7,6 +7,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from particlesplat.core.sh import num_sh_bases
+from particlesplat.core.world import SUPPORT_Z
 from particlesplat.model.config import ModelConfig
 from particlesplat.model.geometry import (
     camera_covariance_factor,
@@ -169,7 +170,7 @@ def _finish(
         zeta = clamp_to_support(zeta, c2w[..., 2, 3], dirs[..., 2])
     means = c2w[..., :3, 3] + zeta[..., None] * dirs
     if cut >= 0.0:
-        opacity = torch.where(means[..., 2] < -cut, torch.zeros_like(opacity), opacity)
+        opacity = torch.where(means[..., 2] < SUPPORT_Z - cut, torch.zeros_like(opacity), opacity)
     fx = K[..., 0, 0]
     fy = K[..., 1, 1]
     jac_z = zeta / fx if depth_cell is None else torch.maximum(zeta / fx, depth_cell)
@@ -189,8 +190,9 @@ def clamp_to_support(zeta: Tensor, origin_z: Tensor, dir_z: Tensor) -> Tensor:
     origin_z: (...) camera height; dir_z: (...) world z of the ray direction per unit planar depth. Rays from
     below the surface or not going down are left alone. Differentiable (a minimum).
     """
-    down = (dir_z < 0) & (origin_z > 0)
-    hit = torch.where(down, origin_z / (-dir_z).clamp_min(1e-12), torch.full_like(zeta, float("inf")))
+    height = origin_z - SUPPORT_Z
+    down = (dir_z < 0) & (height > 0)
+    hit = torch.where(down, height / (-dir_z).clamp_min(1e-12), torch.full_like(zeta, float("inf")))
     return torch.minimum(zeta, hit)
 
 

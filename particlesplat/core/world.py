@@ -1,0 +1,5 @@
+"""The world frame every scene and model shares (docs/dataset.md): metres, +z up, and the surface objects rest
+on, the tabletop family's floor and the robot family's table top, at z = :data:`SUPPORT_Z`.
+``particlesplat scene check`` brings a capture into it."""
+
+SUPPORT_Z = 0.0  # metres: the height of the support surface objects rest on
