@@ -69,3 +69,22 @@ def test_every_shipped_checkpoint_records_its_provenance():
         assert line.startswith("provenance: from ") and "none recorded" not in line
     tabletop = read_checkpoint(shipped_model_path("tabletop"))["provenance"]
     assert "staged chain" in tabletop["init"] and "hours not recorded" in describe(tabletop)
+
+
+def test_a_checkpoint_written_before_its_refinement_trained_encodes_without_it():
+    """The robot model was written before its run's refine_start: its refiner is still at its start (a correction
+    of exactly zero), so it loads with refinement off and encodes the same particles, without the refiner's
+    cost. The tabletop model, whose run trained it, keeps it."""
+    from particlesplat.model import load_model
+    from particlesplat.model.io import read_checkpoint, refinement_trained
+
+    torch.set_num_threads(1)
+    robot_ckpt = read_checkpoint(shipped_model_path("robot"))
+    assert robot_ckpt["step"] < robot_ckpt["train"]["refine_start"] * robot_ckpt["train"]["steps"]
+    assert not refinement_trained(robot_ckpt) and refinement_trained(read_checkpoint(shipped_model_path("tabletop")))
+    robot, enc, _ = load_model_scene(None, ROBOT)
+    assert not robot.refine_enabled and load_model(shipped_model_path("tabletop")).refine_enabled
+    robot.refine_enabled = True
+    refined = robot.encode(enc.scene.rgb, enc.scene.depth, enc.scene.cameras)
+    for name in ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f"):
+        assert torch.equal(getattr(refined, name), getattr(enc.particles, name)), name

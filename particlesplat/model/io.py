@@ -199,7 +199,22 @@ def model_from_checkpoint(ckpt: dict, where: str = "checkpoint", device: str | t
         model.load_state_dict(ckpt["state_dict"])
     except RuntimeError as e:
         raise CheckpointError(f"{where}: state_dict does not match its config ({one_line(e, 300)})") from None
+    model.refine_enabled = refinement_trained(ckpt)
     return model.to(device).eval()
+
+
+def refinement_trained(ckpt: dict) -> bool:
+    """Whether the run that wrote ``ckpt`` had begun to train its refinement (from ``train.refine_start`` of
+    ``train.steps``). Before that the refiner is still at its start, a correction of exactly zero, and the run
+    validated without it; refining would only cost time (about 60 % of a robot model's encode). True for a
+    checkpoint that does not record its schedule."""
+    train = ckpt.get("train")
+    if not isinstance(train, dict):
+        return True
+    start, steps = train.get("refine_start"), train.get("steps")
+    if not isinstance(start, (int, float)) or isinstance(start, bool) or not isinstance(steps, int):
+        return True
+    return int(ckpt["step"]) >= start * steps
 
 
 SHIPPED_MODELS = {"tabletop": "model.pt", "robot": "robot/model.pt"}  # scene family -> its model in assets/
