@@ -118,16 +118,12 @@ class DecodedParticles:
         α ≥ 1/255 in ``camera`` (empty: x0 > x1); only rows that changed are projected again."""
         per = self.model.config.gaussians_per_particle
         boxes, valid = self._boxes.get(key), self._boxed.get(key)
-        old = 0 if boxes is None else boxes.shape[0]
-        boxes = torch.cat(
-            [
-                boxes if boxes is not None else torch.zeros(0, 4, dtype=torch.float64),
-                torch.zeros(num - old, 4, dtype=torch.float64),
-            ]
-        )
-        valid = torch.cat(
-            [valid if valid is not None else torch.zeros(0, dtype=torch.bool), torch.zeros(num - old, dtype=torch.bool)]
-        )
+        if boxes is None or valid is None:
+            boxes, valid = torch.zeros(0, 4, dtype=torch.float64), torch.zeros(0, dtype=torch.bool)
+        if boxes.shape[0] < num:  # new rows: boxes to compute
+            grown = num - boxes.shape[0]
+            boxes = torch.cat([boxes, boxes.new_zeros(grown, 4)])
+            valid = torch.cat([valid, valid.new_zeros(grown)])
         todo = torch.nonzero(~valid).flatten()
         if todo.numel():
             rows = self._row_gaussians(todo)
