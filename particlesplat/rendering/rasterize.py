@@ -86,25 +86,32 @@ def bin_gaussians(
         first += tx * ty
     n_tiles = first
     with torch.no_grad():
-        wh = torch.tensor(sizes, dtype=torch.float64, device=device)[view]  # (M, 2)
-        g_tx = torch.tensor([g[0] for g in grids], device=device)[view]
-        g_first = torch.tensor([g[2] for g in grids], device=device)[view]
+        # per view (width, height, tiles_x, first tile id), per Gaussian row; gathers use index_select,
+        # several times faster than advanced indexing on CPU
+        per_view = torch.tensor(
+            [[w, h, tx, f] for (w, h), (tx, _, f) in zip(sizes, grids, strict=True)], dtype=torch.float64, device=device
+        ).index_select(0, view)
+        wh = per_view[:, :2]
         m = means2d.detach().double()
         r = radius.detach().double()
         # pixel u is covered if its centre u + 0.5 lies within [m - r, m + r]
         lo = torch.maximum(torch.ceil(m - r - 0.5), torch.zeros_like(m))
         hi = torch.minimum(torch.floor(m + r - 0.5), wh - 1)
         ok = (r[:, 0] >= 0) & (hi >= lo).all(-1) & torch.isfinite(m).all(-1)
-        t0, t1 = (lo // TILE).long(), (hi // TILE).long()
-        nx = torch.where(ok, t1[:, 0] - t0[:, 0] + 1, 0)
-        ny = torch.where(ok, t1[:, 1] - t0[:, 1] + 1, 0)
+        t0, t1 = torch.floor(lo / TILE), torch.floor(hi / TILE)
+        nx = torch.where(ok, t1[:, 0] - t0[:, 0] + 1, 0.0).long()
+        ny = torch.where(ok, t1[:, 1] - t0[:, 1] + 1, 0.0).long()
+        corner = torch.where(ok, per_view[:, 3] + t0[:, 1] * per_view[:, 2] + t0[:, 0], 0.0).long()  # box's first tile
+        tiles_x = per_view[:, 2].long()
         order = torch.sort(depths.detach(), stable=True).indices  # front to back, ties by index
-        per = (nx * ny)[order]
+        per = (nx * ny).index_select(0, order)
         total = int(per.sum())
-        g = torch.repeat_interleave(order, per)
-        offs = torch.arange(total, device=device) - torch.repeat_interleave(torch.cumsum(per, 0) - per, per)
-        gnx = nx[g]
-        tile = g_first[g] + (t0[g, 1] + offs // gnx) * g_tx[g] + t0[g, 0] + offs % gnx
+        k = torch.repeat_interleave(torch.arange(order.numel(), device=device), per)  # pair -> rank in depth order
+        g = order.index_select(0, k)
+        offs = torch.arange(total, device=device) - (torch.cumsum(per, 0) - per).index_select(0, k)
+        gnx = nx.index_select(0, g)
+        row = torch.div(offs, gnx, rounding_mode="floor")
+        tile = corner.index_select(0, g) + row * tiles_x.index_select(0, g) + (offs - row * gnx)
         origin = torch.cat(
             [
                 torch.stack(torch.meshgrid(torch.arange(ty), torch.arange(tx), indexing="ij")[::-1], dim=-1).reshape(
@@ -115,9 +122,12 @@ def bin_gaussians(
         ).to(device)
         origin = origin * TILE + TILE / 2
         hit = _tile_hits(g, tile, origin, means2d.detach(), conics.detach(), opacities.detach())
-        g, tile = g[hit], tile[hit]
-        tile_sorted, perm = torch.sort(tile, stable=True)
-        gauss = g[perm]
+        kept = torch.nonzero(hit).squeeze(1)
+        g, tile = g.index_select(0, kept), tile.index_select(0, kept)
+        # tile ids fit int32, whose stable sort is about 2.5x faster than int64's
+        tile_sorted, perm = torch.sort(tile.int(), stable=True)
+        tile_sorted = tile_sorted.long()
+        gauss = g.index_select(0, perm)
         count = torch.bincount(tile_sorted, minlength=n_tiles)
         chunks = _make_chunks(count)
     return TileBins(grids, gauss, tile_sorted, count, origin, chunks)
@@ -137,7 +147,8 @@ def _tile_hits(
     hit = torch.empty(g.shape[0], dtype=torch.bool, device=g.device)
     for i in range(0, g.shape[0], block):
         gi, ti = g[i : i + block], tile[i : i + block]
-        coef = _coefficients((means2d[gi] - origin[ti].to(means2d.dtype)).to(conics.dtype), conics[gi], log_o[gi])
+        local = means2d.index_select(0, gi) - origin.index_select(0, ti).to(means2d.dtype)
+        coef = _coefficients(local.to(conics.dtype), conics.index_select(0, gi), log_o.index_select(0, gi))
         # (16, 6) @ (6, B) is ~10x faster than the tall-skinny (B, 6) @ (6, 16) on CPU
         hit[i : i + block] = (feats @ coef.T).amax(0) >= thresh - 1e-3  # margin: the raster decides exactly
     return hit
