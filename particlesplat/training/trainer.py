@@ -10,6 +10,7 @@ import shutil
 import signal
 import sys
 import threading
+import time
 import weakref
 from contextlib import contextmanager
 from dataclasses import replace
@@ -42,6 +43,20 @@ LAST = "last.pt"
 STEP_FILE = re.compile(r"^step_\d+\.pt$")
 WORKSPACE_SCENES = 40  # training scenes the workspace layer's start is found in
 MAX_SKIPPED = 20  # steps in a row with non-finite loss or gradients before the run stops as diverged
+
+
+class _Laps:
+    """Seconds between calls, summed per phase name into ``timings`` (None: does nothing)."""
+
+    def __init__(self, timings: dict[str, float] | None):
+        self.timings = timings
+        self.last = time.perf_counter()
+
+    def __call__(self, phase: str) -> None:
+        if self.timings is not None:
+            now = time.perf_counter()
+            self.timings[phase] = self.timings.get(phase, 0.0) + now - self.last
+            self.last = now
 
 
 class TrainingDiverged(UserError):
@@ -466,14 +481,20 @@ class Trainer:
         torch.rand((), generator=self.gen)  # one draw per step keeps a seed's batches those of the recorded runs
         return batch.to(self.device)
 
-    def train_step(self) -> dict[str, float]:
+    def train_step(self, timings: dict[str, float] | None = None) -> dict[str, float]:
+        """One optimiser step. ``timings``: filled with the seconds of its phases (data, forward, backward,
+        update), for ``particlesplat bench train``."""
+        lap = _Laps(timings)
         batch = self.batch()
+        lap("data")
         self.ddp.train()
         self.model.refine_enabled = self.step >= self.tc.refine_start * self.tc.steps
         with training_selection(self.model.config, self.tc):
             parts, _ = training_loss(self.ddp, batch, self.tc, self.cfg.resolution, self.cfg)
+        lap("forward")
         self.opt.zero_grad(set_to_none=True)
         parts["loss"].backward()
+        lap("backward")
         grads = [p.grad for p in self.model.parameters() if p.grad is not None]
         if grads and not bool(torch.stack([torch.isfinite(g).all() for g in grads]).all()):
             # one NaN gradient would become all-NaN after clipping: skip the update, keep the weights
@@ -487,7 +508,9 @@ class Trainer:
             torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.tc.grad_clip)
         self.opt.step()
         self.step += 1
-        return {k: float(v.detach()) for k, v in parts.items()}
+        out = {k: float(v.detach()) for k, v in parts.items()}
+        lap("update")
+        return out
 
     def validate(self) -> dict[str, float]:
         from particlesplat.analysis.evaluate import evaluate_dataset
