@@ -286,16 +286,19 @@ class RasterizeFunction(torch.autograd.Function):
     def forward(ctx, coef: Tensor, features: Tensor, bins: TileBins) -> Tensor:
         feats = _pixel_features(coef.dtype, coef.device)
         out = coef.new_zeros(bins.num_tiles, TILE * TILE, features.shape[1])
+        backward = any(ctx.needs_input_grad[:2])  # a render without gradient keeps nothing for the backward
         live = torch.zeros_like(bins.count)  # per tile: slots up to the last one with any weight
         for tiles, idx in bins.chunks:
             w = _ChunkState(feats, _rows(coef, idx)).weights
             out.index_copy_(0, tiles, torch.bmm(w, _rows(features, idx)))
-            used = _step(w.sum(1), strict=True)  # (Tb, L) 1 where a slot has any weight
-            live[tiles] = (used * torch.arange(1, idx.shape[1] + 1, device=idx.device)).amax(-1).long()
-        ctx.save_for_backward(coef, features)
-        # Slots after a tile's last weighted slot (terminated or transparent everywhere) have
-        # zero gradient, so the backward processes only the live prefix of each list.
-        ctx.chunks = _make_chunks(live, bins.count)
+            if backward:
+                used = _step(w.sum(1), strict=True)  # (Tb, L) 1 where a slot has any weight
+                live[tiles] = (used * torch.arange(1, idx.shape[1] + 1, device=idx.device)).amax(-1).long()
+        if backward:
+            ctx.save_for_backward(coef, features)
+            # Slots after a tile's last weighted slot (terminated or transparent everywhere) have
+            # zero gradient, so the backward processes only the live prefix of each list.
+            ctx.chunks = _make_chunks(live, bins.count)
         return out
 
     @staticmethod
