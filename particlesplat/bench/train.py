@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import statistics
 import subprocess
@@ -122,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     threads = _threads(args.threads)
     print(machine_line())
+    print(f"OpenMP wait policy: {os.environ.get('OMP_WAIT_POLICY') or 'the runtime default (spin, then sleep)'}")
     print(f"recipe {config}, data {data}, {'from ' + str(run / 'last.pt') if run else 'random initialisation'}")
     header = (
         "| threads | s/step | data | forward | backward | update | CPU s/step | steps/s | recipe hours at this rate |"

@@ -258,6 +258,7 @@ class TrainConfig:
     ckpt_every: int = 50
     seed: int = 42
     num_threads: int = 1
+    adapt_threads: bool = True
     cache_scenes: int = 1100
 
     def validate(self, where: str = "train") -> None:

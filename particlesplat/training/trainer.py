@@ -27,6 +27,7 @@ from particlesplat.core.atomic import atomic_path, atomic_write, stale_temporari
 from particlesplat.core.camera import Camera
 from particlesplat.core.device import resolve_device
 from particlesplat.core.errors import Interrupted, UserError, one_line
+from particlesplat.core.threads import ThreadGovernor
 from particlesplat.data.dataset import TrainingBatch
 from particlesplat.data.views import WARMUP
 from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig, read_checkpoint, save_checkpoint
@@ -42,6 +43,7 @@ from particlesplat.training.runlog import read_log
 LAST = "last.pt"
 STEP_FILE = re.compile(r"^step_\d+\.pt$")
 WORKSPACE_SCENES = 40  # training scenes the workspace layer's start is found in
+THREAD_CHECK_STEPS = 10  # steps between checks of the cores other processes keep busy (train.adapt_threads)
 MAX_SKIPPED = 20  # steps in a row with non-finite loss or gradients before the run stops as diverged
 
 
@@ -606,9 +608,14 @@ class Trainer:
         )
         run_avg = self.run_avg
         skipped_in_a_row = 0
+        governor = None
+        if tc.adapt_threads and self.device.type == "cpu" and not self.distributed:
+            governor = ThreadGovernor(tc.num_threads or torch.get_num_threads())
         while self.step < end:
             parts = self.train_step()
             bar.update(1)
+            if governor is not None and self.step % THREAD_CHECK_STEPS == 0:
+                governor.update()
             if "skipped" in parts:
                 self.skipped += 1
                 skipped_in_a_row += 1
@@ -625,7 +632,10 @@ class Trainer:
                     run_avg[k] = v if k not in run_avg else 0.9 * run_avg[k] + 0.1 * v
             if run_avg:
                 bar.set_postfix(
-                    loss=f"{run_avg['loss']:.1f}", psnr=f"{run_avg['psnr']:.2f}", active=f"{run_avg['active']:.1f}"
+                    loss=f"{run_avg['loss']:.1f}",
+                    psnr=f"{run_avg['psnr']:.2f}",
+                    active=f"{run_avg['active']:.1f}",
+                    **({"threads": governor.threads} if governor is not None else {}),
                 )
             if self.step % tc.log_every == 0 and run_avg:
                 self.log(
