@@ -71,10 +71,11 @@ def _choose_wait_policy(command: str) -> None:
     """OpenMP threads of a command started on a machine whose cores other work keeps busy wait passively (set
     before torch loads its OpenMP runtime; the user's own ``OMP_WAIT_POLICY`` wins). Training spins instead and
     lowers its thread count while the cores are busy (``train.adapt_threads``): spinning on free cores made a robot
-    step 1.54 s against 2.57 s waiting passively (:mod:`particlesplat.core.threads`)."""
+    step 1.54 s against 2.57 s waiting passively (:mod:`particlesplat.core.threads`). Benchmarks measure the
+    runtime's default unless the user sets the policy."""
     from particlesplat.core.threads import wait_policy_for_load
 
-    if command == "train" or "OMP_WAIT_POLICY" in os.environ:
+    if command in ("train", "bench") or "OMP_WAIT_POLICY" in os.environ:  # benchmarks: the runtime default
         return
     policy = wait_policy_for_load()
     if policy is not None:
