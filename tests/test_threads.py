@@ -9,7 +9,7 @@ import torch
 
 from particlesplat.cli import main as cli_main
 from particlesplat.core import threads
-from particlesplat.core.threads import ThreadGovernor, busy_seconds, threads_for
+from particlesplat.core.threads import ThreadGovernor, busy_seconds, other_load, threads_for
 
 
 def _stat(path, busy_ticks: int, idle_ticks: int = 1000) -> None:
@@ -71,13 +71,28 @@ def test_governor_drops_a_thread_while_another_process_keeps_a_core_busy_and_res
     assert gov.update() == 2 and set_to == [1, 2]
 
 
-def test_short_commands_wait_passively_on_a_busy_machine_and_training_never(monkeypatch):
-    monkeypatch.setattr(threads, "usable_cores", lambda: 2)
+def test_other_load_subtracts_this_process_and_commands_wait_passively_only_on_a_busy_machine(tmp_path, monkeypatch):
+    hz = os.sysconf("SC_CLK_TCK")
+    stat = tmp_path / "stat"
+    clock = {"wall": 0.0, "own": 0.0, "busy": 1000 * hz, "others": 0.0}
+    _stat(stat, clock["busy"])
+
+    def sleep(seconds):  # this process sleeps; the others run
+        clock["wall"] += seconds
+        clock["busy"] += round(clock["others"] * seconds * hz)
+        _stat(stat, clock["busy"])
+
+    monkeypatch.setattr(threads.time, "sleep", sleep)
+    monkeypatch.setattr(threads.time, "monotonic", lambda: clock["wall"])
+    monkeypatch.setattr(threads.time, "process_time", lambda: clock["own"])
+    monkeypatch.setattr(threads, "PROC_STAT", stat)
+    clock["others"] = 1.0
+    assert other_load(1.0, stat) == pytest.approx(1.0, abs=0.02)
     monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
-    monkeypatch.setattr(os, "getloadavg", lambda: (0.2, 0.2, 0.2))
+    clock["others"] = 0.1
     cli_main._choose_wait_policy("eval")
     assert "OMP_WAIT_POLICY" not in os.environ  # free: the runtime default
-    monkeypatch.setattr(os, "getloadavg", lambda: (2.1, 2.0, 2.0))
+    clock["others"] = 1.0
     for command in ("train", "bench"):
         cli_main._choose_wait_policy(command)
         assert "OMP_WAIT_POLICY" not in os.environ  # training adapts its threads; benchmarks measure the default

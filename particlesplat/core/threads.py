@@ -4,7 +4,7 @@ OpenMP threads that wait for each other either spin (torch's default) or sleep (
 Measured on the robot recipe (2 threads, 2 cores, 2026-11-26): on free cores a training step takes 1.54 s
 spinning and 2.57 s sleeping; with one core busy with other work, 4.74 s spinning, 2.52 s sleeping, and about
 2.35 s with one thread (no waits at all). So long jobs spin and drop threads while other processes keep cores
-busy (:class:`ThreadGovernor`), and short commands on a busy machine sleep (:func:`wait_policy_for_load`).
+busy (:class:`ThreadGovernor`), and other commands started on a busy machine sleep (:func:`wait_policy_for_load`).
 Busy cores are read from Linux's ``/proc/stat``; elsewhere nothing adapts.
 """
 
@@ -16,6 +16,8 @@ from pathlib import Path
 
 PROC_STAT = Path("/proc/stat")
 IDLE_MARGIN = 0.3  # cores: other processes using less than this leave a core free (shells, monitors)
+LOAD_WINDOW = 0.1  # seconds a command samples the load for before it loads torch
+BUSY_LOAD = 0.5  # cores other processes use from which a command's OpenMP threads wait passively
 
 
 def usable_cores() -> int:
@@ -83,11 +85,21 @@ class ThreadGovernor:
         return threads
 
 
-def wait_policy_for_load(cores: int | None = None) -> str | None:
-    """``"PASSIVE"`` when the 1-minute load average says other work keeps every core busy (OpenMP threads that
-    spin there wait for threads that cannot run), else None (the runtime's default: spin briefly, then sleep)."""
-    try:
-        load = os.getloadavg()[0]
-    except (AttributeError, OSError):
+def other_load(window: float = LOAD_WINDOW, stat: Path | None = None) -> float | None:
+    """Cores' worth of CPU other processes use, sampled over ``window`` seconds (this process sleeps through it)
+    from ``stat`` (default ``/proc/stat``); None where it cannot be read."""
+    stat = stat or PROC_STAT
+    first = busy_seconds(stat)
+    own, t0 = time.process_time(), time.monotonic()
+    time.sleep(window)
+    last = busy_seconds(stat)
+    if first is None or last is None:
         return None
-    return "PASSIVE" if load > (cores or usable_cores()) - 0.5 else None
+    return max(0.0, (last - first) - (time.process_time() - own)) / max(time.monotonic() - t0, 1e-3)
+
+
+def wait_policy_for_load() -> str | None:
+    """``"PASSIVE"`` when other processes keep at least half a core busy now (OpenMP threads that spin there wait
+    for threads that cannot run), else None (the runtime's default: spin briefly, then sleep)."""
+    others = other_load()
+    return "PASSIVE" if others is not None and others >= BUSY_LOAD else None
