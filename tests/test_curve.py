@@ -30,3 +30,29 @@ def test_points_are_drawn_at_their_step_and_value():
     assert img.getpixel((x1, y1)) in (PSNR_COLOUR, ARI_COLOUR)
     assert img.getpixel((x0 + 1, y0 - 1)) in (PSNR_COLOUR, ARI_COLOUR)
     assert img.getpixel(((x0 + x1) // 2, (y0 + y1) // 2 + 40)) == (255, 255, 255)  # nothing off the line
+
+
+def test_two_runs_share_the_axes_each_in_its_own_colours(tmp_path, capsys):
+    from particlesplat.cli.main import main
+    from particlesplat.training.curve import LEGEND_ROW, RUN_COLOURS
+
+    for name, psnr, ari in (("a", 20.0, 0.3), ("b", 25.0, 0.6)):
+        (tmp_path / name).mkdir()
+        records = [{"step": s, "val": {"psnr": psnr + s / 1000, "fg_ari": ari}} for s in (500, 1000)]
+        (tmp_path / name / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in records))
+    out = tmp_path / "both.png"
+    assert main(["curve", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(out)]) == 0
+    assert "b: 2 validation point(s); last: step 1000, PSNR 26.00 dB" in capsys.readouterr().out
+    from PIL import Image
+
+    img = Image.open(out).convert("RGB")
+    assert img.size == (WIDTH, HEIGHT + LEGEND_ROW)
+    colours = {c for _, c in img.getcolors(1 << 16)}
+    for psnr_colour, ari_colour in RUN_COLOURS[:2]:
+        assert psnr_colour in colours and ari_colour in colours
+    assert not set(RUN_COLOURS[2]) & colours  # a third run's colours only with a third run
+    x1, y0, y1 = WIDTH - MARGIN, HEIGHT - MARGIN, MARGIN // 2 + 8
+    # one PSNR axis for both (15..30 dB): run b's last point (step 1000, 26 dB) at the right edge, 11/15 up
+    assert img.getpixel((x1, round(y0 - (y0 - y1) * 11 / 15))) == RUN_COLOURS[1][0]
+    with pytest.raises(ValueError, match="at most 3 runs"):
+        main(["curve", *[str(tmp_path / "a")] * 4, "--out", str(out)])

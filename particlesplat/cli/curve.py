@@ -1,4 +1,4 @@
-"""``particlesplat curve``: plot a run's validation curve (PSNR and FG-ARI against step) to a small PNG."""
+"""``particlesplat curve``: plot the validation curves of one to three runs (PSNR and FG-ARI against step) to a PNG."""
 
 from __future__ import annotations
 
@@ -6,22 +6,33 @@ import argparse
 from pathlib import Path
 
 from particlesplat.core.atomic import atomic_path
-from particlesplat.training.curve import plot_curve, read_validation
+from particlesplat.core.errors import OptionError
+from particlesplat.training.curve import RUN_COLOURS, plot_curves, read_validation
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("run", help="run folder holding metrics.jsonl (from 'particlesplat train')")
+    parser.add_argument(
+        "run",
+        nargs="+",
+        help=f"run folder(s) holding metrics.jsonl (from 'particlesplat train'); up to {len(RUN_COLOURS)} on one plot",
+    )
     parser.add_argument("--out", required=True, help="PNG to write")
     parser.add_argument("--title", default="", help="text above the plot")
 
 
 def run(args: argparse.Namespace) -> int:
-    path = Path(args.run) / "metrics.jsonl"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no metrics log (is {args.run} a run folder?)")
-    rows = read_validation(path)
+    if len(args.run) > len(RUN_COLOURS):
+        raise OptionError(f"curve: at most {len(RUN_COLOURS)} runs on one plot, got {len(args.run)}")
+    runs = []
+    for folder in args.run:
+        path = Path(folder) / "metrics.jsonl"
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no metrics log (is {folder} a run folder?)")
+        runs.append((Path(folder).name if len(args.run) > 1 else "", read_validation(path)))
     with atomic_path(args.out) as tmp:
-        plot_curve(rows, args.title).save(tmp, format="PNG")
-    last = f"; last: step {rows[-1][0]}, PSNR {rows[-1][1]:.2f} dB, FG-ARI {rows[-1][2]:.3f}" if rows else ""
-    print(f"wrote {args.out}: {len(rows)} validation point(s){last}")
+        plot_curves(runs, args.title).save(tmp, format="PNG")
+    for folder, (_, rows) in zip(args.run, runs, strict=True):
+        last = f"; last: step {rows[-1][0]}, PSNR {rows[-1][1]:.2f} dB, FG-ARI {rows[-1][2]:.3f}" if rows else ""
+        print(f"{folder}: {len(rows)} validation point(s){last}")
+    print(f"wrote {args.out}")
     return 0

@@ -20,7 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "render": ("particlesplat.cli.render", "render a (possibly edited) scene headless to PNG"),
     "encode": ("particlesplat.cli.encode", "write the particles of scene folders as .npz arrays"),
     "object": ("particlesplat.cli.object", "export an object to .ply, or insert it into another scene"),
-    "curve": ("particlesplat.cli.curve", "plot a training run's validation curve to PNG"),
+    "curve": ("particlesplat.cli.curve", "plot the validation curves of training runs to PNG"),
     "scene": ("particlesplat.cli.scene", "check a scene folder's world frame (+z up, support at z = 0, metres)"),
     "bench": ("", "run a benchmark: " + ", ".join(sorted(e.name for e in entry_points(group="particlesplat.bench")))),
 }
