@@ -2,8 +2,8 @@
 
 OpenMP threads that wait for each other either spin (torch's default) or sleep (``OMP_WAIT_POLICY=PASSIVE``).
 Measured on the robot recipe (2 threads, 2 cores, 2026-11-26): on free cores a training step takes 1.54 s
-spinning and 2.57 s sleeping; with one core busy with other work, 4.74 s spinning, 2.52 s sleeping, and about
-2.35 s with one thread (no waits at all). So long jobs spin and drop threads while other processes keep cores
+spinning and 2.57 s sleeping; with one core busy with other work, 4.74 s spinning, 2.52 s sleeping, and
+2.36 s with one thread (no waits at all). So long jobs spin and drop threads while other processes keep cores
 busy (:class:`ThreadGovernor`), and other commands started on a busy machine sleep (:func:`wait_policy_for_load`).
 Busy cores are read from Linux's ``/proc/stat``; elsewhere nothing adapts.
 """
@@ -49,35 +49,44 @@ def threads_for(maximum: int, cores: int, others: float) -> int:
     return max(1, min(maximum, int(free + 1e-9)))
 
 
+class _Sample:
+    """When it was taken (monotonic seconds), CPU-seconds every process had run and this process's own; None
+    fields where ``/proc/stat`` cannot be read."""
+
+    def __init__(self, stat: Path):
+        self.wall, self.busy, self.own = time.monotonic(), busy_seconds(stat), time.process_time()
+
+    def others_since(self, earlier: _Sample) -> float | None:
+        """Cores' worth of CPU other processes used between ``earlier`` and this sample (None if unknown)."""
+        if self.busy is None or earlier.busy is None or self.wall <= earlier.wall:
+            return None
+        return max(0.0, (self.busy - earlier.busy) - (self.own - earlier.own)) / (self.wall - earlier.wall)
+
+
 class ThreadGovernor:
     """Keeps torch's thread count at the cores other processes leave free, up to ``maximum``.
 
     Call :meth:`update` now and then (a training run: every few steps): it measures the CPU other processes used
     since the last call (all busy time minus this process's own) and sets ``torch.set_num_threads``. Returns the
-    thread count, unchanged where ``/proc/stat`` is unreadable.
+    thread count, unchanged where ``stat`` (default ``/proc/stat``) is unreadable.
     """
 
-    def __init__(self, maximum: int, stat: Path = PROC_STAT):
+    def __init__(self, maximum: int, stat: Path | None = None):
         import torch
 
         self.maximum = max(1, maximum)
         self.cores = usable_cores()
-        self.stat = stat
+        self.stat = stat or PROC_STAT
         self.threads = torch.get_num_threads()
-        self._last = self._sample()
-
-    def _sample(self) -> tuple[float, float, float] | None:
-        busy = busy_seconds(self.stat)
-        return None if busy is None else (time.monotonic(), busy, time.process_time())
+        self._last = _Sample(self.stat)
 
     def update(self) -> int:
         import torch
 
-        now = self._sample()
-        last, self._last = self._last, now
-        if now is None or last is None or now[0] - last[0] <= 0:
+        now = _Sample(self.stat)
+        others, self._last = now.others_since(self._last), now
+        if others is None:
             return self.threads
-        others = ((now[1] - last[1]) - (now[2] - last[2])) / (now[0] - last[0])
         threads = threads_for(self.maximum, self.cores, others)
         if threads != self.threads:
             torch.set_num_threads(threads)
@@ -88,14 +97,9 @@ class ThreadGovernor:
 def other_load(window: float = LOAD_WINDOW, stat: Path | None = None) -> float | None:
     """Cores' worth of CPU other processes use, sampled over ``window`` seconds (this process sleeps through it)
     from ``stat`` (default ``/proc/stat``); None where it cannot be read."""
-    stat = stat or PROC_STAT
-    first = busy_seconds(stat)
-    own, t0 = time.process_time(), time.monotonic()
+    first = _Sample(stat or PROC_STAT)
     time.sleep(window)
-    last = busy_seconds(stat)
-    if first is None or last is None:
-        return None
-    return max(0.0, (last - first) - (time.process_time() - own)) / max(time.monotonic() - t0, 1e-3)
+    return _Sample(stat or PROC_STAT).others_since(first)
 
 
 def wait_policy_for_load() -> str | None:
