@@ -275,6 +275,23 @@ def test_training_with_the_foreground_term_logs_it(tmp_path_factory, tmp_path):
     assert all(math.isfinite(r["loss"]) for r in rows if "loss" in r)
 
 
+def test_the_foreground_term_stops_at_beta_fg_until(tmp_path_factory, tmp_path):
+    """beta_fg_until 0.5 of 4 steps: steps 1 and 2 add the term (and log it), steps 3 and 4 neither compute
+    nor log it."""
+    from particlesplat.model import TrainConfig
+
+    tc = TrainConfig(steps=4, beta_fg=0.5, beta_fg_until=0.5)
+    assert [tc.fg_weight(s) for s in range(4)] == [0.5, 0.5, 0.0, 0.0]
+    assert TrainConfig(steps=4, beta_fg=0.5).fg_weight(3) == 0.5  # the default: throughout
+    data = tiny_dataset(tmp_path_factory)
+    cfg = tiny_config(tmp_path / "tiny.yaml", steps=4, val_every=5, beta_fg=0.5, beta_fg_until=0.5)
+    assert _train(cfg, data, tmp_path / "f") == 0
+    rows = [json.loads(ln) for ln in (tmp_path / "f" / "metrics.jsonl").read_text().splitlines()]
+    rows = {r["step"]: r for r in rows if "loss" in r}
+    assert sorted(rows) == [1, 2, 3, 4]
+    assert "fg" in rows[1] and "fg" in rows[2] and "fg" not in rows[3] and "fg" not in rows[4]
+
+
 def test_training_batch_stacks_the_items_the_loss_reads(tmp_path_factory):
     """TrainingBatch.collate: each field is the items' tensors stacked (what torch's default collate makes of
     them), masks and indices left out; .to keeps every field."""

@@ -244,6 +244,7 @@ class TrainConfig:
     beta_f: float = 1.0
     beta_reg: float = 0.1
     beta_fg: float = 0.4
+    beta_fg_until: float = 1.0
     fg_threshold: float = 0.02
     beta_rec_ctx: float = 1.0
     beta_rec_tgt: float = 1.0
@@ -260,6 +261,10 @@ class TrainConfig:
     num_threads: int = 1
     adapt_threads: bool = True
     cache_scenes: int = 1100
+
+    def fg_weight(self, step: int) -> float:
+        """The foreground term's weight at ``step``: ``beta_fg`` before ``beta_fg_until`` of the steps, then 0."""
+        return self.beta_fg if step < self.beta_fg_until * self.steps else 0.0
 
     def validate(self, where: str = "train") -> None:
         need = _checker(self, where)
@@ -280,6 +285,7 @@ class TrainConfig:
         need(self.particles_per_view >= 0, "particles_per_view", "must be >= 0 (0: the model's)")
         need(self.kp_min_separation >= 0.0, "kp_min_separation", "must be >= 0 (0: the model's)")
         need(0.0 <= self.refine_start <= 1.0, "refine_start", "must be in [0, 1] (a fraction of the steps)")
+        need(0.0 <= self.beta_fg_until <= 1.0, "beta_fg_until", "must be in [0, 1] (a fraction of the steps)")
         need(self.cache_scenes >= 0, "cache_scenes", "must be >= 0")
         for key in ("log_every", "val_every", "ckpt_every"):
             need(getattr(self, key) >= 1, key, "must be >= 1")

@@ -116,15 +116,18 @@ def training_loss(
     tc: TrainConfig,
     size: int,
     cfg: ModelConfig,
+    beta_fg: float | None = None,
 ) -> tuple[dict[str, Tensor], Tensor]:
-    """Negative ELBO of a batch. Returns the loss parts and the target-view renders (B, T, 3, H, W) (or context
-    renders when there are no targets)."""
+    """Negative ELBO of a batch. ``beta_fg``: the foreground term's weight at this step (default
+    ``tc.beta_fg``; 0 leaves the term out). Returns the loss parts and the target-view renders
+    (B, T, 3, H, W) (or context renders when there are no targets)."""
+    beta_fg = tc.beta_fg if beta_fg is None else beta_fg
     post, z, gaussians = model(batch.context_rgb, batch.context_depth, batch.context_K, batch.context_c2w, sample=True)
     C = batch.context_rgb.shape[1]
     K = torch.cat([batch.context_K, batch.target_K], 1)
     c2w = torch.cat([batch.context_c2w, batch.target_c2w], 1)
     net = model.module if isinstance(model, DistributedDataParallel) else model
-    rgb_hat, depth_hat, fg_hat = render_views(gaussians, K, c2w, size, z["bg_color"], tc.beta_fg > 0)
+    rgb_hat, depth_hat, fg_hat = render_views(gaussians, K, c2w, size, z["bg_color"], beta_fg > 0)
     gt_rgb = torch.cat([batch.context_rgb, batch.target_rgb], 1)
     gt_depth = torch.cat([batch.context_depth, batch.target_depth], 1)
     B, V = gt_rgb.shape[:2]
@@ -150,7 +153,7 @@ def training_loss(
             bg_err = torch.cat([bg_err, tgt_err], 1)
         fg_err = foreground_error(fg_hat.flatten(0, 1), bg_err.flatten(0, 1), tc.fg_threshold)
         parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
-        parts["loss"] = parts["loss"] + tc.beta_fg * parts["fg"]
+        parts["loss"] = parts["loss"] + beta_fg * parts["fg"]
     shown = rgb_hat[:, C:] if V > C else rgb_hat
     target = gt_rgb[:, C:] if V > C else gt_rgb
     with torch.no_grad():
@@ -492,7 +495,9 @@ class Trainer:
         self.ddp.train()
         self.model.refine_enabled = self.step >= self.tc.refine_start * self.tc.steps
         with training_selection(self.model.config, self.tc):
-            parts, _ = training_loss(self.ddp, batch, self.tc, self.cfg.resolution, self.cfg)
+            parts, _ = training_loss(
+                self.ddp, batch, self.tc, self.cfg.resolution, self.cfg, self.tc.fg_weight(self.step)
+            )
         lap("forward")
         self.opt.zero_grad(set_to_none=True)
         parts["loss"].backward()
@@ -628,6 +633,8 @@ class Trainer:
                     )
             else:
                 skipped_in_a_row = 0
+                for k in [k for k in run_avg if k not in parts]:  # a term switched off by its schedule
+                    del run_avg[k]
                 for k, v in parts.items():
                     run_avg[k] = v if k not in run_avg else 0.9 * run_avg[k] + 0.1 * v
             if run_avg:
