@@ -97,9 +97,10 @@ class ThreadGovernor:
 def other_load(window: float = LOAD_WINDOW, stat: Path | None = None) -> float | None:
     """Cores' worth of CPU other processes use, sampled over ``window`` seconds (this process sleeps through it)
     from ``stat`` (default ``/proc/stat``); None where it cannot be read."""
-    first = _Sample(stat or PROC_STAT)
+    stat = stat or PROC_STAT
+    first = _Sample(stat)
     time.sleep(window)
-    return _Sample(stat or PROC_STAT).others_since(first)
+    return _Sample(stat).others_since(first)
 
 
 def wait_policy_for_load() -> str | None:
