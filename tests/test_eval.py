@@ -120,6 +120,11 @@ def test_eval_cli_writes_json_figures_and_pruning_table(tmp_path_factory, tmp_pa
     assert base["z_t_threshold"] == 0 and base["opacity_threshold"] == 0
     assert base["gaussians"] == res["mean"]["gaussians"]
     assert all(r["gaussians"] <= base["gaussians"] for r in rows)
+    G = ModelConfig(**TINY_MODEL).gaussians_per_particle
+    (half,) = [r for r in rows if r["max_per_particle"] == G // 2]
+    # one scene: each of its drawn particles loses half its Gaussians, the background none
+    assert half["gaussians"] == res["mean"]["gaussians"] - res["mean"]["active_particles"] * (G - G // 2)
+    assert -1 <= half["fg_ari"] <= 1 and 0 < half["psnr"] < 60
     img = Image.open(tmp_path / "fig" / "scene_00000.png")
     assert img.size == (FIGURE_LABEL_WIDTH + 4 * 32, 5 * 32)  # a label column, 4 targets wide, 5 rows
     labels = np.asarray(img.convert("L"))[:, :FIGURE_LABEL_WIDTH]

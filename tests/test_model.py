@@ -237,6 +237,25 @@ def test_decode_thresholds_prune():
     assert len(g2) == int((full.opacities >= thr).sum()) and bool((g2.opacities >= thr).all())
 
 
+def test_decode_keeps_each_particles_most_opaque_gaussians():
+    m = tiny_model()
+    rgb, depth, cs = scene_inputs(2)
+    p = m.encode(rgb, depth, cs)
+    full = m.decode(p, z_t_threshold=0.0)
+    G, k = m.config.gaussians_per_particle, 5
+    kept = m.decode(p, z_t_threshold=0.0, max_per_particle=k)
+    bg = full.owner < 0
+    assert torch.equal(kept.of_owner(-1).means, full.subset(bg).means)  # the background is untouched
+    for i in range(p.num):
+        own = full.opacities[full.owner == i].tolist()
+        assert len(own) == G
+        got = sorted(kept.opacities[kept.owner == i].tolist(), reverse=True)
+        assert got == sorted(own, reverse=True)[:k]  # brute force: the k largest, each particle separately
+    assert m.decode(p, z_t_threshold=0.0, max_per_particle=G + 1).means.shape == full.means.shape
+    with pytest.raises(ValueError, match="max_per_particle"):
+        m.decode(p, max_per_particle=0)
+
+
 def test_edit_moves_only_that_particle():
     m = tiny_model()
     rgb, depth, cs = scene_inputs(2)

@@ -41,6 +41,7 @@ if TYPE_CHECKING:
 
 PRUNE_Z_T = (0.0, 0.3, 0.5, 0.7)
 PRUNE_OPACITY = (0.0, 0.05, 0.2, 0.5)
+PRUNE_PER_PARTICLE = (2, 4, 8, 16)  # the rows keeping 1/2, 1/4, ... of each particle's Gaussians (most opaque first)
 
 
 def _cameras(K: Tensor, c2w: Tensor, size: int) -> list[Camera]:
@@ -112,7 +113,8 @@ def evaluate_item(
     Returns scalars (psnr, ssim, depth_abs_rel, fg_ari, miou, fg_ari_particles, miou_particles,
     active_particles, objects, gaussians, encode_ms, fit_ms, decode_ms, render_ms), the renders under "renders",
     the target views' squared error per region (:func:`particlesplat.analysis.metrics.region_errors`) under
-    "region_errors" when the item has masks, and "pruning" rows when ``prune``. fg_ari and miou score the
+    "region_errors" when the item has masks, and "pruning" rows when ``prune`` (z_t and opacity thresholds, and
+    each particle's most opaque Gaussians kept). fg_ari and miou score the
     segmentation into objects (particles grouped by :func:`particlesplat.editing.grouping.particle_objects`); the
     ``_particles`` keys score the plain per-particle argmax. With ``true_centres`` (N, 3) world metres,
     "localisation" holds, per object centre method, the distance from each true centre to the nearest object
@@ -164,20 +166,27 @@ def evaluate_item(
     if true_centres is not None:
         res["localisation"] = object_localisation(model, particles, gaussians, true_centres, objects)
     if prune:
+        G = model.config.gaussians_per_particle
+        settings = [(zt, op, G) for zt in PRUNE_Z_T for op in PRUNE_OPACITY]
+        settings += [(model.config.bg_mask_threshold, 0.0, G // d) for d in PRUNE_PER_PARTICLE if G // d >= 1]
+        target_masks = item.get("target_masks")
         rows = []
-        for zt in PRUNE_Z_T:
-            for op in PRUNE_OPACITY:
-                g = model.decode(particles, z_t_threshold=zt, opacity_threshold=op)
-                r = render_views(g, tgt_cams, particles.num, bg)
-                rows.append(
-                    {
-                        "z_t_threshold": zt,
-                        "opacity_threshold": op,
-                        "psnr": view_psnr(r["rgb"], gt, sup),
-                        "gaussians": len(g),
-                        "render_ms": r["render_ms"],
-                    }
-                )
+        for zt, op, k in settings:
+            g = model.decode(particles, z_t_threshold=zt, opacity_threshold=op, max_per_particle=k)
+            r = render_views(g, tgt_cams, particles.num, bg, objects)
+            rows.append(
+                {
+                    "z_t_threshold": zt,
+                    "opacity_threshold": op,
+                    "max_per_particle": k,
+                    "psnr": view_psnr(r["rgb"], gt, sup),
+                    "fg_ari": float("nan")
+                    if target_masks is None
+                    else float(np.nanmean([fg_ari(s, m) for s, m in zip(r["seg_objects"], target_masks, strict=True)])),
+                    "gaussians": len(g),
+                    "render_ms": r["render_ms"],
+                }
+            )
         res["pruning"] = rows
     return res
 
@@ -330,7 +339,11 @@ def evaluate_dataset(
                 {
                     "z_t_threshold": row["z_t_threshold"],
                     "opacity_threshold": row["opacity_threshold"],
-                    **{k: _nanmean([rows[j][k] for rows in prune_rows]) for k in ("psnr", "gaussians", "render_ms")},
+                    "max_per_particle": row["max_per_particle"],
+                    **{
+                        k: _nanmean([rows[j][k] for rows in prune_rows])
+                        for k in ("psnr", "fg_ari", "gaussians", "render_ms")
+                    },
                 }
             )
         out["pruning"] = table

@@ -29,7 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--prune",
         action="store_true",
-        help="also report PSNR, Gaussian count and render time at several z_t/opacity thresholds",
+        help="also report PSNR, FG-ARI, Gaussian count and render time at several z_t/opacity thresholds and with "
+        "each particle's most opaque 1/2, 1/4, 1/8, 1/16 of its Gaussians",
     )
     parser.add_argument(
         "--fit-steps",
@@ -123,11 +124,11 @@ def run(args: argparse.Namespace) -> int:
             + f", {out['localisation'][OBJECT_CENTRES[0]]['objects']} objects"
         )
     if "pruning" in out:
-        print("z_t thr  opacity thr  PSNR   Gaussians  render ms")
+        print("z_t thr  opacity thr  per particle  PSNR   FG-ARI  Gaussians  render ms")
         for r in out["pruning"]:
             print(
-                f"{r['z_t_threshold']:7.2f}  {r['opacity_threshold']:11.2f}  {r['psnr']:5.2f}  {r['gaussians']:9.0f}"
-                f"  {r['render_ms']:9.1f}"
+                f"{r['z_t_threshold']:7.2f}  {r['opacity_threshold']:11.2f}  {r['max_per_particle']:12d}  "
+                f"{r['psnr']:5.2f}  {r['fg_ari']:6.3f}  {r['gaussians']:9.0f}  {r['render_ms']:9.1f}"
             )
     if args.json:
         with atomic_write(args.json, "w") as f:

@@ -42,6 +42,18 @@ def _gaussians(fields: dict[str, Tensor], owner: Tensor) -> Gaussians:
     )
 
 
+def _most_opaque(g: Gaussians, num: int, k: int) -> Gaussians:
+    """The k most opaque of each particle's Gaussians; g holds ``num`` particles' Gaussians in particle order."""
+    if k < 1:
+        raise ValueError(f"decode: max_per_particle must be >= 1, got {k}")
+    per = len(g) // num
+    if k >= per:
+        return g
+    top = g.opacities.reshape(num, per).topk(k, dim=1).indices  # (num, k)
+    rows = torch.arange(num, device=top.device)[:, None] * per
+    return g.subset((rows + top).flatten().sort().values)
+
+
 class ParticleSplat(nn.Module):
     """Encoder q(Z | context views) and Gaussian-splatting decoder p(x | Z)."""
 
@@ -344,12 +356,15 @@ class ParticleSplat(nn.Module):
         background: bool = True,
         z_t_threshold: float | None = None,
         opacity_threshold: float = 0.0,
+        max_per_particle: int | None = None,
     ) -> Gaussians:
         """Gaussians of one scene.
 
         indices: (M,) particle indices to decode (default all); their Gaussians get owner = index.
         background: include the per-view background Gaussians (owner -1). Particles with z_t below
-        ``z_t_threshold`` and Gaussians with opacity below ``opacity_threshold`` are dropped.
+        ``z_t_threshold`` and Gaussians with opacity below ``opacity_threshold`` are dropped; with
+        ``max_per_particle`` = k, each particle keeps its k most opaque Gaussians (of
+        ``config.gaussians_per_particle``; the background is untouched).
         ``z_t_threshold`` None = ``config.bg_mask_threshold``: only active particles draw (an inactive one
         drew a faint copy that no object grouping took along; dropping them costs nothing on the test
         scenes, docs/object-edits.md); 0 draws every particle.
@@ -372,7 +387,10 @@ class ParticleSplat(nn.Module):
         if idx.numel():
             v = p.view[idx]
             fg = self.foreground(p.z_p[idx], p.z_s[idx], p.z_d[idx], p.z_e[idx], p.z_t[idx], p.z_f[idx], K[v], c2w[v])
-            parts.append(_gaussians(fg, idx.repeat_interleave(self.config.gaussians_per_particle)))
+            g_fg = _gaussians(fg, idx.repeat_interleave(self.config.gaussians_per_particle))
+            if max_per_particle is not None:
+                g_fg = _most_opaque(g_fg, idx.numel(), max_per_particle)
+            parts.append(g_fg)
         if background:
             bgf = {k: v[0] for k, v in self.background_fields(p.background[None], K[None], c2w[None]).items()}
             parts.append(_gaussians(bgf, torch.full((bgf["means"].shape[0],), BACKGROUND_OWNER, device=dev)))
