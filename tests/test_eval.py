@@ -13,6 +13,7 @@ from PIL import Image
 
 from particlesplat.analysis.evaluate import FIGURE_LABEL_WIDTH
 from particlesplat.analysis.metrics import (
+    FAR_HEIGHTS,
     REGIONS,
     adjusted_rand_index,
     depth_abs_rel,
@@ -112,9 +113,11 @@ def test_eval_cli_writes_json_figures_and_pruning_table(tmp_path_factory, tmp_pa
     assert len(res["scenes"]) == 1 and res["scenes"][0]["scene"] == "scene_00000"
     assert 0 < res["mean"]["psnr"] < 60 and -1 <= res["mean"]["fg_ari"] <= 1
     regions = res["error_regions"]
-    assert list(regions) == list(REGIONS)
-    assert math.isclose(sum(r["pixel_share"] for r in regions.values()), 1.0)
-    assert math.isclose(sum(r["error_share"] for r in regions.values()), 1.0)
+    assert list(regions) == list(REGIONS + FAR_HEIGHTS)  # the scenes have depth: the far floor by height too
+    assert math.isclose(sum(regions[k]["pixel_share"] for k in REGIONS), 1.0)
+    assert math.isclose(sum(regions[k]["error_share"] for k in REGIONS), 1.0)
+    heights = sum(regions[k]["pixel_share"] for k in FAR_HEIGHTS)
+    assert 0 < heights <= regions["floor_far"]["pixel_share"] + 1e-9
     rows = res["pruning"]
     base = rows[0]
     assert base["z_t_threshold"] == 0 and base["opacity_threshold"] == 0
@@ -164,6 +167,36 @@ def test_region_errors_sum_and_summary_analytic():
     valid = torch.ones(1, 1, 12, 12)
     valid[..., :, 6:] = 0
     assert region_errors(pred, gt, m, valid)["object_edge"][1] == 6
+
+
+def test_far_background_split_by_height_over_the_support_surface():
+    """An oblique camera over the plane z = 0: the depth where each pixel's ray meets the plane reprojects to
+    height 0 (on the support); 0.8 and 1.25 of it to points above and below it; depth 0 to no band."""
+    from particlesplat.analysis.evaluate import surface_heights
+    from particlesplat.core.camera import Camera
+
+    cam = Camera.look_at((0.3, -0.8, 0.9), (0.0, 0.0, 0.0), width=12, height=12, dtype=torch.float64)
+    origins, dirs = cam.rays()
+    t_plane = -origins[..., 2] / dirs[..., 2]  # planar depth of the plane z = 0 (a direction's camera z is 1)
+    assert bool((t_plane > 0).all())
+    scale = torch.ones(12, 12, dtype=torch.float64)
+    scale[:, 4:8], scale[:, 8:] = 0.8, 1.25
+    depth = (t_plane * scale)[None, None].float()
+    depth[..., :2, :] = 0.0  # two rows without depth
+    z = surface_heights([cam], depth)
+    expected = (origins[..., 2] + t_plane * scale * dirs[..., 2]).float()
+    assert torch.allclose(z[0, 2:], expected[2:], atol=1e-5) and bool(z[0, :2].isnan().all())
+    assert float(z[0, 2:, :4].abs().max()) < 1e-5
+    m = torch.zeros(1, 12, 12, dtype=torch.long)  # no object: every pixel is far background
+    gt = torch.full((1, 3, 12, 12), 0.5)
+    pred = gt + 0.1 * (scale > 1.0)[None, None]  # an error of 0.1 below the support only
+    parts = region_errors(pred, gt, m, None, z)
+    assert [parts[k][1] for k in FAR_HEIGHTS] == [40, 40, 40] and parts["floor_far"][1] == 144
+    summary = summarise_region_errors([parts])
+    below, on = summary["floor_far_below_support"], summary["floor_far_on_support"]
+    assert math.isclose(below["pixel_share"], 40 / 144) and math.isclose(below["error_share"], 40 / 48, rel_tol=1e-5)
+    assert math.isclose(below["psnr"], 20.0, abs_tol=1e-3) and on["psnr"] == 100.0
+    assert set(summarise_region_errors([parts, region_errors(pred, gt, m)])) == set(REGIONS)  # pooled when all have it
 
 
 def test_eval_psnr_is_the_mean_of_per_view_psnr():

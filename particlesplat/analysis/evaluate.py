@@ -89,6 +89,16 @@ def render_views(
     return out
 
 
+def surface_heights(cameras: list[Camera], depth: Tensor) -> Tensor:
+    """World height z (V, H, W) metres of each pixel's surface point, from planar depth (V, 1, H, W) (0 = none:
+    NaN) seen by V cameras."""
+    out = []
+    for cam, d in zip(cameras, depth[:, 0], strict=True):
+        z = cam.unproject(cam.pixel_centers(), d.to(cam.dtype))[..., 2]
+        out.append(torch.where(d > 0, z, torch.full_like(z, float("nan"))))
+    return torch.stack(out).to(depth.dtype)
+
+
 def view_psnr(pred: Tensor, gt: Tensor, sup: Tensor | None) -> float:
     """Mean over views of each view's PSNR (dB). pred, gt: (T, 3, H, W); sup: (T, 1, H, W) or None."""
     return float(np.mean([psnr(pred[i], gt[i], None if sup is None else sup[i]) for i in range(len(gt))]))
@@ -160,7 +170,8 @@ def evaluate_item(
         else:
             res["fg_ari" + suffix] = res["miou" + suffix] = float("nan")
     if "target_masks" in item:
-        res["region_errors"] = region_errors(out["rgb"], gt, item["target_masks"], sup)
+        world_z = surface_heights(tgt_cams, item["target_depth"])
+        res["region_errors"] = region_errors(out["rgb"], gt, item["target_masks"], sup, world_z)
     res["renders"] = out
     res["particles"] = particles
     if true_centres is not None:

@@ -1,5 +1,6 @@
 """Image, depth and decomposition metrics: PSNR, SSIM (kornia), depth AbsRel, FG-ARI, mIoU, and the squared
-error split by where it lies (object interiors and edges, the floor next to objects and away from them)."""
+error split by where it lies (object interiors and edges, the floor next to objects and away from them, that
+far floor by height over the support surface)."""
 
 from __future__ import annotations
 
@@ -133,6 +134,9 @@ def matched_miou(pred_seg: Tensor, gt_masks: Tensor) -> float:
 
 
 REGIONS = ("object_interior", "object_edge", "floor_near_object", "floor_far")
+# floor_far split by the height of each pixel's surface point (target depth) over the support surface, beyond
+# SKIRT_MARGIN: the floor under a table, the table top or floor objects rest on, what stands above it (an arm)
+FAR_HEIGHTS = ("floor_far_below_support", "floor_far_on_support", "floor_far_above_support")
 
 
 def near_other_label(labels: Tensor, radius: int) -> Tensor:
@@ -161,28 +165,48 @@ def mask_regions(masks: Tensor) -> dict[str, Tensor]:
     }
 
 
+def far_heights(far: Tensor, world_z: Tensor, support_z: float = SUPPORT_Z) -> dict[str, Tensor]:
+    """Split the far-background pixels ``far`` (V, H, W) bool by the height ``world_z`` (V, H, W) world metres
+    (NaN: no depth, in no band) of their surface point into :data:`FAR_HEIGHTS`: more than ``SKIRT_MARGIN``
+    below ``support_z``, within it, more than it above."""
+    lo, hi = support_z - SKIRT_MARGIN, support_z + SKIRT_MARGIN
+    below, above = world_z < lo, world_z > hi
+    on = (world_z >= lo) & (world_z <= hi)
+    return dict(zip(FAR_HEIGHTS, (far & below, far & on, far & above), strict=True))
+
+
 def region_errors(
-    pred: Tensor, target: Tensor, masks: Tensor, valid: Tensor | None = None
+    pred: Tensor,
+    target: Tensor,
+    masks: Tensor,
+    valid: Tensor | None = None,
+    world_z: Tensor | None = None,
 ) -> dict[str, tuple[float, int]]:
     """Squared error per region (:func:`mask_regions`): (sum over pixels of the channel-mean squared error,
     pixel count). pred, target: (V, 3, H, W) in [0, 1]; masks: (V, H, W); valid: (V, 1, H, W) or None, only
-    these pixels count (as in the eval PSNR)."""
+    these pixels count (as in the eval PSNR). With ``world_z`` (V, H, W), the height (world metres, NaN where
+    unknown) of each pixel's surface point, the :data:`FAR_HEIGHTS` parts of floor_far too (:func:`far_heights`)."""
     err = ((pred.clamp(0, 1) - target) ** 2).mean(1).double()
     keep = torch.ones_like(masks, dtype=torch.bool) if valid is None else valid[:, 0] > 0
-    return {name: (float(err[r & keep].sum()), int((r & keep).sum())) for name, r in mask_regions(masks).items()}
+    regions = mask_regions(masks)
+    if world_z is not None:
+        regions |= far_heights(regions["floor_far"], world_z)
+    return {name: (float(err[r & keep].sum()), int((r & keep).sum())) for name, r in regions.items()}
 
 
 def summarise_region_errors(parts: list[dict[str, tuple[float, int]]]) -> dict[str, dict[str, float]]:
     """Pool :func:`region_errors` of many scenes: per region its share of the pixels, its share of the squared
-    error and its PSNR (dB; NaN for a region with no pixel)."""
-    err = {k: sum(p[k][0] for p in parts) for k in REGIONS}
-    n = {k: sum(p[k][1] for p in parts) for k in REGIONS}
-    total_err, total_n = sum(err.values()), sum(n.values())
+    error (both of the whole :data:`REGIONS` partition) and its PSNR (dB; NaN for a region with no pixel). The
+    :data:`FAR_HEIGHTS` parts are pooled when every scene has them."""
+    keys = list(REGIONS) + [k for k in FAR_HEIGHTS if all(k in p for p in parts)]
+    err = {k: sum(p[k][0] for p in parts) for k in keys}
+    n = {k: sum(p[k][1] for p in parts) for k in keys}
+    total_err, total_n = sum(err[k] for k in REGIONS), sum(n[k] for k in REGIONS)
     return {
         k: {
             "pixel_share": n[k] / max(total_n, 1),
             "error_share": err[k] / total_err if total_err > 0 else 0.0,
             "psnr": psnr_of_mse(err[k] / n[k]) if n[k] else float("nan"),
         }
-        for k in REGIONS
+        for k in keys
     }
