@@ -493,7 +493,7 @@ def test_static_layer_error_is_zero_on_its_own_render_and_finds_an_object():
     K, c2w = stack_cameras([cam])
     g = m.decode(m.encode(*[t[:1] for t in scene_inputs(1)[:2]], [cam]), torch.tensor([], dtype=torch.long))
     r = render(g, cam, background=m.background_color())
-    rgb, depth = r.rgb.permute(2, 0, 1)[None], r.depth[None, None]
+    rgb, depth = r.rgb.detach().permute(2, 0, 1)[None], r.depth.detach()[None, None]
     err = m.static_background_error(rgb, depth, K, c2w)
     assert err.shape == (1, 1, 8, 8) and float(err.abs().max()) < 1e-8
     obj_rgb, obj_depth = rgb.clone(), depth.clone()
