@@ -44,8 +44,6 @@ def _gaussians(fields: dict[str, Tensor], owner: Tensor) -> Gaussians:
 
 def _most_opaque(g: Gaussians, num: int, k: int) -> Gaussians:
     """The k most opaque of each particle's Gaussians; g holds ``num`` particles' Gaussians in particle order."""
-    if k < 1:
-        raise ValueError(f"decode: max_per_particle must be >= 1, got {k}")
     per = len(g) // num
     if k >= per:
         return g
@@ -376,6 +374,8 @@ class ParticleSplat(nn.Module):
         idx = torch.arange(p.num, device=dev) if indices is None else torch.as_tensor(indices, device=dev).long()
         if idx.numel() and (int(idx.min()) < 0 or int(idx.max()) >= p.num):
             raise IndexError(f"decode: particle indices must be in [0, {p.num}), got {idx.tolist()}")
+        if max_per_particle is not None and max_per_particle < 1:
+            raise ValueError(f"decode: max_per_particle must be >= 1, got {max_per_particle}")
         if z_t_threshold is None:
             z_t_threshold = self.config.bg_mask_threshold
         if z_t_threshold > 0.0:
