@@ -206,6 +206,19 @@ def test_resume_skips_and_deterministic(dataset, tmp_path):
     assert (a / "masks" / "002.png").read_bytes() == (b / "masks" / "002.png").read_bytes()
 
 
+def test_arm_still_is_the_home_scene_with_the_arm_exactly_home(dataset, tmp_path):
+    from particlesplat.data.families.robot import PANDA_HOME, RobotSceneConfig
+    from particlesplat.data.families.robot_synth import generate
+
+    cfg = RobotSceneConfig(RES, RES, views=VIEWS, arm="still")
+    generate(tmp_path, {"train": 0, "val": 0, "test": 1}, 3, cfg, workers=1, progress=False)
+    home = json.loads((dataset / "test" / "scene_00000" / "scene.json").read_text())
+    still = json.loads((tmp_path / "test" / "scene_00000" / "scene.json").read_text())
+    assert np.allclose(still["arm_joints_rad"], PANDA_HOME) and not np.allclose(home["arm_joints_rad"], PANDA_HOME)
+    assert [o["name"] for o in still["objects"]] == [o["name"] for o in home["objects"]]
+    assert still["azimuths_deg"] == home["azimuths_deg"] and still["distance"] == home["distance"]
+
+
 def test_missing_asset_folder_and_extra_are_one_line(tmp_path, monkeypatch):
     with pytest.raises(SimSetupError) as e:
         assets_dir(tmp_path / "no-such-assets")

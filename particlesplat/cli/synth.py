@@ -28,7 +28,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--cameras", choices=("arc", "rlbench"), default="arc", help="robot: 21 views on an arc, or 4 RLBench-style"
     )
-    parser.add_argument("--arm", choices=("home", "random"), default="home", help="robot: arm pose")
+    parser.add_argument(
+        "--arm",
+        choices=("home", "still", "random"),
+        default="home",
+        help="robot: arm pose: home with joint offsets of up to 0.12 rad, exactly home (still; otherwise the same "
+        "scenes as home), or a random collision-free pose",
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -4,7 +4,7 @@ headless by MuJoCo from robosuite's asset files (composition in :mod:`.robot_com
 A scene: 2-5 objects (robosuite's can, bread, cereal, milk, lemon, bottle, or a textured box or
 cylinder) dropped at random positions and yaws on the table and settled by physics; a layout whose objects
 touch each other or the arm, or leave the table, is drawn again. The arm stands at its home pose with small
-joint offsets (or a random collision-free pose). Cameras: 21 on an arc about the table (or four
+joint offsets (or exactly at home, or a random collision-free pose). Cameras: 21 on an arc about the table (or four
 RLBench-style fixed ones). Test scenes also carry ground-truth edits: one object moved on the table and the
 same object removed, rendered from the same cameras (``edits.json`` and ``edits/{move,remove}/``).
 
@@ -44,10 +44,10 @@ from .robot_compose import (
 from .robot_render import SceneRenderer, Views
 
 CameraRig = Literal["arc", "rlbench"]
-ArmPose = Literal["home", "random"]
+ArmPose = Literal["home", "still", "random"]
 EditKind = Literal["move", "remove"]
 CAMERA_RIGS: tuple[CameraRig, ...] = ("arc", "rlbench")
-ARM_POSES: tuple[ArmPose, ...] = ("home", "random")
+ARM_POSES: tuple[ArmPose, ...] = ("home", "still", "random")
 EDIT_KINDS: tuple[EditKind, ...] = ("move", "remove")
 
 NUM_OBJECTS = (2, 5)
@@ -351,10 +351,12 @@ def _arm_joint_ids(comp: Composition) -> list[int]:
 
 
 def _draw_arm(rng: np.random.Generator, comp: Composition, pose: ArmPose) -> np.ndarray:
-    """(7,) arm joint angles: home plus small offsets, or uniform within 90% of each joint's range."""
+    """(7,) arm joint angles: home plus small offsets, exactly home ("still": the offsets are drawn and dropped, so
+    the rest of the scene is the "home" scene's), or uniform within 90% of each joint's range."""
     lo, hi = comp.arm_range[:, 0], comp.arm_range[:, 1]
-    if pose == "home":
-        q = np.asarray(PANDA_HOME) + rng.uniform(-ARM_OFFSET, ARM_OFFSET, size=7)
+    if pose in ("home", "still"):
+        offsets = rng.uniform(-ARM_OFFSET, ARM_OFFSET, size=7)
+        q = np.asarray(PANDA_HOME) + (offsets if pose == "home" else 0.0)
     else:
         mid, half = (lo + hi) / 2, (hi - lo) / 2 * 0.9
         q = mid + rng.uniform(-1.0, 1.0, size=7) * half
