@@ -116,7 +116,7 @@ def test_two_process_ddp_run(tmp_path_factory, tmp_path, model):
         [
             torchrun,
             "--nproc_per_node=2",
-            "--master_port=29517",
+            "--standalone",  # a rendezvous on a free port, not a fixed one another process may hold
             "-m",
             "particlesplat.cli",
             "train",
