@@ -71,20 +71,24 @@ def test_every_shipped_checkpoint_records_its_provenance():
     assert "staged chain" in tabletop["init"] and "hours not recorded" in describe(tabletop)
 
 
-def test_a_checkpoint_written_before_its_refinement_trained_encodes_without_it():
-    """The robot model was written before its run's refine_start: its refiner is still at its start (a correction
-    of exactly zero), so it loads with refinement off and encodes the same particles, without the refiner's
-    cost. The tabletop model, whose run trained it, keeps it."""
-    from particlesplat.model import load_model
+def test_refinement_runs_once_its_run_trained_it_and_the_robot_model_has_none():
+    """A checkpoint written before its run's refine_start loads with refinement off (the refiner is still at its
+    start, a correction of exactly zero: tests/test_refiner.py); one that records no schedule, like the tabletop
+    model, keeps it. The shipped robot model left its refiner out (refine_steps 0, no refiner weights) and says
+    so in its provenance; it encodes without one."""
     from particlesplat.model.io import read_checkpoint, refinement_trained
+    from particlesplat.model.provenance import describe
 
-    torch.set_num_threads(1)
+    tabletop = read_checkpoint(shipped_model_path("tabletop"))
+    assert refinement_trained(tabletop)
+    schedule = {"refine_start": 0.5, "steps": 100}
+    assert not refinement_trained({**tabletop, "step": 49, "train": schedule})
+    assert refinement_trained({**tabletop, "step": 50, "train": schedule})
     robot_ckpt = read_checkpoint(shipped_model_path("robot"))
-    assert robot_ckpt["step"] < robot_ckpt["train"]["refine_start"] * robot_ckpt["train"]["steps"]
-    assert not refinement_trained(robot_ckpt) and refinement_trained(read_checkpoint(shipped_model_path("tabletop")))
+    assert robot_ckpt["config"]["refine_steps"] == 0
+    assert not any(k.startswith("refiner.") for k in robot_ckpt["state_dict"])
+    assert "refiner" in robot_ckpt["provenance"]["derived"]
+    assert describe(robot_ckpt["provenance"]).endswith(robot_ckpt["provenance"]["derived"])
+    torch.set_num_threads(1)
     robot, enc, _ = load_model_scene(None, ROBOT)
-    assert not robot.refine_enabled and load_model(shipped_model_path("tabletop")).refine_enabled
-    robot.refine_enabled = True
-    refined = robot.encode(enc.scene.rgb, enc.scene.depth, enc.scene.cameras)
-    for name in ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f"):
-        assert torch.equal(getattr(refined, name), getattr(enc.particles, name)), name
+    assert robot.refiner is None and enc.particles.num > 0

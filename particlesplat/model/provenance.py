@@ -103,8 +103,9 @@ def describe(prov: dict | None) -> str:
         if isinstance(wall, (int, float)) and isinstance(cpu, (int, float))
         else "hours not recorded"
     )
+    derived = f"; {prov['derived']}" if prov.get("derived") else ""  # a shipped copy that changed the run's checkpoint
     return (
         f"provenance: from {init}; data {prov.get('data')} ({prov.get('train_scenes')} training scenes, "
         f"list sha256 {str(prov.get('scene_list_sha256'))[:12]}); {cost} on {prov.get('device')}; "
-        f"torch {prov.get('torch')}; code {commit}"
+        f"torch {prov.get('torch')}; code {commit}{derived}"
     )
