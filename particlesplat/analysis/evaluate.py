@@ -99,6 +99,11 @@ def surface_heights(cameras: list[Camera], depth: Tensor) -> Tensor:
     return torch.stack(out).to(depth.dtype)
 
 
+def views_mean(metric, seg: Tensor, masks: Tensor) -> float:
+    """Mean over views (NaN-skipping) of ``metric(seg[i], masks[i])``. seg, masks: (V, H, W)."""
+    return float(np.nanmean([metric(s, m) for s, m in zip(seg, masks, strict=True)]))
+
+
 def view_psnr(pred: Tensor, gt: Tensor, sup: Tensor | None) -> float:
     """Mean over views of each view's PSNR (dB). pred, gt: (T, 3, H, W); sup: (T, 1, H, W) or None."""
     return float(np.mean([psnr(pred[i], gt[i], None if sup is None else sup[i]) for i in range(len(gt))]))
@@ -165,8 +170,8 @@ def evaluate_item(
     for seg, suffix in ((out["seg_objects"], ""), (out["seg"], "_particles")):
         if "target_masks" in item:
             masks = item["target_masks"]
-            res["fg_ari" + suffix] = float(np.nanmean([fg_ari(seg[i], masks[i]) for i in range(len(masks))]))
-            res["miou" + suffix] = float(np.nanmean([matched_miou(seg[i], masks[i]) for i in range(len(masks))]))
+            res["fg_ari" + suffix] = views_mean(fg_ari, seg, masks)
+            res["miou" + suffix] = views_mean(matched_miou, seg, masks)
         else:
             res["fg_ari" + suffix] = res["miou" + suffix] = float("nan")
     if "target_masks" in item:
@@ -185,15 +190,14 @@ def evaluate_item(
         for zt, op, k in settings:
             g = model.decode(particles, z_t_threshold=zt, opacity_threshold=op, max_per_particle=k)
             r = render_views(g, tgt_cams, particles.num, bg, objects)
+            ari = float("nan") if target_masks is None else views_mean(fg_ari, r["seg_objects"], target_masks)
             rows.append(
                 {
                     "z_t_threshold": zt,
                     "opacity_threshold": op,
                     "max_per_particle": k,
                     "psnr": view_psnr(r["rgb"], gt, sup),
-                    "fg_ari": float("nan")
-                    if target_masks is None
-                    else float(np.nanmean([fg_ari(s, m) for s, m in zip(r["seg_objects"], target_masks, strict=True)])),
+                    "fg_ari": ari,
                     "gaussians": len(g),
                     "render_ms": r["render_ms"],
                 }
