@@ -21,6 +21,7 @@ def test_fitting_lowers_the_context_error_and_leaves_the_model_alone():
     assert fit_particles(m, p, rgb, depth, steps=0) is p
     weights = {k: v.clone() for k, v in m.state_dict().items()}
 
+    @torch.no_grad()
     def error(q):
         g = m.decode(q)
         total = 0.0

@@ -255,6 +255,14 @@ def test_decode_keeps_each_particles_most_opaque_gaussians():
     with pytest.raises(ValueError, match="max_per_particle"):
         m.decode(p, max_per_particle=0)
 
+    # the batched decode the refinement renders prunes the same way, scene by scene
+    z = {k: getattr(p, k)[None] for k in ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f")}
+    z["bg"] = p.background[None]
+    K, c2w = stack_cameras(p.cameras)
+    (batched,) = m.decode_batch(z, p.view, K[None], c2w[None], max_per_particle=k)
+    for name in ("means", "quats", "scales", "opacities", "sh", "owner"):
+        torch.testing.assert_close(getattr(batched, name), getattr(kept, name))
+
 
 def test_edit_moves_only_that_particle():
     m = tiny_model()

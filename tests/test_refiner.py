@@ -68,11 +68,13 @@ def test_box_glimpse_of_a_ramp_is_the_ramp_over_the_box():
     torch.testing.assert_close(out[0, 1], want_y[:, None].expand(g, g))
 
 
-def test_refiner_sees_the_view_and_the_render_of_the_current_means():
+@pytest.mark.parametrize(("scale", "keep"), [(1.0, 0), (0.5, 0), (0.5, 3)])
+def test_refiner_sees_the_view_and_the_render_of_the_current_means(scale, keep):
     """The glimpses the refinement network reads equal an independent render of the plain model's decoded
-    particles in their own view (colour, depth, alpha and the particle's own weight) beside the observation,
-    over each particle's box enlarged by BOX_MARGIN."""
-    plain, refined = refined_pair()
+    particles in their own view (colour, depth, alpha and the particle's own weight; at ``refine_scale`` of the
+    view's size, through Camera.resized; each particle's ``refine_keep`` most opaque Gaussians) beside the
+    observation, over each particle's box enlarged by BOX_MARGIN."""
+    plain, refined = refined_pair(refine_scale=scale, refine_keep=keep)
     rgb, depth, cs = scene_inputs(2)
     seen = {}
 
@@ -83,33 +85,59 @@ def test_refiner_sees_the_view_and_the_render_of_the_current_means():
     refined.refiner.forward = spy
     refined.encode(rgb, depth, cs)
     p = plain.encode(rgb, depth, cs)
-    g = plain.decode(p)
+    g = plain.decode(p, max_per_particle=keep or None)
+    assert len(g.of_owner(0)) == (keep or plain.config.gaussians_per_particle)
     cfg = plain.config
     bg = plain.background_color()
     size = refined.config.glimpse_size
     N = p.num
-    for n in range(N):
-        v = int(p.view[n])
-        r = render(g, cs[v], background=bg, owner_weights=True, num_owners=N)
-        image = torch.cat(
-            [
-                rgb[v],
-                depth[v] / cfg.d_max,
-                torch.ones_like(depth[v]),
-                r.rgb.permute(2, 0, 1),
-                r.depth[None] / cfg.d_max,
-                r.alpha[None],
-                r.owner_weights[n][None],
-            ]
-        )
+
+    def glimpse(image, n):
         theta = torch.zeros(1, 2, 3)
         theta[0, 0, 0], theta[0, 1, 1] = (BOX_MARGIN * torch.sigmoid(p.z_s[n])).tolist()
         theta[0, :, 2] = p.z_p[n]
-        grid = F.affine_grid(theta, [1, 11, size, size], align_corners=False)
-        want = F.grid_sample(image[None], grid, mode="bilinear", padding_mode="border", align_corners=False)[0]
+        grid = F.affine_grid(theta, [1, image.shape[0], size, size], align_corners=False)
+        return F.grid_sample(image[None], grid, mode="bilinear", padding_mode="border", align_corners=False)[0]
+
+    for n in range(N):
+        v = int(p.view[n])
+        small = cs[v].resized(int(cs[v].width * scale), int(cs[v].height * scale))
+        assert small.width == cs[v].width * scale
+        r = render(g, small, background=bg, owner_weights=True, num_owners=N)
+        observed = torch.cat([rgb[v], depth[v] / cfg.d_max, torch.ones_like(depth[v])])
+        drawn = torch.cat([r.rgb.permute(2, 0, 1), r.depth[None] / cfg.d_max, r.alpha[None], r.owner_weights[n][None]])
+        want = torch.cat([glimpse(observed, n), glimpse(drawn, n)])
         assert seen["g"].shape[-1] == cfg.glimpse_size
         torch.testing.assert_close(seen["g"][n], want, rtol=1e-4, atol=1e-5)
     assert seen["g"][:, 10].amax() > 0.1  # particles see their own weight
+
+
+def test_half_scale_refinement_render_lines_up_with_the_full_one():
+    """A smooth scene rendered at half size, as the refinement does, and glimpsed over a box gives nearly the
+    glimpse of the full-size render: the scaled intrinsics and the normalised boxes agree (a half-pixel slip
+    of the smaller image triples the difference)."""
+    from particlesplat.core.camera import Camera
+    from particlesplat.core.gaussians import Gaussians
+    from particlesplat.core.sh import rgb_to_sh_dc
+
+    torch.manual_seed(0)
+    n = 24
+    g = Gaussians(
+        torch.randn(n, 3) * 0.3,
+        torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1),
+        torch.full((n, 3), 0.12),
+        torch.full((n,), 0.8),
+        rgb_to_sh_dc(torch.rand(n, 3))[:, None],
+        torch.zeros(n, dtype=torch.int64),
+    )
+    cam = Camera.look_at((0.0, -2.5, 1.5), (0.0, 0.0, 0.0), width=64, height=64)
+    full = render(g, cam).rgb.permute(2, 0, 1)[None]
+    half = render(g, cam.resized(32, 32)).rgb.permute(2, 0, 1)[None]
+    centre, box = torch.tensor([[0.1, -0.15]]), torch.tensor([[0.4, 0.4]])
+    a, b = box_glimpses(full, centre, box, 16), box_glimpses(half, centre, box, 16)
+    assert (a - b).abs().mean() < 0.015 and (a - b).abs().max() < 0.06
+    shifted = box_glimpses(half, centre + 1.0 / 32, box, 16)  # half a pixel of the small image
+    assert (a - shifted).abs().mean() > 2.5 * (a - b).abs().mean()
 
 
 def test_refinement_trains_end_to_end():
@@ -146,3 +174,10 @@ def test_refinement_config_errors():
         ModelConfig(**{**TINY, "refine_steps": -1}).validate()
     with pytest.raises(ConfigError, match="glimpse_size.*multiple of 8"):
         ModelConfig(**{**TINY, "glimpse_size": 12, "refine_steps": 1}).validate()
+    for bad in (0.0, 1.5):
+        with pytest.raises(ConfigError, match=r"refine_scale: must be in \(0, 1\]"):
+            ModelConfig(**{**TINY, "refine_scale": bad}).validate()
+    with pytest.raises(ConfigError, match="refine_scale: resolution x refine_scale must be a whole number"):
+        ModelConfig(**{**TINY, "refine_scale": 0.3}).validate()  # 32 x 0.3 = 9.6 pixels
+    with pytest.raises(ConfigError, match="refine_keep: must be >= 0"):
+        ModelConfig(**{**TINY, "refine_keep": -1}).validate()

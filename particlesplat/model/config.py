@@ -48,6 +48,7 @@ INT_RANGES: dict[str, tuple[int, int]] = {
     "patch_hidden": (0, 4096),
     "refine_steps": (0, 16),
     "refine_hidden": (1, 4096),
+    "refine_keep": (0, 1 << 16),
     "token_dim": (1, 2048),
     "transformer_layers": (0, 64),
     "transformer_heads": (1, 64),
@@ -96,6 +97,8 @@ class ModelConfig:
     support_cut: float = -1.0
     refine_steps: int = 1
     refine_hidden: int = 256
+    refine_scale: float = 1.0
+    refine_keep: int = 0
     token_dim: int = 64
     transformer_layers: int = 2
     transformer_heads: int = 4
@@ -172,6 +175,13 @@ class ModelConfig:
             "must be a multiple of 8 with refine_steps > 0 (the refiner's glimpse)",
         )
         need(self.refine_hidden >= 1, "refine_hidden", "must be >= 1")
+        need(0.0 < self.refine_scale <= 1.0, "refine_scale", "must be in (0, 1]")
+        need(self.refine_keep >= 0, "refine_keep", "must be >= 0 (0: every Gaussian)")
+        need(
+            (self.resolution * self.refine_scale).is_integer() and self.resolution * self.refine_scale >= 8,
+            "refine_scale",
+            f"resolution x refine_scale must be a whole number of pixels, at least 8 (resolution {self.resolution})",
+        )
         need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
         need(self.transformer_layers >= 0, "transformer_layers", "must be >= 0")
         need(self.sh_degree in (0, 1), "sh_degree", "must be 0 or 1")

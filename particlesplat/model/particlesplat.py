@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, fields
+from dataclasses import asdict, fields, replace
 
 import torch
 import torch.nn.functional as F
@@ -25,7 +25,7 @@ from particlesplat.model.encoder import BackgroundEncoder, ParticleEncoder, box_
 from particlesplat.model.geometry import plucker_map, stack_cameras
 from particlesplat.model.particles import Particles
 from particlesplat.model.posterior import ParticlePosterior, Posterior
-from particlesplat.model.refiner import BOX_MARGIN, GLIMPSE_CHANNELS, Refiner, box_glimpses, latent_vector
+from particlesplat.model.refiner import BOX_MARGIN, Refiner, box_glimpses, latent_vector
 from particlesplat.model.static_background import StaticBackground, WorkspaceBackground
 from particlesplat.rendering.api import render_batch
 
@@ -186,17 +186,19 @@ class ParticleSplat(nn.Module):
     def refine(self, post: Posterior, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Posterior:
         """``refine_steps`` amortised corrections of the particle posterior means (:mod:`.refiner`).
 
-        Each step decodes the current means and renders the context views (no gradient), then every particle
-        compares render and observation inside its box (enlarged by :data:`BOX_MARGIN`, ``glimpse_size``
-        pixels across) in its own view. post: from :meth:`posterior`; rgb: (B, V, 3, H, W); depth:
-        (B, V, 1, H, W) metres or None; K: (B, V, 3, 3); c2w: (B, V, 4, 4). Returns the posterior with refined
-        means (the same fields and shapes).
+        Each step decodes the current means and renders the context views (no gradient; at ``refine_scale`` of
+        their resolution, each particle's ``refine_keep`` most opaque Gaussians), then every particle compares
+        render and observation inside its box (enlarged by :data:`BOX_MARGIN`, ``glimpse_size`` pixels across)
+        in its own view. post: from :meth:`posterior`; rgb: (B, V, 3, H, W); depth: (B, V, 1, H, W) metres or
+        None; K: (B, V, 3, 3); c2w: (B, V, 4, 4). Returns the posterior with refined means (the same fields and
+        shapes).
         """
         if self.refiner is None or not self.refine_enabled:
             return post
         cfg = self.config
         B, V = rgb.shape[:2]
         H, W = rgb.shape[-2:]
+        h, w = round(H * cfg.refine_scale), round(W * cfg.refine_scale)
         view = post.view
         N = view.shape[0]
         observed = torch.cat(
@@ -208,25 +210,44 @@ class ParticleSplat(nn.Module):
             ],
             dim=2,
         )[:, view]  # (B, N, 5, H, W)
+        # a view's render weighs only its own particles (slot: rank among them, -1 elsewhere), so the rasterizer
+        # carries one weight column per particle of the busiest view instead of one per particle
+        slot = torch.full((V, N), -1, dtype=torch.long, device=view.device)
+        for v in range(V):
+            mine = view == v
+            slot[v, mine] = torch.arange(int(mine.sum()), device=view.device)
+        P = max(int(slot.max()) + 1, 1)
+        rank = slot[view, torch.arange(N, device=view.device)]  # (N,) each particle's slot in its own view
         for _ in range(cfg.refine_steps):
             with torch.no_grad():
                 z = self.latents(post, sample=False)
-                gaussians = self.decode_batch(z, view, K, c2w)
+                gaussians = self.decode_batch(z, view, K, c2w, max_per_particle=cfg.refine_keep)
                 res = render_batch(
-                    [(g, Camera(K[b, v], c2w[b, v], W, H)) for b, g in enumerate(gaussians) for v in range(V)],
+                    [
+                        (
+                            replace(g, owner=torch.where(g.owner >= 0, slot[v][g.owner.clamp_min(0)], g.owner)),
+                            Camera(K[b, v], c2w[b, v], W, H).resized(w, h),
+                        )
+                        for b, g in enumerate(gaussians)
+                        for v in range(V)
+                    ],
                     background=self.background_color(),
                     owner_weights=True,
-                    num_owners=N,
+                    num_owners=P,
                 )
                 rendered = torch.stack(
                     [torch.cat([r.rgb.permute(2, 0, 1), r.depth[None] / cfg.d_max, r.alpha[None]]) for r in res]
-                ).reshape(B, V, 5, H, W)[:, view]
-                weights = torch.stack([r.require_owner_weights() for r in res]).reshape(B, V, N, H, W)
-                own = weights[:, view, torch.arange(N, device=view.device)][:, :, None]  # (B, N, 1, H, W)
+                ).reshape(B, V, 5, h, w)[:, view]
+                weights = torch.stack([r.require_owner_weights() for r in res]).reshape(B, V, P, h, w)
+                own = weights[:, view, rank][:, :, None]  # (B, N, 1, h, w)
                 centre = z["z_p"].reshape(B * N, 2)
                 half = BOX_MARGIN * torch.sigmoid(z["z_s"]).reshape(B * N, 2)
-            images = torch.cat([observed, rendered, own], dim=2).reshape(B * N, GLIMPSE_CHANNELS, H, W)
-            glimpses = box_glimpses(images, centre, half, cfg.glimpse_size)
+            # box coordinates are normalised ([-1, 1] over the image), so both sizes sample the same box
+            seen = box_glimpses(observed.reshape(B * N, -1, H, W), centre, half, cfg.glimpse_size)
+            drawn = box_glimpses(
+                torch.cat([rendered, own], dim=2).reshape(B * N, -1, h, w), centre, half, cfg.glimpse_size
+            )
+            glimpses = torch.cat([seen, drawn], dim=1)  # (B * N, 11, glimpse_size, glimpse_size)
             delta = self.refiner(glimpses, latent_vector(post).reshape(B * N, -1)).reshape(B, N, -1)
             post = self.refiner.corrected(post, delta, self.encoder.scale_centre)
         return post
@@ -278,17 +299,33 @@ class ParticleSplat(nn.Module):
         return {k: torch.cat([p[k] for p in parts], dim=1) for k in parts[0]}
 
     def decode_batch(
-        self, z: dict[str, Tensor], view: Tensor, K: Tensor, c2w: Tensor, background: bool = True
+        self,
+        z: dict[str, Tensor],
+        view: Tensor,
+        K: Tensor,
+        c2w: Tensor,
+        background: bool = True,
+        max_per_particle: int = 0,
     ) -> list[Gaussians]:
         """Decode B scenes. z: from :meth:`latents`; view: (N,) particle views;
-        K: (B, V, 3, 3); c2w: (B, V, 4, 4) of the context views. Returns B Gaussian sets (owner = particle)."""
+        K: (B, V, 3, 3); c2w: (B, V, 4, 4) of the context views. Returns B Gaussian sets (owner = particle).
+        ``max_per_particle`` k > 0: each particle keeps its k most opaque Gaussians (as :meth:`decode`)."""
         B, N = z["z_p"].shape[:2]
         flat = {k: z[k].reshape(B * N, -1) for k in ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f")}
         Kp = K[:, view].reshape(B * N, 3, 3)
         cp = c2w[:, view].reshape(B * N, 4, 4)
         fg = self.foreground(flat["z_p"], flat["z_s"], flat["z_d"], flat["z_e"], flat["z_t"], flat["z_f"], Kp, cp)
         fg = {k: v.reshape(B, -1, *v.shape[2:]) for k, v in fg.items()}
-        owner_fg = torch.arange(N, device=K.device).repeat_interleave(self.config.gaussians_per_particle)
+        per = self.config.gaussians_per_particle
+        if 0 < max_per_particle < per:
+            top = fg["opacities"].reshape(B, N, per).topk(max_per_particle, dim=2).indices.sort(dim=2).values
+            rows = (top + torch.arange(N, device=K.device)[:, None] * per).reshape(B, -1)  # (B, N k), particle order
+            fg = {
+                k: v.gather(1, rows.reshape(B, -1, *[1] * (v.ndim - 2)).expand(-1, -1, *v.shape[2:]))
+                for k, v in fg.items()
+            }
+            per = max_per_particle
+        owner_fg = torch.arange(N, device=K.device).repeat_interleave(per)
         if background:
             bgf = self.background_fields(z["bg"], K, c2w)
             owner = torch.cat([owner_fg, torch.full((bgf["means"].shape[1],), BACKGROUND_OWNER, device=K.device)])
