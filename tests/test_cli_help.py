@@ -8,7 +8,7 @@ import pytest
 
 from particlesplat.cli.main import COMMANDS, main
 
-SUBCOMMANDS = {"object": ("export", "insert"), "scene": ("check",)}
+SUBCOMMANDS = {"object": ("export", "insert"), "scene": ("check",), "model": ("set",)}  # model info: no options
 
 
 @pytest.mark.parametrize(

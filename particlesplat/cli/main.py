@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "encode": ("particlesplat.cli.encode", "write the particles of scene folders as .npz arrays"),
     "object": ("particlesplat.cli.object", "export an object to .ply, or insert it into another scene"),
     "curve": ("particlesplat.cli.curve", "plot the validation curves of training runs to PNG"),
+    "model": ("particlesplat.cli.model", "show a checkpoint, or copy it with inference keys changed"),
     "scene": ("particlesplat.cli.scene", "check a scene folder's world frame (+z up, support at z = 0, metres)"),
     "bench": ("", "run a benchmark: " + ", ".join(sorted(e.name for e in entry_points(group="particlesplat.bench")))),
 }

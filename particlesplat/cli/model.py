@@ -1,0 +1,69 @@
+"""``particlesplat model``: what a checkpoint is (``info``), and a copy of it with inference keys changed
+(``set``), e.g. a cheaper refinement pass."""
+
+from __future__ import annotations
+
+import argparse
+
+from particlesplat.core.errors import OptionError
+from particlesplat.core.yamlsafe import YamlError, load_yaml
+from particlesplat.model.derive import INFERENCE_KEYS
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from particlesplat.cli.main import HelpFormatter
+
+    sub = parser.add_subparsers(dest="action", required=True, metavar="{info,set}")
+    info = sub.add_parser(
+        "info", help="print a checkpoint's step, size, inference keys and provenance", formatter_class=HelpFormatter
+    )
+    info.add_argument("checkpoint", help="a .pt checkpoint (from 'particlesplat train' or assets/)")
+    keys = "; ".join(f"{k}: {v}" for k, v in INFERENCE_KEYS.items())
+    change = sub.add_parser(
+        "set",
+        help="write a copy of a checkpoint with inference keys changed (no retraining)",
+        description=f"Write a copy of CHECKPOINT with model keys changed. Keys: {keys}.",
+        formatter_class=HelpFormatter,
+    )
+    change.add_argument("checkpoint", help="the checkpoint to copy (left unchanged)")
+    change.add_argument("changes", nargs="+", metavar="KEY=VALUE", help="e.g. refine_scale=0.5 refine_keep=128")
+    change.add_argument("--out", required=True, help="the .pt to write (not the input)")
+    change.add_argument("--note", default="", help="why, recorded in the copy's provenance")
+
+
+def _parse(changes: list[str]) -> dict[str, object]:
+    out: dict[str, object] = {}
+    for item in changes:
+        key, sep, text = item.partition("=")
+        if not sep or not key or not text:
+            raise OptionError(f"model set: {item!r}: expected KEY=VALUE, e.g. refine_scale=0.5")
+        if key in out:
+            raise OptionError(f"model set: {key} given twice")
+        try:
+            out[key] = load_yaml(text, f"model set: {key}")
+        except YamlError as e:
+            raise OptionError(str(e)) from None
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.action == "set":
+        from particlesplat.model.derive import write_derived
+
+        cfg = write_derived(args.checkpoint, args.out, _parse(args.changes), args.note)
+        print(f"wrote {args.out}: " + ", ".join(f"{k} {getattr(cfg, k)}" for k in INFERENCE_KEYS))
+        return 0
+    from particlesplat.model.io import model_from_checkpoint, read_checkpoint
+    from particlesplat.model.provenance import describe
+
+    ckpt = read_checkpoint(args.checkpoint)
+    model = model_from_checkpoint(ckpt, args.checkpoint)
+    cfg = model.config
+    weights = sum(v.numel() for v in model.state_dict().values())
+    refine = "off" if model.refiner is None else ("on" if model.refine_enabled else "not yet trained (off)")
+    print(f"{args.checkpoint}: step {int(ckpt['step']):,}, {cfg.resolution}x{cfg.resolution}, {weights:,} values")
+    print(f"  {cfg.gaussians_per_particle} Gaussians per particle; refinement {refine}")
+    for key in INFERENCE_KEYS:
+        print(f"  {key}: {getattr(cfg, key)}")
+    print(f"  {describe(ckpt.get('provenance'))}")
+    return 0

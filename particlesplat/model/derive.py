@@ -1,0 +1,75 @@
+"""Derived checkpoints: a trained model with keys changed that decide how its networks run, not what they
+hold (no weight shape or learned value depends on them), so no retraining is needed. The shipped robot
+model is one: its run's checkpoint with a cheaper refinement pass.
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+
+from particlesplat.core.errors import UserError
+from particlesplat.model.config import ConfigError, ModelConfig, model_config_from_dict, without_removed_keys
+from particlesplat.model.io import model_from_checkpoint, read_checkpoint, save_checkpoint
+
+# model keys a trained checkpoint may change, and what each decides
+INFERENCE_KEYS: dict[str, str] = {
+    "refine_steps": "amortised refinement steps (0 leaves the refiner out and drops its weights)",
+    "refine_scale": "fraction of the resolution the refinement renders the context views at",
+    "refine_keep": "Gaussians per particle the refinement renders (0: all)",
+    "particles_per_view": "foreground particles kept per context view",
+    "kp_min_separation": "least distance between kept keypoints (normalised image units)",
+    "bg_mask_threshold": "z_t above which a particle is active and draws",
+    "support_cut": "metres below the support surface under which a particle Gaussian does not draw (< 0: off)",
+}
+
+# run state a derived checkpoint does not carry: it is a model, not a run to resume
+RUN_STATE = ("optimizer", "optimizer_layout", "rng", "best", "run_avg")
+
+
+class DeriveError(UserError):
+    """A change a trained checkpoint cannot take."""
+
+
+def derive_checkpoint(ckpt: dict, changes: dict[str, object], source: str, note: str = "") -> dict:
+    """A copy of checkpoint dict ``ckpt`` (from ``source``) with the model keys in ``changes`` set
+    (:data:`INFERENCE_KEYS` only). Its provenance says what changed ("derived"), after any earlier change;
+    optimiser and RNG state are left out. Raises DeriveError or ConfigError naming the key."""
+    where = f"{source}: config"
+    old = model_config_from_dict(without_removed_keys(ckpt["config"], "model", where), where)
+    for key in changes:
+        if key not in INFERENCE_KEYS:
+            known = ", ".join(INFERENCE_KEYS)
+            raise DeriveError(f"{key}: not a key a trained model can change (those are: {known})")
+    config = {**ckpt["config"], **changes}
+    new = model_config_from_dict(config, "model")
+    new.validate()
+    state = dict(ckpt["state_dict"])
+    if new.refine_steps > 0 and not any(k.startswith("refiner.") for k in state):
+        raise DeriveError(f"refine_steps: {source} has no refiner weights (its refine_steps is {old.refine_steps})")
+    if new.refine_steps == 0:
+        state = {k: v for k, v in state.items() if not k.startswith("refiner.")}
+    said = [f"{k} {getattr(old, k)} -> {getattr(new, k)}" for k in changes if getattr(old, k) != getattr(new, k)]
+    if not said:
+        raise DeriveError("nothing to change: every key already has that value")
+    prov = dict(ckpt.get("provenance") or {})
+    line = f"derived from {source} step {int(ckpt['step']):,}: " + ", ".join(said) + (f" ({note})" if note else "")
+    prov["derived"] = f"{prov['derived']}; {line}" if prov.get("derived") else line
+    out = {k: v for k, v in ckpt.items() if k not in RUN_STATE}
+    return {**out, "config": config, "state_dict": state, "provenance": prov}
+
+
+def write_derived(src: str | PathLike, dst: str | PathLike, changes: dict[str, object], note: str = "") -> ModelConfig:
+    """Read ``src``, derive (:func:`derive_checkpoint`), check the copy loads, write ``dst`` atomically (never
+    over ``src``). Returns the new model config."""
+    if Path(dst).resolve() == Path(src).resolve():
+        raise DeriveError(f"{dst}: the output would replace the checkpoint it is made from; write another file")
+    ckpt = read_checkpoint(src)
+    derived = derive_checkpoint(ckpt, changes, str(src), note)
+    try:
+        model = model_from_checkpoint(derived, str(dst))
+    except ConfigError as e:
+        raise DeriveError(f"{src}: {e}") from None
+    extra = {k: v for k, v in derived.items() if k not in ("config", "state_dict", "step", "config_sha256")}
+    save_checkpoint(dst, model, derived["step"], extra)
+    return model.config

@@ -1,0 +1,106 @@
+"""``particlesplat model``: a checkpoint's facts, and copies with inference keys changed that run exactly as the
+original would with those keys, record the change, and never touch the original."""
+
+from __future__ import annotations
+
+import hashlib
+
+import pytest
+import torch
+from test_model import scene_inputs, tiny_model
+
+from particlesplat.cli.main import main
+from particlesplat.model import ConfigError, read_checkpoint, save_checkpoint
+from particlesplat.model.derive import DeriveError, derive_checkpoint
+from particlesplat.model.io import load_model
+
+
+@pytest.fixture
+def trained(tmp_path):
+    """A tiny model with a refiner (its last layer made non-zero, so refinement changes the particles), saved
+    with run state beside it, as a run's last.pt is."""
+    m = tiny_model(7, refine_steps=1, refine_hidden=16)
+    with torch.no_grad():
+        m.refiner.out.weight.normal_(0.0, 0.05)
+    path = tmp_path / "last.pt"
+    save_checkpoint(path, m, 40, {"optimizer": {"state": {}}, "rng": [1], "provenance": {"data": "d"}})
+    return path, m
+
+
+def digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_set_refine_scale_runs_as_the_model_with_that_key_and_keeps_the_original(trained, tmp_path, capsys):
+    path, m = trained
+    before = digest(path)
+    out = tmp_path / "half.pt"
+    assert (
+        main(["model", "set", str(path), "refine_scale=0.5", "refine_keep=3", "--out", str(out), "--note", "why"]) == 0
+    )
+    assert digest(path) == before
+    ckpt = read_checkpoint(out)
+    assert "optimizer" not in ckpt and "rng" not in ckpt  # a model, not a run to resume
+    assert (
+        ckpt["provenance"]["derived"]
+        == f"derived from {path} step 40: refine_scale 1.0 -> 0.5, refine_keep 0 -> 3 (why)"
+    )
+    # truth: the original weights in a model built with those keys
+    want = tiny_model(0, refine_steps=1, refine_hidden=16, refine_scale=0.5, refine_keep=3)
+    want.load_state_dict(m.state_dict())
+    got = load_model(out)
+    rgb, depth, cs = scene_inputs(2)
+    a, b = want.encode(rgb, depth, cs), got.encode(rgb, depth, cs)
+    torch.testing.assert_close(a.z_p, b.z_p, rtol=0, atol=0)
+    assert not torch.equal(b.z_p, m.encode(rgb, depth, cs).z_p)  # the key changed what the refinement saw
+    assert main(["model", "info", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert (
+        "step 40" in text
+        and "refine_scale: 0.5" in text
+        and "refine_keep: 3" in text
+        and "refine_scale 1.0 -> 0.5" in text
+    )
+
+
+def test_dropping_the_refiner_is_the_model_with_refinement_off(trained, tmp_path):
+    path, m = trained
+    out = tmp_path / "plain.pt"
+    assert main(["model", "set", str(path), "refine_steps=0", "--out", str(out)]) == 0
+    ckpt = read_checkpoint(out)
+    assert not any(k.startswith("refiner.") for k in ckpt["state_dict"])
+    rgb, depth, cs = scene_inputs(2)
+    m.refine_enabled = False
+    torch.testing.assert_close(load_model(out).encode(rgb, depth, cs).z_f, m.encode(rgb, depth, cs).z_f, rtol=0, atol=0)
+    # a second change appends to the first in the provenance
+    again = derive_checkpoint(ckpt, {"support_cut": 0.01}, "plain.pt")
+    assert again["provenance"]["derived"].startswith(ckpt["provenance"]["derived"] + "; derived from plain.pt step 40")
+    with pytest.raises(DeriveError, match="refine_steps: plain.pt has no refiner weights"):
+        derive_checkpoint(ckpt, {"refine_steps": 1}, "plain.pt")
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ("resolution=64", r"resolution: not a key a trained model can change"),
+        ("refine_scale=2", r"refine_scale: must be in \(0, 1\]"),
+        ("refine_keep=-1", r"refine_keep"),
+        ("refine_scale=[1", r"model set: refine_scale: not valid YAML"),
+        ("refine_scale", r"expected KEY=VALUE"),
+        ("refine_scale=1.0", r"nothing to change"),
+    ],
+)
+def test_bad_changes_are_refused_and_write_nothing(trained, tmp_path, change, message):
+    path, _ = trained
+    out = tmp_path / "out.pt"
+    with pytest.raises((DeriveError, ConfigError, ValueError), match=message):
+        main(["model", "set", str(path), change, "--out", str(out)])
+    assert not out.exists()
+
+
+def test_set_never_writes_over_its_input(trained):
+    path, _ = trained
+    before = digest(path)
+    with pytest.raises(DeriveError, match="would replace the checkpoint it is made from"):
+        main(["model", "set", str(path), "refine_scale=0.5", "--out", str(path)])
+    assert digest(path) == before
