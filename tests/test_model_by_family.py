@@ -71,11 +71,12 @@ def test_every_shipped_checkpoint_records_its_provenance():
     assert "staged chain" in tabletop["init"] and "hours not recorded" in describe(tabletop)
 
 
-def test_refinement_runs_once_its_run_trained_it_and_the_robot_model_has_none():
+def test_refinement_runs_once_its_run_trained_it_and_the_robot_model_runs_a_cheaper_pass():
     """A checkpoint written before its run's refine_start loads with refinement off (the refiner is still at its
     start, a correction of exactly zero: tests/test_refiner.py); one that records no schedule, like the tabletop
-    model, keeps it. The shipped robot model left its refiner out (refine_steps 0, no refiner weights) and says
-    so in its provenance; it encodes without one."""
+    model, keeps it. The shipped robot model is its run's checkpoint with ten particles a view and a
+    quarter-size refinement render (``particlesplat model set``), says so in its provenance, and encodes with
+    its refiner."""
     from particlesplat.model.io import read_checkpoint, refinement_trained
     from particlesplat.model.provenance import describe
 
@@ -85,10 +86,14 @@ def test_refinement_runs_once_its_run_trained_it_and_the_robot_model_has_none():
     assert not refinement_trained({**tabletop, "step": 49, "train": schedule})
     assert refinement_trained({**tabletop, "step": 50, "train": schedule})
     robot_ckpt = read_checkpoint(shipped_model_path("robot"))
-    assert robot_ckpt["config"]["refine_steps"] == 0
-    assert not any(k.startswith("refiner.") for k in robot_ckpt["state_dict"])
-    assert "refiner" in robot_ckpt["provenance"]["derived"]
-    assert describe(robot_ckpt["provenance"]).endswith(robot_ckpt["provenance"]["derived"])
+    cfg = robot_ckpt["config"]
+    keys = ("particles_per_view", "refine_steps", "refine_scale", "refine_keep")
+    assert [cfg[k] for k in keys] == [10, 1, 0.25, 128]
+    derived = robot_ckpt["provenance"]["derived"]
+    for change in ("particles_per_view 8 -> 10", "refine_scale 1.0 -> 0.25", "refine_keep 0 -> 128"):
+        assert change in derived
+    assert describe(robot_ckpt["provenance"]).endswith(derived)
+    assert refinement_trained(robot_ckpt)
     torch.set_num_threads(1)
     robot, enc, _ = load_model_scene(None, ROBOT)
-    assert robot.refiner is None and enc.particles.num > 0
+    assert robot.refiner is not None and robot.refine_enabled and enc.particles.num == 10 * len(enc.context)

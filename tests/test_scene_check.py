@@ -7,8 +7,10 @@ import json
 import shutil
 
 import numpy as np
+import pytest
 
 from particlesplat.cli.main import main
+from particlesplat.core.errors import InputWarning
 from particlesplat.editing.open_scene import demo_scenes
 
 # a known similarity x' = s R x + t: a quarter turn about x (+z becomes -y), millimetres, shifted
@@ -40,7 +42,8 @@ def test_a_turned_scaled_raised_scene_is_reported_and_fixed(tmp_path, capsys):
     meta["depth_unit_scale_factor"] *= S0
     (bad / "transforms.json").write_text(json.dumps(meta))
     fixed = tmp_path / "fixed.json"
-    assert main(["scene", "check", str(bad), "--write", str(fixed)]) == 1
+    with pytest.warns(InputWarning, match="depth_unit_scale_factor' makes the median depth"):  # millimetres
+        assert main(["scene", "check", str(bad), "--write", str(fixed)]) == 1
     out = capsys.readouterr().out
     assert "up axis: (+0.000, -1.000, +0.000)" in out  # measured from the floor
     assert "the units look like millimetres" in out and "s = 0.001" in out
