@@ -1,0 +1,110 @@
+"""``particlesplat bench encode``: encode + decode time of one or more checkpoints on the same scenes.
+
+Checkpoints take turns round by round (each round encodes and decodes every scene once with each checkpoint,
+in order), so a machine whose speed drifts (a shared host, another job) slows them alike; the report gives
+each checkpoint's median round and its ratio to the first checkpoint's. The scenes and context views are
+those ``particlesplat eval`` uses (the same seed), the time is the encode of the context views and the decode
+of all Gaussians, as in ``eval``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from particlesplat.bench.render import machine_line
+from particlesplat.core.atomic import atomic_write
+from particlesplat.core.errors import OptionError
+from particlesplat.data.scene_meta import CHECKPOINT_HELP, default_checkpoint
+
+
+def time_rounds(models: list, items: list[dict], rounds: int) -> list[list[tuple[float, float]]]:
+    """Per model, per round: mean (encode, decode) milliseconds over ``items`` (SceneDataset items)."""
+    from particlesplat.analysis.evaluate import _cameras
+
+    out: list[list[tuple[float, float]]] = [[] for _ in models]
+    for _ in range(rounds):
+        for k, model in enumerate(models):
+            enc = dec = 0.0
+            for it in items:
+                cams = _cameras(it["context_K"], it["context_c2w"], model.config.resolution)
+                t0 = time.perf_counter()
+                particles = model.encode(it["context_rgb"], it["context_depth"], cams)
+                t1 = time.perf_counter()
+                model.decode(particles)
+                enc, dec = enc + t1 - t0, dec + time.perf_counter() - t1
+            out[k].append((1000.0 * enc / len(items), 1000.0 * dec / len(items)))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="particlesplat bench encode", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--checkpoint", nargs="+", help=f"one or more: {CHECKPOINT_HELP}")
+    parser.add_argument("--data", required=True, help="a folder of scene folders, e.g. data/robot/test")
+    parser.add_argument("--scenes", type=int, default=16, help="scenes per round, the first of the folder (default 16)")
+    parser.add_argument("--rounds", type=int, default=3, help="rounds; the median round counts (default 3)")
+    parser.add_argument("--context", type=int, choices=(1, 2), default=2, help="context views (default 2)")
+    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    parser.add_argument("--json", help="also write the rows to this JSON file")
+    args = parser.parse_args(argv)
+    if args.scenes < 1 or args.rounds < 1:
+        raise OptionError(f"--scenes and --rounds must be >= 1, got {args.scenes} and {args.rounds}")
+    if args.threads < 0:
+        raise OptionError(f"--threads must be >= 0, got {args.threads}")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    from particlesplat.data import SceneDataset
+    from particlesplat.model.io import load_model
+
+    paths = [Path(p) for p in (args.checkpoint or [default_checkpoint(Path(args.data))])]
+    models = [load_model(p) for p in paths]
+    sizes = {m.config.resolution for m in models}
+    if len(sizes) > 1:
+        raise OptionError(f"--checkpoint: the models need one image size, got {sorted(sizes)}")
+    ds = SceneDataset(
+        args.data,
+        resolution=sizes.pop(),
+        mode="multi" if args.context == 2 else "single",
+        deterministic=True,
+        seed=0,
+        progress=1.0,
+    )
+    items = [ds[i] for i in range(min(args.scenes, len(ds)))]
+    time_rounds(models, items[:1], 1)  # warm-up: first-call allocations and kernels
+    times = time_rounds(models, items, args.rounds)
+    print(f"{machine_line()}; {len(items)} scenes of {args.data}, {args.context} context view(s), {args.rounds} rounds")
+    rows: list[dict[str, Any]] = []
+    for path, per_round in zip(paths, times, strict=True):
+        totals = [e + d for e, d in per_round]
+        i = totals.index(statistics.median_low(totals))
+        rows.append(
+            {
+                "checkpoint": str(path),
+                "encode_ms": per_round[i][0],
+                "decode_ms": per_round[i][1],
+                "total_ms": totals[i],
+                "rounds_ms": totals,
+            }
+        )
+    first = rows[0]["total_ms"]
+    print(f"{'checkpoint':<48} {'encode':>8} {'decode':>8} {'total':>8} {'ratio':>6}  rounds (ms)")
+    for r in rows:
+        rounds = ", ".join(f"{t:.0f}" for t in r["rounds_ms"])
+        r["ratio"] = r["total_ms"] / first
+        print(
+            f"{r['checkpoint'][-48:]:<48} {r['encode_ms']:8.1f} {r['decode_ms']:8.1f} {r['total_ms']:8.1f} "
+            f"{r['ratio']:6.2f}  {rounds}"
+        )
+    if args.json:
+        with atomic_write(args.json, "w") as f:
+            json.dump({"machine": machine_line(), "data": str(args.data), "rows": rows}, f, indent=2)
+        print(f"wrote {args.json}")
+    return 0
