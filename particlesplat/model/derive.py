@@ -9,7 +9,7 @@ from os import PathLike
 from pathlib import Path
 
 from particlesplat.core.errors import UserError
-from particlesplat.model.config import ConfigError, ModelConfig, model_config_from_dict, without_removed_keys
+from particlesplat.model.config import ModelConfig, model_config_from_dict, without_removed_keys
 from particlesplat.model.io import model_from_checkpoint, read_checkpoint, save_checkpoint
 
 # model keys a trained checkpoint may change, and what each decides
@@ -42,8 +42,7 @@ def derive_checkpoint(ckpt: dict, changes: dict[str, object], source: str, note:
             known = ", ".join(INFERENCE_KEYS)
             raise DeriveError(f"{key}: not a key a trained model can change (those are: {known})")
     config = {**ckpt["config"], **changes}
-    new = model_config_from_dict(config, "model")
-    new.validate()
+    new = model_config_from_dict(config, "model")  # validated
     state = dict(ckpt["state_dict"])
     if new.refine_steps > 0 and not any(k.startswith("refiner.") for k in state):
         raise DeriveError(f"refine_steps: {source} has no refiner weights (its refine_steps is {old.refine_steps})")
@@ -66,10 +65,7 @@ def write_derived(src: str | PathLike, dst: str | PathLike, changes: dict[str, o
         raise DeriveError(f"{dst}: the output would replace the checkpoint it is made from; write another file")
     ckpt = read_checkpoint(src)
     derived = derive_checkpoint(ckpt, changes, str(src), note)
-    try:
-        model = model_from_checkpoint(derived, str(dst))
-    except ConfigError as e:
-        raise DeriveError(f"{src}: {e}") from None
+    model = model_from_checkpoint(derived, str(dst))
     extra = {k: v for k, v in derived.items() if k not in ("config", "state_dict", "step", "config_sha256")}
     save_checkpoint(dst, model, derived["step"], extra)
     return model.config

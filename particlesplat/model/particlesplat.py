@@ -42,14 +42,20 @@ def _gaussians(fields: dict[str, Tensor], owner: Tensor) -> Gaussians:
     )
 
 
+def _most_opaque_rows(opacities: Tensor, k: int) -> Tensor:
+    """opacities: (B, N, per) of N particles' Gaussians in particle order -> (B, N k) rows (into the N per
+    Gaussians of a scene) of each particle's k most opaque, in particle order."""
+    B, N, per = opacities.shape
+    top = opacities.topk(k, dim=2).indices.sort(dim=2).values
+    return (top + torch.arange(N, device=opacities.device)[:, None] * per).reshape(B, -1)
+
+
 def _most_opaque(g: Gaussians, num: int, k: int) -> Gaussians:
     """The k most opaque of each particle's Gaussians; g holds ``num`` particles' Gaussians in particle order."""
     per = len(g) // num
     if k >= per:
         return g
-    top = g.opacities.reshape(num, per).topk(k, dim=1).indices  # (num, k)
-    rows = torch.arange(num, device=top.device)[:, None] * per
-    return g.subset((rows + top).flatten().sort().values)
+    return g.subset(_most_opaque_rows(g.opacities.reshape(1, num, per), k)[0])
 
 
 class ParticleSplat(nn.Module):
@@ -210,14 +216,11 @@ class ParticleSplat(nn.Module):
             ],
             dim=2,
         )[:, view]  # (B, N, 5, H, W)
-        # a view's render weighs only its own particles (slot: rank among them, -1 elsewhere), so the rasterizer
+        # a view's render weighs only its own particles (owner: rank among them, -1 elsewhere), so the rasterizer
         # carries one weight column per particle of the busiest view instead of one per particle
-        slot = torch.full((V, N), -1, dtype=torch.long, device=view.device)
-        for v in range(V):
-            mine = view == v
-            slot[v, mine] = torch.arange(int(mine.sum()), device=view.device)
-        P = max(int(slot.max()) + 1, 1)
-        rank = slot[view, torch.arange(N, device=view.device)]  # (N,) each particle's slot in its own view
+        rank = (view[:, None] == view[None, :]).tril(-1).sum(1)  # (N,) each particle's rank in its own view
+        P = int(rank.max()) + 1 if N else 1
+        slot = [torch.where(view == v, rank, -1) for v in range(V)]  # per view: particle -> owner slot
         for _ in range(cfg.refine_steps):
             with torch.no_grad():
                 z = self.latents(post, sample=False)
@@ -318,8 +321,7 @@ class ParticleSplat(nn.Module):
         fg = {k: v.reshape(B, -1, *v.shape[2:]) for k, v in fg.items()}
         per = self.config.gaussians_per_particle
         if 0 < max_per_particle < per:
-            top = fg["opacities"].reshape(B, N, per).topk(max_per_particle, dim=2).indices.sort(dim=2).values
-            rows = (top + torch.arange(N, device=K.device)[:, None] * per).reshape(B, -1)  # (B, N k), particle order
+            rows = _most_opaque_rows(fg["opacities"].reshape(B, N, per), max_per_particle)
             fg = {
                 k: v.gather(1, rows.reshape(B, -1, *[1] * (v.ndim - 2)).expand(-1, -1, *v.shape[2:]))
                 for k, v in fg.items()
