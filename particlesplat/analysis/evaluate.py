@@ -49,7 +49,10 @@ def _cameras(K: Tensor, c2w: Tensor, size: int) -> list[Camera]:
     return [Camera(K[i], c2w[i], size, size) for i in range(K.shape[0])]
 
 
-def _ms(t0: float) -> float:
+def _ms(t0: float, device: torch.device) -> float:
+    """Milliseconds since ``t0``, once the work queued on ``device`` is done (a GPU runs asynchronously)."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
     return (time.perf_counter() - t0) * 1000.0
 
 
@@ -72,7 +75,7 @@ def render_views(
 ) -> ViewRenders:
     """Render ``gaussians`` in each camera over ``background`` (3,): rgb (V, 3, H, W), depth (V, 1, H, W),
     seg (V, H, W) per particle, and with ``objects`` ((num_owners,) object label per particle) seg_objects
-    (V, H, W) per object; ms per view."""
+    (V, H, W) per object; ms per view. The renders are on the CPU, whatever device ``gaussians`` are on."""
     rgb, depth, seg, seg_obj = [], [], [], []
     t0 = time.perf_counter()
     for cam in cameras:
@@ -82,10 +85,15 @@ def render_views(
         seg.append(r.segmentation())
         if objects is not None:
             seg_obj.append(r.segmentation(objects))
-    ms = _ms(t0) / max(len(cameras), 1)
-    out: ViewRenders = {"rgb": torch.stack(rgb), "depth": torch.stack(depth), "seg": torch.stack(seg), "render_ms": ms}
+    ms = _ms(t0, gaussians.means.device) / max(len(cameras), 1)
+    out: ViewRenders = {
+        "rgb": torch.stack(rgb).cpu(),
+        "depth": torch.stack(depth).cpu(),
+        "seg": torch.stack(seg).cpu(),
+        "render_ms": ms,
+    }
     if objects is not None:
-        out["seg_objects"] = torch.stack(seg_obj)
+        out["seg_objects"] = torch.stack(seg_obj).cpu()
     return out
 
 
@@ -139,19 +147,20 @@ def evaluate_item(
     ctx_cams = _cameras(item["context_K"], item["context_c2w"], size)
     tgt_cams = _cameras(item["target_K"], item["target_c2w"], size)
     depth = item["context_depth"] if use_depth and bool((item["context_depth"] > 0).any()) else None
+    device = next(model.parameters()).device
     t0 = time.perf_counter()
     particles = model.encode(item["context_rgb"], depth, ctx_cams)
-    enc_ms = _ms(t0)
+    enc_ms = _ms(t0, device)
     t0 = time.perf_counter()
     particles = fit_particles(model, particles, item["context_rgb"], depth, fit_steps, fit_lr, latents=fit_latents)
-    fit_ms = _ms(t0)
+    fit_ms = _ms(t0, device)
     t0 = time.perf_counter()
     gaussians = model.decode(particles, z_t_threshold=z_t_threshold)  # None: the particles that draw
-    dec_ms = _ms(t0)
+    dec_ms = _ms(t0, device)
     objects = particle_objects(gaussians, particles.num)
     bg = model.background_color()
     out = render_views(gaussians, tgt_cams, particles.num, bg, objects)
-    active = particles.z_t[:, 0] >= model.config.bg_mask_threshold  # the particles that draw (decode)
+    active = (particles.z_t[:, 0] >= model.config.bg_mask_threshold).cpu()  # the particles that draw (decode)
     sup = item.get("target_supervision")
     gt = item["target_rgb"]
     res: dict[str, Any] = {
