@@ -93,7 +93,8 @@ except UnsupportedGL as e:
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout
     assert "fetch shader refused" in out and "probe fetch False" in out and "auto blend" in out
-    assert "forced fetch: --compositing fetch: this OpenGL driver (llvmpipe" in out
+    assert "forced fetch: --compositing fetch: this OpenGL driver (" in out  # the driver's name follows
+    assert "lacks GL_EXT_shader_framebuffer_fetch; use --compositing auto or blend" in out
 
 
 @pytest.mark.gl
@@ -190,3 +191,25 @@ def test_minimal_driver_limits(ctx, compositing):
     r.render(cam)
     assert np.array_equal(r.read_rgba(), before)
     r.release()
+
+
+def test_auto_primitive_takes_quads_on_a_gpu(ctx):
+    """``auto`` weighs points against quads only on a software rasteriser; a GPU driver's name gets quads with
+    no read-back of the projection, and the same image."""
+    from viewer.gl.caps import probe
+    from viewer.gl.renderer import SplatRenderer
+
+    g = random_gaussians(3000, seed=3, sh_degree=1, pixel_scale=0.01)  # small splats: llvmpipe takes points
+    cam = Camera.orbit((0.0, 0.0, 0.0), 20.0, 25.0, 3.0, width=96, height=72)
+    real = probe(ctx)
+    soft_caps = replace(real, renderer="llvmpipe (assumed)", max_point_size=min(real.max_point_size, 255.0))
+    soft = SplatRenderer(ctx, color_dtype="f4", compositing="blend", caps=soft_caps)
+    soft.set_gaussians(g)
+    assert soft.caps.software and soft.render(cam).primitive == "points"
+    gpu_caps = replace(real, renderer="NVIDIA GeForce RTX 4090/PCIe/SSE2 / 4.6.0 NVIDIA 580.159.04")
+    gpu = SplatRenderer(ctx, color_dtype="f4", compositing="blend", caps=gpu_caps)
+    gpu.set_gaussians(g)
+    assert not gpu.caps.software and gpu.render(cam).primitive == "quads"
+    assert psnr(gpu.read_rgba()[..., :3], soft.read_rgba()[..., :3]) >= 50.0
+    soft.release()
+    gpu.release()

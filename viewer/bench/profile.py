@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
                 ms = profile_case(ctx, r, cams, (args.width, args.height), owners)
                 rows.append((name, g.num, r.compositing, r.kind, scale, ms))
     load1 = os.getloadavg()
-    print(f"GL renderer: {renderers[0].renderer_string}")
+    print(f"GL renderer: {renderers[0].renderer_string}; depth sort: {renderers[0].sort_backend}")
     print(
         f"{args.width}x{args.height} window, median of {args.frames} frames a row, every pass bracketed by "
         f"glFinish; load average {load0[0]:.1f} -> {load1[0]:.1f} on {os.cpu_count()} CPUs\n"

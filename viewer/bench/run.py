@@ -480,7 +480,7 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 r.set_filter()
     load1 = os.getloadavg()
-    print(f"GL renderer: {renderer.renderer_string}")
+    print(f"GL renderer: {renderer.renderer_string}; depth sort: {renderer.sort_backend}")
     print(
         f"{args.width}x{args.height}, {args.primitive}, median of {args.frames} frames, camera turning 1 deg/frame "
         f"(every frame re-sorts); load average {load0[0]:.1f} -> {load1[0]:.1f} on {os.cpu_count()} CPUs"

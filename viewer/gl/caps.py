@@ -24,6 +24,7 @@ from particlesplat.rendering.rasterize import T_MIN
 Compositing = Literal["auto", "fetch", "blend"]
 COMPOSITING: tuple[str, ...] = get_args(Compositing)
 FETCH_EXTENSION = "GL_EXT_shader_framebuffer_fetch"
+SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swiftshader", "software rasterizer")
 
 COMPOSITING_HELP = (
     "splat compositing: fetch = in the fragment shader with GL_EXT_shader_framebuffer_fetch "
@@ -54,6 +55,12 @@ class GLCaps:
     max_point_size: float
     max_texture_size: int
     max_viewport: tuple[int, int]
+
+    @property
+    def software(self) -> bool:
+        """A CPU rasteriser (llvmpipe, softpipe, SwiftShader), where fragments cost like vertices."""
+        name = self.renderer.lower()
+        return any(k in name for k in SOFTWARE_RENDERERS)
 
     def compositing(self, requested: Compositing) -> Literal["fetch", "blend"]:
         """The compositing path for ``requested``: ``auto`` takes fetch where it exists. Raises

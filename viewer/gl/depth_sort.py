@@ -1,0 +1,80 @@
+"""Front-to-back order of the Gaussians a camera sees, on the CPU (numpy) or on a CUDA GPU (torch).
+
+Every new camera re-sorts every visible Gaussian by float32 camera z. numpy sorts 100k depths in about
+2.5 ms and 1M in 36 ms on a workstation CPU; torch on the GPU of the same machine takes 0.3 and 0.8 ms,
+the indices copied back included (H100, ``particlesplat bench viewer``). Both orders are by increasing z,
+ties by increasing index; tests compare them.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, get_args
+
+import numpy as np
+import torch
+
+SortDevice = Literal["auto", "cpu", "cuda"]
+SORT_DEVICES: tuple[str, ...] = get_args(SortDevice)
+
+
+def depth_order(index: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Sort Gaussians front to back: index (M,) int, z (M,) float32 camera depths -> (M,) int32
+    indices by increasing z, ties by increasing index.
+
+    Positive float32 values order like their bit patterns, so one uint64 key (z bits << 32 |
+    index) sorted with numpy's default sort is ~10x faster than a stable argsort of z.
+    """
+    z = np.ascontiguousarray(z, np.float32)
+    if z.size and float(z.min()) <= 0.0:
+        return index[np.lexsort((index, z))].astype(np.int32)
+    key = (z.view(np.uint32).astype(np.uint64) << np.uint64(32)) | index.astype(np.uint64)
+    return (np.sort(key) & np.uint64(0xFFFFFFFF)).astype(np.int32)
+
+
+def resolve_sort_device(choice: SortDevice) -> torch.device | None:
+    """The torch device that sorts for ``choice``, or None for numpy on the CPU: ``auto`` takes CUDA where
+    torch sees a GPU."""
+    if choice not in SORT_DEVICES:
+        raise ValueError(f"sort device must be one of {SORT_DEVICES}, got {choice!r}")
+    if choice == "cpu" or (choice == "auto" and not torch.cuda.is_available()):
+        return None
+    if choice == "cuda" and not torch.cuda.is_available():
+        raise RuntimeError("sort device cuda: torch sees no CUDA GPU; use cpu or auto")
+    return torch.device("cuda")
+
+
+class DepthSorter:
+    """Sorts a fixed point set (the visible Gaussians' means) for any camera.
+
+    ``device`` None sorts with :func:`depth_order` (numpy); a torch device keeps the points there and sorts
+    with a stable ``torch.sort`` (the same order: the kept indices are increasing, so ties stay by index).
+    """
+
+    def __init__(self, device: torch.device | None = None) -> None:
+        self.device = device
+        self._index = np.zeros(0, np.int64)
+        self._means = np.zeros((0, 3), np.float32)
+        self._index_t: torch.Tensor | None = None
+        self._means_t: torch.Tensor | None = None
+
+    def set_points(self, means: np.ndarray, index: np.ndarray) -> None:
+        """means: (M, 3) float32 world metres of the Gaussians that may be drawn; index: (M,) increasing int,
+        their indices in the renderer's data."""
+        self._means = np.ascontiguousarray(means, np.float32)
+        self._index = np.asarray(index, np.int64)
+        if self.device is not None:
+            self._means_t = torch.from_numpy(self._means).to(self.device)
+            self._index_t = torch.from_numpy(self._index).to(self.device)
+
+    def order(self, z_row: np.ndarray, near: float, far: float) -> np.ndarray:
+        """(K,) int32 indices of the points with near < z < far, front to back. z_row: (4,) the world-to-camera
+        matrix's z row (z = z_row[:3] . x + z_row[3])."""
+        r = np.asarray(z_row, np.float32)
+        if self._means_t is None or self._index_t is None:
+            z = self._means @ r[:3] + r[3]
+            keep = (z > near) & (z < far)
+            return depth_order(self._index[keep], z[keep])
+        zt = self._means_t @ torch.from_numpy(r[:3]).to(self.device) + float(r[3])
+        keep = (zt > near) & (zt < far)
+        ranks = torch.sort(zt[keep], stable=True).indices
+        return self._index_t[keep][ranks].to(torch.int32).cpu().numpy()
