@@ -21,9 +21,9 @@ def test_bench_encode_times_checkpoints_in_turns(tmp_path_factory, tmp_path, cap
     save_checkpoint(refined, tiny_model(1, refine_steps=1, refine_hidden=16), 5)
     out = tmp_path / "encode.json"
     args = ["bench", "encode", "--data", str(data / "val"), "--checkpoint", str(plain), str(refined)]
-    assert main([*args, "--scenes", "1", "--rounds", "3", "--threads", "1", "--json", str(out)]) == 0
+    assert main([*args, "--scenes", "1", "--rounds", "3", "--threads", "1", "--device", "cpu", "--json", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "1 scenes of" in text and "3 rounds" in text
+    assert "; cpu; 1 scenes of" in text and "3 rounds" in text
     rows = json.loads(out.read_text())["rows"]
     assert [r["checkpoint"] for r in rows] == [str(plain), str(refined)]
     for r in rows:
@@ -42,3 +42,5 @@ def test_bench_encode_refuses_bad_options(tmp_path_factory, tmp_path):
         main([*base, "--checkpoint", str(small), "--rounds", "0"])
     with pytest.raises(OptionError, match=r"one image size, got \[32, 64\]"):
         main([*base, "--checkpoint", str(small), str(large)])
+    with pytest.raises(OptionError, match="--device 'gpu0': expected cpu, cuda or cuda:N"):
+        main([*base, "--checkpoint", str(small), "--device", "gpu0"])

@@ -20,26 +20,30 @@ import torch
 
 from particlesplat.bench.render import machine_line
 from particlesplat.core.atomic import atomic_write
+from particlesplat.core.device import DEVICE_HELP, resolve_device
 from particlesplat.core.errors import OptionError
 from particlesplat.data.scene_meta import CHECKPOINT_HELP, default_checkpoint
 
 
 def time_rounds(models: list, items: list[dict], rounds: int) -> list[list[tuple[float, float]]]:
-    """Per model, per round: mean (encode, decode) milliseconds over ``items`` (SceneDataset items)."""
-    from particlesplat.analysis.evaluate import _cameras
+    """Per model, per round: mean (encode, decode) milliseconds over ``items`` (SceneDataset items); on a GPU
+    each phase ends when its work is done."""
+    from particlesplat.analysis.evaluate import _cameras, _ms
 
     out: list[list[tuple[float, float]]] = [[] for _ in models]
     for _ in range(rounds):
         for k, model in enumerate(models):
+            device = next(model.parameters()).device
             enc = dec = 0.0
             for it in items:
                 cams = _cameras(it["context_K"], it["context_c2w"], model.config.resolution)
                 t0 = time.perf_counter()
                 particles = model.encode(it["context_rgb"], it["context_depth"], cams)
-                t1 = time.perf_counter()
+                enc += _ms(t0, device)
+                t0 = time.perf_counter()
                 model.decode(particles)
-                enc, dec = enc + t1 - t0, dec + time.perf_counter() - t1
-            out[k].append((1000.0 * enc / len(items), 1000.0 * dec / len(items)))
+                dec += _ms(t0, device)
+            out[k].append((enc / len(items), dec / len(items)))
     return out
 
 
@@ -53,6 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=3, help="rounds; the median round counts (default 3)")
     parser.add_argument("--context", type=int, choices=(1, 2), default=2, help="context views (default 2)")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    parser.add_argument("--device", default=None, help=DEVICE_HELP)
     parser.add_argument("--json", help="also write the rows to this JSON file")
     args = parser.parse_args(argv)
     if args.scenes < 1 or args.rounds < 1:
@@ -65,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     from particlesplat.model.io import load_model
 
     paths = [Path(p) for p in (args.checkpoint or [default_checkpoint(Path(args.data))])]
-    models = [load_model(p) for p in paths]
+    device = resolve_device(args.device)
+    models = [load_model(p, device=device) for p in paths]
     sizes = {m.config.resolution for m in models}
     if len(sizes) > 1:
         raise OptionError(f"--checkpoint: the models need one image size, got {sorted(sizes)}")
@@ -80,7 +86,10 @@ def main(argv: list[str] | None = None) -> int:
     items = [ds[i] for i in range(min(args.scenes, len(ds)))]
     time_rounds(models, items[:1], 1)  # warm-up: first-call allocations and kernels
     times = time_rounds(models, items, args.rounds)
-    print(f"{machine_line()}; {len(items)} scenes of {args.data}, {args.context} context view(s), {args.rounds} rounds")
+    print(
+        f"{machine_line()}; {device}; {len(items)} scenes of {args.data}, {args.context} context view(s), "
+        f"{args.rounds} rounds"
+    )
     rows: list[dict[str, Any]] = []
     for path, per_round in zip(paths, times, strict=True):
         totals = [e + d for e, d in per_round]
