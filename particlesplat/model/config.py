@@ -268,7 +268,7 @@ class TrainConfig:
     val_scenes: int = 12
     ckpt_every: int = 50
     seed: int = 42
-    num_threads: int = 1
+    num_threads: int = 2
     adapt_threads: bool = True
     cache_scenes: int = 1100
 
