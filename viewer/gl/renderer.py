@@ -208,7 +208,11 @@ class SplatRenderer:
         self._projects: dict[int, moderngl.Program] = {}  # projection program per SH coefficient count
         # programs per primitive kind and role ("splat", or the id pass with 1 or 8 attachments)
         self._progs: dict[str, dict[str | int, moderngl.Program]] = {}
-        for kind in ("quads", "points") if primitive == "auto" else (primitive,):
+        # ``auto`` weighs points against quads at each sort only on a software rasteriser (its cost model is
+        # llvmpipe's, and choosing reads the projection back); a GPU draws quads at least as fast
+        self._weigh_primitives = primitive == "auto" and self.caps.software
+        kinds = ("quads", "points") if self._weigh_primitives else ("quads",) if primitive == "auto" else (primitive,)
+        for kind in kinds:
             vert = load_shader("splat.vert", {"MAX_KEYED": MAX_KEYED, **({"QUADS": 1} if kind == "quads" else {})})
             progs: dict[str | int, moderngl.Program] = {
                 "splat": ctx.program(vertex_shader=vert, fragment_shader=load_shader("splat.frag", {**mode, **encode}))
@@ -437,8 +441,8 @@ class SplatRenderer:
             if profile:
                 self.ctx.finish()
         t3 = time.perf_counter()
-        if self.primitive == "auto":  # the cost model is llvmpipe's; a GPU draws quads at least as fast
-            self.kind = self._cheaper_primitive() if self.caps.software else "quads"
+        if self._weigh_primitives:
+            self.kind = self._cheaper_primitive()
         times.project_ms, times.choose_ms = (t3 - t2) * 1e3, (time.perf_counter() - t3) * 1e3
         self._key = key
         return uni
