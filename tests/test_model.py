@@ -73,6 +73,40 @@ def test_covariance_factorisation_gradient_is_the_identity_map():
     torch.testing.assert_close(M.grad, Md.grad, rtol=1e-6, atol=1e-8)
 
 
+def test_keep_lifts_each_particles_most_opaque_gaussians_as_they_draw():
+    """``keep`` = k: the k most opaque of each particle's Gaussians, chosen before the lift, equal the full lift
+    with each particle's k largest opacities picked afterwards (brute force), also where ``support_cut`` has
+    zeroed Gaussians that lie below the support surface."""
+    cfg = replace(ModelConfig(**TINY, patch_back=True), support_cut=0.0)
+    S = cfg.patch_gaussians
+    K, c2w = stack_cameras(cams(1))
+    M = 3
+    gen = torch.Generator().manual_seed(4)
+    raw = torch.randn(M, 2 * S * S, gaussian_channels(0), generator=gen)
+    z = dict(
+        z_p=torch.rand(M, 2, generator=gen) - 0.5,
+        z_s=torch.randn(M, 2, generator=gen),
+        z_d=torch.full((M, 1), -1.0),  # with a wide depth range, a third fall below the floor
+        z_e=torch.full((M, 1), 3.0),
+        z_t=torch.rand(M, 1, generator=gen),
+    )
+    Km, cm = K.expand(M, 3, 3), c2w.expand(M, 4, 4)
+    full = foreground_gaussians(raw, **z, K=Km, c2w=cm, cfg=cfg)
+    below = full["means"][..., 2] < 0
+    assert bool(below.any()) and bool((full["opacities"][below] == 0).all())
+    k = S * S // 2
+    assert bool(((full["opacities"] > 0).sum(1) > k).all())  # no ties at zero among the k chosen
+    kept = foreground_gaussians(raw, **z, K=Km, c2w=cm, cfg=cfg, keep=k)
+    picked_before_cut = []
+    for i in range(M):
+        rows = sorted(torch.argsort(full["opacities"][i], descending=True, stable=True)[:k].tolist())
+        for name in ("means", "quats", "scales", "opacities", "sh"):
+            torch.testing.assert_close(kept[name][i], full[name][i, rows])
+        pre_cut = z["z_t"][i] * torch.sigmoid(raw[i, :, -1])
+        picked_before_cut.append(sorted(pre_cut.topk(k).indices.tolist()) == rows)
+    assert not all(picked_before_cut)  # the cut changed which Gaussians count as most opaque
+
+
 def test_sh_rotation_degree_one_matches_rotated_directions():
     gen = torch.Generator().manual_seed(3)
     sh = torch.randn(50, 4, 3, generator=gen, dtype=torch.float64)

@@ -144,26 +144,15 @@ def masked_block_mean(x: Tensor, weight: Tensor, k: int) -> tuple[Tensor, Tensor
     return F.avg_pool2d(x * weight, k) / w.clamp_min(1e-6), w
 
 
-def _finish(
-    p: dict[str, Tensor],
-    pix: Tensor,
-    zeta: Tensor,
-    jac_px: Tensor,
-    K: Tensor,
-    c2w: Tensor,
-    opacity: Tensor,
-    cfg: ModelConfig,
-    depth_cell: Tensor | None = None,
-    support: bool = False,
-    cut: float = -1.0,
-) -> dict[str, Tensor]:
-    """Lift image-plane Gaussians to the world.
+def _place(
+    pix: Tensor, zeta: Tensor, K: Tensor, c2w: Tensor, opacity: Tensor, support: bool = False, cut: float = -1.0
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Where image-plane Gaussians lie in the world, and whether they draw.
 
-    pix: (..., 2) pixel centres; zeta: (...) planar depth; jac_px: (..., 2) pixels per canonical unit;
-    K: (..., 3, 3), c2w: (..., 4, 4) broadcast per Gaussian; opacity: (...) final α; depth_cell: (...)
-    metres per canonical unit along the camera axis, at least a pixel's width (default: a pixel's width);
-    support: no mean below the support surface z = 0 (:func:`clamp_to_support`); cut: a Gaussian whose mean lies
-    more than ``cut`` metres below it does not draw (opacity 0; < 0 = off).
+    pix: (..., 2) pixel centres; zeta: (...) planar depth; K: (..., 3, 3), c2w: (..., 4, 4) broadcast per
+    Gaussian; opacity: (...) α. support: no mean below the support surface z = 0 (:func:`clamp_to_support`);
+    cut: a Gaussian whose mean lies more than ``cut`` metres below it does not draw (opacity 0; < 0 = off).
+    Returns the planar depth (clamped with ``support``), means (..., 3) and opacity.
     """
     dirs = ray_dirs(pix[..., None, :], K, c2w)[..., 0, :]
     if support:
@@ -171,6 +160,21 @@ def _finish(
     means = c2w[..., :3, 3] + zeta[..., None] * dirs
     if cut >= 0.0:
         opacity = torch.where(means[..., 2] < SUPPORT_Z - cut, torch.zeros_like(opacity), opacity)
+    return zeta, means, opacity
+
+
+def _shape(
+    p: dict[str, Tensor],
+    zeta: Tensor,
+    jac_px: Tensor,
+    K: Tensor,
+    c2w: Tensor,
+    cfg: ModelConfig,
+    depth_cell: Tensor | None = None,
+) -> dict[str, Tensor]:
+    """World rotation, scales and SH of placed Gaussians (shapes as :func:`_place`; jac_px: (..., 2) pixels per
+    canonical unit; depth_cell: (...) metres per canonical unit along the camera axis, at least a pixel's width
+    (default: a pixel's width))."""
     fx = K[..., 0, 0]
     fy = K[..., 1, 1]
     jac_z = zeta / fx if depth_cell is None else torch.maximum(zeta / fx, depth_cell)
@@ -180,7 +184,7 @@ def _finish(
     M_world = c2w[..., :3, :3] @ M
     quats, scales = covariance_to_quat_scale(M_world)
     sh = rotate_sh_to_world(p["sh"], c2w[..., :3, :3])  # c2w already broadcasts over the Gaussians
-    return {"means": means, "quats": quats, "scales": scales, "opacities": opacity, "sh": sh}
+    return {"quats": quats, "scales": scales, "sh": sh}
 
 
 def clamp_to_support(zeta: Tensor, origin_z: Tensor, dir_z: Tensor) -> Tensor:
@@ -213,12 +217,15 @@ def foreground_gaussians(
     K: Tensor,
     c2w: Tensor,
     cfg: ModelConfig,
+    keep: int = 0,
 ) -> dict[str, Tensor]:
     """Steps 2-3 for M particles.
 
     raw: (M, N, C) canonical patch parameters (N = S*S, row-major cells; 2*S*S with ``patch_back``);
     z_p: (M, 2) in [-1, 1]; z_s: (M, 2), z_d: (M, 1), z_e: (M, 1) pre-sigmoid; z_t: (M, 1) in [0, 1];
-    K: (M, 3, 3) and c2w: (M, 4, 4) of each particle's view. Returns Gaussian fields with leading dims (M, N).
+    K: (M, 3, 3) and c2w: (M, 4, 4) of each particle's view. Returns Gaussian fields with leading dims (M, N);
+    with ``keep`` = k in (0, N), (M, k): each particle's k most opaque Gaussians, in their order among its N,
+    chosen before they are lifted to the world (the opacity needs no lifting; the lift is most of the cost).
 
     A back Gaussian sits on its front Gaussian's ray, σ(its depth channel) x the particle box's width
     (metres, at the front depth) further away: the far side of the object along the context view's ray,
@@ -238,14 +245,15 @@ def foreground_gaussians(
     half = 0.5 * (cfg.d_max - cfg.d_min) * torch.sigmoid(z_e)
     zeta = d + half * torch.tanh(p["dd"][..., 0])
     jac_px = scale * size / S  # s_x / (S_w / W): pixels per canonical cell
-    out = _lift_cells(p, pix, zeta, jac_px, z_t * torch.sigmoid(p["opacity"][..., 0]), K, c2w, cfg)
-    if not cfg.patch_back:
-        return out
-    pb = split_gaussian_params(raw[:, S * S :], cfg.sh_degree)
-    box = jac_px.mean(-1) * S * zeta / K[:, 0, 0, None]  # (M, N) the particle box's width in metres
-    zeta_back = zeta + torch.sigmoid(pb["dd"][..., 0]) * box
-    back = _lift_cells(pb, pix, zeta_back, jac_px, z_t * torch.sigmoid(pb["opacity"][..., 0]), K, c2w, cfg)
-    return {k: torch.cat([out[k], back[k]], dim=1) for k in out}
+    opacity = z_t * torch.sigmoid(p["opacity"][..., 0])
+    if cfg.patch_back:
+        pb = split_gaussian_params(raw[:, S * S :], cfg.sh_degree)
+        box = jac_px.mean(-1) * S * zeta / K[:, 0, 0, None]  # (M, N) the particle box's width in metres
+        p = {k: torch.cat([p[k], pb[k]], dim=1) for k in p}
+        pix = torch.cat([pix, pix], dim=1)
+        zeta = torch.cat([zeta, zeta + torch.sigmoid(pb["dd"][..., 0]) * box], dim=1)
+        opacity = torch.cat([opacity, z_t * torch.sigmoid(pb["opacity"][..., 0])], dim=1)
+    return _lift_cells(p, pix, zeta, jac_px, opacity, K, c2w, cfg, keep)
 
 
 def _lift_cells(
@@ -257,17 +265,41 @@ def _lift_cells(
     K: Tensor,
     c2w: Tensor,
     cfg: ModelConfig,
+    keep: int = 0,
 ) -> dict[str, Tensor]:
     """Lift N cells of M particles: p split head output, pix (M, N, 2) pixels, zeta (M, N) planar metres,
-    jac_px (M, 1, 2) pixels per canonical cell, opacity (M, N); K (M, 3, 3), c2w (M, 4, 4)."""
+    jac_px (M, 1, 2) pixels per canonical cell, opacity (M, N); K (M, 3, 3), c2w (M, 4, 4). ``keep`` = k in
+    (0, N): only each particle's k most opaque cells (as they draw, after ``support_cut``), in their order."""
     N = pix.shape[1]
-    Kn = K[:, None].expand(-1, N, -1, -1)
-    cn = c2w[:, None].expand(-1, N, -1, -1)
     # canonical cells are cubes (as deep as they are wide), so a particle's Gaussians have volume and do not
     # turn into slivers seen from the side
     depth_cell = jac_px.mean(-1) * zeta / K[:, 0, 0, None]
-    jac = jac_px.expand(-1, N, -1)
-    return _finish(p, pix, zeta, jac, Kn, cn, opacity, cfg, depth_cell, cfg.support_clamp, cfg.support_cut)
+    zeta, means, opacity = _place(pix, zeta, K[:, None], c2w[:, None], opacity, cfg.support_clamp, cfg.support_cut)
+    if 0 < keep < N:
+        rows = opacity.topk(keep, dim=1).indices.sort(dim=1).values  # (M, k)
+
+        def take(t: Tensor) -> Tensor:
+            return t.gather(1, rows.reshape(*rows.shape, *[1] * (t.ndim - 2)).expand(-1, -1, *t.shape[2:]))
+
+        p = {k: take(v) for k, v in p.items()}
+        zeta, means, opacity, depth_cell = take(zeta), take(means), take(opacity), take(depth_cell)
+        N = keep
+    shaped = _shape(
+        p,
+        zeta,
+        jac_px.expand(-1, N, -1),
+        K[:, None].expand(-1, N, -1, -1),
+        c2w[:, None].expand(-1, N, -1, -1),
+        cfg,
+        depth_cell,
+    )
+    return {
+        "means": means,
+        "quats": shaped["quats"],
+        "scales": shaped["scales"],
+        "opacities": opacity,
+        "sh": shaped["sh"],
+    }
 
 
 def block_centres(cfg: ModelConfig, device, dtype) -> Tensor:
@@ -301,4 +333,12 @@ def background_gaussians(raw: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig) 
     opacity = torch.sigmoid(p["opacity"][..., 0])
     Kn = K[:, None].expand(-1, n, -1, -1)
     cn = c2w[:, None].expand(-1, n, -1, -1)
-    return _finish(p, pix, zeta, jac_px, Kn, cn, opacity, cfg)
+    zeta, means, opacity = _place(pix, zeta, Kn, cn, opacity)
+    shaped = _shape(p, zeta, jac_px, Kn, cn, cfg)
+    return {
+        "means": means,
+        "quats": shaped["quats"],
+        "scales": shaped["scales"],
+        "opacities": opacity,
+        "sh": shaped["sh"],
+    }

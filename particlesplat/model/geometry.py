@@ -11,6 +11,7 @@ from kornia.geometry.conversions import quaternion_to_rotation_matrix, rotation_
 from torch import Tensor
 
 from particlesplat.core.camera import Camera
+from particlesplat.model.eigh3 import eigh3
 
 
 def stack_cameras(cameras: list[Camera], device=None, dtype=torch.float32) -> tuple[Tensor, Tensor]:
@@ -52,11 +53,12 @@ def plucker_map(K: Tensor, c2w: Tensor, height: int, width: int) -> Tensor:
 
 
 class _SafeEigh(torch.autograd.Function):
-    """Symmetric 3x3 eigendecomposition whose backward damps 1/(λj-λi) for near-equal eigenvalues."""
+    """Symmetric 3x3 eigendecomposition (closed form, :func:`.eigh3`) whose backward damps 1/(λj-λi) for
+    near-equal eigenvalues."""
 
     @staticmethod
     def forward(ctx, A: Tensor):  # noqa: D102
-        lam, U = torch.linalg.eigh(A)
+        lam, U = eigh3(A)
         ctx.save_for_backward(lam, U)
         return lam, U
 
@@ -81,9 +83,7 @@ def covariance_to_quat_scale(M: Tensor) -> tuple[Tensor, Tensor]:
     dtype = M.dtype
     M64 = M.to(torch.float64)
     cov = M64 @ M64.transpose(-1, -2)
-    lam, U = _SafeEigh.apply(cov)
-    sign = torch.where(torch.linalg.det(U.detach()) < 0, -1.0, 1.0).to(U.dtype)
-    U = torch.cat([U[..., :2], U[..., 2:] * sign[..., None, None]], dim=-1)
+    lam, U = _SafeEigh.apply(cov)  # U is a rotation (eigh3 signs its columns so)
     q = rotation_matrix_to_quaternion(U.contiguous(), eps=1e-12)
     scales = torch.sqrt(lam.clamp_min(1e-20))
     return q.to(dtype), scales.to(dtype)

@@ -42,22 +42,6 @@ def _gaussians(fields: dict[str, Tensor], owner: Tensor) -> Gaussians:
     )
 
 
-def _most_opaque_rows(opacities: Tensor, k: int) -> Tensor:
-    """opacities: (B, N, per) of N particles' Gaussians in particle order -> (B, N k) rows (into the N per
-    Gaussians of a scene) of each particle's k most opaque, in particle order."""
-    B, N, per = opacities.shape
-    top = opacities.topk(k, dim=2).indices.sort(dim=2).values
-    return (top + torch.arange(N, device=opacities.device)[:, None] * per).reshape(B, -1)
-
-
-def _most_opaque(g: Gaussians, num: int, k: int) -> Gaussians:
-    """The k most opaque of each particle's Gaussians; g holds ``num`` particles' Gaussians in particle order."""
-    per = len(g) // num
-    if k >= per:
-        return g
-    return g.subset(_most_opaque_rows(g.opacities.reshape(1, num, per), k)[0])
-
-
 class ParticleSplat(nn.Module):
     """Encoder q(Z | context views) and Gaussian-splatting decoder p(x | Z)."""
 
@@ -276,12 +260,21 @@ class ParticleSplat(nn.Module):
         }
 
     def foreground(
-        self, z_p: Tensor, z_s: Tensor, z_d: Tensor, z_e: Tensor, z_t: Tensor, z_f: Tensor, K: Tensor, c2w: Tensor
+        self,
+        z_p: Tensor,
+        z_s: Tensor,
+        z_d: Tensor,
+        z_e: Tensor,
+        z_t: Tensor,
+        z_f: Tensor,
+        K: Tensor,
+        c2w: Tensor,
+        keep: int = 0,
     ) -> dict[str, Tensor]:
         """M particles -> Gaussian fields (M, S*S, ·) ((M, 2*S*S, ·) with ``patch_back``). Latents (M, ·);
-        K (M, 3, 3), c2w (M, 4, 4) of their views."""
+        K (M, 3, 3), c2w (M, 4, 4) of their views. ``keep`` = k > 0: each particle's k most opaque (M, k, ·)."""
         raw = self.fg_decoder(z_f)
-        return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config)
+        return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config, keep)
 
     def background(self, bg: Tensor, K: Tensor, c2w: Tensor) -> dict[str, Tensor]:
         """bg: (M, d_bg, h, w) latents of M views; K (M, 3, 3), c2w (M, 4, 4) -> fields (M, Hb*Wb, ·)."""
@@ -317,16 +310,11 @@ class ParticleSplat(nn.Module):
         flat = {k: z[k].reshape(B * N, -1) for k in ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f")}
         Kp = K[:, view].reshape(B * N, 3, 3)
         cp = c2w[:, view].reshape(B * N, 4, 4)
-        fg = self.foreground(flat["z_p"], flat["z_s"], flat["z_d"], flat["z_e"], flat["z_t"], flat["z_f"], Kp, cp)
+        fg = self.foreground(
+            flat["z_p"], flat["z_s"], flat["z_d"], flat["z_e"], flat["z_t"], flat["z_f"], Kp, cp, max_per_particle
+        )
+        per = fg["opacities"].shape[1]
         fg = {k: v.reshape(B, -1, *v.shape[2:]) for k, v in fg.items()}
-        per = self.config.gaussians_per_particle
-        if 0 < max_per_particle < per:
-            rows = _most_opaque_rows(fg["opacities"].reshape(B, N, per), max_per_particle)
-            fg = {
-                k: v.gather(1, rows.reshape(B, -1, *[1] * (v.ndim - 2)).expand(-1, -1, *v.shape[2:]))
-                for k, v in fg.items()
-            }
-            per = max_per_particle
         owner_fg = torch.arange(N, device=K.device).repeat_interleave(per)
         if background:
             bgf = self.background_fields(z["bg"], K, c2w)
@@ -425,11 +413,18 @@ class ParticleSplat(nn.Module):
         parts = []
         if idx.numel():
             v = p.view[idx]
-            fg = self.foreground(p.z_p[idx], p.z_s[idx], p.z_d[idx], p.z_e[idx], p.z_t[idx], p.z_f[idx], K[v], c2w[v])
-            g_fg = _gaussians(fg, idx.repeat_interleave(self.config.gaussians_per_particle))
-            if max_per_particle is not None:
-                g_fg = _most_opaque(g_fg, idx.numel(), max_per_particle)
-            parts.append(g_fg)
+            fg = self.foreground(
+                p.z_p[idx],
+                p.z_s[idx],
+                p.z_d[idx],
+                p.z_e[idx],
+                p.z_t[idx],
+                p.z_f[idx],
+                K[v],
+                c2w[v],
+                max_per_particle or 0,
+            )
+            parts.append(_gaussians(fg, idx.repeat_interleave(fg["opacities"].shape[1])))
         if background:
             bgf = {k: v[0] for k, v in self.background_fields(p.background[None], K[None], c2w[None]).items()}
             parts.append(_gaussians(bgf, torch.full((bgf["means"].shape[0],), BACKGROUND_OWNER, device=dev)))
