@@ -9,9 +9,9 @@ import torch
 from torch import Tensor
 
 from particlesplat.core.camera import Camera
-from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.gaussians import Gaussians, quats_to_rotations
 from particlesplat.core.sh import eval_sh_colors
-from particlesplat.rendering.projection import footprint_extents, project_gaussians
+from particlesplat.rendering.projection import footprint_extents, project_views
 from particlesplat.rendering.rasterize import RasterizeFunction, bin_gaussians, pair_inputs, tiles_to_images
 
 
@@ -149,50 +149,51 @@ def render_batch(
     """
     if not views:
         return []
-    checked: set[int] = set()
-    for i, (gaussians, _) in enumerate(views):  # NaN would spread to every pixel and, through clipping, every gradient
-        if id(gaussians) not in checked:  # training renders one set in several views: checked once
-            checked.add(id(gaussians))
+    # each distinct Gaussian set once (training renders one set into several views), then one instance per
+    # (view, Gaussian): the projection and colours of all views are computed together
+    set_of: dict[int, int] = {}
+    sets: list[Gaussians] = []
+    for i, (gaussians, _) in enumerate(views):
+        if id(gaussians) not in set_of:  # NaN would spread to every pixel and, through clipping, every gradient
             gaussians.check(f"render: view {i}" if len(views) > 1 else "render")
+            set_of[id(gaussians)] = len(sets)
+            sets.append(gaussians)
     dtype, device = views[0][0].means.dtype, views[0][0].means.device
     bg = torch.as_tensor(background, dtype=dtype, device=device).reshape(3)
-    parts: dict[str, list[Tensor]] = {
-        k: [] for k in ("means2d", "conics", "opac", "features", "radius", "view", "owner")
-    }
-    sizes = []
-    for v, (gaussians, camera) in enumerate(views):
-        cam = camera.to(device=device, dtype=dtype)
-        proj = project_gaussians(gaussians, cam, near, far)
-        opac = gaussians.opacities[proj.index]
-        radius = footprint_extents(proj, opac)
-        dirs = torch.nn.functional.normalize(gaussians.means[proj.index] - cam.center, dim=-1)
-        colors = eval_sh_colors(gaussians.sh[proj.index], dirs)
-        parts["means2d"].append(proj.means2d)
-        parts["conics"].append(proj.conics)
-        parts["opac"].append(opac)
-        parts["features"].append(torch.cat([colors, proj.depths[:, None]], dim=-1))  # (M, 4)
-        parts["radius"].append(radius)
-        parts["view"].append(torch.full_like(proj.index, v))
-        parts["owner"].append(gaussians.owner[proj.index])
-        sizes.append((cam.width, cam.height))
-    cat = {k: torch.cat(v) for k, v in parts.items()}
-    bins = bin_gaussians(
-        cat["means2d"], cat["conics"], cat["opac"], cat["radius"], cat["features"][:, 3], cat["view"], sizes
-    )
-    coef, pair_features = pair_inputs(bins, cat["means2d"], cat["conics"], cat["opac"], cat["features"])
+    g = sets[0] if len(sets) == 1 else Gaussians.cat(sets)
+    first = [0]
+    for s in sets[:-1]:
+        first.append(first[-1] + len(s))
+    rows = torch.cat(
+        [torch.arange(len(gs), device=device) + first[set_of[id(gs)]] for gs, _ in views]
+    )  # instance -> row of g
+    view = torch.cat([torch.full((len(gs),), v, dtype=torch.int64, device=device) for v, (gs, _) in enumerate(views)])
+    cams = [camera.to(device=device, dtype=dtype) for _, camera in views]
+    sizes = [(cam.width, cam.height) for cam in cams]
+    proj = project_views(g.means, quats_to_rotations(g.quats), g.scales, rows, view, cams, near, far)
+    rows = rows.index_select(0, proj.index)
+    view = view.index_select(0, proj.index)
+    opac = g.opacities.index_select(0, rows)
+    radius = footprint_extents(proj, opac)
+    centres = torch.stack([cam.center for cam in cams])
+    dirs = torch.nn.functional.normalize(g.means.index_select(0, rows) - centres.index_select(0, view), dim=-1)
+    colors = eval_sh_colors(g.sh.index_select(0, rows), dirs)
+    features = torch.cat([colors, proj.depths[:, None]], dim=-1)  # (M, 4)
+    owner = g.owner.index_select(0, rows)
+    bins = bin_gaussians(proj.means2d, proj.conics, opac, radius, proj.depths, view, sizes)
+    coef, pair_features = pair_inputs(bins, proj.means2d, proj.conics, opac, features)
     if owner_weights:
         # per-owner weights ride along as extra one-hot feature columns of the same pass
         # (slot 0 = background, 1..P = owners), so α and T are computed once
         if num_owners is not None:
             P = int(num_owners)
         else:
-            P = max((int(g.owner.max()) + 1 for g, _ in views if len(g)), default=0)
-        owners = cat["owner"]
-        slot = torch.where((owners >= 0) & (owners < P), owners + 1, torch.zeros_like(owners))
+            P = int(g.owner.max()) + 1 if len(g) else 0
+        slot = torch.where((owner >= 0) & (owner < P), owner + 1, torch.zeros_like(owner))
         onehot = torch.nn.functional.one_hot(slot.index_select(0, bins.gauss), P + 1).to(coef.dtype)
         pair_features = torch.cat([pair_features, torch.cat([onehot, onehot.new_zeros(1, P + 1)])], dim=-1)
     if foreground:
-        is_fg = (cat["owner"] >= 0).to(coef.dtype).index_select(0, bins.gauss)[:, None]
+        is_fg = (owner >= 0).to(coef.dtype).index_select(0, bins.gauss)[:, None]
         pair_features = torch.cat([pair_features, torch.cat([is_fg, is_fg.new_zeros(1, 1)])], dim=-1)
     tiles = RasterizeFunction.apply(coef, pair_features, bins)
     results = []

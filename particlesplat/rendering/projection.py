@@ -5,6 +5,7 @@ Everything here is plain differentiable torch; the rasterizer consumes its outpu
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
@@ -39,44 +40,79 @@ class Projected:
 
 
 def project_gaussians(gaussians: Gaussians, camera: Camera, near: float = 0.01, far: float = 1e10) -> Projected:
-    """Project the Gaussians with near < z < far (strict) by EWA splatting.
+    """Project the Gaussians with near < z < far (strict) by EWA splatting (:func:`project_views` with one
+    view)."""
+    n = len(gaussians)
+    rows = torch.arange(n, device=gaussians.means.device)
+    return project_views(
+        gaussians.means,
+        quats_to_rotations(gaussians.quats),
+        gaussians.scales,
+        rows,
+        torch.zeros_like(rows),
+        [camera],
+        near,
+        far,
+    )
+
+
+def project_views(
+    means: Tensor,
+    rotations: Tensor,
+    scales: Tensor,
+    rows: Tensor,
+    view: Tensor,
+    cameras: Sequence[Camera],
+    near: float = 0.01,
+    far: float = 1e10,
+) -> Projected:
+    """Project Gaussians into several views at once: instance i is Gaussian ``rows[i]`` seen by
+    ``cameras[view[i]]``; those with near < z < far (strict) are kept, in instance order.
+
+    means: (N, 3) world metres; rotations: (N, 3, 3) (of the quaternions: a Gaussian's rotation is computed once,
+    however many views see it); scales: (N, 3); rows, view: (I,) int64. ``Projected.index`` indexes the
+    instances. The cameras must have the dtype and device of ``means``.
 
     The determinant of the dilated 2D covariance is computed without cancellation:
     det(AAᵀ + εI) = |cof(S) Rᵀ (t₀ × t₁)|² + ε tr(AAᵀ) + ε², with A = J W R S and tₖ the rows
     of J W, so needles and edge-on discs keep full float32 precision.
     """
-    dtype = gaussians.means.dtype
+    dtype, device = means.dtype, means.device
+    K64 = torch.stack([c.K for c in cameras]).to(torch.float64)  # (V, 3, 3)
+    w2c64 = torch.stack([c.w2c for c in cameras]).to(torch.float64)  # (V, 4, 4)
     # Centres are projected in float64 (a per-Gaussian cost): in float32, camera coordinates of
     # a point 3 m away carry ~3e-7 m of rounding, ~1e-4 px at 512², which α would feel.
-    w2c64 = camera.w2c.to(torch.float64)
-    p64_all = gaussians.means.to(torch.float64) @ w2c64[:3, :3].T + w2c64[:3, 3]
+    m64 = means.to(torch.float64).index_select(0, rows)
+    W64 = w2c64.index_select(0, view)  # (I, 4, 4)
+    p64_all = W64[:, :3, 0] * m64[:, :1] + W64[:, :3, 1] * m64[:, 1:2] + W64[:, :3, 2] * m64[:, 2:] + W64[:, :3, 3]
     z_all = p64_all[:, 2]
     index = torch.nonzero((z_all > near) & (z_all < far)).squeeze(1)
-    p64 = p64_all[index]
-    K64 = camera.K.to(torch.float64)
+    p64 = p64_all.index_select(0, index)
+    v = view.index_select(0, index)
+    Kv = K64.index_select(0, v)  # (M, 3, 3)
     means2d = torch.stack(
-        [K64[0, 0] * p64[:, 0] / p64[:, 2] + K64[0, 2], K64[1, 1] * p64[:, 1] / p64[:, 2] + K64[1, 2]], dim=-1
+        [Kv[:, 0, 0] * p64[:, 0] / p64[:, 2] + Kv[:, 0, 2], Kv[:, 1, 1] * p64[:, 1] / p64[:, 2] + Kv[:, 1, 2]], dim=-1
     )
-    Rw = w2c64[:3, :3].to(dtype)
+    Rw = W64.index_select(0, index)[:, :3, :3].to(dtype)  # (M, 3, 3) world -> camera
     x, y, z = p64.to(dtype).unbind(-1)
-    K = K64.to(dtype)
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    W, H = camera.width, camera.height
+    Kd = Kv.to(dtype)
+    fx, fy, cx, cy = Kd[:, 0, 0], Kd[:, 1, 1], Kd[:, 0, 2], Kd[:, 1, 2]
+    size = torch.tensor([[c.width, c.height] for c in cameras], dtype=dtype, device=device).index_select(0, v)
+    W, H = size[:, 0], size[:, 1]
     tan_x, tan_y = 0.5 * W / fx, 0.5 * H / fy
     xz = torch.minimum(torch.maximum(x / z, -(cx / fx + FOV_MARGIN * tan_x)), (W - cx) / fx + FOV_MARGIN * tan_x)
     yz = torch.minimum(torch.maximum(y / z, -(cy / fy + FOV_MARGIN * tan_y)), (H - cy) / fy + FOV_MARGIN * tan_y)
-    zero = torch.zeros_like(z)
-    j0 = torch.stack([fx / z, zero, -fx * xz / z], dim=-1)  # (M, 3)
-    j1 = torch.stack([zero, fy / z, -fy * yz / z], dim=-1)
-    t0, t1 = j0 @ Rw, j1 @ Rw  # rows of J W, (M, 3)
-    R = quats_to_rotations(gaussians.quats[index])  # (M, 3, 3); zero quaternion -> identity
-    s = gaussians.scales[index]
+    # rows of J W (M, 3): J's rows are (fx/z, 0, -fx xz/z) and (0, fy/z, -fy yz/z)
+    t0 = (fx / z)[:, None] * Rw[:, 0] + (-fx * xz / z)[:, None] * Rw[:, 2]
+    t1 = (fy / z)[:, None] * Rw[:, 1] + (-fy * yz / z)[:, None] * Rw[:, 2]
+    R = rotations.index_select(0, rows.index_select(0, index))  # (M, 3, 3)
+    s = scales.index_select(0, rows.index_select(0, index))
     a0 = (t0[:, None, :] @ R).squeeze(1) * s  # rows of A = J W R S
     a1 = (t1[:, None, :] @ R).squeeze(1) * s
     sxx, syy, sxy = (a0 * a0).sum(-1), (a1 * a1).sum(-1), (a0 * a1).sum(-1)
     # (J W) rows cross product, analytically: t0 x t1 = Wᵀ (j0 x j1), j0 x j1 = fx fy / z² (x/z, y/z, 1)
     jcross = (fx * fy / (z * z))[:, None] * torch.stack([xz, yz, torch.ones_like(z)], dim=-1)
-    cross = ((jcross @ Rw)[:, None, :] @ R).squeeze(1)  # Rᵀ Wᵀ (j0 x j1) as a row vector, (M, 3)
+    cross = ((jcross[:, None, :] @ Rw) @ R).squeeze(1)  # Rᵀ Wᵀ (j0 x j1) as a row vector, (M, 3)
     cof = torch.stack([s[:, 1] * s[:, 2], s[:, 0] * s[:, 2], s[:, 0] * s[:, 1]], dim=-1)
     det_raw = ((cross * cof) ** 2).sum(-1)
     a, c = sxx + DILATION, syy + DILATION
