@@ -163,18 +163,20 @@ def _place(
     return zeta, means, opacity
 
 
-def _shape(
+def _finish(
     p: dict[str, Tensor],
     zeta: Tensor,
+    means: Tensor,
+    opacity: Tensor,
     jac_px: Tensor,
     K: Tensor,
     c2w: Tensor,
     cfg: ModelConfig,
     depth_cell: Tensor | None = None,
 ) -> dict[str, Tensor]:
-    """World rotation, scales and SH of placed Gaussians (shapes as :func:`_place`; jac_px: (..., 2) pixels per
-    canonical unit; depth_cell: (...) metres per canonical unit along the camera axis, at least a pixel's width
-    (default: a pixel's width))."""
+    """The fields of Gaussians placed by :func:`_place` (its zeta, means and opacity), with their world rotation,
+    scales and SH. jac_px: (..., 2) pixels per canonical unit; depth_cell: (...) metres per canonical unit along
+    the camera axis, at least a pixel's width (default: a pixel's width)."""
     fx = K[..., 0, 0]
     fy = K[..., 1, 1]
     jac_z = zeta / fx if depth_cell is None else torch.maximum(zeta / fx, depth_cell)
@@ -184,7 +186,7 @@ def _shape(
     M_world = c2w[..., :3, :3] @ M
     quats, scales = covariance_to_quat_scale(M_world)
     sh = rotate_sh_to_world(p["sh"], c2w[..., :3, :3])  # c2w already broadcasts over the Gaussians
-    return {"quats": quats, "scales": scales, "sh": sh}
+    return {"means": means, "quats": quats, "scales": scales, "opacities": opacity, "sh": sh}
 
 
 def clamp_to_support(zeta: Tensor, origin_z: Tensor, dir_z: Tensor) -> Tensor:
@@ -284,22 +286,8 @@ def _lift_cells(
         p = {k: take(v) for k, v in p.items()}
         zeta, means, opacity, depth_cell = take(zeta), take(means), take(opacity), take(depth_cell)
         N = keep
-    shaped = _shape(
-        p,
-        zeta,
-        jac_px.expand(-1, N, -1),
-        K[:, None].expand(-1, N, -1, -1),
-        c2w[:, None].expand(-1, N, -1, -1),
-        cfg,
-        depth_cell,
-    )
-    return {
-        "means": means,
-        "quats": shaped["quats"],
-        "scales": shaped["scales"],
-        "opacities": opacity,
-        "sh": shaped["sh"],
-    }
+    Kn, cn = K[:, None].expand(-1, N, -1, -1), c2w[:, None].expand(-1, N, -1, -1)
+    return _finish(p, zeta, means, opacity, jac_px.expand(-1, N, -1), Kn, cn, cfg, depth_cell)
 
 
 def block_centres(cfg: ModelConfig, device, dtype) -> Tensor:
@@ -334,11 +322,4 @@ def background_gaussians(raw: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig) 
     Kn = K[:, None].expand(-1, n, -1, -1)
     cn = c2w[:, None].expand(-1, n, -1, -1)
     zeta, means, opacity = _place(pix, zeta, Kn, cn, opacity)
-    shaped = _shape(p, zeta, jac_px, Kn, cn, cfg)
-    return {
-        "means": means,
-        "quats": shaped["quats"],
-        "scales": shaped["scales"],
-        "opacities": opacity,
-        "sh": shaped["sh"],
-    }
+    return _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg)
