@@ -105,8 +105,9 @@ def project_views(
     # rows of J W (M, 3): J's rows are (fx/z, 0, -fx xz/z) and (0, fy/z, -fy yz/z)
     t0 = (fx / z)[:, None] * Rw[:, 0] + (-fx * xz / z)[:, None] * Rw[:, 2]
     t1 = (fy / z)[:, None] * Rw[:, 1] + (-fy * yz / z)[:, None] * Rw[:, 2]
-    R = rotations.index_select(0, rows.index_select(0, index))  # (M, 3, 3)
-    s = scales.index_select(0, rows.index_select(0, index))
+    kept = rows.index_select(0, index)
+    R = rotations.index_select(0, kept)  # (M, 3, 3)
+    s = scales.index_select(0, kept)
     a0 = (t0[:, None, :] @ R).squeeze(1) * s  # rows of A = J W R S
     a1 = (t1[:, None, :] @ R).squeeze(1) * s
     sxx, syy, sxy = (a0 * a0).sum(-1), (a1 * a1).sum(-1), (a0 * a1).sum(-1)
