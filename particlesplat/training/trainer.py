@@ -592,6 +592,8 @@ class Trainer:
             handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
             self._loop(end, stop)
+            if self.distributed:
+                self._leave_group()
             if stop["signum"] and self.step < end:
                 raise Interrupted(
                     f"saved {self.out / LAST} at step {self.step}; continue with --resume", stop["signum"]
@@ -601,9 +603,18 @@ class Trainer:
                 self._bar.close()  # ends the bar's line: an error message gets a line of its own
             for sig, handler in handlers.items():
                 signal.signal(sig, handler)
-        if self.distributed:
-            dist.destroy_process_group()
         return 0
+
+    def _leave_group(self) -> None:
+        """Leave the process group with every rank, once rank 0 has written ``last.pt``.
+
+        A rank that exits at once can abort (SIGABRT): gloo's worker threads may still hold the last
+        ``all_gather_object``'s tensors, and freeing a Python-owned tensor from a C++ thread while the interpreter
+        finalises ends the process (pytorch/pytorch#190489). DDP keeps the group alive past
+        ``destroy_process_group``, so its threads are not joined there.
+        """
+        dist.barrier()
+        dist.destroy_process_group()
 
     def _loop(self, end: int, stop: dict | None = None) -> None:
         tc = self.tc
