@@ -1,13 +1,13 @@
 """Closed-form eigendecomposition of symmetric 3x3 matrices, vectorised over a batch.
 
-``torch.linalg.eigh`` calls LAPACK once per matrix on the CPU: about 7 ms for the 5,120 covariances of
-a 20-particle decode (one thread), this solver 3.6-4.7 ms. It is about a hundred elementwise ops on the
-batch, each vector component a tensor of its own (reductions over a last axis of 3 cost more than the
-arithmetic). Eigenvalues come from
-the characteristic cubic (trigonometric form); the eigenvector of the eigenvalue farthest from the other two
-is the longest cross product of two rows of A - λI (that matrix has rank 2 whatever the other two are); the
-remaining two diagonalise A's 2x2 block in the plane orthogonal to it by one rotation (``atan2``, defined
-when they are equal too). ``torch.linalg.eigh`` is its reference (tests compare them).
+``torch.linalg.eigh`` calls LAPACK once per matrix on the CPU: about 7 ms for the 5,120 covariances of a
+20-particle decode (one thread), this solver 3.6-4.7 ms. It is about a hundred elementwise ops on the batch,
+each vector component a tensor of its own (reductions over a last axis of 3 cost more than the arithmetic).
+Eigenvalues come from the characteristic cubic (trigonometric form); the eigenvector of the eigenvalue
+farthest from the other two is the longest cross product of two rows of A - λI (that matrix has rank 2
+whatever the other two are); the remaining two diagonalise A's 2x2 block in the plane orthogonal to it by one
+rotation (``atan2``, defined when they are equal too). ``torch.linalg.eigh`` is its reference (tests compare
+them).
 """
 
 from __future__ import annotations
