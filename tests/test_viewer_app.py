@@ -283,6 +283,7 @@ def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
         deadline = time.monotonic() + 5.0  # the X server applies a resize when it gets to it (slow under load)
         while glfw.get_framebuffer_size(win) != (400, 300) and time.monotonic() < deadline:
             glfw.wait_events_timeout(0.05)
+        assert glfw.get_framebuffer_size(win) == (400, 300), "the X server did not resize the window in 5 s"
         app.run(2)
         cam = app.view_camera(1.0)
         uv, _ = cam.project(object_centre(session, index)[None].float())
@@ -292,17 +293,15 @@ def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
         ys, xs = np.nonzero((seg == int(session.objects()[index])).numpy())
         dist = np.hypot(xs + 0.5 - float(uv[0, 0]), ys + 0.5 - float(uv[0, 1]))
         dist[dist < 35.0] = np.inf  # grab the object clear of the gizmo's handles
-        u, v = float(xs[dist.argmin()]) + 0.5, float(ys[dist.argmin()]) + 0.5
         sx, sy = app.pixel_ratio()
+        u, v = round(float(xs[dist.argmin()]) / sx), round(float(ys[dist.argmin()]) / sy)  # X pointers are whole
         io = imgui.get_io()
         n_ops = len(session.history.undo)
-        glfw.set_cursor_pos(win, u / sx, v / sy)  # the GLFW backend reads the cursor itself
-        app.run(1)
+        _point_at(app, u, v)
         io.add_mouse_button_event(0, True)
         app.run(1)
         for k in range(1, 6):
-            glfw.set_cursor_pos(win, (u + 4.0 * k) / sx, (v + 1.0 * k) / sy)
-            app.run(1)
+            _point_at(app, u + 4 * k, v + k)
         io.add_mouse_button_event(0, False)
         app.run(1)
         assert len(session.history.undo) == n_ops + 1 and session.history.undo[-1].kind == "translate"
@@ -509,6 +508,24 @@ def _wait_for_cursor(window, x: float, y: float, timeout: float = 2.0) -> None:
         glfw.wait_events_timeout(0.01)
 
 
+def _point_at(app, x: int, y: int, timeout: float = 2.0) -> None:
+    """Put the pointer on window point (x, y) and draw frames until imgui sees it there with no motion left
+    over: the X server applies a warp asynchronously, and the glfw backend reads the pointer itself."""
+    import glfw
+
+    glfw.set_cursor_pos(app.window, x, y)
+    _wait_for_cursor(app.window, x, y)
+    io = imgui.get_io()
+    deadline = time.perf_counter() + timeout
+    while time.perf_counter() < deadline and (
+        (io.mouse_pos.x, io.mouse_pos.y) != (x, y) or (io.mouse_delta.x, io.mouse_delta.y) != (0.0, 0.0)
+    ):
+        io.add_mouse_pos_event(x, y)
+        app.redraw.notify()
+        app.run(1)
+    assert (io.mouse_pos.x, io.mouse_pos.y) == (x, y), f"imgui does not see the pointer at {(x, y)} after {timeout} s"
+
+
 def test_a_drag_released_in_one_burst_ends_where_the_mouse_did(app):
     """Moves and the release arriving between two frames: the frame after them shows the camera where the mouse
     ended, and nothing moves after it (no stale motion after the release)."""
@@ -518,18 +535,9 @@ def test_a_drag_released_in_one_burst_ends_where_the_mouse_did(app):
     app.run(2)
     io = imgui.get_io()
     sx, _ = app.pixel_ratio()
-    x, y = 40.0, 60.0
+    x, y = 40, 60
     start = glfw.get_cursor_pos(app.window)
-    glfw.set_cursor_pos(app.window, x, y)  # the glfw backend also reads the cursor itself
-    io.add_mouse_pos_event(x, y)
-    _wait_for_cursor(app.window, x, y)  # the X server applies a warp asynchronously
-    deadline = time.perf_counter() + 2.0  # until imgui too sees the pointer there, with no motion left over
-    while time.perf_counter() < deadline and (
-        (io.mouse_pos.x, io.mouse_pos.y) != (x, y) or (io.mouse_delta.x, io.mouse_delta.y) != (0.0, 0.0)
-    ):
-        io.add_mouse_pos_event(x, y)
-        app.redraw.notify()
-        app.run(1)
+    _point_at(app, x, y)
     try:
         io.add_mouse_button_event(0, True)
         app.run(1)
