@@ -25,6 +25,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out", required=True, help="run folder: checkpoints (last.pt, step_*.pt, best.pt), metrics.jsonl, config.yaml"
     )
     parser.add_argument("--resume", action="store_true", help="continue exactly from OUT/last.pt")
+    parser.add_argument(
+        "--init",
+        default=None,
+        metavar="CHECKPOINT",
+        help="start from this checkpoint's weights (fine-tuning, e.g. assets/robot/model.pt on your own scenes): "
+        "every weight whose name and shape the --config model shares is copied, the rest start at random; the "
+        "step, optimiser and schedule start afresh, and the run's provenance names the source",
+    )
     parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (under torchrun: one process per device)")
     parser.add_argument(
         "--overwrite",
@@ -50,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
     device = args.device
     if device.startswith("cuda") and int(os.environ.get("WORLD_SIZE", "1")) > 1:
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
-    trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, overwrite=args.overwrite)
+    init = None if args.init is None else Path(args.init)
+    trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, overwrite=args.overwrite, init=init)
     code = trainer.run(args.stop_after)
     if code == 0 and trainer.rank == 0:
         out = Path(args.out)

@@ -201,6 +201,7 @@ class Trainer:
         device: str,
         resume: bool,
         overwrite: bool = False,
+        init: Path | None = None,
     ):
         self.cfg, self.tc, self.out = cfg, tc, out
         self.device = device if isinstance(device, torch.device) else resolve_device(device)
@@ -211,14 +212,19 @@ class Trainer:
         if int(os.environ.get("RANK", "0")) == 0 and out.is_dir():
             self.lock.acquire()
         try:
-            self._setup(data, resume, overwrite)
+            self._setup(data, resume, overwrite, init)
         except BaseException:
             self.lock.release()
             raise
 
-    def _setup(self, data: Path, resume: bool, overwrite: bool) -> None:
+    def _setup(self, data: Path, resume: bool, overwrite: bool, init: Path | None) -> None:
         cfg, tc, out = self.cfg, self.tc, self.out
         self.resumed = resume
+        if init is not None and resume:
+            raise UserError(
+                f"--init {init}: --init starts a run from a checkpoint's weights and --resume continues one "
+                "(which keeps the init it started from); pass one of them"
+            )
         if out.exists() and not out.is_dir():
             raise FileExistsError(f"{out}: --out is a file, not a folder")
         held = [p for p in out.iterdir() if p.name != LOCK_NAME] if out.is_dir() else []
@@ -237,7 +243,7 @@ class Trainer:
         replace(cfg, particles_per_view=tc.particles_per_view or cfg.particles_per_view).validate(
             "train.particles_per_view with the model"
         )
-        self.provenance = Provenance.start(data, None, str(self.device))  # from random initialisation
+        self.provenance = Provenance.start(data, None, str(self.device))  # --init names its source below
         self.clock = RunClock()
         if tc.beta_fg > 0 and not cfg.has_static_background:
             raise ConfigError(
@@ -270,7 +276,8 @@ class Trainer:
         self.gen = torch.Generator().manual_seed(tc.seed * 7919 + self.rank)
         check_model_memory(cfg, "--config: model", copies=4)  # before the weights are allocated
         self.model = ParticleSplat(cfg).to(self.device)
-        if not resume and cfg.bg_static_points > 0:
+        copied = self._init_from(init) if init is not None else set()
+        if not resume and cfg.bg_static_points > 0 and not any(n.startswith("static_bg.") for n in copied):
             self._start_workspace()
         # the learned background colour and the static background layer move at lr_background
         is_bg = lambda n: n == "background_logit" or n.startswith("static_bg.")  # noqa: E731
@@ -323,6 +330,39 @@ class Trainer:
                 f"{len(scenes)} training scenes",
                 file=sys.stderr,
             )
+
+    def _init_from(self, path: Path) -> set[str]:
+        """``--init``: copy every weight of the checkpoint at ``path`` whose name and shape this model shares; the
+        others keep their random initialisation (a module the checkpoint lacks, such as a per-view background
+        added to a model trained without one). The step, optimiser, schedule and RNG start afresh. Returns the
+        names copied; the run's provenance records the source."""
+        ckpt = read_checkpoint(path)
+        own = self.model.state_dict()
+        theirs = ckpt["state_dict"]
+        copied = {n for n, v in theirs.items() if n in own and tuple(v.shape) == tuple(own[n].shape)}
+        if not copied:
+            raise UserError(
+                f"{path}: --init: none of its {len(theirs)} weights has a name and shape of this model's; "
+                "is it a ParticleSplat checkpoint of this architecture?"
+            )
+        self.model.load_state_dict({**own, **{n: theirs[n] for n in copied}})
+        self.provenance.init = f"{path} (step {ckpt['step']})"
+        if self.rank == 0:
+            fresh = [n for n in own if n not in copied]
+            other = [n for n in theirs if n in own and n not in copied]
+            unused = [n for n in theirs if n not in own]
+            lines = [f"--init {path} (step {ckpt['step']}): {len(copied)} of this model's {len(own)} weights copied"]
+            for what, names in (
+                ("started at random (not in the checkpoint)", [n for n in fresh if n not in other]),
+                ("started at random (another shape in the checkpoint)", other),
+                ("in the checkpoint but not in this model, left out", unused),
+            ):
+                if names:
+                    modules = sorted({n.rsplit(".", 1)[0] for n in names})
+                    more = ", ..." if len(modules) > 8 else ""
+                    lines.append(f"  {what}: {len(names)} in {', '.join(modules[:8])}{more}")
+            print("\n".join(lines), file=sys.stderr)
+        return copied
 
     def _clear_run(self) -> None:
         """--overwrite: remove the earlier run's own files (log, config, checkpoints) once every check has passed,
