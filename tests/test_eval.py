@@ -14,6 +14,7 @@ from PIL import Image
 from particlesplat.analysis.evaluate import FIGURE_LABEL_WIDTH
 from particlesplat.analysis.metrics import (
     FAR_HEIGHTS,
+    OVERLAYS,
     REGIONS,
     adjusted_rand_index,
     depth_abs_rel,
@@ -113,9 +114,13 @@ def test_eval_cli_writes_json_figures_and_pruning_table(tmp_path_factory, tmp_pa
     assert len(res["scenes"]) == 1 and res["scenes"][0]["scene"] == "scene_00000"
     assert 0 < res["mean"]["psnr"] < 60 and -1 <= res["mean"]["fg_ari"] <= 1
     regions = res["error_regions"]
-    assert list(regions) == list(REGIONS + FAR_HEIGHTS)  # the scenes have depth: the far floor by height too
-    assert math.isclose(sum(regions[k]["pixel_share"] for k in REGIONS), 1.0)
-    assert math.isclose(sum(regions[k]["error_share"] for k in REGIONS), 1.0)
+    # the scenes have depth: the far floor by height and what the context sees too
+    assert list(regions) == list(REGIONS + FAR_HEIGHTS + OVERLAYS)
+    for keys in (REGIONS, OVERLAYS[2:]):  # each a partition of the pixels
+        assert math.isclose(sum(regions[k]["pixel_share"] for k in keys), 1.0)
+        assert math.isclose(sum(regions[k]["error_share"] for k in keys), 1.0)
+    drawn = sum(regions[k]["pixel_share"] for k in OVERLAYS[:2])
+    assert 0 <= drawn <= 1 and regions["particles_on_objects"]["pixel_share"] <= 1 - regions["floor_far"]["pixel_share"]
     heights = sum(regions[k]["pixel_share"] for k in FAR_HEIGHTS)
     assert 0 < heights <= regions["floor_far"]["pixel_share"] + 1e-9
     rows = res["pruning"]
@@ -197,6 +202,32 @@ def test_far_background_split_by_height_over_the_support_surface():
     assert math.isclose(below["pixel_share"], 40 / 144) and math.isclose(below["error_share"], 40 / 48, rel_tol=1e-5)
     assert math.isclose(below["psnr"], 20.0, abs_tol=1e-3) and on["psnr"] == 100.0
     assert set(summarise_region_errors([parts, region_errors(pred, gt, m)])) == set(REGIONS)  # pooled when all have it
+
+
+def test_overlays_split_where_the_particles_draw_and_what_the_context_sees():
+    """A 4x4 object in a 12x12 view; the particles draw (weight 0.8) over columns 2-7, rows 4-7: the object's 16
+    pixels and 8 beside it, with an error of 0.1 there and none elsewhere; the context sees the left half.
+    Off the objects: 8 pixels holding a third of the error; seen: 6 columns x 12 rows, of the drawn pixels the 16
+    in columns 2-5, two thirds of the error. Weight 0.5 exactly is not drawn."""
+    m = torch.zeros(1, 12, 12, dtype=torch.long)
+    m[0, 4:8, 4:8] = 2
+    weight = torch.zeros(1, 12, 12)
+    weight[0, 4:8, 2:8] = 0.8
+    weight[0, 0, :] = 0.5
+    seen = torch.zeros(1, 12, 12, dtype=torch.bool)
+    seen[..., :6] = True
+    gt = torch.full((1, 3, 12, 12), 0.5)
+    pred = gt + 0.1 * (weight > 0.6)[:, None]
+    parts = region_errors(pred, gt, m, None, None, weight, seen)
+    assert parts["particles_on_objects"][1] == 16 and parts["particles_off_objects"][1] == 8
+    assert parts["seen_by_context"][1] == 72 and parts["unseen_by_context"][1] == 72
+    summary = summarise_region_errors([parts])
+    assert math.isclose(summary["particles_off_objects"]["error_share"], 1 / 3, rel_tol=1e-5)
+    assert math.isclose(summary["seen_by_context"]["error_share"], 2 / 3, rel_tol=1e-5)
+    assert math.isclose(summary["particles_on_objects"]["psnr"], 20.0, abs_tol=1e-3)
+    assert math.isclose(summary["unseen_by_context"]["pixel_share"], 0.5)
+    assert set(summarise_region_errors([parts, region_errors(pred, gt, m)])) == set(REGIONS)  # pooled when all have it
+    assert set(summary) == set(REGIONS) | set(OVERLAYS)
 
 
 def test_eval_psnr_is_the_mean_of_per_view_psnr():

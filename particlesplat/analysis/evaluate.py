@@ -32,6 +32,7 @@ from particlesplat.analysis.particle_arrays import (
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.camera import Camera
 from particlesplat.core.errors import OptionError, UserError
+from particlesplat.data.views import supervision_mask
 from particlesplat.editing.grouping import particle_objects
 from particlesplat.model.fit import DEFAULT_FIT, fit_particles
 from particlesplat.rendering.api import render
@@ -62,6 +63,7 @@ class ViewRenders(TypedDict):
     rgb: Tensor  # (V, 3, H, W)
     depth: Tensor  # (V, 1, H, W)
     seg: Tensor  # (V, H, W) particle index per pixel
+    particle_weight: Tensor  # (V, H, W) the particles' summed weight per pixel (Σ T·α of owners >= 0)
     render_ms: float  # per view
     seg_objects: NotRequired[Tensor]  # (V, H, W) object label per pixel, when render_views is given objects
 
@@ -74,15 +76,17 @@ def render_views(
     objects: Tensor | None = None,
 ) -> ViewRenders:
     """Render ``gaussians`` in each camera over ``background`` (3,): rgb (V, 3, H, W), depth (V, 1, H, W),
-    seg (V, H, W) per particle, and with ``objects`` ((num_owners,) object label per particle) seg_objects
-    (V, H, W) per object; ms per view. The renders are on the CPU, whatever device ``gaussians`` are on."""
-    rgb, depth, seg, seg_obj = [], [], [], []
+    seg (V, H, W) per particle, particle_weight (V, H, W), and with ``objects`` ((num_owners,) object label per
+    particle) seg_objects (V, H, W) per object; ms per view. The renders are on the CPU, whatever device
+    ``gaussians`` are on."""
+    rgb, depth, seg, seg_obj, weight = [], [], [], [], []
     t0 = time.perf_counter()
     for cam in cameras:
         r = render(gaussians, cam, background=background, owner_weights=True, num_owners=num_owners)
         rgb.append(r.rgb.permute(2, 0, 1))
         depth.append(r.depth[None])
         seg.append(r.segmentation())
+        weight.append(r.require_owner_weights().sum(0))
         if objects is not None:
             seg_obj.append(r.segmentation(objects))
     ms = _ms(t0, gaussians.means.device) / max(len(cameras), 1)
@@ -90,6 +94,7 @@ def render_views(
         "rgb": torch.stack(rgb).cpu(),
         "depth": torch.stack(depth).cpu(),
         "seg": torch.stack(seg).cpu(),
+        "particle_weight": torch.stack(weight).cpu(),
         "render_ms": ms,
     }
     if objects is not None:
@@ -185,7 +190,15 @@ def evaluate_item(
             res["fg_ari" + suffix] = res["miou" + suffix] = float("nan")
     if "target_masks" in item:
         world_z = surface_heights(tgt_cams, item["target_depth"])
-        res["region_errors"] = region_errors(out["rgb"], gt, item["target_masks"], sup, world_z)
+        ctx_depth = item["context_depth"]
+        seen = (
+            supervision_mask(item["target_depth"], tgt_cams, ctx_depth, ctx_cams)[:, 0] > 0
+            if bool((ctx_depth > 0).any())
+            else None
+        )
+        res["region_errors"] = region_errors(
+            out["rgb"], gt, item["target_masks"], sup, world_z, out["particle_weight"], seen
+        )
     res["renders"] = out
     res["particles"] = particles
     if true_centres is not None:

@@ -137,6 +137,11 @@ REGIONS = ("object_interior", "object_edge", "floor_near_object", "floor_far")
 # floor_far split by the height of each pixel's surface point (target depth) over the support surface, beyond
 # SKIRT_MARGIN: the floor under a table, the table top or floor objects rest on, what stands above it (an arm)
 FAR_HEIGHTS = ("floor_far_below_support", "floor_far_on_support", "floor_far_above_support")
+# two more splits of the same pixels, each in two parts, laid over the REGIONS partition: where the particles draw
+# (their summed weight above PARTICLES_DRAW in the render), on the true objects and off them, and which pixels a
+# context view sees (their surface point is visible in one: data.views.supervision_mask) and which none does
+OVERLAYS = ("particles_on_objects", "particles_off_objects", "seen_by_context", "unseen_by_context")
+PARTICLES_DRAW = 0.5
 
 
 def near_other_label(labels: Tensor, radius: int) -> Tensor:
@@ -181,24 +186,33 @@ def region_errors(
     masks: Tensor,
     valid: Tensor | None = None,
     world_z: Tensor | None = None,
+    particle_weight: Tensor | None = None,
+    seen: Tensor | None = None,
 ) -> dict[str, tuple[float, int]]:
     """Squared error per region (:func:`mask_regions`): (sum over pixels of the channel-mean squared error,
     pixel count). pred, target: (V, 3, H, W) in [0, 1]; masks: (V, H, W); valid: (V, 1, H, W) or None, only
     these pixels count (as in the eval PSNR). With ``world_z`` (V, H, W), the height (world metres, NaN where
-    unknown) of each pixel's surface point, the :data:`FAR_HEIGHTS` parts of floor_far too (:func:`far_heights`)."""
+    unknown) of each pixel's surface point, the :data:`FAR_HEIGHTS` parts of floor_far too (:func:`far_heights`).
+    With ``particle_weight`` (V, H, W), the particles' summed rendered weight, and ``seen`` (V, H, W) bool, the
+    :data:`OVERLAYS` too."""
     err = ((pred.clamp(0, 1) - target) ** 2).mean(1).double()
     keep = torch.ones_like(masks, dtype=torch.bool) if valid is None else valid[:, 0] > 0
     regions = mask_regions(masks)
     if world_z is not None:
         regions |= far_heights(regions["floor_far"], world_z)
+    if particle_weight is not None:
+        drawn = particle_weight > PARTICLES_DRAW
+        regions |= {"particles_on_objects": drawn & (masks > 0), "particles_off_objects": drawn & (masks == 0)}
+    if seen is not None:
+        regions |= {"seen_by_context": seen, "unseen_by_context": ~seen}
     return {name: (float(err[r & keep].sum()), int((r & keep).sum())) for name, r in regions.items()}
 
 
 def summarise_region_errors(parts: list[dict[str, tuple[float, int]]]) -> dict[str, dict[str, float]]:
     """Pool :func:`region_errors` of many scenes: per region its share of the pixels, its share of the squared
     error (both of the whole :data:`REGIONS` partition) and its PSNR (dB; NaN for a region with no pixel). The
-    :data:`FAR_HEIGHTS` parts are pooled when every scene has them."""
-    keys = list(REGIONS) + [k for k in FAR_HEIGHTS if all(k in p for p in parts)]
+    :data:`FAR_HEIGHTS` parts and the :data:`OVERLAYS` are pooled when every scene has them."""
+    keys = list(REGIONS) + [k for k in (*FAR_HEIGHTS, *OVERLAYS) if all(k in p for p in parts)]
     err = {k: sum(p[k][0] for p in parts) for k in keys}
     n = {k: sum(p[k][1] for p in parts) for k in keys}
     total_err, total_n = sum(err[k] for k in REGIONS), sum(n[k] for k in REGIONS)

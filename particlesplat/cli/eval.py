@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from particlesplat.analysis.evaluate import evaluate_dataset, json_safe
-from particlesplat.analysis.metrics import FAR_HEIGHTS, REGIONS
+from particlesplat.analysis.metrics import FAR_HEIGHTS, OVERLAYS, PARTICLES_DRAW, REGIONS
 from particlesplat.analysis.particle_arrays import OBJECT_CENTRES
 from particlesplat.core.atomic import atomic_write
 from particlesplat.data.scene_meta import CHECKPOINT_HELP
@@ -123,6 +123,17 @@ def run(args: argparse.Namespace) -> int:
                     f"{k.removeprefix('floor_far_').replace('_', ' ')} {v['pixel_share']:.1%} of pixels, "
                     f"{v['error_share']:.0%} of the error, {v['psnr']:.1f} dB"
                     for k, v in heights.items()
+                )
+            )
+        overlays = {k: v for k, v in out["error_regions"].items() if k in OVERLAYS}
+        if overlays:
+            print(
+                f"  the same pixels split otherwise (particles draw: their weight > {PARTICLES_DRAW}; seen: visible "
+                "in a context view): "
+                + "; ".join(
+                    f"{k.replace('_', ' ')} {v['pixel_share']:.1%} of pixels, {v['error_share']:.0%} of the error, "
+                    f"{v['psnr']:.1f} dB"
+                    for k, v in overlays.items()
                 )
             )
     if "localisation" in out:
