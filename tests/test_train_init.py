@@ -103,3 +103,30 @@ def test_init_keeps_the_checkpoints_workspace_layer(tmp_path_factory, tmp_path):
     tr = _trainer(base, data, tmp_path / "b", init=tmp_path / "a" / "last.pt")
     for n in ("anchor", "offset", "opacity_logit", "sh_dc"):
         assert torch.equal(tr.model.state_dict()[f"static_bg.{n}"], theirs[f"static_bg.{n}"]), n
+
+
+def test_init_without_config_keeps_the_checkpoints_architecture_and_recipe(tmp_path_factory, tmp_path, capsys):
+    """Without --config a fine-tune takes the checkpoint's own model config and its run's train section (the
+    bundled recipe would build the tabletop architecture around the weights of another)."""
+    data = tiny_dataset(tmp_path_factory)
+    base = tiny_config(tmp_path / "base.yaml", steps=3, val_every=5, lr=1e-3)
+    assert _train(base, data, tmp_path / "a", "--stop-after", "1") == 0
+    src = tmp_path / "a" / "last.pt"
+    capsys.readouterr()
+    assert main(["train", "--init", str(src), "--data", str(data), "--out", str(tmp_path / "b")]) == 0
+    err = capsys.readouterr().err
+    assert f"--init without --config: the model config of {src}, the train section of {src} (3 steps)" in err
+    a, b = read_checkpoint(src), read_checkpoint(tmp_path / "b" / "last.pt")
+    assert b["config"] == a["config"] and b["train"] == a["train"] and b["step"] == 3
+    assert f"{len(a['state_dict'])} of this model's {len(a['state_dict'])} weights copied" in err
+    # a checkpoint that records no run (a shipped copy): the bundled recipe's train section
+    from particlesplat.cli.train import init_config
+    from particlesplat.model import load_config
+    from particlesplat.training.trainer import recipe_path
+
+    ckpt = read_checkpoint(src)
+    del ckpt["train"]
+    torch.save(ckpt, tmp_path / "shipped.pt")
+    cfg, tc = init_config(tmp_path / "shipped.pt")
+    assert tc == load_config(recipe_path())[1] and cfg.resolution == 32
+    assert f"the train section of {recipe_path()}" in capsys.readouterr().err

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from pathlib import Path
 
 import torch
 
 from particlesplat.core.device import resolve_device
-from particlesplat.model import load_config
+from particlesplat.model import ModelConfig, TrainConfig, load_config, read_checkpoint
+from particlesplat.model.config import model_config_from_dict, train_config_from_dict, without_removed_keys
 from particlesplat.training.trainer import Trainer, recipe_path
 
 
@@ -18,7 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--config",
         default=None,
         help="YAML with 'model:' and 'train:' sections (default: the recipe the shipped "
-        "architecture is trained with, assets/model.yaml, which documents every key)",
+        "architecture is trained with, assets/model.yaml, which documents every key; with --init, the "
+        "checkpoint's own model config and its run's train section)",
     )
     parser.add_argument("--data", required=True, help="dataset folder holding train/ and val/ scene folders")
     parser.add_argument(
@@ -47,9 +50,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def init_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
+    """``--init`` without ``--config``: the checkpoint's own model config (a fine-tune keeps the architecture of its
+    weights) and the train section of the run that wrote it, or the bundled recipe's where it records none."""
+    ckpt = read_checkpoint(path)
+    cfg = model_config_from_dict(without_removed_keys(ckpt["config"], "model", f"{path}: config"), f"{path}: config")
+    train = ckpt.get("train")
+    if isinstance(train, dict):
+        tc = train_config_from_dict(without_removed_keys(train, "train", f"{path}: train"), f"{path}: train")
+        source = f"{path}"
+    else:
+        tc, source = load_config(recipe_path())[1], str(recipe_path())
+    print(
+        f"--init without --config: the model config of {path}, the train section of {source} ({tc.steps} steps)",
+        file=sys.stderr,
+    )
+    return cfg, tc
+
+
 def run(args: argparse.Namespace) -> int:
     resolve_device(args.device)  # a typo or a missing device is one line before anything is read
-    cfg, tc = load_config(args.config or recipe_path())
+    if args.config is None and args.init is not None:
+        cfg, tc = init_config(Path(args.init))
+    else:
+        cfg, tc = load_config(args.config or recipe_path())
     if tc.num_threads > 0:
         torch.set_num_threads(tc.num_threads)
     data = Path(args.data)
