@@ -115,7 +115,7 @@ def test_init_without_config_keeps_the_checkpoints_architecture_and_recipe(tmp_p
     capsys.readouterr()
     assert main(["train", "--init", str(src), "--data", str(data), "--out", str(tmp_path / "b")]) == 0
     err = capsys.readouterr().err
-    assert f"--init without --config: the model config of {src}, the train section of {src} (3 steps)" in err
+    assert f"--init without --config: the model config of {src}, the train section of {src} (3 steps; " in err
     a, b = read_checkpoint(src), read_checkpoint(tmp_path / "b" / "last.pt")
     assert b["config"] == a["config"] and b["train"] == a["train"] and b["step"] == 3
     assert f"{len(a['state_dict'])} of this model's {len(a['state_dict'])} weights copied" in err

@@ -62,7 +62,8 @@ def init_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
     else:
         tc, source = load_config(recipe_path())[1], str(recipe_path())
     print(
-        f"--init without --config: the model config of {path}, the train section of {source} ({tc.steps} steps)",
+        f"--init without --config: the model config of {path}, the train section of {source} ({tc.steps} steps; "
+        "a --config with the same model section sets a fine-tune's own steps and schedule)",
         file=sys.stderr,
     )
     return cfg, tc
