@@ -11,7 +11,7 @@ import torch
 
 from particlesplat.core.device import resolve_device
 from particlesplat.model import ModelConfig, TrainConfig, load_config, read_checkpoint
-from particlesplat.model.config import model_config_from_dict, train_config_from_dict, without_removed_keys
+from particlesplat.model.config import stored_model_config, stored_train_config
 from particlesplat.training.trainer import Trainer, recipe_path
 
 
@@ -54,10 +54,10 @@ def init_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
     """``--init`` without ``--config``: the checkpoint's own model config (a fine-tune keeps the architecture of its
     weights) and the train section of the run that wrote it, or the bundled recipe's where it records none."""
     ckpt = read_checkpoint(path)
-    cfg = model_config_from_dict(without_removed_keys(ckpt["config"], "model", f"{path}: config"), f"{path}: config")
+    cfg = stored_model_config(ckpt["config"], f"{path}: config")
     train = ckpt.get("train")
     if isinstance(train, dict):
-        tc = train_config_from_dict(without_removed_keys(train, "train", f"{path}: train"), f"{path}: train")
+        tc = stored_train_config(train, f"{path}: train")
         source = f"{path}"
     else:
         tc, source = load_config(recipe_path())[1], str(recipe_path())

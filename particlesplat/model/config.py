@@ -417,6 +417,18 @@ def train_config_from_dict(data: Any, where: str = "train") -> TrainConfig:
     return _from_dict(TrainConfig, data, where)
 
 
+def stored_model_config(data: Any, where: str) -> ModelConfig:
+    """The ``model`` config a checkpoint stored, through the dataclass: a key added since it was written takes
+    its default, a removed one that held its "off" value is dropped (:func:`without_removed_keys`); errors name
+    ``where``."""
+    return model_config_from_dict(without_removed_keys(data, "model", where), where)
+
+
+def stored_train_config(data: Any, where: str) -> TrainConfig:
+    """The ``train`` config a checkpoint stored (as :func:`stored_model_config`)."""
+    return train_config_from_dict(without_removed_keys(data, "train", where), where)
+
+
 def load_config(path: str | PathLike) -> tuple[ModelConfig, TrainConfig]:
     """Read a YAML file with top-level ``model:`` and ``train:`` mappings."""
     path = Path(path)

@@ -9,7 +9,7 @@ from os import PathLike
 from pathlib import Path
 
 from particlesplat.core.errors import UserError
-from particlesplat.model.config import ModelConfig, model_config_from_dict, without_removed_keys
+from particlesplat.model.config import ModelConfig, model_config_from_dict, stored_model_config
 from particlesplat.model.io import model_from_checkpoint, read_checkpoint, save_checkpoint
 
 # model keys a trained checkpoint may change, and what each decides
@@ -35,8 +35,7 @@ def derive_checkpoint(ckpt: dict, changes: dict[str, object], source: str, note:
     """A copy of checkpoint dict ``ckpt`` (from ``source``) with the model keys in ``changes`` set
     (:data:`INFERENCE_KEYS` only). Its provenance says what changed ("derived"), after any earlier change;
     optimiser and RNG state are left out. Raises DeriveError or ConfigError naming the key."""
-    where = f"{source}: config"
-    old = model_config_from_dict(without_removed_keys(ckpt["config"], "model", where), where)
+    old = stored_model_config(ckpt["config"], f"{source}: config")
     for key in changes:
         if key not in INFERENCE_KEYS:
             known = ", ".join(INFERENCE_KEYS)

@@ -16,7 +16,7 @@ from torch.torch_version import TorchVersion
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.errors import UserError, one_line
 from particlesplat.core.limits import check_memory
-from particlesplat.model.config import ModelConfig, model_config_from_dict, without_removed_keys
+from particlesplat.model.config import ModelConfig, stored_model_config
 from particlesplat.model.particlesplat import ParticleSplat
 
 
@@ -192,7 +192,7 @@ def encode_memory(cfg: ModelConfig, views: int) -> float:
 
 def model_from_checkpoint(ckpt: dict, where: str = "checkpoint", device: str | torch.device = "cpu") -> ParticleSplat:
     """Build the model a checkpoint dict describes and load its weights (eval mode)."""
-    cfg = model_config_from_dict(without_removed_keys(ckpt["config"], "model", f"{where}: config"), f"{where}: config")
+    cfg = stored_model_config(ckpt["config"], f"{where}: config")
     check_model_memory(cfg, f"{where}: config")
     model = ParticleSplat(cfg)
     try:

@@ -31,7 +31,7 @@ from particlesplat.core.threads import ThreadGovernor
 from particlesplat.data.dataset import TrainingBatch
 from particlesplat.data.views import WARMUP
 from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig, read_checkpoint, save_checkpoint
-from particlesplat.model.config import ConfigError, config_to_dict, model_config_from_dict, without_removed_keys
+from particlesplat.model.config import ConfigError, config_to_dict, stored_model_config
 from particlesplat.model.io import check_model_memory
 from particlesplat.model.losses import elbo, scene_kl, view_error
 from particlesplat.model.provenance import Provenance, RunClock
@@ -348,14 +348,12 @@ class Trainer:
         self.model.load_state_dict({**own, **{n: theirs[n] for n in copied}})
         self.provenance.init = f"{path} (step {ckpt['step']})"
         if self.rank == 0:
-            fresh = [n for n in own if n not in copied]
-            other = [n for n in theirs if n in own and n not in copied]
-            unused = [n for n in theirs if n not in own]
             lines = [f"--init {path} (step {ckpt['step']}): {len(copied)} of this model's {len(own)} weights copied"]
+            reshaped = [n for n in theirs if n in own and n not in copied]
             for what, names in (
-                ("started at random (not in the checkpoint)", [n for n in fresh if n not in other]),
-                ("started at random (another shape in the checkpoint)", other),
-                ("in the checkpoint but not in this model, left out", unused),
+                ("started at random (not in the checkpoint)", [n for n in own if n not in theirs]),
+                ("started at random (another shape in the checkpoint)", reshaped),
+                ("in the checkpoint but not in this model, left out", [n for n in theirs if n not in own]),
             ):
                 if names:
                     modules = sorted({n.rsplit(".", 1)[0] for n in names})
@@ -440,11 +438,7 @@ class Trainer:
 
     def _load(self, path: Path) -> None:
         ckpt = read_checkpoint(path)
-        # through the dataclass: a key added since the checkpoint was written takes its default, a removed one
-        # that held its "off" value is dropped
-        stored = model_config_from_dict(
-            without_removed_keys(ckpt["config"], "model", f"{path}: config"), f"{path}: config"
-        )
+        stored = stored_model_config(ckpt["config"], f"{path}: config")
         if config_to_dict(stored) != config_to_dict(self.cfg):
             raise ConfigError(f"{path}: its model config differs from --config; resume with the same config")
         self.model.load_state_dict(ckpt["state_dict"])
