@@ -87,10 +87,11 @@ def test_refinement_runs_once_its_run_trained_it_and_the_robot_model_runs_a_chea
     assert refinement_trained({**tabletop, "step": 50, "train": schedule})
     robot_ckpt = read_checkpoint(shipped_model_path("robot"))
     cfg = robot_ckpt["config"]
-    keys = ("particles_per_view", "refine_steps", "refine_scale", "refine_keep")
-    assert [cfg[k] for k in keys] == [10, 1, 0.25, 128]
+    keys = ("particles_per_view", "refine_steps", "refine_scale", "refine_keep", "refine_static")
+    assert [cfg[k] for k in keys] == [10, 1, 0.25, 128, "behind"]
     derived = robot_ckpt["provenance"]["derived"]
-    for change in ("particles_per_view 8 -> 10", "refine_scale 1.0 -> 0.25", "refine_keep 0 -> 128"):
+    changes = ("particles_per_view 8 -> 10", "refine_scale 1.0 -> 0.25", "refine_keep 0 -> 128", "render -> behind")
+    for change in changes:
         assert change in derived
     assert describe(robot_ckpt["provenance"]).endswith(derived)
     assert refinement_trained(robot_ckpt)

@@ -85,6 +85,8 @@ def test_dropping_the_refiner_is_the_model_with_refinement_off(trained, tmp_path
         ("resolution=64", r"resolution: not a key a trained model can change"),
         ("refine_scale=2", r"refine_scale: must be in \(0, 1\]"),
         ("refine_keep=-1", r"refine_keep"),
+        ("refine_static=ahead", r"refine_static: must be render or behind"),
+        ("refine_static=1", r"refine_static: expected str"),
         ("refine_scale=[1", r"model set: refine_scale: not valid YAML"),
         ("refine_scale", r"expected KEY=VALUE"),
         ("refine_scale=1.0", r"nothing to change"),

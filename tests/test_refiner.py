@@ -68,13 +68,35 @@ def test_box_glimpse_of_a_ramp_is_the_ramp_over_the_box():
     torch.testing.assert_close(out[0, 1], want_y[:, None].expand(g, g))
 
 
-@pytest.mark.parametrize(("scale", "keep"), [(1.0, 0), (0.5, 0), (0.5, 3)])
-def test_refiner_sees_the_view_and_the_render_of_the_current_means(scale, keep):
+def pooled_behind(front, layer, f: int):
+    """Brute force in float64: ``layer`` (a render of the static layer alone at full size) averaged over f x f
+    pixel blocks (depth weighted by alpha) with the particles' render ``front`` (over black) composited over it
+    -> (rgb (h, w, 3), depth (h, w), alpha (h, w))."""
+    h, w = front.alpha.shape
+
+    def blocks(t):  # (H, W, ...) -> mean over f x f blocks (h, w, ...)
+        return t.double().reshape(h, f, w, f, *t.shape[2:]).mean(dim=(1, 3))
+
+    a_b = blocks(layer.alpha)
+    d_b = torch.where(a_b > 0, blocks(layer.alpha * layer.depth) / a_b, 0.0)
+    a_f = front.alpha.double()
+    rgb = front.rgb.double() + (1 - a_f)[..., None] * blocks(layer.rgb)
+    alpha = a_f + (1 - a_f) * a_b
+    depth = (a_f * front.depth.double() + (1 - a_f) * a_b * d_b) / alpha
+    return rgb, depth, alpha
+
+
+@pytest.mark.parametrize(
+    ("scale", "keep", "static"),
+    [(1.0, 0, "render"), (0.5, 0, "render"), (0.5, 3, "render"), (0.5, 0, "behind"), (0.25, 3, "behind")],
+)
+def test_refiner_sees_the_view_and_the_render_of_the_current_means(scale, keep, static):
     """The glimpses the refinement network reads equal an independent render of the plain model's decoded
     particles in their own view (colour, depth, alpha and the particle's own weight; at ``refine_scale`` of the
     view's size, through Camera.resized; each particle's ``refine_keep`` most opaque Gaussians) beside the
-    observation, over each particle's box enlarged by BOX_MARGIN."""
-    plain, refined = refined_pair(refine_scale=scale, refine_keep=keep)
+    observation, over each particle's box enlarged by BOX_MARGIN. With ``refine_static`` behind, the render is
+    the particles alone over the static layer's full-size render averaged to that size."""
+    plain, refined = refined_pair(refine_scale=scale, refine_keep=keep, refine_static=static)
     rgb, depth, cs = scene_inputs(2)
     seen = {}
 
@@ -103,9 +125,15 @@ def test_refiner_sees_the_view_and_the_render_of_the_current_means(scale, keep):
         v = int(p.view[n])
         small = cs[v].resized(int(cs[v].width * scale), int(cs[v].height * scale))
         assert small.width == cs[v].width * scale
-        r = render(g, small, background=bg, owner_weights=True, num_owners=N)
+        if static == "render":
+            r = render(g, small, background=bg, owner_weights=True, num_owners=N)
+            colour, dep, alpha = r.rgb, r.depth, r.alpha
+        else:
+            r = render(g.of_owner(list(range(N))), small, owner_weights=True, num_owners=N)
+            layer = render(g.of_owner(-1), cs[v], background=bg)
+            colour, dep, alpha = (t.float() for t in pooled_behind(r, layer, round(1 / scale)))
         observed = torch.cat([rgb[v], depth[v] / cfg.d_max, torch.ones_like(depth[v])])
-        drawn = torch.cat([r.rgb.permute(2, 0, 1), r.depth[None] / cfg.d_max, r.alpha[None], r.owner_weights[n][None]])
+        drawn = torch.cat([colour.permute(2, 0, 1), dep[None] / cfg.d_max, alpha[None], r.owner_weights[n][None]])
         want = torch.cat([glimpse(observed, n), glimpse(drawn, n)])
         assert seen["g"].shape[-1] == cfg.glimpse_size
         torch.testing.assert_close(seen["g"][n], want, rtol=1e-4, atol=1e-5)
@@ -181,3 +209,8 @@ def test_refinement_config_errors():
         ModelConfig(**{**TINY, "refine_scale": 0.3}).validate()  # 32 x 0.3 = 9.6 pixels
     with pytest.raises(ConfigError, match="refine_keep: must be >= 0"):
         ModelConfig(**{**TINY, "refine_keep": -1}).validate()
+    with pytest.raises(ConfigError, match="refine_static: must be render or behind"):
+        ModelConfig(**{**TINY, "refine_static": "under"}).validate()
+    for no_layer in ({"bg_static_grid": 0, "bg_per_view": True}, {"bg_per_view": True}):
+        with pytest.raises(ConfigError, match="refine_static: behind needs a static layer"):
+            ModelConfig(**{**TINY, **no_layer, "refine_static": "behind"}).validate()

@@ -6,7 +6,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
 from particlesplat.core.errors import UserError, one_line, short_repr
 from particlesplat.core.limits import float32_problem
@@ -15,6 +15,11 @@ from particlesplat.core.yamlsafe import YamlError, read_yaml
 
 class ConfigError(UserError):
     """A configuration value is missing, unknown or out of range."""
+
+
+# how the refinement's render draws the static layer: its Gaussians among the particles' at ``refine_scale``
+# (render), or the encoder's full-resolution render of the layer, pooled and composited behind them (behind)
+RefineStatic = Literal["render", "behind"]
 
 
 def _checker(cfg, where: str):
@@ -99,6 +104,7 @@ class ModelConfig:
     refine_hidden: int = 256
     refine_scale: float = 1.0
     refine_keep: int = 0
+    refine_static: RefineStatic = "render"
     token_dim: int = 64
     transformer_layers: int = 2
     transformer_heads: int = 4
@@ -177,6 +183,13 @@ class ModelConfig:
         need(self.refine_hidden >= 1, "refine_hidden", "must be >= 1")
         need(0.0 < self.refine_scale <= 1.0, "refine_scale", "must be in (0, 1]")
         need(self.refine_keep >= 0, "refine_keep", "must be >= 0 (0: every Gaussian)")
+        need(self.refine_static in get_args(RefineStatic), "refine_static", "must be render or behind")
+        need(
+            self.refine_static == "render" or (self.has_static_background and not self.bg_per_view),
+            "refine_static",
+            "behind needs a static layer (bg_static_grid or bg_static_points > 0) and no per-view background "
+            "(bg_per_view: false)",
+        )
         need(
             (self.resolution * self.refine_scale).is_integer() and self.resolution * self.refine_scale >= 8,
             "refine_scale",
@@ -327,7 +340,7 @@ def _from_dict(cls, data: Any, where: str):
     out = cls()
     for k, v in data.items():
         default = getattr(out, k)
-        if isinstance(default, bool) or isinstance(default, list):
+        if isinstance(default, (bool, list, str)):
             ok = isinstance(v, type(default))
         elif isinstance(default, float):
             ok = isinstance(v, (int, float)) and not isinstance(v, bool)

@@ -17,6 +17,8 @@ INFERENCE_KEYS: dict[str, str] = {
     "refine_steps": "amortised refinement steps (0 leaves the refiner out and drops its weights)",
     "refine_scale": "fraction of the resolution the refinement renders the context views at",
     "refine_keep": "Gaussians per particle the refinement renders (0: all)",
+    "refine_static": "render: the refinement renders the static layer with the particles; behind: it reuses the "
+    "encoder's full-resolution render of the layer, pooled, behind them",
     "particles_per_view": "foreground particles kept per context view",
     "kp_min_separation": "least distance between kept keypoints (normalised image units)",
     "bg_mask_threshold": "z_t above which a particle is active and draws",

@@ -28,6 +28,7 @@ from particlesplat.model.posterior import ParticlePosterior, Posterior
 from particlesplat.model.refiner import BOX_MARGIN, Refiner, box_glimpses, latent_vector
 from particlesplat.model.static_background import StaticBackground, WorkspaceBackground
 from particlesplat.rendering.api import render_batch
+from particlesplat.rendering.layers import composite_over, pool_layer, render_layer
 
 
 def _gaussians(fields: dict[str, Tensor], owner: Tensor) -> Gaussians:
@@ -40,6 +41,16 @@ def _gaussians(fields: dict[str, Tensor], owner: Tensor) -> Gaussians:
         fields["sh"].reshape(n, -1, 3),
         owner,
     )
+
+
+def layer_error(layer: Tensor, x: Tensor, depth: Tensor | None, block: int) -> Tensor:
+    """Per-block error of a rendered layer (M, 5, H, W) against the views x (M, 3, H, W) and depth (M, 1, H, W)
+    metres (0 = none) or None: per pixel squared RGB error + squared depth error in metres where depth is known
+    (a pixel the layer leaves empty renders depth 0), averaged over ``block``² blocks -> (M, 1, Hb, Wb)."""
+    err = ((layer[:, :3] - x) ** 2).sum(1, keepdim=True)
+    if depth is not None:
+        err = err + (layer[:, 3:4] - depth) ** 2 * (depth > 0).to(x.dtype)
+    return F.avg_pool2d(err, block)
 
 
 class ParticleSplat(nn.Module):
@@ -98,8 +109,10 @@ class ParticleSplat(nn.Module):
         Kf, cf = K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4)
         rays = plucker_map(Kf, cf, H, W)
         # what the background alone explains badly: the keypoints go there
+        static = None
         if self.static_bg is not None:
-            pixel_err = self.static_background_error(x, d, Kf, cf, block=1)
+            static = self.static_layer(Kf, cf, W, H)
+            pixel_err = layer_error(static, x, d, block=1)
             block_err = F.avg_pool2d(pixel_err, cfg.bg_block)
         else:
             with torch.no_grad():
@@ -124,6 +137,7 @@ class ParticleSplat(nn.Module):
             bg_mask=mask.reshape(B, V, 1, H, W),
             view=torch.arange(V, device=rgb.device).repeat_interleave(cfg.particles_per_view),
             bg_error=pixel_err.reshape(B, V, 1, H, W),
+            static_layer=None if static is None else static.reshape(B, V, 5, H, W),
         )
 
     def coarse_background_error(
@@ -152,32 +166,31 @@ class ParticleSplat(nn.Module):
     def static_background_error(
         self, x: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, block: int | None = None
     ) -> Tensor:
-        """Per-block error of the static background layer alone, rendered into M views (no gradient).
+        """Per-block error (:func:`layer_error`, ``block`` default ``bg_block``) of the static background layer
+        alone rendered into M views (no gradient): x (M, 3, H, W); depth (M, 1, H, W) metres (0 = none) or None;
+        K (M, 3, 3); c2w (M, 4, 4) -> (M, 1, Hb, Wb). An object in front of the floor and the floor where the
+        layer is transparent both count."""
+        H, W = x.shape[-2:]
+        return layer_error(self.static_layer(K, c2w, W, H), x, depth, block or self.config.bg_block)
 
-        x: (M, 3, H, W); depth: (M, 1, H, W) metres (0 = none) or None; K: (M, 3, 3); c2w: (M, 4, 4).
-        Per pixel: squared RGB error + squared depth error in metres where depth is known (a pixel the
-        layer leaves empty renders depth 0, so an object in front of the floor or the floor where the
-        layer is transparent both count). Averaged over ``block``² blocks (default ``bg_block``)
-        -> (M, 1, Hb, Wb).
-        """
+    @torch.no_grad()
+    def static_layer(self, K: Tensor, c2w: Tensor, width: int, height: int) -> Tensor:
+        """The static background layer alone rendered into M views over the background colour (no gradient):
+        K (M, 3, 3), c2w (M, 4, 4) -> layers (M, 5, height, width) (:mod:`particlesplat.rendering.layers`)."""
         if self.static_bg is None:
             raise ValueError("this model has no static background layer (bg_static_grid and bg_static_points are 0)")
-        H, W = x.shape[-2:]
-        g = _gaussians(self.static_bg(), torch.full((self.static_bg.num,), BACKGROUND_OWNER, device=x.device))
+        g = _gaussians(self.static_bg(), torch.full((self.static_bg.num,), BACKGROUND_OWNER, device=K.device))
         res = render_batch(
-            [(g, Camera(K[i], c2w[i], W, H)) for i in range(x.shape[0])], background=self.background_color()
+            [(g, Camera(K[i], c2w[i], width, height)) for i in range(K.shape[0])], background=self.background_color()
         )
-        err = ((torch.stack([r.rgb.permute(2, 0, 1) for r in res]) - x) ** 2).sum(1, keepdim=True)
-        if depth is not None:
-            rendered = torch.stack([r.depth[None] for r in res])
-            err = err + (rendered - depth) ** 2 * (depth > 0).to(x.dtype)
-        return F.avg_pool2d(err, block or self.config.bg_block)
+        return torch.stack([render_layer(r.rgb, r.depth, r.alpha) for r in res])
 
     def refine(self, post: Posterior, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Posterior:
         """``refine_steps`` amortised corrections of the particle posterior means (:mod:`.refiner`).
 
         Each step decodes the current means and renders the context views (no gradient; at ``refine_scale`` of
-        their resolution, each particle's ``refine_keep`` most opaque Gaussians), then every particle compares
+        their resolution, each particle's ``refine_keep`` most opaque Gaussians; with ``refine_static`` behind,
+        the particles alone over the posterior's render of the static layer, pooled), then every particle compares
         render and observation inside its box (enlarged by :data:`BOX_MARGIN`, ``glimpse_size`` pixels across)
         in its own view. post: from :meth:`posterior`; rgb: (B, V, 3, H, W); depth: (B, V, 1, H, W) metres or
         None; K: (B, V, 3, 3); c2w: (B, V, 4, 4). Returns the posterior with refined means (the same fields and
@@ -205,10 +218,17 @@ class ParticleSplat(nn.Module):
         rank = (view[:, None] == view[None, :]).tril(-1).sum(1)  # (N,) each particle's rank in its own view
         P = int(rank.max()) + 1 if N else 1
         slot = [torch.where(view == v, rank, -1) for v in range(V)]  # per view: particle -> owner slot
+        behind = None
+        if cfg.refine_static == "behind":
+            if post.static_layer is None:
+                raise ValueError("refine_static behind: the posterior holds no render of the static layer")
+            behind = pool_layer(post.static_layer.flatten(0, 1), (h, w))
         for _ in range(cfg.refine_steps):
             with torch.no_grad():
                 z = self.latents(post, sample=False)
-                gaussians = self.decode_batch(z, view, K, c2w, max_per_particle=cfg.refine_keep)
+                gaussians = self.decode_batch(
+                    z, view, K, c2w, background=behind is None, max_per_particle=cfg.refine_keep
+                )
                 res = render_batch(
                     [
                         (
@@ -218,13 +238,15 @@ class ParticleSplat(nn.Module):
                         for b, g in enumerate(gaussians)
                         for v in range(V)
                     ],
-                    background=self.background_color(),
+                    background=self.background_color() if behind is None else (0.0, 0.0, 0.0),
                     owner_weights=True,
                     num_owners=P,
                 )
-                rendered = torch.stack(
-                    [torch.cat([r.rgb.permute(2, 0, 1), r.depth[None] / cfg.d_max, r.alpha[None]]) for r in res]
-                ).reshape(B, V, 5, h, w)[:, view]
+                layers = torch.stack([render_layer(r.rgb, r.depth, r.alpha) for r in res])  # (B * V, 5, h, w)
+                if behind is not None:
+                    layers = composite_over(layers, behind)
+                layers[:, 3] /= cfg.d_max
+                rendered = layers.reshape(B, V, 5, h, w)[:, view]
                 weights = torch.stack([r.require_owner_weights() for r in res]).reshape(B, V, P, h, w)
                 own = weights[:, view, rank][:, :, None]  # (B, N, 1, h, w)
                 centre = z["z_p"].reshape(B * N, 2)

@@ -57,7 +57,9 @@ class Posterior(ParticlePosterior):
     1 inside the boxes of active particles (hidden from the background encoder); view: (N,) int64 context view
     of each particle; bg_error: (B, V, 1, H, W) the background's own error per pixel (squared RGB + squared
     depth error in metres where depth is known): the static layer's per pixel, else the per-view background's
-    per ``bg_block``² block.
+    per ``bg_block``² block; static_layer: (B, V, 5, H, W) the static layer alone rendered into the context views
+    (colour over the background colour, depth in metres, alpha: :mod:`particlesplat.rendering.layers`), or None
+    (no static layer).
     """
 
     mu_bg: Tensor
@@ -65,6 +67,7 @@ class Posterior(ParticlePosterior):
     bg_mask: Tensor
     view: Tensor
     bg_error: Tensor
+    static_layer: Tensor | None = None
 
 
 __all__ = ["ParticlePosterior", "Posterior"]
