@@ -12,7 +12,7 @@ from test_model import scene_inputs, tiny_model
 from particlesplat.cli.main import main
 from particlesplat.model import ConfigError, read_checkpoint, save_checkpoint
 from particlesplat.model.derive import DeriveError, derive_checkpoint
-from particlesplat.model.io import load_model
+from particlesplat.model.io import load_model, model_from_checkpoint
 
 
 @pytest.fixture
@@ -106,3 +106,23 @@ def test_set_never_writes_over_its_input(trained):
     with pytest.raises(DeriveError, match="would replace the checkpoint it is made from"):
         main(["model", "set", str(path), "refine_scale=0.5", "--out", str(path)])
     assert digest(path) == before
+
+
+def test_set_reads_a_config_with_keys_of_removed_branches_as_loading_does(trained):
+    """A checkpoint written before a branch was removed stores its key at the "off" value (the shipped tabletop
+    model holds five): ``model set`` drops them as loading does, and refuses one that switched the branch on."""
+    path, m = trained
+    old = read_checkpoint(path)
+    for off in ({"bg_copy_input": False, "kp_selection": "residual"}, {"bg_copy_input": True}):
+        ckpt = {**old, "config": {**old["config"], **off}}
+        ckpt.pop("config_sha256")
+        if off.get("bg_copy_input"):
+            with pytest.raises(ConfigError, match="bg_copy_input: True switches on a branch"):
+                derive_checkpoint(ckpt, {"refine_scale": 0.5}, "old.pt")
+            continue
+        derived = derive_checkpoint(ckpt, {"refine_scale": 0.5}, "old.pt")
+        assert "bg_copy_input" not in derived["config"] and "kp_selection" not in derived["config"]
+        copy = model_from_checkpoint(derived, "copy.pt")
+        assert copy.config.refine_scale == 0.5
+        for k, v in m.state_dict().items():
+            torch.testing.assert_close(copy.state_dict()[k], v, rtol=0, atol=0)

@@ -9,7 +9,7 @@ from os import PathLike
 from pathlib import Path
 
 from particlesplat.core.errors import UserError
-from particlesplat.model.config import ModelConfig, model_config_from_dict, stored_model_config
+from particlesplat.model.config import ModelConfig, model_config_from_dict, stored_model_config, without_removed_keys
 from particlesplat.model.io import model_from_checkpoint, read_checkpoint, save_checkpoint
 
 # model keys a trained checkpoint may change, and what each decides
@@ -17,8 +17,8 @@ INFERENCE_KEYS: dict[str, str] = {
     "refine_steps": "amortised refinement steps (0 leaves the refiner out and drops its weights)",
     "refine_scale": "fraction of the resolution the refinement renders the context views at",
     "refine_keep": "Gaussians per particle the refinement renders (0: all)",
-    "refine_static": "render: the refinement renders the static layer with the particles; behind: it reuses the "
-    "encoder's full-resolution render of the layer, pooled, behind them",
+    "refine_static": "how the refinement draws the static layer: render (among the particles) or behind (the "
+    "encoder's full-size render of it, pooled, behind them)",
     "particles_per_view": "foreground particles kept per context view",
     "kp_min_separation": "least distance between kept keypoints (normalised image units)",
     "bg_mask_threshold": "z_t above which a particle is active and draws",
@@ -42,7 +42,8 @@ def derive_checkpoint(ckpt: dict, changes: dict[str, object], source: str, note:
         if key not in INFERENCE_KEYS:
             known = ", ".join(INFERENCE_KEYS)
             raise DeriveError(f"{key}: not a key a trained model can change (those are: {known})")
-    config = {**ckpt["config"], **changes}
+    # keys of removed branches at their "off" value are dropped, as loading does
+    config = {**without_removed_keys(ckpt["config"], "model", f"{source}: config"), **changes}
     new = model_config_from_dict(config, "model")  # validated
     state = dict(ckpt["state_dict"])
     if new.refine_steps > 0 and not any(k.startswith("refiner.") for k in state):
