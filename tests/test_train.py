@@ -71,6 +71,18 @@ def test_interrupted_and_resumed_equals_uninterrupted(tmp_path_factory, tmp_path
     assert (tmp_path / "a" / "step_000004.pt").is_file()
 
 
+def test_resume_without_config_goes_on_with_the_runs_own(tmp_path_factory, tmp_path, capsys):
+    """A run started with a recipe of its own resumes without --config: OUT/config.yaml, not the bundled
+    recipe (whose model differs, which resume would refuse)."""
+    data = tiny_dataset(tmp_path_factory)
+    cfg = tiny_config(tmp_path / "tiny.yaml", val_every=5)
+    out = tmp_path / "r"
+    assert _train(cfg, data, out, "--stop-after", "1") == 0
+    assert main(["train", "--data", str(data), "--out", str(out), "--resume"]) == 0
+    assert f"--resume without --config: the run's own {out / 'config.yaml'}" in capsys.readouterr().err
+    assert read_checkpoint(out / "last.pt")["step"] == 4
+
+
 def test_resume_refuses_a_different_model_config(tmp_path_factory, tmp_path):
     data = tiny_dataset(tmp_path_factory)
     cfg = tiny_config(tmp_path / "tiny.yaml", steps=1, val_every=5)

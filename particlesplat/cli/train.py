@@ -20,8 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--config",
         default=None,
         help="YAML with 'model:' and 'train:' sections (default: the recipe the shipped "
-        "architecture is trained with, assets/model.yaml, which documents every key; with --init, the "
-        "checkpoint's own model config and its run's train section)",
+        "architecture is trained with, assets/model.yaml, which documents every key; with --resume, the run's "
+        "own OUT/config.yaml; with --init, the checkpoint's own model config and its run's train section)",
     )
     parser.add_argument("--data", required=True, help="dataset folder holding train/ and val/ scene folders")
     parser.add_argument(
@@ -71,8 +71,12 @@ def init_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
 
 def run(args: argparse.Namespace) -> int:
     resolve_device(args.device)  # a typo or a missing device is one line before anything is read
+    run_config = Path(args.out) / "config.yaml"
     if args.config is None and args.init is not None:
         cfg, tc = init_config(Path(args.init))
+    elif args.config is None and args.resume and run_config.is_file():
+        cfg, tc = load_config(run_config)  # the run goes on as it was started
+        print(f"--resume without --config: the run's own {run_config}", file=sys.stderr)
     else:
         cfg, tc = load_config(args.config or recipe_path())
     if tc.num_threads > 0:
