@@ -9,7 +9,7 @@ from os import PathLike
 from pathlib import Path
 
 from particlesplat.core.errors import UserError
-from particlesplat.model.config import ModelConfig, model_config_from_dict, stored_model_config, without_removed_keys
+from particlesplat.model.config import ModelConfig, config_to_dict, model_config_from_dict, stored_model_config
 from particlesplat.model.io import model_from_checkpoint, read_checkpoint, save_checkpoint
 
 # model keys a trained checkpoint may change, and what each decides
@@ -42,8 +42,7 @@ def derive_checkpoint(ckpt: dict, changes: dict[str, object], source: str, note:
         if key not in INFERENCE_KEYS:
             known = ", ".join(INFERENCE_KEYS)
             raise DeriveError(f"{key}: not a key a trained model can change (those are: {known})")
-    # keys of removed branches at their "off" value are dropped, as loading does
-    config = {**without_removed_keys(ckpt["config"], "model", f"{source}: config"), **changes}
+    config = {**config_to_dict(old), **changes}  # as loading reads it: keys of removed branches dropped
     new = model_config_from_dict(config, "model")  # validated
     state = dict(ckpt["state_dict"])
     if new.refine_steps > 0 and not any(k.startswith("refiner.") for k in state):
