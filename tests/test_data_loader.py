@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import re
-from importlib.resources import files
 from pathlib import Path
 
 import numpy as np
@@ -13,10 +12,11 @@ import pytest
 import torch
 from PIL import Image
 
+from particlesplat.core.bundled import bundled_assets
 from particlesplat.data import SceneFormatError, flip_horizontal, load_scene
 from particlesplat.data.scene import Scene
 
-SCENES = files("particlesplat.assets") / "scenes"
+SCENES = bundled_assets() / "scenes"
 SCENE = Path(str(SCENES / "scene_00000"))
 
 

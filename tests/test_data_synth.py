@@ -6,7 +6,6 @@ from __future__ import annotations
 import filecmp
 import json
 import math
-from importlib.resources import files
 from pathlib import Path
 
 import numpy as np
@@ -14,11 +13,12 @@ import pytest
 import torch
 
 from particlesplat.cli.main import main as cli_main
+from particlesplat.core.bundled import bundled_assets
 from particlesplat.core.errors import run_command
 from particlesplat.data import load_scene
 from particlesplat.data.synth import generate
 
-ASSET_SCENES = [Path(str(files("particlesplat.assets") / "scenes" / f"scene_0000{i}")) for i in range(3)]
+ASSET_SCENES = [bundled_assets() / "scenes" / f"scene_0000{i}" for i in range(3)]
 SPEC_COLOURS = {
     "red": (0.85, 0.2, 0.2),
     "green": (0.2, 0.7, 0.3),

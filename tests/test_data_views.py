@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from importlib.resources import files
 from pathlib import Path
 
 import numpy as np
@@ -11,10 +10,11 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
+from particlesplat.core.bundled import bundled_assets
 from particlesplat.data import SceneDataset, load_scene, sample_views, supervision_mask
 from particlesplat.data.families.tabletop import TabletopObject, TabletopScene, trace
 
-SCENES = Path(str(files("particlesplat.assets") / "scenes"))
+SCENES = bundled_assets() / "scenes"
 
 
 def _draws(progress: float, mode: str, n: int = 1500) -> list[tuple[torch.Tensor, torch.Tensor]]:

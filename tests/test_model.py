@@ -390,12 +390,12 @@ def test_checkpoint_round_trip_and_errors(tmp_path):
 
 
 def test_shipped_model_loads_and_matches_its_yaml():
-    from importlib.resources import files
-
     import yaml
 
+    from particlesplat.core.bundled import bundled_assets
+
     m = load_model()
-    shipped = yaml.safe_load(files("particlesplat.assets").joinpath("model.yaml").read_text())
+    shipped = yaml.safe_load((bundled_assets() / "model.yaml").read_text())
     from dataclasses import asdict
 
     cfg = asdict(m.config)
@@ -591,11 +591,11 @@ def test_finer_patch_starts_from_the_base_patch_split_into_children():
 def test_shipped_yaml_documents_every_config_key():
     """assets/model.yaml lists every ModelConfig and TrainConfig key (the file documents them)."""
     from dataclasses import fields
-    from importlib.resources import files
 
+    from particlesplat.core.bundled import bundled_assets
     from particlesplat.model.config import TrainConfig
 
-    text = files("particlesplat.assets").joinpath("model.yaml").read_text()
+    text = (bundled_assets() / "model.yaml").read_text()
     lines = {
         ln.split(":")[0].strip(): ln
         for ln in text.splitlines()

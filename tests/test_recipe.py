@@ -7,7 +7,6 @@ from __future__ import annotations
 import hashlib
 import os
 from dataclasses import asdict, fields
-from importlib.resources import files
 from pathlib import Path
 
 import pytest
@@ -16,6 +15,7 @@ import yaml
 from model_data import TINY_MODEL, tiny_config, tiny_dataset
 
 from particlesplat.cli.main import main
+from particlesplat.core.bundled import bundled_assets
 from particlesplat.core.camera import Camera
 from particlesplat.model import ConfigError, ModelConfig, ParticleSplat, TrainConfig, load_model, read_checkpoint
 from particlesplat.model.config import REMOVED_KEYS, without_removed_keys
@@ -23,7 +23,7 @@ from particlesplat.model.io import model_from_checkpoint
 
 
 def _recipe() -> dict:
-    return yaml.safe_load(files("particlesplat.assets").joinpath("model.yaml").read_text())
+    return yaml.safe_load((bundled_assets() / "model.yaml").read_text())
 
 
 def test_config_defaults_are_the_recipe_and_the_recipe_lists_every_key():

@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
-from importlib.resources import files
 
 import numpy as np
 import pytest
@@ -16,6 +15,7 @@ from model_data import TINY_MODEL, tiny_config, tiny_dataset
 
 from particlesplat.analysis.metrics import SKIRT_MARGIN, below_support
 from particlesplat.cli.main import main
+from particlesplat.core.bundled import bundled_assets
 from particlesplat.core.camera import Camera
 from particlesplat.data.scene import read_scene
 from particlesplat.data.synth import scene_name, write_scene
@@ -26,14 +26,14 @@ from particlesplat.model.static_background import WORKSPACE_SCALE, WorkspaceBack
 
 
 def _recipe_text(name: str) -> str:
-    return files("particlesplat.assets").joinpath(name).read_text()
+    return (bundled_assets() / name).read_text()
 
 
 def test_the_robot_recipe_is_the_same_architecture_with_its_own_values_and_every_key_documented():
     tabletop, robot = (yaml.safe_load(_recipe_text(n)) for n in ("model.yaml", "robot/model.yaml"))
     for section in ("model", "train"):
         assert sorted(robot[section]) == sorted(tabletop[section]), section  # one architecture, a config per family
-    cfg, tc = load_config(files("particlesplat.assets").joinpath("robot/model.yaml"))
+    cfg, tc = load_config(bundled_assets() / "robot/model.yaml")
     assert cfg.resolution == 128 and cfg.bg_static_points > 0 and cfg.bg_static_grid == 0 and cfg.support_clamp
     assert tc.beta_fg > 0  # the foreground term compares with the workspace layer
     # every key is documented: a comment on its line, or its name in a comment (s_max beside s_min)

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
 
+from particlesplat.core.bundled import bundled_assets
 from particlesplat.core.errors import OptionError
 from particlesplat.core.limits import check_memory
 from particlesplat.core.viewpoints import default_context_views
@@ -45,11 +46,9 @@ DEMO_SCENE_FOLDERS = ("scenes", "robot/scenes")  # under assets/: the tabletop f
 def demo_scenes() -> list[Path]:
     """Scene folders shipped in ``assets/scenes`` and ``assets/robot/scenes`` (where it exists), each sorted,
     the tabletop ones first (the first is the default scene)."""
-    from importlib.resources import files
-
     out: list[Path] = []
     for sub in DEMO_SCENE_FOLDERS:
-        root = Path(str(files("particlesplat.assets").joinpath(sub)))
+        root = bundled_assets() / sub
         if root.is_dir():
             out += sorted(p for p in root.iterdir() if (p / "transforms.json").is_file())
     return out
@@ -58,9 +57,7 @@ def demo_scenes() -> list[Path]:
 def demo_scene_name(path: Path) -> str:
     """A demo scene's name in the viewer's picker: its folder name, after its family's for the robot family's
     (``robot/scene_00000``)."""
-    from importlib.resources import files
-
-    rel = Path(path).relative_to(Path(str(files("particlesplat.assets"))))
+    rel = Path(path).relative_to(bundled_assets())
     return rel.name if rel.parts[0] == "scenes" else f"{rel.parts[0]}/{rel.name}"
 
 

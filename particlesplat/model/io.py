@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-import importlib.resources
 import json
 import pickle
 from os import PathLike
@@ -14,6 +13,7 @@ from torch.overrides import TorchFunctionMode
 from torch.torch_version import TorchVersion
 
 from particlesplat.core.atomic import atomic_path
+from particlesplat.core.bundled import bundled_assets
 from particlesplat.core.errors import UserError, one_line
 from particlesplat.core.limits import check_memory
 from particlesplat.model.config import ModelConfig, stored_model_config
@@ -225,7 +225,7 @@ def shipped_model_path(family: str = "tabletop") -> Path:
     ``particlesplat.assets`` package."""
     if family not in SHIPPED_MODELS:
         raise ValueError(f"no shipped model for scene family {family!r} (families: {', '.join(SHIPPED_MODELS)})")
-    return Path(str(importlib.resources.files("particlesplat.assets").joinpath(SHIPPED_MODELS[family])))
+    return bundled_assets() / SHIPPED_MODELS[family]
 
 
 def shipped_model_name(path: str | PathLike) -> str:

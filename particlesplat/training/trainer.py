@@ -24,6 +24,7 @@ from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from particlesplat.core.atomic import atomic_path, atomic_write, stale_temporaries
+from particlesplat.core.bundled import bundled_assets
 from particlesplat.core.camera import Camera
 from particlesplat.core.device import resolve_device
 from particlesplat.core.errors import Interrupted, UserError, one_line
@@ -76,9 +77,7 @@ def _is_checkpoint(name: str) -> bool:
 
 def recipe_path() -> Path:
     """The bundled recipe (``assets/model.yaml`` in the installed ``particlesplat.assets`` package)."""
-    import importlib.resources
-
-    return Path(str(importlib.resources.files("particlesplat.assets").joinpath("model.yaml")))
+    return bundled_assets() / "model.yaml"
 
 
 def render_views(

@@ -31,7 +31,6 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from importlib.resources import files
 from typing import Literal
 
 import moderngl
@@ -39,6 +38,7 @@ import numpy as np
 import torch
 
 from particlesplat.core import palette
+from particlesplat.core.bundled import data_dir
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.rendering.projection import DILATION, FOV_MARGIN
@@ -67,7 +67,7 @@ def load_shader(name: str, defines: dict[str, str | int] | None = None) -> str:
     """Source of ``shaders/<name>`` with ``#define`` lines inserted after ``#version``: the library's
     compositing constants (:func:`~viewer.gl.caps.shader_constants`) and palette
     (:func:`particlesplat.core.palette.shader_defines`), then ``defines``."""
-    src = files("viewer.shaders").joinpath(name).read_text()
+    src = (data_dir("viewer.shaders", "shaders") / name).read_text()
     first, rest = src.split("\n", 1)
     constants = {**shader_constants(), **palette.shader_defines(), **(defines or {})}
     lines = [f"#define {k} {v}" for k, v in constants.items()]
