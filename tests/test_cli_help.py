@@ -27,3 +27,19 @@ def test_help_states_each_default_once(argv, capsys):
     for block in options:
         said = len(re.findall(r"\bdefault\b", " ".join(block.split()), flags=re.IGNORECASE))
         assert said <= 1, block
+
+
+def test_bench_without_registered_benchmarks_says_to_install(monkeypatch, capsys):
+    """Benchmarks are entry points, registered by installing: a checkout run without installing has none."""
+    import particlesplat.cli.main as cli_main
+
+    monkeypatch.setattr(cli_main, "entry_points", lambda group: [])
+    assert main(["bench", "train"]) == 2
+    err = capsys.readouterr().err
+    assert "no benchmarks are registered" in err and "pip install -e ." in err and err.count("\n") == 1
+
+
+def test_bench_lists_the_benchmarks_of_the_library_and_the_viewer(capsys):
+    assert main(["bench", "--help"]) == 0
+    listed = capsys.readouterr().out.split("benchmarks:")[1].split()
+    assert {"edits", "encode", "render", "train", "viewer"} <= set(listed)

@@ -54,6 +54,13 @@ def _top_help() -> str:
 
 def _run_bench(argv: list[str]) -> int:
     benches = {e.name: e for e in entry_points(group="particlesplat.bench")}
+    if not benches:  # they are registered by installing (entry points): a bare checkout has none
+        print(
+            "particlesplat bench: no benchmarks are registered: install ParticleSplat Studio "
+            "(pip install -e . in its checkout)",
+            file=sys.stderr,
+        )
+        return 2
     if not argv or argv[0] in ("-h", "--help"):
         print("usage: particlesplat bench <name> [options]\n\nbenchmarks:")
         for name in sorted(benches):
