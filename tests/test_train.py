@@ -324,3 +324,18 @@ def test_training_batch_stacks_the_items_the_loss_reads(tmp_path_factory):
     assert batch.context_rgb.shape[:3] == (2, ds[0]["context_rgb"].shape[0], 3)
     moved = batch.to("cpu")
     assert all(torch.equal(getattr(moved, n), getattr(batch, n)) for n in names)
+
+
+@pytest.mark.parametrize("gpu", [False, True])
+def test_train_takes_the_gpu_torch_finds_unless_told_and_says_so(monkeypatch, capsys, tmp_path, gpu):
+    """Without --device a run trains on cuda where torch sees a GPU (one line on stderr), else on the CPU."""
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: gpu)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: int(gpu))
+    # no train/ split: the command stops right after choosing the device, before anything touches it
+    args = ["train", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "run")]
+    with pytest.raises(FileNotFoundError, match="no training split"):
+        main(args)
+    assert ("train: on cuda, which torch found (--device cpu trains on the CPU)" in capsys.readouterr().err) == gpu
+    with pytest.raises(FileNotFoundError, match="no training split"):
+        main([*args, "--device", "cpu"])
+    assert "train: on" not in capsys.readouterr().err

@@ -25,6 +25,7 @@ from pathlib import Path
 import torch
 
 from particlesplat.bench.render import machine_line
+from particlesplat.core.device import DEVICE_HELP, resolve_device
 from particlesplat.core.errors import OptionError
 
 PHASES = ("data", "forward", "backward", "update")
@@ -113,13 +114,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=10, help="timed steps per case (median)")
     parser.add_argument("--warmup", type=int, default=2, help="untimed steps first")
     parser.add_argument("--threads", default="1,2", help="comma-separated torch thread counts, one case each")
-    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
+    parser.add_argument("--device", default=None, help=DEVICE_HELP)
     parser.add_argument("--json", help="also write the rows to this JSON file")
     parser.add_argument("--case", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     config, data, run = check_arguments(args)
+    device = str(resolve_device(args.device))
     if args.case:
-        print(json.dumps(run_case(config, data, run, args.steps, args.warmup, args.case, args.device)))
+        print(json.dumps(run_case(config, data, run, args.steps, args.warmup, args.case, device)))
         return 0
     threads = _threads(args.threads)
     print(machine_line())
@@ -134,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     for n in threads:
         cmd = [sys.executable, "-m", "particlesplat.bench.train", "--case", str(n), "--data", str(data)]
         cmd += ["--config", str(config), "--steps", str(args.steps), "--warmup", str(args.warmup)]
-        cmd += ["--device", args.device] + (["--run", str(run)] if run else [])
+        cmd += ["--device", device] + (["--run", str(run)] if run else [])
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             print(f"case threads={n} failed:\n{proc.stderr.strip()}", file=sys.stderr)

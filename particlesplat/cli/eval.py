@@ -10,6 +10,7 @@ from particlesplat.analysis.evaluate import evaluate_dataset, json_safe
 from particlesplat.analysis.metrics import FAR_HEIGHTS, OVERLAYS, PARTICLES_DRAW, REGIONS
 from particlesplat.analysis.particle_arrays import OBJECT_CENTRES
 from particlesplat.core.atomic import atomic_write
+from particlesplat.core.device import DEVICE_HELP
 from particlesplat.data.scene_meta import CHECKPOINT_HELP
 from particlesplat.model.fit import DEFAULT_FIT, FITTED
 
@@ -54,7 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="draw the particles with z_t at or above this (default: the model's bg_mask_threshold, "
         "as the viewer and particlesplat render draw them; 0 = every particle)",
     )
-    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
+    parser.add_argument("--device", default=None, help=DEVICE_HELP)
 
 
 def run(args: argparse.Namespace) -> int:

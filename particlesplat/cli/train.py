@@ -9,7 +9,7 @@ from pathlib import Path
 
 import torch
 
-from particlesplat.core.device import resolve_device
+from particlesplat.core.device import DEVICE_HELP, resolve_device
 from particlesplat.model import ModelConfig, TrainConfig, load_config, read_checkpoint
 from particlesplat.model.config import stored_model_config, stored_train_config
 from particlesplat.training.trainer import Trainer, recipe_path
@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "every weight whose name and shape the --config model shares is copied, the rest start at random; the "
         "step, optimiser and schedule start afresh, and the run's provenance names the source",
     )
-    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (under torchrun: one process per device)")
+    parser.add_argument("--device", default=None, help=f"{DEVICE_HELP}; under torchrun, one process per device")
     parser.add_argument(
         "--overwrite",
         action="store_true",
@@ -70,7 +70,9 @@ def init_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
 
 
 def run(args: argparse.Namespace) -> int:
-    resolve_device(args.device)  # a typo or a missing device is one line before anything is read
+    device = str(resolve_device(args.device))  # a typo or a missing device is one line before anything is read
+    if args.device is None and device != "cpu":
+        print(f"train: on {device}, which torch found (--device cpu trains on the CPU)", file=sys.stderr)
     run_config = Path(args.out) / "config.yaml"
     if args.config is None and args.init is not None:
         cfg, tc = init_config(Path(args.init))
@@ -84,7 +86,6 @@ def run(args: argparse.Namespace) -> int:
     data = Path(args.data)
     if not (data / "train").is_dir():
         raise FileNotFoundError(f"{data / 'train'}: no training split")
-    device = args.device
     if device.startswith("cuda") and int(os.environ.get("WORLD_SIZE", "1")) > 1:
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
     init = None if args.init is None else Path(args.init)
