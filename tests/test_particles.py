@@ -3,7 +3,7 @@ row, the background and the cameras stay those of the first operand."""
 
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import fields, replace
 
 import torch
 
@@ -29,7 +29,7 @@ def particles(n: int, seed: int, views: int = 2) -> Particles:
 
 def rows(p: Particles) -> list[tuple]:
     """Each particle as a tuple of its per-particle fields' rows, in the dataclass's order."""
-    names = [f.name for f in fields(Particles) if f.name not in ("background", "cameras")]
+    names = [f.name for f in fields(Particles) if f.name not in ("background", "cameras", "pose")]
     return [tuple(getattr(p, name)[i].tolist() for name in names) for i in range(p.num)]
 
 
@@ -44,6 +44,9 @@ def test_cat_take_truncate_move_whole_rows():
     ab = a.cat(b)
     assert rows(ab) == rows(a) + rows(b)
     assert ab.background is a.background and ab.cameras is a.cameras
+    posed = replace(a, pose=torch.tensor([0.1, 0.2]))
+    assert posed.cat(b).pose is posed.pose and posed.take([1]).pose is posed.pose  # the scene's pose stays
+    assert torch.equal(posed.clone().pose, posed.pose) and posed.clone().pose is not posed.pose
     picked = ab.take([5, 0, 0, 2])
     assert rows(picked) == [rows(ab)[5], rows(ab)[0], rows(ab)[0], rows(ab)[2]]
     assert rows(ab.take(torch.tensor([6]))) == [rows(b)[2]]

@@ -32,6 +32,7 @@ from particlesplat.analysis.particle_arrays import (
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.camera import Camera
 from particlesplat.core.errors import OptionError, UserError
+from particlesplat.data.scene_meta import scene_pose
 from particlesplat.data.views import supervision_mask
 from particlesplat.editing.grouping import particle_objects
 from particlesplat.model.fit import DEFAULT_FIT, fit_particles
@@ -154,7 +155,8 @@ def evaluate_item(
     depth = item["context_depth"] if use_depth and bool((item["context_depth"] > 0).any()) else None
     device = next(model.parameters()).device
     t0 = time.perf_counter()
-    particles = model.encode(item["context_rgb"], depth, ctx_cams)
+    pose = item.get("pose")
+    particles = model.encode(item["context_rgb"], depth, ctx_cams, pose)
     enc_ms = _ms(t0, device)
     t0 = time.perf_counter()
     particles = fit_particles(model, particles, item["context_rgb"], depth, fit_steps, fit_lr, latents=fit_latents)
@@ -333,8 +335,12 @@ def evaluate_dataset(
     n = len(ds) if limit is None else min(limit, len(ds))
     scenes, prune_rows, regions = [], [], []
     located: dict[str, list[float]] = {m: [] for m in OBJECT_CENTRES}
+    cfg = model.config
     for i in tqdm(range(n), desc="eval", disable=not progress_bar):
         item = ds[i]
+        pose = scene_pose(ds.scenes[i], cfg.bg_static_pose, cfg.bg_static_pose_dims)
+        if pose is not None:
+            item["pose"] = pose
         if set(item["target_index"].tolist()) <= set(item["context_index"].tolist()):
             raise UserError(
                 f"{ds.scenes[i]}: {ds.raw(i).num_frames} frame(s): no target view apart from the "

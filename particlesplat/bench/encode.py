@@ -22,12 +22,12 @@ from particlesplat.bench.render import machine_line
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.device import DEVICE_HELP, resolve_device
 from particlesplat.core.errors import OptionError
-from particlesplat.data.scene_meta import CHECKPOINT_HELP, default_checkpoint
+from particlesplat.data.scene_meta import CHECKPOINT_HELP, default_checkpoint, scene_pose
 
 
 def time_rounds(models: list, items: list[dict], rounds: int) -> list[list[tuple[float, float]]]:
-    """Per model, per round: mean (encode, decode) milliseconds over ``items`` (SceneDataset items); on a GPU
-    each phase ends when its work is done."""
+    """Per model, per round: mean (encode, decode) milliseconds over ``items`` (SceneDataset items with
+    ``poses``: per model, the scene's pose or None); on a GPU each phase ends when its work is done."""
     from particlesplat.analysis.evaluate import _cameras, _ms
 
     out: list[list[tuple[float, float]]] = [[] for _ in models]
@@ -38,7 +38,7 @@ def time_rounds(models: list, items: list[dict], rounds: int) -> list[list[tuple
             for it in items:
                 cams = _cameras(it["context_K"], it["context_c2w"], model.config.resolution)
                 t0 = time.perf_counter()
-                particles = model.encode(it["context_rgb"], it["context_depth"], cams)
+                particles = model.encode(it["context_rgb"], it["context_depth"], cams, it["poses"][k])
                 enc += _ms(t0, device)
                 t0 = time.perf_counter()
                 model.decode(particles)
@@ -83,7 +83,9 @@ def main(argv: list[str] | None = None) -> int:
         seed=0,
         progress=1.0,
     )
-    items = [ds[i] for i in range(min(args.scenes, len(ds)))]
+    items: list[dict[str, Any]] = [ds[i] for i in range(min(args.scenes, len(ds)))]
+    for i, it in enumerate(items):  # each model's pose of each scene (bg_static_pose), read before the timing
+        it["poses"] = [scene_pose(ds.scenes[i], m.config.bg_static_pose, m.config.bg_static_pose_dims) for m in models]
     time_rounds(models, items[:1], 1)  # warm-up: first-call allocations and kernels
     times = time_rounds(models, items, args.rounds)
     print(

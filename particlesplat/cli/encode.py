@@ -33,7 +33,7 @@ from particlesplat.core.errors import OptionError, UserError, one_line, short_re
 from particlesplat.core.viewpoints import default_context_views
 from particlesplat.data import Scene, read_scene
 from particlesplat.data.scene import TRANSFORMS
-from particlesplat.data.scene_meta import CHECKPOINT_HELP
+from particlesplat.data.scene_meta import CHECKPOINT_HELP, scene_pose
 from particlesplat.editing.grouping import ObjectCentre
 from particlesplat.model import Particles, ParticleSplat
 from particlesplat.model.geometry import stack_cameras
@@ -86,7 +86,10 @@ def encode_batch(model: ParticleSplat, scenes: list[Scene]) -> list[Particles]:
     cams = [stack_cameras(s.cameras, device=dev) for s in scenes]
     K = torch.stack([k for k, _ in cams])
     c2w = torch.stack([c for _, c in cams])
-    post = model.refine(model.posterior(rgb, depth, K, c2w), rgb, depth, K, c2w)
+    cfg = model.config
+    poses = [scene_pose(s.path, cfg.bg_static_pose, cfg.bg_static_pose_dims) for s in scenes]
+    pose = model.batch_pose(poses, dev)
+    post = model.refine(model.posterior(rgb, depth, K, c2w, pose), rgb, depth, K, c2w)
     z = model.latents(post, sample=False)
     return [
         Particles(
@@ -98,6 +101,7 @@ def encode_batch(model: ParticleSplat, scenes: list[Scene]) -> list[Particles]:
             z_f=z["z_f"][b],
             view=post.view,
             background=z["bg"][b],
+            pose=None if pose is None else pose[b],
             cameras=[c.to(dev) for c in s.cameras],
         )
         for b, s in enumerate(scenes)

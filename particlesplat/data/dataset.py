@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing as mp
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -15,6 +16,7 @@ from torch.utils.data import Dataset
 
 from particlesplat.core.errors import one_line
 from particlesplat.data.scene import TRANSFORMS, RawScene, SceneFormatError, read_scene
+from particlesplat.data.scene_meta import SCENE_META, read_pose
 from particlesplat.data.views import flip_horizontal, sample_views, supervision_mask
 
 
@@ -28,6 +30,7 @@ class TrainingBatch:
     - ``context_K`` (B, C, 3, 3), ``target_K`` (B, T, 3, 3): intrinsics in pixels at H x W.
     - ``context_c2w`` (B, C, 4, 4), ``target_c2w`` (B, T, 4, 4): OpenCV camera-to-world.
     - ``target_supervision`` (B, T, 1, H, W): float32 {0, 1}; 1 where the target pixel is supervised.
+    - ``pose`` (B, D): each scene's pose (``model.bg_static_pose``), or None where the dataset reads none.
     """
 
     context_rgb: Tensor
@@ -39,14 +42,17 @@ class TrainingBatch:
     target_K: Tensor
     target_c2w: Tensor
     target_supervision: Tensor
+    pose: Tensor | None = None
 
     @classmethod
     def collate(cls, items: Sequence[dict[str, Tensor]]) -> TrainingBatch:
         """Stack the fields of ``items`` (:class:`SceneDataset` items of one view count) along a new batch axis."""
-        return cls(**{f.name: torch.stack([item[f.name] for item in items]) for f in fields(cls)})
+        return cls(**{f.name: torch.stack([item[f.name] for item in items]) for f in fields(cls) if f.name in items[0]})
 
     def to(self, device: torch.device | str) -> TrainingBatch:
-        return TrainingBatch(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
+        return dataclasses.replace(
+            self, **{f.name: t.to(device) for f in fields(self) if (t := getattr(self, f.name)) is not None}
+        )
 
 
 class SceneDataset(Dataset):
@@ -67,6 +73,7 @@ class SceneDataset(Dataset):
       Single-view mode with depth: the Splatt3R-style mask (:func:`supervision_mask`); otherwise ones.
     - ``context_index`` (C,), ``target_index`` (T,): int64 frame indices; ``scene_index`` () int64;
       ``flipped`` () bool.
+    - ``pose`` (D,) float32: the pose ``scene.json`` records under ``pose_key`` (with ``pose_key`` only).
 
     With ``deterministic=True`` (validation/test), item ``i`` always picks the same views and flip,
     from a generator seeded by ``(seed, i)``; otherwise each call draws fresh views from torch's
@@ -86,6 +93,8 @@ class SceneDataset(Dataset):
         num_targets: int | None = None,
         schedule: tuple[tuple[int, int], tuple[int, int]] | None = None,
         cache_size: int = 256,
+        pose_key: str = "",
+        pose_dims: int = 0,
     ) -> None:
         """
         Args:
@@ -99,6 +108,8 @@ class SceneDataset(Dataset):
                 validation use ``deterministic=True, progress=1.0`` (the full gap range).
             num_targets, schedule: passed to :func:`sample_views`.
             cache_size: decoded scenes kept per process (about 2.8 MB each at 21 x 128 x 128).
+            pose_key, pose_dims: each item's ``pose``, the ``pose_dims`` numbers its ``scene.json`` records under
+                ``pose_key`` (``model.bg_static_pose``); every scene must record it ("": none read).
         """
         root = Path(root_split_dir)
         if not root.is_dir():
@@ -118,6 +129,7 @@ class SceneDataset(Dataset):
         self.num_targets = num_targets
         self.schedule = schedule
         self.cache_size = cache_size
+        self.pose_key, self.pose_dims = pose_key, pose_dims
         self._progress = mp.get_context().Value("d", float(progress), lock=False)
         self._cache: OrderedDict[int, RawScene] = OrderedDict()
 
@@ -144,6 +156,16 @@ class SceneDataset(Dataset):
                 self._cache.popitem(last=False)
         return raw
 
+    def pose(self, index: int) -> list[float]:
+        """The pose scene ``index`` records (``pose_key``); SceneFormatError names its scene.json when it has none."""
+        pose = read_pose(self.scenes[index], self.pose_key, self.pose_dims)
+        if pose is None:
+            raise SceneFormatError(
+                f"{self.scenes[index] / SCENE_META}: no key {self.pose_key!r} (the model's bg_static_pose: "
+                f"{self.pose_dims} numbers a scene)"
+            )
+        return pose
+
     def __getitem__(self, index: int) -> dict[str, Tensor]:
         if not 0 <= index < len(self):
             raise IndexError(f"index {index} out of range for {len(self)} scenes")
@@ -166,6 +188,8 @@ class SceneDataset(Dataset):
             "context_index": ctx,
             "target_index": tgt,
         }
+        if self.pose_key:
+            item["pose"] = torch.tensor(self.pose(index))
         views = {}
         for role, idx in (("context", ctx), ("target", tgt)):
             scene = raw.select(idx.tolist(), self.resolution)

@@ -10,7 +10,10 @@ import math
 from os import PathLike
 from pathlib import Path
 
-from particlesplat.core.errors import one_line, short_repr
+import torch
+from torch import Tensor
+
+from particlesplat.core.errors import one_line, short_repr, warn_input
 from particlesplat.core.viewpoints import Framing
 from particlesplat.data.families import family_of
 from particlesplat.data.scene import SceneFormatError
@@ -85,6 +88,38 @@ def read_framing(folder: str | PathLike) -> Framing | None:
     return Framing(
         (float(look_at[0]), float(look_at[1]), float(look_at[2])), None if distance is None else float(distance)
     )
+
+
+def read_pose(folder: str | PathLike, key: str, dims: int) -> list[float] | None:
+    """The pose ``folder/scene.json`` records under ``key`` (``model.bg_static_pose``: a robot's joint angles), a
+    list of ``dims`` finite numbers. None when the folder has no scene.json or it lacks the key. SceneFormatError
+    names the file and the key of a value of another length or type."""
+    path = Path(folder) / SCENE_META
+    if not path.is_file():
+        return None
+    meta = _read_json(path)
+    if not isinstance(meta, dict) or meta.get(key) is None:
+        return None
+    value = meta[key]
+    if not (isinstance(value, list) and len(value) == dims and all(_finite(v) for v in value)):
+        raise SceneFormatError(f"{path}: key {key!r} must be {dims} finite numbers, got {short_repr(value)}")
+    return [float(v) for v in value]
+
+
+def scene_pose(folder: str | PathLike, key: str, dims: int) -> Tensor | None:
+    """The pose (D,) a model that follows one (``model.bg_static_pose`` ``key`` of ``dims`` numbers; "" = none)
+    reads for the scene at ``folder``: what its scene.json records. None for a model that follows none, and, with
+    an InputWarning (the layer then holds the training scenes' mean pose), for a scene that records none."""
+    if not key:
+        return None
+    pose = read_pose(folder, key, dims)
+    if pose is None:
+        warn_input(
+            f"{Path(folder) / SCENE_META}: no key {key!r}: the model's workspace layer follows that pose; it holds "
+            "the training scenes' mean pose instead"
+        )
+        return None
+    return torch.tensor(pose)
 
 
 def _finite(v: object) -> bool:

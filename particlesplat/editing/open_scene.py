@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import warnings
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
 
 from particlesplat.core.bundled import bundled_assets
-from particlesplat.core.errors import OptionError
+from particlesplat.core.errors import InputWarning, OptionError
 from particlesplat.core.limits import check_memory
 from particlesplat.core.viewpoints import default_context_views
 from particlesplat.data import Scene, read_scene
+from particlesplat.data.scene_meta import scene_pose
 from particlesplat.model import Particles, ParticleSplat
 
 # the shipped model on the 32 test scenes, as the README's results table: particlesplat eval [--no-depth]
@@ -117,14 +119,18 @@ def encode_scene(
     )
     scene = raw.select(ctx, model.config.resolution)
     depth = scene.depth if use_depth and scene.depth is not None and bool((scene.depth > 0).any()) else None
-    particles = model.encode(scene.rgb, depth, scene.cameras)
-    warnings = []
+    cfg = model.config
+    with warnings.catch_warnings(record=True) as caught:  # shown where the scene's other warnings are
+        warnings.simplefilter("always", InputWarning)
+        pose = scene_pose(raw.path, cfg.bg_static_pose, cfg.bg_static_pose_dims)
+    particles = model.encode(scene.rgb, depth, scene.cameras, pose)
+    notes = [str(w.message) for w in caught]
     if use_depth and depth is None:
-        warnings.append(
+        notes.append(
             f"{raw.path}: no depth in the context frames {ctx}: the model was trained with depth, and "
             f"from RGB alone it reconstructs far worse ({NO_DEPTH_NOTE})"
         )
-    return EncodedScene(particles, scene, list(raw.cameras), ctx, Path(raw.path), warnings)
+    return EncodedScene(particles, scene, list(raw.cameras), ctx, Path(raw.path), notes)
 
 
 def load_model_scene(checkpoint: str | None, scene: str | PathLike | None, context: str | None = None):

@@ -47,6 +47,7 @@ INT_RANGES: dict[str, tuple[int, int]] = {
     "bg_block": (1, 1024),
     "bg_static_grid": (0, 512),
     "bg_static_points": (0, 200_000),
+    "bg_static_pose_dims": (0, 64),
     "patch_gaussians": (1, 64),
     "patch_base": (0, 64),
     "patch_channels": (0, 1024),
@@ -92,6 +93,8 @@ class ModelConfig:
     bg_static_grid: int = 72
     bg_static_extent: float = 2.25
     bg_static_points: int = 0
+    bg_static_pose: str = ""
+    bg_static_pose_dims: int = 0
     bg_per_view: bool = False
     patch_gaussians: int = 16
     patch_base: int = 4
@@ -156,6 +159,16 @@ class ModelConfig:
             self.bg_static_grid == 0 or self.bg_static_points == 0,
             "bg_static_points",
             "the static layer is either the floor grid (bg_static_grid) or the workspace points; set one to 0",
+        )
+        need(
+            (self.bg_static_pose == "") == (self.bg_static_pose_dims == 0),
+            "bg_static_pose",
+            "and bg_static_pose_dims go together: a scene.json key and the length of its list ('' and 0: off)",
+        )
+        need(
+            self.bg_static_pose == "" or self.bg_static_points > 0,
+            "bg_static_pose",
+            "moves the workspace layer: it needs bg_static_points > 0",
         )
         need(
             self.bg_per_view or self.has_static_background,

@@ -48,7 +48,8 @@ def context_error(
     K, c2w = stack_cameras(particles.cameras, device=dev)
     z = {k: (latents or {}).get(k, getattr(particles, k))[None] for k in FITTED}
     z.update(z_t=particles.z_t[None], bg=particles.background[None])
-    (gaussians,) = model.decode_batch(z, particles.view, K[None], c2w[None])
+    pose = model.batch_pose([particles.pose], dev)
+    (gaussians,) = model.decode_batch(z, particles.view, K[None], c2w[None], pose=pose)
     size = model.config.resolution
     res = render_batch(
         [(gaussians, Camera(K[v], c2w[v], size, size)) for v in range(K.shape[0])], background=model.background_color()

@@ -33,6 +33,8 @@ class Particles:
         background: (V, d_bg, h, w) per-view background latent maps (what the per-view background decoder
             reads, ``bg_per_view``).
         cameras: the V context cameras (OpenCV).
+        pose: (D,) the scene's pose the workspace layer follows (``bg_static_pose``: a robot's joint angles), or
+            None (the layer's mean pose).
     """
 
     z_p: Tensor
@@ -44,6 +46,7 @@ class Particles:
     view: Tensor
     background: Tensor
     cameras: list[Camera] = field(default_factory=list)
+    pose: Tensor | None = None
 
     @property
     def num(self) -> int:
@@ -51,14 +54,14 @@ class Particles:
 
     @classmethod
     def row_fields(cls) -> tuple[str, ...]:
-        """The fields with one row per particle: all but ``background`` and ``cameras``."""
-        return tuple(f.name for f in fields(cls) if f.name not in ("background", "cameras"))
+        """The fields with one row per particle: all but ``background``, ``cameras`` and ``pose``."""
+        return tuple(f.name for f in fields(cls) if f.name not in ("background", "cameras", "pose"))
 
     def _rows(self, fn) -> Particles:
         return replace(self, **{name: fn(name, getattr(self, name)) for name in self.row_fields()})
 
     def cat(self, other: Particles) -> Particles:
-        """These particles followed by ``other``'s (moved to this device; the background and cameras stay
+        """These particles followed by ``other``'s (moved to this device; the background, cameras and pose stay
         these)."""
         return self._rows(lambda name, t: torch.cat([t, getattr(other, name).to(t.device)]))
 
@@ -74,8 +77,8 @@ class Particles:
         return self.take(slice(0, num))
 
     def _map(self, fn) -> Particles:
-        out = {f.name: fn(getattr(self, f.name)) for f in fields(self) if f.name != "cameras"}
-        return Particles(**out, cameras=list(self.cameras))
+        out = {f.name: fn(getattr(self, f.name)) for f in fields(self) if f.name not in ("cameras", "pose")}
+        return Particles(**out, cameras=list(self.cameras), pose=None if self.pose is None else fn(self.pose))
 
     def detach(self) -> Particles:
         return self._map(lambda t: t.detach())

@@ -89,11 +89,14 @@ class ParticleSplat(nn.Module):
         return self.bg_decoder
 
     # ------------------------------------------------------------------ batched internals
-    def posterior(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Posterior:
+    def posterior(
+        self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, pose: Tensor | None = None
+    ) -> Posterior:
         """Posterior parameters for B scenes with V context views.
 
         rgb: (B, V, 3, H, W) in [0, 1]; depth: (B, V, 1, H, W) metres (0 = missing) or None;
-        K: (B, V, 3, 3); c2w: (B, V, 4, 4) OpenCV. Returns the :class:`Posterior`: particle posteriors
+        K: (B, V, 3, 3); c2w: (B, V, 4, 4) OpenCV; pose: (B, D) the scenes' poses the workspace layer follows
+        (``bg_static_pose``; None: its mean pose). Returns the :class:`Posterior`: particle posteriors
         (B, V*L, ·), the view index (V*L,), background mean/logvar (B, V, d_bg, h, w), the background mask
         (B, V, 1, H, W) and the background's own error per pixel, ``bg_error`` (B, V, 1, H, W): the static layer's
         (``bg_static_grid``) per pixel, else the per-view background's per ``bg_block``² block.
@@ -111,7 +114,7 @@ class ParticleSplat(nn.Module):
         # what the background alone explains badly: the keypoints go there
         static = None
         if self.static_bg is not None:
-            static = self.static_layer(Kf, cf, W, H)
+            static = self.static_layer(Kf, cf, W, H, None if pose is None else pose.repeat_interleave(V, 0))
             pixel_err = layer_error(static, x, d, block=1)
             block_err = F.avg_pool2d(pixel_err, cfg.bg_block)
         else:
@@ -138,6 +141,7 @@ class ParticleSplat(nn.Module):
             view=torch.arange(V, device=rgb.device).repeat_interleave(cfg.particles_per_view),
             bg_error=pixel_err.reshape(B, V, 1, H, W),
             static_layer=None if static is None else static.reshape(B, V, 5, H, W),
+            pose=pose,
         )
 
     def coarse_background_error(
@@ -164,24 +168,37 @@ class ParticleSplat(nn.Module):
 
     @torch.no_grad()
     def static_background_error(
-        self, x: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, block: int | None = None
+        self,
+        x: Tensor,
+        depth: Tensor | None,
+        K: Tensor,
+        c2w: Tensor,
+        block: int | None = None,
+        pose: Tensor | None = None,
     ) -> Tensor:
         """Per-block error (:func:`layer_error`, ``block`` default ``bg_block``) of the static background layer
         alone rendered into M views (no gradient): x (M, 3, H, W); depth (M, 1, H, W) metres (0 = none) or None;
-        K (M, 3, 3); c2w (M, 4, 4) -> (M, 1, Hb, Wb). An object in front of the floor and the floor where the
-        layer is transparent both count."""
+        K (M, 3, 3); c2w (M, 4, 4); pose (M, D) or None (:meth:`static_layer`) -> (M, 1, Hb, Wb). An object in
+        front of the floor and the floor where the layer is transparent both count."""
         H, W = x.shape[-2:]
-        return layer_error(self.static_layer(K, c2w, W, H), x, depth, block or self.config.bg_block)
+        return layer_error(self.static_layer(K, c2w, W, H, pose), x, depth, block or self.config.bg_block)
 
     @torch.no_grad()
-    def static_layer(self, K: Tensor, c2w: Tensor, width: int, height: int) -> Tensor:
+    def static_layer(self, K: Tensor, c2w: Tensor, width: int, height: int, pose: Tensor | None = None) -> Tensor:
         """The static background layer alone rendered into M views over the background colour (no gradient):
-        K (M, 3, 3), c2w (M, 4, 4) -> layers (M, 5, height, width) (:mod:`particlesplat.rendering.layers`)."""
+        K (M, 3, 3), c2w (M, 4, 4), pose (M, D) the pose of each view's scene (``bg_static_pose``; None: the
+        layer's mean pose) -> layers (M, 5, height, width) (:mod:`particlesplat.rendering.layers`)."""
         if self.static_bg is None:
             raise ValueError("this model has no static background layer (bg_static_grid and bg_static_points are 0)")
-        g = _gaussians(self.static_bg(), torch.full((self.static_bg.num,), BACKGROUND_OWNER, device=K.device))
+        owner = torch.full((self.static_bg.num,), BACKGROUND_OWNER, device=K.device)
+        M = K.shape[0]
+        if self.follows_pose and pose is not None:
+            moved = self.static_fields(M, pose)
+            sets = [_gaussians({k: v[i] for k, v in moved.items()}, owner) for i in range(M)]
+        else:
+            sets = [_gaussians(self.static_bg(), owner)] * M
         res = render_batch(
-            [(g, Camera(K[i], c2w[i], width, height)) for i in range(K.shape[0])], background=self.background_color()
+            [(sets[i], Camera(K[i], c2w[i], width, height)) for i in range(M)], background=self.background_color()
         )
         return torch.stack([render_layer(r.rgb, r.depth, r.alpha) for r in res])
 
@@ -227,7 +244,7 @@ class ParticleSplat(nn.Module):
             with torch.no_grad():
                 z = self.latents(post, sample=False)
                 gaussians = self.decode_batch(
-                    z, view, K, c2w, background=behind is None, max_per_particle=cfg.refine_keep
+                    z, view, K, c2w, background=behind is None, max_per_particle=cfg.refine_keep, pose=post.pose
                 )
                 res = render_batch(
                     [
@@ -303,17 +320,45 @@ class ParticleSplat(nn.Module):
         raw = self._bg_decoder()(bg, background_rays(K, c2w, self.config))
         return background_gaussians(raw, K, c2w, self.config)
 
-    def background_fields(self, bg: Tensor, K: Tensor, c2w: Tensor) -> dict[str, Tensor]:
+    def batch_pose(self, poses: list[Tensor | None], device: torch.device) -> Tensor | None:
+        """The scenes' poses (each (D,) or None: the layer's mean pose) as the batch (B, D) the layer reads, on
+        ``device``; None for a model whose layer follows no pose. ValueError for a pose of another length."""
+        layer = self.static_bg
+        if not (isinstance(layer, WorkspaceBackground) and layer.pose_dims > 0):
+            return None
+        for pose in poses:
+            if pose is not None and tuple(pose.shape) != (layer.pose_dims,):
+                raise ValueError(
+                    f"pose: {self.config.bg_static_pose} must hold {layer.pose_dims} numbers, got {tuple(pose.shape)}"
+                )
+        rows = [layer.pose_mean if pose is None else pose.to(layer.pose_mean) for pose in poses]
+        return torch.stack(rows).to(device)
+
+    @property
+    def follows_pose(self) -> bool:
+        """The workspace layer follows a per-scene pose (``bg_static_pose``)."""
+        return isinstance(self.static_bg, WorkspaceBackground) and self.static_bg.pose_dims > 0
+
+    def static_fields(self, B: int, pose: Tensor | None = None) -> dict[str, Tensor]:
+        """The static layer's Gaussian fields for B scenes (B, N, ·); pose (B, D) or None (the mean pose) moves
+        a workspace layer that follows one (:attr:`follows_pose`)."""
+        if self.static_bg is None:
+            raise ValueError("this model has no static background layer (bg_static_grid and bg_static_points are 0)")
+        if isinstance(self.static_bg, WorkspaceBackground) and self.follows_pose and pose is not None:
+            return self.static_bg(pose)
+        return {k: v[None].expand(B, *v.shape) for k, v in self.static_bg().items()}
+
+    def background_fields(self, bg: Tensor, K: Tensor, c2w: Tensor, pose: Tensor | None = None) -> dict[str, Tensor]:
         """Background Gaussians of B scenes: the per-view background (``bg_per_view``) then the static layer
-        (``bg_static_grid``). bg: (B, V, C, h, w) latents; K: (B, V, 3, 3); c2w: (B, V, 4, 4) ->
-        fields (B, N_bg, ·)."""
+        (``bg_static_grid``, ``bg_static_points``). bg: (B, V, C, h, w) latents; K: (B, V, 3, 3); c2w: (B, V, 4, 4);
+        pose: (B, D) or None (:meth:`static_fields`) -> fields (B, N_bg, ·)."""
         B, V = K.shape[:2]
         parts = []
         if self.config.bg_per_view:
             f = self.background(bg.reshape(B * V, *bg.shape[2:]), K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4))
             parts.append({k: v.reshape(B, -1, *v.shape[2:]) for k, v in f.items()})
         if self.static_bg is not None:
-            parts.append({k: v[None].expand(B, *v.shape) for k, v in self.static_bg().items()})
+            parts.append(self.static_fields(B, pose))
         return {k: torch.cat([p[k] for p in parts], dim=1) for k in parts[0]}
 
     def decode_batch(
@@ -324,9 +369,11 @@ class ParticleSplat(nn.Module):
         c2w: Tensor,
         background: bool = True,
         max_per_particle: int = 0,
+        pose: Tensor | None = None,
     ) -> list[Gaussians]:
         """Decode B scenes. z: from :meth:`latents`; view: (N,) particle views;
-        K: (B, V, 3, 3); c2w: (B, V, 4, 4) of the context views. Returns B Gaussian sets (owner = particle).
+        K: (B, V, 3, 3); c2w: (B, V, 4, 4) of the context views; pose: (B, D) or None (:meth:`static_fields`).
+        Returns B Gaussian sets (owner = particle).
         ``max_per_particle`` k > 0: each particle keeps its k most opaque Gaussians (as :meth:`decode`)."""
         B, N = z["z_p"].shape[:2]
         flat = {k: z[k].reshape(B * N, -1) for k in ("z_p", "z_s", "z_d", "z_e", "z_t", "z_f")}
@@ -339,7 +386,7 @@ class ParticleSplat(nn.Module):
         fg = {k: v.reshape(B, -1, *v.shape[2:]) for k, v in fg.items()}
         owner_fg = torch.arange(N, device=K.device).repeat_interleave(per)
         if background:
-            bgf = self.background_fields(z["bg"], K, c2w)
+            bgf = self.background_fields(z["bg"], K, c2w, pose)
             owner = torch.cat([owner_fg, torch.full((bgf["means"].shape[1],), BACKGROUND_OWNER, device=K.device)])
             fields = {k: torch.cat([fg[k], bgf[k]], dim=1) for k in fg}
         else:
@@ -347,23 +394,31 @@ class ParticleSplat(nn.Module):
         return [_gaussians({k: v[b] for k, v in fields.items()}, owner) for b in range(B)]
 
     def forward(
-        self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, sample: bool = True, background: bool = True
+        self,
+        rgb: Tensor,
+        depth: Tensor | None,
+        K: Tensor,
+        c2w: Tensor,
+        sample: bool = True,
+        background: bool = True,
+        pose: Tensor | None = None,
     ) -> tuple[Posterior, dict[str, Tensor], list[Gaussians]]:
         """Training pass for B scenes (shapes as in :meth:`posterior`): posterior, latents (with the background
         colour to render behind the Gaussians, ``bg_color`` (3,), computed here so that under DDP every weight
         is used inside the forward pass), Gaussians per scene."""
-        post = self.refine(self.posterior(rgb, depth, K, c2w), rgb, depth, K, c2w)
+        post = self.refine(self.posterior(rgb, depth, K, c2w, pose), rgb, depth, K, c2w)
         z = self.latents(post, sample)
         z["bg_color"] = self.background_color()
-        return post, z, self.decode_batch(z, post.view, K, c2w, background)
+        return post, z, self.decode_batch(z, post.view, K, c2w, background, pose=post.pose)
 
     # ------------------------------------------------------------------ scene-level API
     @torch.no_grad()
-    def encode(self, rgb: Tensor, depth: Tensor | None, cameras: list[Camera]) -> Particles:
+    def encode(self, rgb: Tensor, depth: Tensor | None, cameras: list[Camera], pose: Tensor | None = None) -> Particles:
         """Posterior means of one scene.
 
         rgb: (V, 3, H, W) in [0, 1], H = W = config.resolution; depth: (V, 1, H, W) planar metres
-        (0 = missing) or None; cameras: V OpenCV cameras of those images.
+        (0 = missing) or None; cameras: V OpenCV cameras of those images; pose: (D,) the scene's pose
+        (``bg_static_pose``: :func:`particlesplat.data.scene_meta.read_pose`), None for the layer's mean pose.
         """
         V = rgb.shape[0]
         if rgb.ndim != 4 or rgb.shape[1] != 3:
@@ -380,7 +435,10 @@ class ParticleSplat(nn.Module):
         dev = next(self.parameters()).device
         K, c2w = stack_cameras(cameras, device=dev)
         rgb_b, depth_b = rgb[None].to(dev), None if depth is None else depth[None].to(dev)
-        post = self.refine(self.posterior(rgb_b, depth_b, K[None], c2w[None]), rgb_b, depth_b, K[None], c2w[None])
+        pose_b = self.batch_pose([pose], dev)
+        post = self.refine(
+            self.posterior(rgb_b, depth_b, K[None], c2w[None], pose_b), rgb_b, depth_b, K[None], c2w[None]
+        )
         z = self.latents(post, sample=False)
         return Particles(
             z_p=z["z_p"][0],
@@ -392,6 +450,7 @@ class ParticleSplat(nn.Module):
             view=post.view,
             background=z["bg"][0],
             cameras=[c.to(dev) for c in cameras],
+            pose=None if pose_b is None else pose_b[0],
         )
 
     @torch.no_grad()
@@ -448,7 +507,8 @@ class ParticleSplat(nn.Module):
             )
             parts.append(_gaussians(fg, idx.repeat_interleave(fg["opacities"].shape[1])))
         if background:
-            bgf = {k: v[0] for k, v in self.background_fields(p.background[None], K[None], c2w[None]).items()}
+            pose = self.batch_pose([p.pose], dev)
+            bgf = {k: v[0] for k, v in self.background_fields(p.background[None], K[None], c2w[None], pose).items()}
             parts.append(_gaussians(bgf, torch.full((bgf["means"].shape[0],), BACKGROUND_OWNER, device=dev)))
         if not parts:
             return Gaussians.empty(self.config.sh_degree, device=dev)

@@ -69,6 +69,7 @@ class StaticBackground(nn.Module):
 WORKSPACE_STEP = 0.05  # metres a unit of a workspace Gaussian's position offset moves it (Adam steps of ~lr units)
 WORKSPACE_SCALE = 0.6  # initial standard deviation of a workspace Gaussian, in voxel edges
 WORKSPACE_MAX_SCALE = 0.15  # metres: the largest standard deviation a workspace Gaussian may grow to
+POSE_STEP = 0.1  # metres per pose unit (radian) that a unit of a workspace Gaussian's pose Jacobian moves it
 
 
 class WorkspaceBackground(nn.Module):
@@ -78,9 +79,16 @@ class WorkspaceBackground(nn.Module):
     Positions start at the voxels :func:`particlesplat.data.workspace_points.workspace_points` finds in the
     training data (:meth:`initialise`, once, before the first step); until then every Gaussian is transparent.
     The anchors are stored in the checkpoint with the learned offsets, scales, rotations, colours and opacities.
+
+    With ``bg_static_pose_dims`` D > 0 the layer follows a per-scene pose (a robot's joint angles, the scene key
+    ``bg_static_pose``): each Gaussian's mean moves by its learned 3 x D Jacobian times the scene's pose minus
+    ``pose_mean`` (the training scenes' mean, set by :meth:`set_pose_mean`). That is the first-order motion of a
+    point on an articulated body about that pose: exact for small joint offsets, and learned without a
+    kinematic model. Rotations, scales and colours stay shared.
     """
 
     anchor: Tensor  # (N, 3) world metres, a buffer
+    pose_mean: Tensor  # (D,) the pose the anchors and offsets hold at, a buffer
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
@@ -92,10 +100,25 @@ class WorkspaceBackground(nn.Module):
         self.quat = nn.Parameter(torch.tensor([1.0, 0.0, 0.0, 0.0]).expand(n, 4).clone())
         self.sh_dc = nn.Parameter(rgb_to_sh_dc(torch.full((n, 3), 0.6)))
         self.opacity_logit = nn.Parameter(torch.full((n,), -12.0))
+        d = cfg.bg_static_pose_dims
+        self.register_buffer("pose_mean", torch.zeros(d), persistent=d > 0)  # checkpoints without a pose load
+        self.pose_jacobian = nn.Parameter(torch.zeros(n, 3, d)) if d > 0 else None
 
     @property
     def num(self) -> int:
         return self.anchor.shape[0]
+
+    @property
+    def pose_dims(self) -> int:
+        """D: the length of the pose the layer follows (0: a layer every scene shares as is)."""
+        return self.pose_mean.shape[0]
+
+    @torch.no_grad()
+    def set_pose_mean(self, poses: Tensor) -> None:
+        """poses (S, D) of the training scenes: the layer holds its anchors and offsets at their mean."""
+        if poses.ndim != 2 or poses.shape[1] != self.pose_dims or poses.shape[0] == 0:
+            raise ValueError(f"workspace background: poses must be (S>0, {self.pose_dims}), got {tuple(poses.shape)}")
+        self.pose_mean.copy_(poses.mean(0).to(self.pose_mean))
 
     @torch.no_grad()
     def initialise(self, points: Tensor, colours: Tensor, sizes: Tensor) -> None:
@@ -113,14 +136,25 @@ class WorkspaceBackground(nn.Module):
         self.opacity_logit.fill_(-12.0)
         self.opacity_logit[:k] = 3.0
 
-    def forward(self) -> dict[str, Tensor]:
+    def forward(self, pose: Tensor | None = None) -> dict[str, Tensor]:
         """Gaussian fields: means (N, 3) world metres, quats (N, 4), scales (N, 3) metres, opacities (N,),
-        sh (N, K, 3) (view-independent colour)."""
+        sh (N, K, 3) (view-independent colour): the layer at ``pose_mean``. With ``pose`` (B, D), the layer of B
+        scenes: every field (B, N, ·), the means moved by the pose Jacobian."""
         sh = torch.cat([self.sh_dc[:, None], self.sh_dc.new_zeros(self.num, self.num_bases - 1, 3)], dim=1)
-        return {
-            "means": self.anchor + WORKSPACE_STEP * self.offset,
+        means = self.anchor + WORKSPACE_STEP * self.offset
+        fields = {
+            "means": means,
             "quats": self.quat / self.quat.norm(dim=-1, keepdim=True).clamp_min(1e-8),
             "scales": self.log_scale.exp().clamp(max=WORKSPACE_MAX_SCALE),
             "opacities": torch.sigmoid(self.opacity_logit),
             "sh": sh,
         }
+        if pose is None:
+            return fields
+        if pose.ndim != 2 or pose.shape[1] != self.pose_dims:
+            raise ValueError(f"workspace background: pose must be (B, {self.pose_dims}), got {tuple(pose.shape)}")
+        batched = {k: v[None].expand(pose.shape[0], *v.shape) for k, v in fields.items()}
+        if self.pose_jacobian is not None:
+            delta = pose.to(means) - self.pose_mean
+            batched["means"] = means + POSE_STEP * torch.einsum("ncd,bd->bnc", self.pose_jacobian, delta)
+        return batched

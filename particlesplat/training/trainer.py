@@ -121,7 +121,9 @@ def training_loss(
     ``tc.beta_fg``; 0 leaves the term out). Returns the loss parts and the target-view renders
     (B, T, 3, H, W) (or context renders when there are no targets)."""
     beta_fg = tc.beta_fg if beta_fg is None else beta_fg
-    post, z, gaussians = model(batch.context_rgb, batch.context_depth, batch.context_K, batch.context_c2w, sample=True)
+    post, z, gaussians = model(
+        batch.context_rgb, batch.context_depth, batch.context_K, batch.context_c2w, sample=True, pose=batch.pose
+    )
     C = batch.context_rgb.shape[1]
     K = torch.cat([batch.context_K, batch.target_K], 1)
     c2w = torch.cat([batch.context_c2w, batch.target_c2w], 1)
@@ -148,7 +150,9 @@ def training_loss(
             rgb_t, depth_t, K_t, c2w_t = (
                 t.flatten(0, 1) for t in (batch.target_rgb, batch.target_depth, batch.target_K, batch.target_c2w)
             )
-            tgt_err = net.static_background_error(rgb_t, depth_t, K_t, c2w_t, block=1).reshape(B, V - C, 1, size, size)
+            pose_t = None if batch.pose is None else batch.pose.repeat_interleave(V - C, 0)
+            tgt_err = net.static_background_error(rgb_t, depth_t, K_t, c2w_t, block=1, pose=pose_t)
+            tgt_err = tgt_err.reshape(B, V - C, 1, size, size)
             bg_err = torch.cat([bg_err, tgt_err], 1)
         fg_err = foreground_error(fg_hat.flatten(0, 1), bg_err.flatten(0, 1), tc.fg_threshold)
         parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
@@ -264,6 +268,8 @@ class Trainer:
                 num_targets=tc.target_views,
                 flip=False,
                 cache_size=tc.cache_scenes,
+                pose_key=cfg.bg_static_pose,
+                pose_dims=cfg.bg_static_pose_dims,
             )
             for c in sorted(set(tc.context_views))
         }
@@ -278,6 +284,8 @@ class Trainer:
         copied = self._init_from(init) if init is not None else set()
         if not resume and cfg.bg_static_points > 0 and not any(n.startswith("static_bg.") for n in copied):
             self._start_workspace()
+        if not resume and self.model.follows_pose and "static_bg.pose_mean" not in copied:
+            self._set_pose_mean()
         # the learned background colour and the static background layer move at lr_background
         is_bg = lambda n: n == "background_logit" or n.startswith("static_bg.")  # noqa: E731
         trained = list(self.model.named_parameters())
@@ -327,6 +335,20 @@ class Trainer:
             print(
                 f"workspace layer: {len(found.points)} of {self.cfg.bg_static_points} Gaussians placed from "
                 f"{len(scenes)} training scenes",
+                file=sys.stderr,
+            )
+
+    def _set_pose_mean(self) -> None:
+        """The workspace layer follows each scene's pose (``model.bg_static_pose``) about the mean pose of the
+        training scenes (each must record one)."""
+        ds = next(iter(self.train_sets.values()))
+        layer = self.model.static_bg
+        if not isinstance(layer, WorkspaceBackground):
+            raise RuntimeError("bg_static_pose is set but the model has no workspace layer")
+        layer.set_pose_mean(torch.tensor([ds.pose(i) for i in range(len(ds))]))
+        if self.rank == 0:
+            print(
+                f"workspace layer: follows {self.cfg.bg_static_pose} about its mean over {len(ds)} training scenes",
                 file=sys.stderr,
             )
 
