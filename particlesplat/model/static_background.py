@@ -69,7 +69,8 @@ class StaticBackground(nn.Module):
 WORKSPACE_STEP = 0.05  # metres a unit of a workspace Gaussian's position offset moves it (Adam steps of ~lr units)
 WORKSPACE_SCALE = 0.6  # initial standard deviation of a workspace Gaussian, in voxel edges
 WORKSPACE_MAX_SCALE = 0.15  # metres: the largest standard deviation a workspace Gaussian may grow to
-POSE_STEP = 0.1  # metres per pose unit (radian) that a unit of a workspace Gaussian's pose Jacobian moves it
+POSE_STEP = 0.3  # metres per pose unit (radian) a unit of a pose Jacobian entry moves a workspace Gaussian (at
+# lr_background 0.01: 3 mm/rad a step, the rate of the measurement on the layer alone, docs/robot-model.md)
 
 
 class WorkspaceBackground(nn.Module):
