@@ -1,7 +1,8 @@
 """What a scene generator records about a scene folder beyond its frames (``scene.json``, docs/dataset.md):
 where its cameras look (``look_at``, ``distance``), so that the default view, the orbit and ``--look`` follow the
-scene's own scale rather than one family's; and its family, so that a command without ``--checkpoint`` opens it
-with the shipped model of that family."""
+scene's own scale rather than one family's; its family, so that a command without ``--checkpoint`` opens it
+with the shipped model of that family; and a pose (a robot's joint angles) that a model's workspace layer may
+follow (``model.bg_static_pose``)."""
 
 from __future__ import annotations
 

@@ -84,8 +84,8 @@ class WorkspaceBackground(nn.Module):
     With ``bg_static_pose_dims`` D > 0 the layer follows a per-scene pose (a robot's joint angles, the scene key
     ``bg_static_pose``): each Gaussian's mean moves by its learned 3 x D Jacobian times the scene's pose minus
     ``pose_mean`` (the training scenes' mean, set by :meth:`set_pose_mean`). That is the first-order motion of a
-    point on an articulated body about that pose: exact for small joint offsets, and learned without a
-    kinematic model. Rotations, scales and colours stay shared.
+    point on an articulated body about that pose (its error grows with the square of the joint offsets), learned
+    without a kinematic model. Rotations, scales and colours stay shared.
     """
 
     anchor: Tensor  # (N, 3) world metres, a buffer
