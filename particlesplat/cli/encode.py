@@ -37,6 +37,7 @@ from particlesplat.data.scene_meta import CHECKPOINT_HELP, scene_pose
 from particlesplat.editing.grouping import ObjectCentre
 from particlesplat.model import Particles, ParticleSplat
 from particlesplat.model.geometry import stack_cameras
+from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
 
 def find_scenes(root: str | PathLike) -> list[Path]:
@@ -249,9 +250,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="encode every scene again (default: an existing .npz of the same checkpoint, --context, object "
         "centre and format version is kept)",
     )
+    add_rasterizer_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    apply_rasterizer_option(args)
     from particlesplat.data.scene_meta import default_checkpoint
     from particlesplat.editing.open_scene import parse_context
     from particlesplat.model import load_model

@@ -13,6 +13,7 @@ from particlesplat.core.atomic import atomic_write
 from particlesplat.core.device import DEVICE_HELP
 from particlesplat.data.scene_meta import CHECKPOINT_HELP
 from particlesplat.model.fit import DEFAULT_FIT, FITTED
+from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -56,9 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "as the viewer and particlesplat render draw them; 0 = every particle)",
     )
     parser.add_argument("--device", default=None, help=DEVICE_HELP)
+    add_rasterizer_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    apply_rasterizer_option(args)
     from particlesplat.core.atomic import check_writable
     from particlesplat.core.device import resolve_device
     from particlesplat.core.errors import OptionError

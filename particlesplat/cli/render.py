@@ -19,6 +19,7 @@ from particlesplat.editing.open_scene import (
     load_model_scene,
     load_ply_checked,
 )
+from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
 MAX_SIDE = 8192  # pixels, as the viewer's --size
@@ -37,6 +38,7 @@ def _background(text: str) -> tuple[float, float, float]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_source_arguments(parser, ply_help="render a 3DGS .ply instead of a model scene")
+    add_rasterizer_option(parser)
     cam = parser.add_mutually_exclusive_group()
     cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
     cam.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
@@ -198,6 +200,7 @@ def resolve_camera(
 
 
 def run(args: argparse.Namespace) -> int:
+    apply_rasterizer_option(args)
     from particlesplat.core.atomic import check_writable
     from particlesplat.core.errors import EXIT_USER, one_line
     from particlesplat.formats.png import png_text, save_png

@@ -12,6 +12,7 @@ import torch
 from particlesplat.core.device import DEVICE_HELP, resolve_device
 from particlesplat.model import ModelConfig, TrainConfig, load_config, read_checkpoint
 from particlesplat.model.config import stored_model_config, stored_train_config
+from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 from particlesplat.training.trainer import Trainer, recipe_path
 
 
@@ -37,6 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "step, optimiser and schedule start afresh, and the run's provenance names the source",
     )
     parser.add_argument("--device", default=None, help=f"{DEVICE_HELP}; under torchrun, one process per device")
+    add_rasterizer_option(parser)
     parser.add_argument(
         "--overwrite",
         action="store_true",
@@ -70,6 +72,7 @@ def init_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
 
 
 def run(args: argparse.Namespace) -> int:
+    apply_rasterizer_option(args)
     device = str(resolve_device(args.device))  # a typo or a missing device is one line before anything is read
     if args.device is None and device != "cpu":
         print(f"train: on {device}, which torch found (--device cpu trains on the CPU)", file=sys.stderr)
