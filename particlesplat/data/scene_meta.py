@@ -123,5 +123,25 @@ def scene_pose(folder: str | PathLike, key: str, dims: int) -> Tensor | None:
     return torch.tensor(pose)
 
 
+def read_robot_base(folder: str | PathLike) -> list[list[float]] | None:
+    """The robot base's pose ``folder/scene.json`` records under ``robot_base`` (4 x 4, base to world, metres),
+    or None when the folder has no scene.json or it lacks the key. SceneFormatError names the file and the key
+    of a value that is not 4 rows of 4 finite numbers."""
+    path = Path(folder) / SCENE_META
+    if not path.is_file():
+        return None
+    meta = _read_json(path)
+    if not isinstance(meta, dict) or meta.get("robot_base") is None:
+        return None
+    value = meta["robot_base"]
+    if not (
+        isinstance(value, list)
+        and len(value) == 4
+        and all(isinstance(row, list) and len(row) == 4 and all(_finite(v) for v in row) for row in value)
+    ):
+        raise SceneFormatError(f"{path}: key 'robot_base' must be 4 rows of 4 finite numbers, got {short_repr(value)}")
+    return [[float(v) for v in row] for row in value]
+
+
 def _finite(v: object) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and abs(v) < 1e6
