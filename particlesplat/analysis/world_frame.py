@@ -6,7 +6,8 @@ The family (tabletop or robot) picks the camera distances the scale is judged ag
 (:data:`particlesplat.data.families.tabletop.DISTANCE_RANGE`) or the robot rigs' (:data:`ROBOT_DISTANCE_RANGE`).
 A robot scene is also checked for a turn about z: robosuite's convention has the robot base behind the table at -x
 (facing +x). The base's direction comes from scene.json's ``robot_base`` where the scene records one, else from the
-depth: the robot is what stands well above the support surface near the table (:func:`robot_azimuth`).
+depth: the robot is what stands above the support surface near the scene, beyond the table's edge
+(:func:`robot_azimuth`).
 
 The up axis is the normal of the largest plane of the depth points (the table or floor; found by RANSAC), turned
 towards the cameras; without depth, the normal of the plane of the camera centres (cameras around a scene), else
