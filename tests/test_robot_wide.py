@@ -198,6 +198,27 @@ def test_deterministic_from_the_seed(dataset, tmp_path):
     assert files and files == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
     for rel in files:
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
+    # resuming writes nothing; the narrow world into a wide folder is refused, naming synth.json and the key
+    assert generate(again, {"heldout": 1}, seed=SEED, config=_config(), workers=1, progress=False, edits=()) == []
+    from particlesplat.core.errors import UserError
+    from particlesplat.data.families.robot import RobotSceneConfig
+
+    with pytest.raises(UserError, match="synth.json: key 'generator'"):
+        generate(again, {"train": 1}, seed=SEED, config=RobotSceneConfig(RES, RES, views=VIEWS), workers=1)
+
+
+def test_cli_split_writes_only_that_split(tmp_path):
+    out = tmp_path / "w"
+    argv = ["synth", "--family", "robot", "--world", "wide", str(out), "--split", "heldout", "--heldout", "1"]
+    assert main([*argv, "--res", "32", "--workers", "1", "--cameras", "rlbench"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["heldout", "synth.json"]
+    scene = out / "heldout" / "scene_00000"
+    meta = _meta(scene)
+    assert meta["split"] == "heldout" and meta["gripper"] == "robotiq140" and len(meta["camera_eyes"]) == 4
+    edit = json.loads((scene / "edits.json").read_text())
+    if edit["object"] is not None:  # the edited scenes list their objects with the same keys
+        moved = _meta(scene / "edits" / "move")["objects"]
+        assert [o["rgba"] for o in moved] == [o["rgba"] for o in meta["objects"]]
 
 
 def test_gripper_opens_and_closes_by_its_actuators():

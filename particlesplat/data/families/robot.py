@@ -421,11 +421,15 @@ class SettledScene:
     arc: CameraArc
     config: RobotSceneConfig
 
+    def objects_json(self, states: Sequence[ObjectState]) -> list[dict]:
+        """scene.json's ``objects`` for ``states`` (the scene's, or those after an edit)."""
+        return [o.to_json() for o in states]
+
     def to_json(self) -> dict:
         return {
             "family": "robot",
             "support_z": 0.0,
-            "objects": [o.to_json() for o in self.objects],
+            "objects": self.objects_json(self.objects),
             "arm_joints_rad": [float(v) for v in self.arm],
             "table_half_extent": [float(v) for v in self.comp.table_half],
             **self.arc.to_json(),
@@ -614,7 +618,7 @@ def write_robot_scene(
                     objects = apply_edit(mujoco, scene, edit, kind)
                     edited = renderer.render(scene.comp.camera_ids)
                     (tmp / "edits" / kind).mkdir()
-                    info = {**base, "objects": [o.to_json() for o in objects], "edit": kind, **edit.to_json()}
+                    info = {**base, "objects": scene.objects_json(objects), "edit": kind, **edit.to_json()}
                     write_views(tmp / "edits" / kind, edited, cams, info)
                     if kind == "move":  # back to the original before the next edit
                         adr = scene.comp.object_qpos[edit.object_id - 1]

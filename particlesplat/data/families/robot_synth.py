@@ -113,6 +113,8 @@ def generate(
         raise OptionError(f"--arm must be one of {', '.join(ARM_POSES)}, got {config.arm!r}")
     if config.world not in WORLDS:
         raise OptionError(f"--world must be one of {', '.join(WORLDS)}, got {config.world!r}")
+    if config.world == "wide" and config.arm != "home":
+        raise OptionError(f"--arm {config.arm}: the wide world draws its own arm poses; leave --arm out")
     if config.world == "narrow" and counts.get("heldout", 0):
         raise OptionError("--heldout: only the wide world (--world wide) has a held-out split")
     assets_dir()  # one line naming what to install, before any folder is made

@@ -383,14 +383,20 @@ class WideScene(SettledScene):
     opening: float = 1.0
     ranges_name: str = "train"
 
-    def to_json(self) -> dict:
-        comp, setup = self.comp, self.setup
+    def objects_json(self, states) -> list[dict]:
+        """scene.json's ``objects``, each with its primitive ``size`` and ``rgba`` (None for robosuite objects)."""
         objects = []
-        for state, spec in zip(self.objects, self.specs, strict=True):
+        for state in states:
+            spec = self.specs[state.id - 1]
             entry = state.to_json()
             entry["size"] = None if spec.half_size is None else list(spec.half_size)
             entry["rgba"] = None if spec.rgba is None else list(spec.rgba)
             objects.append(entry)
+        return objects
+
+    def to_json(self) -> dict:
+        comp, setup = self.comp, self.setup
+        objects = self.objects_json(self.objects)
         surfaces = {
             name: None if s is None else {"texture": s.texture, "rgba": list(s.rgba)}
             for name, s in (("table", setup.table), ("floor", setup.floor), ("walls", setup.walls))
