@@ -470,26 +470,43 @@ def build_scene(rng: np.random.Generator, config: RobotSceneConfig, assets: Path
             table_half = compose(mujoco, assets, [], [], (8, 8)).table_half
         specs, feet = _draw_layout(mujoco, assets, rng, float(min(table_half)))
         comp = compose(mujoco, assets, specs, poses, (config.width, config.height))
-        m, d = comp.model, comp.data
-        for adr, spec, (_, zmin) in zip(comp.object_qpos, specs, feet, strict=True):
-            d.qpos[adr : adr + 7] = (spec.x, spec.y, 0.002 - zmin, *yaw_quat(spec.yaw))
+        drop_objects(comp, specs, feet)
         arm = None
         for _ in range(20):
             cand = _draw_arm(rng, comp, config.arm)
-            d.qpos[comp.arm_qpos] = cand
-            mujoco.mj_forward(m, d)
-            if not _contacts(comp)[1] and _arm_clear_of_table(comp):
+            if arm_fits(mujoco, comp, cand):
                 arm = cand
                 break
-        if arm is None or not _settle(mujoco, comp, arm):
-            continue
-        if any(_contacts(comp)):
-            continue
-        boxes = [object_box(comp, k) for k in range(1, len(specs) + 1)]
-        if not _boxes_clear(boxes, comp.table_half, GAP):
+        if arm is None or not settles_clear(mujoco, comp, arm):
             continue
         return SettledScene(comp, object_states(comp, specs), specs, arm, arc, config)
     raise RuntimeError(f"no valid robot layout in {MAX_LAYOUT_TRIES} tries")
+
+
+def drop_objects(comp: Composition, specs: Sequence[ObjectSpec], feet: Sequence[tuple[float, float]]) -> None:
+    """Put each object at its drop pose: its drawn x, y and yaw, its lowest point (``feet``' z) 2 mm above the
+    table."""
+    for adr, spec, (_, zmin) in zip(comp.object_qpos, specs, feet, strict=True):
+        comp.data.qpos[adr : adr + 7] = (spec.x, spec.y, 0.002 - zmin, *yaw_quat(spec.yaw))
+
+
+def arm_fits(mujoco, comp: Composition, q: np.ndarray) -> bool:
+    """Set the arm to ``q`` (7,): True when it then touches neither the objects nor the table and keeps above the
+    table top (:func:`_arm_clear_of_table`)."""
+    comp.data.qpos[comp.arm_qpos] = q
+    mujoco.mj_forward(comp.model, comp.data)
+    return not _contacts(comp)[1] and _arm_clear_of_table(comp)
+
+
+def settles_clear(
+    mujoco, comp: Composition, arm: np.ndarray, fingers: tuple[float, ...] | None = (0.02, -0.02)
+) -> bool:
+    """Settle the objects (:func:`_settle`, holding the arm at ``arm``): True when they come to rest touching
+    nothing, on the table, their footprints :data:`GAP` apart."""
+    if not _settle(mujoco, comp, arm, fingers) or any(_contacts(comp)):
+        return False
+    boxes = [object_box(comp, k) for k in range(1, comp.object_bodies.size + 1)]
+    return _boxes_clear(boxes, comp.table_half, GAP)
 
 
 def _arm_clear_of_table(comp: Composition) -> bool:

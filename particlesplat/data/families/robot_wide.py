@@ -6,9 +6,10 @@ the table at -x facing +x (``robot_base`` in scene.json). A scene draws, within 
 
 - objects: robosuite objects and MuJoCo primitives of random sizes, primitives coloured by a hue from the
   split's hue bands (plain or with a robosuite texture tinted by the colour);
-- the arm: the gripper's grasp point placed by inverse kinematics over an object (as when reaching for it) or
-  anywhere in the workspace, with the approach axis tilted from straight down, clear of the table and the
-  objects; the gripper (one of the split's robosuite grippers) at a drawn opening, closed by its own actuators;
+- the arm: at rest (home plus noise), or the gripper's grasp point placed by inverse kinematics over an object
+  (as when reaching for it) or anywhere in the workspace, with the approach axis tilted from straight down,
+  clear of the table and the objects; the gripper (one of the split's robosuite grippers) at a drawn opening,
+  closed by its own actuators;
 - lights (direction, intensities) and the table, floor and wall textures and tints;
 - cameras: 21 on an arc about a jittered look-at point at one drawn distance and elevation, or the four
   RLBench-style cameras at drawn distances about their jittered targets.
@@ -26,22 +27,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from .robot import (
-    GAP,
     CameraArc,
     RobotSceneConfig,
     SettledScene,
-    _arm_clear_of_table,
-    _boxes_clear,
-    _contacts,
     _draw_layout,
     _extent,
-    _settle,
+    arm_fits,
     camera_poses,
-    object_box,
+    drop_objects,
     object_states,
+    settles_clear,
 )
 from .robot_assets import assets_dir, import_mujoco
-from .robot_compose import PANDA_HOME, Composition, Lights, ObjectSpec, Surface, WorldSetup, compose, yaw_quat
+from .robot_compose import PANDA_HOME, Composition, Lights, ObjectSpec, Surface, WorldSetup, compose
 from .robot_grippers import GRIPPERS
 
 GENERATOR = "particlesplat.data.families.robot_wide"
@@ -91,7 +89,8 @@ ELLIPSOID_AXES, ELLIPSOID_HEIGHT = (0.025, 0.06), (0.015, 0.03)  # semi-axes a, 
 KEY_ELEVATION, KEY_DIFFUSE = (35.0, 80.0), (0.25, 0.7)  # degrees above the horizon, grey level
 ARENA_DIFFUSE, AMBIENT = (0.2, 0.6), (0.15, 0.35)
 
-# the arm: where the gripper's grasp point (its "eef" body) goes
+# the arm: at rest (home plus noise, as robosuite starts it), else where the gripper's grasp point goes
+REST_PROB, REST_SPREAD = 0.15, 0.25  # probability, radians per joint
 OVER_OBJECT_PROB = 0.6
 OVER_OBJECT_JITTER, OVER_OBJECT_HEIGHT = 0.03, (0.03, 0.25)  # metres about the object, above its top
 WORKSPACE = ((-0.35, 0.3), (-0.35, 0.35), (0.05, 0.55))  # x, y, z ranges elsewhere (metres)
@@ -448,29 +447,22 @@ def build_wide_scene(
         specs, feet = _draw_layout(mujoco, assets, rng, float(min(table_half)), draw, NUM_OBJECTS)
         comp = compose(mujoco, assets, specs, poses, (config.width, config.height), setup)
         m, d = comp.model, comp.data
-        for adr, spec, (_, zmin) in zip(comp.object_qpos, specs, feet, strict=True):
-            d.qpos[adr : adr + 7] = (spec.x, spec.y, 0.002 - zmin, *yaw_quat(spec.yaw))
+        drop_objects(comp, specs, feet)
         heights = [_height(mujoco, assets, s, f[1]) for s, f in zip(specs, feet, strict=True)]
         opening = draw_opening(rng)
         d.ctrl[comp.gripper_actuators] = gripper.controls(m.actuator_ctrlrange[comp.gripper_actuators], opening)
         arm = None
         for _ in range(MAX_ARM_TRIES):
-            target, rot = draw_arm_target(rng, specs, heights)
-            q0 = np.asarray(PANDA_HOME) + rng.uniform(-SEED_SPREAD, SEED_SPREAD, 7)
-            q = solve_ik(mujoco, comp, target, rot, q0)
-            if q is None:
-                continue
-            d.qpos[comp.arm_qpos] = q
-            mujoco.mj_forward(m, d)
-            if not _contacts(comp)[1] and _arm_clear_of_table(comp):
+            if rng.uniform() < REST_PROB:  # robosuite's start: home with noise
+                q: np.ndarray | None = np.asarray(PANDA_HOME) + rng.uniform(-REST_SPREAD, REST_SPREAD, 7)
+            else:
+                target, rot = draw_arm_target(rng, specs, heights)
+                q0 = np.asarray(PANDA_HOME) + rng.uniform(-SEED_SPREAD, SEED_SPREAD, 7)
+                q = solve_ik(mujoco, comp, target, rot, q0)
+            if q is not None and arm_fits(mujoco, comp, q):
                 arm = q
                 break
-        if arm is None or not _settle(mujoco, comp, arm, fingers=None):
-            continue
-        if any(_contacts(comp)):
-            continue
-        boxes = [object_box(comp, k) for k in range(1, len(specs) + 1)]
-        if not _boxes_clear(boxes, comp.table_half, GAP):
+        if arm is None or not settles_clear(mujoco, comp, arm, fingers=None):
             continue
         return WideScene(
             comp,
