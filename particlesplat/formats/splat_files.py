@@ -1,15 +1,14 @@
 """One entry point for the Gaussian file formats: the writer chosen by the output's extension, the reader by the
 file's first bytes (then its extension).
 
-==================  ===============================================  =========================================
-extension           format                                           kept
-==================  ===============================================  =========================================
-``.ply``            INRIA 3DGS ``.ply`` (:mod:`.ply`)                everything, float32, and each owner
-``.compressed.ply`` PlayCanvas compressed ``.ply`` (:mod:`.compressed_ply`)  chunked 8-11 bit values, SH as bytes
-``.splat``          antimatter15 ``.splat`` (:mod:`.splat`)          float positions and sizes, 8-bit colour
-``.spz``            Niantic SPZ v3 (:mod:`.spz`)                     24-bit positions, 8-bit values, SH
-``.sog``            PlayCanvas SOG v2 (:mod:`.sog`)                  16-bit positions, codebooks, SH degree 0
-==================  ===============================================  =========================================
+- ``.ply``: INRIA 3DGS ``.ply`` (:mod:`.ply`): everything as float32, and each Gaussian's owner;
+- ``.compressed.ply``: PlayCanvas's compressed ``.ply`` (:mod:`.compressed_ply`): 11/10/11-bit positions and
+  scales within chunks of 256, 8-bit colour and opacity, SH as bytes;
+- ``.splat``: antimatter15's ``.splat`` (:mod:`.splat`): float32 positions and sizes, 8-bit colour, no SH;
+- ``.spz``: Niantic's SPZ v3 (:mod:`.spz`): 24-bit positions, 8-bit values, SH to degree 3;
+- ``.sog``: PlayCanvas's SOG v2 (:mod:`.sog`): 16-bit positions, 256-entry codebooks, SH degree 0.
+
+An object bundle's ``manifest.json`` (:mod:`.bundle`) reads as its parts merged.
 """
 
 from __future__ import annotations
@@ -137,9 +136,14 @@ def sniff_format(path: str | PathLike) -> SplatFormat:
 
 
 def read_gaussians(path: str | PathLike) -> PlyFields:
-    """Read any supported Gaussian file (:func:`sniff_format`) into float32 tensors (``Gaussians(*fields)``).
+    """Read any supported Gaussian file (:func:`sniff_format`), or an object bundle's ``manifest.json`` (its parts
+    merged), into float32 tensors (``Gaussians(*fields)``).
     FileNotFoundError names a missing path; a bad file raises a UserError naming the file and the field."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: Gaussian file not found")
+    if path.name == "manifest.json":  # an object bundle: its parts merged (particlesplat.formats.bundle)
+        from particlesplat.formats.bundle import read_bundle
+
+        return read_bundle(path)
     return sniff_format(path).read(path)
