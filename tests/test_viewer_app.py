@@ -192,6 +192,32 @@ def test_open_ply_replaces_the_session(app, tmp_path):
     assert "error" in app.fields.status and "missing" in app.fields.status
 
 
+def test_export_menu_writes_every_format_and_the_file_box_opens_it(app, tmp_path):
+    """The Output section's format: each Gaussian file format is written, read back whole by the format's reader,
+    and opened again through the file box."""
+    from particlesplat.formats.splat_files import SUFFIXES, read_gaussians
+
+    random_gaussians(200, seed=2).save_ply(tmp_path / "g.ply")
+    app.req.open_path = str(tmp_path / "g.ply")
+    app.run(1)
+    kept = app.fields.output_dir, app.fields.export_format
+    app.fields.output_dir = str(tmp_path / "out")
+    seen: set = set()
+    for suffix in SUFFIXES:
+        app.fields.export_format = suffix
+        app.req.export_ply = True
+        app.run(1)
+        new = set((tmp_path / "out").glob("particlesplat_*")) - seen
+        assert len(new) == 1 and next(iter(new)).name.endswith(suffix), (suffix, app.fields.status)
+        seen |= new
+        path = next(iter(new))
+        assert read_gaussians(path).means.shape[0] == 200
+        app.req.open_path = str(path)
+        app.run(1)
+        assert "error" not in app.fields.status and app.scene_view.renderer.num == 200, app.fields.status
+    app.fields.output_dir, app.fields.export_format = kept
+
+
 def test_open_keeps_unsaved_edits_and_offers_them_back(app, tmp_path):
     from particlesplat.editing.open_scene import demo_scenes
 

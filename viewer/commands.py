@@ -54,7 +54,8 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
             path = host.screenshot_numbered()
             fields.status = f"saved screenshot {Path(path).resolve()}"
         if req.export_ply:
-            path = export_ply(fields.output_dir, host.scene_view.visible_gaussians(host.session, host.state))
+            g = host.scene_view.visible_gaussians(host.session, host.state)
+            path = export_ply(fields.output_dir, g, fields.export_format)
             fields.status = f"exported {Path(path).resolve()}"
         if req.insert and host.session.editable:
             from .ui.insert import insert_from_fields
@@ -65,7 +66,7 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
             members = session.object_members(host.state.selected)  # its Gaussians, as drawn
             g = session.model.decode(session.particles, torch.tensor(members), background=False)
             g = g.subset(g.opacities >= host.state.prune).detach().to("cpu")
-            path = export_ply(fields.output_dir, g)
+            path = export_ply(fields.output_dir, g, fields.export_format)
             fields.status = f"exported object of particles {members} to {Path(path).resolve()}"
     except Exception as e:  # noqa: BLE001 - a bad path or file must not close the app: show it
         fields.status = f"error: {e}"

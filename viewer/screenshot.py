@@ -1,5 +1,5 @@
 """Screenshots and exports: PNG with text chunks (camera, edits, model), numbered names that
-never overwrite, and .ply export."""
+never overwrite, and Gaussian file export (.ply and the compact formats)."""
 
 from __future__ import annotations
 
@@ -49,8 +49,11 @@ def save_screenshot(folder: str | PathLike, rgb: np.ndarray, text: dict[str, str
     return save_numbered(folder, "particlesplat_", ".png", lambda p: img.save(p, format="PNG", pnginfo=info))
 
 
-def export_ply(folder: str | PathLike, gaussians: Gaussians) -> Path:
-    """A numbered standard 3DGS .ply (``particlesplat_NNNN.ply``) of ``gaussians`` in ``folder``."""
-    from particlesplat.formats.ply import write_ply
+def export_ply(folder: str | PathLike, gaussians: Gaussians, suffix: str = ".ply") -> Path:
+    """A numbered Gaussian file (``particlesplat_NNNN<suffix>``) of ``gaussians`` in ``folder``, in the format
+    ``suffix`` names (:data:`particlesplat.formats.splat_files.SUFFIXES`: .ply, .compressed.ply, .splat, .spz,
+    .sog)."""
+    from particlesplat.formats.splat_files import format_for
 
-    return save_numbered(folder, "particlesplat_", ".ply", lambda p: write_ply(gaussians, p))
+    fmt = format_for(f"particlesplat{suffix}")
+    return save_numbered(folder, "particlesplat_", fmt.suffix, lambda p: fmt.write(gaussians, p))

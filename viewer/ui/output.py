@@ -1,10 +1,13 @@
-"""The "Output" section: the folder, the screenshot size, screenshot and .ply exports."""
+"""The "Output" section: the folder, the screenshot size, screenshot and Gaussian file exports (.ply, .compressed.ply,
+.splat, .spz, .sog)."""
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
 from imgui_bundle import imgui
+
+from particlesplat.formats.splat_files import SUFFIXES
 
 if TYPE_CHECKING:
     from .fields import UiFields, UiRequests
@@ -20,9 +23,13 @@ def draw_output_section(req: UiRequests, fields: UiFields, object_selected: bool
     if imgui.button("Screenshot (P)"):
         req.screenshot = True
     imgui.same_line()
-    if imgui.button("Export .ply (E)"):
+    if imgui.button("Export (E)"):
         req.export_ply = True
     if object_selected:
         imgui.same_line()
-        if imgui.button("Export object .ply"):
+        if imgui.button("Export object"):
             req.export_object = True
+    current = SUFFIXES.index(fields.export_format) if fields.export_format in SUFFIXES else 0
+    changed, idx = imgui.combo("format", current, list(SUFFIXES))
+    if changed:
+        fields.export_format = SUFFIXES[idx]
