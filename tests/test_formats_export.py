@@ -159,3 +159,22 @@ def test_bad_requests_are_one_line_errors(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert message in err and "\n" not in err, err
     assert (tmp_path / "keep" / "precious.txt").read_text() == "mine"
+
+
+def test_the_formats_benchmark_reports_every_format_and_the_bundle(tmp_path, capsys):
+    from particlesplat.bench.formats import main as bench_formats
+
+    random_gaussians(800, 0, seed=6).save_ply(tmp_path / "g.ply")  # (.splat holds no SH)
+    assert (
+        bench_formats(
+            ["--ply", str(tmp_path / "g.ply"), "--width", "64", "--height", "48", "--json", str(tmp_path / "b.json")]
+        )
+        == 0
+    )
+    report = json.loads((tmp_path / "b.json").read_text())
+    rows = {r["format"]: r for r in report["rows"]}
+    assert set(rows) == set(SUFFIXES) and rows[".ply"]["ours_db"] >= 99 and report["bundle_db"] >= 99
+    assert all(r["ours_db"] >= 30 for r in rows.values()), rows
+    assert rows[".splat"]["bytes_per_gaussian"] == 32.0
+    assert rows[".sog"]["bytes_per_gaussian"] < rows[".spz"]["bytes_per_gaussian"] * 2 < rows[".ply"]["bytes_per_gaussian"]
+    assert "bundle by particle, merged" in capsys.readouterr().out

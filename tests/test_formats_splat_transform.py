@@ -86,12 +86,24 @@ def test_we_read_what_it_writes(demo, suffix):
 
 
 @pytest.mark.parametrize("suffix", list(FROM_IT))
+def test_it_decodes_our_sh_files_as_we_do(tmp_path, suffix):
+    """SH degree 2: what it reads of our file (converted to .ply) equals what we read of it."""
+    ours = tmp_path / f"sh{suffix}"
+    write_gaussians(random_gaussians(2000, 2, seed=8), ours)
+    _convert(ours, tmp_path / "back.ply")
+    _assert_same(Gaussians(*read_gaussians(ours)), Gaussians.load_ply(tmp_path / "back.ply"))
+
+
+@pytest.mark.parametrize("suffix", list(FROM_IT))
 def test_our_readers_decode_its_sh_files_as_it_does(tmp_path, suffix):
     """SH degree 2 (SOG: its k-means palette, shN): what we read of its file equals what it reads of it."""
     random_gaussians(2000, 2, seed=7).save_ply(tmp_path / "sh.ply")
     _convert(tmp_path / "sh.ply", tmp_path / f"sh{suffix}", *(["--spz-version", "3"] if suffix == ".spz" else []))
     _convert(tmp_path / f"sh{suffix}", tmp_path / "back.ply")
-    ours, its = Gaussians(*read_gaussians(tmp_path / f"sh{suffix}")), Gaussians.load_ply(tmp_path / "back.ply")
+    _assert_same(Gaussians(*read_gaussians(tmp_path / f"sh{suffix}")), Gaussians.load_ply(tmp_path / "back.ply"))
+
+
+def _assert_same(ours: Gaussians, its: Gaussians) -> None:
     assert ours.sh.shape == its.sh.shape == (2000, 9, 3)
     for name in ("means", "scales", "sh"):
         np.testing.assert_allclose(getattr(ours, name).numpy(), getattr(its, name).numpy(), rtol=1e-5, atol=1e-6)

@@ -131,7 +131,14 @@ def run(args: argparse.Namespace) -> int:
             )
             return 0
         if fmt.suffix == ".sog" and g.sh.shape[1] > 1:
-            print(f"{prog}: warning: .sog is written with SH degree 0: higher bands dropped", file=sys.stderr)
+            from particlesplat.formats.sog import MAX_PALETTE, keeps_sh
+
+            if not keeps_sh(g.num, g.sh.shape[1]):
+                print(
+                    f"{prog}: warning: .sog keeps SH above degree 0 for up to {MAX_PALETTE} Gaussians, not "
+                    f"{g.num}: higher bands dropped",
+                    file=sys.stderr,
+                )
         if fmt.suffix == ".splat" and g.sh.shape[1] > 1:
             print(f"{prog}: warning: .splat holds no SH: higher bands dropped", file=sys.stderr)
         fmt.write(g, args.out)

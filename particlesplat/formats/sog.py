@@ -13,9 +13,11 @@ Gaussian i is pixel (i % W, i // W) of every per-Gaussian image (W x H >= count;
   per Gaussian; the palette is 64 entries a row, each ``coeffs`` pixels wide, whose R, G, B index
   ``shN.codebook``.
 
-The writer fits each 256-entry codebook with 1D k-means (Lloyd iterations from quantiles) and writes SH degree 0
-only (higher bands are dropped; its caller says so). Images are written with ``exact`` so that a pixel of alpha 0
-keeps its colour bytes. The reader takes a ``.sog`` zip or an unbundled ``meta.json`` beside its images.
+The writer fits each 256-entry codebook with 1D k-means (Lloyd iterations from quantiles). Higher SH bands are
+written for up to :data:`MAX_PALETTE` Gaussians, each its own palette entry (exact but for the 8-bit codebook);
+a larger scene is written with SH degree 0 (:func:`keeps_sh` says which). Images are written with ``exact`` so
+that a pixel of alpha 0 keeps its colour bytes. The reader takes a ``.sog`` zip or an unbundled ``meta.json``
+beside its images.
 """
 
 from __future__ import annotations
@@ -49,6 +51,15 @@ CODEBOOK = 256
 KMEANS_ITERATIONS = 12
 MAX_MEMBER_BYTES = 1 << 30  # a zip member that would inflate beyond 1 GiB is refused
 _SH_COEFFS = {1: 3, 2: 8, 3: 15}
+
+
+MAX_PALETTE = 65536  # the labels are 16 bits: at most this many palette entries
+
+
+def keeps_sh(count: int, bases: int) -> bool:
+    """Whether a SOG of ``count`` Gaussians with ``bases`` SH bases a channel keeps the bands above degree 0 (one
+    palette entry a Gaussian needs ``count`` <= :data:`MAX_PALETTE`)."""
+    return bases > 1 and count <= MAX_PALETTE
 
 
 def log_transform(v: np.ndarray) -> np.ndarray:
@@ -93,7 +104,7 @@ def _webp(rgba: np.ndarray) -> bytes:
 
 
 def encode_sog(a: SplatArrays) -> dict[str, bytes]:
-    """The files (name -> bytes) of a SOG holding ``a`` in its order, SH degree 0."""
+    """The files (name -> bytes) of a SOG holding ``a`` in its order (higher SH bands when :func:`keeps_sh`)."""
     n = a.num
     w, h = image_size(n)
 
@@ -133,8 +144,28 @@ def encode_sog(a: SplatArrays) -> dict[str, bytes]:
         "quats": {"files": ["quats.webp"]},
         "sh0": {"codebook": [float(v) for v in dc_book], "files": ["sh0.webp"]},
     }
+    files: dict[str, bytes] = {}
+    if keeps_sh(a.num, a.sh.shape[1]):
+        coeffs = a.sh.shape[1] - 1
+        rest = a.sh[:, 1:, :]  # (N, coeffs, 3)
+        book = fit_codebook(rest)
+        idx = nearest(book, rest).astype(np.uint8)  # (N, coeffs, 3)
+        rows = math.ceil(n / 64)
+        centroids = np.zeros((rows * 64, coeffs, 4), dtype=np.uint8)  # entry l = Gaussian l
+        centroids[:, :, 3] = 255
+        centroids[:n, :, :3] = idx
+        files["shN_centroids.webp"] = _webp(centroids.reshape(rows, 64 * coeffs, 4))
+        label = np.arange(n)
+        files["shN_labels.webp"] = image([label & 0xFF, label >> 8])
+        meta["shN"] = {
+            "count": n,
+            "bands": a.sh_degree,
+            "codebook": [float(v) for v in book],
+            "files": ["shN_centroids.webp", "shN_labels.webp"],
+        }
     return {
         "meta.json": json.dumps(meta, indent=1).encode("utf-8"),
+        **files,
         "means_l.webp": image([q16[:, i] & 0xFF for i in range(3)]),
         "means_u.webp": image([q16[:, i] >> 8 for i in range(3)]),
         "quats.webp": image([b.astype(np.uint8) for b in quat_bytes], (252 + largest).astype(np.uint8)),
@@ -147,7 +178,7 @@ def encode_sog(a: SplatArrays) -> dict[str, bytes]:
 
 def write_sog(gaussians: GaussianFields, path: str | PathLike) -> None:
     """Write ``gaussians`` as a bundled ``.sog`` (a zip, stored: the images are compressed already), atomically.
-    Only SH degree 0 is written."""
+    Higher SH bands are kept when :func:`keeps_sh`."""
     files = encode_sog(splat_arrays(gaussians, path))
     with atomic_write(Path(path), "wb") as f, zipfile.ZipFile(f, "w", zipfile.ZIP_STORED) as z:
         for name, data in files.items():

@@ -79,10 +79,9 @@ def _read_sog(path: str | PathLike) -> PlyFields:
     return read_sog(path)
 
 
-# the longest suffix first: ".compressed.ply" before ".ply"
 FORMATS: tuple[SplatFormat, ...] = (
-    SplatFormat(".compressed.ply", "PlayCanvas compressed .ply", _write_compressed, _read_compressed),
     SplatFormat(".ply", "INRIA 3DGS .ply", write_ply, read_ply),
+    SplatFormat(".compressed.ply", "PlayCanvas compressed .ply", _write_compressed, _read_compressed),
     SplatFormat(".splat", "antimatter15 .splat", _write_splat, _read_splat),
     SplatFormat(".spz", "Niantic SPZ v3", _write_spz, _read_spz),
     SplatFormat(".sog", "PlayCanvas SOG v2", _write_sog, _read_sog),
@@ -94,7 +93,7 @@ SUFFIX_HELP = ", ".join(SUFFIXES)
 def format_for(path: str | PathLike) -> SplatFormat:
     """The format named by ``path``'s extension; OptionError naming the path and the extensions otherwise."""
     name = Path(path).name.lower()
-    for fmt in FORMATS:
+    for fmt in sorted(FORMATS, key=lambda f: -len(f.suffix)):  # ".compressed.ply" before ".ply"
         if name.endswith(fmt.suffix) and len(name) > len(fmt.suffix):
             return fmt
     raise OptionError(f"{path}: unknown Gaussian file extension (have: {SUFFIX_HELP})")
