@@ -176,5 +176,7 @@ def test_the_formats_benchmark_reports_every_format_and_the_bundle(tmp_path, cap
     assert set(rows) == set(SUFFIXES) and rows[".ply"]["ours_db"] >= 99 and report["bundle_db"] >= 99
     assert all(r["ours_db"] >= 30 for r in rows.values()), rows
     assert rows[".splat"]["bytes_per_gaussian"] == 32.0
-    assert rows[".sog"]["bytes_per_gaussian"] < rows[".spz"]["bytes_per_gaussian"] * 2 < rows[".ply"]["bytes_per_gaussian"]
+    assert (
+        rows[".sog"]["bytes_per_gaussian"] < rows[".spz"]["bytes_per_gaussian"] * 2 < rows[".ply"]["bytes_per_gaussian"]
+    )
     assert "bundle by particle, merged" in capsys.readouterr().out
