@@ -112,6 +112,24 @@ def test_export_object_ply(app, tmp_path):
     app.state.selected = None
 
 
+def test_export_menu_writes_an_object_bundle(app, tmp_path):
+    """The format menu's "bundle": a folder of one .ply an object plus rest.ply and manifest.json, together the
+    Gaussians drawn."""
+    import json
+
+    from particlesplat.formats.splat_files import read_gaussians
+
+    app.fields.output_dir, app.fields.export_format = str(tmp_path), "bundle"
+    app.req.export_ply = True
+    app.run(1)
+    app.fields.export_format = ".ply"
+    out = tmp_path / "particlesplat_0001.bundle"
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["by"] == "object" and manifest["parts"][-1]["file"] == "rest.ply", app.fields.status
+    drawn = app.scene_view.visible_gaussians(app.session, app.state)
+    assert read_gaussians(out / "manifest.json").means.shape[0] == drawn.num == manifest["gaussians"]
+
+
 def test_insert_object_request(app):
     """The panel's "Insert object from another scene": the app encodes the scene and inserts the object (undoable)."""
     from particlesplat.editing.open_scene import demo_scenes

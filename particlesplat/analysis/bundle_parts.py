@@ -16,6 +16,32 @@ from particlesplat.formats.bundle import REST, weighted_centre
 BY = ("particle", "object")
 
 
+def bundle_header(
+    source: str, model_name: str | None, particles=None, context: list[int] | None = None, edited: bool = False
+) -> dict[str, Any]:
+    """The manifest's scene fields: the scene folder or file, the model, whether edits were applied, the context
+    frames and their cameras (``particles.cameras``: K and c2w at the model's resolution, OpenCV axes)."""
+    cams = [] if particles is None else particles.cameras
+    frames = list(context or range(len(cams)))
+    return {
+        "scene": source,
+        "model": model_name or None,
+        "edited": bool(edited),
+        "context": [int(f) for f in frames] if cams else [],
+        "cameras": [
+            {
+                "frame": int(frame),
+                "width": int(c.width),
+                "height": int(c.height),
+                "K": c.K.detach().double().cpu().tolist(),
+                "c2w": c.c2w.detach().double().cpu().tolist(),
+            }
+            for frame, c in zip(frames, cams, strict=True)
+        ],
+        "units": "metres, world +z up, OpenCV cameras (x right, y down, z forward)",
+    }
+
+
 def bundle_parts(
     gaussians: Gaussians, by: str, arrays: ParticleArrays | None
 ) -> list[tuple[str, Gaussians, dict[str, Any]]]:

@@ -51,30 +51,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _header(scene, source: str) -> dict:
-    """The manifest's scene fields: source, model, context frames and their cameras (model resolution)."""
-    if scene is None:
-        return {"scene": source, "model": None, "context": [], "cameras": [], "units": "metres, world +z up"}
-    cams = scene.particles.cameras
-    return {
-        "scene": str(scene.encoded.path),
-        "model": scene.model_name,
-        "edited": bool(scene.edits),
-        "context": [int(c) for c in scene.encoded.context],
-        "cameras": [
-            {
-                "frame": int(frame),
-                "width": int(c.width),
-                "height": int(c.height),
-                "K": c.K.detach().double().cpu().tolist(),
-                "c2w": c.c2w.detach().double().cpu().tolist(),
-            }
-            for frame, c in zip(scene.encoded.context, cams, strict=True)
-        ],
-        "units": "metres, world +z up, OpenCV cameras (x right, y down, z forward)",
-    }
-
-
 def run(args: argparse.Namespace) -> int:
     from particlesplat.core.atomic import check_writable
     from particlesplat.core.errors import EXIT_USER, one_line
@@ -115,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     pruned = f", {total - g.num} below opacity {args.prune:.4g} dropped" if args.prune > 0 else ""
     try:
         if args.by is not None:
-            from particlesplat.analysis.bundle_parts import bundle_parts
+            from particlesplat.analysis.bundle_parts import bundle_header, bundle_parts
             from particlesplat.formats.bundle import write_bundle
 
             arrays = None
@@ -124,7 +100,14 @@ def run(args: argparse.Namespace) -> int:
 
                 arrays = particle_arrays(scene.model, scene.particles)
             parts = bundle_parts(g, args.by, arrays)
-            manifest = write_bundle(args.out, args.by, parts, _header(scene, source))
+            header = (
+                bundle_header(source, None)
+                if scene is None
+                else bundle_header(
+                    source, scene.model_name, scene.particles, scene.encoded.context, edited=bool(scene.edits)
+                )
+            )
+            manifest = write_bundle(args.out, args.by, parts, header)
             print(
                 f"saved {args.out}/: {len(parts) - 1} {args.by} part(s) + rest.ply and manifest.json, "
                 f"{manifest['gaussians']} Gaussians{pruned}"

@@ -33,6 +33,7 @@ from particlesplat.formats.splat_arrays import (
     SplatArrays,
     SplatFileError,
     background_owner,
+    check_decode_memory,
     largest_component,
     others_of,
     splat_arrays,
@@ -150,6 +151,9 @@ def read_compressed_ply(path: str | PathLike) -> PlyFields:
         size = os.fstat(f.fileno()).st_size
         if fmt != "binary_little_endian":
             raise PlyError(f"{path}: format '{fmt}': a compressed .ply is binary_little_endian")
+        counts = {name: count for name, count, _ in elements}
+        rest = sum(len(props) for name, _, props in elements if name == "sh")
+        check_decode_memory(counts.get("vertex", 0), rest // 3 + 1, path, f"{counts.get('vertex', 0)} vertices")
         blocks: dict[str, np.ndarray] = {}
         offset = start
         for name, count, props in elements:

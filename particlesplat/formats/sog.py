@@ -35,11 +35,13 @@ from PIL import Image
 
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.errors import one_line
+from particlesplat.core.limits import check_memory
 from particlesplat.formats.ply import GaussianFields, PlyFields
 from particlesplat.formats.splat_arrays import (
     SplatArrays,
     SplatFileError,
     background_owner,
+    check_decode_memory,
     largest_component,
     others_of,
     splat_arrays,
@@ -247,16 +249,20 @@ def _image(files: _Files, meta: dict, key: str, index: int, count: int) -> np.nd
     if not isinstance(names, list) or len(names) <= index or not isinstance(names[index], str):
         raise SplatFileError(f"{files.path}: meta.json: '{key}.files' must list {index + 1} file name(s)")
     data = files.read(names[index])
+    shown = one_line(names[index], 80)
     try:
-        with Image.open(io.BytesIO(data)) as im:
-            px = np.asarray(im.convert("RGBA"))
+        im = Image.open(io.BytesIO(data))  # the header alone: no pixel is decoded yet
     except (OSError, ValueError, Image.DecompressionBombError) as e:
-        raise SplatFileError(
-            f"{files.path}: {one_line(names[index], 80)}: not a readable image ({one_line(e, 120)})"
-        ) from None
+        raise SplatFileError(f"{files.path}: {shown}: not a readable image ({one_line(e, 120)})") from None
+    with im:
+        check_memory(8.0 * im.width * im.height, f"{files.path}: {shown}: {im.width}x{im.height} pixels")
+        try:
+            px = np.asarray(im.convert("RGBA"))
+        except (OSError, ValueError, Image.DecompressionBombError) as e:
+            raise SplatFileError(f"{files.path}: {shown}: not a readable image ({one_line(e, 120)})") from None
     if px.shape[0] * px.shape[1] < count:
         raise SplatFileError(
-            f"{files.path}: {one_line(names[index], 80)}: {px.shape[1]}x{px.shape[0]} pixels, fewer than count {count}"
+            f"{files.path}: {shown}: {px.shape[1]}x{px.shape[0]} pixels, fewer than count {count}"
         )
     return px
 
@@ -283,6 +289,9 @@ def decode_sog(files: _Files) -> SplatArrays:
     n = _field(meta, path, "count")
     if not isinstance(n, int) or isinstance(n, bool) or n < 0:
         raise SplatFileError(f"{path}: meta.json: 'count' must be a whole number >= 0")
+    sh_n = meta.get("shN")
+    bands = sh_n.get("bands") if isinstance(sh_n, dict) else 0
+    check_decode_memory(n, (bands + 1) ** 2 if bands in _SH_COEFFS else 1, path, f"meta.json: count {n}")
     mins = _numbers(meta, path, 3, "means", "mins")
     maxs = _numbers(meta, path, 3, "means", "maxs")
     lo, hi = _pixels(files, meta, "means", 0, n), _pixels(files, meta, "means", 1, n)

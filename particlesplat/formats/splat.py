@@ -27,6 +27,7 @@ from particlesplat.formats.splat_arrays import (
     SplatArrays,
     SplatFileError,
     background_owner,
+    check_decode_memory,
     splat_arrays,
     to_fields,
     unit_quats,
@@ -90,5 +91,7 @@ def decode_splat(data: bytes, path: str | PathLike) -> SplatArrays:
 def read_splat(path: str | PathLike) -> PlyFields:
     """Read a ``.splat`` file (see the module docstring) into float32 tensors."""
     path = Path(path)
-    _check_size(os.path.getsize(path), path)  # before reading the file
+    size = os.path.getsize(path)
+    _check_size(size, path)  # before reading the file
+    check_decode_memory(size // RECORD.itemsize, 1, path, f"{size // RECORD.itemsize} records", extra=size)
     return to_fields(decode_splat(path.read_bytes(), path), path)

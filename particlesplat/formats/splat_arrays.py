@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from particlesplat.core.errors import UserError
+from particlesplat.core.limits import check_memory
 from particlesplat.core.sh import sh_degree_from_bases
 from particlesplat.formats.ply import BACKGROUND_OWNER, GaussianFields, PlyFields
 
@@ -119,6 +120,14 @@ def to_fields(arrays: SplatArrays, path: str | PathLike) -> PlyFields:
         f32(arrays.sh),
         torch.from_numpy(np.ascontiguousarray(owner)),
     )
+
+
+def check_decode_memory(count: int, bases: int, path: str | PathLike, what: str, extra: float = 0.0) -> None:
+    """BudgetError (naming ``path`` and ``what``) unless decoding ``count`` Gaussians of ``bases`` SH bases a
+    channel (float64 arrays, their float32 copies and temporaries: ~(300 + 80 bases) bytes each) plus ``extra``
+    bytes fits in the memory limit (:func:`particlesplat.core.limits.check_memory`). Called before a count a file
+    declares drives any allocation."""
+    check_memory(count * (300.0 + 80.0 * bases) + extra, f"{path}: {what}")
 
 
 def background_owner(n: int) -> np.ndarray:

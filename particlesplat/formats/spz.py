@@ -37,6 +37,7 @@ from particlesplat.formats.splat_arrays import (
     SplatArrays,
     SplatFileError,
     background_owner,
+    check_decode_memory,
     largest_component,
     others_of,
     splat_arrays,
@@ -197,6 +198,7 @@ def _gunzip_bounded(data: bytes, path: Path) -> bytes:
         if n > MAX_POINTS:
             raise SplatFileError(f"{path}: num_points: {n} is beyond {MAX_POINTS}")
         want = _payload_size(n, min(degree, 3), 2 if version == 2 else 3)
+        check_decode_memory(n, num_sh_bases(min(degree, 3)), path, f"num_points {n}", extra=want)
         rest = inflater.decompress(inflater.unconsumed_tail, want - HEADER.size + 1)
     except zlib.error as e:
         raise SplatFileError(f"{path}: corrupt gzip stream ({e})") from None

@@ -1,5 +1,5 @@
 """The "Output" section: the folder, the screenshot size, screenshot and Gaussian file exports (.ply, .compressed.ply,
-.splat, .spz, .sog)."""
+.splat, .spz, .sog, or an object bundle)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING
 from imgui_bundle import imgui
 
 from particlesplat.formats.splat_files import SUFFIXES
+
+from ..screenshot import BUNDLE
 
 if TYPE_CHECKING:
     from .fields import UiFields, UiRequests
@@ -29,7 +31,8 @@ def draw_output_section(req: UiRequests, fields: UiFields, object_selected: bool
         imgui.same_line()
         if imgui.button("Export object"):
             req.export_object = True
-    current = SUFFIXES.index(fields.export_format) if fields.export_format in SUFFIXES else 0
-    changed, idx = imgui.combo("format", current, list(SUFFIXES))
+    choices = [*SUFFIXES, BUNDLE]  # a bundle: a folder of one .ply an object (a particle for a file) + manifest
+    current = choices.index(fields.export_format) if fields.export_format in choices else 0
+    changed, idx = imgui.combo("format", current, choices)
     if changed:
-        fields.export_format = SUFFIXES[idx]
+        fields.export_format = choices[idx]
