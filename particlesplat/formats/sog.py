@@ -261,9 +261,7 @@ def _image(files: _Files, meta: dict, key: str, index: int, count: int) -> np.nd
         except (OSError, ValueError, Image.DecompressionBombError) as e:
             raise SplatFileError(f"{files.path}: {shown}: not a readable image ({one_line(e, 120)})") from None
     if px.shape[0] * px.shape[1] < count:
-        raise SplatFileError(
-            f"{files.path}: {shown}: {px.shape[1]}x{px.shape[0]} pixels, fewer than count {count}"
-        )
+        raise SplatFileError(f"{files.path}: {shown}: {px.shape[1]}x{px.shape[0]} pixels, fewer than count {count}")
     return px
 
 
