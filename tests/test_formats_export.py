@@ -92,8 +92,10 @@ def test_a_gaussian_file_converts_to_every_format_and_back(tmp_path, capsys):
         back = Gaussians(*read_gaussians(out))
         assert back.num == 500
         assert render_psnr(back, g.subset(g.opacities >= 1 / 255)) >= 40.0, suffix
-        # the converted file converts again (compressed .ply and SOG files read back as themselves)
+        # the converted file converts again (compressed .ply and SOG files read back as themselves) and renders
         assert main(["export", "--ply", str(out), "--out", str(tmp_path / f"again{suffix}")]) == 0
+        png = tmp_path / f"render{suffix}.png"
+        assert main(["render", "--ply", str(out), "--width", "32", "--height", "24", "--out", str(png)]) == 0
 
 
 def test_bundles_hold_every_gaussian_once_and_merge_back_to_the_scene(edited, tmp_path, capsys):
