@@ -234,6 +234,18 @@ def _owner_column(col: np.ndarray, path: Path) -> np.ndarray:
     return wide.astype(np.int64)
 
 
+def finite_float64(gaussians: GaussianFields, path: str | PathLike) -> GaussianFields:
+    """``gaussians`` as float64 on the CPU, for writing to ``path``; ValueError naming the file, the field and the
+    first bad Gaussian for a non-finite value (nothing is written)."""
+    g = gaussians.detach().to("cpu", torch.float64)
+    for name in ("means", "quats", "scales", "opacities", "sh"):
+        bad = ~torch.isfinite(getattr(g, name))
+        if bool(bad.any()):
+            row = int(bad.reshape(bad.shape[0], -1).any(1).nonzero()[0, 0])
+            raise ValueError(f"{path}: cannot write Gaussians.{name}: non-finite value at Gaussian {row}")
+    return g
+
+
 def write_ply(gaussians: GaussianFields, path: str | PathLike) -> None:
     """Write ``gaussians`` as a binary little-endian 3DGS .ply, atomically (temp file + rename).
 
@@ -242,12 +254,7 @@ def write_ply(gaussians: GaussianFields, path: str | PathLike) -> None:
     and leave an existing file untouched.
     """
     path = Path(path)
-    g = gaussians.detach().to("cpu", torch.float64)
-    for name in ("means", "quats", "scales", "opacities", "sh"):
-        bad = ~torch.isfinite(getattr(g, name))
-        if bool(bad.any()):
-            row = int(bad.reshape(bad.shape[0], -1).any(1).nonzero()[0, 0])
-            raise ValueError(f"{path}: cannot write Gaussians.{name}: non-finite value at Gaussian {row}")
+    g = finite_float64(gaussians, path)
     n, k = g.num, g.sh.shape[1]
     sh = g.sh.numpy()
     props: list[tuple[str, np.ndarray]] = [

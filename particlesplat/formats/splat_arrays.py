@@ -18,7 +18,7 @@ import torch
 from particlesplat.core.errors import UserError
 from particlesplat.core.limits import check_memory
 from particlesplat.core.sh import sh_degree_from_bases
-from particlesplat.formats.ply import BACKGROUND_OWNER, GaussianFields, PlyFields
+from particlesplat.formats.ply import BACKGROUND_OWNER, GaussianFields, PlyFields, finite_float64
 
 LOG_SCALE_FLOOR = np.log(1e-30)  # a zero scale is written as this log (as write_ply does)
 MAX_LOG_SCALE = float(np.log(np.finfo(np.float32).max))
@@ -77,12 +77,7 @@ def unit_quats(q: np.ndarray) -> np.ndarray:
 def splat_arrays(gaussians: GaussianFields, path: str | PathLike) -> SplatArrays:
     """The arrays of ``gaussians`` for writing to ``path``; ValueError naming ``path``, the field and the first
     bad Gaussian for a non-finite value (nothing is written)."""
-    g = gaussians.detach().to("cpu", torch.float64)
-    for name in ("means", "quats", "scales", "opacities", "sh"):
-        bad = ~torch.isfinite(getattr(g, name))
-        if bool(bad.any()):
-            row = int(bad.reshape(bad.shape[0], -1).any(1).nonzero()[0, 0])
-            raise ValueError(f"{path}: cannot write Gaussians.{name}: non-finite value at Gaussian {row}")
+    g = finite_float64(gaussians, path)
     return SplatArrays(
         means=g.means.numpy(),
         quats=unit_quats(g.quats.numpy()),

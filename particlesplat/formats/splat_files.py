@@ -13,78 +13,45 @@ An object bundle's ``manifest.json`` (:mod:`.bundle`) reads as its parts merged.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import importlib
 from os import PathLike
 from pathlib import Path
 from typing import NamedTuple
 
 from particlesplat.core.errors import OptionError, one_line
-from particlesplat.formats.ply import GaussianFields, PlyFields, read_header, read_ply, write_ply
+from particlesplat.formats.ply import GaussianFields, PlyFields, read_header
 
 
 class SplatFormat(NamedTuple):
-    """A Gaussian file format: its extension, a short description, its writer and reader."""
+    """A Gaussian file format: its extension, a short description and where its writer and reader live (the
+    module is imported on first use: Pillow only for SOG)."""
 
     suffix: str
     description: str
-    write: Callable[[GaussianFields, str | PathLike], None]
-    read: Callable[[str | PathLike], PlyFields]
+    module: str
+    writer: str
+    reader: str
+
+    def write(self, gaussians: GaussianFields, path: str | PathLike) -> None:
+        getattr(importlib.import_module(self.module), self.writer)(gaussians, path)
+
+    def read(self, path: str | PathLike) -> PlyFields:
+        return getattr(importlib.import_module(self.module), self.reader)(path)
 
 
-def _write_compressed(g: GaussianFields, path: str | PathLike) -> None:
-    from particlesplat.formats.compressed_ply import write_compressed_ply
-
-    write_compressed_ply(g, path)
-
-
-def _read_compressed(path: str | PathLike) -> PlyFields:
-    from particlesplat.formats.compressed_ply import read_compressed_ply
-
-    return read_compressed_ply(path)
-
-
-def _write_splat(g: GaussianFields, path: str | PathLike) -> None:
-    from particlesplat.formats.splat import write_splat
-
-    write_splat(g, path)
-
-
-def _read_splat(path: str | PathLike) -> PlyFields:
-    from particlesplat.formats.splat import read_splat
-
-    return read_splat(path)
-
-
-def _write_spz(g: GaussianFields, path: str | PathLike) -> None:
-    from particlesplat.formats.spz import write_spz
-
-    write_spz(g, path)
-
-
-def _read_spz(path: str | PathLike) -> PlyFields:
-    from particlesplat.formats.spz import read_spz
-
-    return read_spz(path)
-
-
-def _write_sog(g: GaussianFields, path: str | PathLike) -> None:
-    from particlesplat.formats.sog import write_sog
-
-    write_sog(g, path)
-
-
-def _read_sog(path: str | PathLike) -> PlyFields:
-    from particlesplat.formats.sog import read_sog
-
-    return read_sog(path)
-
-
+_F = "particlesplat.formats."
 FORMATS: tuple[SplatFormat, ...] = (
-    SplatFormat(".ply", "INRIA 3DGS .ply", write_ply, read_ply),
-    SplatFormat(".compressed.ply", "PlayCanvas compressed .ply", _write_compressed, _read_compressed),
-    SplatFormat(".splat", "antimatter15 .splat", _write_splat, _read_splat),
-    SplatFormat(".spz", "Niantic SPZ v3", _write_spz, _read_spz),
-    SplatFormat(".sog", "PlayCanvas SOG v2", _write_sog, _read_sog),
+    SplatFormat(".ply", "INRIA 3DGS .ply", _F + "ply", "write_ply", "read_ply"),
+    SplatFormat(
+        ".compressed.ply",
+        "PlayCanvas compressed .ply",
+        _F + "compressed_ply",
+        "write_compressed_ply",
+        "read_compressed_ply",
+    ),
+    SplatFormat(".splat", "antimatter15 .splat", _F + "splat", "write_splat", "read_splat"),
+    SplatFormat(".spz", "Niantic SPZ v3", _F + "spz", "write_spz", "read_spz"),
+    SplatFormat(".sog", "PlayCanvas SOG v2", _F + "sog", "write_sog", "read_sog"),
 )
 SUFFIXES = tuple(f.suffix for f in FORMATS)
 SUFFIX_HELP = ", ".join(SUFFIXES)
