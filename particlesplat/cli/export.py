@@ -63,14 +63,20 @@ def run(args: argparse.Namespace) -> int:
             raise OptionError("--edits-from needs a model scene, not --ply")
         if not 0.0 <= args.prune <= 1.0:
             raise OptionError(f"--prune must be an opacity in [0, 1], got {args.prune:g}")
-        if args.by is None:
-            from particlesplat.formats.splat_files import format_for
+        from particlesplat.formats.splat_files import SUFFIXES, format_for
 
+        if args.by is None:
             fmt = format_for(args.out)  # before the work, not after it
             try:
                 check_writable(args.out)
             except OSError as e:
                 raise OSError(f"--out {one_line(e)}") from None
+        else:
+            from particlesplat.formats.bundle import check_bundle_target
+
+            if args.out.lower().endswith(SUFFIXES):
+                raise OptionError(f"--out {args.out}: --by writes a folder (e.g. {Path(args.out).stem}_parts/)")
+            check_bundle_target(args.out)
         if args.ply:
             g = load_ply_checked(args.ply)
             source = str(args.ply)

@@ -44,9 +44,7 @@ def write_bundle(
     one, named ``rest``, holds what the others do not) and ``manifest.json``. The folder is written beside
     ``out`` and renamed into place; an ``out`` that exists must be an empty folder or an earlier bundle (it is
     replaced), else OSError names it. Returns the manifest."""
-    out = Path(out)
-    if out.exists():
-        _check_replaceable(out)
+    out = check_bundle_target(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.parent / f".{out.name}.tmp-{uuid.uuid4().hex[:8]}"
     tmp.mkdir()
@@ -77,17 +75,23 @@ def write_bundle(
     return manifest
 
 
-def _check_replaceable(out: Path) -> None:
+def check_bundle_target(out: str | PathLike) -> Path:
+    """``out`` as a Path; OSError naming it unless it is absent, an empty folder or an earlier bundle (what
+    :func:`write_bundle` may replace). Nothing is created."""
+    out = Path(out)
+    if not out.exists() and not out.is_symlink():
+        return out
     if not out.is_dir() or out.is_symlink():
         raise OSError(f"{out}: exists and is not a folder: a bundle is written as a folder")
     if not any(out.iterdir()):
-        return
+        return out
     try:
         ok = json.loads((out / MANIFEST).read_text(encoding="utf-8")).get("format") == FORMAT
     except (OSError, ValueError, AttributeError):
         ok = False
     if not ok:
         raise OSError(f"{out}: a folder that is neither empty nor a bundle (no {MANIFEST}): not replaced")
+    return out
 
 
 def read_manifest(path: str | PathLike) -> tuple[Path, dict[str, Any]]:
