@@ -24,6 +24,7 @@ from particlesplat.core.atomic import atomic_write
 from particlesplat.core.sh import SH_C0
 from particlesplat.formats.ply import GaussianFields, PlyFields
 from particlesplat.formats.splat_arrays import (
+    LOG_SCALE_FLOOR,
     SplatArrays,
     SplatFileError,
     background_owner,
@@ -81,7 +82,7 @@ def decode_splat(data: bytes, path: str | PathLike) -> SplatArrays:
     return SplatArrays(
         means=rec["pos"].astype(np.float64),
         quats=unit_quats(rec["rot"].astype(np.float64) - 128.0),
-        log_scales=np.maximum(log_scales, np.log(1e-30)),
+        log_scales=np.maximum(log_scales, LOG_SCALE_FLOOR),
         opacities=rgba[:, 3],
         sh=sh,
         owner=background_owner(n),

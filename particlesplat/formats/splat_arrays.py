@@ -20,7 +20,8 @@ from particlesplat.core.limits import check_memory
 from particlesplat.core.sh import sh_degree_from_bases
 from particlesplat.formats.ply import BACKGROUND_OWNER, GaussianFields, PlyFields, finite_float64
 
-LOG_SCALE_FLOOR = np.log(1e-30)  # a zero scale is written as this log (as write_ply does)
+MIN_SCALE = 1e-30  # a zero scale is written as this (as write_ply does), so that its log is finite
+LOG_SCALE_FLOOR = float(np.log(MIN_SCALE))
 MAX_LOG_SCALE = float(np.log(np.finfo(np.float32).max))
 
 
@@ -81,7 +82,7 @@ def splat_arrays(gaussians: GaussianFields, path: str | PathLike) -> SplatArrays
     return SplatArrays(
         means=g.means.numpy(),
         quats=unit_quats(g.quats.numpy()),
-        log_scales=np.log(np.maximum(g.scales.numpy(), 1e-30)),
+        log_scales=np.log(np.maximum(g.scales.numpy(), MIN_SCALE)),
         opacities=np.clip(g.opacities.numpy(), 0.0, 1.0),
         sh=g.sh.numpy(),
         owner=g.owner.numpy().astype(np.int64),
