@@ -96,9 +96,13 @@ def test_bad_files_are_refused_in_one_line(tmp_path):
         assert msg.startswith(str(tmp_path / name)) and messages[name] in msg and "\n" not in msg, msg
 
 
-def test_a_position_beyond_the_fixed_point_range_is_refused_before_writing(tmp_path):
+def test_a_large_scene_takes_fewer_fraction_bits_and_beyond_24_bits_is_refused(tmp_path):
     g = random_gaussians(3, 0, seed=1)
-    g.means[1, 2] = 5000.0
-    with pytest.raises(ValueError, match=r"far\.spz: cannot write SPZ: position .* of Gaussian 1 is beyond ±2048 m"):
-        write_spz(g, tmp_path / "far.spz")
-    assert not (tmp_path / "far.spz").exists()
+    g.means[1, 2] = 5000.0  # beyond 12 fraction bits' ±2048 m: 10 bits reach ±8192 m
+    write_spz(g, tmp_path / "far.spz")
+    assert gzip.decompress((tmp_path / "far.spz").read_bytes())[13] == 10
+    assert np.abs(read_spz_spec(tmp_path / "far.spz")["means"] - g.means.double().numpy()).max() <= 0.5 / 1024 + 1e-9
+    g.means[1, 2] = 1e7  # beyond 2**23 m
+    with pytest.raises(ValueError, match=r"huge\.spz: cannot write SPZ: position .* of Gaussian 1 is beyond ±8388607"):
+        write_spz(g, tmp_path / "huge.spz")
+    assert not (tmp_path / "huge.spz").exists()

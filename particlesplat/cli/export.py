@@ -61,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
         check_source_arguments(args)
         if args.ply and args.edits_from:
             raise OptionError("--edits-from needs a model scene, not --ply")
+        if args.ply and args.by == "object":
+            raise OptionError("--by object needs a model scene (its particles' objects), not --ply: use --by particle")
         if not 0.0 <= args.prune <= 1.0:
             raise OptionError(f"--prune must be an opacity in [0, 1], got {args.prune:g}")
         from particlesplat.formats.splat_files import SUFFIXES, format_for
@@ -132,7 +134,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"{prog}: warning: .splat holds no SH: higher bands dropped", file=sys.stderr)
         fmt.write(g, args.out)
     except (OSError, ValueError) as e:
-        print(f"{prog}: --out {args.out}: {one_line(e)}", file=sys.stderr)
+        message = one_line(e)
+        named = message if str(args.out) in message else f"--out {args.out}: {message}"
+        print(f"{prog}: {named}", file=sys.stderr)
         return EXIT_USER
     size = os.path.getsize(args.out)
     per = f", {size / g.num:.1f} bytes a Gaussian" if g.num else ""

@@ -4,7 +4,8 @@ Header (little endian): ``magic`` uint32 0x5053474e ("NGSP"), ``version`` uint32
 ``num_points`` uint32, ``sh_degree`` uint8 (0..3), ``fractional_bits`` uint8, ``flags`` uint8 (bit 0:
 antialiased), ``reserved`` uint8 (0). Then, for N points, in this order:
 
-- positions: 3 x int24 each, fixed point with ``fractional_bits`` fraction bits (12 here: 0.24 mm steps, ±2 km);
+- positions: 3 x int24 each, fixed point with ``fractional_bits`` fraction bits (12 here: 0.24 mm steps within
+  ±2 km; one fewer for each doubling of a larger scene's reach);
 - alphas: uint8, opacity * 255;
 - colours: 3 x uint8, ``dc * 0.15 * 255 + 127.5`` (the DC SH coefficient, not the colour);
 - scales: 3 x uint8, ``(log scale + 10) * 16``;
@@ -62,13 +63,16 @@ def encode_spz(a: SplatArrays, path: str | PathLike = "") -> bytes:
     """The (uncompressed) SPZ v3 payload of ``a``; ValueError naming ``path`` for a position beyond the fixed
     point's range."""
     n, degree = a.num, a.sh_degree
-    scale = float(1 << FRACTIONAL_BITS)
-    fixed = np.rint(a.means * scale)
-    if n and np.abs(fixed).max() >= 1 << 23:
-        row = int(np.argwhere((np.abs(fixed) >= 1 << 23).any(1))[0, 0])
+    peak = float(np.abs(a.means).max()) if n else 0.0
+    frac = FRACTIONAL_BITS  # fewer fraction bits for a scene reaching beyond ±2 km: coarser steps, same range
+    while frac > 0 and np.rint(peak * (1 << frac)) >= (1 << 23) - 1:
+        frac -= 1
+    fixed = np.rint(a.means * float(1 << frac))
+    if n and np.abs(fixed).max() >= (1 << 23) - 1:
+        row = int(np.argwhere((np.abs(fixed) >= (1 << 23) - 1).any(1))[0, 0])
         raise ValueError(
             f"{path}: cannot write SPZ: position {a.means[row].tolist()} of Gaussian {row} is beyond "
-            f"±{(1 << 23) / scale:g} m (24-bit fixed point)"
+            f"±{(1 << 23) - 1} m (24-bit fixed point)"
         )
     pos = fixed.astype(np.int64).reshape(-1) & 0xFFFFFF
     pos_bytes = np.stack([pos & 0xFF, (pos >> 8) & 0xFF, (pos >> 16) & 0xFF], axis=1).astype(np.uint8)
@@ -81,7 +85,7 @@ def encode_spz(a: SplatArrays, path: str | PathLike = "") -> bytes:
     q = np.rint(rest * 128.0) + 128.0
     step = np.where(np.arange(dim) < 3, 8.0, 16.0)[None, :, None]
     q = np.clip(np.floor((q + step / 2) / step) * step, 0, 255).astype(np.uint8)
-    header = HEADER.pack(MAGIC, VERSION, n, degree, FRACTIONAL_BITS, 0, 0)
+    header = HEADER.pack(MAGIC, VERSION, n, degree, frac, 0, 0)
     parts = [pos_bytes, alphas, colours, scales, rotations.astype("<u4"), q.reshape(n, dim * 3)]
     return header + b"".join(np.ascontiguousarray(p).tobytes() for p in parts)
 
