@@ -183,3 +183,11 @@ def test_the_formats_benchmark_reports_every_format_and_the_bundle(tmp_path, cap
         rows[".sog"]["bytes_per_gaussian"] < rows[".spz"]["bytes_per_gaussian"] * 2 < rows[".ply"]["bytes_per_gaussian"]
     )
     assert "bundle by particle, merged" in capsys.readouterr().out
+
+
+def test_gaussians_load_and_save_take_every_format(tmp_path):
+    g = random_gaussians(300, 0, seed=9)
+    for suffix in SUFFIXES:
+        g.save(tmp_path / f"g{suffix}")
+        back = Gaussians.load(tmp_path / f"g{suffix}")
+        assert back.num == 300 and render_psnr(back, g) >= 40.0, suffix

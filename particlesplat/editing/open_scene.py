@@ -157,6 +157,5 @@ def load_ply_checked(path: str | PathLike):
     """Gaussians of a Gaussian file in any format the program reads (.ply, .compressed.ply, .splat, .spz, .sog:
     :func:`particlesplat.formats.splat_files.read_gaussians`); FileNotFoundError names the path."""
     from particlesplat.core.gaussians import Gaussians
-    from particlesplat.formats.splat_files import read_gaussians
 
-    return Gaussians(*read_gaussians(path))
+    return Gaussians.load(path)
