@@ -93,7 +93,7 @@ def test_screenshot_and_export(app, tmp_path):
 
 
 def test_export_object_ply(app, tmp_path):
-    """The panel's "Export object .ply": the selected particle's object alone, its Gaussians as decoded."""
+    """The panel's "Export object": the selected particle's object alone, its Gaussians as decoded."""
     s = app.session
     i = next(k for k in range(s.num_particles) if s.is_active(k))
     app.fields.output_dir = str(tmp_path)
