@@ -16,9 +16,9 @@ from particlesplat.core.viewpoints import Framing, View, check_fov, default_view
 from particlesplat.editing.open_scene import (
     add_source_arguments,
     check_source_arguments,
-    load_model_scene,
     load_ply_checked,
 )
+from particlesplat.formats.splat_files import SUFFIX_HELP
 from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
@@ -37,7 +37,9 @@ def _background(text: str) -> tuple[float, float, float]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_source_arguments(parser, ply_help="render a 3DGS .ply instead of a model scene")
+    add_source_arguments(
+        parser, ply_help=f"render a Gaussian file ({SUFFIX_HELP}, or a bundle's manifest.json) instead of a model scene"
+    )
     add_rasterizer_option(parser)
     cam = parser.add_mutually_exclusive_group()
     cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
@@ -104,42 +106,12 @@ def _scene_and_gaussians(args: argparse.Namespace):
     check_source_arguments(args)
     if args.ply:
         return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None), None
-    from pathlib import Path
+    from particlesplat.editing.edited_scene import open_edited_scene
 
-    from particlesplat.editing.editor import SceneEditor, load_edit_file, scene_mismatch
-
-    file, where = None, "edits"  # where: the edit file's name in messages
-    if getattr(args, "edits_from", None):
-        if args.edits:
-            raise ValueError("--edits and --edits-from: give one edit file")
-        from particlesplat.core.yamlsafe import load_yaml
-        from particlesplat.editing.editor import parse_edit_file
-        from particlesplat.formats.png import edits_text_from_png
-
-        where = f"{args.edits_from}: edits chunk"
-        file = parse_edit_file(load_yaml(edits_text_from_png(args.edits_from), where), where)
-    elif args.edits:  # version 1 (particle values) or 2 (object operations, replayed as the viewer did them)
-        file, where = load_edit_file(args.edits), str(args.edits)
-    scene, context = args.scene, args.context
-    if file is not None and scene is None and file.scene is not None and Path(file.scene).is_dir():
-        scene = file.scene  # the scene the edits were made on
-        if context is None and file.context is not None:
-            context = ",".join(str(int(c)) for c in file.context)
-    model, enc, name = load_model_scene(args.checkpoint, scene, context)
-    for warning in enc.warnings:
+    scene = open_edited_scene(args.checkpoint, args.scene, args.context, args.edits, getattr(args, "edits_from", None))
+    for warning in scene.warnings:
         print(f"particlesplat render: warning: {warning}", file=sys.stderr)
-    particles = enc.particles
-    edits: str | dict = {}  # for png_text: the edit file's text, {} (no edits) without one
-    if file is not None:
-        warning = scene_mismatch(file, enc.path, enc.context)
-        if warning:
-            print(f"particlesplat render: warning: {where}: {warning}", file=sys.stderr)
-        from particlesplat.editing.scene_id import resolved, scene_digest
-
-        editor = SceneEditor(model, particles, enc.all_cameras, enc.context)
-        editor.apply_file(file, where)
-        particles = editor.particles
-        edits = editor.edit_text(scene=resolved(enc.path), model=name, scene_sha256=scene_digest(enc.path))
+    model, enc, particles, edits, name = scene.model, scene.encoded, scene.particles, scene.edits, scene.model_name
     g = model.decode(particles).detach().to("cpu")
     arrays = None
     if getattr(args, "mode", "rgb") in NEEDS_PARTICLES:
