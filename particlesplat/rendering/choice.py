@@ -12,10 +12,12 @@ import argparse
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
-
-import torch
+from typing import TYPE_CHECKING
 
 from particlesplat.core.errors import OptionError
+
+if TYPE_CHECKING:  # commands add the option before torch loads (their --help and argument errors stay fast)
+    import torch
 
 RASTERIZERS = ("torch", "fused")
 CHOICES = ("auto", *RASTERIZERS)
