@@ -39,6 +39,7 @@ from particlesplat.core.errors import UserError, one_line
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.sh import SH_C0
 from particlesplat.data.scene import SceneFormatError
+from particlesplat.data.scene_meta import read_scene_json
 from particlesplat.editing.grouping import (
     OBJECT_CENTRES,
     ObjectCentre,
@@ -258,10 +259,7 @@ def scene_object_centres(scene_dir: str | PathLike) -> np.ndarray | None:
     path = Path(scene_dir) / "scene.json"
     if not path.is_file():
         return None
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SceneFormatError(f"{path}: not valid JSON ({e})") from e
+    doc = read_scene_json(path)
     objects = doc.get("objects") if isinstance(doc, dict) else None
     if not objects:
         return None

@@ -135,6 +135,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", help="also write the rows to this JSON file")
     parser.add_argument("--case", nargs=2, type=int, metavar=("N", "SIZE"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs([("--json", args.json)], [])
     if args.case:
         print(json.dumps(run_case(args.case[0], args.case[1], args.repeats)))
         return 0

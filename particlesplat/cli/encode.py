@@ -134,7 +134,8 @@ def check_context_memory(model: ParticleSplat, views: int, batch: int, option: s
 
     check_memory(
         batch * encode_memory(model.config, views),
-        f"{option}: encoding {batch} scene(s) of {views} context view(s) at {model.config.resolution}^2",
+        f"{option}: encoding {batch} scene(s) of {views} context view(s) (the model: particles_per_view "
+        f"{model.config.particles_per_view}, {model.config.resolution}^2 pixels)",
     )
 
 
@@ -252,11 +253,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from particlesplat.core.outputs import guard_outputs
     from particlesplat.data.scene_meta import default_checkpoint
     from particlesplat.editing.open_scene import parse_context
     from particlesplat.model import load_model
     from particlesplat.model.io import shipped_model_name
 
+    guard_outputs([("--out", args.out)], [("--data", args.data), ("--checkpoint", args.checkpoint)])
     device = resolve_device(args.device)
     checkpoint = Path(args.checkpoint) if args.checkpoint else default_checkpoint(args.data)
     model = load_model(checkpoint, device=device)

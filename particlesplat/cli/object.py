@@ -63,12 +63,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from particlesplat.core.outputs import guard_outputs
     from particlesplat.data.scene_meta import default_checkpoint
     from particlesplat.editing.compose import export_object_ply, insert_object
     from particlesplat.editing.open_scene import encode_scene, parse_context
     from particlesplat.formats.ply import write_ply
     from particlesplat.model import load_model
 
+    guard_outputs(
+        [("--out", args.out), ("--png", getattr(args, "png", None))],
+        [("--checkpoint", args.checkpoint), ("--scene", args.scene), ("--from", getattr(args, "source", None))],
+    )
     model = load_model(args.checkpoint or default_checkpoint(args.scene))
     enc = encode_scene(model, args.scene, parse_context(args.context))
     if args.action == "export":

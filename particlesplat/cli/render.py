@@ -200,9 +200,17 @@ def resolve_camera(
 def run(args: argparse.Namespace) -> int:
     from particlesplat.core.atomic import check_writable
     from particlesplat.core.errors import EXIT_USER, one_line
+    from particlesplat.core.outputs import guard_outputs
     from particlesplat.formats.png import png_text, save_png
 
     try:
+        guard_outputs(
+            [("--out", args.out)],
+            [
+                (f"--{k.replace('_', '-')}", getattr(args, k, None))
+                for k in ("checkpoint", "scene", "ply", "edits", "edits_from", "camera_from")
+            ],
+        )
         try:
             check_writable(args.out)  # before the work, not after it
         except OSError as e:

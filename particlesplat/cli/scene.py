@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--write",
         metavar="FILE",
         help="write DIR's transforms.json with the transform applied to FILE (put it in a copy of the folder "
-        "as its transforms.json)",
+        "as its transforms.json); an existing FILE is kept beside it as FILE.orig (or FILE.orig-2, ...)",
     )
 
 
@@ -45,8 +45,15 @@ def run(args: argparse.Namespace) -> int:
     if args.write:
         import numpy as np
 
+        from particlesplat.core.atomic import keep_original
+        from particlesplat.core.jsonfile import read_json
+        from particlesplat.core.outputs import guard_outputs
+        from particlesplat.data.scene import MAX_TRANSFORMS_BYTES, SceneFormatError
+
         src = Path(scene.path) / "transforms.json"
-        meta = json.loads(src.read_text())
+        guard_outputs([("--write", args.write)], [], [])  # a locked run's file is refused; DIR's own is kept
+        meta = read_json(src, MAX_TRANSFORMS_BYTES, SceneFormatError)
+        assert isinstance(meta, dict)  # read_scene has read and checked it
         for frame in meta["frames"]:
             m = np.asarray(frame["transform_matrix"], dtype=np.float64)
             if m.shape == (3, 4):
@@ -56,7 +63,11 @@ def run(args: argparse.Namespace) -> int:
                 frame["depth_unit_scale_factor"] = float(frame["depth_unit_scale_factor"]) * report.scale
         if "depth_unit_scale_factor" in meta:
             meta["depth_unit_scale_factor"] = float(meta["depth_unit_scale_factor"]) * report.scale
+        kept = keep_original(Path(args.write))
         with atomic_write(args.write, "w") as f:
             json.dump(meta, f, indent=1)
-        print(f"wrote {args.write} ({src} with the transform applied)")
+        print(
+            f"wrote {args.write} ({src} with the transform applied)"
+            + (f"; the file it replaced is {kept}" if kept else "")
+        )
     return 0 if report.ok else 1

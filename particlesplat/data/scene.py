@@ -8,7 +8,6 @@ turns any subset of its frames into a :class:`Scene` of float tensors at any res
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import warnings
@@ -25,6 +24,7 @@ from torch import Tensor
 
 from particlesplat.core.camera import Camera
 from particlesplat.core.errors import UserError, one_line, short_repr
+from particlesplat.core.jsonfile import read_json
 
 TRANSFORMS = "transforms.json"
 _RIGID_TOL = 1e-3
@@ -209,15 +209,7 @@ def read_scene(path: str | PathLike) -> RawScene:
     tf_path = path / TRANSFORMS
     if not tf_path.is_file():
         raise FileNotFoundError(f"{tf_path}: no {TRANSFORMS} in the scene folder")
-    size = tf_path.stat().st_size
-    if size > MAX_TRANSFORMS_BYTES:
-        raise SceneFormatError(f"{tf_path}: {size} bytes, more than the {MAX_TRANSFORMS_BYTES} a {TRANSFORMS} may have")
-    try:
-        meta = json.loads(tf_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SceneFormatError(f"{tf_path}: not valid JSON ({one_line(e, 200)})") from None
-    except RecursionError:
-        raise SceneFormatError(f"{tf_path}: not valid JSON (nested too deeply)") from None
+    meta = read_json(tf_path, MAX_TRANSFORMS_BYTES, SceneFormatError)
     if not isinstance(meta, dict):
         raise SceneFormatError(f"{tf_path}: the top level must be an object")
     frames = meta.get("frames")

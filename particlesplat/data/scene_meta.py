@@ -6,7 +6,6 @@ follow (``model.bg_static_pose``)."""
 
 from __future__ import annotations
 
-import json
 import math
 from os import PathLike
 from pathlib import Path
@@ -14,25 +13,21 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from particlesplat.core.errors import one_line, short_repr, warn_input
+from particlesplat.core.errors import short_repr, warn_input
+from particlesplat.core.jsonfile import MAX_JSON_BYTES, read_json
 from particlesplat.core.viewpoints import Framing
 from particlesplat.data.families import family_of
 from particlesplat.data.scene import SceneFormatError
 
 SCENE_META = "scene.json"
 DATASET_META = "synth.json"  # a dataset folder's settings (particlesplat.data.synth.check_manifest)
-MAX_SCENE_META_BYTES = 16 << 20
+MAX_SCENE_META_BYTES = MAX_JSON_BYTES
 
 
-def _read_json(path: Path) -> object:
-    """The JSON value of a small metadata file; SceneFormatError names the file when it is too big or not JSON."""
-    size = path.stat().st_size
-    if size > MAX_SCENE_META_BYTES:
-        raise SceneFormatError(f"{path}: {size} bytes, more than the {MAX_SCENE_META_BYTES} a {path.name} may have")
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
-        raise SceneFormatError(f"{path}: not valid JSON ({one_line(e, 200)})") from None
+def read_scene_json(path: Path) -> object:
+    """The JSON value of a small metadata file (:func:`particlesplat.core.jsonfile.read_json`, at most
+    :data:`MAX_SCENE_META_BYTES`); SceneFormatError names the file when it is too big or not JSON."""
+    return read_json(path, MAX_SCENE_META_BYTES, SceneFormatError)
 
 
 def read_family(path: str | PathLike) -> str | None:
@@ -50,7 +45,7 @@ def read_family(path: str | PathLike) -> str | None:
         candidates += [deeper[0] / SCENE_META] if deeper else []
     for meta in candidates:
         if meta.is_file():
-            family = family_of(_read_json(meta))
+            family = family_of(read_scene_json(meta))
             if family is not None:
                 return family
     return None
@@ -77,7 +72,7 @@ def read_framing(folder: str | PathLike) -> Framing | None:
     path = Path(folder) / SCENE_META
     if not path.is_file():
         return None
-    meta = _read_json(path)
+    meta = read_scene_json(path)
     if not isinstance(meta, dict) or meta.get("look_at") is None:
         return None
     look_at = meta["look_at"]
@@ -98,7 +93,7 @@ def read_pose(folder: str | PathLike, key: str, dims: int) -> list[float] | None
     path = Path(folder) / SCENE_META
     if not path.is_file():
         return None
-    meta = _read_json(path)
+    meta = read_scene_json(path)
     if not isinstance(meta, dict) or meta.get(key) is None:
         return None
     value = meta[key]

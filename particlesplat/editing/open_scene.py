@@ -115,7 +115,9 @@ def encode_scene(
     from particlesplat.model.io import encode_memory
 
     check_memory(  # the encoder's memory grows with the cube of the context views
-        encode_memory(model.config, len(ctx)), f"--context: {len(ctx)} context views of {raw.path}"
+        encode_memory(model.config, len(ctx)),
+        f"{'--context' if context is not None else 'the default context'}: {len(ctx)} context views of {raw.path} "
+        f"(the model: particles_per_view {model.config.particles_per_view}, {model.config.resolution}^2 pixels)",
     )
     scene = raw.select(ctx, model.config.resolution)
     depth = scene.depth if use_depth and scene.depth is not None and bool((scene.depth > 0).any()) else None

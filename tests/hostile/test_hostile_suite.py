@@ -261,7 +261,7 @@ def _cases(x: dict[str, Path]) -> dict[str, dict]:
         "a config of 8.6 GB of weights, train --config": (
             PS,
             ["train", "--config", str(w / "big.yaml"), "--data", str(x["data"]), "--out", str(w / "big_run")],
-            r"--config: model: a model of [\d,]+ weights .* Adam moments: needs about",
+            r"--config \S+big.yaml: model: a model of [\d,]+ weights .* Adam moments: needs about",
         ),
         "100000 turntable frames, render --turntable": (
             PS,
@@ -271,7 +271,8 @@ def _cases(x: dict[str, Path]) -> dict[str, dict]:
         "40 context views, render --context": (
             PS,
             ["render", "--checkpoint", good, "--scene", scene, "--context", ",".join(["0"] * 40), "--out", out],
-            rf"--context: 40 context views of {scene}: needs about",
+            rf"--context: 40 context views of {scene} \(the model: particles_per_view \d+, \d+\^2 pixels\): "
+            "needs about",
         ),
         "--res beyond the largest image, synth": (
             PS,
