@@ -184,3 +184,30 @@ def lock_run(run: Path, pid: int, host: str | None = None) -> Path:
 
     (run / ".lock").write_text(json.dumps({"pid": pid, "host": host or socket.gethostname(), "started": time.time()}))
     return run
+
+
+def checkpoint_with(good: Path, path: Path, weights=None, **keys) -> Path:
+    """A copy of checkpoint ``good`` with top-level ``keys`` replaced (e.g. ``provenance``, ``train``) and every
+    floating-point weight passed through ``weights`` (e.g. ``lambda v: v * 1e30``)."""
+    ckpt = torch.load(good, weights_only=True)
+    ckpt.update(keys)
+    if weights is not None:
+        ckpt["state_dict"] = {k: weights(v) if v.is_floating_point() else v for k, v in ckpt["state_dict"].items()}
+    torch.save(ckpt, path)
+    return path
+
+
+def big_log(path: Path, megabytes: int) -> Path:
+    """A metrics.jsonl of ``megabytes`` MB: training records of ~100 bytes, a validation record every 1,000 lines
+    (what a long run with log_every 1 writes)."""
+    import json
+
+    block = "".join(
+        json.dumps({"step": i, "loss": 917.1, "psnr": 14.48, "active": 7.0, "rec": 0.5}) + "\n" for i in range(999)
+    )
+    block += json.dumps({"step": 999, "val": {"psnr": 20.0, "fg_ari": 0.5}}) + "\n"
+    data = block.encode()
+    with open(path, "wb") as f:
+        for _ in range(megabytes * (1 << 20) // len(data) + 1):
+            f.write(data)
+    return path

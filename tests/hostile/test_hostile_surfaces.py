@@ -1,0 +1,322 @@
+"""Hostile input on the newer surfaces: outputs over inputs, run folders, checkpoints' other fields, logs, threads,
+synth's folder. Each command runs in its own process under the memory cap (``runner.py``); a refusal is one line,
+exit 2, nothing changed; a case that must succeed does so within the cap."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+HERE = Path(__file__).resolve().parent
+sys.path[:0] = [str(HERE), str(HERE.parent)]
+
+from hostile_files import big_log, checkpoint_with, lock_run  # noqa: E402
+from model_data import TINY_MODEL, tiny_config, tiny_dataset  # noqa: E402
+from test_hostile_suite import CAP_MB, _lines  # noqa: E402
+
+PS = "particlesplat"
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory) -> dict[str, Path]:
+    from particlesplat.cli.main import main
+    from particlesplat.model import ParticleSplat, save_checkpoint
+    from particlesplat.model.config import model_config_from_dict
+
+    data = tiny_dataset(tmp_path_factory)
+    w = tmp_path_factory.mktemp("surfaces")
+    torch.manual_seed(0)
+    good = w / "good.pt"
+    save_checkpoint(good, ParticleSplat(model_config_from_dict(TINY_MODEL)), 0)
+    scene = w / "split" / "scene"
+    shutil.copytree(next((data / "val").iterdir()), scene)
+    cfg = tiny_config(w / "tiny.yaml", steps=4, val_every=2, ckpt_every=1)
+    assert main(["train", "--config", str(cfg), "--data", str(data), "--out", str(w / "run"), "--stop-after", "2"]) == 0
+    for name in ("locked_run", "init_run", "no_config_run"):
+        shutil.copytree(w / "run", w / name)
+    lock_run(w / "locked_run", os.getpid())
+    (w / "no_config_run" / "config.yaml").unlink()
+    # a run that stopped before its first checkpoint, as earlier versions left it: its config.yaml (and log)
+    (w / "unstarted").mkdir()
+    shutil.copy(w / "run" / "config.yaml", w / "unstarted" / "config.yaml")
+    shutil.copy(w / "run" / "metrics.jsonl", w / "unstarted" / "metrics.jsonl")
+    other = yaml.safe_load(cfg.read_text())
+    other["train"]["batch_size"] = 1
+    (w / "other_batch.yaml").write_text(yaml.safe_dump(other))
+    threads = yaml.safe_load(cfg.read_text())
+    threads["train"].update(num_threads=1024, steps=1, val_every=100)
+    (w / "threads.yaml").write_text(yaml.safe_dump(threads))
+    # logs: one bad record each, before the last line
+    val = json.dumps({"step": 2, "val": {"psnr": 20.0, "fg_ari": 0.5}})
+    logs = {
+        "psnr_text": json.dumps({"step": 1, "val": {"psnr": "high", "fg_ari": 0.5}}),
+        "step_nan": '{"step": NaN, "val": {"psnr": 20.0}}',
+        "no_step": json.dumps({"val": {"psnr": 20.0}}),
+        "utf8": b"\xff\xfe{}".decode("latin-1"),
+        "nested": "[" * 100_000 + "]" * 100_000,
+    }
+    for name, line in logs.items():
+        (w / "logs" / name).mkdir(parents=True)
+        (w / "logs" / name / "metrics.jsonl").write_bytes(line.encode("latin-1") + b"\n" + val.encode() + b"\n")
+    (w / "logs" / "odd").mkdir()
+    odd = [
+        {"step": 1, "val": {"psnr": None, "fg_ari": 0.5}},
+        {"step": 2, "val": {"psnr": float("inf")}},
+        json.loads(val),
+    ]
+    (w / "logs" / "odd" / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in odd))
+    (w / "logs" / "big").mkdir()
+    big_log(w / "logs" / "big" / "metrics.jsonl", 150)
+    # checkpoints whose other fields or values are wrong
+    checkpoint_with(good, w / "prov.pt", provenance={"wall_hours": "many", "data": "x"})
+    checkpoint_with(good, w / "train.pt", train={"batch_size": "four"})
+    checkpoint_with(good, w / "huge.pt", weights=lambda v: v * 1e30)
+    checkpoint_with(good, w / "int.pt", weights=lambda v: (v * 100).to(torch.int64))
+    # synth: a folder another synth holds; a robot scene (scene.json) in a folder without synth.json
+    (w / "synth_locked").mkdir()
+    lock_run(w / "synth_locked", os.getpid())
+    robot_scene = w / "synth_mixed" / "train" / "scene_00000"
+    robot_scene.mkdir(parents=True)
+    (robot_scene / "scene.json").write_text(json.dumps({"generator": "particlesplat.data.families.robot"}))
+    rgb = scene / json.loads((scene / "transforms.json").read_text())["frames"][4]["file_path"]
+    return {"w": w, "data": data, "scene": scene, "cfg": cfg, "good": good, "rgb": rgb}
+
+
+def _refusals(x: dict[str, Path]) -> dict[str, tuple[list[str], str]]:
+    """name -> (arguments, the words the one line must hold)."""
+    w, scene, good, data = x["w"], x["scene"], str(x["good"]), x["data"]
+    train = ["train", "--config", str(x["cfg"]), "--data", str(data)]
+    curve = lambda name: ["curve", str(w / "logs" / name), "--out", str(w / "c.png")]  # noqa: E731
+    return {
+        # outputs never replace an input, nor a file of a locked run
+        "curve --out its own log": (
+            ["curve", str(w / "run"), "--out", str(w / "run" / "metrics.jsonl")],
+            r"--out \S+run/metrics.jsonl: is RUN \S+run/metrics.jsonl, which this command reads",
+        ),
+        "eval --json over the scene's transforms.json": (
+            ["eval", "--checkpoint", good, "--data", str(w / "split"), "--json", str(scene / "transforms.json")],
+            r"--json \S+transforms.json: would replace a file inside --data \S+split, which this command reads",
+        ),
+        "render --out over an input image": (
+            ["render", "--checkpoint", good, "--scene", str(scene), "--out", str(x["rgb"])],
+            r"--out \S+: would replace a file inside --scene \S+scene, which this command reads",
+        ),
+        "render --out its own checkpoint": (
+            ["render", "--checkpoint", good, "--scene", str(scene), "--out", good],
+            r"--out \S+good.pt: is --checkpoint \S+good.pt",
+        ),
+        "model set --out into a locked run": (
+            ["model", "set", good, "refine_scale=0.5", "--out", str(w / "locked_run" / "last.pt")],
+            rf"--out \S+last.pt: lies in the run folder \S+locked_run, in use by process {os.getpid()}",
+        ),
+        "train --overwrite of the run holding --init": (
+            train + ["--init", str(w / "init_run" / "best.pt"), "--out", str(w / "init_run"), "--overwrite"],
+            r"--out \S+init_run: holds --init \S+best.pt, which this command reads, and its contents are replaced",
+        ),
+        # runs
+        "--stop-after 0": (train + ["--out", str(w / "new_run"), "--stop-after", "0"], r"--stop-after must be >= 1"),
+        "--resume of a run without a checkpoint": (
+            train + ["--out", str(w / "unstarted"), "--resume"],
+            r"last.pt: nothing to resume: the run stopped before its first checkpoint .* --overwrite",
+        ),
+        "--resume with another train.batch_size": (
+            [
+                "train",
+                "--config",
+                str(w / "other_batch.yaml"),
+                "--data",
+                str(data),
+                "--out",
+                str(w / "run"),
+                "--resume",
+            ],
+            r"last.pt: train.batch_size: the run was started with 2, --config \S+other_batch.yaml gives 1",
+        ),
+        # logs read by the validating reader
+        "curve, a psnr of text": (curve("psnr_text"), r"metrics.jsonl: line 1: key 'val.psnr' must be a number"),
+        "curve, a NaN step": (curve("step_nan"), r"metrics.jsonl: line 1: key 'step' must be a non-negative integer"),
+        "curve, a val record without step": (curve("no_step"), r"metrics.jsonl: line 1: a 'val' record without"),
+        "curve, invalid UTF-8": (curve("utf8"), r"metrics.jsonl: line 1: not a JSON object"),
+        "curve, deep nesting": (curve("nested"), r"metrics.jsonl: line 1: not a JSON object \(nested too deeply\)"),
+        # checkpoints: every field checked, weights in float32's range
+        "a provenance of the wrong type, model info": (
+            ["model", "info", str(w / "prov.pt")],
+            r"prov.pt: provenance.wall_hours: expected a finite non-negative number",
+        ),
+        "a train section of the wrong type, eval": (
+            ["eval", "--checkpoint", str(w / "train.pt"), "--data", str(w / "split")],
+            r"train.pt: train.*batch_size",
+        ),
+        "weights x 1e30, render": (
+            ["render", "--checkpoint", str(w / "huge.pt"), "--scene", str(scene), "--out", str(w / "o.png")],
+            r"huge.pt: state_dict\.\S+: values up to \S+, beyond the \+-1e\+06",
+        ),
+        "weights stored as int64, render": (
+            ["render", "--checkpoint", str(w / "int.pt"), "--scene", str(scene), "--out", str(w / "o.png")],
+            r"int.pt: state_dict\.\S+: stored as torch.int64, but the model's weight is floating-point",
+        ),
+        # synth owns its folder and keeps one family
+        "synth into a folder another synth holds": (
+            ["synth", str(w / "synth_locked"), "--train", "1", "--val", "0", "--test", "0", "--res", "16"],
+            rf"synth_locked: in use by process {os.getpid()}",
+        ),
+        "tabletop synth into a robot folder": (
+            ["synth", str(w / "synth_mixed"), "--train", "1", "--val", "0", "--test", "0", "--res", "16"],
+            r"scene_00000/scene.json: key 'generator' is 'particlesplat.data.families.robot' but this run uses",
+        ),
+    }
+
+
+def _successes(x: dict[str, Path]) -> dict[str, tuple[list[str], str | None]]:
+    """name -> (arguments, a line stderr must hold, or None); each must exit 0 within the cap."""
+    w, data = x["w"], x["data"]
+    return {
+        "curve, null and inf metrics": (["curve", str(w / "logs" / "odd"), "--out", str(w / "odd.png")], None),
+        "curve, a 150 MB log": (["curve", str(w / "logs" / "big"), "--out", str(w / "big.png")], None),
+        "train.num_threads 1024": (
+            ["train", "--config", str(w / "threads.yaml"), "--data", str(data), "--out", str(w / "threads_run")],
+            r"warning: train.num_threads: 1024 threads on \d+ usable cores; using \d+",
+        ),
+        "bench encode --threads 5000": (
+            ["bench", "encode", "--checkpoint", str(x["good"]), "--data", str(w / "split"), "--threads", "5000"]
+            + ["--scenes", "1", "--rounds", "1"],
+            r"warning: --threads: 5000 threads on \d+ usable cores",
+        ),
+        "--overwrite of a run without a checkpoint": (
+            ["train", "--config", str(x["cfg"]), "--data", str(data), "--out", str(w / "unstarted"), "--overwrite"]
+            + ["--stop-after", "1"],
+            None,
+        ),
+        "--resume without config.yaml": (
+            ["train", "--data", str(data), "--out", str(w / "no_config_run"), "--resume", "--stop-after", "1"],
+            r"the config stored in \S+no_config_run/last.pt",
+        ),
+    }
+
+
+@pytest.fixture(scope="module")
+def results(world, tmp_path_factory):
+    refusals, successes = _refusals(world), _successes(world)
+    specs = [
+        {"entry": PS, "argv": argv, "cap_mb": CAP_MB, "timeout": 120, "watch": [str(world["w"])]}
+        for argv, _ in refusals.values()
+    ] + [{"entry": PS, "argv": argv, "cap_mb": CAP_MB, "timeout": 300} for argv, _ in successes.values()]
+    io = tmp_path_factory.mktemp("runner")
+    (io / "cases.json").write_text(json.dumps(specs))
+    proc = subprocess.run(
+        [sys.executable, str(HERE / "runner.py"), str(io / "cases.json"), str(io / "out.json")],
+        capture_output=True,
+        text=True,
+        timeout=1500,
+        cwd=io,  # nothing is written into the working directory
+        env={**os.environ, "PYTHONPATH": os.pathsep.join([str(HERE.parent.parent), os.environ.get("PYTHONPATH", "")])},
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    res = json.loads((io / "out.json").read_text())
+    assert sorted(p.name for p in io.iterdir()) == ["cases.json", "out.json"]
+    names = [*refusals, *successes]
+    return dict(zip(names, res, strict=True))
+
+
+def _names(kind) -> list[str]:
+    return list(kind({k: Path(k) for k in ("w", "data", "scene", "cfg", "good", "rgb")}).keys())
+
+
+@pytest.mark.parametrize("name", _names(_refusals))
+def test_case_is_one_line_exit_2_nothing_changed(results, world, name):
+    res = results[name]
+    lines = _lines(res["stderr"])
+    assert not res["timed_out"] and res["code"] == 2, res["stderr"][-3000:]
+    assert len(lines) == 1 and "Traceback" not in res["stderr"], res["stderr"][-3000:]
+    assert re.search(_refusals(world)[name][1], lines[0]), lines[0]
+    assert res["changed"] == [], res["changed"]
+
+
+@pytest.mark.parametrize("name", _names(_successes))
+def test_case_succeeds_within_the_cap(results, world, name):
+    res = results[name]
+    assert not res["timed_out"] and res["code"] == 0, res["stderr"][-3000:]
+    assert "Traceback" not in res["stderr"], res["stderr"][-3000:]
+    want = _successes(world)[name][1]
+    if want:
+        assert re.search(want, res["stderr"]), res["stderr"][-2000:]
+
+
+def _tree(folder: Path) -> dict[str, float]:
+    return {str(p): p.stat().st_mtime for p in folder.rglob("*")} if folder.is_dir() else {}
+
+
+def test_synth_sigterm_stops_its_pool_and_keeps_finished_scenes(tmp_path):
+    """SIGTERM to ``synth`` is Ctrl-C: one line, exit 143, the worker pool gone with the command (nothing is
+    written after it returns), finished scenes kept and the folder's lock given back."""
+    out = tmp_path / "data"
+    cmd = [sys.executable, "-m", "particlesplat.cli", "synth", str(out), "--train", "60", "--val", "0", "--test", "0"]
+    proc = subprocess.Popen(
+        cmd + ["--res", "32", "--workers", "2"],
+        cwd=HERE.parent.parent,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not list((out / "train").glob("scene_*")) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert list((out / "train").glob("scene_*")), "no scene finished in 120 s"
+        proc.send_signal(signal.SIGTERM)  # the command only, as a service manager or `kill PID` does
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 128 + signal.SIGTERM, err[-2000:]
+    lines = [x for x in err.replace("\r", "\n").splitlines() if x.strip() and not x.startswith("synth")]
+    assert lines == [
+        f"particlesplat synth: interrupted (finished scenes are kept in {out}; run the same command again to resume)"
+    ], err[-2000:]
+    time.sleep(0.5)
+    with pytest.raises(ProcessLookupError):  # no worker outlived the command
+        os.killpg(proc.pid, 0)
+    before = _tree(out)
+    time.sleep(1.0)
+    assert _tree(out) == before
+    assert not (out / ".lock").exists()
+
+
+def test_scene_check_write_over_transforms_keeps_the_original(world, tmp_path):
+    from particlesplat.cli.main import main
+
+    scene = tmp_path / "scene"
+    shutil.copytree(world["scene"], scene)
+    original = (scene / "transforms.json").read_bytes()
+    for _ in (1, 2):
+        assert main(["scene", "check", str(scene), "--write", str(scene / "transforms.json")]) in (0, 1)
+    assert (scene / "transforms.json.orig").read_bytes() == original  # the first original, never replaced
+    assert (scene / "transforms.json.orig-2").is_file()
+    json.loads((scene / "transforms.json").read_text())
+
+
+def test_bench_edits_writes_no_file_it_was_not_given(world, tmp_path):
+    """No default output in the working directory; with --json, the file records the model that ran."""
+    env = {**os.environ, "PYTHONPATH": str(HERE.parent.parent), "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "particlesplat.cli", "bench", "edits", "--checkpoint", str(world["good"])]
+    cmd += ["--scenes", "1", "--res", "32", "--work", str(tmp_path / "work")]
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert list(cwd.iterdir()) == []
+    proc = subprocess.run(cmd + ["--json", "b.json"], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert json.loads((cwd / "b.json").read_text())["checkpoint"] == str(world["good"])
