@@ -380,6 +380,13 @@ def _rigid_matrix(value: Any, where: str) -> np.ndarray:
         raise SceneFormatError(
             f"{where}: key '{key}' has values beyond +-{FLOAT32_MAX_ABS:g} (float32 arithmetic on them overflows)"
         )
+    from particlesplat.core.limits import WORLD_MAX_METRES
+
+    if np.abs(m[:3, 3]).max() > WORLD_MAX_METRES:
+        raise SceneFormatError(
+            f"{where}: key '{key}' puts the camera {np.abs(m[:3, 3]).max():.3g} m from the origin, beyond the "
+            f"{WORLD_MAX_METRES:g} m where float32 keeps millimetres; translate the scene near the origin"
+        )
     R = m[:3, :3]
     err = max(np.abs(R.T @ R - np.eye(3)).max(), np.abs(m[3] - [0, 0, 0, 1]).max())
     if err > _RIGID_TOL or np.linalg.det(R) <= 0:
@@ -481,6 +488,13 @@ def _read_depth(folder: Path, meta: dict, frame: dict, size: tuple[int, int], wh
     _check_size(arr, size, key, p, where)
     if not np.isfinite(arr).all() or (arr < 0).any():
         raise SceneFormatError(f"{where}: key '{key}': {p} has negative or non-finite depth")
+    from particlesplat.core.limits import WORLD_MAX_METRES
+
+    if arr.size and float(arr.max()) > WORLD_MAX_METRES:
+        raise SceneFormatError(
+            f"{where}: key '{key}': {p} has depths up to {float(arr.max()):.3g} m (with depth_unit_scale_factor "
+            f"{scale:g}), beyond the {WORLD_MAX_METRES:g} m a depth may hold"
+        )
     return arr.astype(np.float32)
 
 

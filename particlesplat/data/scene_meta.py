@@ -15,6 +15,7 @@ from torch import Tensor
 
 from particlesplat.core.errors import short_repr, warn_input
 from particlesplat.core.jsonfile import MAX_JSON_BYTES, read_json
+from particlesplat.core.limits import MIN_DISTANCE_METRES, WORLD_MAX_METRES
 from particlesplat.core.viewpoints import Framing
 from particlesplat.data.families import family_of
 from particlesplat.data.scene import SceneFormatError
@@ -32,23 +33,52 @@ def read_scene_json(path: Path) -> object:
 
 def read_family(path: str | PathLike) -> str | None:
     """The scene family (:data:`particlesplat.data.families.FAMILIES`) of a scene folder, a split folder or a
-    dataset folder: what the scene's ``scene.json`` records, else the dataset's ``synth.json`` (in the folder or
-    the one above it), else the first scene folder's below it. None when nothing records one."""
+    dataset folder: what the scene's ``scene.json`` records; for a split or dataset folder, what every scene below
+    it records (a folder mixing families is refused: one model would encode them all), else the dataset's
+    ``synth.json`` (in the folder or the one above it). None when nothing records one."""
     path = Path(path)
     if not path.is_dir():
         return None
-    candidates = [path / SCENE_META, path / DATASET_META, path.parent / DATASET_META]
-    below = sorted(p for p in path.iterdir() if p.is_dir())[:1]
-    candidates += [below[0] / SCENE_META] if below else []
-    if below:  # a dataset folder: its first split's first scene
-        deeper = sorted(p for p in below[0].iterdir() if p.is_dir())[:1]
-        candidates += [deeper[0] / SCENE_META] if deeper else []
-    for meta in candidates:
+    own = path / SCENE_META
+    if own.is_file():
+        family = family_of(read_scene_json(own), str(own))
+        if family is not None:
+            return family
+    found: dict[str, Path] = {}
+    for meta in _scene_metas(path):
+        family = family_of(read_scene_json(meta), str(meta))
+        if family is not None:
+            found.setdefault(family, meta)
+    if len(found) > 1:
+        (a, pa), (b, pb) = sorted(found.items())[:2]
+        raise SceneFormatError(
+            f"{path}: mixes scene families ({pa} is {a}, {pb} is {b}); one model encodes every scene of a "
+            "folder: give scenes of one family, or --checkpoint to choose the model"
+        )
+    if found:
+        return next(iter(found))
+    for meta in (path / DATASET_META, path.parent / DATASET_META):
         if meta.is_file():
-            family = family_of(read_scene_json(meta))
+            family = family_of(read_scene_json(meta), str(meta))
             if family is not None:
                 return family
     return None
+
+
+def _scene_metas(folder: Path) -> list[Path]:
+    """The ``scene.json`` of every scene folder below ``folder`` (a split: its scenes; a dataset: its splits'
+    scenes), hidden folders left out."""
+    metas = []
+    for child in sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        if (child / SCENE_META).is_file():
+            metas.append(child / SCENE_META)
+        elif not (child / "transforms.json").is_file():
+            metas += [
+                g / SCENE_META
+                for g in sorted(child.iterdir())
+                if g.is_dir() and not g.name.startswith(".") and (g / SCENE_META).is_file()
+            ]
+    return metas
 
 
 CHECKPOINT_HELP = (
@@ -78,9 +108,14 @@ def read_framing(folder: str | PathLike) -> Framing | None:
     look_at = meta["look_at"]
     if not (isinstance(look_at, list) and len(look_at) == 3 and all(_finite(v) for v in look_at)):
         raise SceneFormatError(f"{path}: key 'look_at' must be 3 finite numbers (metres), got {short_repr(look_at)}")
+    if max(abs(float(v)) for v in look_at) > WORLD_MAX_METRES:
+        raise SceneFormatError(f"{path}: key 'look_at' is beyond {WORLD_MAX_METRES:g} m from the origin")
     distance = meta.get("distance")
-    if distance is not None and not (_finite(distance) and distance > 0):
-        raise SceneFormatError(f"{path}: key 'distance' must be a positive number (metres), got {short_repr(distance)}")
+    if distance is not None and not (_finite(distance) and MIN_DISTANCE_METRES <= distance <= WORLD_MAX_METRES):
+        raise SceneFormatError(
+            f"{path}: key 'distance' must be a number of metres in [{MIN_DISTANCE_METRES:g}, {WORLD_MAX_METRES:g}], "
+            f"got {short_repr(distance)}"
+        )
     return Framing(
         (float(look_at[0]), float(look_at[1]), float(look_at[2])), None if distance is None else float(distance)
     )
