@@ -340,7 +340,7 @@ def evaluate_dataset(
     cfg = model.config
     for i in tqdm(range(n), desc="eval", disable=not progress_bar):
         item = ds[i]
-        pose = scene_pose(ds.scenes[i], cfg.bg_static_pose, cfg.bg_static_pose_dims)
+        pose = scene_pose(ds.scenes[i], cfg.bg_static_pose, cfg.bg_static_pose_dims, model.input_ranges)
         if pose is not None:
             item["pose"] = pose
         if set(item["target_index"].tolist()) <= set(item["context_index"].tolist()):

@@ -92,7 +92,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     items: list[dict[str, Any]] = [ds[i] for i in range(min(args.scenes, len(ds)))]
     for i, it in enumerate(items):  # each model's pose of each scene (bg_static_pose), read before the timing
-        it["poses"] = [scene_pose(ds.scenes[i], m.config.bg_static_pose, m.config.bg_static_pose_dims) for m in models]
+        it["poses"] = [
+            scene_pose(ds.scenes[i], m.config.bg_static_pose, m.config.bg_static_pose_dims, m.input_ranges)
+            for m in models
+        ]
     time_rounds(models, items[:1], 1)  # warm-up: first-call allocations and kernels
     times = time_rounds(models, items, args.rounds)
     print(

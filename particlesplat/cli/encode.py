@@ -96,7 +96,7 @@ def encode_batch(model: ParticleSplat, scenes: list[Scene]) -> list[Particles]:
     K = torch.stack([k for k, _ in cams])
     c2w = torch.stack([c for _, c in cams])
     cfg = model.config
-    poses = [scene_pose(s.path, cfg.bg_static_pose, cfg.bg_static_pose_dims) for s in scenes]
+    poses = [scene_pose(s.path, cfg.bg_static_pose, cfg.bg_static_pose_dims, model.input_ranges) for s in scenes]
     pose = model.batch_pose(poses, dev)
     post = model.refine(model.posterior(rgb, depth, K, c2w, pose), rgb, depth, K, c2w)
     z = model.latents(post, sample=False)

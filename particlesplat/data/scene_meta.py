@@ -18,6 +18,7 @@ from particlesplat.core.jsonfile import MAX_JSON_BYTES, read_json
 from particlesplat.core.limits import MIN_DISTANCE_METRES, WORLD_MAX_METRES
 from particlesplat.core.viewpoints import Framing
 from particlesplat.data.families import family_of
+from particlesplat.data.pose_ranges import check_limits, generator_range, warn_outside
 from particlesplat.data.scene import SceneFormatError
 
 SCENE_META = "scene.json"
@@ -134,16 +135,25 @@ def read_pose(folder: str | PathLike, key: str, dims: int) -> list[float] | None
     value = meta[key]
     if not (isinstance(value, list) and len(value) == dims and all(_finite(v) for v in value)):
         raise SceneFormatError(f"{path}: key {key!r} must be {dims} finite numbers, got {short_repr(value)}")
-    return [float(v) for v in value]
+    pose = [float(v) for v in value]
+    check_limits(pose, key, str(path))  # beyond the robot's joint limits: no pose of the robot
+    return pose
 
 
-def scene_pose(folder: str | PathLike, key: str, dims: int) -> Tensor | None:
+def scene_pose(
+    folder: str | PathLike, key: str, dims: int, ranges: dict[str, dict[str, list[float]]] | None = None
+) -> Tensor | None:
     """The pose (D,) a model that follows one (``model.bg_static_pose`` ``key`` of ``dims`` numbers; "" = none)
     reads for the scene at ``folder``: what its scene.json records. None for a model that follows none, and, with
-    an InputWarning (the layer then holds the training scenes' mean pose), for a scene that records none."""
+    an InputWarning (the layer then holds the training scenes' mean pose), for a scene that records none.
+    ``ranges``: the model's ``input_ranges``; a pose outside its trained range is warned about
+    (:mod:`particlesplat.data.pose_ranges`; a model that records none: its generator's range)."""
     if not key:
         return None
     pose = read_pose(folder, key, dims)
+    if pose is not None:
+        trained = (ranges or {}).get(key) or generator_range(key)
+        warn_outside(pose, key, trained, str(Path(folder) / SCENE_META))
     if pose is None:
         warn_input(
             f"{Path(folder) / SCENE_META}: no key {key!r}: the model's workspace layer follows that pose; it holds "

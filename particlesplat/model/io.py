@@ -29,6 +29,8 @@ def save_checkpoint(path: str | PathLike, model: ParticleSplat, step: int, extra
         "step": int(step),
         "config_sha256": config_digest(config),
     }
+    if model.input_ranges is not None:
+        state["input_ranges"] = model.input_ranges
     if extra:
         state.update(extra)
     try:
@@ -120,6 +122,13 @@ def read_checkpoint(path: str | PathLike) -> dict:
             raise CheckpointError(
                 f"{path}: provenance.{problem}" if ":" in problem else f"{path}: provenance: {problem}"
             )
+    if ckpt.get("input_ranges") is not None:
+        from particlesplat.data.pose_ranges import check_ranges
+
+        try:
+            check_ranges(ckpt["input_ranges"], str(path))
+        except UserError as e:
+            raise CheckpointError(str(e)) from None
     if ckpt.get("train") is not None:  # the run's train section, checked as the config is
         if not isinstance(ckpt["train"], dict):
             raise CheckpointError(f"{path}: train: expected a mapping, got {type(ckpt['train']).__name__}")
@@ -235,6 +244,9 @@ def model_from_checkpoint(ckpt: dict, where: str = "checkpoint", device: str | t
     except RuntimeError as e:
         raise CheckpointError(f"{where}: state_dict does not match its config ({one_line(e, 300)})") from None
     model.refine_enabled = refinement_trained(ckpt)
+    from particlesplat.data.pose_ranges import check_ranges
+
+    model.input_ranges = check_ranges(ckpt.get("input_ranges"), where)
     return model.to(device).eval()
 
 

@@ -32,6 +32,7 @@ from particlesplat.core.gaussians import BadGaussiansError
 from particlesplat.core.runlock import LOCK_NAME, RunLock
 from particlesplat.core.threads import ThreadGovernor
 from particlesplat.data.dataset import TrainingBatch
+from particlesplat.data.pose_ranges import check_ranges, record_range
 from particlesplat.data.views import WARMUP
 from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig, read_checkpoint, save_checkpoint
 from particlesplat.model.config import ConfigError, config_to_dict, stored_model_config, stored_train_config
@@ -323,6 +324,9 @@ class Trainer:
             self._start_workspace()
         if not resume and self.model.follows_pose and "static_bg.pose_mean" not in copied:
             self._set_pose_mean()
+        elif not resume and self.model.follows_pose:  # --init kept its pose mean; the range is this run's scenes'
+            ds = next(iter(self.train_sets.values()))
+            self.model.input_ranges = {self.cfg.bg_static_pose: record_range([ds.pose(i) for i in range(len(ds))])}
         # the learned background colour and the static background layer move at lr_background
         is_bg = lambda n: n == "background_logit" or n.startswith("static_bg.")  # noqa: E731
         trained = list(self.model.named_parameters())
@@ -387,7 +391,9 @@ class Trainer:
         layer = self.model.static_bg
         if not isinstance(layer, WorkspaceBackground):
             raise RuntimeError("bg_static_pose is set but the model has no workspace layer")
-        layer.set_pose_mean(torch.tensor([ds.pose(i) for i in range(len(ds))]))
+        poses = [ds.pose(i) for i in range(len(ds))]
+        layer.set_pose_mean(torch.tensor(poses))
+        self.model.input_ranges = {self.cfg.bg_static_pose: record_range(poses)}  # saved with every checkpoint
         if self.rank == 0:
             print(
                 f"workspace layer: follows {self.cfg.bg_static_pose} about its mean over {len(ds)} training scenes",
@@ -523,6 +529,7 @@ class Trainer:
         if isinstance(ckpt.get("train"), dict):
             self._compare_train(path, stored_train_config(ckpt["train"], f"{path}: train"))
         self.model.load_state_dict(ckpt["state_dict"])
+        self.model.input_ranges = check_ranges(ckpt.get("input_ranges"), str(path))
         if "optimizer" in ckpt:
             self._check_layout(path, ckpt)
             try:
