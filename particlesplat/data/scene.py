@@ -98,6 +98,12 @@ class RawScene:
     cameras: list[Camera]
 
     @property
+    def nbytes(self) -> int:
+        """Bytes its decoded arrays hold (what a scene cache keeps)."""
+        arrays = [*self.rgb, *self.depth, *self.masks]
+        return sum(a.nbytes for a in arrays if a is not None)
+
+    @property
     def num_frames(self) -> int:
         return len(self.rgb)
 

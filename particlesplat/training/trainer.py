@@ -296,8 +296,12 @@ class Trainer:
             dist.init_process_group("gloo" if self.device.type == "cpu" else "nccl")
         self.rank = dist.get_rank() if self.distributed else 0
         self.world = dist.get_world_size() if self.distributed else 1
+        from particlesplat.core.limits import memory_limit
         from particlesplat.data import SceneDataset
+        from particlesplat.data.dataset import CACHE_SHARE
 
+        # the scene caches count in the job's memory: one share of the limit, divided among the datasets
+        cache_bytes = int(memory_limit()[0] * CACHE_SHARE / len(set(tc.context_views)))
         self.train_sets = {
             c: SceneDataset(
                 data / "train",
@@ -306,6 +310,7 @@ class Trainer:
                 num_targets=tc.target_views,
                 flip=False,
                 cache_size=tc.cache_scenes,
+                cache_bytes=cache_bytes,
                 pose_key=cfg.bg_static_pose,
                 pose_dims=cfg.bg_static_pose_dims,
             )
