@@ -334,6 +334,15 @@ def scene_object_centres(scene_dir: str | PathLike) -> np.ndarray | None:
         raise SceneFormatError(f"{path}: objects[].center: expected 3 numbers per object ({e})") from e
     if centres.shape[1:] != (3,):
         raise SceneFormatError(f"{path}: objects[].center: expected 3 numbers per object")
+    from particlesplat.core.limits import WORLD_MAX_METRES
+
+    bad = ~(np.isfinite(centres).all(1) & (np.abs(centres) <= WORLD_MAX_METRES).all(1))
+    if bad.any():  # a NaN centre would be scored as a miss
+        i = int(np.nonzero(bad)[0][0])
+        raise SceneFormatError(
+            f"{path}: objects[{i}].center must be 3 finite metres within +-{WORLD_MAX_METRES:g}, got "
+            f"{centres[i].tolist()}"
+        )
     return centres
 
 
@@ -342,6 +351,7 @@ def nearest_distances(truth: np.ndarray, predicted: np.ndarray) -> np.ndarray:
     K is 0."""
     truth = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
     predicted = np.asarray(predicted, dtype=np.float64).reshape(-1, 3)
+    predicted = predicted[np.isfinite(predicted).all(1)]  # an object without a centre is no candidate
     if predicted.shape[0] == 0:
         return np.full(truth.shape[0], np.inf)
     return np.linalg.norm(truth[:, None, :] - predicted[None, :, :], axis=-1).min(axis=1)

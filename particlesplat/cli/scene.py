@@ -54,15 +54,25 @@ def run(args: argparse.Namespace) -> int:
         guard_outputs([("--write", args.write)], [], [])  # a locked run's file is refused; DIR's own is kept
         meta = read_json(src, MAX_TRANSFORMS_BYTES, SceneFormatError)
         assert isinstance(meta, dict)  # read_scene has read and checked it
-        for frame in meta["frames"]:
+
+        def scaled(value: object, where: str) -> float:  # a depth scale read only here when no frame has depth
+            from particlesplat.core.limits import float32_problem
+
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+            problem = float32_problem(value, positive=True) if ok else "not a number"  # type: ignore[arg-type]
+            if problem:
+                raise SceneFormatError(f"{src}: {where}'depth_unit_scale_factor' is {problem}")
+            return float(value) * report.scale  # type: ignore[arg-type]
+
+        for i, frame in enumerate(meta["frames"]):
             m = np.asarray(frame["transform_matrix"], dtype=np.float64)
             if m.shape == (3, 4):
                 m = np.concatenate([m, [[0.0, 0.0, 0.0, 1.0]]])
             frame["transform_matrix"] = transform_matrix(m, report).tolist()
             if "depth_unit_scale_factor" in frame:
-                frame["depth_unit_scale_factor"] = float(frame["depth_unit_scale_factor"]) * report.scale
+                frame["depth_unit_scale_factor"] = scaled(frame["depth_unit_scale_factor"], f"frames[{i}]: key ")
         if "depth_unit_scale_factor" in meta:
-            meta["depth_unit_scale_factor"] = float(meta["depth_unit_scale_factor"]) * report.scale
+            meta["depth_unit_scale_factor"] = scaled(meta["depth_unit_scale_factor"], "key ")
         kept = keep_original(Path(args.write))
         with atomic_write(args.write, "w") as f:
             json.dump(meta, f, indent=1)

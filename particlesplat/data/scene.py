@@ -448,7 +448,9 @@ def _open(p: Path, key: str, where: str) -> Image.Image:
             f"{where}: key '{key}': image {p} declares more pixels than the "
             f"{MAX_IMAGE_PIXELS} an image may have (a decompression bomb?)"
         ) from None
-    except OSError as e:
+    except (OSError, ValueError) as e:  # Pillow: ValueError for a text chunk that inflates past its limit
+        if isinstance(e, SceneFormatError):
+            raise
         raise SceneFormatError(f"{where}: key '{key}': cannot read image {p} ({one_line(e, 200)})") from None
     return img
 
