@@ -20,12 +20,6 @@ def _xy(text: str) -> tuple[float, float]:
         x, y = (float(v) for v in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"--at: expected X,Y world metres, got {text!r}") from None
-    from particlesplat.core.limits import WORLD_MAX_METRES
-
-    if not all(math.isfinite(v) and abs(v) <= WORLD_MAX_METRES for v in (x, y)):
-        raise argparse.ArgumentTypeError(
-            f"--at: X,Y must be finite metres within +-{WORLD_MAX_METRES:g} of the origin, got {text[:80]!r}"
-        )
     return x, y
 
 
@@ -82,6 +76,14 @@ def run(args: argparse.Namespace) -> int:
         [("--out", args.out), ("--png", getattr(args, "png", None))],
         [("--checkpoint", args.checkpoint), ("--scene", args.scene), ("--from", getattr(args, "source", None))],
     )
+    if getattr(args, "at", None) is not None:
+        from particlesplat.core.limits import WORLD_MAX_METRES
+
+        if not all(math.isfinite(v) and abs(v) <= WORLD_MAX_METRES for v in args.at):
+            raise OptionError(
+                f"--at: X,Y must be finite metres within +-{WORLD_MAX_METRES:g} of the origin, got "
+                f"{args.at[0]:g},{args.at[1]:g}"
+            )
     if args.action == "insert":  # one model encodes both scenes: they must be of one family
         from particlesplat.data.scene_meta import read_family
 

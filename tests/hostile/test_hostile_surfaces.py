@@ -21,11 +21,21 @@ import yaml
 HERE = Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE), str(HERE.parent)]
 
-from hostile_files import big_log, checkpoint_with, lock_run  # noqa: E402
+from hostile_files import (  # noqa: E402
+    big_config_checkpoint,
+    big_gaussians_ply,
+    big_log,
+    checkpoint_with,
+    edit_json,
+    lock_run,
+    lying_npz,
+)
 from model_data import TINY_MODEL, tiny_config, tiny_dataset  # noqa: E402
 from test_hostile_suite import CAP_MB, _lines  # noqa: E402
 
 PS = "particlesplat"
+ROOT = HERE.parent.parent
+TAB0, ROB0 = ROOT / "assets" / "scenes" / "scene_00000", ROOT / "assets" / "robot" / "scenes" / "scene_00000"
 
 
 @pytest.fixture(scope="module")
@@ -83,6 +93,7 @@ def world(tmp_path_factory) -> dict[str, Path]:
     checkpoint_with(good, w / "train.pt", train={"batch_size": "four"})
     checkpoint_with(good, w / "huge.pt", weights=lambda v: v * 1e30)
     checkpoint_with(good, w / "int.pt", weights=lambda v: (v * 100).to(torch.int64))
+    big_config_checkpoint(good, w / "big_init.pt", token_dim=2048, transformer_layers=64)
     # synth: a folder another synth holds; a robot scene (scene.json) in a folder without synth.json
     (w / "synth_locked").mkdir()
     lock_run(w / "synth_locked", os.getpid())
@@ -90,7 +101,75 @@ def world(tmp_path_factory) -> dict[str, Path]:
     robot_scene.mkdir(parents=True)
     (robot_scene / "scene.json").write_text(json.dumps({"generator": "particlesplat.data.families.robot"}))
     rgb = scene / json.loads((scene / "transforms.json").read_text())["frames"][4]["file_path"]
+    _scene_world(w, scene)
     return {"w": w, "data": data, "scene": scene, "cfg": cfg, "good": good, "rgb": rgb}
+
+
+def _scene_copy(scene: Path, folder: Path, transforms=None, meta=None) -> Path:
+    """A copy of ``scene`` at ``folder`` with its transforms.json and scene.json edited in place."""
+    shutil.copytree(scene, folder)
+    if transforms:
+        edit_json(folder / "transforms.json", transforms)
+    if meta:
+        edit_json(folder / "scene.json", meta)
+    return folder
+
+
+def _scene_world(w: Path, scene: Path) -> None:
+    """Scenes, folders and files of the family, number, reader and record classes."""
+    _scene_copy(scene, w / "family" / "drone" / "s", meta=lambda m: m.update(family="drone"))
+    _scene_copy(scene, w / "family" / "number" / "s", meta=lambda m: m.update(family=123))
+    _scene_copy(scene, w / "family" / "mixed" / "a")
+    _scene_copy(ROB0, w / "family" / "mixed" / "b")
+    joints = json.loads((ROB0 / "scene.json").read_text())["arm_joints_rad"]
+    _scene_copy(ROB0, w / "robot" / "rad100", meta=lambda m: m.update(arm_joints_rad=[100.0] * 7))
+    _scene_copy(ROB0, w / "robot" / "plus06", meta=lambda m: m.update(arm_joints_rad=[v + 0.6 for v in joints]))
+
+    def every(key, value):
+        return lambda m: [f.update({key: value(f)}) for f in m["frames"]]
+
+    def ecef(m):
+        for f in m["frames"]:
+            f["transform_matrix"][0][3] += 4.2e6
+
+    _scene_copy(scene, w / "numbers" / "depth", transforms=lambda m: m.update(depth_unit_scale_factor=1e17))
+    _scene_copy(scene, w / "numbers" / "ecef", transforms=ecef)
+    _scene_copy(scene, w / "numbers" / "distance", meta=lambda m: m.update(look_at=[0, 0, 0.2], distance=1e-300))
+    _scene_copy(scene, w / "centre" / "nan_centre", meta=lambda m: m["objects"][0].update(center=[float("nan")] * 3))
+    _scene_copy(
+        scene,
+        w / "rig" / "point",
+        transforms=every(
+            "transform_matrix",
+            lambda f: [[*row[:3], [-2.4, 1.4, 1.65, 1][i]] for i, row in enumerate(f["transform_matrix"])],
+        ),
+    )
+
+    def no_depth(m):
+        m["depth_unit_scale_factor"] = "abc"
+        for f in m["frames"]:
+            f.pop("depth_file_path")
+
+    _scene_copy(scene, w / "rig" / "scale", transforms=no_depth)
+    big = _scene_copy(scene, w / "readers" / "big" / "s")
+    (big / "scene.json").write_text(json.dumps({"pad": "x" * (17 << 20)}))
+    nested = _scene_copy(scene, w / "readers" / "nested" / "s")
+    (nested / "scene.json").write_text("[" * 100_000 + "]" * 100_000)
+    text = _scene_copy(scene, w / "readers" / "text" / "s")
+    from PIL import Image
+    from PIL.PngImagePlugin import PngInfo
+
+    info = PngInfo()
+    info.add_text("comment", "a" * (4 << 20), zip=True)  # 4 MB of text in a few KB: past Pillow's 1 MB limit
+    rgb = text / json.loads((text / "transforms.json").read_text())["frames"][0]["file_path"]
+    Image.open(rgb).convert("RGB").save(rgb, pnginfo=info)
+    # encode: a robot-style test scene with its edits/ folders, a link to /, a lying .npz in --out
+    enc = _scene_copy(scene, w / "enc" / "test" / "scene_00000")
+    shutil.copytree(scene, enc / "edits" / "move")
+    (w / "enc" / "test" / "root").symlink_to("/", target_is_directory=True)
+    (w / "npz_out").mkdir()
+    lying_npz(w / "npz_out" / "scene.npz")
+    big_gaussians_ply(w / "big.ply")
 
 
 def _refusals(x: dict[str, Path]) -> dict[str, tuple[list[str], str]]:
@@ -166,6 +245,82 @@ def _refusals(x: dict[str, Path]) -> dict[str, tuple[list[str], str]]:
             ["render", "--checkpoint", str(w / "int.pt"), "--scene", str(scene), "--out", str(w / "o.png")],
             r"int.pt: state_dict\.\S+: stored as torch.int64, but the model's weight is floating-point",
         ),
+        # family: named, never guessed
+        "an unknown family, eval": (
+            ["eval", "--data", str(w / "family" / "drone")],
+            r"drone/s/scene.json: key 'family' is 'drone', not one of tabletop, robot",
+        ),
+        "a family of 123, encode": (
+            ["encode", "--data", str(w / "family" / "number"), "--out", str(w / "fam_out")],
+            r"number/s/scene.json: key 'family' is 123, not one of",
+        ),
+        "a folder of two families, eval": (
+            ["eval", "--data", str(w / "family" / "mixed")],
+            r"mixed: mixes scene families \(\S+ is robot, \S+ is tabletop\)",
+        ),
+        "insert across families": (
+            ["object", "insert", "--scene", str(TAB0), "--from", str(ROB0), "--object", "0", "--out", str(w / "i.ply")],
+            r"--from \S+ is a robot scene and --scene \S+ a tabletop scene",
+        ),
+        # robot inputs beyond the joint limits
+        "a pose of 100 rad, render": (
+            ["render", "--scene", str(w / "robot" / "rad100"), "--out", str(w / "o.png")],
+            r"rad100/scene.json: key 'arm_joints_rad'\[0\] is 100 rad, beyond the joint's limits",
+        ),
+        # numbers in float32's plausible ranges
+        "depths of 1e17 x 16-bit units, render": (
+            ["render", "--checkpoint", good, "--scene", str(w / "numbers" / "depth"), "--out", str(w / "o.png")],
+            r"key 'depth_file_path': \S+ has depths up to \S+ m .*beyond the 100000 m a depth may hold",
+        ),
+        "poses at ECEF scale, render": (
+            ["render", "--checkpoint", good, "--scene", str(w / "numbers" / "ecef"), "--out", str(w / "o.png")],
+            r"frames\[0\]: key 'transform_matrix' puts the camera 4.2e\+06 m from the origin",
+        ),
+        "a framing distance of 1e-300, render": (
+            ["render", "--checkpoint", good, "--scene", str(w / "numbers" / "distance"), "--out", str(w / "o.png")],
+            r"distance/scene.json: key 'distance' must be a number of metres in",
+        ),
+        "a NaN true centre, eval": (
+            ["eval", "--checkpoint", good, "--data", str(w / "centre")],
+            r"scene.json: objects\[0\].center must be 3 finite metres",
+        ),
+        "--at 1e300,0, object insert": (
+            ["object", "insert", "--checkpoint", good, "--scene", str(scene), "--from", str(scene), "--object", "0"]
+            + ["--at", "1e300,0", "--out", str(w / "i.ply")],
+            r"--at: X,Y must be finite metres within",
+        ),
+        "a .ply that covers every tile at 2048^2, render": (
+            ["render", "--ply", str(w / "big.ply"), "--width", "2048", "--height", "2048", "--out", str(w / "o.png")],
+            r"big.ply: 20,000 Gaussians covering [\d,]+ \(tile, Gaussian\) pairs at 2048x2048 .* more than the memory",
+        ),
+        "bench edits --start -100": (["bench", "edits", "--start", "-100"], r"--start must be >= 0"),
+        "bench edits --dilate -1": (["bench", "edits", "--dilate", "-1"], r"--dilate must be in \[0, 64\]"),
+        # scene check on what its reader did not see
+        "scene check, every camera at one point": (
+            ["scene", "check", str(w / "rig" / "point")],
+            r"point/transforms.json: the cameras stand where they look",
+        ),
+        "scene check --write, a depth scale that is text": (
+            ["scene", "check", str(w / "rig" / "scale"), "--write", str(w / "t.json")],
+            r"scale/transforms.json: key 'depth_unit_scale_factor' is not a number",
+        ),
+        # readers: every JSON through the checked reader, PNG text chunks
+        "a 17 MB scene.json, eval --checkpoint": (
+            ["eval", "--checkpoint", good, "--data", str(w / "readers" / "big")],
+            r"big/s/scene.json: more than the 16,777,216 bytes a scene.json may have",
+        ),
+        "a deeply nested scene.json, eval --checkpoint": (
+            ["eval", "--checkpoint", good, "--data", str(w / "readers" / "nested")],
+            r"nested/s/scene.json: not valid JSON \(nested too deeply\)",
+        ),
+        "a PNG text chunk past Pillow's limit, eval": (
+            ["eval", "--checkpoint", good, "--data", str(w / "readers" / "text")],
+            r"frames\[0\]: key 'file_path': cannot read image \S+ \(Decompressed Data Too Large\)",
+        ),
+        "an --init checkpoint of 8.6 GB of weights": (
+            ["train", "--init", str(w / "big_init.pt"), "--data", str(data), "--out", str(w / "big_init_run")],
+            r"--init \S+big_init.pt: model: a model of [\d,]+ weights",
+        ),
         # synth owns its folder and keeps one family
         "synth into a folder another synth holds": (
             ["synth", str(w / "synth_locked"), "--train", "1", "--val", "0", "--test", "0", "--res", "16"],
@@ -196,6 +351,19 @@ def _successes(x: dict[str, Path]) -> dict[str, tuple[list[str], str | None]]:
         "--overwrite of a run without a checkpoint": (
             ["train", "--config", str(x["cfg"]), "--data", str(data), "--out", str(w / "unstarted"), "--overwrite"]
             + ["--stop-after", "1"],
+            None,
+        ),
+        "a pose 0.6 rad outside the trained range, render": (
+            ["render", "--scene", str(w / "robot" / "plus06"), "--width", "32", "--height", "24"]
+            + ["--out", str(w / "plus06.png")],
+            r"plus06/scene.json: key 'arm_joints_rad'\[\d\] is \S+ rad, outside the \[\S+, \S+\] the model was trained",
+        ),
+        "encode a test split with edits/ and a link to /": (
+            ["encode", "--checkpoint", str(x["good"]), "--data", str(w / "enc"), "--out", str(w / "enc_out")],
+            r"test/root: a symbolic link to /, outside \S+ and not a scene folder; left out",
+        ),
+        "encode over an .npz with a lying header": (
+            ["encode", "--checkpoint", str(x["good"]), "--data", str(x["scene"]), "--out", str(w / "npz_out")],
             None,
         ),
         "--resume without config.yaml": (
@@ -236,7 +404,7 @@ def _names(kind) -> list[str]:
 @pytest.mark.parametrize("name", _names(_refusals))
 def test_case_is_one_line_exit_2_nothing_changed(results, world, name):
     res = results[name]
-    lines = _lines(res["stderr"])
+    lines = [x for x in _lines(res["stderr"]) if not x.startswith("--init without --config:")]  # where from
     assert not res["timed_out"] and res["code"] == 2, res["stderr"][-3000:]
     assert len(lines) == 1 and "Traceback" not in res["stderr"], res["stderr"][-3000:]
     assert re.search(_refusals(world)[name][1], lines[0]), lines[0]
@@ -251,6 +419,10 @@ def test_case_succeeds_within_the_cap(results, world, name):
     want = _successes(world)[name][1]
     if want:
         assert re.search(want, res["stderr"]), res["stderr"][-2000:]
+    if name.startswith("encode a test split"):  # one scene: neither its edits/ nor the machine behind the link
+        assert sorted(p.name for p in (world["w"] / "enc_out").rglob("*.npz")) == ["scene_00000.npz"]
+    if name.startswith("encode over an .npz"):
+        assert "1 of them over a stale file" in res["stdout"], res["stdout"]
 
 
 def _tree(folder: Path) -> dict[str, float]:
