@@ -315,7 +315,7 @@ def _refusals(x: dict[str, Path]) -> dict[str, tuple[list[str], str]]:
         ),
         "a PNG text chunk past Pillow's limit, eval": (
             ["eval", "--checkpoint", good, "--data", str(w / "readers" / "text")],
-            r"frames\[0\]: key 'file_path': cannot read image \S+ \(Decompressed Data Too Large\)",
+            r"frames\[0\]: key 'file_path': cannot read image \S+ \(Decompressed data too large",
         ),
         "an --init checkpoint of 8.6 GB of weights": (
             ["train", "--init", str(w / "big_init.pt"), "--data", str(data), "--out", str(w / "big_init_run")],
@@ -492,3 +492,58 @@ def test_bench_edits_writes_no_file_it_was_not_given(world, tmp_path):
     proc = subprocess.run(cmd + ["--json", "b.json"], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert json.loads((cwd / "b.json").read_text())["checkpoint"] == str(world["good"])
+
+
+def test_the_scene_cache_is_bounded_in_bytes(world):
+    """The training cache holds at most its share of the memory limit: scenes past it are read again."""
+    from particlesplat.data import SceneDataset
+    from particlesplat.data.scene import read_scene
+
+    ds = SceneDataset(world["data"] / "train", cache_size=100)
+    sizes = [sum(a.nbytes for a in (*r.rgb, *r.depth, *r.masks) if a is not None) for r in map(read_scene, ds.scenes)]
+    ds = SceneDataset(world["data"] / "train", cache_size=100, cache_bytes=max(sizes) + 1)
+    for i in range(len(ds)):
+        ds.raw(i)
+    assert len(ds._cache) == 1 and ds._cached_bytes == sizes[-1] <= ds.cache_bytes
+    ds = SceneDataset(world["data"] / "train", cache_size=100, cache_bytes=min(sizes) - 1)
+    ds.raw(0)
+    assert len(ds._cache) == 0 and ds._cached_bytes == 0
+
+
+def test_non_finite_gaussians_in_training_skip_the_step(world, tmp_path, monkeypatch):
+    """A forward pass whose Gaussians the renderer refuses (a learning rate too high) is a skipped step, as a
+    non-finite loss is: the weights do not move."""
+    import particlesplat.training.trainer as trainer_module
+    from particlesplat.core.gaussians import BadGaussiansError
+    from particlesplat.model import load_config
+
+    cfg, tc = load_config(world["cfg"])
+    trainer = trainer_module.Trainer(cfg, tc, world["data"], tmp_path / "run", "cpu", resume=False)
+    before = {k: v.clone() for k, v in trainer.model.state_dict().items()}
+
+    def diverged(*args, **kwargs):
+        raise BadGaussiansError("render: means: non-finite value at Gaussian 3")
+
+    monkeypatch.setattr(trainer_module, "training_loss", diverged)
+    try:
+        assert trainer.train_step() == {"skipped": 1.0}
+    finally:
+        trainer.lock.release()
+    assert trainer.step == 1
+    assert all(torch.equal(before[k], v) for k, v in trainer.model.state_dict().items())
+
+
+def test_resume_takes_a_new_length_with_a_warning(world, tmp_path, capsys):
+    """``steps`` (and the reporting keys) may change on --resume, with a warning naming the old and new value."""
+    from particlesplat.cli.main import main
+
+    run = tmp_path / "run"
+    shutil.copytree(world["w"] / "run", run)
+    longer = yaml.safe_load(world["cfg"].read_text())
+    longer["train"]["steps"] = 5
+    (tmp_path / "longer.yaml").write_text(yaml.safe_dump(longer))
+    argv = ["train", "--config", str(tmp_path / "longer.yaml"), "--data", str(world["data"]), "--out", str(run)]
+    assert main([*argv, "--resume", "--stop-after", "1"]) == 0
+    assert "train: resumed with steps 4 -> 5 (the learning-rate schedule follows the new steps)" in (
+        capsys.readouterr().err
+    )
