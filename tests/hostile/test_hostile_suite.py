@@ -396,6 +396,8 @@ def results(world, tmp_path_factory):
         text=True,
         timeout=900,
         cwd=HERE.parent.parent,
+        # this checkout's package, not an installed one (a script's sys.path starts at its own folder, not the cwd)
+        env={**os.environ, "PYTHONPATH": os.pathsep.join([str(HERE.parent.parent), os.environ.get("PYTHONPATH", "")])},
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     res = json.loads((io / "out.json").read_text())
