@@ -94,6 +94,9 @@ def world(tmp_path_factory) -> dict[str, Path]:
     checkpoint_with(good, w / "huge.pt", weights=lambda v: v * 1e30)
     checkpoint_with(good, w / "int.pt", weights=lambda v: (v * 100).to(torch.int64))
     big_config_checkpoint(good, w / "big_init.pt", token_dim=2048, transformer_layers=64)
+    big_config_checkpoint(good, w / "mismatch.pt", channels=16)  # its weights are of channels 8
+    shutil.copytree(w / "run", w / "nan_bench_run")
+    checkpoint_with(w / "run" / "last.pt", w / "nan_bench_run" / "last.pt", weights=lambda v: v * float("nan"))
     # synth: a folder another synth holds; a robot scene (scene.json) in a folder without synth.json
     (w / "synth_locked").mkdir()
     lock_run(w / "synth_locked", os.getpid())
@@ -321,6 +324,16 @@ def _refusals(x: dict[str, Path]) -> dict[str, tuple[list[str], str]]:
             ["train", "--init", str(w / "big_init.pt"), "--data", str(data), "--out", str(w / "big_init_run")],
             r"--init \S+big_init.pt: model: a model of [\d,]+ weights",
         ),
+        # messages name the file or flag at fault
+        "model set of a checkpoint whose weights do not fit its config": (
+            ["model", "set", str(w / "mismatch.pt"), "refine_scale=0.5", "--out", str(w / "m_out.pt")],
+            r"mismatch.pt with refine_scale: state_dict does not match its config",
+        ),
+        "bench train --run of a diverged run": (
+            ["bench", "train", "--data", str(data), "--run", str(w / "nan_bench_run"), "--threads", "1"]
+            + ["--steps", "1", "--warmup", "0"],
+            r"nan_bench_run/last.pt: state_dict\.\S+: non-finite weights",
+        ),
         # synth owns its folder and keeps one family
         "synth into a folder another synth holds": (
             ["synth", str(w / "synth_locked"), "--train", "1", "--val", "0", "--test", "0", "--res", "16"],
@@ -394,6 +407,12 @@ def results(world, tmp_path_factory):
     res = json.loads((io / "out.json").read_text())
     assert sorted(p.name for p in io.iterdir()) == ["cases.json", "out.json"]
     names = [*refusals, *successes]
+    if os.environ.get("HOSTILE_REPORT"):  # per case: exit code, seconds, peak RSS
+        rows = [
+            {"case": n, "code": r["code"], "seconds": round(r["seconds"], 3), "max_rss_mb": round(r["max_rss_mb"])}
+            for n, r in zip(names, res, strict=True)
+        ]
+        Path(os.environ["HOSTILE_REPORT"]).write_text(json.dumps(rows, indent=1))
     return dict(zip(names, res, strict=True))
 
 
