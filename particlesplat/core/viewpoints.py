@@ -10,7 +10,7 @@ the vertical field of view in degrees.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import torch
 from torch import Tensor
@@ -147,6 +147,7 @@ class Framing:
 
     target: tuple[float, float, float]
     distance: float | None = None
+    source: str = field(default="scene.json", compare=False)  # the file it was read from, for messages
 
 
 FRAMING_TOLERANCE = 10.0  # a framing's target farther than this many camera distances from the cameras' focus, or a
@@ -180,7 +181,8 @@ def default_view(
                 from particlesplat.core.errors import warn_input
 
                 warn_input(
-                    f"scene.json: look_at {framing.target} and distance {distance:.3g} m frame a point "
+                    f"{framing.source}: look_at {','.join(f'{v:g}' for v in framing.target)} and distance "
+                    f"{distance:.3g} m frame a point "
                     f"{off:.3g} m from where the cameras look, {distance / max(seen_from, 1e-9):.3g} x their distance; "
                     "the default view may show nothing of the scene"
                 )

@@ -118,7 +118,9 @@ def read_framing(folder: str | PathLike) -> Framing | None:
             f"got {short_repr(distance)}"
         )
     return Framing(
-        (float(look_at[0]), float(look_at[1]), float(look_at[2])), None if distance is None else float(distance)
+        (float(look_at[0]), float(look_at[1]), float(look_at[2])),
+        None if distance is None else float(distance),
+        str(path),
     )
 
 

@@ -13,7 +13,7 @@ import torch
 
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians, quats_to_rotations
-from particlesplat.core.limits import check_memory, format_bytes
+from particlesplat.core.limits import check_memory
 from particlesplat.rendering.projection import footprint_extents, project_views
 from particlesplat.rendering.rasterize import TILE
 
@@ -60,5 +60,5 @@ def check_render_memory(gaussians: Gaussians, camera: Camera, what: str, owners:
     check_memory(
         estimate,
         f"{what}: {len(gaussians):,} Gaussians covering {pairs:,} (tile, Gaussian) pairs at "
-        f"{camera.width}x{camera.height} (about {format_bytes(estimate)} to render)",
+        f"{camera.width}x{camera.height}",
     )
