@@ -295,7 +295,8 @@ def _refusals(x: dict[str, Path]) -> dict[str, tuple[list[str], str]]:
         ),
         "a .ply that covers every tile at 2048^2, render": (
             ["render", "--ply", str(w / "big.ply"), "--width", "2048", "--height", "2048", "--out", str(w / "o.png")],
-            r"big.ply: 20,000 Gaussians covering [\d,]+ \(tile, Gaussian\) pairs at 2048x2048: needs about .* more than the memory",
+            r"big.ply: 20,000 Gaussians covering [\d,]+ \(tile, Gaussian\) pairs at 2048x2048: needs about "
+            ".* more than the memory",
         ),
         "bench edits --start -100": (["bench", "edits", "--start", "-100"], r"--start must be >= 0"),
         "bench edits --dilate -1": (["bench", "edits", "--dilate", "-1"], r"--dilate must be in \[0, 64\]"),
