@@ -149,17 +149,21 @@ def _start_worker(init_worker: Callable[[], None]) -> None:
 
 
 def check_existing_generator(out: Path, generator: str) -> None:
-    """UserError when scene folders already under ``out`` were written by another generator (a robot dataset
-    folder without its ``synth.json`` given to the tabletop generator would mix families)."""
+    """UserError when scene folders already under ``out`` were written by a generator of another family, or by none
+    this program knows (a robot dataset folder without its ``synth.json`` given to the tabletop generator would mix
+    families)."""
+    from particlesplat.data.families import GENERATOR_FAMILY, family_of
     from particlesplat.data.scene_meta import SCENE_META, read_scene_json
 
+    want = GENERATOR_FAMILY.get(generator)
     for split in SPLITS:
         for scene in sorted((out / split).glob("scene_*"))[:1] if (out / split).is_dir() else []:
             meta = read_scene_json(scene / SCENE_META) if (scene / SCENE_META).is_file() else None
-            have = meta.get("generator") if isinstance(meta, dict) else None
-            if have != generator:
+            have = family_of(meta, str(scene / SCENE_META))
+            if have != want:
+                recorded = meta.get("generator") if isinstance(meta, dict) else None
                 raise UserError(
-                    f"{scene / SCENE_META}: key 'generator' is {str(have)[:80]!r} but this run uses {generator!r}; "
+                    f"{scene / SCENE_META}: key 'generator' is {str(recorded)[:80]!r} but this run uses {generator!r}; "
                     "a dataset holds one family: use another output folder"
                 )
 
