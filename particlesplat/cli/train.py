@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--stop-after",
         type=int,
         default=None,
-        help="run at most this many steps in this invocation, checkpoint, and exit (continue later with --resume)",
+        help="run at most this many steps (>= 1) in this invocation, checkpoint, and exit (continue with --resume)",
     )
 
 
