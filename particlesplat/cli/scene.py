@@ -51,7 +51,9 @@ def run(args: argparse.Namespace) -> int:
         from particlesplat.data.scene import MAX_TRANSFORMS_BYTES, SceneFormatError
 
         src = Path(scene.path) / "transforms.json"
-        guard_outputs([("--write", args.write)], [], [])  # a locked run's file is refused; DIR's own is kept
+        # DIR's own transforms.json may be replaced (it is kept beside); any other file of DIR is an input
+        same = Path(args.write).resolve() == src.resolve()
+        guard_outputs([("--write", args.write)], [] if same else [("DIR", scene.path)])
         meta = read_json(src, MAX_TRANSFORMS_BYTES, SceneFormatError)
         assert isinstance(meta, dict)  # read_scene has read and checked it
 

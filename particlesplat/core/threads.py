@@ -41,6 +41,22 @@ def bounded_threads(requested: int, where: str) -> int:
     return requested
 
 
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def bound_thread_variables() -> None:
+    """Lower ``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS`` above the usable cores to the cores, with a warning on
+    stderr (called before torch loads its OpenMP runtime, which reads them once)."""
+    import sys
+
+    cores = usable_cores()
+    for name in THREAD_VARIABLES:
+        text = os.environ.get(name, "").strip()
+        if text.isdigit() and int(text) > cores:
+            print(f"warning: {name}={text[:12]}: {cores} usable cores; using {cores}", file=sys.stderr)
+            os.environ[name] = str(cores)
+
+
 def busy_seconds(stat: Path = PROC_STAT) -> float | None:
     """CPU-seconds all processes have run since boot (every core: user, nice, system, irq, softirq, steal), from
     ``/proc/stat``; None where it cannot be read."""

@@ -573,3 +573,33 @@ def test_resume_takes_a_new_length_with_a_warning(world, tmp_path, capsys):
     assert "train: resumed with steps 4 -> 5 (the learning-rate schedule follows the new steps)" in (
         capsys.readouterr().err
     )
+
+
+def test_thread_variables_past_the_cores_are_lowered(world, tmp_path):
+    """OMP_NUM_THREADS=5000 is lowered to the cores before torch reads it, with a warning."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "5000"}
+    cmd = [
+        sys.executable,
+        "-m",
+        "particlesplat.cli",
+        "curve",
+        str(world["w"] / "run"),
+        "--out",
+        str(tmp_path / "c.png"),
+    ]
+    proc = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert re.search(r"warning: OMP_NUM_THREADS=5000: \d+ usable cores; using \d+", proc.stderr), proc.stderr
+
+
+def test_scene_check_write_over_another_input_file_is_refused(world, tmp_path):
+    from particlesplat.cli.main import main
+    from particlesplat.core.outputs import OutputError
+
+    scene = tmp_path / "scene"
+    shutil.copytree(world["scene"], scene)
+    image = scene / json.loads((scene / "transforms.json").read_text())["frames"][0]["file_path"]
+    before = image.read_bytes()
+    with pytest.raises(OutputError, match=r"--write \S+: would replace a file inside DIR"):
+        main(["scene", "check", str(scene), "--write", str(image)])
+    assert image.read_bytes() == before
