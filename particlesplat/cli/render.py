@@ -175,9 +175,17 @@ def run(args: argparse.Namespace) -> int:
     apply_rasterizer_option(args)
     from particlesplat.core.atomic import check_writable
     from particlesplat.core.errors import EXIT_USER, one_line
+    from particlesplat.core.outputs import guard_outputs
     from particlesplat.formats.png import png_text, save_png
 
     try:
+        guard_outputs(
+            [("--out", args.out)],
+            [
+                (f"--{k.replace('_', '-')}", getattr(args, k, None))
+                for k in ("checkpoint", "scene", "ply", "edits", "edits_from", "camera_from")
+            ],
+        )
         try:
             check_writable(args.out)  # before the work, not after it
         except OSError as e:
@@ -191,6 +199,11 @@ def run(args: argparse.Namespace) -> int:
         if args.mode in NEEDS_PARTICLES and args.ply:
             raise OptionError(f"--mode {args.mode} needs a model scene (particles), not --ply")
         g, cameras, edits, model_name, source, background, arrays = _scene_and_gaussians(args)
+        from particlesplat.core.errors import blame
+        from particlesplat.core.gaussians import BadGaussiansError
+
+        with blame(f"{source}{' with ' + model_name if model_name else ''}", BadGaussiansError):
+            g.check("the Gaussians it decodes")  # the renderer's own check, as one line naming the input
         from particlesplat.data.scene_meta import read_framing
 
         camera, view = resolve_camera(args, cameras, g, read_framing(source) if cameras else None)
@@ -199,6 +212,10 @@ def run(args: argparse.Namespace) -> int:
                 f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
                 f"({MAX_SIDE} a side, {MAX_PIXELS} pixels)"
             )
+        from particlesplat.rendering.budget import check_render_memory
+
+        owners = int(g.owner.max()) + 2 if args.mode in ("particles", "objects") and g.num else 0
+        check_render_memory(g, camera, source, owners)  # the renderer's pairs, before it allocates them
         if args.turntable:
             from particlesplat.analysis.figures import check_turntable_targets, turntable_memory
             from particlesplat.core.limits import check_memory
