@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--data", required=True, help="dataset folder holding train/ (the recipe's data)")
     parser.add_argument(
-        "--config", help="recipe YAML (default: the --run's config.yaml, else the shipped recipe assets/model.yaml)"
+        "--config", help="recipe YAML (default: the --run's config.yaml, else the shipped recipe assets/recipe.yaml)"
     )
     parser.add_argument("--run", help="start from a copy of this run folder's last.pt (default: random initialisation)")
     parser.add_argument("--steps", type=int, default=10, help="timed steps per case (median)")

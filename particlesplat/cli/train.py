@@ -22,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--config",
         default=None,
         help="YAML with 'model:' and 'train:' sections (default: the recipe the shipped "
-        "architecture is trained with, assets/model.yaml, which documents every key; with --resume, the run's "
+        "architecture is trained with, assets/recipe.yaml, which documents every key; with --resume, the run's "
         "own OUT/config.yaml; with --init, the checkpoint's own model config and its run's train section)",
     )
     parser.add_argument("--data", required=True, help="dataset folder holding train/ and val/ scene folders")

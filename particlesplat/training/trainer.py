@@ -90,8 +90,8 @@ def _is_checkpoint(name: str) -> bool:
 
 
 def recipe_path() -> Path:
-    """The bundled recipe (``assets/model.yaml`` in the installed ``particlesplat.assets`` package)."""
-    return bundled_assets() / "model.yaml"
+    """The bundled recipe (``assets/recipe.yaml`` in the installed ``particlesplat.assets`` package)."""
+    return bundled_assets() / "recipe.yaml"
 
 
 def render_views(
