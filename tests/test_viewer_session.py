@@ -61,7 +61,7 @@ def test_move_object_moves_every_member_as_one_undo_step(encoded):
 
     model, enc = encoded
     s = SceneSession(model, enc)
-    s.editor._objects = torch.tensor([0, 1, 0, 3, 4, 5])[: s.num_particles]  # particles 0 and 2: one object
+    s.editor.scene._labels = torch.tensor([0, 1, 0, 3, 4, 5])[: s.num_particles]  # particles 0 and 2: one object
     assert s.object_members(2) == [0, 2]
     before = anchor_points(s.particles, [0, 2], model.config)
     for _ in range(3):  # a drag of three steps of 0.05 m along x

@@ -42,13 +42,12 @@ from particlesplat.data.scene import SceneFormatError
 from particlesplat.editing.grouping import (
     OBJECT_CENTRES,
     ObjectCentre,
-    dense_objects,
     drawing_particles,
     object_centres,
-    particle_objects,
     weighted_stats,
 )
 from particlesplat.editing.move import anchor_points
+from particlesplat.editing.scene_objects import SceneObjects
 from particlesplat.model import Particles, ParticleSplat
 
 FORMAT_VERSION = 1
@@ -182,7 +181,7 @@ def particle_arrays(
     colour = torch.zeros(P, 3, dtype=torch.float64).index_add_(0, g.owner[fg], w[:, None] * dc[fg])
     colour = torch.where(total[:, None] > 0, colour / torch.where(total > 0, total, 1.0)[:, None], 0.0)
     active = drawing_particles(p, g, model.config.bg_mask_threshold)
-    objects = dense_objects(particle_objects(g, P), active)
+    objects = SceneObjects.group(p, g, model.config.bg_mask_threshold).labels
     num_objects = int(objects.max()) + 1 if bool((objects >= 0).any()) else 0
     obj_centre, obj_extent = object_centres(g, objects, num_objects, object_centre)
     anchor = anchor_points(p, list(range(P)), model.config).double()
@@ -307,7 +306,6 @@ def object_localisation(
     :func:`particle_objects` labels (computed when None)."""
     g = gaussians.detach().to("cpu")
     p = particles.detach().to("cpu")
-    groups = particle_objects(g, p.num) if groups is None else groups.cpu()
-    objects = dense_objects(groups, drawing_particles(p, g, model.config.bg_mask_threshold))
+    objects = SceneObjects.group(p, g, model.config.bg_mask_threshold, groups).labels
     K = int(objects.max()) + 1 if bool((objects >= 0).any()) else 0
     return {m: nearest_distances(truth, object_centres(g, objects, K, m)[0].numpy()).tolist() for m in OBJECT_CENTRES}
