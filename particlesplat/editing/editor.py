@@ -21,13 +21,14 @@ from __future__ import annotations
 
 from os import PathLike
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any
 
 from torch import Tensor
 
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.world import SUPPORT_Z
+from particlesplat.editing.decoded import DecodedParticles
 from particlesplat.editing.edit_fields import Insert, Pick, PickError
 from particlesplat.editing.edit_file import (
     EditFile,
@@ -72,24 +73,13 @@ __all__ = [  # the names edit-file users import from here
     "scene_mismatch",
 ]
 
-NO_PARTICLES = "this scene has no particles to edit (opened from a .ply)"
-
-T = TypeVar("T")
-
-
-def _required(value: T | None, missing: str) -> T:
-    """``value``, or ValueError(``missing``) where it is None."""
-    if value is None:
-        raise ValueError(missing)
-    return value
-
 
 class SceneEditor:
     """Particles of one scene under edit, as named do/undo operations.
 
     Args:
-        model: the ParticleSplat model that decodes the particles, or None (a scene opened from a .ply).
-        particles: the encoded particles (kept as the original), or None (nothing to edit).
+        model: the ParticleSplat model that decodes the particles.
+        particles: the encoded particles (kept as the original).
         frame_cameras: the scene's input cameras at their stored size, indexed by frame (picks name these).
         context: the context frame indices (saved in edit files; picks try them first).
         z_t_threshold: the particles that draw (None: the model's, :meth:`ParticleSplat.decode`; 0 draws the
@@ -98,98 +88,85 @@ class SceneEditor:
 
     def __init__(
         self,
-        model: ParticleSplat | None,
-        particles: Particles | None,
+        model: ParticleSplat,
+        particles: Particles,
         frame_cameras: list[Camera] | None = None,
         context: list[int] | None = None,
         z_t_threshold: float | None = None,
     ) -> None:
-        if model is None and particles is not None:
-            raise ValueError("SceneEditor: particles need the model that decodes them")
         self.model = model
         self.z_t_threshold = z_t_threshold
         self.frame_cameras = list(frame_cameras or [])
         self.context = list(context) if context is not None else None
         self.history = History()
-        # a scene opened from a .ply has no model and no particles
-        self.scene = None if model is None or particles is None else EditedParticles(model, particles, z_t_threshold)
+        self.scene = EditedParticles(model, particles, z_t_threshold)
         self.picker = Picker(self.frame_cameras, self.context)
 
     # ------------------------------------------------------------------ queries
-    def _scene(self) -> EditedParticles:
-        """The particles under edit; ValueError for a scene without them (opened from a .ply)."""
-        return _required(self.scene, NO_PARTICLES)
+    @property
+    def particles(self) -> Particles:
+        """The particles under edit."""
+        return self.scene.particles
 
     @property
-    def particles(self) -> Particles | None:
-        """The particles under edit (None for a .ply)."""
-        return self.scene.particles if self.scene is not None else None
-
-    @property
-    def original(self) -> Particles | None:
-        """The particles as encoded (None for a .ply)."""
-        return self.scene.original if self.scene is not None else None
+    def original(self) -> Particles:
+        """The particles as encoded."""
+        return self.scene.original
 
     @property
     def version(self) -> int:
         """Bumps on every change of the Gaussians."""
-        return self.scene.version if self.scene is not None else 0
+        return self.scene.version
 
     @property
-    def _decoded(self):
-        return self._scene().decoded
-
-    @property
-    def editable(self) -> bool:
-        return self.scene is not None
+    def _decoded(self) -> DecodedParticles:
+        return self.scene.decoded
 
     @property
     def num_particles(self) -> int:
-        return self.scene.num if self.scene is not None else 0
+        return self.scene.num
 
     def value(self, index: int, name: str) -> tuple[float, ...]:
-        return self._scene().value(index, name)
+        return self.scene.value(index, name)
 
     def origin(self) -> Particles:
         """The particles as encoded, followed by every particle inserted from another scene as it was inserted
         (the rows :meth:`original_value` and :meth:`object_offset` refer to)."""
-        return self._scene().origin()
+        return self.scene.origin()
 
     def original_value(self, index: int, name: str) -> tuple[float, ...]:
         """The encoded value (a copy's: that of the particle it was copied from; an inserted one's: as inserted)."""
-        return self._scene().original_value(index, name)
+        return self.scene.original_value(index, name)
 
     @property
     def active_threshold(self) -> float:
         """z_t at and above which a particle draws: the model's ``bg_mask_threshold`` (the decoder drops
-        particles below it, :meth:`ParticleSplat.decode`), else 0.5."""
-        return self.scene.active_threshold if self.scene is not None else 0.5
+        particles below it, :meth:`ParticleSplat.decode`)."""
+        return self.scene.active_threshold
 
     def is_active(self, index: int) -> bool:
         """Active = draws: z_t at or above :attr:`active_threshold`."""
-        return float(self._scene().particles.z_t[index, 0]) >= self.active_threshold
+        return float(self.scene.particles.z_t[index, 0]) >= self.active_threshold
 
     def edits(self) -> Edits:
         """Version 1 edits (absolute values) of the encoded particles; copies are not part of them."""
-        if self.scene is None:
-            return {}
         return diff_edits(self.scene.original, self.scene.particles.truncate(self.scene.original.num))
 
     def decode(self, particles: Particles | None = None) -> Gaussians:
         """All Gaussians (edits applied, background included) on the CPU; of the current particles (the default)
         from the Gaussians kept up to date edit by edit (:class:`particlesplat.editing.decoded.DecodedParticles`)."""
-        return self._scene().decode(particles)
+        return self.scene.decode(particles)
 
     def objects(self) -> Tensor:
         """(num_particles,) int64 object number per particle, the numbering ``particlesplat encode`` writes
         (:class:`particlesplat.editing.scene_objects.SceneObjects`). Grouped once on the scene as encoded, so an
         edit does not regroup it; a copied or inserted object takes the next number."""
-        return self._scene().objects().labels
+        return self.scene.objects().labels
 
     def object_members(self, index: int) -> list[int]:
         """The particles of particle ``index``'s object (:meth:`objects`), ascending; a particle that draws
         nothing is alone."""
-        return self._scene().objects().members(index)
+        return self.scene.objects().members(index)
 
     def support_height(self) -> float:
         """The height (world z, metres) objects rest on: the support surface of the shared world frame
@@ -200,42 +177,37 @@ class SceneEditor:
         """(3,) float64 world metres: the resting centre of particle ``index``'s object as drawn now
         (:func:`particlesplat.editing.grouping.members_centre`, as ``particlesplat encode`` and ``eval`` place
         objects), or None if it draws nothing."""
-        scene = self._scene()
+        scene = self.scene
         return members_centre(scene.model, scene.particles, self.object_members(index), self.support_height())
 
     def object_bottom(self, index: int) -> float | None:
         """World height (metres) of the lowest part of particle ``index``'s object as drawn now
         (:meth:`EditedParticles.bottom`); None if it draws nothing opaque."""
-        return self._scene().bottom(self.object_members(index))
+        return self.scene.bottom(self.object_members(index))
 
     def object_offset(self, index: int) -> tuple[float, float, float]:
         """World offset (metres) of particle ``index``'s anchor from where it (or what it copies) was encoded."""
-        return self._scene().offset(index)
+        return self.scene.offset(index)
 
     def take_changes(self) -> set[int] | None:
-        """Particles whose Gaussians changed since the last call; None = everything (or the count) changed (a .ply
-        scene: none ever does)."""
-        return self.scene.take_changes() if self.scene is not None else set()
+        """Particles whose Gaussians changed since the last call; None = everything (or the count) changed."""
+        return self.scene.take_changes()
 
     # ------------------------------------------------------------------ picking
     def object_map(self, frame: int, particles: Particles | None = None, where: str = "pick") -> Tensor:
         """(H, W) int64 object label per pixel of input frame ``frame`` at its stored size (-1 background)."""
-        return self.picker.object_map(self._scene(), frame, particles, where)
+        return self.picker.object_map(self.scene, frame, particles, where)
 
     def _pixel_object(self, frame: int, cam: Camera, pixel: tuple[int, int]) -> int:
-        if self.scene is None:
-            raise PickError("this scene has no particles to pick (opened from a .ply)")
         return self.picker.pixel_object(self.scene, frame, cam, pixel)
 
     def pick(self, pick: Pick, where: str = "pick") -> int:
         """The first particle of the object under ``pick`` on the current particles (:class:`Picker`)."""
-        if self.scene is None:
-            raise PickError("this scene has no particles to pick (opened from a .ply)")
         return self.picker.pick(self.scene, pick, where)
 
     def pick_for(self, index: int, particles: Particles | None = None) -> Pick:
         """A pixel of an input frame that picks particle ``index``'s object on ``particles`` (default: now)."""
-        return self.picker.pick_for(self._scene(), index, particles)
+        return self.picker.pick_for(self.scene, index, particles)
 
     # ------------------------------------------------------------------ doing and undoing
     def _commit(self, op: Operation | None, gesture: str | None = None) -> None:
@@ -247,12 +219,12 @@ class SceneEditor:
         key = (gesture, type(op).__name__, op.gesture_key())
         open_gesture = self.history.gesture
         if gesture is not None and open_gesture is not None and open_gesture.key == key:
-            op.do(self._scene())
+            op.do(self.scene)
             open_gesture.operation.extend(op)
             return
         self.end_gesture()
-        op.before = self._scene().particles
-        op.do(self._scene())
+        op.before = self.scene.particles
+        op.do(self.scene)
         if gesture is None:
             self.history.add(op)
         else:
@@ -263,7 +235,7 @@ class SceneEditor:
         self.history.end_gesture()
 
     def _check_editable(self, index: int) -> None:
-        num = self._scene().num
+        num = self.scene.num
         if not 0 <= index < num:
             raise IndexError(f"particle {index} out of range (0..{num - 1})")
 
@@ -274,7 +246,7 @@ class SceneEditor:
         name extend one operation (one undo step per drag) until :meth:`end_gesture`.
         """
         self._check_editable(index)
-        self._commit(SetAttributes.slider(self._scene(), index, name, value), gesture)
+        self._commit(SetAttributes.slider(self.scene, index, name, value), gesture)
 
     def move_object(self, index: int, delta: Any, gesture: str | None = None) -> None:
         """Translate every particle of particle ``index``'s object by ``delta`` (3,) world metres (one
@@ -282,19 +254,19 @@ class SceneEditor:
         Raises :class:`particlesplat.editing.move.MoveError` (nothing changed) if a particle would leave the
         model's depth range."""
         self._check_editable(index)
-        self._commit(Translate(offset=delta).on(self._scene(), index), gesture)
+        self._commit(Translate(offset=delta).on(self.scene, index), gesture)
 
     def remove_object(self, index: int) -> None:
         """Remove particle ``index``'s object: its particles' z_t go to 0, so they no longer draw."""
         self._check_editable(index)
-        self._commit(Remove().on(self._scene(), index))
+        self._commit(Remove().on(self.scene, index))
 
     def duplicate_object(self, index: int, offset: Any) -> int:
         """Copy particle ``index``'s object (new particles, the same latents) and move the copy by ``offset``
         (3,) world metres. Returns the copy's first particle. Raises MoveError."""
         self._check_editable(index)
         n = self.num_particles
-        self._commit(Duplicate(offset=offset).on(self._scene(), index))
+        self._commit(Duplicate(offset=offset).on(self.scene, index))
         return n
 
     def insert_object(self, source: Particles, insert: Insert) -> int:
@@ -303,19 +275,19 @@ class SceneEditor:
         particles, editable like the scene's own. Returns the first new particle. Raises
         ValueError (no such object) or MoveError."""
         n = self.num_particles
-        self._commit(InsertObject.of(self._scene(), source, insert))
+        self._commit(InsertObject.of(self.scene, source, insert))
         return n
 
     def reset_particle(self, index: int) -> None:
         """Restore all editable attributes of particle ``index`` to the encoded values."""
-        changes = changes_to(self._scene(), index, {n: self.original_value(index, n) for n in EDITABLE})
+        changes = changes_to(self.scene, index, {n: self.original_value(index, n) for n in EDITABLE})
         if changes:
             self._commit(SetAttributes(label=f"reset particle {index}", changes=changes))
 
     def set_edits(self, edits: Edits, label: str = "load edits") -> None:
         """Set the encoded particles to version 1 ``edits`` (absolute values; unnamed ones as encoded) in one
         operation."""
-        scene = self._scene()
+        scene = self.scene
         check_indices(edits, scene.original.num, label)
         target = apply_edits(scene.original, edits, label)
         changes: list[SetAttribute] = []
@@ -332,7 +304,7 @@ class SceneEditor:
         op = self.history.back()
         if op is None:
             return False
-        op.undo(self._scene())
+        op.undo(self.scene)
         return True
 
     def redo(self) -> bool:
@@ -341,13 +313,13 @@ class SceneEditor:
         op = self.history.forward()
         if op is None:
             return False
-        op.do(self._scene())
+        op.do(self.scene)
         return True
 
     # ------------------------------------------------------------------ edit files
     def apply_op(self, op: Operation, where: str = "operation") -> None:
         """Do one edit-file operation (a pick is resolved on the current particles). Errors name ``where``."""
-        self._commit(op.replay(self._scene(), self.pick, where))
+        self._commit(op.replay(self.scene, self.pick, where))
 
     def apply_file(self, file: EditFile, where: str = "edits") -> None:
         """Do every operation of an edit file (version 1: its particle edits as one operation). All or

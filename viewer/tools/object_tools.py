@@ -1,8 +1,8 @@
 """Moving a selected object in the world: slide it on the floor with the mouse, a world-space gizmo
 (ImGuizmo) with X / Y / Z handles at its centre, and an outline of it in the viewport.
 
-Tools get narrow dependencies: the session (a :class:`particlesplat.editing.editor.SceneEditor`), the selected
-particle and the viewing camera; they never see the App. Every move is a do/undo operation of the session
+Tools get narrow dependencies: the scene's editor (a :class:`particlesplat.editing.editor.SceneEditor`), the
+selected particle and the viewing camera; they never see the App. Every move is a do/undo operation of the editor
 (one per drag, by its gesture id).
 """
 
@@ -18,7 +18,9 @@ from particlesplat.core.camera import Camera
 from particlesplat.editing.move import MoveError
 
 if TYPE_CHECKING:
-    from ..session import SceneSession
+    from particlesplat.editing.editor import SceneEditor
+
+    from ..session import Scene
 
 FLOOR_GESTURE = "floor-drag"
 GIZMO_GESTURE = "gizmo"
@@ -27,10 +29,10 @@ OUTLINE_OPACITY = 0.1  # Gaussians at least this opaque outline the selected obj
 GL_FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV camera axes -> OpenGL (y up, looking down -z)
 
 
-def object_centre(session: SceneSession, index: int) -> Tensor | None:
+def object_centre(editor: SceneEditor, index: int) -> Tensor | None:
     """(3,) float64 world metres: the centre of particle ``index``'s object as drawn now (the resting centre,
     :meth:`particlesplat.editing.editor.SceneEditor.object_centre`), or None if it draws nothing."""
-    return session.object_centre(index)
+    return editor.object_centre(index)
 
 
 def floor_point(camera: Camera, x: float, y: float, height: float) -> Tensor | None:
@@ -50,7 +52,7 @@ def floor_point(camera: Camera, x: float, y: float, height: float) -> Tensor | N
 class FloorDrag:
     """Slides the selected object on the horizontal plane through its centre, following the mouse.
 
-    :meth:`start` at the press, :meth:`update` per mouse event, the session's ``end_gesture`` at release
+    :meth:`start` at the press, :meth:`update` per mouse event, the editor's ``end_gesture`` at release
     (one undo step per drag)."""
 
     def __init__(self) -> None:
@@ -62,10 +64,10 @@ class FloorDrag:
     def active(self) -> bool:
         return self.index is not None
 
-    def start(self, session: SceneSession, index: int, camera: Camera, x: float, y: float) -> bool:
+    def start(self, editor: SceneEditor, index: int, camera: Camera, x: float, y: float) -> bool:
         """Begin sliding particle ``index``'s object from framebuffer pixel (x, y); False if it draws nothing
         or the pixel's ray misses its plane."""
-        centre = object_centre(session, index)
+        centre = object_centre(editor, index)
         if centre is None:
             return False
         self.height = float(centre[2])
@@ -73,10 +75,10 @@ class FloorDrag:
         self.index = index if self.last is not None else None
         return self.active
 
-    def update(self, session: SceneSession, camera: Camera, x: float, y: float) -> str | None:
+    def update(self, editor: SceneEditor, camera: Camera, x: float, y: float) -> str | None:
         """Move the object so the plane point under the mouse stays under it; an error message if the
         move was refused (nothing moved), else None."""
-        if not self.active:
+        if self.index is None or self.last is None:
             return None
         p = floor_point(camera, x, y, self.height)
         if p is None:
@@ -87,7 +89,7 @@ class FloorDrag:
         if step > MAX_STEP:
             delta = delta * (MAX_STEP / step)
         try:
-            session.move_object(self.index, delta.tolist(), gesture=FLOOR_GESTURE)
+            editor.move_object(self.index, delta.tolist(), gesture=FLOOR_GESTURE)
         except MoveError as e:
             return f"error: {e}"
         self.last = self.last + delta
@@ -114,11 +116,11 @@ def gl_projection(camera: Camera, near: float = 0.01, far: float = 100.0) -> np.
     return P
 
 
-def outline(session: SceneSession, index: int, camera: Camera) -> np.ndarray:
+def outline(editor: SceneEditor, index: int, camera: Camera) -> np.ndarray:
     """(M, 2) framebuffer pixels: the convex hull of the projected centres of the selected object's
     Gaussians (opacity >= OUTLINE_OPACITY), counter-clockwise; empty if fewer than 3."""
-    members = session.object_members(index)
-    g = session.model.decode(session.particles, torch.tensor(members), background=False)
+    members = editor.object_members(index)
+    g = editor.model.decode(editor.particles, torch.tensor(members), background=False)
     g = g.subset(g.opacities >= OUTLINE_OPACITY)
     if g.num < 3:
         return np.zeros((0, 2))
@@ -164,16 +166,14 @@ class ObjectGizmo:
     def capturing(self) -> bool:
         return self.using or self.hovered
 
-    def _refresh(self, session: SceneSession, index: int, camera: Camera) -> None:
-        key = (id(session), session.version, index, camera.c2w.detach().cpu().numpy().tobytes(), camera.width)
+    def _refresh(self, editor: SceneEditor, index: int, camera: Camera) -> None:
+        key = (id(editor), editor.version, index, camera.c2w.detach().cpu().numpy().tobytes(), camera.width)
         if key != self._key:
             self._key = key
-            self._centre = object_centre(session, index)
-            self._hull = outline(session, index, camera)
+            self._centre = object_centre(editor, index)
+            self._hull = outline(editor, index, camera)
 
-    def draw(
-        self, session: SceneSession, index: int | None, camera: Camera, pixel_ratio: tuple[float, float]
-    ) -> str | None:
+    def draw(self, session: Scene, index: int | None, camera: Camera, pixel_ratio: tuple[float, float]) -> str | None:
         """Draw the outline and the handles of particle ``index``'s object (nothing when None) seen by
         ``camera`` (framebuffer pixels; ``pixel_ratio`` = framebuffer pixels per window point) and apply a
         handle drag as a move. Returns an error message when a move was refused."""
@@ -181,16 +181,17 @@ class ObjectGizmo:
 
         gz = imguizmo.im_guizmo
         self.hovered = False
-        if index is None or not session.editable or not 0 <= index < session.num_particles:
-            if self.using:
-                session.end_gesture()
+        editor = session.editor
+        if editor is None or index is None or not 0 <= index < editor.num_particles:
+            if self.using and editor is not None:
+                editor.end_gesture()
             self.using = False
             return None
-        self._refresh(session, index, camera)
+        self._refresh(editor, index, camera)
         sx, sy = pixel_ratio
         draw = imgui.get_background_draw_list()
         if len(self._hull) >= 3:
-            pts = [imgui.ImVec2(float(u) / sx, float(v) / sy) for u, v in self._hull]
+            pts: list = [imgui.ImVec2(float(u) / sx, float(v) / sy) for u, v in self._hull]
             draw.add_polyline(pts, imgui.IM_COL32(255, 220, 40, 255), 2.0, imgui.ImDrawFlags_.closed.value)
         if self._centre is None:
             return None
@@ -218,10 +219,10 @@ class ObjectGizmo:
             step = np.array(obj.values, dtype=np.float64).reshape(4, 4).T[:3, 3] - self._centre.numpy()
             if np.isfinite(step).all() and np.linalg.norm(step) > 0:
                 try:
-                    session.move_object(index, step.tolist(), gesture=GIZMO_GESTURE)
+                    editor.move_object(index, step.tolist(), gesture=GIZMO_GESTURE)
                 except MoveError as e:
                     message = f"error: {e}"
         if self.using and not using:
-            session.end_gesture()
+            editor.end_gesture()
         self.using = bool(using)
         return message

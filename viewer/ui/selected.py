@@ -9,11 +9,12 @@ from imgui_bundle import imgui
 
 from particlesplat.model.particles import EDITABLE
 
-from ..session import SceneSession
-from ..state import ViewState
 from .objects import draw_object_section
 
 if TYPE_CHECKING:
+    from particlesplat.editing.editor import SceneEditor
+
+    from ..actions import ActionContext
     from .fields import UiFields
 
 DRAG_SPEED = MappingProxyType(
@@ -21,14 +22,14 @@ DRAG_SPEED = MappingProxyType(
 )  # move: metres per pixel dragged
 
 
-def draw_selected_section(session: SceneSession, state: ViewState, fields: UiFields) -> None:
-    i = state.selected
-    if i is None or not 0 <= i < session.num_particles:
+def draw_selected_section(editor: SceneEditor, ctx: ActionContext, fields: UiFields) -> None:
+    i = ctx.state.selected
+    if i is None or not 0 <= i < editor.num_particles:
         return
     if not imgui.collapsing_header(f"Particle {i}", imgui.TreeNodeFlags_.default_open):
         return
     for name, width in EDITABLE.items():
-        value = list(session.value(i, name))
+        value = list(editor.value(i, name))
         if width == 2:
             changed, new = imgui.drag_float2(name, value, DRAG_SPEED[name])
         elif name == "z_t":
@@ -38,17 +39,13 @@ def draw_selected_section(session: SceneSession, state: ViewState, fields: UiFie
             changed, v = imgui.drag_float(name, value[0], DRAG_SPEED[name])
             new = [v]
         if changed:
-            session.set_attribute(i, name, new, gesture="panel")
+            editor.set_attribute(i, name, new, gesture="panel")
         if imgui.is_item_deactivated():
-            session.end_gesture()
+            editor.end_gesture()
         imgui.same_line()
         if imgui.small_button(f"reset##{name}"):
-            session.end_gesture()
-            session.set_attribute(i, name, session.original_value(i, name))
-            session.end_gesture()
+            editor.set_attribute(i, name, editor.original_value(i, name))
     if imgui.button("Reset particle to encoded values"):
-        session.reset_particle(i)
+        editor.reset_particle(i)
     # the object: every particle of it (one per view that holds it), moved in world metres, deleted, copied
-    state.selected, message = draw_object_section(session, i, fields.objects)
-    if message:
-        fields.status = message
+    draw_object_section(editor, i, ctx, fields.objects)
