@@ -312,7 +312,8 @@ class EditableScene(SceneFiles):
 
     def load_edits(self, path: str | PathLike) -> str | None:
         """Do the operations of an edit file (version 1: one operation setting the particles' values).
-        Returns a warning when the file names another scene or other context frames, else None."""
+        Returns a warning when the file names another scene or other context frames, or leaves an object below its
+        support, else None."""
         file = load_edit_file(path)
         self.editor.end_gesture()
         if file.version == 2:
@@ -320,4 +321,5 @@ class EditableScene(SceneFiles):
         else:
             self.editor.set_edits(file.particles, label=f"load {Path(path).name}")
         self._saved_token = self._history_token()
-        return scene_mismatch(file, self.source, self.editor.context) if self.source else None
+        notes = [scene_mismatch(file, self.source, self.editor.context) if self.source else None]
+        return "; ".join(n for n in notes + self.editor.sunk_objects() if n) or None

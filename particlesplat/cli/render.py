@@ -136,6 +136,8 @@ def _scene_and_gaussians(args: argparse.Namespace):
 
         editor = SceneEditor(model, particles, enc.all_cameras, enc.context)
         editor.apply_file(file, where)
+        for line in editor.sunk_objects():  # allowed (a user may want it), but never silently
+            print(f"particlesplat render: warning: {where}: {line}", file=sys.stderr)
         particles = editor.particles
         edits = editor.edit_text(scene=resolved(enc.path), model=name, scene_sha256=scene_digest(enc.path))
     g = model.decode(particles).detach().to("cpu")

@@ -36,7 +36,7 @@ import yaml
 
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.errors import short_repr
-from particlesplat.editing.operations import PICKED, InsertObject, Operation, SetAttributes
+from particlesplat.editing.operations import PICKED, InsertObject, Operation, SetAttributes, Split
 from particlesplat.editing.particle_edits import Edits, EditsError, read_edit_document, validate_edits
 
 FORMAT_VERSION = 2
@@ -60,17 +60,17 @@ def read_operation(item: Any, where: str) -> Operation:
     """One operation of a version 2 file, by its keys."""
     kinds = "/".join(PICKED)
     if not isinstance(item, dict):
-        raise EditsError(f"{where}: expected a mapping (pick + {kinds}, particle + set, or insert)")
+        raise EditsError(f"{where}: expected a mapping (pick + {kinds}, particle + set/split, or insert)")
     if "insert" in item:
         return InsertObject.read(item, where)
     if "particle" in item:
-        return SetAttributes.read(item, where)
+        return Split.read(item, where) if "split" in item else SetAttributes.read(item, where)
     found = [k for k in PICKED if k in item]
     unknown = set(item) - {"pick", *PICKED}
     if unknown:
         raise EditsError(
             f"{where}: unknown key(s) {sorted(unknown)} (expected pick and one of {', '.join(PICKED)}, or particle "
-            "and set)"
+            "and set or split)"
         )
     if "pick" not in item or len(found) != 1:
         raise EditsError(f"{where}: expected pick and exactly one of {', '.join(PICKED)}")

@@ -21,6 +21,7 @@ from particlesplat.editing.decoded import DecodedParticles
 from particlesplat.editing.grouping import OPAQUE
 from particlesplat.editing.move import MoveError, anchor_points
 from particlesplat.editing.scene_objects import SceneObjects
+from particlesplat.model.config import ModelConfig
 from particlesplat.model.particles import Particles
 
 if TYPE_CHECKING:
@@ -31,6 +32,8 @@ if TYPE_CHECKING:
 # worst all of them), so an edit file replays in time linear in its operations.
 MAX_EDIT_PARTICLES = 1024
 BOTTOM_QUANTILE = 0.02  # an object's bottom: this quantile of its opaque Gaussians' heights
+SUNK_TOLERANCE = 0.02  # metres an object's bottom may sit below its support before it is flagged (encoded objects
+# rest within about 1 cm of it)
 
 
 @dataclass(frozen=True)
@@ -119,17 +122,37 @@ class EditedParticles:
             self._labels = SceneObjects.group(self.original, self.decode(self.original), self.active_threshold).labels
         return SceneObjects(self._labels)
 
+    def labels_now(self) -> Tensor | None:
+        """The rows' object labels as they are (not to be changed: a regroup makes new ones); None before the scene
+        was first grouped (then every row is as encoded and grouped so)."""
+        return self._labels
+
     def next_object(self) -> int:
         """The number a new (copied or inserted) object takes: one past the largest."""
         labels = self.objects().labels
         return int(labels.max()) + 1 if labels.numel() else 0
 
     def bottom(self, members: list[int]) -> float | None:
-        """World height (metres) of the lowest part of the object of particles ``members`` as drawn now: the
-        ``BOTTOM_QUANTILE`` of its opaque Gaussians' centres (a few stray ones do not count); None if it draws
-        nothing opaque."""
-        g = self.model.decode(self.particles, torch.tensor(members), background=False)
-        z = g.means[:, 2][g.opacities >= OPAQUE].detach().double()
+        """World height (metres) of the lowest part of the object of particles ``members`` where its edits put it:
+        the ``BOTTOM_QUANTILE`` of the heights of its opaque Gaussians as each particle drew when encoded (a few
+        stray ones do not count), carried along by what the edits did to that particle since (its anchor's move,
+        its size's growth about it); None if it draws nothing opaque.
+
+        Not the heights it draws at now: a model that presses Gaussians onto the support surface
+        (``support_clamp``) draws a sunk object as a smear on the surface, at the surface's height."""
+        active = [i for i in members if float(self.particles.z_t[i, 0]) >= self.active_threshold]
+        if not active:
+            return None
+        cfg, origin = self.model.config, self.origin()
+        rows = [self.source[i] for i in active]
+        g = self.model.decode(origin, torch.tensor(rows), background=False, z_t_threshold=0.0)
+        now, was = anchor_points(self.particles, active, cfg), anchor_points(origin, rows, cfg)
+        heights = []
+        for k, (i, r) in enumerate(zip(active, rows, strict=True)):
+            z = g.means[:, 2][(g.owner == r) & (g.opacities >= OPAQUE)].detach().double()
+            grow = _size(self.particles, i, cfg) / _size(origin, r, cfg)
+            heights.append(float(now[k, 2]) + grow * (z - float(was[k, 2])))
+        z = torch.cat(heights)
         return float(torch.quantile(z, BOTTOM_QUANTILE)) if z.numel() else None
 
     def offset(self, index: int) -> tuple[float, float, float]:
@@ -138,6 +161,22 @@ class EditedParticles:
         now = anchor_points(self.particles, [index], cfg)[0]
         was = anchor_points(self.origin(), [self.source[index]], cfg)[0]
         return float3(now - was)
+
+    def sunk_objects(self, tolerance: float = SUNK_TOLERANCE) -> list[str]:
+        """One line for each object whose bottom (:meth:`bottom`) is more than ``tolerance`` metres below the
+        support surface: an edit file or a hand-set latent that sank it."""
+        labels, support = self.objects().labels, self.support_height()
+        out = []
+        for k in sorted({int(v) for v in labels.tolist() if v >= 0}):
+            members = torch.nonzero(labels == k).flatten()
+            bottom = self.bottom(members.tolist())
+            if bottom is not None and bottom < support - tolerance:
+                names = ", ".join(str(int(i)) for i in members)
+                out.append(
+                    f"object {k} (particle{'s' if len(members) > 1 else ''} {names}) has its bottom at z = "
+                    f"{bottom:.2f} m, below its support at {support:.2f} m"
+                )
+        return out
 
     def support_height(self) -> float:
         """The height (world z, metres) objects rest on (:data:`particlesplat.core.world.SUPPORT_Z`)."""
@@ -182,6 +221,11 @@ class EditedParticles:
             return None
         out, self._changed = self._changed, set()
         return out
+
+
+def _size(particles: Particles, i: int, config: ModelConfig) -> float:
+    """Particle ``i``'s width in metres, up to a constant factor: its image-plane scale times its depth."""
+    return float(torch.sigmoid(particles.z_s[i]).double().mean()) * float(config.depth_of(particles.z_d[i, 0]))
 
 
 def check_room(num: int, more: int, what: str) -> None:

@@ -45,9 +45,12 @@ from particlesplat.editing.history import Gesture, History
 from particlesplat.editing.operations import (
     Duplicate,
     InsertObject,
+    Merge,
     Operation,
     Remove,
+    Scale,
     SetAttributes,
+    Split,
     Translate,
     changes_to,
 )
@@ -59,19 +62,9 @@ if TYPE_CHECKING:
     from particlesplat.model.particlesplat import ParticleSplat
 
 __all__ = [  # the names edit-file users import from here
-    "MAX_EDIT_PARTICLES",
-    "EditFile",
-    "EditsError",
-    "Insert",
-    "Pick",
-    "PickError",
-    "SceneEditor",
-    "load_edit_file",
-    "parse_edit_file",
-    "same_scene",
-    "save_edit_file",
-    "scene_mismatch",
-]
+    "MAX_EDIT_PARTICLES", "EditFile", "EditsError", "Insert", "Pick", "PickError", "SceneEditor",
+    "load_edit_file", "parse_edit_file", "same_scene", "save_edit_file", "scene_mismatch",
+]  # fmt: skip
 
 
 class SceneEditor:
@@ -185,6 +178,10 @@ class SceneEditor:
         (:meth:`EditedParticles.bottom`); None if it draws nothing opaque."""
         return self.scene.bottom(self.object_members(index))
 
+    def sunk_objects(self) -> list[str]:
+        """A line for each object whose bottom is below its support (:meth:`EditedParticles.sunk_objects`)."""
+        return self.scene.sunk_objects()
+
     def object_offset(self, index: int) -> tuple[float, float, float]:
         """World offset (metres) of particle ``index``'s anchor from where it (or what it copies) was encoded."""
         return self.scene.offset(index)
@@ -223,7 +220,7 @@ class SceneEditor:
             open_gesture.operation.extend(op)
             return
         self.end_gesture()
-        op.before = self.scene.particles
+        op.before, op.before_labels = self.scene.particles, self.scene.labels_now()
         op.do(self.scene)
         if gesture is None:
             self.history.add(op)
@@ -268,6 +265,26 @@ class SceneEditor:
         n = self.num_particles
         self._commit(Duplicate(offset=offset).on(self.scene, index))
         return n
+
+    def scale_object(self, index: int, factor: float, gesture: str | None = None) -> None:
+        """Scale particle ``index``'s object ``factor`` times about its resting centre, on its support
+        (:class:`particlesplat.editing.operations.Scale`; consecutive calls with the same ``gesture`` multiply into
+        one operation until :meth:`end_gesture`). Raises MoveError (nothing changed)."""
+        self._check_editable(index)
+        self._commit(Scale(factor=float(factor)).on(self.scene, index), gesture)
+
+    def merge_objects(self, index: int, other: int) -> None:
+        """Join the objects of particles ``index`` and ``other`` into one. Raises MoveError (one object already,
+        or a particle in none)."""
+        self._check_editable(index)
+        self._check_editable(other)
+        self._commit(Merge(other_index=other).on(self.scene, index))
+
+    def split_particle(self, index: int) -> None:
+        """Take particle ``index`` out of its object into an object of its own. Raises MoveError (alone already,
+        or in no object)."""
+        self._check_editable(index)
+        self._commit(Split.of(self.scene, index))
 
     def insert_object(self, source: Particles, insert: Insert) -> int:
         """Insert object ``insert.object`` of another scene's particles ``source`` (encoded with this model) with
@@ -350,7 +367,11 @@ class SceneEditor:
     def operations(self) -> list[Operation]:
         """What was done, as edit-file operations: an object operation saves a pick of its object on the
         particles as they were before it; attribute changes save the particles' new values."""
-        return [f for op in self.history.undo for f in op.file_operations(self.pick_for)]
+
+        def find(index: int, op: Operation) -> Pick:
+            return self.picker.pick_for(self.scene, index, op.before, op.before_labels)
+
+        return [f for op in self.history.undo for f in op.file_operations(find)]
 
     def save(
         self,

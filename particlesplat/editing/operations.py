@@ -15,16 +15,19 @@ does on an object (:meth:`ObjectOperation.on`), listed in :data:`PICKED` (or rea
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
 import torch
+from torch import Tensor
 
 from particlesplat.core.errors import short_repr
 from particlesplat.core.vectors import float3
 from particlesplat.editing.edit_fields import (
+    DECIMALS,
     Insert,
     Pick,
     insert_yaml,
@@ -36,11 +39,12 @@ from particlesplat.editing.edit_fields import (
     rounded,
 )
 from particlesplat.editing.edited import EditedParticles, Rows, SetAttribute, check_room
-from particlesplat.editing.move import MoveError, translate
+from particlesplat.editing.grouping import members_centre
+from particlesplat.editing.move import MoveError, scale, translate
 from particlesplat.editing.particle_edits import EditsError, validate_edits
 from particlesplat.model.particles import EDITABLE, Particles
 
-FindPick = Callable[[int, "Particles | None"], Pick]  # (particle, the particles before) -> a pick of its object
+FindPick = Callable[[int, "Operation"], Pick]  # (particle, an operation) -> a pick of its object before it
 
 
 def members_label(members: list[int] | tuple[int, ...]) -> str:
@@ -65,6 +69,7 @@ class Operation:
         changes: attribute changes (old and new values).
         rows: particles it appends, or None.
         before: the particles as they were before it was done (to pick its object when saving).
+        before_labels: their object labels then (None: as grouped, nothing appended or regrouped yet).
     """
 
     kind: ClassVar[str] = "set"
@@ -74,6 +79,7 @@ class Operation:
     changes: list[SetAttribute] = field(default_factory=list)
     rows: Rows | None = None
     before: Particles | None = None
+    before_labels: Tensor | None = None
 
     def do(self, scene: EditedParticles) -> None:
         scene.apply(self.changes, True, self.rows)
@@ -196,7 +202,7 @@ class ObjectOperation(Operation):
 
     def file_operations(self, find_pick: FindPick) -> list[Operation]:
         if self.pick is None:  # found once: the particles before the operation do not change
-            self.pick = find_pick(self.members[0], self.before)
+            self.pick = find_pick(self.members[0], self)
         return [self]
 
     def record(self) -> dict[str, Any]:
@@ -375,5 +381,167 @@ class InsertObject(Operation):
             raise EditsError(f"{where}: insert: {e}") from None
 
 
-PICKED: dict[str, type[ObjectOperation]] = {op.kind: op for op in (Translate, Remove, Duplicate)}
+@dataclass(eq=False, kw_only=True)
+class Scale(ObjectOperation):
+    """Scale an object ``factor`` times about its resting centre, keeping it on its support: ``scale: F``. Each
+    particle's anchor moves away from (or towards) the point below the centre on the support surface and its size
+    in metres grows F times (its latents ``z_s`` and ``z_e``, :func:`particlesplat.editing.move.scale`), so the
+    object grows about that point: its bottom stays on the support. A drag multiplies its steps."""
+
+    kind: ClassVar[str] = "scale"
+    factor: float = 1.0
+
+    @classmethod
+    def read_value(cls, value: Any, pick: Pick, where: str) -> ObjectOperation:
+        (factor,) = read_numbers(value, 1, where)
+        if not factor > 0.0:
+            raise EditsError(f"{where}: expected a factor in (0, inf), got {short_repr(value)}")
+        return cls(pick=pick, factor=factor)
+
+    def value_yaml(self) -> Any:
+        return round(float(self.factor), DECIMALS)
+
+    def on(self, scene: EditedParticles, index: int) -> ObjectOperation | None:
+        members = scene.objects().members(index)
+        factor = float(self.factor)
+        if not (math.isfinite(factor) and factor > 0.0):
+            raise MoveError(f"scale: expected a factor in (0, inf), got {factor!r}")
+        if factor == 1.0:
+            return None
+        centre = members_centre(scene.model, scene.particles, members, scene.support_height())
+        if centre is None:
+            raise MoveError(f"scale: the object of {members_label(members)} draws nothing")
+        pivot = (float(centre[0]), float(centre[1]), scene.support_height())
+        target = scale(scene.particles, members, factor, pivot, scene.model.config)
+        changes = [
+            SetAttribute(i, name, scene.value(i, name), value)
+            for i, attrs in target.items()
+            for name, value in attrs.items()
+            if value != scene.value(i, name)
+        ]
+        label = f"scale object of {members_label(members)} x{factor:.3g}"
+        return Scale(label=label, changes=changes, members=tuple(members), factor=factor) if changes else None
+
+    def extend(self, later: Operation) -> None:
+        super().extend(later)
+        if isinstance(later, Scale):
+            self.factor *= later.factor
+
+
+@dataclass(eq=False, kw_only=True)
+class Regroup(Operation):
+    """A change of which particles form an object: ``relabel`` (index, old label, new label) per particle."""
+
+    relabel: tuple[tuple[int, int, int], ...] = ()
+
+    def do(self, scene: EditedParticles) -> None:
+        scene.relabel([i for i, _, _ in self.relabel], [new for _, _, new in self.relabel])
+
+    def undo(self, scene: EditedParticles) -> None:
+        scene.relabel([i for i, _, _ in self.relabel], [old for _, old, _ in self.relabel])
+
+
+@dataclass(eq=False, kw_only=True)
+class Merge(Regroup, ObjectOperation):
+    """Join two objects into one: ``merge: {frame, pixel}`` picks the other object. The joined object keeps the
+    smaller of the two numbers. File form: ``other`` (its pick); to do: ``other_index`` (a particle of it)."""
+
+    kind: ClassVar[str] = "merge"
+    other: Pick | None = None
+    other_index: int | None = None
+    others: tuple[int, ...] = ()
+
+    @classmethod
+    def read_value(cls, value: Any, pick: Pick, where: str) -> ObjectOperation:
+        return cls(pick=pick, other=read_pick(value, where))
+
+    def value_yaml(self) -> Any:
+        if self.other is None:
+            raise ValueError("a merge operation needs the pick of its other object")
+        return pick_yaml(self.other)
+
+    def on(self, scene: EditedParticles, index: int) -> ObjectOperation | None:
+        if self.other_index is None:
+            raise ValueError("merge: which object to join is not given")
+        objects = scene.objects()
+        a, b = int(objects.labels[index]), int(objects.labels[self.other_index])
+        if a < 0 or b < 0:
+            which = index if a < 0 else self.other_index
+            raise MoveError(f"merge: particle {which} draws nothing, so it is in no object")
+        if a == b:
+            raise MoveError(f"merge: particles {index} and {self.other_index} are one object already")
+        members, others = objects.members(index), objects.members(self.other_index)
+        keep, old, moved = (a, b, others) if a < b else (b, a, members)
+        relabel = tuple((i, old, keep) for i in moved)
+        return Merge(
+            label=f"merge objects of {members_label(members)} and {members_label(others)}",
+            relabel=relabel,
+            members=tuple(members),
+            others=tuple(others),
+        )
+
+    def file_operations(self, find_pick: FindPick) -> list[Operation]:
+        if self.other is None:
+            self.other = find_pick(self.others[0], self)
+        return super().file_operations(find_pick)
+
+    def replay(self, scene: EditedParticles, find: Callable[[Pick, str], int], where: str) -> Operation | None:
+        if self.other is None:
+            raise ValueError(f"{where}: a merge operation needs the pick of its other object")
+        self.other_index = find(self.other, f"{where}.merge")
+        done = super().replay(scene, find, where)
+        if isinstance(done, Merge):
+            done.other = self.other
+        return done
+
+
+@dataclass(eq=False, kw_only=True)
+class Split(Regroup):
+    """Take a particle out of its object into an object of its own (the next number): ``{particle: I, split:
+    true}``."""
+
+    kind: ClassVar[str] = "split"
+    particle: int | None = None
+
+    @classmethod
+    def read(cls, item: dict, where: str) -> Split:
+        if set(item) != {"particle", "split"}:
+            raise EditsError(f"{where}: a split operation has the keys particle and split, got {sorted(item)}")
+        if item["split"] is not True:
+            raise EditsError(f"{where}.split: expected true, got {short_repr(item['split'])}")
+        return cls(particle=read_index(item["particle"], f"{where}.particle"))
+
+    @classmethod
+    def of(cls, scene: EditedParticles, index: int) -> Split:
+        """Particle ``index`` out of its object. Raises MoveError when it draws nothing or is alone already."""
+        objects = scene.objects()
+        label = int(objects.labels[index])
+        if label < 0:
+            raise MoveError(f"split: particle {index} draws nothing, so it is in no object")
+        if len(objects.members(index)) == 1:
+            raise MoveError(f"split: particle {index} is an object of its own already")
+        new = scene.next_object()
+        return cls(label=f"split particle {index} off its object", relabel=((index, label, new),), particle=index)
+
+    def file_operations(self, find_pick: FindPick) -> list[Operation]:
+        return [Split(particle=self.particle)]
+
+    def record(self) -> dict[str, Any]:
+        if self.particle is None:
+            raise ValueError("a split operation needs its particle")
+        return {"particle": int(self.particle), "split": True}
+
+    def replay(self, scene: EditedParticles, find: Callable[[Pick, str], int], where: str) -> Operation | None:
+        particle = self.particle
+        if particle is None:
+            raise ValueError(f"{where}: a split operation needs its particle")
+        if not 0 <= particle < scene.num:
+            raise EditsError(f"{where}: particle {particle}: no such particle (the scene has {scene.num})")
+        try:
+            return Split.of(scene, particle)
+        except MoveError as e:
+            raise EditsError(f"{where}: {e}") from None
+
+
+PICKED: dict[str, type[ObjectOperation]] = {op.kind: op for op in (Translate, Remove, Duplicate, Scale, Merge)}
 """The operations on a picked object, by their edit-file key."""

@@ -41,12 +41,17 @@ class Picker:
         return self.frame_cameras[frame]
 
     def object_map(
-        self, scene: EditedParticles, frame: int, particles: Particles | None = None, where: str = "pick"
+        self,
+        scene: EditedParticles,
+        frame: int,
+        particles: Particles | None = None,
+        where: str = "pick",
+        labels: Tensor | None = None,
     ) -> Tensor:
         """(H, W) int64 object label per pixel of input frame ``frame`` at its stored size (-1 background), of
-        ``particles`` (default: the current ones)."""
+        ``particles`` (default: the current ones) grouped as ``labels`` (default: the current objects)."""
         p = scene.particles if particles is None else particles
-        labels = scene.objects().labels[: p.num]
+        labels = (scene.objects().labels if labels is None else labels)[: p.num]
         return label_render(scene, scene.decode(p), self.frame_camera(frame, where), labels)
 
     def pixel_object(self, scene: EditedParticles, frame: int, cam: Camera, pixel: tuple[int, int]) -> int:
@@ -76,17 +81,21 @@ class Picker:
             raise PickError(f"{where}: pick {{frame: {pick.frame}, pixel: [{x}, {y}]}} hits no object (background)")
         return int(torch.nonzero(scene.objects().labels == label)[0])
 
-    def pick_for(self, scene: EditedParticles, index: int, particles: Particles | None = None) -> Pick:
-        """A pixel of an input frame that picks particle ``index``'s object on ``particles`` (default: now):
-        the object's most interior pixel in the context frame (else any frame) where it covers most pixels."""
-        label = int(scene.objects().labels[index])
+    def pick_for(
+        self, scene: EditedParticles, index: int, particles: Particles | None = None, labels: Tensor | None = None
+    ) -> Pick:
+        """A pixel of an input frame that picks particle ``index``'s object on ``particles`` grouped as ``labels``
+        (default: now): the object's most interior pixel in the context frame (else any frame) where it covers most
+        pixels."""
+        labels = scene.objects().labels if labels is None else labels
+        label = int(labels[index])
         if label < 0:
             raise PickError(f"object of particle {index}: it draws nothing, so no pick names it")
         context = list(self.context or [])
         frames = context + [f for f in range(len(self.frame_cameras)) if f not in context]
         best: tuple[int, int, Tensor] | None = None
         for i, f in enumerate(frames):
-            mask = self.object_map(scene, f, particles) == label
+            mask = self.object_map(scene, f, particles, labels=labels) == label
             count = int(mask.sum())
             if count >= MIN_PICK_PIXELS and (best is None or count > best[1]):
                 best = (f, count, mask)

@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from particlesplat.core.camera import Camera
-from particlesplat.editing.move import MoveError
+from particlesplat.editing.move import MoveError, stop_at_support
 
 if TYPE_CHECKING:
     from particlesplat.editing.editor import SceneEditor
@@ -99,6 +99,57 @@ class FloorDrag:
         self.index, self.last = None, None
 
 
+class GizmoDrag:
+    """One drag of the gizmo's handles, as moves that respect the surface the object rests on.
+
+    An arrow or plane handle moves the object along its axes, but never lower than its support
+    (:func:`particlesplat.editing.move.stop_at_support`). The centre handle (which ImGuizmo moves in the screen
+    plane, and which covers a small object whole) slides the object on the horizontal plane through its centre,
+    following the mouse as a plain drag does (:class:`FloorDrag`). Which handle it is, is read from the first step:
+    the centre handle's moves all three coordinates at once, an arrow one, a plane two.
+    """
+
+    def __init__(self) -> None:
+        self.mode: str | None = None  # None before the first step, then "axes" or "floor"
+        self.floor = FloorDrag()
+
+    def step(
+        self,
+        editor: SceneEditor,
+        index: int,
+        step: np.ndarray,
+        camera: Camera,
+        mouse: tuple[float, float],
+        previous: tuple[float, float],
+    ) -> str | None:
+        """Apply one gizmo step (3,) world metres, with the mouse at framebuffer pixel ``mouse`` (at ``previous``
+        the frame before). Returns an error message when a move was refused, else None."""
+        if self.mode is None:
+            self.mode = "floor" if int(np.count_nonzero(np.abs(step) > 1e-9)) == 3 else "axes"
+            if self.mode == "floor" and not self.floor.start(editor, index, camera, *previous):
+                self.mode = "axes"
+        if self.mode == "floor":
+            return self.floor.update(editor, camera, *mouse)
+        step = np.asarray(step, dtype=np.float64).copy()
+        if step[2] < 0.0:
+            bottom = editor.object_bottom(index)
+            if bottom is not None:
+                step[2] = stop_at_support(float(step[2]), bottom, editor.support_height())
+        if not np.any(step):
+            return None
+        try:
+            editor.move_object(index, step.tolist(), gesture=GIZMO_GESTURE)
+        except MoveError as e:
+            return f"error: {e}"
+        return None
+
+    def stop(self, editor: SceneEditor) -> None:
+        """The drag ends: one operation in the history."""
+        editor.end_gesture()
+        self.mode = None
+        self.floor.stop()
+
+
 def gl_view(camera: Camera) -> np.ndarray:
     """(4, 4) float64 OpenGL view matrix (world -> eye, y up, looking down -z) of an OpenCV camera."""
     return GL_FLIP @ camera.w2c.detach().double().cpu().numpy()
@@ -161,6 +212,7 @@ class ObjectGizmo:
         self._hull = np.zeros((0, 2))
         self.using = False  # a handle is being dragged
         self.hovered = False  # the mouse is over a handle: the viewport should not orbit
+        self.drag = GizmoDrag()
 
     @property
     def capturing(self) -> bool:
@@ -184,7 +236,7 @@ class ObjectGizmo:
         editor = session.editor
         if editor is None or index is None or not 0 <= index < editor.num_particles:
             if self.using and editor is not None:
-                editor.end_gesture()
+                self.drag.stop(editor)
             self.using = False
             return None
         self._refresh(editor, index, camera)
@@ -218,11 +270,10 @@ class ObjectGizmo:
         if changed:
             step = np.array(obj.values, dtype=np.float64).reshape(4, 4).T[:3, 3] - self._centre.numpy()
             if np.isfinite(step).all() and np.linalg.norm(step) > 0:
-                try:
-                    editor.move_object(index, step.tolist(), gesture=GIZMO_GESTURE)
-                except MoveError as e:
-                    message = f"error: {e}"
+                mouse = (io.mouse_pos.x * sx, io.mouse_pos.y * sy)
+                previous = (mouse[0] - io.mouse_delta.x * sx, mouse[1] - io.mouse_delta.y * sy)
+                message = self.drag.step(editor, index, step, camera, mouse, previous)
         if self.using and not using:
-            editor.end_gesture()
+            self.drag.stop(editor)
         self.using = bool(using)
         return message
