@@ -149,3 +149,39 @@ def test_split_refuses_a_particle_alone_and_names_the_operation(scene):
     with pytest.raises(EditsError, match="split: expected true"):
         parse_edit_file({"version": 2, "operations": [{"particle": 1, "split": 1}]})
     assert Split.read({"particle": 2, "split": True}, "w").particle == 2 and Scale(factor=2.0).kind == "scale"
+
+
+def test_user_groups_win_in_the_particle_arrays_and_the_object_colours(scene, tmp_path):
+    from particlesplat.analysis.particle_arrays import particle_arrays
+    from particlesplat.cli.main import main
+    from particlesplat.editing.scene_objects import SceneObjects
+
+    model, enc = scene
+    ed = editor(scene)
+    a, b = visible_objects(ed)[:2]
+    plain = particle_arrays(model, ed.particles)
+    ed.merge_objects(a, b)
+    ed.remove_object(visible_objects(ed)[-1])  # a removed object is in none
+    arrays = particle_arrays(model, ed.particles, objects=SceneObjects(ed.objects()))
+    assert arrays.num_objects == plain.num_objects - 2
+    assert arrays.object[a] == arrays.object[b] >= 0 and sorted(set(arrays.object.tolist()) - {-1}) == list(
+        range(arrays.num_objects)
+    )
+    path = ed.save(tmp_path / "m.yaml")
+    out = tmp_path / "o.png"
+    main(
+        [
+            "render",
+            "--scene",
+            str(enc.path),
+            "--edits",
+            str(path),
+            "--view",
+            "4",
+            "--mode",
+            "objects",
+            "--out",
+            str(out),
+        ]
+    )
+    assert out.is_file()

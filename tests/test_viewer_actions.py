@@ -74,3 +74,27 @@ def test_a_ply_scene_has_no_edit_actions(encoded):
         assert not BY_NAME[name].enabled(ctx) and not run(name, ctx)
     assert not ctx.requests.save_edits
     assert run("screenshot", ctx) and ctx.requests.screenshot
+
+
+def test_grow_shrink_merge_and_split_by_key_are_one_undo_step_each(encoded):
+    model, enc = encoded
+    scene = EditableScene(model, enc)
+    ctx, said = target(scene)
+    ed = scene.editor
+    labels = ed.objects()
+    firsts = [int(torch.nonzero(labels == k)[0]) for k in sorted({int(v) for v in labels.tolist() if v >= 0})]
+    assert len(firsts) >= 2
+    ctx.state.selected = firsts[0]
+    assert not run("merge", ctx)  # one object selected: nothing to merge with
+    ctx.state.selected = firsts[1]
+    assert ctx.state.previous == firsts[0]  # the selection before is remembered
+    assert run("grow", ctx) and ed.history.undo[-1].factor == pytest.approx(1.1)
+    assert run("shrink", ctx) and ed.history.undo[-1].factor == pytest.approx(1 / 1.1)
+    count = len(set(ed.objects().tolist()) - {-1})
+    assert run("merge", ctx) and ed.history.undo[-1].kind == "merge", said[-1]
+    assert len(set(ed.objects().tolist()) - {-1}) == count - 1 and firsts[0] in ed.object_members(firsts[1])
+    assert run("split", ctx) and ed.object_members(firsts[1]) == [firsts[1]]
+    assert [op.kind for op in ed.history.undo] == ["scale", "scale", "merge", "split"]
+    while run("undo", ctx) and ed.history.undo:
+        pass
+    assert torch.equal(ed.objects(), labels)

@@ -63,7 +63,8 @@ class Chord:
     shift: bool = False
 
     def label(self) -> str:
-        name = {"delete": "Del", "escape": "Esc"}.get(self.key, self.key.lstrip("_").upper())
+        names = {"delete": "Del", "escape": "Esc", "equal": "=", "minus": "-", "keypad_add": "Keypad +"}
+        name = {**names, "keypad_subtract": "Keypad -"}.get(self.key, self.key.lstrip("_").upper())
         return "Ctrl+" * self.ctrl + "Shift+" * self.shift + name
 
 
@@ -124,6 +125,43 @@ def duplicate_selected(editor: SceneEditor, selected: int | None, offset: Sequen
     return copy, f"copied the object: new particles {', '.join(map(str, members))}, offset {_metres(offset)}"
 
 
+SCALE_STEP = 1.1  # one press of the grow key; the shrink key divides by it
+
+
+def scale_selected(editor: SceneEditor, selected: int | None, factor: float) -> tuple[int | None, str]:
+    """Scale the selected particle's object ``factor`` times about its resting centre, on its support (one
+    operation). Returns (selection, status message)."""
+    if selected is None:
+        return selected, "select an object first (click it)"
+    try:
+        editor.scale_object(selected, factor)
+    except MoveError as e:
+        return selected, f"error: {e}"
+    return selected, f"scaled the object of {_members(editor.object_members(selected))} x{factor:.3g}"
+
+
+def merge_selected(editor: SceneEditor, selected: int | None, previous: int | None) -> tuple[int | None, str]:
+    """Join the selected particle's object with the previously selected one's (one operation)."""
+    if selected is None or previous is None:
+        return selected, "select two objects first (click one, then the other)"
+    try:
+        editor.merge_objects(selected, previous)
+    except (MoveError, IndexError) as e:
+        return selected, f"error: {e}"
+    return selected, f"merged: one object of {_members(editor.object_members(selected))} (Ctrl+Z separates them)"
+
+
+def split_selected(editor: SceneEditor, selected: int | None) -> tuple[int | None, str]:
+    """Take the selected particle out of its object into an object of its own (one operation)."""
+    if selected is None:
+        return selected, "select a particle first (click it)"
+    try:
+        editor.split_particle(selected)
+    except MoveError as e:
+        return selected, f"error: {e}"
+    return selected, f"particle {selected} is an object of its own now"
+
+
 def _editable(ctx: ActionContext) -> bool:
     return ctx.session.editor is not None
 
@@ -142,16 +180,33 @@ def _redo(ctx: ActionContext) -> None:
         ctx.session.editor.redo()
 
 
-def _remove(ctx: ActionContext) -> None:
-    if ctx.session.editor is not None:
-        ctx.state.selected, message = remove_selected(ctx.session.editor, ctx.state.selected)
-        ctx.status(message)
+def _on_selection(do: Callable[[SceneEditor, int | None], tuple[int | None, str]]) -> Callable[[ActionContext], None]:
+    """An action that does ``do`` on the scene's editor and the selection, and shows what it did."""
+
+    def run(ctx: ActionContext) -> None:
+        if ctx.session.editor is not None:
+            ctx.state.selected, message = do(ctx.session.editor, ctx.state.selected)
+            ctx.status(message)
+
+    return run
+
+
+_remove = _on_selection(remove_selected)
+_grow = _on_selection(lambda ed, s: scale_selected(ed, s, SCALE_STEP))
+_shrink = _on_selection(lambda ed, s: scale_selected(ed, s, 1.0 / SCALE_STEP))
+_split = _on_selection(split_selected)
 
 
 def _duplicate(ctx: ActionContext) -> None:
-    if ctx.session.editor is not None:
-        ctx.state.selected, message = duplicate_selected(ctx.session.editor, ctx.state.selected, ctx.copy_offset)
-        ctx.status(message)
+    _on_selection(lambda ed, s: duplicate_selected(ed, s, ctx.copy_offset))(ctx)
+
+
+def _merge(ctx: ActionContext) -> None:
+    _on_selection(lambda ed, s: merge_selected(ed, s, ctx.state.previous))(ctx)
+
+
+def _two_selected(ctx: ActionContext) -> bool:
+    return _selected(ctx) and ctx.state.previous is not None
 
 
 def _request(name: str) -> Callable[[ActionContext], None]:
@@ -185,7 +240,7 @@ ACTIONS: tuple[Action, ...] = (
         _redo,
         _editable,
         repeat=True,
-    ),  # fmt: skip
+    ),
     Action(
         "save_edits",
         "Save edits",
@@ -193,9 +248,41 @@ ACTIONS: tuple[Action, ...] = (
         (Chord("s", ctrl=True),),
         _request("save_edits"),
         _editable,
-    ),  # fmt: skip
+    ),
     Action("delete", "Delete object", "delete the selected object", (Chord("delete"),), _remove, _selected),
     Action("duplicate", "Duplicate", "duplicate the selected object", (Chord("d", ctrl=True),), _duplicate, _selected),
+    Action(
+        "grow",
+        "Grow",
+        "grow the selected object 10 % (about its centre, on its support)",
+        (Chord("equal"), Chord("keypad_add")),
+        _grow,
+        _selected,
+    ),
+    Action(
+        "shrink",
+        "Shrink",
+        "shrink the selected object 10 %",
+        (Chord("minus"), Chord("keypad_subtract")),
+        _shrink,
+        _selected,
+    ),
+    Action(
+        "merge",
+        "Merge with previous",
+        "merge the selected object with the one selected before it",
+        (Chord("j"),),
+        _merge,
+        _two_selected,
+    ),
+    Action(
+        "split",
+        "Split particle off",
+        "take the selected particle out of its object",
+        (Chord("u"),),
+        _split,
+        _selected,
+    ),
     Action("reset_view", "Reset view", "reset the view", (Chord("r"),), _request("reset_view")),
     Action("screenshot", "Screenshot", "screenshot (no UI)", (Chord("p"), Chord("f12")), _request("screenshot")),
     Action("export_ply", "Export .ply", "export the drawn Gaussians to .ply", (Chord("e"),), _request("export_ply")),
@@ -211,7 +298,7 @@ ACTIONS: tuple[Action, ...] = (
             (Chord(f"_{i}"),),
             _snap(i),
             keys_help="0 .. 9",
-        )  # fmt: skip
+        )
         for i in range(10)
     ),
 )

@@ -35,6 +35,7 @@ class ViewState:
 
     Attributes:
         selected: selected particle index or None.
+        previous: the particle selected before it (what Merge joins the selection with), or None.
         hidden: particle indices hidden by their visibility toggle.
         solo: a particle shown alone (plus the background unless hidden), or None.
         seg_mode: a :class:`SegMode` (its label string is accepted and converted).
@@ -47,6 +48,7 @@ class ViewState:
     """
 
     selected: int | None = None
+    previous: int | None = None
     hidden: set[int] = field(default_factory=set)
     solo: int | None = None
     seg_mode: SegMode = SegMode.NORMAL
@@ -59,6 +61,8 @@ class ViewState:
     def __setattr__(self, name, value) -> None:
         if name == "seg_mode":
             value = SegMode(value)  # a label that is no mode raises ValueError here, not a silent normal view
+        if name == "selected" and value is not None and getattr(self, "selected", None) not in (None, value):
+            super().__setattr__("previous", self.selected)
         super().__setattr__(name, value)
 
     def visible_owners(self, owners: int | Iterable[int]) -> list[int]:

@@ -165,9 +165,11 @@ def particle_arrays(
     *,
     object_centre: ObjectCentre = "resting",
     meta: dict | None = None,
+    objects: SceneObjects | None = None,
 ) -> ParticleArrays:
     """The arrays of already-encoded ``particles`` (``gaussians``: their decode with the background, decoded
-    here when None). ``meta`` is merged into the recorded metadata."""
+    here when None). ``meta`` is merged into the recorded metadata. ``objects``: the particles' objects when a
+    user regrouped them (an editor's, :meth:`SceneEditor.objects`), else grouped here."""
     if gaussians is None:
         gaussians = model.decode(particles)
     g = gaussians.detach().to("cpu")
@@ -181,9 +183,12 @@ def particle_arrays(
     colour = torch.zeros(P, 3, dtype=torch.float64).index_add_(0, g.owner[fg], w[:, None] * dc[fg])
     colour = torch.where(total[:, None] > 0, colour / torch.where(total > 0, total, 1.0)[:, None], 0.0)
     active = drawing_particles(p, g, model.config.bg_mask_threshold)
-    objects = SceneObjects.group(p, g, model.config.bg_mask_threshold).labels
-    num_objects = int(objects.max()) + 1 if bool((objects >= 0).any()) else 0
-    obj_centre, obj_extent = object_centres(g, objects, num_objects, object_centre)
+    if objects is None:
+        labels = SceneObjects.group(p, g, model.config.bg_mask_threshold).labels
+    else:  # a particle that draws nothing (a removed object's) is in none
+        labels = SceneObjects(torch.where(active, objects.labels[:P].cpu(), -1)).dense().labels
+    num_objects = int(labels.max()) + 1 if bool((labels >= 0).any()) else 0
+    obj_centre, obj_extent = object_centres(g, labels, num_objects, object_centre)
     anchor = anchor_points(p, list(range(P)), model.config).double()
     K = torch.stack([c.K for c in p.cameras]).double()
     c2w = torch.stack([c.c2w for c in p.cameras]).double()
@@ -212,7 +217,7 @@ def particle_arrays(
         extent=f32(extent),
         colour=f32(colour),
         active=active.numpy().astype(bool),
-        object=objects.numpy().astype(np.int64),
+        object=labels.numpy().astype(np.int64),
         object_centroid=f32(obj_centre).reshape(num_objects, 3),
         object_extent=f32(obj_extent).reshape(num_objects, 3),
         K=f32(K),

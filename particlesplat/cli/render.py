@@ -105,6 +105,7 @@ def _scene_and_gaussians(args: argparse.Namespace):
     from pathlib import Path
 
     from particlesplat.editing.editor import SceneEditor, load_edit_file, scene_mismatch
+    from particlesplat.editing.scene_objects import SceneObjects
 
     file, where = None, "edits"  # where: the edit file's name in messages
     if getattr(args, "edits_from", None):
@@ -126,7 +127,7 @@ def _scene_and_gaussians(args: argparse.Namespace):
     model, enc, name = load_model_scene(args.checkpoint, scene, context)
     for warning in enc.warnings:
         print(f"particlesplat render: warning: {warning}", file=sys.stderr)
-    particles = enc.particles
+    particles, objects = enc.particles, None
     edits: str | dict = {}  # for png_text: the edit file's text, {} (no edits) without one
     if file is not None:
         warning = scene_mismatch(file, enc.path, enc.context)
@@ -138,14 +139,14 @@ def _scene_and_gaussians(args: argparse.Namespace):
         editor.apply_file(file, where)
         for line in editor.sunk_objects():  # allowed (a user may want it), but never silently
             print(f"particlesplat render: warning: {where}: {line}", file=sys.stderr)
-        particles = editor.particles
+        particles, objects = editor.particles, SceneObjects(editor.objects())  # the user's groups win
         edits = editor.edit_text(scene=resolved(enc.path), model=name, scene_sha256=scene_digest(enc.path))
     g = model.decode(particles).detach().to("cpu")
     arrays = None
     if getattr(args, "mode", "rgb") in NEEDS_PARTICLES:
         from particlesplat.analysis.particle_arrays import particle_arrays
 
-        arrays = particle_arrays(model, particles, g)
+        arrays = particle_arrays(model, particles, g, objects=objects)
     return g, enc.all_cameras, edits, name, str(enc.path), scene_background(model), arrays
 
 

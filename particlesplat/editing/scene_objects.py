@@ -38,6 +38,15 @@ class SceneObjects:
         """K, the number of objects."""
         return int(self.labels.max()) + 1 if self.labels.numel() and bool((self.labels >= 0).any()) else 0
 
+    def dense(self) -> SceneObjects:
+        """The same groups numbered 0..K-1 in the order of each one's smallest particle index (as
+        :meth:`group` numbers them), for labels that merges, splits and copies left with gaps or out of order."""
+        out = torch.full_like(self.labels, -1)
+        firsts = {int(torch.nonzero(self.labels == k)[0]): int(k) for k in self.labels.unique() if k >= 0}
+        for n, first in enumerate(sorted(firsts)):
+            out[self.labels == firsts[first]] = n
+        return SceneObjects(out)
+
     def members(self, index: int) -> list[int]:
         """The particles of particle ``index``'s object, ascending; a particle that draws nothing is alone."""
         if int(self.labels[index]) < 0:

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 from imgui_bundle import imgui
 
+from particlesplat.editing.edited import SUNK_TOLERANCE
 from particlesplat.model.particles import EDITABLE
 
 from .objects import draw_object_section
@@ -20,6 +21,14 @@ if TYPE_CHECKING:
 DRAG_SPEED = MappingProxyType(
     {"z_p": 0.005, "z_s": 0.02, "z_d": 0.02, "z_e": 0.02, "z_t": 0.005, "move": 0.005}
 )  # move: metres per pixel dragged
+
+
+def warn_if_sunk(editor: SceneEditor, index: int, ctx: ActionContext) -> None:
+    """Say so on the status line when a hand-set latent put particle ``index``'s object below its support (it
+    stays: the user may want it)."""
+    bottom, support = editor.object_bottom(index), editor.support_height()
+    if bottom is not None and bottom < support - SUNK_TOLERANCE:
+        ctx.status(f"warning: the object's bottom is at z = {bottom:.2f} m, below its support at {support:.2f} m")
 
 
 def draw_selected_section(editor: SceneEditor, ctx: ActionContext, fields: UiFields) -> None:
@@ -42,6 +51,7 @@ def draw_selected_section(editor: SceneEditor, ctx: ActionContext, fields: UiFie
             editor.set_attribute(i, name, new, gesture="panel")
         if imgui.is_item_deactivated():
             editor.end_gesture()
+            warn_if_sunk(editor, i, ctx)
         imgui.same_line()
         if imgui.small_button(f"reset##{name}"):
             editor.set_attribute(i, name, editor.original_value(i, name))
