@@ -372,6 +372,106 @@ def _demo_app(window, tmp_path, scene, size=(160, 120)):
     return A.App(win, session, A.initial_view(session, None, None), args, ctx=ctx)
 
 
+def test_the_gizmo_centre_handle_slides_a_robot_object_on_its_plane(window, tmp_path):
+    """On a robot demo scene at its default view, a drag that grabs the gizmo's centre handle (which covers a
+    robot-sized object whole) slides the object on the horizontal plane: one translate, no height change, nothing
+    below the table."""
+    import glfw
+
+    from particlesplat.editing.open_scene import demo_scenes
+    from viewer.tools.object_tools import object_centre
+
+    app = _demo_app(window, tmp_path, next(p for p in demo_scenes() if "robot" in str(p)), size=(400, 300))
+    ed, io = app.session.editor, imgui.get_io()
+    try:
+        deadline = time.monotonic() + 5.0
+        while glfw.get_framebuffer_size(app.window) != (400, 300) and time.monotonic() < deadline:
+            glfw.wait_events_timeout(0.05)
+        g = ed.decode()
+        index = int(g.owner[g.owner >= 0][g.opacities[g.owner >= 0].argmax()])
+        app.state.selected, app.state.panel = index, False
+        app.run(2)
+        uv, _ = app.view_camera(1.0).project(object_centre(ed, index)[None].float())
+        sx, sy = app.pixel_ratio()
+        u, v = round(float(uv[0, 0]) / sx), round(float(uv[0, 1]) / sy)
+        n_ops = len(ed.history.undo)
+        _point_at(app, u, v)
+        io.add_mouse_button_event(0, True)
+        app.run(1)
+        for k in range(1, 6):
+            _point_at(app, u + 5 * k, v + 2 * k)
+        assert app.gizmo.using and app.gizmo.drag.mode == "floor"
+        io.add_mouse_button_event(0, False)
+        app.run(1)
+        assert len(ed.history.undo) == n_ops + 1 and ed.history.undo[-1].kind == "translate"
+        dx, dy, dz = ed.history.undo[-1].offset
+        assert dz == 0.0 and (dx * dx + dy * dy) ** 0.5 > 0.01 and not ed.sunk_objects()
+    finally:
+        io.add_mouse_button_event(0, False)
+        app.run(1)
+        app.scene_view.renderer.release()
+
+
+def test_the_gizmo_scale_handles_scale_the_object_on_its_support(window, tmp_path):
+    """With the scale handles on (S), dragging one away from the object's centre grows the object: one scale
+    operation, its bottom still on the table."""
+    import glfw
+
+    from particlesplat.editing.open_scene import demo_scenes
+    from viewer.tools.object_tools import object_centre
+
+    app = _demo_app(window, tmp_path, next(p for p in demo_scenes() if "robot" in str(p)), size=(400, 300))
+    ed, io = app.session.editor, imgui.get_io()
+    try:
+        deadline = time.monotonic() + 5.0
+        while glfw.get_framebuffer_size(app.window) != (400, 300) and time.monotonic() < deadline:
+            glfw.wait_events_timeout(0.05)
+        g = ed.decode()
+        index = int(g.owner[g.owner >= 0][g.opacities[g.owner >= 0].argmax()])
+        app.state.selected, app.state.panel = index, False
+        press(app, imgui.Key.s)
+        assert app.state.gizmo_scale
+        app.run(2)
+        cam = app.view_camera(1.0)
+        centre = object_centre(ed, index)
+        sx, sy = app.pixel_ratio()
+        (cu, cv), _ = cam.project(centre[None].float())[0][0], None
+        grabbed = None
+        for axis in range(3):  # the handle at the end of an axis: found by hovering along it
+            tip = centre.clone()
+            tip[axis] += 0.05
+            (tu, tv) = cam.project(tip[None].float())[0][0].tolist()
+            d = np.array([tu - float(cu), tv - float(cv)])
+            if np.linalg.norm(d) < 1e-3:
+                continue
+            d /= np.linalg.norm(d)
+            for r in range(10, 160, 4):
+                u, v = round((float(cu) + r * d[0]) / sx), round((float(cv) + r * d[1]) / sy)
+                _point_at(app, u, v)
+                app.run(1)
+                if app.gizmo.hovered:
+                    grabbed = (u, v, d)
+                    break
+            if grabbed:
+                break
+        assert grabbed is not None, "no scale handle found along the axes"
+        u, v, d = grabbed
+        n_ops = len(ed.history.undo)
+        io.add_mouse_button_event(0, True)
+        app.run(1)
+        for k in range(1, 6):
+            _point_at(app, round(u + 6 * k * d[0]), round(v + 6 * k * d[1]))
+        io.add_mouse_button_event(0, False)
+        app.run(1)
+        assert len(ed.history.undo) == n_ops + 1 and ed.history.undo[-1].kind == "scale", app.fields.status
+        assert ed.history.undo[-1].factor != pytest.approx(1.0) and not ed.sunk_objects()
+    finally:
+        io.add_mouse_button_event(0, False)
+        app.state.gizmo_scale = False
+        app.run(1)
+        app.scene_view.renderer.release()
+
+
 def _load_rgb(path) -> np.ndarray:
     return np.asarray(Image.open(path).convert("RGB"), np.float64) / 255.0
 

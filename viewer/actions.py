@@ -222,6 +222,12 @@ def _toggle(name: str) -> Callable[[ActionContext], None]:
     return lambda ctx: setattr(ctx.state, name, not getattr(ctx.state, name))
 
 
+def _ruler(ctx: ActionContext) -> None:
+    ctx.state.ruler = not ctx.state.ruler
+    ctx.state.ruler_points.clear()
+    ctx.status("ruler on: click two points on surfaces" if ctx.state.ruler else "ruler off")
+
+
 def _next_mode(ctx: ActionContext) -> None:
     ctx.state.seg_mode = SEG_MODES[(SEG_MODES.index(ctx.state.seg_mode) + 1) % len(SEG_MODES)]
 
@@ -282,6 +288,21 @@ ACTIONS: tuple[Action, ...] = (
         (Chord("u"),),
         _split,
         _selected,
+    ),
+    Action(
+        "gizmo_scale",
+        "Scale handles",
+        "switch the gizmo between its move and its scale handles",
+        (Chord("s"),),
+        _toggle("gizmo_scale"),
+        _editable,
+    ),
+    Action(
+        "ruler",
+        "Ruler",
+        "ruler on / off: clicks pick two surface points, the distance in metres",
+        (Chord("l"),),
+        _ruler,
     ),
     Action("reset_view", "Reset view", "reset the view", (Chord("r"),), _request("reset_view")),
     Action("screenshot", "Screenshot", "screenshot (no UI)", (Chord("p"), Chord("f12")), _request("screenshot")),

@@ -46,6 +46,7 @@ from .session import EditableScene, Scene  # noqa: E402
 from .signals import SignalStop, raise_on_stop_signals  # noqa: E402
 from .state import ViewState  # noqa: E402
 from .tools.object_tools import ObjectGizmo  # noqa: E402
+from .tools.ruler import draw_ruler  # noqa: E402
 from .ui.panel import UiFields, UiRequests, clear_of_panel, draw_overlay, draw_panel  # noqa: E402
 
 STILL_AFTER = 0.2  # seconds without interaction before rendering at full scale
@@ -181,8 +182,11 @@ class App:
         backends.glfw_new_frame()
         imgui.new_frame()
         if show_ui:
-            message = self.gizmo.draw(self.session, self.state.selected, self.view_camera(1.0), self.pixel_ratio())
+            message = self.gizmo.draw(
+                self.session, self.state.selected, self.view_camera(1.0), self.pixel_ratio(), self.state.gizmo_scale
+            )
             self.particle_overlay.draw(self.session, self.state.seg_mode, self.view_camera(1.0), self.pixel_ratio())
+            draw_ruler(self.state, self.view_camera(1.0), self.pixel_ratio())
             if message:
                 self.fields.status = message
             self.controls.handle(self.viewport())

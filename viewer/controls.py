@@ -17,6 +17,7 @@ from particlesplat.editing.move import MoveError, stop_at_support
 
 from .actions import ACTIONS
 from .tools.object_tools import FloorDrag
+from .tools.ruler import ruler_click
 
 if TYPE_CHECKING:
     from particlesplat.core.camera import Camera
@@ -172,7 +173,12 @@ class ViewportControls:
 
     @staticmethod
     def pick(vp: Viewport, x: float, y: float) -> None:
-        """Select the particle owning framebuffer pixel (x, y) (nothing on background)."""
+        """Select the particle owning framebuffer pixel (x, y) (nothing on background); with the ruler on, pick a
+        ruler point there instead."""
+        if vp.state.ruler:
+            g = vp.session.gaussians()
+            vp.status(ruler_click(vp.state, g.subset(g.opacities >= vp.state.prune), vp.camera(), x, y))
+            return
         owner = vp.pick(int(x), int(y))
         vp.state.selected = owner if owner >= 0 and vp.session.editor is not None else None
 

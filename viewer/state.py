@@ -45,6 +45,9 @@ class ViewState:
         overlay: show the frame-time / count overlay.
         panel: show the ImGui panel.
         moving_scale: render scale while the camera or a particle is being dragged.
+        gizmo_scale: the gizmo shows its scale handles instead of its move handles.
+        ruler: a click picks a ruler point (:mod:`viewer.tools.ruler`) instead of selecting; ruler_points: its
+            points (world metres, at most two).
     """
 
     selected: int | None = None
@@ -57,6 +60,9 @@ class ViewState:
     overlay: bool = True
     panel: bool = True
     moving_scale: float = 0.5
+    gizmo_scale: bool = False
+    ruler: bool = False
+    ruler_points: list[tuple[float, float, float]] = field(default_factory=list)
 
     def __setattr__(self, name, value) -> None:
         if name == "seg_mode":

@@ -24,6 +24,7 @@ if TYPE_CHECKING:
 
 FLOOR_GESTURE = "floor-drag"
 GIZMO_GESTURE = "gizmo"
+SCALE_GESTURE = "gizmo-scale"
 MAX_STEP = 0.5  # metres one mouse event may slide an object (a ray grazing the plane goes far)
 OUTLINE_OPACITY = 0.1  # Gaussians at least this opaque outline the selected object
 GL_FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV camera axes -> OpenGL (y up, looking down -z)
@@ -112,6 +113,20 @@ class GizmoDrag:
     def __init__(self) -> None:
         self.mode: str | None = None  # None before the first step, then "axes" or "floor"
         self.floor = FloorDrag()
+        self.scaled = 1.0  # the scale handles' factor so far in this drag
+
+    def scale(self, editor: SceneEditor, index: int, total: float) -> str | None:
+        """The scale handles show ``total`` (the factor since the drag began): scale the object by what it adds
+        (about its resting centre, on its support; one operation per drag). An error message if refused."""
+        step = total / self.scaled
+        if not (np.isfinite(step) and step > 0.0) or abs(step - 1.0) < 1e-6:
+            return None
+        try:
+            editor.scale_object(index, step, gesture=SCALE_GESTURE)
+        except MoveError as e:
+            return f"error: {e}"
+        self.scaled = total
+        return None
 
     def step(
         self,
@@ -146,7 +161,7 @@ class GizmoDrag:
     def stop(self, editor: SceneEditor) -> None:
         """The drag ends: one operation in the history."""
         editor.end_gesture()
-        self.mode = None
+        self.mode, self.scaled = None, 1.0
         self.floor.stop()
 
 
@@ -225,10 +240,18 @@ class ObjectGizmo:
             self._centre = object_centre(editor, index)
             self._hull = outline(editor, index, camera)
 
-    def draw(self, session: Scene, index: int | None, camera: Camera, pixel_ratio: tuple[float, float]) -> str | None:
+    def draw(
+        self,
+        session: Scene,
+        index: int | None,
+        camera: Camera,
+        pixel_ratio: tuple[float, float],
+        scale_handles: bool = False,
+    ) -> str | None:
         """Draw the outline and the handles of particle ``index``'s object (nothing when None) seen by
         ``camera`` (framebuffer pixels; ``pixel_ratio`` = framebuffer pixels per window point) and apply a
-        handle drag as a move. Returns an error message when a move was refused."""
+        handle drag as a move, or with ``scale_handles`` the uniform scale handles' drag as a scale. Returns an
+        error message when an edit was refused."""
         from imgui_bundle import imgui, imguizmo
 
         gz = imguizmo.im_guizmo
@@ -259,7 +282,7 @@ class ObjectGizmo:
         changed = gz.manipulate(
             gz.Matrix16(gl_view(camera).T.flatten().tolist()),
             gz.Matrix16(gl_projection(camera).T.flatten().tolist()),
-            gz.OPERATION.translate,
+            gz.OPERATION.scaleu if scale_handles else gz.OPERATION.translate,
             gz.MODE.world,
             obj,
             delta,
@@ -267,8 +290,13 @@ class ObjectGizmo:
         using = gz.is_using()
         self.hovered = bool(gz.is_over())
         message = None
-        if changed:
-            step = np.array(obj.values, dtype=np.float64).reshape(4, 4).T[:3, 3] - self._centre.numpy()
+        matrix = np.array(obj.values, dtype=np.float64).reshape(4, 4).T
+        scales = np.linalg.norm(matrix[:3, :3], axis=0)  # ImGuizmo returns the drag's whole scale on a unit matrix
+        if changed and scale_handles:
+            if np.isfinite(scales).all():
+                message = self.drag.scale(editor, index, float(scales.mean()))
+        elif changed:
+            step = matrix[:3, 3] - self._centre.numpy()
             if np.isfinite(step).all() and np.linalg.norm(step) > 0:
                 mouse = (io.mouse_pos.x * sx, io.mouse_pos.y * sy)
                 previous = (mouse[0] - io.mouse_delta.x * sx, mouse[1] - io.mouse_delta.y * sy)

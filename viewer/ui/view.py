@@ -12,6 +12,7 @@ from particlesplat.core.vectors import float3
 from ..actions import BY_NAME
 from ..session import Scene
 from ..state import SEG_MODES, SegMode, ViewState
+from ..tools.ruler import ruler_distance
 
 if TYPE_CHECKING:
     from .fields import UiRequests
@@ -51,6 +52,9 @@ def draw_view_section(session: Scene, state: ViewState, req: UiRequests, counts:
     if changed:
         state.prune = max(0.0, value)
     imgui.text(f"Gaussians drawn: {counts[0]:,} of {counts[1]:,}")
+    if state.ruler:
+        distance = ruler_distance(state)
+        imgui.text("ruler: click two points" if distance is None else f"ruler: {distance:.3f} m")
     changed, value = imgui.slider_float("scale while moving", state.moving_scale, 0.25, 1.0, "%.2f")
     if changed:
         state.moving_scale = value
