@@ -372,24 +372,32 @@ def _demo_app(window, tmp_path, scene, size=(160, 120)):
     return A.App(win, session, A.initial_view(session, None, None), args, ctx=ctx)
 
 
+def _robot_app_selecting(window, tmp_path):
+    """An app on the first robot demo scene in a 400x300 window, panel hidden, its most opaque particle's object
+    selected: (app, that particle)."""
+    import glfw
+
+    from particlesplat.editing.open_scene import demo_scenes
+
+    app = _demo_app(window, tmp_path, next(p for p in demo_scenes() if "robot" in str(p)), size=(400, 300))
+    deadline = time.monotonic() + 5.0
+    while glfw.get_framebuffer_size(app.window) != (400, 300) and time.monotonic() < deadline:
+        glfw.wait_events_timeout(0.05)
+    g = app.session.editor.decode()
+    index = int(g.owner[g.owner >= 0][g.opacities[g.owner >= 0].argmax()])
+    app.state.selected, app.state.panel = index, False
+    return app, index
+
+
 def test_the_gizmo_centre_handle_slides_a_robot_object_on_its_plane(window, tmp_path):
     """On a robot demo scene at its default view, a drag that grabs the gizmo's centre handle (which covers a
     robot-sized object whole) slides the object on the horizontal plane: one translate, no height change, nothing
     below the table."""
-    import glfw
-
-    from particlesplat.editing.open_scene import demo_scenes
     from viewer.tools.object_tools import object_centre
 
-    app = _demo_app(window, tmp_path, next(p for p in demo_scenes() if "robot" in str(p)), size=(400, 300))
+    app, index = _robot_app_selecting(window, tmp_path)
     ed, io = app.session.editor, imgui.get_io()
     try:
-        deadline = time.monotonic() + 5.0
-        while glfw.get_framebuffer_size(app.window) != (400, 300) and time.monotonic() < deadline:
-            glfw.wait_events_timeout(0.05)
-        g = ed.decode()
-        index = int(g.owner[g.owner >= 0][g.opacities[g.owner >= 0].argmax()])
-        app.state.selected, app.state.panel = index, False
         app.run(2)
         uv, _ = app.view_camera(1.0).project(object_centre(ed, index)[None].float())
         sx, sy = app.pixel_ratio()
@@ -415,20 +423,11 @@ def test_the_gizmo_centre_handle_slides_a_robot_object_on_its_plane(window, tmp_
 def test_the_gizmo_scale_handles_scale_the_object_on_its_support(window, tmp_path):
     """With the scale handles on (S), dragging one away from the object's centre grows the object: one scale
     operation, its bottom still on the table."""
-    import glfw
-
-    from particlesplat.editing.open_scene import demo_scenes
     from viewer.tools.object_tools import object_centre
 
-    app = _demo_app(window, tmp_path, next(p for p in demo_scenes() if "robot" in str(p)), size=(400, 300))
+    app, index = _robot_app_selecting(window, tmp_path)
     ed, io = app.session.editor, imgui.get_io()
     try:
-        deadline = time.monotonic() + 5.0
-        while glfw.get_framebuffer_size(app.window) != (400, 300) and time.monotonic() < deadline:
-            glfw.wait_events_timeout(0.05)
-        g = ed.decode()
-        index = int(g.owner[g.owner >= 0][g.opacities[g.owner >= 0].argmax()])
-        app.state.selected, app.state.panel = index, False
         press(app, imgui.Key.s)
         assert app.state.gizmo_scale
         app.run(2)
