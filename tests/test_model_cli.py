@@ -10,6 +10,7 @@ import torch
 from test_model import scene_inputs, tiny_model
 
 from particlesplat.cli.main import main
+from particlesplat.core.outputs import OutputError
 from particlesplat.model import ConfigError, read_checkpoint, save_checkpoint
 from particlesplat.model.derive import DeriveError, derive_checkpoint
 from particlesplat.model.io import load_model, model_from_checkpoint
@@ -103,7 +104,7 @@ def test_bad_changes_are_refused_and_write_nothing(trained, tmp_path, change, me
 def test_set_never_writes_over_its_input(trained):
     path, _ = trained
     before = digest(path)
-    with pytest.raises(DeriveError, match="would replace the checkpoint it is made from"):
+    with pytest.raises(OutputError, match="is CHECKPOINT .*, which this command reads"):
         main(["model", "set", str(path), "refine_scale=0.5", "--out", str(path)])
     assert digest(path) == before
 

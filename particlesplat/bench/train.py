@@ -26,24 +26,34 @@ import torch
 
 from particlesplat.bench.render import machine_line
 from particlesplat.core.device import DEVICE_HELP, resolve_device
-from particlesplat.core.errors import OptionError
+from particlesplat.core.errors import OptionError, is_user_error, one_line, run_command
+from particlesplat.rendering.choice import rasterizer_list
 
 PHASES = ("data", "forward", "backward", "update")
 
 
-def run_case(config: Path, data: Path, run: Path | None, steps: int, warmup: int, threads: int, device: str) -> dict:
+def run_case(
+    config: Path, data: Path, run: Path | None, steps: int, warmup: int, threads: int, device: str, rasterizer: str
+) -> dict:
     """Time ``steps`` training steps after ``warmup`` in this process (called in a subprocess by :func:`main`)."""
     from particlesplat.model import load_config
+    from particlesplat.rendering.choice import resolve_rasterizer, set_default_rasterizer
     from particlesplat.training.trainer import Trainer
 
     torch.set_num_threads(threads)
+    set_default_rasterizer(rasterizer)
     cfg, tc = load_config(config)
     with tempfile.TemporaryDirectory(prefix="particlesplat-bench-train-") as tmp:
         out = Path(tmp) / "run"
         if run is not None:
             out.mkdir()
             shutil.copyfile(run / "last.pt", out / "last.pt")
-        trainer = Trainer(cfg, tc, data, out, device, resume=run is not None)
+        try:
+            trainer = Trainer(cfg, tc, data, out, device, resume=run is not None)
+        except Exception as e:  # the temporary copy is the user's --run: name that, not the copy
+            if not is_user_error(e) or run is None:
+                raise
+            raise OptionError(one_line(e).replace(str(out), f"--run {run}")) from None
         start = trainer.step
         try:
             for _ in range(warmup):
@@ -61,6 +71,7 @@ def run_case(config: Path, data: Path, run: Path | None, steps: int, warmup: int
     median = {k: statistics.median(r.get(k, 0.0) for r in rows) for k in (*PHASES, "step", "cpu")}
     return {
         "threads": threads,
+        "rasterizer": resolve_rasterizer(rasterizer, torch.device(device)),
         "start_step": start,
         "recipe_steps": tc.steps,
         "batch_size": tc.batch_size,
@@ -76,7 +87,9 @@ def _threads(text: str) -> list[int]:
         raise OptionError(f"--threads: a comma-separated list of thread counts, got {text!r}") from None
     if not values or min(values) < 1:
         raise OptionError(f"--threads: thread counts must be >= 1, got {text!r}")
-    return values
+    from particlesplat.core.threads import bounded_threads
+
+    return list(dict.fromkeys(bounded_threads(v, "--threads") for v in values))
 
 
 def check_arguments(args: argparse.Namespace) -> tuple[Path, Path, Path | None]:
@@ -97,6 +110,13 @@ def check_arguments(args: argparse.Namespace) -> tuple[Path, Path, Path | None]:
     data = Path(args.data)
     if not (data / "train").is_dir():
         raise OptionError(f"--data {data}: no train/ folder (a dataset written by 'particlesplat synth')")
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs([("--json", args.json)], [("--data", data), ("--config", config), ("--run", run)])
+    if run is not None:  # read here, so that a bad checkpoint is one line naming --run, before any case runs
+        from particlesplat.model import read_checkpoint
+
+        read_checkpoint(run / "last.pt")
     if args.steps < 1 or args.warmup < 0:
         raise OptionError(f"--steps must be >= 1 and --warmup >= 0, got {args.steps} and {args.warmup}")
     return config, data, run
@@ -115,38 +135,55 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=2, help="untimed steps first")
     parser.add_argument("--threads", default="1,2", help="comma-separated torch thread counts, one case each")
     parser.add_argument("--device", default=None, help=DEVICE_HELP)
+    parser.add_argument(
+        "--rasterizer",
+        default="auto",
+        help="comma-separated rasterizers to compare, one case each, in turns (torch, fused, auto; default: auto)",
+    )
     parser.add_argument("--json", help="also write the rows to this JSON file")
     parser.add_argument("--case", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     config, data, run = check_arguments(args)
     device = str(resolve_device(args.device))
-    if args.case:
-        print(json.dumps(run_case(config, data, run, args.steps, args.warmup, args.case, device)))
-        return 0
+    rasterizers = rasterizer_list(args.rasterizer)
+    if args.case:  # one case, in its own process: a user error is one line on stderr, exit 2
+
+        def case() -> int:
+            print(json.dumps(run_case(config, data, run, args.steps, args.warmup, args.case, device, rasterizers[0])))
+            return 0
+
+        return run_command("particlesplat bench train", case)
     threads = _threads(args.threads)
     print(machine_line())
     print(f"OpenMP wait policy: {os.environ.get('OMP_WAIT_POLICY') or 'the runtime default (spin, then sleep)'}")
     print(f"recipe {config}, data {data}, {'from ' + str(run / 'last.pt') if run else 'random initialisation'}")
     header = (
-        "| threads | s/step | data | forward | backward | update | CPU s/step | steps/s | recipe hours at this rate |"
+        "| threads | rasterizer | s/step | data | forward | backward | update | CPU s/step | steps/s | "
+        "recipe hours at this rate |"
     )
     print(header)
     print("|---" * (header.count("|") - 1) + "|")
     rows = []
-    for n in threads:
+    for n, rasterizer in [(n, r) for n in threads for r in rasterizers]:
         cmd = [sys.executable, "-m", "particlesplat.bench.train", "--case", str(n), "--data", str(data)]
         cmd += ["--config", str(config), "--steps", str(args.steps), "--warmup", str(args.warmup)]
-        cmd += ["--device", device] + (["--run", str(run)] if run else [])
+        cmd += ["--device", device, "--rasterizer", rasterizer] + (["--run", str(run)] if run else [])
         proc = subprocess.run(cmd, capture_output=True, text=True)
-        if proc.returncode != 0:
-            print(f"case threads={n} failed:\n{proc.stderr.strip()}", file=sys.stderr)
-            return 1
+        if proc.returncode != 0:  # a user error is its one line; a bug keeps its traceback
+            lines = proc.stderr.strip().splitlines() or ["(no message)"]
+            text = lines[-1] if proc.returncode == 2 else proc.stderr.strip()
+            print(
+                f"particlesplat bench train: case threads={n} rasterizer={rasterizer} failed: {text}", file=sys.stderr
+            )
+            return proc.returncode if proc.returncode == 2 else 1
         row = json.loads(proc.stdout.strip().splitlines()[-1])
         rows.append(row)
         step = row["step_s"]
         left = (row["recipe_steps"] - row["start_step"]) * step / 3600
         print(
-            f"| {n} | {step:.3f} | " + " | ".join(f"{row[p + '_s']:.3f}" for p in PHASES) + f" | {row['cpu_s']:.2f} | "
+            f"| {n} | {row['rasterizer']} | {step:.3f} | "
+            + " | ".join(f"{row[p + '_s']:.3f}" for p in PHASES)
+            + f" | {row['cpu_s']:.2f} | "
             f"{1 / step:.2f} | {row['recipe_steps'] * step / 3600:.1f} (steps {row['start_step']}-"
             f"{row['recipe_steps']}: {left:.1f}) |",
             flush=True,

@@ -23,6 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if len(args.run) > len(RUN_COLOURS):
         raise OptionError(f"curve: at most {len(RUN_COLOURS)} runs on one plot, got {len(args.run)}")
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs([("--out", args.out)], [("RUN", Path(folder) / "metrics.jsonl") for folder in args.run])
     runs = []
     for folder in args.run:
         path = Path(folder) / "metrics.jsonl"

@@ -13,6 +13,7 @@ from particlesplat.core.atomic import atomic_write
 from particlesplat.core.device import DEVICE_HELP
 from particlesplat.data.scene_meta import CHECKPOINT_HELP
 from particlesplat.model.fit import DEFAULT_FIT, FITTED
+from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -56,9 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "as the viewer and particlesplat render draw them; 0 = every particle)",
     )
     parser.add_argument("--device", default=None, help=DEVICE_HELP)
+    add_rasterizer_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    apply_rasterizer_option(args)
     from particlesplat.core.atomic import check_writable
     from particlesplat.core.device import resolve_device
     from particlesplat.core.errors import OptionError
@@ -73,6 +76,12 @@ def run(args: argparse.Namespace) -> int:
             f"--fit-steps must be >= 0, --fit-lr > 0 and --fit-latents some of {','.join(FITTED)}; got "
             f"{args.fit_steps}, {args.fit_lr:g}, {','.join(latents)[:80]}"
         )
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs(
+        [("--json", args.json), ("--figures", args.figures)],
+        [("--checkpoint", args.checkpoint), ("--data", args.data)],
+    )
     if args.json:
         check_writable(args.json)  # before the work, not after it
     if args.figures and args.num_figures > 0:

@@ -18,6 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("particlesplat.cli.train", "train a ParticleSplat model"),
     "eval": ("particlesplat.cli.eval", "evaluate a model on a folder of scenes"),
     "render": ("particlesplat.cli.render", "render a (possibly edited) scene headless to PNG"),
+    "export": ("particlesplat.cli.export", "write a (possibly edited) scene as .ply/.splat/.spz/.sog, or a bundle"),
     "encode": ("particlesplat.cli.encode", "write the particles of scene folders as .npz arrays"),
     "object": ("particlesplat.cli.object", "export an object to .ply, or insert it into another scene"),
     "curve": ("particlesplat.cli.curve", "plot the validation curves of training runs to PNG"),
@@ -100,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"particlesplat: unknown command '{name}'\n\n{_top_help()}", file=sys.stderr)
         return 2
     _choose_wait_policy(name)
+    from particlesplat.core.threads import bound_thread_variables
+
+    bound_thread_variables()  # before torch reads them
     if name == "bench":
         return _run_bench(rest)
     module = importlib.import_module(COMMANDS[name][0])

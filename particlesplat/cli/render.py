@@ -16,9 +16,10 @@ from particlesplat.core.viewpoints import Framing, View, check_fov, default_view
 from particlesplat.editing.open_scene import (
     add_source_arguments,
     check_source_arguments,
-    load_model_scene,
     load_ply_checked,
 )
+from particlesplat.formats.splat_files import SUFFIX_HELP
+from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
 MAX_SIDE = 8192  # pixels, as the viewer's --size
@@ -36,7 +37,10 @@ def _background(text: str) -> tuple[float, float, float]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_source_arguments(parser, ply_help="render a 3DGS .ply instead of a model scene")
+    add_source_arguments(
+        parser, ply_help=f"render a Gaussian file ({SUFFIX_HELP}, or a bundle's manifest.json) instead of a model scene"
+    )
+    add_rasterizer_option(parser)
     cam = parser.add_mutually_exclusive_group()
     cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
     cam.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
@@ -102,51 +106,18 @@ def _scene_and_gaussians(args: argparse.Namespace):
     check_source_arguments(args)
     if args.ply:
         return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None), None
-    from pathlib import Path
+    from particlesplat.editing.edited_scene import open_edited_scene
 
-    from particlesplat.editing.editor import SceneEditor, load_edit_file, scene_mismatch
-    from particlesplat.editing.scene_objects import SceneObjects
-
-    file, where = None, "edits"  # where: the edit file's name in messages
-    if getattr(args, "edits_from", None):
-        if args.edits:
-            raise ValueError("--edits and --edits-from: give one edit file")
-        from particlesplat.core.yamlsafe import load_yaml
-        from particlesplat.editing.editor import parse_edit_file
-        from particlesplat.formats.png import edits_text_from_png
-
-        where = f"{args.edits_from}: edits chunk"
-        file = parse_edit_file(load_yaml(edits_text_from_png(args.edits_from), where), where)
-    elif args.edits:  # version 1 (particle values) or 2 (object operations, replayed as the viewer did them)
-        file, where = load_edit_file(args.edits), str(args.edits)
-    scene, context = args.scene, args.context
-    if file is not None and scene is None and file.scene is not None and Path(file.scene).is_dir():
-        scene = file.scene  # the scene the edits were made on
-        if context is None and file.context is not None:
-            context = ",".join(str(int(c)) for c in file.context)
-    model, enc, name = load_model_scene(args.checkpoint, scene, context)
-    for warning in enc.warnings:
+    scene = open_edited_scene(args.checkpoint, args.scene, args.context, args.edits, getattr(args, "edits_from", None))
+    for warning in scene.warnings:
         print(f"particlesplat render: warning: {warning}", file=sys.stderr)
-    particles, objects = enc.particles, None
-    edits: str | dict = {}  # for png_text: the edit file's text, {} (no edits) without one
-    if file is not None:
-        warning = scene_mismatch(file, enc.path, enc.context)
-        if warning:
-            print(f"particlesplat render: warning: {where}: {warning}", file=sys.stderr)
-        from particlesplat.editing.scene_id import resolved, scene_digest
-
-        editor = SceneEditor(model, particles, enc.all_cameras, enc.context)
-        editor.apply_file(file, where)
-        for line in editor.sunk_objects():  # allowed (a user may want it), but never silently
-            print(f"particlesplat render: warning: {where}: {line}", file=sys.stderr)
-        particles, objects = editor.particles, SceneObjects(editor.objects())  # the user's groups win
-        edits = editor.edit_text(scene=resolved(enc.path), model=name, scene_sha256=scene_digest(enc.path))
+    model, enc, particles, edits, name = scene.model, scene.encoded, scene.particles, scene.edits, scene.model_name
     g = model.decode(particles).detach().to("cpu")
     arrays = None
     if getattr(args, "mode", "rgb") in NEEDS_PARTICLES:
         from particlesplat.analysis.particle_arrays import particle_arrays
 
-        arrays = particle_arrays(model, particles, g, objects=objects)
+        arrays = particle_arrays(model, particles, g, objects=scene.objects)  # the user's groups win
     return g, enc.all_cameras, edits, name, str(enc.path), scene_background(model), arrays
 
 
@@ -201,11 +172,20 @@ def resolve_camera(
 
 
 def run(args: argparse.Namespace) -> int:
+    apply_rasterizer_option(args)
     from particlesplat.core.atomic import check_writable
     from particlesplat.core.errors import EXIT_USER, one_line
+    from particlesplat.core.outputs import guard_outputs
     from particlesplat.formats.png import png_text, save_png
 
     try:
+        guard_outputs(
+            [("--out", args.out)],
+            [
+                (f"--{k.replace('_', '-')}", getattr(args, k, None))
+                for k in ("checkpoint", "scene", "ply", "edits", "edits_from", "camera_from")
+            ],
+        )
         try:
             check_writable(args.out)  # before the work, not after it
         except OSError as e:
@@ -219,6 +199,11 @@ def run(args: argparse.Namespace) -> int:
         if args.mode in NEEDS_PARTICLES and args.ply:
             raise OptionError(f"--mode {args.mode} needs a model scene (particles), not --ply")
         g, cameras, edits, model_name, source, background, arrays = _scene_and_gaussians(args)
+        from particlesplat.core.errors import blame
+        from particlesplat.core.gaussians import BadGaussiansError
+
+        with blame(f"{source}{' with ' + model_name if model_name else ''}", BadGaussiansError):
+            g.check("the Gaussians it decodes")  # the renderer's own check, as one line naming the input
         from particlesplat.data.scene_meta import read_framing
 
         camera, view = resolve_camera(args, cameras, g, read_framing(source) if cameras else None)
@@ -227,6 +212,10 @@ def run(args: argparse.Namespace) -> int:
                 f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
                 f"({MAX_SIDE} a side, {MAX_PIXELS} pixels)"
             )
+        from particlesplat.rendering.budget import check_render_memory
+
+        owners = int(g.owner.max()) + 2 if args.mode in ("particles", "objects") and g.num else 0
+        check_render_memory(g, camera, source, owners)  # the renderer's pairs, before it allocates them
         if args.turntable:
             from particlesplat.analysis.figures import check_turntable_targets, turntable_memory
             from particlesplat.core.limits import check_memory

@@ -7,12 +7,12 @@ Drawn with pillow only, so the library needs no plotting package.
 
 from __future__ import annotations
 
-import json
+import math
 from pathlib import Path
 
 from PIL import Image, ImageDraw
 
-from particlesplat.training.runlog import LogError
+from particlesplat.training.runlog import read_log
 
 WIDTH, HEIGHT, MARGIN = 560, 300, 48
 PSNR_COLOUR, ARI_COLOUR, AXIS_COLOUR = (31, 119, 180), (214, 39, 40), (60, 60, 60)
@@ -22,21 +22,14 @@ LEGEND_ROW = 14  # pixels a legend row takes below the plot
 
 
 def read_validation(path: Path) -> list[tuple[int, float, float]]:
-    """(step, PSNR dB, FG-ARI) of every validation record in ``path`` (a metrics.jsonl), in step order."""
-    rows = []
-    lines = path.read_text().splitlines()
-    for number, line in enumerate(lines, 1):
-        if not line.strip():
-            continue
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError as e:
-            if number == len(lines):  # a run killed mid-write leaves a torn last line
-                continue
-            raise LogError(f"{path}: line {number} is not JSON ({e.msg})") from e
-        if isinstance(rec, dict) and isinstance(rec.get("val"), dict):
-            v = rec["val"]
-            rows.append((int(rec["step"]), float(v["psnr"]), float(v.get("fg_ari", float("nan")))))
+    """(step, PSNR dB, FG-ARI) of every validation record in ``path`` (a metrics.jsonl, read line by line and
+    checked by :func:`particlesplat.training.runlog.read_log`), in step order; a metric that is null is NaN."""
+    records, _ = read_log(path, keep=lambda r: "val" in r)
+
+    def metric(v: object) -> float:
+        return float("nan") if v is None else float(v)  # type: ignore[arg-type]
+
+    rows = [(int(r["step"]), metric(r["val"].get("psnr")), metric(r["val"].get("fg_ari"))) for r in records]
     return sorted(rows)
 
 
@@ -61,8 +54,8 @@ def plot_curves(runs: list[tuple[str, list[tuple[int, float, float]]]], title: s
         d.text((x0 + 10, (y0 + y1) // 2), "no validation records yet", fill=AXIS_COLOUR)
         return img
     s_max = max(max(r[0] for r in rows_all), 1)
-    psnrs = [r[1] for r in rows_all]
-    p_lo, p_hi = min(15.0, min(psnrs)), max(30.0, max(psnrs))
+    psnrs = [r[1] for r in rows_all if math.isfinite(r[1])]  # NaN and inf are not drawn and set no axis
+    p_lo, p_hi = min([15.0, *psnrs]), max([30.0, *psnrs])
 
     def px(step: float) -> float:
         return x0 + (x1 - x0) * step / s_max
@@ -82,7 +75,7 @@ def plot_curves(runs: list[tuple[str, list[tuple[int, float, float]]]], title: s
         steps = [r[0] for r in rows]
         series = (([r[1] for r in rows], p_lo, p_hi, psnr_colour), ([r[2] for r in rows], 0.0, 1.0, ari_colour))
         for values, lo, hi, colour in series:
-            pts = [(px(s), py(v, lo, hi)) for s, v in zip(steps, values, strict=True) if v == v]
+            pts = [(px(s), py(v, lo, hi)) for s, v in zip(steps, values, strict=True) if math.isfinite(v)]
             if len(pts) > 1:
                 d.line(pts, fill=colour, width=2)
             for x, y in pts:

@@ -1,4 +1,5 @@
-"""The "Output" section: the folder, the screenshot size, screenshot and .ply exports."""
+"""The "Output" section: the folder, the screenshot size, screenshot and Gaussian file exports (.ply, .compressed.ply,
+.splat, .spz, .sog, or an object bundle)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,9 @@ from typing import TYPE_CHECKING
 
 from imgui_bundle import imgui
 
+from particlesplat.formats.splat_files import SUFFIXES
+
+from ..screenshot import BUNDLE
 from .buttons import action_button
 
 if TYPE_CHECKING:
@@ -25,5 +29,10 @@ def draw_output_section(ctx: ActionContext, fields: UiFields, object_selected: b
     action_button("export_ply", ctx)
     if object_selected:
         imgui.same_line()
-        if imgui.button("Export object .ply"):
+        if imgui.button("Export object"):
             ctx.requests.export_object = True
+    choices = [*SUFFIXES, BUNDLE]  # a bundle: a folder of one .ply an object (a particle for a file) + manifest
+    current = choices.index(fields.export_format) if fields.export_format in choices else 0
+    changed, idx = imgui.combo("format", current, choices)
+    if changed:
+        fields.export_format = choices[idx]
