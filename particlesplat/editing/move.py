@@ -75,6 +75,8 @@ def _placed(
                 f"({config.d_min}, {config.d_max}) m"
             )
         out["z_e"] = tuple(float(v) for v in torch.logit(extent))
+    if not all(math.isfinite(v) for values in out.values() for v in values):
+        raise MoveError(f"particle {i}: {factor:g} times its size is beyond what its latents can hold")
     return out
 
 
