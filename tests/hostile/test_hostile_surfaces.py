@@ -298,6 +298,18 @@ def _refusals(x: dict[str, Path]) -> dict[str, tuple[list[str], str]]:
             r"big.ply: 20,000 Gaussians covering [\d,]+ \(tile, Gaussian\) pairs at 2048x2048: needs about "
             ".* more than the memory",
         ),
+        "render --prune nan": (
+            ["render", "--checkpoint", good, "--scene", str(scene), "--prune", "nan", "--out", str(w / "o.png")],
+            r"--prune must be in \[0, 1\], got nan",
+        ),
+        "eval --z-t-threshold nan": (
+            ["eval", "--checkpoint", good, "--data", str(w / "split"), "--z-t-threshold", "nan"],
+            r"--z-t-threshold must be in \[0, 1\], got nan",
+        ),
+        "eval --fit-lr 1e300": (
+            ["eval", "--checkpoint", good, "--data", str(w / "split"), "--fit-steps", "2", "--fit-lr", "1e300"],
+            r"--fit-lr must be in \(0, 10\], got 1e\+300",
+        ),
         "bench edits --start -100": (["bench", "edits", "--start", "-100"], r"--start must be >= 0"),
         "bench edits --dilate -1": (["bench", "edits", "--dilate", "-1"], r"--dilate must be in \[0, 64\]"),
         # scene check on what its reader did not see
