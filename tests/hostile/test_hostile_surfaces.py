@@ -310,6 +310,10 @@ def _refusals(x: dict[str, Path]) -> dict[str, tuple[list[str], str]]:
             ["eval", "--checkpoint", good, "--data", str(w / "split"), "--fit-steps", "2", "--fit-lr", "1e300"],
             r"--fit-lr must be in \(0, 10\], got 1e\+300",
         ),
+        "bench render --n 1e9": (
+            ["bench", "render", "--n", "1000000000", "--sizes", "64"],
+            r"--n 1000000000 --sizes 64: 1,000,000,000 Gaussians rendered forward and backward at 64x64: needs",
+        ),
         "bench edits --start -100": (["bench", "edits", "--start", "-100"], r"--start must be >= 0"),
         "bench edits --dilate -1": (["bench", "edits", "--dilate", "-1"], r"--dilate must be in \[0, 64\]"),
         # scene check on what its reader did not see
