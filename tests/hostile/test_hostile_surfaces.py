@@ -94,6 +94,8 @@ def world(tmp_path_factory) -> dict[str, Path]:
     checkpoint_with(good, w / "huge.pt", weights=lambda v: v * 1e30)
     checkpoint_with(good, w / "int.pt", weights=lambda v: (v * 100).to(torch.int64))
     big_config_checkpoint(good, w / "big_init.pt", token_dim=2048, transformer_layers=64)
+    # with its run's train section, as a trainer writes it (without one, --init reads the shipped recipe's)
+    checkpoint_with(w / "big_init.pt", w / "big_init.pt", train=yaml.safe_load(cfg.read_text())["train"])
     big_config_checkpoint(good, w / "mismatch.pt", channels=16)  # its weights are of channels 8
     shutil.copytree(w / "run", w / "nan_bench_run")
     checkpoint_with(w / "run" / "last.pt", w / "nan_bench_run" / "last.pt", weights=lambda v: v * float("nan"))
