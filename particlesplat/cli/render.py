@@ -190,6 +190,9 @@ def run(args: argparse.Namespace) -> int:
             check_writable(args.out)  # before the work, not after it
         except OSError as e:
             raise OSError(f"--out {one_line(e)}") from None
+        from particlesplat.core.limits import check_option_range
+
+        check_option_range(args.prune, "--prune", 0.0, 1.0)  # an opacity
         if args.turntable < 0:
             raise OptionError(f"--turntable must be >= 0 frames, got {args.turntable}")
         if args.turntable and args.view is not None:
