@@ -48,9 +48,12 @@ def _sync_threads() -> None:
     """Run the kernels on as many threads as torch uses (the thread governor may lower it during training)."""
     import numba
 
-    n = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
+    wanted = torch.get_num_threads()
+    n = max(1, min(wanted, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
     if numba.get_num_threads() != n:
         numba.set_num_threads(n)
+        if torch.get_num_threads() != wanted:  # an OpenMP pool shared with torch: numba's count became torch's
+            torch.set_num_threads(wanted)
 
 
 @functools.lru_cache(maxsize=32)

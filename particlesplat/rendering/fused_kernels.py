@@ -41,6 +41,7 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"  # type: ignore[attr-defined]
 # the workqueue pool runs one parallel kernel at a time: callers from several Python threads take turns
 KERNEL_LOCK = threading.Lock()
+PARALLEL_CHUNK = 32  # prange iterations (tiles, Gaussians, instances) a thread takes at a time
 
 # no fastmath: the kernels must give the twin's results to float rounding (NaN and infinity rules included)
 jit = numba.njit(nogil=True, cache=True, error_model="numpy")
@@ -61,7 +62,9 @@ class _Compiled:
     def __call__(self, *args):
         if numba.get_num_threads() == 1:
             return self.serial(*args)
-        with KERNEL_LOCK:
+        # small chunks handed out as threads free up, not one equal share each: tiles' lists differ in length,
+        # and a thread the machine's other work delays would otherwise hold the whole kernel up
+        with KERNEL_LOCK, numba.parallel_chunksize(PARALLEL_CHUNK):
             return self.parallel(*args)
 
 
