@@ -21,16 +21,16 @@ import torch  # noqa: E402
 from imgui_bundle import imgui  # import before glfw so both use the same GLFW library
 
 from particlesplat.core.camera import Camera  # noqa: E402
+from particlesplat.core.options import attach_option_values  # noqa: E402
 from particlesplat.core.viewpoints import (
     DEFAULT_FOV,
     View,
-    attach_option_values,
     check_fov,
     default_view,  # noqa: E402
     parse_look,
     scene_background,
 )
-from particlesplat.editing.open_scene import add_source_arguments, check_source_arguments  # noqa: E402
+from particlesplat.editing.source_options import add_source_arguments, check_source_arguments  # noqa: E402
 
 from .commands import carry_out, save_edits  # noqa: E402
 from .controls import Viewport, ViewportControls  # noqa: E402

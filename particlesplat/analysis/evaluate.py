@@ -24,18 +24,18 @@ from particlesplat.analysis.metrics import (
     summarise_region_errors,
 )
 from particlesplat.analysis.particle_arrays import (
-    OBJECT_CENTRES,
     localisation_summary,
     object_localisation,
     scene_object_centres,
 )
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.camera import Camera
+from particlesplat.core.choices import DEFAULT_FIT, OBJECT_CENTRES
 from particlesplat.core.errors import OptionError, UserError
 from particlesplat.data.scene_meta import scene_pose
 from particlesplat.data.views import supervision_mask
 from particlesplat.editing.grouping import particle_objects
-from particlesplat.model.fit import DEFAULT_FIT, fit_particles
+from particlesplat.model.fit import fit_particles
 from particlesplat.rendering.api import render
 
 if TYPE_CHECKING:

@@ -35,13 +35,12 @@ import torch
 from torch import Tensor
 
 from particlesplat.core.atomic import atomic_path
+from particlesplat.core.choices import OBJECT_CENTRES, ObjectCentre
 from particlesplat.core.errors import UserError, one_line
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.sh import SH_C0
 from particlesplat.data.scene import SceneFormatError
 from particlesplat.editing.grouping import (
-    OBJECT_CENTRES,
-    ObjectCentre,
     dense_objects,
     drawing_particles,
     object_centres,

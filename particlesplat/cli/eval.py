@@ -6,13 +6,10 @@ import argparse
 import json
 from pathlib import Path
 
-from particlesplat.analysis.evaluate import evaluate_dataset, json_safe
-from particlesplat.analysis.metrics import FAR_HEIGHTS, OVERLAYS, PARTICLES_DRAW, REGIONS
-from particlesplat.analysis.particle_arrays import OBJECT_CENTRES
-from particlesplat.core.atomic import atomic_write
+from particlesplat.core.choices import DEFAULT_FIT, FITTED, OBJECT_CENTRES
 from particlesplat.core.device import DEVICE_HELP
-from particlesplat.data.scene_meta import CHECKPOINT_HELP
-from particlesplat.model.fit import DEFAULT_FIT, FITTED
+from particlesplat.data.families import CHECKPOINT_HELP
+from particlesplat.data.folders import check_file, check_split_folder
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -59,7 +56,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from particlesplat.core.atomic import check_writable
+    check_split_folder(args.data, "--data")  # before torch loads: a typo is one quick line
+    check_file(args.checkpoint, "--checkpoint")
+    from particlesplat.analysis.evaluate import evaluate_dataset, json_safe
+    from particlesplat.analysis.metrics import FAR_HEIGHTS, OVERLAYS, PARTICLES_DRAW, REGIONS
+    from particlesplat.core.atomic import atomic_write, check_writable
     from particlesplat.core.device import resolve_device
     from particlesplat.core.errors import OptionError
     from particlesplat.data.scene_meta import default_checkpoint

@@ -1,24 +1,26 @@
 """``particlesplat render``: render a (possibly edited) scene headless with the torch renderer.
 
 The default camera is the viewer's default view (:func:`particlesplat.core.viewpoints.default_view`);
-``--look AZ,EL,DIST`` and ``--fov DEG`` mean what they mean in ``particlesplat-viewer``.
+``--look AZ,EL,DIST`` and ``--fov DEG`` mean what they mean in ``particlesplat-viewer``. Several ``--mode`` and
+``--view`` values render several images from one encode. Torch loads after the arguments were checked.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
-from particlesplat.analysis.figures import MODES, NEEDS_PARTICLES
-from particlesplat.core.camera import Camera
+from particlesplat.core.choices import MODES, NEEDS_PARTICLES
 from particlesplat.core.errors import OptionError
-from particlesplat.core.viewpoints import Framing, View, check_fov, default_view, parse_look, scene_background
-from particlesplat.editing.open_scene import (
-    add_source_arguments,
-    check_source_arguments,
-    load_model_scene,
-    load_ply_checked,
-)
+from particlesplat.data.folders import check_existing, check_file
+from particlesplat.editing.source_options import add_source_arguments, check_source_arguments
+
+if TYPE_CHECKING:
+    from particlesplat.core.camera import Camera
+    from particlesplat.core.choices import RenderMode
+    from particlesplat.core.viewpoints import Framing, View
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
 MAX_SIDE = 8192  # pixels, as the viewer's --size
@@ -35,10 +37,51 @@ def _background(text: str) -> tuple[float, float, float]:
     return vals
 
 
+def _modes(text: str) -> tuple[str, ...]:
+    """``"rgb,depth"`` -> ("rgb", "depth"): each of :data:`MODES`, none twice."""
+    modes = tuple(m.strip() for m in text.split(","))
+    bad = [m for m in modes if m not in MODES]
+    if bad or len(set(modes)) != len(modes):
+        raise argparse.ArgumentTypeError(
+            f"expected one or more of {', '.join(MODES)}, comma-separated, each once; got {text[:80]!r}"
+        )
+    return modes
+
+
+def _views(text: str) -> tuple[int, ...]:
+    """``"4,10,16"`` -> (4, 10, 16): input camera indices, each once."""
+    try:
+        views = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected camera indices I or I,J,..., got {text[:80]!r}") from None
+    if len(set(views)) != len(views):
+        raise argparse.ArgumentTypeError(f"a camera index given twice: {text[:80]!r}")
+    return views
+
+
+def output_paths(out: str, modes: tuple[str, ...], views: tuple[int, ...] | None) -> dict[tuple[str, int | None], Path]:
+    """The PNG of each (mode, view): ``OUT`` for one image; several get ``OUT_STEM_viewI_MODE.png`` beside it (the
+    view part with several views, the mode part with several modes)."""
+    path = Path(out)
+    keys = [(m, v) for v in (views or (None,)) for m in modes]
+    if len(keys) == 1:
+        return {keys[0]: path}
+    several_views = views is not None and len(views) > 1
+    out_paths = {}
+    for m, v in keys:
+        parts = ([f"view{v}"] if several_views else []) + ([m] if len(modes) > 1 else [])
+        out_paths[(m, v)] = path.with_name(f"{path.stem}_{'_'.join(parts)}{path.suffix or '.png'}")
+    return out_paths
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_source_arguments(parser, ply_help="render a 3DGS .ply instead of a model scene")
     cam = parser.add_mutually_exclusive_group()
-    cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
+    cam.add_argument(
+        "--view",
+        type=_views,
+        help="render from input camera I of the scene (0-based); I,J,... renders one image a camera (OUT_viewI.png)",
+    )
     cam.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
     cam.add_argument(
         "--camera-from",
@@ -83,10 +126,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--mode",
-        choices=MODES,
-        default="rgb",
-        help="layer to render: the scene, depth, segmentation by particle or object, foreground or "
-        "background alone, or the particles' 3D keypoints or boxes over the scene",
+        type=_modes,
+        default=("rgb",),
+        help=f"layer(s) to render, of {', '.join(MODES)}: the scene, depth (with a colour bar in metres), "
+        "segmentation by particle or object, foreground or background alone, or the particles' 3D keypoints or "
+        "boxes over the scene; M,N,... renders one image a mode from one encode (OUT_M.png) (default: rgb)",
     )
     parser.add_argument(
         "--turntable",
@@ -99,13 +143,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _scene_and_gaussians(args: argparse.Namespace):
     """(Gaussians, all input cameras, edits (the edit file's text, else {}), model name, source, background colour,
     particle arrays or None) for the arguments (the arrays only for a --mode that draws from the particles)."""
+    from particlesplat.core.viewpoints import scene_background
+
     check_source_arguments(args)
+    from particlesplat.editing.editor import SceneEditor, load_edit_file, scene_mismatch
+    from particlesplat.editing.open_scene import load_model_scene, load_ply_checked
+
     if args.ply:
         return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None), None
-    from pathlib import Path
-
-    from particlesplat.editing.editor import SceneEditor, load_edit_file, scene_mismatch
-
     file, where = None, "edits"  # where: the edit file's name in messages
     if getattr(args, "edits_from", None):
         if args.edits:
@@ -140,7 +185,7 @@ def _scene_and_gaussians(args: argparse.Namespace):
         edits = editor.edit_text(scene=resolved(enc.path), model=name, scene_sha256=scene_digest(enc.path))
     g = model.decode(particles).detach().to("cpu")
     arrays = None
-    if getattr(args, "mode", "rgb") in NEEDS_PARTICLES:
+    if set(getattr(args, "mode", ("rgb",))) & set(NEEDS_PARTICLES):
         from particlesplat.analysis.particle_arrays import particle_arrays
 
         arrays = particle_arrays(model, particles, g)
@@ -156,6 +201,8 @@ def resolve_camera(
     With ``--view`` a missing --width or --height follows the input camera's aspect ratio (an
     input view is never stretched unless both are given).
     """
+    from particlesplat.core.viewpoints import View, check_fov, default_view, parse_look
+
     for name in ("width", "height"):
         if getattr(args, name) is not None and not 1 <= getattr(args, name) <= MAX_SIDE:
             raise OptionError(f"--{name} must be in [1, {MAX_SIDE}], got {getattr(args, name)}")
@@ -197,33 +244,57 @@ def resolve_camera(
     return view.camera(args.width or DEFAULT_WIDTH, args.height or DEFAULT_HEIGHT), view
 
 
+def _check_inputs(args: argparse.Namespace) -> None:
+    """What the user named exists, and the options agree: checked before torch loads (a typo is one quick line)."""
+    check_existing(args.scene, "--scene")
+    for name in ("ply", "checkpoint", "edits", "camera_from", "edits_from"):
+        check_file(getattr(args, name, None), f"--{name.replace('_', '-')}")
+    check_source_arguments(args)
+    several = len(args.mode) > 1 or (args.view is not None and len(args.view) > 1)
+    if args.turntable < 0:
+        raise OptionError(f"--turntable must be >= 0 frames, got {args.turntable}")
+    if args.turntable and args.view is not None:
+        raise OptionError("--turntable orbits the default target: use --look (or nothing), not --view")
+    if args.turntable and getattr(args, "camera_from", None):
+        raise OptionError("--turntable orbits the default target: use --look (or nothing), not --camera-from")
+    if args.turntable and several:
+        raise OptionError("--turntable renders one mode: give one --mode")
+    needs = [m for m in args.mode if m in NEEDS_PARTICLES]
+    if needs and args.ply:
+        raise OptionError(f"--mode {','.join(needs)} needs a model scene (particles), not --ply")
+
+
 def run(args: argparse.Namespace) -> int:
-    from particlesplat.core.atomic import check_writable
     from particlesplat.core.errors import EXIT_USER, one_line
-    from particlesplat.formats.png import png_text, save_png
 
     try:
-        try:
-            check_writable(args.out)  # before the work, not after it
-        except OSError as e:
-            raise OSError(f"--out {one_line(e)}") from None
-        if args.turntable < 0:
-            raise OptionError(f"--turntable must be >= 0 frames, got {args.turntable}")
-        if args.turntable and args.view is not None:
-            raise OptionError("--turntable orbits the default target: use --look (or nothing), not --view")
-        if args.turntable and getattr(args, "camera_from", None):
-            raise OptionError("--turntable orbits the default target: use --look (or nothing), not --camera-from")
-        if args.mode in NEEDS_PARTICLES and args.ply:
-            raise OptionError(f"--mode {args.mode} needs a model scene (particles), not --ply")
+        _check_inputs(args)
+    except (OSError, ValueError) as e:
+        print(f"particlesplat render: {one_line(e)}", file=sys.stderr)
+        return EXIT_USER
+    from particlesplat.core.atomic import check_writable
+    from particlesplat.formats.png import png_text, save_png
+
+    targets = output_paths(args.out, args.mode, args.view)
+    try:
+        for path in targets.values():
+            try:
+                check_writable(path)  # before the work, not after it
+            except OSError as e:
+                raise OSError(f"--out {one_line(e)}") from None
         g, cameras, edits, model_name, source, background, arrays = _scene_and_gaussians(args)
         from particlesplat.data.scene_meta import read_framing
 
-        camera, view = resolve_camera(args, cameras, g, read_framing(source) if cameras else None)
-        if camera.width > MAX_SIDE or camera.height > MAX_SIDE or camera.width * camera.height > MAX_PIXELS:
-            raise OptionError(
-                f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
-                f"({MAX_SIDE} a side, {MAX_PIXELS} pixels)"
-            )
+        framing = read_framing(source) if cameras else None
+        shots = {}  # view (None: --look, --camera-from or the default) -> (camera, View or None)
+        for v in args.view or (None,):
+            shots[v] = resolve_camera(argparse.Namespace(**{**vars(args), "view": v}), cameras, g, framing)
+            camera = shots[v][0]
+            if camera.width > MAX_SIDE or camera.height > MAX_SIDE or camera.width * camera.height > MAX_PIXELS:
+                raise OptionError(
+                    f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
+                    f"({MAX_SIDE} a side, {MAX_PIXELS} pixels)"
+                )
         if args.turntable:
             from particlesplat.analysis.figures import check_turntable_targets, turntable_memory
             from particlesplat.core.limits import check_memory
@@ -241,14 +312,11 @@ def run(args: argparse.Namespace) -> int:
     from particlesplat.analysis.figures import render_mode, write_turntable
 
     background = background if args.background is None else args.background
-    extra = {"scene": source, "mode": args.mode}
-    if view is not None:
-        extra.update(
-            look=f"{view.look.azimuth:.6g},{view.look.elevation:.6g},{view.look.distance:.6g}", fov=f"{view.fov:.6g}"
-        )
     try:
         if args.turntable:
+            camera, view = shots[None]
             assert view is not None  # resolve_camera has one but for --view and --camera-from, refused above
+            extra = {"scene": source, "mode": args.mode[0], **_look_text(view)}
             frames, anim = write_turntable(
                 g,
                 view,
@@ -256,20 +324,32 @@ def run(args: argparse.Namespace) -> int:
                 camera.width,
                 camera.height,
                 args.out,
-                args.mode,
+                args.mode[0],
                 background=background,
                 arrays=arrays,
                 save_frame=lambda p, rgb, c: save_png(p, rgb, png_text(c, edits, model_name, extra)),
             )
             print(f"saved {anim} and {len(frames)} frames {frames[0]} .. {frames[-1]} ({camera.width}x{camera.height})")
             return 0
-        path = save_png(
-            args.out,
-            render_mode(g, camera, args.mode, background=background, arrays=arrays),
-            png_text(camera, edits, model_name, extra),
-        )
+        for (mode, v), target in targets.items():
+            camera, view = shots[v]
+            extra = {"scene": source, "mode": mode, **_look_text(view)}
+            image = render_mode(
+                g, camera, cast("RenderMode", mode), background=background, arrays=arrays, colour_bar=True
+            )
+            path = save_png(target, image, png_text(camera, edits, model_name, extra))
+            print(f"saved {path} ({camera.width}x{camera.height}, {mode}, {g.num} Gaussians)")
     except OSError as e:
         print(f"particlesplat render: --out {args.out}: cannot write ({one_line(e.strerror or e)})", file=sys.stderr)
         return EXIT_USER
-    print(f"saved {path} ({camera.width}x{camera.height}, {g.num} Gaussians)")
     return 0
+
+
+def _look_text(view: View | None) -> dict[str, str]:
+    """The ``look`` and ``fov`` text chunks of a view (none for an input camera)."""
+    if view is None:
+        return {}
+    return {
+        "look": f"{view.look.azimuth:.6g},{view.look.elevation:.6g},{view.look.distance:.6g}",
+        "fov": f"{view.fov:.6g}",
+    }

@@ -5,10 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
-from particlesplat.data.synth import generate
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = (
@@ -38,6 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from particlesplat.data.synth import generate
+
     counts = {"train": args.train, "val": args.val, "test": args.test}
     # errors follow the one policy (particlesplat.core.errors.run_command): bad input, one line, exit 2
     if args.family == "robot":

@@ -1,4 +1,6 @@
-"""``particlesplat train``: train a model on a folder of scenes (the trainer: :mod:`particlesplat.training.trainer`)."""
+"""``particlesplat train``: train a model on a folder of scenes (the trainer: :mod:`particlesplat.training.trainer`).
+
+Torch loads only after the arguments, the recipe and its overrides were checked: a typo is one quick line."""
 
 from __future__ import annotations
 
@@ -7,12 +9,18 @@ import os
 import sys
 from pathlib import Path
 
-import torch
-
-from particlesplat.core.device import DEVICE_HELP, resolve_device
-from particlesplat.model import ModelConfig, TrainConfig, load_config, read_checkpoint
-from particlesplat.model.config import stored_model_config, stored_train_config
-from particlesplat.training.trainer import Trainer, recipe_path
+from particlesplat.core.bundled import recipe_path
+from particlesplat.core.device import DEVICE_HELP
+from particlesplat.core.options import parse_key_values
+from particlesplat.data.folders import check_file
+from particlesplat.model.config import (
+    ModelConfig,
+    TrainConfig,
+    load_config,
+    stored_model_config,
+    stored_train_config,
+    with_overrides,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,11 +56,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="run at most this many steps in this invocation, checkpoint, and exit (continue later with --resume)",
     )
+    parser.add_argument(
+        "overrides",
+        nargs="*",
+        metavar="SECTION.KEY=VALUE",
+        help="change keys of the recipe, checked as the file's are: a smoke test is 'train.steps=200 "
+        "train.val_every=50'; the run's config.yaml records the result",
+    )
 
 
 def init_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
     """``--init`` without ``--config``: the checkpoint's own model config (a fine-tune keeps the architecture of its
     weights) and the train section of the run that wrote it, or the bundled recipe's where it records none."""
+    from particlesplat.model import read_checkpoint
+
     ckpt = read_checkpoint(path)
     cfg = stored_model_config(ckpt["config"], f"{path}: config")
     train = ckpt.get("train")
@@ -70,9 +87,12 @@ def init_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
 
 
 def run(args: argparse.Namespace) -> int:
-    device = str(resolve_device(args.device))  # a typo or a missing device is one line before anything is read
-    if args.device is None and device != "cpu":
-        print(f"train: on {device}, which torch found (--device cpu trains on the CPU)", file=sys.stderr)
+    changes = parse_key_values(args.overrides, "train", "train.steps=200")  # before torch: quick errors
+    data = Path(args.data)
+    if not (data / "train").is_dir():
+        raise FileNotFoundError(f"--data {data}: no training split ({data / 'train'})")
+    check_file(args.config, "--config")
+    check_file(args.init, "--init")
     run_config = Path(args.out) / "config.yaml"
     if args.config is None and args.init is not None:
         cfg, tc = init_config(Path(args.init))
@@ -81,11 +101,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"--resume without --config: the run's own {run_config}", file=sys.stderr)
     else:
         cfg, tc = load_config(args.config or recipe_path())
+    cfg, tc = with_overrides(cfg, tc, changes)
+    if changes:
+        print("train: recipe changed by " + ", ".join(f"{k}={v}" for k, v in changes.items()), file=sys.stderr)
+    import torch
+
+    from particlesplat.core.device import resolve_device
+    from particlesplat.training.trainer import Trainer
+
+    device = str(resolve_device(args.device))  # a typo or a missing device is one line before anything is read
+    if args.device is None and device != "cpu":
+        print(f"train: on {device}, which torch found (--device cpu trains on the CPU)", file=sys.stderr)
     if tc.num_threads > 0:
         torch.set_num_threads(tc.num_threads)
-    data = Path(args.data)
-    if not (data / "train").is_dir():
-        raise FileNotFoundError(f"{data / 'train'}: no training split")
     if device.startswith("cuda") and int(os.environ.get("WORLD_SIZE", "1")) > 1:
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
     init = None if args.init is None else Path(args.init)

@@ -56,11 +56,6 @@ def read_family(path: str | PathLike) -> str | None:
     return None
 
 
-CHECKPOINT_HELP = (
-    "model checkpoint (default: the shipped model of the scenes' family: assets/model.pt, assets/robot/model.pt)"
-)
-
-
 def default_checkpoint(path: str | PathLike | None) -> Path:
     """The shipped model for the scenes at ``path`` (:func:`read_family`; the tabletop model when no family is
     recorded): what every command opens when ``--checkpoint`` is not given."""

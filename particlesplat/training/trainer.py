@@ -24,7 +24,6 @@ from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from particlesplat.core.atomic import atomic_path, atomic_write, stale_temporaries
-from particlesplat.core.bundled import bundled_assets
 from particlesplat.core.camera import Camera
 from particlesplat.core.device import resolve_device
 from particlesplat.core.errors import Interrupted, UserError, one_line
@@ -73,11 +72,6 @@ def _is_checkpoint(name: str) -> bool:
     tmp = re.match(r"^\.(.+)\.\d+\.[0-9a-f]{8}\.tmp", name)
     name = tmp.group(1) if tmp else name
     return name in (LAST, "best.pt") or bool(STEP_FILE.match(name))
-
-
-def recipe_path() -> Path:
-    """The bundled recipe (``assets/model.yaml`` in the installed ``particlesplat.assets`` package)."""
-    return bundled_assets() / "model.yaml"
 
 
 def render_views(
