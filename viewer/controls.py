@@ -42,6 +42,8 @@ class Viewport:
         height: the framebuffer's height in pixels.
         copy_offset: (3,) metres between an object and its copy (Ctrl+D).
         gizmo_capturing: the object gizmo holds the mouse this frame.
+        chords: the Ctrl chords pressed since the last frame, with their modifiers as the key events carried them
+            (:class:`viewer.chords.ChordQueue`): ("z", shift held), ...
     """
 
     orbit: OrbitCamera
@@ -55,6 +57,7 @@ class Viewport:
     height: int = 1
     copy_offset: Sequence[float] = (0.0, 0.0, 0.0)
     gizmo_capturing: bool = False
+    chords: Sequence[tuple[str, bool]] = ()
 
 
 CLICK_SLOP = 3.0  # window pixels a press may move and still count as a click
@@ -178,16 +181,17 @@ class ViewportControls:
     @staticmethod
     def _keys(vp: Viewport, io) -> None:
         K = imgui.Key
-        if io.key_ctrl:
-            if imgui.is_key_pressed(K.z):
-                (vp.session.redo if io.key_shift else vp.session.undo)()
-            elif imgui.is_key_pressed(K.y):
+        for key, shift in vp.chords:  # Ctrl held when the key went down, as the key event said
+            if key == "z":
+                (vp.session.redo if shift else vp.session.undo)()
+            elif key == "y":
                 vp.session.redo()
-            elif imgui.is_key_pressed(K.s, False) and vp.session.editable:
+            elif key == "s" and vp.session.editable:
                 vp.requests.save_edits = True
-            elif imgui.is_key_pressed(K.d, False) and vp.session.editable:
+            elif key == "d" and vp.session.editable:
                 vp.state.selected, message = duplicate_selected(vp.session, vp.state.selected, vp.copy_offset)
                 vp.status(message)
+        if io.key_ctrl or vp.chords:
             return
         pressed = lambda key: imgui.is_key_pressed(key, False)  # noqa: E731
         if pressed(K.r):

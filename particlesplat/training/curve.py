@@ -1,13 +1,14 @@
-"""``particlesplat curve``: plot the validation curves of one to three runs (PSNR and FG-ARI against step) to a
-small PNG.
+"""``particlesplat curve``: plot the validation curves of one to three runs (PSNR and FG-ARI against step) and,
+below them, their training loss, to a small PNG.
 
-Reads ``RUN/metrics.jsonl`` (the ``val`` records ``particlesplat train`` writes); a torn last line is skipped.
-Drawn with pillow only, so the library needs no plotting package.
+Reads ``RUN/metrics.jsonl`` (the ``val`` records and the logged training steps ``particlesplat train`` writes); a
+torn last line is skipped. Drawn with pillow only, so the library needs no plotting package.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 from PIL import Image, ImageDraw
@@ -15,6 +16,7 @@ from PIL import Image, ImageDraw
 from particlesplat.training.runlog import LogError
 
 WIDTH, HEIGHT, MARGIN = 560, 300, 48
+LOSS_HEIGHT = 200  # pixels of the training-loss panel below the validation plot
 PSNR_COLOUR, ARI_COLOUR, AXIS_COLOUR = (31, 119, 180), (214, 39, 40), (60, 60, 60)
 # (PSNR, FG-ARI) colours of each run on one plot: the first run's are PSNR_COLOUR and ARI_COLOUR
 RUN_COLOURS = ((PSNR_COLOUR, ARI_COLOUR), ((23, 190, 207), (255, 127, 14)), ((44, 160, 44), (148, 103, 189)))
@@ -23,7 +25,18 @@ LEGEND_ROW = 14  # pixels a legend row takes below the plot
 
 def read_validation(path: Path) -> list[tuple[int, float, float]]:
     """(step, PSNR dB, FG-ARI) of every validation record in ``path`` (a metrics.jsonl), in step order."""
-    rows = []
+    return read_log(path)[0]
+
+
+def read_training(path: Path) -> list[tuple[int, float]]:
+    """(step, training loss: the running mean the trainer logs) of every logged step in ``path``, in step order."""
+    return read_log(path)[1]
+
+
+def read_log(path: Path) -> tuple[list[tuple[int, float, float]], list[tuple[int, float]]]:
+    """The validation rows (:func:`read_validation`) and the training-loss rows (:func:`read_training`) of ``path``
+    in one reading. LogError naming the line for a line that is not JSON but the last (a torn write)."""
+    rows, losses = [], []
     lines = path.read_text().splitlines()
     for number, line in enumerate(lines, 1):
         if not line.strip():
@@ -37,7 +50,9 @@ def read_validation(path: Path) -> list[tuple[int, float, float]]:
         if isinstance(rec, dict) and isinstance(rec.get("val"), dict):
             v = rec["val"]
             rows.append((int(rec["step"]), float(v["psnr"]), float(v.get("fg_ari", float("nan")))))
-    return sorted(rows)
+        elif isinstance(rec, dict) and isinstance(rec.get("loss"), (int, float)) and "step" in rec:
+            losses.append((int(rec["step"]), float(rec["loss"])))
+    return sorted(rows), sorted(losses)
 
 
 def plot_curve(rows: list[tuple[int, float, float]], title: str = "") -> Image.Image:
@@ -45,11 +60,32 @@ def plot_curve(rows: list[tuple[int, float, float]], title: str = "") -> Image.I
     return plot_curves([("", rows)], title)
 
 
-def plot_curves(runs: list[tuple[str, list[tuple[int, float, float]]]], title: str = "") -> Image.Image:
+def plot_curves(
+    runs: list[tuple[str, list[tuple[int, float, float]]]],
+    title: str = "",
+    training: list[list[tuple[int, float]]] | None = None,
+) -> Image.Image:
     """Up to ``len(RUN_COLOURS)`` runs on one plot, (label, rows) each: PSNR (left axis, dB) and FG-ARI (right
-    axis, 0-1) against step, a colour pair per run; WIDTH x (HEIGHT + LEGEND_ROW per run after the first)."""
+    axis, 0-1) against step, a colour pair per run; WIDTH x (HEIGHT + LEGEND_ROW per run after the first).
+    ``training``: each run's (step, loss) rows; when any has rows, a panel of LOSS_HEIGHT pixels below plots them
+    (:func:`plot_losses`) on the same step axis."""
     if not 1 <= len(runs) <= len(RUN_COLOURS):
         raise ValueError(f"plot_curves draws 1 to {len(RUN_COLOURS)} runs, got {len(runs)}")
+    losses = [r for rows in training or [] for r in rows]
+    if losses:
+        s_max = max([r[0] for _, rows in runs for r in rows] + [r[0] for r in losses] + [1])
+        top = _plot_val(runs, title, s_max)
+        bottom = plot_losses(training or [], s_max, [label for label, _ in runs])
+        img = Image.new("RGB", (WIDTH, top.height + bottom.height), "white")
+        img.paste(top, (0, 0))
+        img.paste(bottom, (0, top.height))
+        return img
+    return _plot_val(runs, title, None)
+
+
+def _plot_val(runs: list[tuple[str, list[tuple[int, float, float]]]], title: str, step_max: int | None) -> Image.Image:
+    """The validation plot of :func:`plot_curves`; ``step_max``: the step at the right edge (None: the last
+    validation's)."""
     img = Image.new("RGB", (WIDTH, HEIGHT + LEGEND_ROW * (len(runs) - 1)), "white")
     d = ImageDraw.Draw(img)
     x0, x1, y0, y1 = MARGIN, WIDTH - MARGIN, HEIGHT - MARGIN, MARGIN // 2 + 8
@@ -60,7 +96,7 @@ def plot_curves(runs: list[tuple[str, list[tuple[int, float, float]]]], title: s
     if not rows_all:
         d.text((x0 + 10, (y0 + y1) // 2), "no validation records yet", fill=AXIS_COLOUR)
         return img
-    s_max = max(max(r[0] for r in rows_all), 1)
+    s_max = step_max or max(max(r[0] for r in rows_all), 1)
     psnrs = [r[1] for r in rows_all]
     p_lo, p_hi = min(15.0, min(psnrs)), max(30.0, max(psnrs))
 
@@ -91,4 +127,45 @@ def plot_curves(runs: list[tuple[str, list[tuple[int, float, float]]]], title: s
         prefix = f"{label}: " if label else ""
         d.text((x0, row_y), f"{prefix}val PSNR (dB, left)", fill=psnr_colour)
         d.text((x0 + 8 * len(prefix) + 160, row_y), "val FG-ARI (right)", fill=ari_colour)
+    return img
+
+
+def plot_losses(training: list[list[tuple[int, float]]], step_max: int, labels: list[str]) -> Image.Image:
+    """WIDTH x LOSS_HEIGHT: each run's training loss against step (0 .. ``step_max`` across), in its PSNR colour;
+    a log axis when every loss is positive, else a linear one."""
+    img = Image.new("RGB", (WIDTH, LOSS_HEIGHT), "white")
+    d = ImageDraw.Draw(img)
+    x0, x1, y0, y1 = MARGIN, WIDTH - MARGIN, LOSS_HEIGHT - MARGIN, 8
+    d.rectangle([x0, y1, x1, y0], outline=AXIS_COLOUR)
+    values = [v for rows in training for _, v in rows if math.isfinite(v)]
+    if not values:
+        return img
+    log = min(values) > 0
+    f = (lambda v: math.log10(v)) if log else (lambda v: v)  # noqa: E731
+    lo, hi = f(min(values)), f(max(values))
+    hi = hi if hi > lo else lo + 1.0
+    for k in range(3):  # gridlines and tick labels
+        frac = k / 2
+        y = y0 - (y0 - y1) * frac
+        d.line([x0, y, x1, y], fill=(225, 225, 225))
+        value = lo + frac * (hi - lo)
+        d.text((4, y - 6), f"{10**value:.3g}" if log else f"{value:.3g}", fill=AXIS_COLOUR)
+        d.text((x0 + (x1 - x0) * frac - 12, y0 + 6), f"{int(frac * step_max)}", fill=AXIS_COLOUR)
+    for rows, (colour, _) in zip(training, RUN_COLOURS, strict=False):
+        pts = [
+            (x0 + (x1 - x0) * s / step_max, y0 - (y0 - y1) * (f(v) - lo) / (hi - lo))
+            for s, v in rows
+            if math.isfinite(v) and (v > 0 or not log)
+        ]
+        if len(pts) > 1:
+            d.line(pts, fill=colour, width=1)
+        elif pts:
+            x, y = pts[0]
+            d.ellipse([x - 2, y - 2, x + 2, y + 2], fill=colour)
+    names = ", ".join(label for label in labels if label)
+    d.text(
+        (x0, y0 + 22),
+        f"training loss ({'log scale' if log else 'linear'}){': ' + names if names else ''}",
+        fill=AXIS_COLOUR,
+    )
     return img
