@@ -97,3 +97,29 @@ def test_overrides_change_the_recipe_and_are_checked():
         with_overrides(cfg, tc, {"steps": 5})
     with pytest.raises(ConfigError, match=r"override train\.lr"):
         with_overrides(cfg, tc, {"train.lr": float("nan")})
+
+
+def test_eval_figure_writes_each_views_psnr_and_palette_objects(tmp_path):
+    """The grid's render row carries each view's PSNR against its target (a float64 brute force of the same
+    images), and its objects row the shared palette's colours (background grey)."""
+    import torch
+
+    from particlesplat.analysis.evaluate import FIGURE_LABEL_WIDTH, save_figure
+    from particlesplat.core import palette
+
+    H = W = 64
+    target = torch.rand(3, 3, H, W, generator=torch.Generator().manual_seed(0))
+    rgb = (target + torch.tensor([0.05, 0.1, 0.2]).view(3, 1, 1, 1)).clamp(0, 1)
+    seg = torch.full((3, H, W), -1, dtype=torch.int64)
+    seg[:, :20, :20], seg[:, 30:, 30:] = 0, 1
+    item = {"context_rgb": target[:2], "target_rgb": target}
+    res = {"renders": {"rgb": rgb, "depth": torch.rand(3, 1, H, W) * 3.0, "seg_objects": seg}}
+    scores = save_figure(tmp_path / "f.png", item, res)
+    truth = [-10.0 * np.log10(((rgb[i].double() - target[i].double()) ** 2).mean().item()) for i in range(3)]
+    np.testing.assert_allclose(scores, truth, atol=1e-4)
+    assert scores[0] > scores[1] > scores[2]
+    img = np.asarray(Image.open(tmp_path / "f.png").convert("RGB"))
+    objects = img[4 * H : 5 * H, FIGURE_LABEL_WIDTH : FIGURE_LABEL_WIDTH + W]
+    for (y, x), key in (((5, 5), 0), ((50, 50), 1), ((5, 50), -1)):
+        np.testing.assert_array_equal(objects[y, x], np.round(np.array(palette.colour(key)) * 255))
+    assert not np.array_equal(objects[5, 5], objects[50, 50])  # distinct object colours

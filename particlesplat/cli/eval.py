@@ -8,6 +8,7 @@ from pathlib import Path
 
 from particlesplat.core.choices import DEFAULT_FIT, FITTED, OBJECT_CENTRES
 from particlesplat.core.device import DEVICE_HELP
+from particlesplat.core.errors import OptionError
 from particlesplat.data.families import CHECKPOINT_HELP
 from particlesplat.data.folders import check_file, check_split_folder
 
@@ -56,24 +57,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_split_folder(args.data, "--data")  # before torch loads: a typo is one quick line
-    check_file(args.checkpoint, "--checkpoint")
-    from particlesplat.analysis.evaluate import evaluate_dataset, json_safe
-    from particlesplat.analysis.metrics import FAR_HEIGHTS, OVERLAYS, PARTICLES_DRAW, REGIONS
-    from particlesplat.core.atomic import atomic_write, check_writable
-    from particlesplat.core.device import resolve_device
-    from particlesplat.core.errors import OptionError
-    from particlesplat.data.scene_meta import default_checkpoint
-    from particlesplat.model import load_model, read_checkpoint
-    from particlesplat.model.provenance import describe
-
-    device = resolve_device(args.device)
     latents = tuple(k.strip() for k in args.fit_latents.split(","))
     if args.fit_steps < 0 or not args.fit_lr > 0 or not set(latents) <= set(FITTED):
         raise OptionError(
             f"--fit-steps must be >= 0, --fit-lr > 0 and --fit-latents some of {','.join(FITTED)}; got "
             f"{args.fit_steps}, {args.fit_lr:g}, {','.join(latents)[:80]}"
         )
+    check_split_folder(args.data, "--data")  # before torch loads: a typo is one quick line
+    check_file(args.checkpoint, "--checkpoint")
+    from particlesplat.analysis.evaluate import evaluate_dataset, json_safe
+    from particlesplat.analysis.metrics import FAR_HEIGHTS, OVERLAYS, PARTICLES_DRAW, REGIONS
+    from particlesplat.core.atomic import atomic_write, check_writable
+    from particlesplat.core.device import resolve_device
+    from particlesplat.data.scene_meta import default_checkpoint
+    from particlesplat.model import load_model, read_checkpoint
+    from particlesplat.model.provenance import describe
+
+    device = resolve_device(args.device)
     if args.json:
         check_writable(args.json)  # before the work, not after it
     if args.figures and args.num_figures > 0:

@@ -37,6 +37,7 @@ from particlesplat.model.losses import elbo, scene_kl, view_error
 from particlesplat.model.provenance import Provenance, RunClock
 from particlesplat.model.static_background import WorkspaceBackground
 from particlesplat.rendering.api import render_batch
+from particlesplat.training.eta import StepTimes
 from particlesplat.training.runlock import LOCK_NAME, RunLock
 from particlesplat.training.runlog import read_log
 
@@ -668,16 +669,24 @@ class Trainer:
     def _loop(self, end: int, stop: dict | None = None) -> None:
         tc = self.tc
         stop = stop if stop is not None else {}
-        self._bar = bar = tqdm(
-            total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0, dynamic_ncols=True
+        self._bar = bar = tqdm(  # time left: the median of the recent steps (particlesplat.training.eta)
+            total=tc.steps,
+            initial=self.step,
+            desc="train",
+            disable=self.rank != 0,
+            dynamic_ncols=True,
+            bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}, {postfix}]",
         )
+        step_times = StepTimes()
         run_avg = self.run_avg
         skipped_in_a_row = 0
         governor = None
         if tc.adapt_threads and self.device.type == "cpu" and not self.distributed:
             governor = ThreadGovernor(tc.num_threads or torch.get_num_threads())
         while self.step < end:
+            t0 = time.perf_counter()
             parts = self.train_step()
+            step_times.add(time.perf_counter() - t0)
             bar.update(1)
             if governor is not None and self.step % THREAD_CHECK_STEPS == 0:
                 governor.update()
@@ -699,6 +708,8 @@ class Trainer:
                     run_avg[k] = v if k not in run_avg else 0.9 * run_avg[k] + 0.1 * v
             if run_avg:
                 bar.set_postfix(
+                    left=step_times.eta(tc.steps - self.step),
+                    s_step=f"{step_times.median():.2f}",
                     loss=f"{run_avg['loss']:.1f}",
                     psnr=f"{run_avg['psnr']:.2f}",
                     active=f"{run_avg['active']:.1f}",
