@@ -6,6 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
+from particlesplat.core.atomic import check_writable
 from particlesplat.core.choices import DEFAULT_FIT, FITTED, OBJECT_CENTRES
 from particlesplat.core.device import DEVICE_HELP
 from particlesplat.core.errors import OptionError
@@ -63,21 +64,21 @@ def run(args: argparse.Namespace) -> int:
             f"--fit-steps must be >= 0, --fit-lr > 0 and --fit-latents some of {','.join(FITTED)}; got "
             f"{args.fit_steps}, {args.fit_lr:g}, {','.join(latents)[:80]}"
         )
+    if args.json:
+        check_writable(args.json)  # before the work, not after it
+    if args.figures and args.num_figures > 0:
+        check_writable(Path(args.figures) / "figure.png")
     check_split_folder(args.data, "--data")  # before torch loads: a typo is one quick line
     check_file(args.checkpoint, "--checkpoint")
     from particlesplat.analysis.evaluate import evaluate_dataset, json_safe
     from particlesplat.analysis.metrics import FAR_HEIGHTS, OVERLAYS, PARTICLES_DRAW, REGIONS
-    from particlesplat.core.atomic import atomic_write, check_writable
+    from particlesplat.core.atomic import atomic_write
     from particlesplat.core.device import resolve_device
     from particlesplat.data.scene_meta import default_checkpoint
     from particlesplat.model import load_model, read_checkpoint
     from particlesplat.model.provenance import describe
 
     device = resolve_device(args.device)
-    if args.json:
-        check_writable(args.json)  # before the work, not after it
-    if args.figures and args.num_figures > 0:
-        check_writable(Path(args.figures) / "figure.png")
     path = args.checkpoint or default_checkpoint(args.data)  # the shipped model of the data's family
     model = load_model(path, device=device)
     ckpt = read_checkpoint(path)
