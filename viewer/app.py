@@ -525,10 +525,11 @@ def destroy_window(window) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """The viewer under the error policy (:func:`particlesplat.core.errors.run_command`): a bad file or argument is
-    one line and exit code 2, Ctrl-C one line and 130; a bug keeps its traceback."""
-    from particlesplat.core.errors import run_command
+    one line and exit code 2, Ctrl-C one line and 130 (the process then ends at once, its edits autosaved); a bug
+    keeps its traceback."""
+    from particlesplat.core.errors import end_at_once_if_interrupted, run_command
 
-    return run_command("particlesplat-viewer", lambda: _main(argv))
+    return end_at_once_if_interrupted(run_command("particlesplat-viewer", lambda: _main(argv)))
 
 
 def _main(argv: list[str] | None = None) -> int:
