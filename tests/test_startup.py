@@ -125,3 +125,17 @@ def test_interrupt_ends_at_once_with_its_line_and_code():
         timeout=60,
     )
     assert ok.returncode == 0 and "teardown ran" in ok.stdout
+
+
+def test_the_viewer_without_a_display_ends_with_one_line():
+    """No DISPLAY (a server, an ssh session): one line naming DISPLAY and xvfb-run, exit code 2, before the scene
+    is encoded; no traceback."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    proc = subprocess.run(
+        [sys.executable, "-m", "viewer.app"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert "DISPLAY" in proc.stderr and "xvfb-run -a particlesplat-viewer" in proc.stderr
