@@ -1,13 +1,6 @@
-"""``particlesplat encode``: write the particles of every scene folder under a folder as ``.npz`` arrays.
-
-``OUT/<scene>.npz`` holds the arrays of :mod:`particlesplat.analysis.particle_arrays` (scene folders nested under
-``--data``, e.g. ``train/scene_00000``, keep their relative path). Scenes are encoded ``--batch`` at a time
-in one forward pass; each file is written under a temporary name and renamed when complete. A scene whose
-``.npz`` exists is skipped only when that file proves it is what this run would write: it opens, and its
-``meta`` records the same checkpoint (SHA-256), the same ``--context`` request, object centre and format
-version; otherwise it is encoded again (``--force``: every scene). Temporary files of an earlier run that was
-killed are removed at the start, so an interrupted run resumes cleanly.
-"""
+"""``particlesplat encode``: write the particles of every scene folder under a folder as ``.npz`` arrays (the
+work, resuming and what makes a file stale: :mod:`particlesplat.analysis.encode_folder`). Torch loads after the
+arguments and paths were checked."""
 
 from __future__ import annotations
 
