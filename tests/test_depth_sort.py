@@ -9,6 +9,8 @@ import torch
 
 from viewer.gl.depth_sort import DepthSorter, depth_order, resolve_sort_device
 
+pytestmark = pytest.mark.usefixtures("rasterizer")  # every test: fused kernels and torch twin
+
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 

@@ -222,14 +222,28 @@ def _expect_error(path: Path, *needles: str) -> None:
         assert n in msg, msg
 
 
-@pytest.mark.parametrize("bad", [float("nan"), float("inf"), float("-inf")])
-@pytest.mark.parametrize("prop", ["opacity", "y", "f_rest_4", "scale_2"])
+@pytest.mark.parametrize(
+    "prop, bad",
+    [(p, v) for p in ("y", "f_rest_4", "scale_2") for v in (float("nan"), float("inf"), float("-inf"))]
+    + [("opacity", float("nan"))],  # an opacity logit of ±inf is an opacity of 1 or 0 (the next test)
+)
 def test_non_finite_values_are_rejected(tmp_path: Path, bad: float, prop: str) -> None:
     rows, _ = hand_rows(1)
     rows[1][prop] = bad
     path = tmp_path / "bad.ply"
     write_by_hand(path, rows, layout_names(1, owner=False))
     _expect_error(path, prop)
+
+
+@pytest.mark.parametrize("logit, opacity", [(float("inf"), 1.0), (float("-inf"), 0.0)])
+def test_an_infinite_opacity_logit_is_opacity_one_or_zero(tmp_path: Path, logit: float, opacity: float) -> None:
+    """Tools that quantise opacity to 8 bits write a stored 0 (or 255) back as a logit of -inf (+inf)."""
+    rows, want = hand_rows(1)
+    rows[1]["opacity"] = logit
+    want["opacities"] = np.array([want["opacities"][0], opacity])
+    path = tmp_path / "inf.ply"
+    write_by_hand(path, rows, layout_names(1, owner=False))
+    assert_matches(Gaussians.load_ply(path), want)
 
 
 @pytest.mark.parametrize("missing", ["scale_1", "rot_3", "opacity", "f_dc_2", "x"])

@@ -8,6 +8,8 @@ import torch
 from particlesplat import Camera, Gaussians, render
 from particlesplat.core.gaussians import quats_to_rotations
 
+pytestmark = pytest.mark.usefixtures("rasterizer")  # every test: fused kernels and torch twin
+
 
 @pytest.mark.parametrize("scale", [1e-30, 5e-13, 1.0, 1e20])
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])

@@ -16,6 +16,8 @@ from reference_render import ReferenceResult, reference_render
 
 from particlesplat import Camera, Gaussians, render
 
+pytestmark = pytest.mark.usefixtures("rasterizer")  # every test: fused kernels and torch twin
+
 F32, F64 = torch.float32, torch.float64
 FIELDS = ("means", "quats", "scales", "opacities", "sh")
 BG = (0.2, 0.3, 0.4)

@@ -9,6 +9,8 @@ from reference_render import reference_render
 from particlesplat import Camera, Gaussians
 from particlesplat.rendering.dense import render_dense
 
+pytestmark = pytest.mark.usefixtures("rasterizer")  # every test: fused kernels and torch twin
+
 
 def _scene(seed: int) -> tuple[Gaussians, Camera]:
     gen = torch.Generator().manual_seed(seed)

@@ -3,11 +3,14 @@ of both Gaussian sets, and area pooling against hand-computed blocks."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from particlesplat import Camera, Gaussians, render
 from particlesplat.core.sh import rgb_to_sh_dc
 from particlesplat.rendering.layers import composite_over, pool_layer, render_layer
+
+pytestmark = pytest.mark.usefixtures("rasterizer")  # every test: fused kernels and torch twin
 
 BG = (0.2, 0.3, 0.4)
 

@@ -63,3 +63,14 @@ def test_a_turned_scaled_raised_scene_is_reported_and_fixed(tmp_path, capsys):
         json.loads(fixed.read_text())["depth_unit_scale_factor"]
         == json.loads((src / "transforms.json").read_text())["depth_unit_scale_factor"]
     )
+
+
+def test_a_robot_demo_scene_is_judged_against_robot_rigs_and_found_turned(capsys):
+    """A shipped robot scene (the narrow world: robot at +y) is at the robot rigs' scale, and turned a quarter
+    turn from robosuite's convention (robot at -x); the transform turns +y to -x."""
+    robot = [p for p in demo_scenes() if p.parent.parent.name == "robot"][0]
+    assert main(["scene", "check", str(robot)]) == 1
+    out = capsys.readouterr().out
+    assert "robot family" in out and "robot training scenes' are 0.8-1.25 m: ok" in out and "s = 1," in out
+    assert "turned -90 degrees about z" in out
+    assert "R = [+0.000000 -1.000000 +0.000000; +1.000000 +0.000000 +0.000000; +0.000000 +0.000000 +1.000000]" in out

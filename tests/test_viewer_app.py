@@ -95,7 +95,7 @@ def test_screenshot_and_export(app, tmp_path):
 
 
 def test_export_object_ply(app, tmp_path):
-    """The panel's "Export object .ply": the selected particle's object alone, its Gaussians as decoded."""
+    """The panel's "Export object": the selected particle's object alone, its Gaussians as decoded."""
     s = app.session
     i = next(k for k in range(s.num_particles) if s.is_active(k))
     app.fields.output_dir = str(tmp_path)
@@ -112,6 +112,24 @@ def test_export_object_ply(app, tmp_path):
     assert exported.num == ref.num
     torch.testing.assert_close(exported.means, ref.means.detach().float(), atol=1e-6, rtol=0)
     app.state.selected = None
+
+
+def test_export_menu_writes_an_object_bundle(app, tmp_path):
+    """The format menu's "bundle": a folder of one .ply an object plus rest.ply and manifest.json, together the
+    Gaussians drawn."""
+    import json
+
+    from particlesplat.formats.splat_files import read_gaussians
+
+    app.fields.output_dir, app.fields.export_format = str(tmp_path), "bundle"
+    app.req.export_ply = True
+    app.run(1)
+    app.fields.export_format = ".ply"
+    out = tmp_path / "particlesplat_0001.bundle"
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["by"] == "object" and manifest["parts"][-1]["file"] == "rest.ply", app.fields.status
+    drawn = app.scene_view.visible_gaussians(app.session, app.state)
+    assert read_gaussians(out / "manifest.json").means.shape[0] == drawn.num == manifest["gaussians"]
 
 
 def test_insert_object_request(app):
@@ -202,6 +220,32 @@ def test_open_ply_replaces_the_session(app, tmp_path):
     app.req.open_path = str(tmp_path / "missing")
     app.run(1)
     assert "error" in app.fields.status and "missing" in app.fields.status
+
+
+def test_export_menu_writes_every_format_and_the_file_box_opens_it(app, tmp_path):
+    """The Output section's format: each Gaussian file format is written, read back whole by the format's reader,
+    and opened again through the file box."""
+    from particlesplat.formats.splat_files import SUFFIXES, read_gaussians
+
+    random_gaussians(200, seed=2).save_ply(tmp_path / "g.ply")
+    app.req.open_path = str(tmp_path / "g.ply")
+    app.run(1)
+    kept = app.fields.output_dir, app.fields.export_format
+    app.fields.output_dir = str(tmp_path / "out")
+    seen: set = set()
+    for suffix in SUFFIXES:
+        app.fields.export_format = suffix
+        app.req.export_ply = True
+        app.run(1)
+        new = set((tmp_path / "out").glob("particlesplat_*")) - seen
+        assert len(new) == 1 and next(iter(new)).name.endswith(suffix), (suffix, app.fields.status)
+        seen |= new
+        path = next(iter(new))
+        assert read_gaussians(path).means.shape[0] == 200
+        app.req.open_path = str(path)
+        app.run(1)
+        assert "error" not in app.fields.status and app.scene_view.renderer.num == 200, app.fields.status
+    app.fields.output_dir, app.fields.export_format = kept
 
 
 def test_open_keeps_unsaved_edits_and_offers_them_back(app, tmp_path):

@@ -34,6 +34,7 @@ from particlesplat.core.viewpoints import (
     scene_background,
 )
 from particlesplat.editing.source_options import add_source_arguments, check_source_arguments  # noqa: E402
+from particlesplat.formats.splat_files import SUFFIX_HELP, SUFFIXES  # noqa: E402
 
 from .chords import ChordQueue  # noqa: E402
 from .commands import carry_out, save_edits  # noqa: E402
@@ -73,7 +74,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="particlesplat-viewer",
         description="View and edit ParticleSplat scenes: orbit, select and drag particles, segment, screenshot.",
     )
-    add_source_arguments(p, ply_help="open a 3DGS .ply instead of a model scene (no particle editing)")
+    add_source_arguments(
+        p, ply_help=f"open a Gaussian file ({SUFFIX_HELP}) instead of a model scene (no particle editing)"
+    )
     p.add_argument("--frames", type=int, help="run N frames, print the median frame time and exit")
     p.add_argument("--screenshot", help="with --frames: save the last render (no UI) to this PNG")
     p.add_argument("--size", type=parse_size, default=(1280, 800), help="window size WxH (default: 1280x800)")
@@ -341,12 +344,14 @@ class App:
         return self.session.autosave(autosave_dir())
 
     def open(self, path: str) -> None:
-        """Open a scene folder or a .ply (replaces the session). Unsaved edits of the old scene are autosaved
-        first; autosaved edits of the new one are offered (the edits path is set: Load restores them)."""
+        """Open a scene folder or a Gaussian file (.ply, .compressed.ply, .splat, .spz, .sog; replaces the
+        session). Unsaved edits of the old scene are autosaved first; autosaved edits of the new one are offered (the
+        edits path is set: Load restores them)."""
         p = Path(path)
         args = argparse.Namespace(**vars(self.args))
+        is_file = p.is_file() or (not p.exists() and p.name.lower().endswith(SUFFIXES))  # missing: say which
         args.scene, args.ply, args.edits, args.context = (
-            (None, str(p), None, None) if p.suffix == ".ply" else (str(p), None, None, None)
+            (None, str(p), None, None) if is_file else (str(p), None, None, None)
         )
         new = load_session(args)  # a bad path leaves the current scene as it is
         view = initial_view(new, None, None)  # (so does a bad scene.json)

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import torch
 
-from .screenshot import export_ply
+from .screenshot import BUNDLE, export_bundle, export_ply
 
 if TYPE_CHECKING:
     from .orbit import OrbitCamera
@@ -54,7 +54,11 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
             path = host.screenshot_numbered()
             fields.status = f"saved screenshot {Path(path).resolve()}"
         if req.export_ply:
-            path = export_ply(fields.output_dir, host.scene_view.visible_gaussians(host.session, host.state))
+            g = host.scene_view.visible_gaussians(host.session, host.state)
+            if fields.export_format == BUNDLE:
+                path = export_bundle(fields.output_dir, g, host.session)
+            else:
+                path = export_ply(fields.output_dir, g, fields.export_format)
             fields.status = f"exported {Path(path).resolve()}"
         if req.insert and host.session.editable:
             from .ui.insert import insert_from_fields
@@ -65,7 +69,7 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
             members = session.object_members(host.state.selected)  # its Gaussians, as drawn
             g = session.model.decode(session.particles, torch.tensor(members), background=False)
             g = g.subset(g.opacities >= host.state.prune).detach().to("cpu")
-            path = export_ply(fields.output_dir, g)
+            path = export_ply(fields.output_dir, g, fields.export_format if fields.export_format != BUNDLE else ".ply")
             fields.status = f"exported object of particles {members} to {Path(path).resolve()}"
     except Exception as e:  # noqa: BLE001 - a bad path or file must not close the app: show it
         fields.status = f"error: {e}"

@@ -1,5 +1,5 @@
 """Screenshots and exports: PNG with text chunks (camera, edits, model), numbered names that
-never overwrite, and .ply export."""
+never overwrite, and Gaussian file export (.ply and the compact formats)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from particlesplat.core.atomic import create_temp_file
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.formats.png import png_info, png_text, save_png, to_image
 
-__all__ = ["export_ply", "png_text", "save_numbered", "save_png", "save_screenshot"]
+__all__ = ["BUNDLE", "export_bundle", "export_ply", "png_text", "save_numbered", "save_png", "save_screenshot"]
+BUNDLE = "bundle"  # the export menu's entry for an object bundle (particlesplat.formats.bundle)
 
 
 def save_numbered(folder: str | PathLike, prefix: str, suffix: str, write) -> Path:
@@ -49,8 +50,34 @@ def save_screenshot(folder: str | PathLike, rgb: np.ndarray, text: dict[str, str
     return save_numbered(folder, "particlesplat_", ".png", lambda p: img.save(p, format="PNG", pnginfo=info))
 
 
-def export_ply(folder: str | PathLike, gaussians: Gaussians) -> Path:
-    """A numbered standard 3DGS .ply (``particlesplat_NNNN.ply``) of ``gaussians`` in ``folder``."""
-    from particlesplat.formats.ply import write_ply
+def export_ply(folder: str | PathLike, gaussians: Gaussians, suffix: str = ".ply") -> Path:
+    """A numbered Gaussian file (``particlesplat_NNNN<suffix>``) of ``gaussians`` in ``folder``, in the format
+    ``suffix`` names (:data:`particlesplat.formats.splat_files.SUFFIXES`: .ply, .compressed.ply, .splat, .spz,
+    .sog)."""
+    from particlesplat.formats.splat_files import format_for
 
-    return save_numbered(folder, "particlesplat_", ".ply", lambda p: write_ply(gaussians, p))
+    fmt = format_for(f"particlesplat{suffix}")
+    return save_numbered(folder, "particlesplat_", fmt.suffix, lambda p: fmt.write(gaussians, p))
+
+
+def export_bundle(folder: str | PathLike, gaussians: Gaussians, session) -> Path:
+    """A numbered object bundle (folder ``particlesplat_NNNN.bundle``) of ``gaussians`` in ``folder``: by object
+    for a model scene (``session`` editable), by particle (the owners stored) for a Gaussian file."""
+    from particlesplat.analysis.bundle_parts import bundle_header, bundle_parts
+    from particlesplat.analysis.particle_arrays import particle_arrays
+    from particlesplat.formats.bundle import write_bundle
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    n = 1
+    while (folder / f"particlesplat_{n:04d}.bundle").exists():
+        n += 1
+    out = folder / f"particlesplat_{n:04d}.bundle"
+    if session.editable:
+        arrays = particle_arrays(session.model, session.particles)
+        edited = bool(session.editor.operations())
+        header = bundle_header(session.source, session.model_name, session.particles, session.editor.context, edited)
+        write_bundle(out, "object", bundle_parts(gaussians, "object", arrays), header)
+    else:
+        write_bundle(out, "particle", bundle_parts(gaussians, "particle", None), bundle_header(session.source, None))
+    return out

@@ -1,11 +1,19 @@
 """Whether a scene folder is in the world frame the model was trained in (+z up, the support surface at z = 0,
-metres, cameras a few metres from the objects) and, when it is not, the similarity transform that brings it there.
+metres, cameras at the family's distances from the objects) and, when it is not, the similarity transform that
+brings it there.
+
+The family (tabletop or robot) picks the camera distances the scale is judged against: the tabletop scenes'
+(:data:`particlesplat.data.families.tabletop.DISTANCE_RANGE`) or the robot rigs' (:data:`ROBOT_DISTANCE_RANGE`).
+A robot scene is also checked for a turn about z: robosuite's convention has the robot base behind the table at -x
+(facing +x). The base's direction comes from scene.json's ``robot_base`` where the scene records one, else from the
+depth: the robot is what stands above the support surface near the scene, beyond the table's edge
+(:func:`robot_azimuth`).
 
 The up axis is the normal of the largest plane of the depth points (the table or floor; found by RANSAC), turned
 towards the cameras; without depth, the normal of the plane of the camera centres (cameras around a scene), else
 the cameras' mean up vector. The scale compares the cameras' distance to the point they look at with the training
-scenes' (:data:`particlesplat.data.families.tabletop.DISTANCE_RANGE`, metres); a factor near a power of ten reads
-as a unit mistake (millimetres, centimetres). The support height is that plane's height once up is +z.
+scenes' (metres); a factor near a power of ten reads as a unit mistake (millimetres, centimetres). The support
+height is that plane's height once up is +z.
 
 A transform ``x' = s R x + t`` (world points) is applied to a camera-to-world matrix with rotation ``R_c`` and
 translation ``t_c`` as ``R_c' = R R_c``, ``t_c' = s R t_c + t`` (in any camera axis convention), and to depth as
@@ -25,6 +33,19 @@ from particlesplat.data.families.tabletop import DISTANCE_RANGE
 from particlesplat.data.scene import RawScene
 
 UpSource = Literal["support plane", "camera centres", "camera up vectors"]
+RobotSource = Literal["scene.json robot_base", "depth above the table"]
+# the robot rigs' camera distances (metres): the wide world's arc and RLBench-style cameras (0.8-1.2 m), the narrow
+# world's arc (0.85-1.0 m) and its fixed cameras (about 1.0-1.25 m)
+ROBOT_DISTANCE_RANGE = (0.8, 1.25)
+ROBOT_AZIMUTH = 180.0  # degrees: robosuite's convention, the robot base at -x of the table centre
+TURN_TOLERANCE_DEG = 15.0  # a robot within this of -x is not turned
+TURN_SNAP_DEG = 20.0  # a measured turn within this of a quarter turn is read as that quarter turn
+ROBOT_HEIGHT = (0.02, 1.2)  # metres above the support: what stands this high beyond the table's edge is the robot
+ROBOT_EDGE_MARGIN = 0.03  # metres beyond the support's edge in a direction
+EDGE_PERCENTILE = 95.0  # the edge: this percentile of the support points' distances in a direction (a few stray
+# points at the support's height, e.g. the top of a robot base level with the table, do not move it)
+ROBOT_RADIUS = 1.0  # metres (x, y) from the looked-at point within which the robot is looked for
+ROBOT_MIN_POINTS = 50
 UP_TOLERANCE_DEG = 3.0  # the up axis is +z when within this angle (and snapped to an axis when within it of one)
 SUPPORT_TOLERANCE = 0.05  # metres: the support surface is at z = 0 within this
 CENTRE_RADIUS = 1.0  # metres: the training scenes' objects lie within this of the origin (x, y)
@@ -49,6 +70,11 @@ class WorldFrameReport:
         centre: (2,) x, y of the looked-at point after the transform's rotation and scale (metres).
         rotation: (3, 3); scale: metres per scene unit; translation: (3,) metres (the transform to apply).
         unit: the unit mistake the scale suggests, or "".
+        family: "tabletop" or "robot" (the camera distances it was judged against).
+        robot_azimuth: robot scenes: degrees (counter-clockwise from +x, after the up rotation) of the robot base
+            seen from the looked-at point, or None when it could not be told; robot_source: where it came from.
+        turn: degrees the robot stands turned from robosuite's -x (0 when within the tolerance; the transform's
+            rotation turns it back), None when not measured.
     """
 
     frames: int
@@ -64,6 +90,14 @@ class WorldFrameReport:
     scale: float
     translation: np.ndarray
     unit: str
+    family: str = "tabletop"
+    robot_azimuth: float | None = None
+    robot_source: RobotSource | None = None
+    turn: float | None = None
+
+    @property
+    def turn_ok(self) -> bool:
+        return self.turn is None or self.turn == 0.0
 
     @property
     def up_ok(self) -> bool:
@@ -87,7 +121,7 @@ class WorldFrameReport:
 
     @property
     def ok(self) -> bool:
-        return self.up_ok and self.scale_ok and self.depth_ok and self.support_ok and self.centre_ok
+        return self.up_ok and self.scale_ok and self.depth_ok and self.support_ok and self.centre_ok and self.turn_ok
 
 
 def _c2w(scene: RawScene) -> np.ndarray:
@@ -160,8 +194,13 @@ def _snap(up: np.ndarray) -> np.ndarray:
     return axis if math.degrees(math.acos(min(1.0, float(up @ axis)))) <= UP_TOLERANCE_DEG else up
 
 
-def _scale(distance: float) -> tuple[float, str]:
-    lo, hi = DISTANCE_RANGE
+def distance_range(family: str) -> tuple[float, float]:
+    """The training cameras' distances (metres) of a family's scenes."""
+    return ROBOT_DISTANCE_RANGE if family == "robot" else DISTANCE_RANGE
+
+
+def _scale(distance: float, family: str) -> tuple[float, str]:
+    lo, hi = distance_range(family)
     if lo / SCALE_SLACK <= distance <= hi * SCALE_SLACK:
         return 1.0, ""
     s = 0.5 * (lo + hi) / distance
@@ -171,8 +210,65 @@ def _scale(distance: float) -> tuple[float, str]:
     return float(f"{s:.3g}"), ""
 
 
-def check_world_frame(scene: RawScene) -> WorldFrameReport:
-    """Measure a scene's up axis, scale, depth scale and support height (see the module's docstring)."""
+def _rot_z(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def robot_azimuth(points: np.ndarray, on_support: np.ndarray, centre: np.ndarray) -> float | None:
+    """Degrees (counter-clockwise from +x) of the robot seen from ``centre`` (2,): the direction of the mean of
+    the ``points`` (N, 3; metres, +z up, the support at z = 0) that stand :data:`ROBOT_HEIGHT` above the support,
+    within :data:`ROBOT_RADIUS` of the centre, beyond the support's edge (the base and mount behind the table; an
+    arm over the table and the objects on it are within its edge, walls farther). The edge, per 5-degree sector
+    about the support points' (``on_support``, (N,) bool) centroid, is the :data:`EDGE_PERCENTILE` of their
+    distances. None when fewer than :data:`ROBOT_MIN_POINTS` points qualify."""
+    near = np.hypot(*(points[:, :2] - centre).T) < ROBOT_RADIUS
+    table = points[on_support & near, :2]  # (a wall crossing the support's height far away is no table)
+    if len(table) < ROBOT_MIN_POINTS:
+        return None
+    middle = table.mean(0)
+    sectors = 72
+
+    def polar(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d = xy - middle
+        ang = ((np.arctan2(d[:, 1], d[:, 0]) + math.pi) / (2 * math.pi) * sectors).astype(np.int64) % sectors
+        return ang, np.hypot(d[:, 0], d[:, 1])
+
+    ang, rad = polar(table)
+    edge = np.array(
+        [np.percentile(rad[ang == k], EDGE_PERCENTILE) if (ang == k).any() else 0.0 for k in range(sectors)]
+    )
+    ang, rad = polar(points[:, :2])
+    xy = points[:, :2] - centre
+    keep = (
+        (points[:, 2] > ROBOT_HEIGHT[0])
+        & (points[:, 2] < ROBOT_HEIGHT[1])
+        & near
+        & (rad > edge[ang] + ROBOT_EDGE_MARGIN)
+    )
+    if int(keep.sum()) < ROBOT_MIN_POINTS:
+        return None
+    mx, my = xy[keep].mean(0)
+    return round(math.degrees(math.atan2(my, mx)), 1) % 360.0
+
+
+def _turn(azimuth: float, exact: bool) -> float:
+    """Degrees in (-180, 180] the robot at ``azimuth`` stands turned from -x: 0 within the tolerance, and a
+    measured (not ``exact``) turn near a quarter turn snapped to it."""
+    turn = (azimuth - ROBOT_AZIMUTH + 180.0) % 360.0 - 180.0
+    if abs(turn) <= TURN_TOLERANCE_DEG:
+        return 0.0
+    quarter = 90.0 * round(turn / 90.0)
+    if not exact and abs(turn - quarter) <= TURN_SNAP_DEG:
+        turn = quarter
+    return 180.0 if turn == -180.0 else turn
+
+
+def check_world_frame(
+    scene: RawScene, family: str = "tabletop", robot_base: np.ndarray | None = None
+) -> WorldFrameReport:
+    """Measure a scene's up axis, scale, depth scale and support height and, for a robot scene (``family``), the
+    robot's turn about z from ``robot_base`` (4, 4; scene.json's) or the depth (see the module's docstring)."""
     c2w = _c2w(scene)
     centres = c2w[:, :3, 3]
     cam_up = -c2w[:, :3, 1].mean(0)  # OpenCV: image y points down
@@ -202,10 +298,25 @@ def check_world_frame(scene: RawScene) -> WorldFrameReport:
         up = -up  # towards the cameras (they look down at the support)
     angle = math.degrees(math.acos(max(-1.0, min(1.0, float(up[2])))))
     R = np.eye(3) if angle <= UP_TOLERANCE_DEG else rotation_to_z(_snap(up))
-    s, unit = _scale(distance)
+    s, unit = _scale(distance, family)
     support = None
     if plane is not None:
         support = float(np.median((pts[plane[2]] @ R.T)[:, 2])) * s
+    azimuth: float | None = None
+    robot_source: RobotSource | None = None
+    turn: float | None = None
+    if family == "robot":
+        if robot_base is not None:
+            base = R @ robot_base[:3, 3] - R @ focus
+            azimuth = round(math.degrees(math.atan2(base[1], base[0])), 1) % 360.0
+            robot_source = "scene.json robot_base"
+        elif support is not None and plane is not None:
+            lifted = s * (pts @ R.T) - np.array([0.0, 0.0, support])
+            azimuth = robot_azimuth(lifted, plane[2], s * (R @ focus)[:2])
+            robot_source = "depth above the table"
+        if azimuth is not None:
+            turn = _turn(azimuth, robot_source == "scene.json robot_base")
+            R = _rot_z(-turn) @ R
     centre = (s * (R @ focus))[:2]
     t = np.zeros(3)
     if float(np.hypot(*centre)) > CENTRE_RADIUS:
@@ -226,18 +337,22 @@ def check_world_frame(scene: RawScene) -> WorldFrameReport:
         scale=s,
         translation=t,
         unit=unit,
+        family=family,
+        robot_azimuth=azimuth,
+        robot_source=robot_source if azimuth is not None else None,
+        turn=turn,
     )
 
 
 def report_lines(r: WorldFrameReport) -> list[str]:
     """The report, one finding a line, each ending in ``ok`` or ``differs``."""
     mark = lambda good: "ok" if good else "differs"  # noqa: E731
-    lo, hi = DISTANCE_RANGE
+    lo, hi = distance_range(r.family)
     lines = [
         f"up axis: ({r.up[0]:+.3f}, {r.up[1]:+.3f}, {r.up[2]:+.3f}) from the {r.up_source}, {r.up_angle:.1f} degrees "
         f"from +z: {mark(r.up_ok)}",
-        f"scale: the cameras are {r.camera_distance:.4g} units from the point they look at; the training scenes' "
-        f"are {lo:g}-{hi:g} m"
+        f"scale: the cameras are {r.camera_distance:.4g} units from the point they look at; the {r.family} "
+        f"training scenes' are {lo:g}-{hi:g} m"
         + (
             f" (the units look like {r.unit})"
             if r.unit
@@ -261,6 +376,21 @@ def report_lines(r: WorldFrameReport) -> list[str]:
         f"scene centre: x, y = ({r.centre[0]:+.3f}, {r.centre[1]:+.3f}) m, within {CENTRE_RADIUS:g} m of the "
         f"origin: {mark(r.centre_ok)}"
     )
+    if r.family == "robot":
+        if r.robot_azimuth is None or r.turn is None:
+            lines.append(
+                "robot: not found (it needs scene.json's robot_base, or depth of the arm standing above the table)"
+            )
+        else:
+            where = (
+                "at -x, robosuite's convention"
+                if r.turn == 0.0
+                else f"turned {r.turn:+.0f} degrees about z from robosuite's convention (-x)"
+            )
+            lines.append(
+                f"robot: its base is at azimuth {round(r.robot_azimuth) % 360} degrees from the scene centre (from the "
+                f"{r.robot_source}), {where}: {mark(r.turn_ok)}"
+            )
     return lines
 
 

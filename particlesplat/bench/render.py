@@ -23,6 +23,7 @@ import torch
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.rendering.api import render
+from particlesplat.rendering.choice import rasterizer_list
 from particlesplat.rendering.dense import render_dense
 
 DENSE_MAX_PAIRS = 5e7  # pixels × Gaussians above which the dense fwd+bwd does not fit (~1 KB per pair)
@@ -67,15 +68,19 @@ def _fwd_bwd(renderer, g: Gaussians, cam: Camera):
     return step
 
 
-def run_case(n: int, size: int, repeats: int) -> dict:
+def run_case(n: int, size: int, repeats: int, rasterizer: str = "auto") -> dict:
     """Measure one case in this process (called in a subprocess by :func:`main`)."""
+    from particlesplat.rendering.choice import resolve_rasterizer, set_default_rasterizer
+
+    set_default_rasterizer(rasterizer)
     g, cam = bench_scene(n, size)
     base_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     with torch.no_grad():
         fwd = _time(lambda: render(g, cam), repeats)
     fwd_bwd = _time(_fwd_bwd(render, g, cam), repeats)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    row = {
+    row: dict = {
+        "rasterizer": resolve_rasterizer(None, torch.device("cpu")),
         "n": n,
         "size": size,
         "fwd_ms": fwd,
@@ -132,48 +137,43 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--n", type=int, nargs="+", default=[2000, 10000, 50000], help="Gaussian counts")
     parser.add_argument("--sizes", type=int, nargs="+", default=[64, 128, 512], help="square image sizes")
     parser.add_argument("--repeats", type=int, default=5, help="timed repeats per case (median)")
+    parser.add_argument(
+        "--rasterizer",
+        default="auto",
+        help="comma-separated rasterizers to compare, each case run with each in turn (torch, fused, auto; "
+        "default: auto, the fused kernels on the CPU)",
+    )
     parser.add_argument("--json", help="also write the rows to this JSON file")
     parser.add_argument("--case", nargs=2, type=int, metavar=("N", "SIZE"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    rasterizers = rasterizer_list(args.rasterizer)
     if args.case:
-        print(json.dumps(run_case(args.case[0], args.case[1], args.repeats)))
+        print(json.dumps(run_case(args.case[0], args.case[1], args.repeats, rasterizers[0])))
         return 0
     print(machine_line())
     header = (
-        "| N | size | fwd ms | fwd+bwd ms | peak RSS MB (over start) | max abs err vs f64 brute force | "
+        "| N | size | rasterizer | fwd ms | fwd+bwd ms | peak RSS MB (over start) | max abs err vs f64 brute force | "
         "pixels > 1e-5 | dense fwd+bwd ms | speed-up vs dense |"
     )
     print(header)
     print("|---" * (header.count("|") - 1) + "|")
     rows = []
-    for n in args.n:
-        for size in args.sizes:
-            proc = subprocess.run(
-                [
-                    sys.executable,
-                    "-m",
-                    "particlesplat.bench.render",
-                    "--case",
-                    str(n),
-                    str(size),
-                    "--repeats",
-                    str(args.repeats),
-                ],
-                capture_output=True,
-                text=True,
-            )
-            if proc.returncode != 0:
-                print(f"case N={n} size={size} failed:\n{proc.stderr}", file=sys.stderr)
-                return 1
-            row = json.loads(proc.stdout.strip().splitlines()[-1])
-            rows.append(row)
-            print(
-                f"| {n} | {size}² | {row['fwd_ms']:.1f} | {row['fwd_bwd_ms']:.1f} | "
-                f"{row['peak_mb']:.0f} ({row['peak_over_base_mb']:.0f}) | {_fmt(row, 'max_abs_err', '.1e')} | "
-                f"{_fmt(row, 'pixels_over_1e-5', 'd')} | "
-                f"{_fmt(row, 'dense_fwd_bwd_ms', '.0f')} | {_fmt(row, 'speedup', '.1f')} |",
-                flush=True,
-            )
+    for n, size, rasterizer in [(n, s, r) for n in args.n for s in args.sizes for r in rasterizers]:
+        cmd = [sys.executable, "-m", "particlesplat.bench.render", "--case", str(n), str(size)]
+        cmd += ["--repeats", str(args.repeats), "--rasterizer", rasterizer]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            print(f"case N={n} size={size} rasterizer={rasterizer} failed:\n{proc.stderr}", file=sys.stderr)
+            return 1
+        row = json.loads(proc.stdout.strip().splitlines()[-1])
+        rows.append(row)
+        print(
+            f"| {n} | {size}² | {row['rasterizer']} | {row['fwd_ms']:.1f} | {row['fwd_bwd_ms']:.1f} | "
+            f"{row['peak_mb']:.0f} ({row['peak_over_base_mb']:.0f}) | {_fmt(row, 'max_abs_err', '.1e')} | "
+            f"{_fmt(row, 'pixels_over_1e-5', 'd')} | "
+            f"{_fmt(row, 'dense_fwd_bwd_ms', '.0f')} | {_fmt(row, 'speedup', '.1f')} |",
+            flush=True,
+        )
     if args.json:
         from particlesplat.core.atomic import atomic_write
 

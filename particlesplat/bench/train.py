@@ -27,16 +27,21 @@ import torch
 from particlesplat.bench.render import machine_line
 from particlesplat.core.device import DEVICE_HELP, resolve_device
 from particlesplat.core.errors import OptionError
+from particlesplat.rendering.choice import rasterizer_list
 
 PHASES = ("data", "forward", "backward", "update")
 
 
-def run_case(config: Path, data: Path, run: Path | None, steps: int, warmup: int, threads: int, device: str) -> dict:
+def run_case(
+    config: Path, data: Path, run: Path | None, steps: int, warmup: int, threads: int, device: str, rasterizer: str
+) -> dict:
     """Time ``steps`` training steps after ``warmup`` in this process (called in a subprocess by :func:`main`)."""
     from particlesplat.model import load_config
+    from particlesplat.rendering.choice import resolve_rasterizer, set_default_rasterizer
     from particlesplat.training.trainer import Trainer
 
     torch.set_num_threads(threads)
+    set_default_rasterizer(rasterizer)
     cfg, tc = load_config(config)
     with tempfile.TemporaryDirectory(prefix="particlesplat-bench-train-") as tmp:
         out = Path(tmp) / "run"
@@ -61,6 +66,7 @@ def run_case(config: Path, data: Path, run: Path | None, steps: int, warmup: int
     median = {k: statistics.median(r.get(k, 0.0) for r in rows) for k in (*PHASES, "step", "cpu")}
     return {
         "threads": threads,
+        "rasterizer": resolve_rasterizer(rasterizer, torch.device(device)),
         "start_step": start,
         "recipe_steps": tc.steps,
         "batch_size": tc.batch_size,
@@ -115,38 +121,47 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=2, help="untimed steps first")
     parser.add_argument("--threads", default="1,2", help="comma-separated torch thread counts, one case each")
     parser.add_argument("--device", default=None, help=DEVICE_HELP)
+    parser.add_argument(
+        "--rasterizer",
+        default="auto",
+        help="comma-separated rasterizers to compare, one case each, in turns (torch, fused, auto; default: auto)",
+    )
     parser.add_argument("--json", help="also write the rows to this JSON file")
     parser.add_argument("--case", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     config, data, run = check_arguments(args)
     device = str(resolve_device(args.device))
+    rasterizers = rasterizer_list(args.rasterizer)
     if args.case:
-        print(json.dumps(run_case(config, data, run, args.steps, args.warmup, args.case, device)))
+        print(json.dumps(run_case(config, data, run, args.steps, args.warmup, args.case, device, rasterizers[0])))
         return 0
     threads = _threads(args.threads)
     print(machine_line())
     print(f"OpenMP wait policy: {os.environ.get('OMP_WAIT_POLICY') or 'the runtime default (spin, then sleep)'}")
     print(f"recipe {config}, data {data}, {'from ' + str(run / 'last.pt') if run else 'random initialisation'}")
     header = (
-        "| threads | s/step | data | forward | backward | update | CPU s/step | steps/s | recipe hours at this rate |"
+        "| threads | rasterizer | s/step | data | forward | backward | update | CPU s/step | steps/s | "
+        "recipe hours at this rate |"
     )
     print(header)
     print("|---" * (header.count("|") - 1) + "|")
     rows = []
-    for n in threads:
+    for n, rasterizer in [(n, r) for n in threads for r in rasterizers]:
         cmd = [sys.executable, "-m", "particlesplat.bench.train", "--case", str(n), "--data", str(data)]
         cmd += ["--config", str(config), "--steps", str(args.steps), "--warmup", str(args.warmup)]
-        cmd += ["--device", device] + (["--run", str(run)] if run else [])
+        cmd += ["--device", device, "--rasterizer", rasterizer] + (["--run", str(run)] if run else [])
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
-            print(f"case threads={n} failed:\n{proc.stderr.strip()}", file=sys.stderr)
+            print(f"case threads={n} rasterizer={rasterizer} failed:\n{proc.stderr.strip()}", file=sys.stderr)
             return 1
         row = json.loads(proc.stdout.strip().splitlines()[-1])
         rows.append(row)
         step = row["step_s"]
         left = (row["recipe_steps"] - row["start_step"]) * step / 3600
         print(
-            f"| {n} | {step:.3f} | " + " | ".join(f"{row[p + '_s']:.3f}" for p in PHASES) + f" | {row['cpu_s']:.2f} | "
+            f"| {n} | {row['rasterizer']} | {step:.3f} | "
+            + " | ".join(f"{row[p + '_s']:.3f}" for p in PHASES)
+            + f" | {row['cpu_s']:.2f} | "
             f"{1 / step:.2f} | {row['recipe_steps'] * step / 3600:.1f} (steps {row['start_step']}-"
             f"{row['recipe_steps']}: {left:.1f}) |",
             flush=True,

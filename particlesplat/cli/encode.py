@@ -11,6 +11,7 @@ from particlesplat.core.choices import OBJECT_CENTRES
 from particlesplat.core.device import DEVICE_HELP
 from particlesplat.data.families import CHECKPOINT_HELP
 from particlesplat.data.folders import check_existing, check_file
+from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,11 +46,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="encode every scene again (default: an existing .npz of the same checkpoint, --context, object "
         "centre and format version is kept)",
     )
+    add_rasterizer_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     check_existing(args.data, "--data")  # before torch loads: a typo is one quick line
     check_file(args.checkpoint, "--checkpoint")
+    apply_rasterizer_option(args)
     from particlesplat.analysis.encode_folder import encode_folder
     from particlesplat.analysis.particle_arrays import file_sha256
     from particlesplat.core.device import resolve_device

@@ -12,6 +12,7 @@ from particlesplat.core.device import DEVICE_HELP
 from particlesplat.core.errors import OptionError
 from particlesplat.data.families import CHECKPOINT_HELP
 from particlesplat.data.folders import check_file, check_split_folder
+from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,6 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "as the viewer and particlesplat render draw them; 0 = every particle)",
     )
     parser.add_argument("--device", default=None, help=DEVICE_HELP)
+    add_rasterizer_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
         check_writable(Path(args.figures) / "figure.png")
     check_split_folder(args.data, "--data")  # before torch loads: a typo is one quick line
     check_file(args.checkpoint, "--checkpoint")
+    apply_rasterizer_option(args)
     from particlesplat.analysis.evaluate import evaluate_dataset, json_safe
     from particlesplat.analysis.metrics import FAR_HEIGHTS, OVERLAYS, PARTICLES_DRAW, REGIONS
     from particlesplat.core.atomic import atomic_write

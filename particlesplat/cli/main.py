@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("particlesplat.cli.train", "train a ParticleSplat model"),
     "eval": ("particlesplat.cli.eval", "evaluate a model on a folder of scenes"),
     "render": ("particlesplat.cli.render", "render a (possibly edited) scene headless to PNG"),
+    "export": ("particlesplat.cli.export", "write a (possibly edited) scene as .ply/.splat/.spz/.sog, or a bundle"),
     "encode": ("particlesplat.cli.encode", "write the particles of scene folders as .npz arrays"),
     "object": ("particlesplat.cli.object", "export an object to .ply, or insert it into another scene"),
     "curve": ("particlesplat.cli.curve", "plot the validation curves of training runs to PNG"),

@@ -16,6 +16,8 @@ from particlesplat.core.choices import MODES, NEEDS_PARTICLES
 from particlesplat.core.errors import OptionError
 from particlesplat.data.folders import check_existing, check_file
 from particlesplat.editing.source_options import add_source_arguments, check_source_arguments
+from particlesplat.formats.splat_files import SUFFIX_HELP
+from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
 if TYPE_CHECKING:
     from particlesplat.core.camera import Camera
@@ -75,7 +77,10 @@ def output_paths(out: str, modes: tuple[str, ...], views: tuple[int, ...] | None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_source_arguments(parser, ply_help="render a 3DGS .ply instead of a model scene")
+    add_source_arguments(
+        parser, ply_help=f"render a Gaussian file ({SUFFIX_HELP}, or a bundle's manifest.json) instead of a model scene"
+    )
+    add_rasterizer_option(parser)
     cam = parser.add_mutually_exclusive_group()
     cam.add_argument(
         "--view",
@@ -146,43 +151,16 @@ def _scene_and_gaussians(args: argparse.Namespace):
     from particlesplat.core.viewpoints import scene_background
 
     check_source_arguments(args)
-    from particlesplat.editing.editor import SceneEditor, load_edit_file, scene_mismatch
-    from particlesplat.editing.open_scene import load_model_scene, load_ply_checked
+    from particlesplat.editing.open_scene import load_ply_checked
 
     if args.ply:
         return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None), None
-    file, where = None, "edits"  # where: the edit file's name in messages
-    if getattr(args, "edits_from", None):
-        if args.edits:
-            raise ValueError("--edits and --edits-from: give one edit file")
-        from particlesplat.core.yamlsafe import load_yaml
-        from particlesplat.editing.editor import parse_edit_file
-        from particlesplat.formats.png import edits_text_from_png
+    from particlesplat.editing.edited_scene import open_edited_scene
 
-        where = f"{args.edits_from}: edits chunk"
-        file = parse_edit_file(load_yaml(edits_text_from_png(args.edits_from), where), where)
-    elif args.edits:  # version 1 (particle values) or 2 (object operations, replayed as the viewer did them)
-        file, where = load_edit_file(args.edits), str(args.edits)
-    scene, context = args.scene, args.context
-    if file is not None and scene is None and file.scene is not None and Path(file.scene).is_dir():
-        scene = file.scene  # the scene the edits were made on
-        if context is None and file.context is not None:
-            context = ",".join(str(int(c)) for c in file.context)
-    model, enc, name = load_model_scene(args.checkpoint, scene, context)
-    for warning in enc.warnings:
+    scene = open_edited_scene(args.checkpoint, args.scene, args.context, args.edits, getattr(args, "edits_from", None))
+    for warning in scene.warnings:
         print(f"particlesplat render: warning: {warning}", file=sys.stderr)
-    particles = enc.particles
-    edits: str | dict = {}  # for png_text: the edit file's text, {} (no edits) without one
-    if file is not None:
-        warning = scene_mismatch(file, enc.path, enc.context)
-        if warning:
-            print(f"particlesplat render: warning: {where}: {warning}", file=sys.stderr)
-        from particlesplat.editing.scene_id import resolved, scene_digest
-
-        editor = SceneEditor(model, particles, enc.all_cameras, enc.context)
-        editor.apply_file(file, where)
-        particles = editor.particles
-        edits = editor.edit_text(scene=resolved(enc.path), model=name, scene_sha256=scene_digest(enc.path))
+    model, enc, particles, edits, name = scene.model, scene.encoded, scene.particles, scene.edits, scene.model_name
     g = model.decode(particles).detach().to("cpu")
     arrays = None
     if set(getattr(args, "mode", ("rgb",))) & set(NEEDS_PARTICLES):
@@ -272,6 +250,7 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as e:
         print(f"particlesplat render: {one_line(e)}", file=sys.stderr)
         return EXIT_USER
+    apply_rasterizer_option(args)
     from particlesplat.core.atomic import check_writable
     from particlesplat.formats.png import png_text, save_png
 

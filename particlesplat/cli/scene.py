@@ -1,7 +1,7 @@
 """``particlesplat scene check DIR``: whether a scene folder (your own capture) is in the world frame the model was
-trained in (+z up, the support surface at z = 0, metres), and the transform to apply when it is not
-(:mod:`particlesplat.analysis.world_frame`). Exit code 0 when it is, 1 when it is not, 2 for a folder that cannot be
-read."""
+trained in (+z up, the support surface at z = 0, metres, cameras at the family's distances; a robot scene with its
+robot at -x as in robosuite), and the transform to apply when it is not (:mod:`particlesplat.analysis.world_frame`).
+Exit code 0 when it is, 1 when it is not, 2 for a folder that cannot be read."""
 
 from __future__ import annotations
 
@@ -16,9 +16,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "check",
         help="report a scene folder's up axis, scale and support height against the expected world frame",
         description="Report a scene folder's up axis, scale, depth scale and support height against the world "
-        "frame the model was trained in (+z up, support surface at z = 0, metres), and the transform to apply.",
+        "frame the model was trained in (+z up, support surface at z = 0, metres, cameras at the distances of the "
+        "family's rigs), for a robot scene also whether it is turned about z (robosuite's convention: the robot "
+        "base behind the table at -x), and the transform to apply.",
     )
     check.add_argument("scene", metavar="DIR", help="scene folder (transforms.json, images, optional depth)")
+    check.add_argument(
+        "--family",
+        choices=("tabletop", "robot"),
+        help="judge the scene as this family's (default: what its scene.json or its dataset's synth.json records, "
+        "else tabletop)",
+    )
     check.add_argument(
         "--write",
         metavar="FILE",
@@ -28,23 +36,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from particlesplat.analysis.world_frame import check_world_frame, report_lines, transform_lines, transform_matrix
     from particlesplat.core.atomic import atomic_write
     from particlesplat.data import read_scene
+    from particlesplat.data.scene_meta import read_family, read_robot_base
 
     scene = read_scene(args.scene)
-    report = check_world_frame(scene)
-    print(f"scene check: {scene.path} ({report.frames} frames, {report.depth_frames} with depth)")
+    family = args.family or read_family(args.scene) or "tabletop"
+    base = read_robot_base(args.scene) if family == "robot" else None
+    report = check_world_frame(scene, family, None if base is None else np.asarray(base, dtype=np.float64))
+    print(f"scene check: {scene.path} ({report.frames} frames, {report.depth_frames} with depth, {family} family)")
     for line in report_lines(report):
         print(f"  {line}")
     if report.ok:
-        print("matches the expected world frame (+z up, support surface at z = 0, metres)")
+        robot = ", the robot at -x" if family == "robot" and report.turn is not None else ""
+        print(f"matches the expected world frame (+z up, support surface at z = 0, metres{robot})")
     else:
         for line in transform_lines(report):
             print(line)
     if args.write:
-        import numpy as np
-
         src = Path(scene.path) / "transforms.json"
         meta = json.loads(src.read_text())
         for frame in meta["frames"]:

@@ -21,6 +21,7 @@ from particlesplat.model.config import (
     stored_train_config,
     with_overrides,
 )
+from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,6 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "step, optimiser and schedule start afresh, and the run's provenance names the source",
     )
     parser.add_argument("--device", default=None, help=f"{DEVICE_HELP}; under torchrun, one process per device")
+    add_rasterizer_option(parser)
     parser.add_argument(
         "--overwrite",
         action="store_true",
@@ -93,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"--data {data}: no training split ({data / 'train'})")
     check_file(args.config, "--config")
     check_file(args.init, "--init")
+    apply_rasterizer_option(args)
     run_config = Path(args.out) / "config.yaml"
     if args.config is None and args.init is not None:
         cfg, tc = init_config(Path(args.init))

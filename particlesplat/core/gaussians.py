@@ -173,3 +173,18 @@ class Gaussians:
     def save_ply(self, path: str | PathLike) -> None:
         """Write a standard 3DGS .ply atomically (see :mod:`particlesplat.formats.ply`)."""
         write_ply(self, path)
+
+    @staticmethod
+    def load(path: str | PathLike) -> Gaussians:
+        """Read any Gaussian file: ``.ply``, ``.compressed.ply``, ``.splat``, ``.spz``, ``.sog`` or an object
+        bundle's ``manifest.json`` (see :mod:`particlesplat.formats.splat_files`)."""
+        from particlesplat.formats.splat_files import read_gaussians
+
+        return Gaussians(*read_gaussians(path))
+
+    def save(self, path: str | PathLike) -> None:
+        """Write in the format ``path``'s extension names (``.ply``, ``.compressed.ply``, ``.splat``, ``.spz``,
+        ``.sog``), atomically."""
+        from particlesplat.formats.splat_files import write_gaussians
+
+        write_gaussians(self, path)

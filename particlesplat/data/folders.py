@@ -7,7 +7,7 @@ from os import PathLike
 from pathlib import Path
 
 TRANSFORMS = "transforms.json"  # the file that makes a folder a scene folder (docs/dataset.md)
-SPLITS = ("train", "val", "test")
+SPLITS = ("train", "val", "test", "heldout")  # heldout: the wide robot world's split outside the training ranges
 
 
 def is_scene_folder(path: Path) -> bool:

@@ -86,17 +86,26 @@ def read_framing(folder: str | PathLike) -> Framing | None:
     )
 
 
-def read_pose(folder: str | PathLike, key: str, dims: int) -> list[float] | None:
-    """The pose ``folder/scene.json`` records under ``key`` (``model.bg_static_pose``: a robot's joint angles), a
-    list of ``dims`` finite numbers. None when the folder has no scene.json or it lacks the key. SceneFormatError
-    names the file and the key of a value of another length or type."""
+def _scene_value(folder: str | PathLike, key: str) -> tuple[Path, object] | None:
+    """(path of ``folder/scene.json``, its value under ``key``), or None when there is no scene.json or it has no
+    such key (or null)."""
     path = Path(folder) / SCENE_META
     if not path.is_file():
         return None
     meta = _read_json(path)
     if not isinstance(meta, dict) or meta.get(key) is None:
         return None
-    value = meta[key]
+    return path, meta[key]
+
+
+def read_pose(folder: str | PathLike, key: str, dims: int) -> list[float] | None:
+    """The pose ``folder/scene.json`` records under ``key`` (``model.bg_static_pose``: a robot's joint angles), a
+    list of ``dims`` finite numbers. None when the folder has no scene.json or it lacks the key. SceneFormatError
+    names the file and the key of a value of another length or type."""
+    found = _scene_value(folder, key)
+    if found is None:
+        return None
+    path, value = found
     if not (isinstance(value, list) and len(value) == dims and all(_finite(v) for v in value)):
         raise SceneFormatError(f"{path}: key {key!r} must be {dims} finite numbers, got {short_repr(value)}")
     return [float(v) for v in value]
@@ -116,6 +125,23 @@ def scene_pose(folder: str | PathLike, key: str, dims: int) -> Tensor | None:
         )
         return None
     return torch.tensor(pose)
+
+
+def read_robot_base(folder: str | PathLike) -> list[list[float]] | None:
+    """The robot base's pose ``folder/scene.json`` records under ``robot_base`` (4 x 4, base to world, metres),
+    or None when the folder has no scene.json or it lacks the key. SceneFormatError names the file and the key
+    of a value that is not 4 rows of 4 finite numbers."""
+    found = _scene_value(folder, "robot_base")
+    if found is None:
+        return None
+    path, value = found
+    if not (
+        isinstance(value, list)
+        and len(value) == 4
+        and all(isinstance(row, list) and len(row) == 4 and all(_finite(v) for v in row) for row in value)
+    ):
+        raise SceneFormatError(f"{path}: key 'robot_base' must be 4 rows of 4 finite numbers, got {short_repr(value)}")
+    return [[float(v) for v in row] for row in value]
 
 
 def _finite(v: object) -> bool:

@@ -27,14 +27,14 @@ from particlesplat.core.camera import Camera
 from particlesplat.core.errors import OptionError, UserError
 from particlesplat.core.limits import check_memory
 from particlesplat.data.families import tabletop
+from particlesplat.data.folders import SPLITS
 from particlesplat.data.scene_files import write_scene_files
 
-SPLITS = ("train", "val", "test")
 MAX_RES = 4096  # a scene image may have at most 4096 x 4096 pixels (particlesplat.data.scene.MAX_IMAGE_PIXELS)
 # peak bytes a worker holds per pixel of its scene (renders of 21 views in float64 and their PNG encodings): 9.4 GB
 # measured at --res 4100 with one worker, ~560 bytes a pixel
 SYNTH_BYTES_PER_PIXEL = 560
-SPLIT_IDS = MappingProxyType({"train": 0, "val": 1, "test": 2})
+SPLIT_IDS = MappingProxyType({"train": 0, "val": 1, "test": 2, "heldout": 3})
 FORMAT_VERSION = 1
 MANIFEST = "synth.json"
 T = TypeVar("T")

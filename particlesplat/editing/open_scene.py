@@ -115,10 +115,8 @@ def load_model_scene(checkpoint: str | None, scene: str | PathLike | None, conte
 
 
 def load_ply_checked(path: str | PathLike):
-    """Gaussians of a .ply file; FileNotFoundError names the path."""
+    """Gaussians of a Gaussian file in any format the program reads (.ply, .compressed.ply, .splat, .spz, .sog:
+    :func:`particlesplat.formats.splat_files.read_gaussians`); FileNotFoundError names the path."""
     from particlesplat.core.gaussians import Gaussians
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: .ply file not found")
-    return Gaussians.load_ply(path)
+    return Gaussians.load(path)

@@ -85,7 +85,10 @@ class GaussianFields(Protocol):
     def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> GaussianFields: ...
 
 
-def _read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]]]:
+def read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]]]:
+    """The format (``binary_little_endian`` or ``binary_big_endian``) and the elements, each (name, count,
+    [(property, numpy type code)]), of the binary PLY open in ``f``, which is left at the first data byte.
+    PlyError names ``path`` and the header line for anything else."""
     first = f.readline(_MAX_HEADER)
     if first.strip() != b"ply":
         raise PlyError(f"{path}: not a PLY file (first line is {first[:20]!r})")
@@ -137,11 +140,12 @@ def read_ply(path: str | PathLike) -> PlyFields:
     """Read a 3DGS .ply into float32 CPU tensors (``Gaussians.load_ply`` wraps them).
 
     Raises :class:`PlyError` (naming the file and the property) for a missing property,
-    an ``f_rest`` count that is no SH degree, a truncated file, or a non-finite value.
+    an ``f_rest`` count that is no SH degree, a truncated file, or a non-finite value (but for an
+    ``opacity`` logit of ±inf: opacity 1 or 0). Extra properties and any property order are accepted.
     """
     path = Path(path)
     with open(path, "rb") as f:
-        fmt, elements = _read_header(f, path)
+        fmt, elements = read_header(f, path)
         order = "<" if fmt == "binary_little_endian" else ">"
         if not elements or elements[0][0] != "vertex":
             raise PlyError(f"{path}: the first element must be 'vertex'")
@@ -172,7 +176,8 @@ def read_ply(path: str | PathLike) -> PlyFields:
         if name not in names:
             raise PlyError(f"{path}: missing property '{name}' in element 'vertex'")
         col = data[name].astype(np.float64)
-        bad = ~np.isfinite(col)
+        # an opacity logit of ±inf is an opacity of exactly 1 or 0 (tools that quantise opacity write them)
+        bad = np.isnan(col) if name == "opacity" else ~np.isfinite(col)
         if bad.any():
             raise PlyError(f"{path}: property '{name}' has a non-finite value at vertex {int(np.argmax(bad))}")
         return col
@@ -229,6 +234,18 @@ def _owner_column(col: np.ndarray, path: Path) -> np.ndarray:
     return wide.astype(np.int64)
 
 
+def finite_float64(gaussians: GaussianFields, path: str | PathLike) -> GaussianFields:
+    """``gaussians`` as float64 on the CPU, for writing to ``path``; ValueError naming the file, the field and the
+    first bad Gaussian for a non-finite value (nothing is written)."""
+    g = gaussians.detach().to("cpu", torch.float64)
+    for name in ("means", "quats", "scales", "opacities", "sh"):
+        bad = ~torch.isfinite(getattr(g, name))
+        if bool(bad.any()):
+            row = int(bad.reshape(bad.shape[0], -1).any(1).nonzero()[0, 0])
+            raise ValueError(f"{path}: cannot write Gaussians.{name}: non-finite value at Gaussian {row}")
+    return g
+
+
 def write_ply(gaussians: GaussianFields, path: str | PathLike) -> None:
     """Write ``gaussians`` as a binary little-endian 3DGS .ply, atomically (temp file + rename).
 
@@ -237,12 +254,7 @@ def write_ply(gaussians: GaussianFields, path: str | PathLike) -> None:
     and leave an existing file untouched.
     """
     path = Path(path)
-    g = gaussians.detach().to("cpu", torch.float64)
-    for name in ("means", "quats", "scales", "opacities", "sh"):
-        bad = ~torch.isfinite(getattr(g, name))
-        if bool(bad.any()):
-            row = int(bad.reshape(bad.shape[0], -1).any(1).nonzero()[0, 0])
-            raise ValueError(f"{path}: cannot write Gaussians.{name}: non-finite value at Gaussian {row}")
+    g = finite_float64(gaussians, path)
     n, k = g.num, g.sh.shape[1]
     sh = g.sh.numpy()
     props: list[tuple[str, np.ndarray]] = [

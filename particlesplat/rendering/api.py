@@ -11,6 +11,9 @@ from torch import Tensor
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians, quats_to_rotations
 from particlesplat.core.sh import eval_sh_colors
+from particlesplat.rendering.choice import resolve_rasterizer
+from particlesplat.rendering.fused import rasterize_fused
+from particlesplat.rendering.fused_projection import project_views_fused
 from particlesplat.rendering.projection import footprint_extents, project_views
 from particlesplat.rendering.rasterize import RasterizeFunction, bin_gaussians, pair_inputs, tiles_to_images
 
@@ -94,6 +97,7 @@ def render(
     owner_weights: bool = False,
     num_owners: int | None = None,
     foreground: bool = False,
+    rasterizer: str | None = None,
 ) -> RenderResult:
     """Render ``gaussians`` seen by ``camera``.
 
@@ -116,6 +120,8 @@ def render(
         num_owners: P for the owner maps (default: max owner + 1); owners outside 0..P-1
             count as background.
         foreground: also return the differentiable weight of the Gaussians with an owner >= 0.
+        rasterizer: 'fused', 'torch' or 'auto' (default: the process's choice,
+            :mod:`particlesplat.rendering.choice`): the same image to float32 rounding either way.
     """
     return render_batch(
         [(gaussians, camera)],
@@ -125,6 +131,7 @@ def render(
         owner_weights=owner_weights,
         num_owners=num_owners,
         foreground=foreground,
+        rasterizer=rasterizer,
     )[0]
 
 
@@ -137,6 +144,7 @@ def render_batch(
     owner_weights: bool = False,
     num_owners: int | None = None,
     foreground: bool = False,
+    rasterizer: str | None = None,
 ) -> list[RenderResult]:
     """Render several (Gaussians, camera) pairs in one pass; same rules and results as :func:`render`.
 
@@ -170,7 +178,9 @@ def render_batch(
     view = torch.cat([torch.full((len(gs),), v, dtype=torch.int64, device=device) for v, (gs, _) in enumerate(views)])
     cams = [camera.to(device=device, dtype=dtype) for _, camera in views]
     sizes = [(cam.width, cam.height) for cam in cams]
-    proj = project_views(g.means, quats_to_rotations(g.quats), g.scales, rows, view, cams, near, far)
+    fused = resolve_rasterizer(rasterizer, device) == "fused"
+    project = project_views_fused if fused else project_views
+    proj = project(g.means, quats_to_rotations(g.quats), g.scales, rows, view, cams, near, far)
     rows = rows.index_select(0, proj.index)
     view = view.index_select(0, proj.index)
     opac = g.opacities.index_select(0, rows)
@@ -178,34 +188,37 @@ def render_batch(
     centres = torch.stack([cam.center for cam in cams])
     dirs = torch.nn.functional.normalize(g.means.index_select(0, rows) - centres.index_select(0, view), dim=-1)
     colors = eval_sh_colors(g.sh.index_select(0, rows), dirs)
-    features = torch.cat([colors, proj.depths[:, None]], dim=-1)  # (M, 4)
     owner = g.owner.index_select(0, rows)
-    bins = bin_gaussians(proj.means2d, proj.conics, opac, radius, proj.depths, view, sizes)
-    coef, pair_features = pair_inputs(bins, proj.means2d, proj.conics, opac, features)
+    # per-Gaussian feature columns: colour, depth, then the extras that ride along in the same pass (so α and T are
+    # computed once): the per-owner weights as one-hot columns (slot 0 = background, 1..P = owners) and the
+    # particles' weight; the rasterizer appends Σ w (alpha) as the last column
+    columns = [colors, proj.depths[:, None]]
     if owner_weights:
-        # per-owner weights ride along as extra one-hot feature columns of the same pass
-        # (slot 0 = background, 1..P = owners), so α and T are computed once
         if num_owners is not None:
             P = int(num_owners)
         else:
             P = int(g.owner.max()) + 1 if len(g) else 0
         slot = torch.where((owner >= 0) & (owner < P), owner + 1, torch.zeros_like(owner))
-        onehot = torch.nn.functional.one_hot(slot.index_select(0, bins.gauss), P + 1).to(coef.dtype)
-        pair_features = torch.cat([pair_features, torch.cat([onehot, onehot.new_zeros(1, P + 1)])], dim=-1)
+        columns.append(torch.nn.functional.one_hot(slot, P + 1).to(colors.dtype))
     if foreground:
-        is_fg = (owner >= 0).to(coef.dtype).index_select(0, bins.gauss)[:, None]
-        pair_features = torch.cat([pair_features, torch.cat([is_fg, is_fg.new_zeros(1, 1)])], dim=-1)
-    tiles = RasterizeFunction.apply(coef, pair_features, bins)
+        columns.append((owner >= 0).to(colors.dtype)[:, None])
+    features = torch.cat(columns, dim=-1)  # (M, C)
+    if fused:
+        tiles, grids = rasterize_fused(proj.means2d, proj.conics, opac, features, radius, proj.depths, view, sizes)
+    else:
+        bins = bin_gaussians(proj.means2d, proj.conics, opac, radius, proj.depths, view, sizes)
+        tiles = RasterizeFunction.apply(*pair_inputs(bins, proj.means2d, proj.conics, opac, features), bins)
+        grids = bins.grids
     results = []
-    for acc in tiles_to_images(tiles, bins, sizes):
-        alpha = acc[..., 4]
+    for acc in tiles_to_images(tiles, grids, sizes):
+        alpha = acc[..., -1]
         rgb = acc[..., :3] + (1.0 - alpha)[..., None] * bg
         depth = torch.where(alpha > 0, acc[..., 3] / alpha.clamp_min(1e-12), torch.zeros_like(alpha))
         result = RenderResult(rgb, alpha, depth)
         if foreground:
-            result.foreground = acc[..., -1]
+            result.foreground = acc[..., -2]
         if owner_weights:
-            maps = acc[..., 5 : 5 + P + 1].detach()
+            maps = acc[..., 4 : 4 + P + 1].detach()
             result.owner_weights = maps[..., 1:].permute(2, 0, 1).contiguous()
             result.background_weight = maps[..., 0].contiguous()
         results.append(result)

@@ -79,12 +79,9 @@ def bin_gaussians(
     ordering (ties by row index); view: (M,) int64 view of each row; sizes: (width, height) per view.
     """
     device = means2d.device
-    grids, first = [], 0
-    for w, h in sizes:
-        tx, ty = -(-w // TILE), -(-h // TILE)
-        grids.append((tx, ty, first))
-        first += tx * ty
-    n_tiles = first
+    grids = tile_grids(sizes)
+    tx_last, ty_last, first_last = grids[-1]
+    n_tiles = first_last + tx_last * ty_last
     with torch.no_grad():
         # per view (width, height, tiles_x, first tile id), per Gaussian row; gathers use index_select,
         # several times faster than advanced indexing on CPU
@@ -112,15 +109,7 @@ def bin_gaussians(
         gnx = nx.index_select(0, g)
         row = torch.div(offs, gnx, rounding_mode="floor")
         tile = corner.index_select(0, g) + row * tiles_x.index_select(0, g) + (offs - row * gnx)
-        origin = torch.cat(
-            [
-                torch.stack(torch.meshgrid(torch.arange(ty), torch.arange(tx), indexing="ij")[::-1], dim=-1).reshape(
-                    -1, 2
-                )
-                for tx, ty, _ in grids
-            ]
-        ).to(device)
-        origin = origin * TILE + TILE / 2
+        origin = tile_centres(grids, torch.float32, device)
         hit = _tile_hits(g, tile, origin, means2d.detach(), conics.detach(), opacities.detach())
         kept = torch.nonzero(hit).squeeze(1)
         g, tile = g.index_select(0, kept), tile.index_select(0, kept)
@@ -131,6 +120,29 @@ def bin_gaussians(
         count = torch.bincount(tile_sorted, minlength=n_tiles)
         chunks = _make_chunks(count)
     return TileBins(grids, gauss, tile_sorted, count, origin, chunks)
+
+
+def tile_grids(sizes: list[tuple[int, int]]) -> list[tuple[int, int, int]]:
+    """Per view (tiles_x, tiles_y, first tile id) of the views' tile grids, numbered view after view, row-major.
+
+    sizes: (width, height) per view, pixels."""
+    grids, first = [], 0
+    for w, h in sizes:
+        tx, ty = -(-w // TILE), -(-h // TILE)
+        grids.append((tx, ty, first))
+        first += tx * ty
+    return grids
+
+
+def tile_centres(grids: list[tuple[int, int, int]], dtype: torch.dtype, device: torch.device) -> Tensor:
+    """(T, 2) pixel coordinates (x, y) of every tile's centre in its view, in tile-id order."""
+    origin = torch.cat(
+        [
+            torch.stack(torch.meshgrid(torch.arange(ty), torch.arange(tx), indexing="ij")[::-1], dim=-1).reshape(-1, 2)
+            for tx, ty, _ in grids
+        ]
+    ).to(device=device, dtype=torch.float64)
+    return (origin * TILE + TILE / 2).to(dtype)
 
 
 def _tile_hits(
@@ -265,11 +277,13 @@ def pair_inputs(
     return torch.cat([coef, pad]), torch.cat([f1, f1.new_zeros(1, f1.shape[1])])
 
 
-def tiles_to_images(tile_values: Tensor, bins: TileBins, sizes: list[tuple[int, int]]) -> list[Tensor]:
-    """(T, TILE², C) -> per view (H, W, C) (differentiable reshapes and slices)."""
+def tiles_to_images(
+    tile_values: Tensor, grids: list[tuple[int, int, int]], sizes: list[tuple[int, int]]
+) -> list[Tensor]:
+    """(T, TILE², C) -> per view (H, W, C) (differentiable reshapes and slices); grids from :func:`tile_grids`."""
     C = tile_values.shape[-1]
     images = []
-    for (tx, ty, first), (w, h) in zip(bins.grids, sizes, strict=False):
+    for (tx, ty, first), (w, h) in zip(grids, sizes, strict=False):
         img = tile_values[first : first + tx * ty].reshape(ty, tx, TILE, TILE, C).permute(0, 2, 1, 3, 4)
         images.append(img.reshape(ty * TILE, tx * TILE, C)[:h, :w])
     return images

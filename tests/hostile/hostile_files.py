@@ -184,3 +184,31 @@ def lock_run(run: Path, pid: int, host: str | None = None) -> Path:
 
     (run / ".lock").write_text(json.dumps({"pid": pid, "host": host or socket.gethostname(), "started": time.time()}))
     return run
+
+
+def spz_gzip_bomb(path: Path, megabytes: int = 700) -> Path:
+    """A 0.7 MB SPZ whose header declares 1,000 points but whose gzip stream inflates to ``megabytes`` MB."""
+    head = struct.pack("<IIIBBBB", 0x5053474E, 3, 1000, 0, 12, 0, 0)
+    z = zlib.compressobj(9, zlib.DEFLATED, 31)  # a gzip stream
+    chunk = bytes(1 << 20)
+    path.write_bytes(z.compress(head) + b"".join(z.compress(chunk) for _ in range(megabytes)) + z.flush())
+    return path
+
+
+def sog_claiming(path: Path, count: int = 10**9) -> Path:
+    """A SOG zip of one meta.json declaring ``count`` Gaussians (a reader that sizes arrays by it first needs
+    hundreds of GB)."""
+    import json
+    import zipfile
+
+    meta = {
+        "version": 2,
+        "count": count,
+        "means": {"mins": [0, 0, 0], "maxs": [1, 1, 1], "files": ["means_l.webp", "means_u.webp"]},
+        "scales": {"codebook": [0.0] * 256, "files": ["scales.webp"]},
+        "quats": {"files": ["quats.webp"]},
+        "sh0": {"codebook": [0.0] * 256, "files": ["sh0.webp"]},
+    }
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("meta.json", json.dumps(meta))
+    return path

@@ -2,11 +2,11 @@
 process under a memory cap.
 
 The files: an alias bomb (edits file and training config), a .ply with a huge owner, a .ply that lies about
-its vertex count, a PNG decompression bomb in a scene (render, eval, viewer, training validation), a torn
-metrics.jsonl, NaN weights (render, eval, viewer, resume), and a full disk. Each command must end with one
-line naming the file and the field, exit code 2, stay within its memory cap (RLIMIT_AS: the parent's address
-space + CAP_MB), and change no file. The commands run forked from one process that imported them once
-(``runner.py``), so the suite costs one interpreter start.
+its vertex count, an SPZ gzip bomb, a SOG claiming 10**9 Gaussians, a PNG decompression bomb in a scene
+(render, eval, viewer, training validation), a torn metrics.jsonl, NaN weights (render, eval, viewer, resume),
+and a full disk. Each command must end with one line naming the file and the field, exit code 2, stay within
+its memory cap (RLIMIT_AS: the parent's address space + CAP_MB), and change no file. The commands run forked
+from one process that imported them once (``runner.py``), so the suite costs one interpreter start.
 """
 
 from __future__ import annotations
@@ -37,7 +37,9 @@ from hostile_files import (  # noqa: E402 (found through the sys.path entry abov
     nan_checkpoint,
     png_with_camera,
     scene_with,
+    sog_claiming,
     sparse_checkpoint,
+    spz_gzip_bomb,
     tear_log,
 )
 from model_data import TINY_MODEL, tiny_config, tiny_dataset  # noqa: E402
@@ -121,6 +123,8 @@ def world(tmp_path_factory) -> dict[str, Path]:
         "config": alias_bomb_config(w / "bomb_config.yaml"),
         "owner": huge_owner_ply(w / "huge_owner.ply"),
         "count": lying_count_ply(w / "lying_count.ply"),
+        "spz": spz_gzip_bomb(w / "bomb.spz"),
+        "sog": sog_claiming(w / "claims.sog"),
         "many": many_frames_one_image(scene, w / "many"),
         "big": big_config_checkpoint(w / "good.pt", w / "big.pt", token_dim=2048, transformer_layers=64),
         "dmax": big_config_checkpoint(w / "good.pt", w / "dmax.pt", d_max=1e300),
@@ -187,6 +191,16 @@ def _cases(x: dict[str, Path]) -> dict[str, dict]:
             VIEWER,
             ["--ply", str(x["count"])],
             rf"{x['count']}: truncated: header declares 1000000000 vertices",
+        ),
+        "SPZ gzip bomb, render --ply": (
+            PS,
+            ["render", "--ply", str(x["spz"]), "--out", out],
+            rf"{x['spz']}: num_points: 1000 points of SH degree 0 need 20016 bytes, the file holds 20017",
+        ),
+        "SOG of 10**9 Gaussians, export --ply": (
+            PS,
+            ["export", "--ply", str(x["sog"]), "--out", str(w / "out.spz")],
+            rf"{x['sog']}: meta.json: count 1000000000: needs about",
         ),
         "decompression bomb, render --scene": (
             PS,
@@ -441,6 +455,8 @@ def _lines(stderr: str) -> list[str]:
                         "config",
                         "owner",
                         "count",
+                        "spz",
+                        "sog",
                         "many",
                     ),
                     *("big", "dmax", "sparse", "nested", "fx0"),

@@ -32,6 +32,7 @@ class UiFields:
     scene_path: str = ""
     edits_path: str = "edits.yaml"
     output_dir: str = "."  # the app sets the user's output folder (particlesplat.core.userdirs.output_dir)
+    export_format: str = ".ply"  # the extension of what Export writes (particlesplat.formats.splat_files)
     shot_size: list[int] = field(default_factory=lambda: [0, 0])
     insert: InsertFields = field(default_factory=InsertFields)
     status: str = ""

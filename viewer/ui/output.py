@@ -1,10 +1,15 @@
-"""The "Output" section: the folder, the screenshot size, screenshot and .ply exports."""
+"""The "Output" section: the folder, the screenshot size, screenshot and Gaussian file exports (.ply, .compressed.ply,
+.splat, .spz, .sog, or an object bundle)."""
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
 from imgui_bundle import imgui
+
+from particlesplat.formats.splat_files import SUFFIXES
+
+from ..screenshot import BUNDLE
 
 if TYPE_CHECKING:
     from .fields import UiFields, UiRequests
@@ -20,9 +25,14 @@ def draw_output_section(req: UiRequests, fields: UiFields, object_selected: bool
     if imgui.button("Screenshot (P)"):
         req.screenshot = True
     imgui.same_line()
-    if imgui.button("Export .ply (E)"):
+    if imgui.button("Export (E)"):
         req.export_ply = True
     if object_selected:
         imgui.same_line()
-        if imgui.button("Export object .ply"):
+        if imgui.button("Export object"):
             req.export_object = True
+    choices = [*SUFFIXES, BUNDLE]  # a bundle: a folder of one .ply an object (a particle for a file) + manifest
+    current = choices.index(fields.export_format) if fields.export_format in choices else 0
+    changed, idx = imgui.combo("format", current, choices)
+    if changed:
+        fields.export_format = choices[idx]

@@ -35,7 +35,7 @@ SHORTCUTS = (
     ("Ctrl+Z / Ctrl+Shift+Z or Ctrl+Y", "undo / redo"),
     ("Ctrl+S", "save the edits to the 'edits YAML' path"),
     ("P or F12", "screenshot (no UI)"),
-    ("E", "export the drawn Gaussians to .ply"),
+    ("E", "export the drawn Gaussians (format: Output section)"),
     ("M", "next segmentation mode"),
     ("H", "hide / show the panel"),
     ("O", "hide / show the overlay"),

@@ -1,4 +1,5 @@
-"""The "Scene" section: the scene shown, its warnings, the model, demo scenes and a folder or .ply to open."""
+"""The "Scene" section: the scene shown, its warnings, the model, demo scenes and a folder or a Gaussian file
+(.ply, .compressed.ply, .splat, .spz, .sog) to open."""
 
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ def draw_scene_section(session: SceneSession, req: UiRequests, fields: UiFields)
         if changed and idx != current and idx > 0:
             req.open_path = str(scenes[idx - 1])
     entered, fields.scene_path = imgui.input_text(
-        "folder / .ply", fields.scene_path, imgui.InputTextFlags_.enter_returns_true
+        "folder / file", fields.scene_path, imgui.InputTextFlags_.enter_returns_true
     )
     if (imgui.button("Open") or entered) and fields.scene_path.strip():  # Enter in the field opens it too
         req.open_path = fields.scene_path.strip()

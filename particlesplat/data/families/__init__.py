@@ -8,7 +8,11 @@ from __future__ import annotations
 
 FAMILIES = ("tabletop", "robot")
 # the generator a scene.json or synth.json names -> its family (tabletop scenes record only their generator)
-GENERATOR_FAMILY = {"particlesplat.data.synth": "tabletop", "particlesplat.data.families.robot": "robot"}
+GENERATOR_FAMILY = {
+    "particlesplat.data.synth": "tabletop",
+    "particlesplat.data.families.robot": "robot",
+    "particlesplat.data.families.robot_wide": "robot",
+}
 CHECKPOINT_HELP = (
     "model checkpoint (default: the shipped model of the scenes' family: assets/model.pt, assets/robot/model.pt)"
 )

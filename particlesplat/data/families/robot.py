@@ -17,8 +17,8 @@ import json
 import math
 import os
 import shutil
-from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -46,6 +46,8 @@ from .robot_render import SceneRenderer, Views
 CameraRig = Literal["arc", "rlbench"]
 ArmPose = Literal["home", "still", "random"]
 EditKind = Literal["move", "remove"]
+World = Literal["narrow", "wide"]
+WORLDS: tuple[World, ...] = ("narrow", "wide")
 CAMERA_RIGS: tuple[CameraRig, ...] = ("arc", "rlbench")
 ARM_POSES: tuple[ArmPose, ...] = ("home", "still", "random")
 EDIT_KINDS: tuple[EditKind, ...] = ("move", "remove")
@@ -82,13 +84,15 @@ GENERATOR = "particlesplat.data.families.robot"
 @dataclass(frozen=True)
 class RobotSceneConfig:
     """What a robot scene is drawn with: ``cameras`` rig, ``arm`` pose, image ``width`` x ``height`` pixels, and
-    ``views`` on the arc (the fixed rig has four)."""
+    ``views`` on the arc (the fixed rig has four), in the ``world`` (the narrow one described above, or the
+    wide one of :mod:`.robot_wide`, which draws its own arm poses and ignores ``arm``)."""
 
     width: int = 128
     height: int = 128
     cameras: CameraRig = "arc"
     arm: ArmPose = "home"
     views: int = NUM_VIEWS
+    world: World = "narrow"
 
 
 @dataclass(frozen=True)
@@ -116,7 +120,8 @@ class ObjectState:
 @dataclass
 class CameraArc:
     """The camera placement as drawn: ``look_at`` (3,), ``elevation_deg``, ``distance`` (metres), ``azimuths_deg``
-    (V,) for the arc; for the fixed rig ``names`` (V,) and no arc values."""
+    (V,) for the arc; for the fixed rig ``names`` (V,) and no arc values, and, where they were drawn rather than
+    :data:`RLBENCH_CAMERAS`'s, each camera's ``eyes`` (V, 3) and ``targets`` (V, 3), world metres."""
 
     rig: CameraRig
     look_at: tuple[float, float, float]
@@ -125,6 +130,8 @@ class CameraArc:
     distance: float | None = None
     azimuths_deg: tuple[float, ...] = ()
     names: tuple[str, ...] = ()
+    eyes: tuple[tuple[float, float, float], ...] = ()
+    targets: tuple[tuple[float, float, float], ...] = ()
 
     def cameras(self, width: int, height: int) -> list[Camera]:
         """The views (float64, OpenCV convention), in trajectory order."""
@@ -144,16 +151,11 @@ class CameraArc:
                 )
                 for az in self.azimuths_deg
             ]
+        eyes = self.eyes or tuple(RLBENCH_CAMERAS[n][0] for n in self.names)
+        targets = self.targets or tuple(RLBENCH_CAMERAS[n][1] for n in self.names)
         return [
-            Camera.look_at(
-                RLBENCH_CAMERAS[n][0],
-                RLBENCH_CAMERAS[n][1],
-                fov_y_deg=self.fov_y_deg,
-                width=width,
-                height=height,
-                dtype=torch.float64,
-            )
-            for n in self.names
+            Camera.look_at(eye, target, fov_y_deg=self.fov_y_deg, width=width, height=height, dtype=torch.float64)
+            for eye, target in zip(eyes, targets, strict=True)
         ]
 
     def to_json(self) -> dict:
@@ -169,6 +171,9 @@ class CameraArc:
             }
         else:
             out["camera_names"] = list(self.names)
+            if self.eyes:
+                out["camera_eyes"] = [list(e) for e in self.eyes]
+                out["camera_targets"] = [list(t) for t in self.targets]
         return out
 
 
@@ -220,6 +225,10 @@ def _geom_boxes(comp: Composition, geoms: np.ndarray) -> tuple[np.ndarray, np.nd
             half = size[0] * np.sqrt(np.clip(1.0 - axis**2, 0.0, None)) + size[1] * np.abs(axis)
         elif gtype == 2:  # mjGEOM_SPHERE
             half = np.full(3, size[0])
+        elif gtype == 3:  # mjGEOM_CAPSULE: a segment of half length size[1] along R[:, 2], radius size[0]
+            half = size[0] + size[1] * np.abs(R[:, 2])
+        elif gtype == 4:  # mjGEOM_ELLIPSOID: semi-axes size along R's columns
+            half = np.sqrt(((R * size[None, :]) ** 2).sum(1))
         else:
             half = np.full(3, m.geom_rbound[g])
         lo[i], hi[i] = p - half, p + half
@@ -271,34 +280,47 @@ def _draw_object(rng: np.random.Generator, used: set[str]) -> ObjectSpec:
 
 
 def _footprint(mujoco, assets: Path, obj: ObjectSpec) -> tuple[float, float]:
-    """(xy radius, lowest z relative to the body origin) of ``obj`` upright, metres."""
+    """(xy radius, lowest z relative to the body origin) of ``obj`` at rest (upright; a capsule lying along its
+    body's x), metres."""
     if obj.half_size is not None:
         hx, hy, hz = obj.half_size
-        return (math.hypot(hx, hy) if obj.kind == "box" else hx), -hz
+        if obj.kind == "box":
+            return math.hypot(hx, hy), -hz
+        if obj.kind == "capsule":
+            return hz + hx, -hx
+        if obj.kind == "ellipsoid":
+            return max(hx, hy), -hz
+        return hx, -hz  # cylinder, sphere
     radius, zmin, _ = _extent(mujoco, assets, obj.kind)
     return radius, zmin
 
 
-def _draw_layout(mujoco, assets: Path, rng: np.random.Generator, table_half: float) -> tuple[list[ObjectSpec], list]:
-    """2-5 objects at random positions and yaws on the table whose footprint discs do not overlap; returns
-    them and their (radius, lowest z)."""
+ObjectDraw = Callable[[np.random.Generator, set[str]], ObjectSpec]
+
+
+def _draw_layout(
+    mujoco,
+    assets: Path,
+    rng: np.random.Generator,
+    table_half: float,
+    draw: ObjectDraw = _draw_object,
+    counts: tuple[int, int] = NUM_OBJECTS,
+) -> tuple[list[ObjectSpec], list]:
+    """``counts`` (2-5) objects drawn by ``draw`` (given the kinds already in the scene) at random positions and
+    yaws on the table whose footprint discs do not overlap; returns them and their (radius, lowest z)."""
     while True:
-        count = int(rng.integers(NUM_OBJECTS[0], NUM_OBJECTS[1] + 1))
+        count = int(rng.integers(counts[0], counts[1] + 1))
         objects: list[ObjectSpec] = []
         feet: list[tuple[float, float]] = []
         used: set[str] = set()
         for _ in range(count):
-            proto = _draw_object(rng, used)
+            proto = draw(rng, used)
             radius, zmin = _footprint(mujoco, assets, proto)
             lim = table_half - TABLE_MARGIN - radius
             for _ in range(100):
                 x, y = (float(v) for v in rng.uniform(-lim, lim, size=2))
                 if all(math.hypot(x - o.x, y - o.y) >= radius + f[0] + GAP for o, f in zip(objects, feet, strict=True)):
-                    objects.append(
-                        ObjectSpec(
-                            proto.kind, x, y, float(rng.uniform(-math.pi, math.pi)), proto.half_size, proto.texture
-                        )
-                    )
+                    objects.append(replace(proto, x=x, y=y, yaw=float(rng.uniform(-math.pi, math.pi))))
                     feet.append((radius, zmin))
                     used.add(proto.kind)
                     break
@@ -324,19 +346,24 @@ def _contacts(comp: Composition) -> tuple[bool, bool]:
     return obj_obj, obj_arm
 
 
-def _settle(mujoco, comp: Composition, arm: np.ndarray) -> bool:
-    """Step physics, holding the arm, until every object rests (speed below ``REST_SPEED``); False if they do
-    not within ``SETTLE_MAX_SECONDS``."""
+def _settle(mujoco, comp: Composition, arm: np.ndarray, fingers: tuple[float, ...] | None = (0.02, -0.02)) -> bool:
+    """Step physics, holding the arm (and the gripper's joints at ``fingers``; None: its actuators drive them to
+    their controls in ``comp.data.ctrl``), until every object (and a driven gripper) rests (speed below
+    ``REST_SPEED``); False if they do not within ``SETTLE_MAX_SECONDS``."""
     m, d = comp.model, comp.data
-    arm_dofs = np.concatenate([np.arange(m.jnt_dofadr[j], m.jnt_dofadr[j] + 1) for j in _arm_joint_ids(comp)])
+    held = _arm_joint_ids(comp, fingers is not None)
+    arm_dofs = np.concatenate([np.arange(m.jnt_dofadr[j], m.jnt_dofadr[j] + 1) for j in held])
+    finger_dofs = [] if fingers is not None else [int(m.jnt_dofadr[j]) for j in _finger_joint_ids(comp)]
     steps_min = int(SETTLE_SECONDS / m.opt.timestep)
     for step in range(int(SETTLE_MAX_SECONDS / m.opt.timestep)):
         mujoco.mj_step(m, d)
         d.qpos[comp.arm_qpos] = arm
-        d.qpos[comp.finger_qpos] = (0.02, -0.02)
+        if fingers is not None:
+            d.qpos[comp.finger_qpos] = fingers
         d.qvel[arm_dofs] = 0.0
         if step >= steps_min and step % 25 == 0:
             speeds = [np.abs(d.qvel[m.body_dofadr[b] : m.body_dofadr[b] + 6]).max() for b in comp.object_bodies]
+            speeds += [abs(float(d.qvel[i])) for i in finger_dofs]
             if max(speeds) < REST_SPEED:
                 d.qvel[:] = 0.0
                 mujoco.mj_forward(m, d)
@@ -344,10 +371,17 @@ def _settle(mujoco, comp: Composition, arm: np.ndarray) -> bool:
     return False
 
 
-def _arm_joint_ids(comp: Composition) -> list[int]:
+def _arm_joint_ids(comp: Composition, fingers: bool = True) -> list[int]:
+    """Joint ids of the arm (and, with ``fingers``, the gripper's joints)."""
     m = comp.model
     qpos_to_joint = {int(m.jnt_qposadr[j]): j for j in range(m.njnt)}
-    return [qpos_to_joint[int(a)] for a in (*comp.arm_qpos, *comp.finger_qpos)]
+    return [qpos_to_joint[int(a)] for a in (*comp.arm_qpos, *(comp.finger_qpos if fingers else ()))]
+
+
+def _finger_joint_ids(comp: Composition) -> list[int]:
+    m = comp.model
+    qpos_to_joint = {int(m.jnt_qposadr[j]): j for j in range(m.njnt)}
+    return [qpos_to_joint[int(a)] for a in comp.finger_qpos]
 
 
 def _draw_arm(rng: np.random.Generator, comp: Composition, pose: ArmPose) -> np.ndarray:
@@ -387,11 +421,15 @@ class SettledScene:
     arc: CameraArc
     config: RobotSceneConfig
 
+    def objects_json(self, states: Sequence[ObjectState]) -> list[dict]:
+        """scene.json's ``objects`` for ``states`` (the scene's, or those after an edit)."""
+        return [o.to_json() for o in states]
+
     def to_json(self) -> dict:
         return {
             "family": "robot",
             "support_z": 0.0,
-            "objects": [o.to_json() for o in self.objects],
+            "objects": self.objects_json(self.objects),
             "arm_joints_rad": [float(v) for v in self.arm],
             "table_half_extent": [float(v) for v in self.comp.table_half],
             **self.arc.to_json(),
@@ -432,26 +470,43 @@ def build_scene(rng: np.random.Generator, config: RobotSceneConfig, assets: Path
             table_half = compose(mujoco, assets, [], [], (8, 8)).table_half
         specs, feet = _draw_layout(mujoco, assets, rng, float(min(table_half)))
         comp = compose(mujoco, assets, specs, poses, (config.width, config.height))
-        m, d = comp.model, comp.data
-        for adr, spec, (_, zmin) in zip(comp.object_qpos, specs, feet, strict=True):
-            d.qpos[adr : adr + 7] = (spec.x, spec.y, 0.002 - zmin, *yaw_quat(spec.yaw))
+        drop_objects(comp, specs, feet)
         arm = None
         for _ in range(20):
             cand = _draw_arm(rng, comp, config.arm)
-            d.qpos[comp.arm_qpos] = cand
-            mujoco.mj_forward(m, d)
-            if not _contacts(comp)[1] and _arm_clear_of_table(comp):
+            if arm_fits(mujoco, comp, cand):
                 arm = cand
                 break
-        if arm is None or not _settle(mujoco, comp, arm):
-            continue
-        if any(_contacts(comp)):
-            continue
-        boxes = [object_box(comp, k) for k in range(1, len(specs) + 1)]
-        if not _boxes_clear(boxes, comp.table_half, GAP):
+        if arm is None or not settles_clear(mujoco, comp, arm):
             continue
         return SettledScene(comp, object_states(comp, specs), specs, arm, arc, config)
     raise RuntimeError(f"no valid robot layout in {MAX_LAYOUT_TRIES} tries")
+
+
+def drop_objects(comp: Composition, specs: Sequence[ObjectSpec], feet: Sequence[tuple[float, float]]) -> None:
+    """Put each object at its drop pose: its drawn x, y and yaw, its lowest point (``feet``' z) 2 mm above the
+    table."""
+    for adr, spec, (_, zmin) in zip(comp.object_qpos, specs, feet, strict=True):
+        comp.data.qpos[adr : adr + 7] = (spec.x, spec.y, 0.002 - zmin, *yaw_quat(spec.yaw))
+
+
+def arm_fits(mujoco, comp: Composition, q: np.ndarray) -> bool:
+    """Set the arm to ``q`` (7,): True when it then touches neither the objects nor the table and keeps above the
+    table top (:func:`_arm_clear_of_table`)."""
+    comp.data.qpos[comp.arm_qpos] = q
+    mujoco.mj_forward(comp.model, comp.data)
+    return not _contacts(comp)[1] and _arm_clear_of_table(comp)
+
+
+def settles_clear(
+    mujoco, comp: Composition, arm: np.ndarray, fingers: tuple[float, ...] | None = (0.02, -0.02)
+) -> bool:
+    """Settle the objects (:func:`_settle`, holding the arm at ``arm``): True when they come to rest touching
+    nothing, on the table, their footprints :data:`GAP` apart."""
+    if not _settle(mujoco, comp, arm, fingers) or any(_contacts(comp)):
+        return False
+    boxes = [object_box(comp, k) for k in range(1, comp.object_bodies.size + 1)]
+    return _boxes_clear(boxes, comp.table_half, GAP)
 
 
 def _arm_clear_of_table(comp: Composition) -> bool:
@@ -539,10 +594,17 @@ def apply_edit(mujoco, scene: SettledScene, edit: GroundTruthEdit, kind: EditKin
 
 # ------------------------------------------------------------------------------------------ scene folders
 def write_robot_scene(
-    folder: Path, rng: np.random.Generator, config: RobotSceneConfig, meta: dict, edits_rng: np.random.Generator | None
+    folder: Path,
+    rng: np.random.Generator,
+    config: RobotSceneConfig,
+    meta: dict,
+    edits_rng: np.random.Generator | None,
+    build: Callable[[np.random.Generator, RobotSceneConfig], SettledScene] = build_scene,
+    generator: str = GENERATOR,
 ) -> dict:
-    """Draw, simulate and render one scene and write it as a complete scene folder at ``folder`` (built under a
-    temporary name in the same parent and renamed at the end). With ``edits_rng``, also its ground-truth edits
+    """Draw (``build``: the narrow world's :func:`build_scene`, or another world's), simulate and render one scene
+    and write it as a complete scene folder at ``folder`` (built under a temporary name in the same parent and
+    renamed at the end), its scene.json naming ``generator``. With ``edits_rng``, also its ground-truth edits
     under ``folder/edits/`` and ``folder/edits.json``. Returns seconds per stage."""
     import time
 
@@ -551,7 +613,7 @@ def write_robot_scene(
     mujoco = import_mujoco()
     times = {}
     t0 = time.perf_counter()
-    scene = build_scene(rng, config)
+    scene = build(rng, config)
     times["simulate"] = time.perf_counter() - t0
     cams = scene.arc.cameras(config.width, config.height)
     folder.parent.mkdir(parents=True, exist_ok=True)
@@ -562,7 +624,7 @@ def write_robot_scene(
         t0 = time.perf_counter()
         views = renderer.render(scene.comp.camera_ids)
         times["render"] = time.perf_counter() - t0
-        base = {"generator": GENERATOR, "format_version": FORMAT_VERSION, **meta, **scene.to_json()}
+        base = {"generator": generator, "format_version": FORMAT_VERSION, **meta, **scene.to_json()}
         write_views(tmp, views, cams, base)
         if edits_rng is not None:
             t0 = time.perf_counter()
@@ -573,7 +635,7 @@ def write_robot_scene(
                     objects = apply_edit(mujoco, scene, edit, kind)
                     edited = renderer.render(scene.comp.camera_ids)
                     (tmp / "edits" / kind).mkdir()
-                    info = {**base, "objects": [o.to_json() for o in objects], "edit": kind, **edit.to_json()}
+                    info = {**base, "objects": scene.objects_json(objects), "edit": kind, **edit.to_json()}
                     write_views(tmp / "edits" / kind, edited, cams, info)
                     if kind == "move":  # back to the original before the next edit
                         adr = scene.comp.object_qpos[edit.object_id - 1]

@@ -1,4 +1,6 @@
-"""Write a robot-workspace dataset: ``OUT/{train,val,test}/scene_NNNNN`` (test scenes with ground-truth edits).
+"""Write a robot-workspace dataset: ``OUT/{train,val,test,heldout}/scene_NNNNN`` (test and held-out scenes with
+ground-truth edits), of the narrow world (:mod:`.robot`) or the wide one (:mod:`.robot_wide`; only it has a
+held-out split).
 
 Every scene draws from its own RNG seeded by ``(seed, split, index)`` (and its edits from
 ``(seed, split, index, 1)``), so a scene does not depend on the worker count, the other splits' sizes or
@@ -10,6 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -25,10 +28,10 @@ from particlesplat.data.synth import (
     scene_name,
 )
 
-from .robot import ARM_POSES, CAMERA_RIGS, FORMAT_VERSION, GENERATOR, RobotSceneConfig, write_robot_scene
+from .robot import ARM_POSES, CAMERA_RIGS, FORMAT_VERSION, GENERATOR, WORLDS, RobotSceneConfig, write_robot_scene
 from .robot_assets import assets_dir, import_mujoco
 
-EDIT_SPLITS = ("test",)  # splits whose scenes carry ground-truth edits
+EDIT_SPLITS = ("test", "heldout")  # splits whose scenes carry ground-truth edits
 
 
 def scene_rngs(
@@ -44,7 +47,32 @@ def write_scene(out: Path, seed: int, split: str, index: int, config: RobotScene
     """Write scene ``index`` of ``split`` under ``out``; returns seconds per stage."""
     rng, edits_rng = scene_rngs(seed, split, index, edits)
     meta = {"seed": seed, "split": split, "index": index}
-    return write_robot_scene(out / split / scene_name(index), rng, config, meta, edits_rng)
+    folder = out / split / scene_name(index)
+    if config.world == "wide":
+        from . import robot_wide
+
+        build = partial(robot_wide.build_wide_scene, heldout=split == "heldout")
+        return write_robot_scene(folder, rng, config, meta, edits_rng, build, robot_wide.GENERATOR)
+    return write_robot_scene(folder, rng, config, meta, edits_rng)
+
+
+def manifest(seed: int, config: RobotSceneConfig) -> dict:
+    """What ``synth.json`` records of a robot dataset (a narrow dataset's as before the wide world existed, so
+    those datasets still resume)."""
+    settings = asdict(config)
+    if config.world == "narrow":
+        settings.pop("world")
+        return {"generator": GENERATOR, "format_version": FORMAT_VERSION, "seed": seed, **settings}
+    from . import robot_wide
+
+    settings.pop("arm")  # the wide world draws its own arm poses
+    return {
+        "generator": robot_wide.GENERATOR,
+        "format_version": FORMAT_VERSION,
+        "family": "robot",
+        "seed": seed,
+        **settings,
+    }
 
 
 def _work(task: tuple) -> dict:
@@ -83,9 +111,15 @@ def generate(
         raise OptionError(f"--cameras must be one of {', '.join(CAMERA_RIGS)}, got {config.cameras!r}")
     if config.arm not in ARM_POSES:
         raise OptionError(f"--arm must be one of {', '.join(ARM_POSES)}, got {config.arm!r}")
+    if config.world not in WORLDS:
+        raise OptionError(f"--world must be one of {', '.join(WORLDS)}, got {config.world!r}")
+    if config.world == "wide" and config.arm != "home":
+        raise OptionError(f"--arm {config.arm}: the wide world draws its own arm poses; leave --arm out")
+    if config.world == "narrow" and counts.get("heldout", 0):
+        raise OptionError("--heldout: only the wide world (--world wide) has a held-out split")
     assets_dir()  # one line naming what to install, before any folder is made
     import_mujoco()
-    check_manifest(out, {"generator": GENERATOR, "format_version": FORMAT_VERSION, "seed": seed, **asdict(config)})
+    check_manifest(out, manifest(seed, config))
     tasks = [(str(out), seed, split, i, config, split in edits) for split, i in missing_scenes(out, counts)]
     total = sum(counts.values())
     bar = tqdm(total=total, initial=total - len(tasks), desc="synth robot", unit="scene", disable=not progress)

@@ -1,0 +1,150 @@
+"""``particlesplat export``: write a (possibly edited) scene, or convert a Gaussian file, to the formats other
+splat tools open; or write it as an object bundle (a ``.ply`` per particle or object, ``rest.ply``, a manifest).
+
+The format comes from ``--out``'s extension (:mod:`particlesplat.formats.splat_files`). The scene is what
+``particlesplat render`` draws for the same ``--scene`` / ``--edits`` / ``--edits-from`` / ``--context`` /
+``--checkpoint``, decoded with its background.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from particlesplat.core.errors import OptionError
+from particlesplat.data.folders import check_existing, check_file
+from particlesplat.editing.source_options import add_source_arguments, check_source_arguments
+from particlesplat.formats.splat_files import SUFFIX_HELP
+
+PRUNE_DEFAULT = 1.0 / 255.0  # below half an 8-bit opacity step every compact format stores 0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_source_arguments(parser, ply_help=f"convert a Gaussian file ({SUFFIX_HELP}) instead of a model scene")
+    parser.add_argument(
+        "--edits-from",
+        metavar="PNG",
+        help="replay the edit file a viewer screenshot or a rendered PNG carries (its 'edits' chunk), on the scene "
+        "and context frames it names unless --scene / --context say otherwise",
+    )
+    parser.add_argument(
+        "--out",
+        required=True,
+        help=f"output file, its format from the extension ({SUFFIX_HELP}); with --by: the bundle's folder",
+    )
+    parser.add_argument(
+        "--by",
+        choices=("particle", "object"),
+        help="write an object bundle to the folder --out: particle_<i>.ply or object_<k>.ply, rest.ply and "
+        "manifest.json (centres, extents, presence, objects, members, context cameras)",
+    )
+    parser.add_argument(
+        "--prune",
+        type=float,
+        nargs="?",
+        const=PRUNE_DEFAULT,
+        default=0.0,
+        metavar="OPACITY",
+        help="drop Gaussians with opacity below OPACITY first (alone: 1/255, what an 8-bit opacity stores as 0); "
+        "none = keep all",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from particlesplat.core.atomic import check_writable
+    from particlesplat.core.errors import EXIT_USER, one_line
+
+    prog = "particlesplat export"
+    scene = None
+    try:
+        check_source_arguments(args)
+        if args.ply and args.edits_from:
+            raise OptionError("--edits-from needs a model scene, not --ply")
+        if args.ply and args.by == "object":
+            raise OptionError("--by object needs a model scene (its particles' objects), not --ply: use --by particle")
+        if not 0.0 <= args.prune <= 1.0:
+            raise OptionError(f"--prune must be an opacity in [0, 1], got {args.prune:g}")
+        check_existing(args.scene, "--scene")  # before torch loads: a typo is one quick line
+        for name in ("ply", "checkpoint", "edits", "edits_from"):
+            check_file(getattr(args, name), f"--{name.replace('_', '-')}")
+        from particlesplat.formats.splat_files import SUFFIXES, format_for
+
+        if args.by is None:
+            fmt = format_for(args.out)  # before the work, not after it
+            try:
+                check_writable(args.out)
+            except OSError as e:
+                raise OSError(f"--out {one_line(e)}") from None
+        else:
+            from particlesplat.formats.bundle import check_bundle_target
+
+            if args.out.lower().endswith(SUFFIXES):
+                raise OptionError(f"--out {args.out}: --by writes a folder (e.g. {Path(args.out).stem}_parts/)")
+            check_bundle_target(args.out)
+        if args.ply:
+            from particlesplat.editing.open_scene import load_ply_checked
+
+            g = load_ply_checked(args.ply)
+            source = str(args.ply)
+        else:
+            from particlesplat.editing.edited_scene import open_edited_scene
+
+            scene = open_edited_scene(args.checkpoint, args.scene, args.context, args.edits, args.edits_from)
+            for warning in scene.warnings:
+                print(f"{prog}: warning: {warning}", file=sys.stderr)
+            g = scene.model.decode(scene.particles).detach().to("cpu")
+            source = str(scene.encoded.path)
+    except (OSError, ValueError, KeyError) as e:
+        print(f"{prog}: {one_line(e)}", file=sys.stderr)
+        return EXIT_USER
+    total = g.num
+    if args.prune > 0:
+        g = g.subset(g.opacities >= args.prune)
+    pruned = f", {total - g.num} below opacity {args.prune:.4g} dropped" if args.prune > 0 else ""
+    try:
+        if args.by is not None:
+            from particlesplat.analysis.bundle_parts import bundle_header, bundle_parts
+            from particlesplat.formats.bundle import write_bundle
+
+            arrays = None
+            if scene is not None:
+                from particlesplat.analysis.particle_arrays import particle_arrays
+
+                arrays = particle_arrays(scene.model, scene.particles)
+            parts = bundle_parts(g, args.by, arrays)
+            header = (
+                bundle_header(source, None)
+                if scene is None
+                else bundle_header(
+                    source, scene.model_name, scene.particles, scene.encoded.context, edited=bool(scene.edits)
+                )
+            )
+            manifest = write_bundle(args.out, args.by, parts, header)
+            print(
+                f"saved {args.out}/: {len(parts) - 1} {args.by} part(s) + rest.ply and manifest.json, "
+                f"{manifest['gaussians']} Gaussians{pruned}"
+            )
+            return 0
+        if fmt.suffix == ".sog" and g.sh.shape[1] > 1:
+            from particlesplat.formats.sog import MAX_PALETTE, keeps_sh
+
+            if not keeps_sh(g.num, g.sh.shape[1]):
+                print(
+                    f"{prog}: warning: .sog keeps SH above degree 0 for up to {MAX_PALETTE} Gaussians, not "
+                    f"{g.num}: higher bands dropped",
+                    file=sys.stderr,
+                )
+        if fmt.suffix == ".splat" and g.sh.shape[1] > 1:
+            print(f"{prog}: warning: .splat holds no SH: higher bands dropped", file=sys.stderr)
+        fmt.write(g, args.out)
+    except (OSError, ValueError) as e:
+        message = one_line(e)
+        named = message if str(args.out) in message else f"--out {args.out}: {message}"
+        print(f"{prog}: {named}", file=sys.stderr)
+        return EXIT_USER
+    size = os.path.getsize(args.out)
+    per = f", {size / g.num:.1f} bytes a Gaussian" if g.num else ""
+    print(f"saved {Path(args.out)} ({fmt.description}, {g.num} Gaussians{pruned}, {size} bytes{per})")
+    return 0

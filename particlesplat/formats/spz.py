@@ -1,0 +1,209 @@
+"""Niantic's SPZ (version 3, MIT): a gzip stream of a 16-byte header and one array per attribute.
+
+Header (little endian): ``magic`` uint32 0x5053474e ("NGSP"), ``version`` uint32 (3; 2 is read too),
+``num_points`` uint32, ``sh_degree`` uint8 (0..3), ``fractional_bits`` uint8, ``flags`` uint8 (bit 0:
+antialiased), ``reserved`` uint8 (0). Then, for N points, in this order:
+
+- positions: 3 x int24 each, fixed point with ``fractional_bits`` fraction bits (12 here: 0.24 mm steps within
+  ±2 km; one fewer for each doubling of a larger scene's reach);
+- alphas: uint8, opacity * 255;
+- colours: 3 x uint8, ``dc * 0.15 * 255 + 127.5`` (the DC SH coefficient, not the colour);
+- scales: 3 x uint8, ``(log scale + 10) * 16``;
+- rotations: uint32, smallest three of the unit quaternion in (x, y, z, w) order: the largest component's index
+  in bits 30-31, then for each other component in ascending order 10 bits (a sign bit over a 9-bit magnitude of
+  ``|c| / sqrt(1/2) * 511``), the first in bits 20-29; version 2 stored x, y, z as ``c * 127.5 + 127.5``;
+- SH: ``sh_dim * 3`` uint8 per point (coefficient-major, channel-minor), ``round(c * 128) + 128`` on 5 bits
+  (step 8) for degree 1 and 4 bits (step 16) above.
+
+Axes: the positions and rotations are stored in the ``.ply``'s own axes, as PlayCanvas's splat-transform,
+SuperSplat and Spark write and read them (the spec names RUB as SPZ's internal frame; Niantic's own ``.ply``
+converter flips y and z, which this one does not). Version 4 (ZSTD streams) is not read: it needs a ZSTD
+decoder the standard library lacks (``splat-transform --spz-version 3`` writes version 3).
+"""
+
+from __future__ import annotations
+
+import gzip
+import struct
+import zlib
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from particlesplat.core.atomic import atomic_write
+from particlesplat.core.sh import num_sh_bases
+from particlesplat.formats.ply import GaussianFields, PlyFields
+from particlesplat.formats.splat_arrays import (
+    SplatArrays,
+    SplatFileError,
+    background_owner,
+    check_decode_memory,
+    largest_component,
+    others_of,
+    splat_arrays,
+    to_fields,
+)
+
+MAGIC = 0x5053474E
+VERSION = 3
+HEADER = struct.Struct("<IIIBBBB")
+FRACTIONAL_BITS = 12
+COLOR_SCALE = 0.15
+FLAG_ANTIALIASED = 0x1
+MAX_POINTS = 1 << 26  # 67M points: a header asking for more is refused before anything is allocated
+_SQRT1_2 = np.sqrt(0.5)
+
+
+def _sh_dim(degree: int) -> int:
+    return num_sh_bases(degree) - 1
+
+
+def encode_spz(a: SplatArrays, path: str | PathLike = "") -> bytes:
+    """The (uncompressed) SPZ v3 payload of ``a``; ValueError naming ``path`` for a position beyond the fixed
+    point's range."""
+    n, degree = a.num, a.sh_degree
+    peak = float(np.abs(a.means).max()) if n else 0.0
+    frac = FRACTIONAL_BITS  # fewer fraction bits for a scene reaching beyond ±2 km: coarser steps, same range
+    while frac > 0 and np.rint(peak * (1 << frac)) >= (1 << 23) - 1:
+        frac -= 1
+    fixed = np.rint(a.means * float(1 << frac))
+    if n and np.abs(fixed).max() >= (1 << 23) - 1:
+        row = int(np.argwhere((np.abs(fixed) >= (1 << 23) - 1).any(1))[0, 0])
+        raise ValueError(
+            f"{path}: cannot write SPZ: position {a.means[row].tolist()} of Gaussian {row} is beyond "
+            f"±{(1 << 23) - 1} m (24-bit fixed point)"
+        )
+    pos = fixed.astype(np.int64).reshape(-1) & 0xFFFFFF
+    pos_bytes = np.stack([pos & 0xFF, (pos >> 8) & 0xFF, (pos >> 16) & 0xFF], axis=1).astype(np.uint8)
+    alphas = np.clip(np.rint(a.opacities * 255.0), 0, 255).astype(np.uint8)
+    colours = np.clip(np.rint(a.sh[:, 0, :] * (COLOR_SCALE * 255.0) + 127.5), 0, 255).astype(np.uint8)
+    scales = np.clip(np.rint((a.log_scales + 10.0) * 16.0), 0, 255).astype(np.uint8)
+    rotations = _pack_rotations(a.quats)
+    dim = _sh_dim(degree)
+    rest = a.sh[:, 1:, :]  # (N, dim, 3): coefficient-major, channel-minor as stored
+    q = np.rint(rest * 128.0) + 128.0
+    step = np.where(np.arange(dim) < 3, 8.0, 16.0)[None, :, None]
+    q = np.clip(np.floor((q + step / 2) / step) * step, 0, 255).astype(np.uint8)
+    header = HEADER.pack(MAGIC, VERSION, n, degree, frac, 0, 0)
+    parts = [pos_bytes, alphas, colours, scales, rotations.astype("<u4"), q.reshape(n, dim * 3)]
+    return header + b"".join(np.ascontiguousarray(p).tobytes() for p in parts)
+
+
+def _pack_rotations(wxyz: np.ndarray) -> np.ndarray:
+    """(N,) uint32 smallest-three codes of (N, 4) unit wxyz quaternions (stored in x, y, z, w order)."""
+    xyzw = wxyz[:, [1, 2, 3, 0]]
+    largest, q = largest_component(xyzw)
+    others = others_of(largest)
+    packed = largest.astype(np.uint64) << np.uint64(30)
+    for slot in range(3):
+        c = q[np.arange(len(q)), others[:, slot]]
+        mag = np.clip(np.rint(np.abs(c) / _SQRT1_2 * 511.0), 0, 511).astype(np.uint64)
+        code = mag | ((c < 0).astype(np.uint64) << np.uint64(9))
+        packed |= code << np.uint64(10 * (2 - slot))
+    return packed.astype(np.uint32)
+
+
+def write_spz(gaussians: GaussianFields, path: str | PathLike) -> None:
+    """Write ``gaussians`` as a gzip-compressed SPZ v3 file (SH kept up to degree 3), atomically."""
+    data = gzip.compress(encode_spz(splat_arrays(gaussians, path), path), compresslevel=9, mtime=0)
+    with atomic_write(Path(path), "wb") as f:
+        f.write(data)
+
+
+def _payload_size(n: int, degree: int, version: int) -> int:
+    return HEADER.size + n * (9 + 1 + 3 + 3 + (3 if version == 2 else 4) + 3 * _sh_dim(degree))
+
+
+def decode_spz(raw: bytes, path: str | PathLike) -> SplatArrays:
+    """The Gaussians of an uncompressed SPZ payload (version 2 or 3); SplatFileError names ``path`` and the field."""
+    if len(raw) < HEADER.size:
+        raise SplatFileError(f"{path}: truncated SPZ header ({len(raw)} of {HEADER.size} bytes)")
+    magic, version, n, degree, frac, _flags, _reserved = HEADER.unpack_from(raw)
+    if magic != MAGIC:
+        raise SplatFileError(f"{path}: magic: 0x{magic:08x} is not SPZ's 0x{MAGIC:08x} ('NGSP')")
+    if version not in (2, 3):
+        raise SplatFileError(f"{path}: version: {version} is not supported (2 or 3)")
+    if degree > 3:
+        raise SplatFileError(f"{path}: sh_degree: {degree} is not supported (0..3)")
+    if frac > 23:
+        raise SplatFileError(f"{path}: fractional_bits: {frac} is beyond the 24-bit positions")
+    want = _payload_size(n, degree, version)
+    if len(raw) != want:
+        raise SplatFileError(
+            f"{path}: num_points: {n} points of SH degree {degree} need {want} bytes, the file holds {len(raw)}"
+        )
+    off = HEADER.size
+
+    def take(count: int, width: int) -> np.ndarray:
+        nonlocal off
+        block = np.frombuffer(raw, dtype=np.uint8, count=count * width, offset=off).reshape(count, width)
+        off += count * width
+        return block.astype(np.int64)
+
+    p = take(n * 3, 3)
+    fixed = p[:, 0] | (p[:, 1] << 8) | (p[:, 2] << 16)
+    fixed = np.where(fixed >= 1 << 23, fixed - (1 << 24), fixed)
+    means = fixed.reshape(n, 3) / float(1 << frac)
+    alphas = take(n, 1)[:, 0] / 255.0
+    dc = (take(n, 3) / 255.0 - 0.5) / COLOR_SCALE
+    log_scales = take(n, 3) / 16.0 - 10.0
+    if version == 2:
+        xyz = take(n, 3) / 127.5 - 1.0
+        w = np.sqrt(np.maximum(0.0, 1.0 - (xyz**2).sum(1)))
+        quats = np.concatenate([w[:, None], xyz], axis=1)
+    else:
+        quats = _unpack_rotations(take(n, 4))
+    dim = _sh_dim(degree)
+    rest = (take(n, dim * 3).reshape(n, dim, 3) - 128.0) / 128.0
+    sh = np.concatenate([dc[:, None, :], rest], axis=1)
+    return SplatArrays(means, quats, log_scales, alphas, sh, background_owner(n))
+
+
+def _unpack_rotations(b: np.ndarray) -> np.ndarray:
+    """(N, 4) wxyz quaternions of (N, 4) little-endian bytes of smallest-three codes."""
+    packed = b[:, 0] | (b[:, 1] << 8) | (b[:, 2] << 16) | (b[:, 3] << 24)
+    largest = packed >> 30
+    others = others_of(largest)
+    xyzw = np.zeros((len(b), 4))
+    rows = np.arange(len(b))
+    for slot in range(3):
+        code = (packed >> (10 * (2 - slot))) & 0x3FF
+        value = _SQRT1_2 * (code & 0x1FF) / 511.0
+        xyzw[rows, others[:, slot]] = np.where(code & 0x200, -value, value)
+    xyzw[rows, largest] = np.sqrt(np.maximum(0.0, 1.0 - (xyzw**2).sum(1)))
+    return xyzw[:, [3, 0, 1, 2]]
+
+
+def read_spz(path: str | PathLike) -> PlyFields:
+    """Read a gzip SPZ file (version 2 or 3) into float32 tensors; SplatFileError names the file and the field."""
+    path = Path(path)
+    data = path.read_bytes()
+    if data[:4] == struct.pack("<I", MAGIC):
+        version = struct.unpack_from("<I", data, 4)[0] if len(data) >= 8 else 0
+        raise SplatFileError(
+            f"{path}: SPZ version {version} with ZSTD streams is not supported: write version 3 "
+            "(splat-transform --spz-version 3)"
+        )
+    if data[:2] != b"\x1f\x8b":
+        raise SplatFileError(f"{path}: not an SPZ file (no gzip stream)")
+    return to_fields(decode_spz(_gunzip_bounded(data, path), path), path)
+
+
+def _gunzip_bounded(data: bytes, path: Path) -> bytes:
+    """The gzip stream's bytes, never more than its header's point count can need (a stream that would inflate
+    beyond that is refused as a lying size, not inflated)."""
+    inflater = zlib.decompressobj(wbits=31)
+    try:
+        head = inflater.decompress(data, HEADER.size)
+        if len(head) < HEADER.size:
+            raise SplatFileError(f"{path}: truncated SPZ header ({len(head)} of {HEADER.size} bytes)")
+        _magic, version, n, degree = HEADER.unpack_from(head)[:4]
+        if n > MAX_POINTS:
+            raise SplatFileError(f"{path}: num_points: {n} is beyond {MAX_POINTS}")
+        want = _payload_size(n, min(degree, 3), 2 if version == 2 else 3)
+        check_decode_memory(n, num_sh_bases(min(degree, 3)), path, f"num_points {n}", extra=want)
+        rest = inflater.decompress(inflater.unconsumed_tail, want - HEADER.size + 1)
+    except zlib.error as e:
+        raise SplatFileError(f"{path}: corrupt gzip stream ({e})") from None
+    return head + rest
