@@ -1,1 +1,2 @@
-"""Bundled data: the trained model, its config and demo scenes (installed as `particlesplat.assets`)."""
+"""Bundled data: the shipped models, the recipes that train them and the demo scenes (installed as
+`particlesplat.assets`)."""

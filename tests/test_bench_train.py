@@ -25,10 +25,11 @@ def test_bench_train_times_the_phases_of_a_run_copy_and_leaves_the_run_alone(tmp
     args = ["bench", "train", "--data", str(data), "--run", str(run), "--steps", "2", "--warmup", "1"]
     assert main([*args, "--threads", "1", "--json", str(out_json)]) == 0
     text = capsys.readouterr().out
-    assert "| threads | s/step | data | forward | backward | update |" in text
+    assert "| threads | rasterizer | s/step | data | forward | backward | update |" in text
     assert "(steps 3-6:" in text  # the copy resumed at the run's step; the run's own config was used
     (row,) = json.loads(out_json.read_text())["rows"]
     assert row["threads"] == 1 and row["start_step"] == 3 and row["recipe_steps"] == 6
+    assert row["rasterizer"] == "fused"  # the CPU default
     phases = sum(row[f"{p}_s"] for p in ("data", "forward", "backward", "update"))
     assert 0 < phases <= row["step_s"] * 1.05 + 1e-3  # the phases add up to (about) the step, none left out
     assert row["forward_s"] > 0 and row["backward_s"] > 0

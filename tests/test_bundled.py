@@ -16,7 +16,7 @@ CHECKOUT = Path(__file__).resolve().parents[1]
 
 
 def test_the_installed_packages_hold_the_bundled_files():
-    assert (bundled_assets() / "model.yaml").is_file()
+    assert (bundled_assets() / "recipe.yaml").is_file()
     assert (bundled_assets() / "robot" / "model.pt").is_file()
     assert (data_dir("viewer.shaders", "shaders") / "splat.vert").is_file()
 

@@ -395,7 +395,7 @@ def test_shipped_model_loads_and_matches_its_yaml():
     from particlesplat.core.bundled import bundled_assets
 
     m = load_model()
-    shipped = yaml.safe_load((bundled_assets() / "model.yaml").read_text())
+    shipped = yaml.safe_load((bundled_assets() / "recipe.yaml").read_text())
     from dataclasses import asdict
 
     cfg = asdict(m.config)
@@ -589,13 +589,13 @@ def test_finer_patch_starts_from_the_base_patch_split_into_children():
 
 
 def test_shipped_yaml_documents_every_config_key():
-    """assets/model.yaml lists every ModelConfig and TrainConfig key (the file documents them)."""
+    """assets/recipe.yaml lists every ModelConfig and TrainConfig key (the file documents them)."""
     from dataclasses import fields
 
     from particlesplat.core.bundled import bundled_assets
     from particlesplat.model.config import TrainConfig
 
-    text = (bundled_assets() / "model.yaml").read_text()
+    text = (bundled_assets() / "recipe.yaml").read_text()
     lines = {
         ln.split(":")[0].strip(): ln
         for ln in text.splitlines()
@@ -603,7 +603,7 @@ def test_shipped_yaml_documents_every_config_key():
     }
     for cls in (ModelConfig, TrainConfig):
         for f in fields(cls):
-            assert f.name in lines, f"assets/model.yaml does not list {cls.__name__}.{f.name}"
+            assert f.name in lines, f"assets/recipe.yaml does not list {cls.__name__}.{f.name}"
 
 
 def test_posterior_fields_have_the_documented_shapes():

@@ -10,6 +10,7 @@ import torch
 from test_model import scene_inputs, tiny_model
 
 from particlesplat.cli.main import main
+from particlesplat.core.outputs import OutputError
 from particlesplat.model import ConfigError, read_checkpoint, save_checkpoint
 from particlesplat.model.derive import DeriveError, derive_checkpoint
 from particlesplat.model.io import load_model, model_from_checkpoint
@@ -57,10 +58,77 @@ def test_set_refine_scale_runs_as_the_model_with_that_key_and_keeps_the_original
     text = capsys.readouterr().out
     assert (
         "step 40" in text
-        and "refine_scale: 0.5" in text
-        and "refine_keep: 3" in text
+        and "refine_scale 0.5" in text
+        and "refine_keep 3" in text
         and "refine_scale 1.0 -> 0.5" in text
     )
+
+
+def test_info_describes_the_model_its_run_data_and_scores_from_the_checkpoint(tmp_path, capsys):
+    """What ``model info`` prints is what the checkpoint holds: the values written into it come back, and a
+    checkpoint without a run's records says so rather than guessing."""
+    m = tiny_model(3)
+    path = tmp_path / "step_000040.pt"
+    train = {"steps": 100, "batch_size": 3, "context_views": [1, 2], "target_views": 2, "val_scenes": 5}
+    prov = {
+        "data": "/data/mine",
+        "train_scenes": 1234,
+        "scene_list_sha256": "abcdef0123456789",
+        "init": None,
+        "wall_hours": 1.234,
+        "cpu_hours": 2.5,
+        "torch": "9.9",
+        "git_commit": "c0ffee",
+        "device": "cuda",
+    }
+    val = {"psnr": 21.256, "ssim": 0.8, "fg_ari": 0.5, "miou": float("nan"), "objects": 3.25}
+    save_checkpoint(path, m, 40, {"train": train, "val": val, "provenance": prov})
+    assert main(["model", "info", str(path)]) == 0
+    text = capsys.readouterr().out
+    cfg = m.config
+    family = "tabletop" if cfg.bg_static_grid > 0 else "robot workspace"
+    assert text.startswith(f"{path}: a ParticleSplat model of the {family} family, {cfg.resolution}x{cfg.resolution}")
+    assert "training: step 40 of a 100-step run (batch 3, 1/2 context + 2 target views a scene)" in text
+    assert "from: random initialisation" in text
+    assert "cost: 1.23 h wall, 2.50 CPU h on cuda; torch 9.9, code c0ffee" in text
+    assert "data: /data/mine, 1,234 training scenes (scene list sha256 abcdef012345)" in text
+    # the NaN mIoU is left out, the rest in the checkpoint's own values
+    assert "on 5 validation scenes: PSNR 21.26 dB, SSIM 0.800, FG-ARI 0.500, object groups 3.2\n" in text
+    assert f"{sum(v.numel() for v in m.state_dict().values()):,} learned values" in text
+
+    bare = tmp_path / "bare.pt"
+    save_checkpoint(bare, m, 7)
+    assert main(["model", "info", str(bare)]) == 0
+    text = capsys.readouterr().out
+    assert "training: step 7 (the run's length and batch not recorded)" in text
+    assert "provenance: none recorded" in text and "validation scores: none recorded in this checkpoint" in text
+
+
+@pytest.mark.parametrize(
+    ("model", "says"),
+    [
+        ("model.pt", ["tabletop family, 64x64 RGB-D, step 3,000", "a 72x72 floor grid", "support_cut 0.01"]),
+        (
+            "robot/model.pt",
+            [
+                "robot workspace family, 128x128 RGB-D, step 13,000",
+                "step 13,000 of a 25,000-step run",
+                "8,000 workspace Gaussians learned over the dataset, moving with the scene's arm_joints_rad",
+                "cost: 4.59 h wall, 9.00 CPU h",
+                "on 12 validation scenes: PSNR 24.24 dB",
+                "refine_steps 1 -> 0",
+            ],
+        ),
+    ],
+)
+def test_info_on_each_shipped_model(model, says, capsys):
+    from particlesplat.core.bundled import bundled_assets
+
+    assert main(["model", "info", str(bundled_assets() / model)]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith(f"assets/{model}: ")
+    for phrase in says:
+        assert phrase in text, phrase
 
 
 def test_dropping_the_refiner_is_the_model_with_refinement_off(trained, tmp_path):
@@ -103,7 +171,7 @@ def test_bad_changes_are_refused_and_write_nothing(trained, tmp_path, change, me
 def test_set_never_writes_over_its_input(trained):
     path, _ = trained
     before = digest(path)
-    with pytest.raises(DeriveError, match="would replace the checkpoint it is made from"):
+    with pytest.raises(OutputError, match="is CHECKPOINT .*, which this command reads"):
         main(["model", "set", str(path), "refine_scale=0.5", "--out", str(path)])
     assert digest(path) == before
 

@@ -1,4 +1,4 @@
-"""The recipe (assets/model.yaml): the config defaults are its values, a tiny run of it end to end, its
+"""The recipe (assets/recipe.yaml): the config defaults are its values, a tiny run of it end to end, its
 schedules (refinement start, particles per view while training), provenance in every checkpoint, and
 checkpoints that name keys of removed branches."""
 
@@ -23,11 +23,11 @@ from particlesplat.model.io import model_from_checkpoint
 
 
 def _recipe() -> dict:
-    return yaml.safe_load((bundled_assets() / "model.yaml").read_text())
+    return yaml.safe_load((bundled_assets() / "recipe.yaml").read_text())
 
 
 def test_config_defaults_are_the_recipe_and_the_recipe_lists_every_key():
-    """ModelConfig() and TrainConfig() equal assets/model.yaml exactly: the same keys, the same values and types."""
+    """ModelConfig() and TrainConfig() equal assets/recipe.yaml exactly: the same keys, the same values and types."""
     recipe = _recipe()
     assert set(recipe) == {"model", "train"}
     for cls, section in ((ModelConfig, "model"), (TrainConfig, "train")):

@@ -18,7 +18,7 @@ from model_data import TINY_MODEL, tiny_config, tiny_dataset
 
 from particlesplat.cli.main import main
 from particlesplat.core.errors import InputWarning, OptionError, UserError
-from particlesplat.training.runlock import LOCK_NAME, RunLock, RunLockedError
+from particlesplat.core.runlock import LOCK_NAME, RunLock, RunLockedError
 
 
 def _dead_pid() -> int:

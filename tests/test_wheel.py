@@ -67,7 +67,7 @@ def test_wheel_holds_the_model_the_scenes_and_the_shaders(wheel: Path) -> None:
     names = set(_names(wheel))
     for family in ("", "robot/"):  # each family's shipped model and its recipe
         assert f"particlesplat/assets/{family}model.pt" in names
-        assert f"particlesplat/assets/{family}model.yaml" in names
+        assert f"particlesplat/assets/{family}recipe.yaml" in names
     # every shader of the source tree
     shaders = {p.name for p in (ROOT / "shaders").iterdir() if p.suffix in (".vert", ".frag", ".glsl", ".geom")}
     assert shaders and {f"viewer/shaders/{s}" for s in shaders} <= names

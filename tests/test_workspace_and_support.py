@@ -30,14 +30,14 @@ def _recipe_text(name: str) -> str:
 
 
 def test_the_robot_recipe_is_the_same_architecture_with_its_own_values_and_every_key_documented():
-    tabletop, robot = (yaml.safe_load(_recipe_text(n)) for n in ("model.yaml", "robot/model.yaml"))
+    tabletop, robot = (yaml.safe_load(_recipe_text(n)) for n in ("recipe.yaml", "robot/recipe.yaml"))
     for section in ("model", "train"):
         assert sorted(robot[section]) == sorted(tabletop[section]), section  # one architecture, a config per family
-    cfg, tc = load_config(bundled_assets() / "robot/model.yaml")
+    cfg, tc = load_config(bundled_assets() / "robot/recipe.yaml")
     assert cfg.resolution == 128 and cfg.bg_static_points > 0 and cfg.bg_static_grid == 0 and cfg.support_clamp
     assert tc.beta_fg > 0  # the foreground term compares with the workspace layer
     # every key is documented: a comment on its line, or its name in a comment (s_max beside s_min)
-    text = _recipe_text("robot/model.yaml")
+    text = _recipe_text("robot/recipe.yaml")
     comments = " ".join(line.partition("#")[2] for line in text.splitlines())
     for line in text.splitlines():
         if m := re.match(r"^  ([a-z_]+):", line):

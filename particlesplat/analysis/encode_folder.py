@@ -21,8 +21,8 @@ from tqdm import tqdm
 
 from particlesplat.analysis.particle_arrays import (
     FORMAT_VERSION,
-    ParticleArrays,
     particle_arrays,
+    read_npz_meta,
 )
 from particlesplat.core.atomic import stale_temporaries
 from particlesplat.core.choices import ObjectCentre
@@ -37,7 +37,9 @@ from particlesplat.model.geometry import stack_cameras
 
 def find_scenes(root: str | PathLike) -> list[Path]:
     """``root`` itself when it is a scene folder (holds ``transforms.json``), else every scene folder below it
-    (sorted; hidden folders, e.g. a generator's unfinished temporaries, are skipped)."""
+    (sorted; hidden folders, e.g. a generator's unfinished temporaries, are skipped). A scene's own subfolders
+    (a robot test scene's ``edits/``) are not searched; a symbolic link out of ``root`` counts when it names a scene
+    folder and is not walked otherwise (a link to ``/`` would walk the machine)."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: no such folder")
@@ -45,8 +47,14 @@ def find_scenes(root: str | PathLike) -> list[Path]:
         return [root]
     found: list[Path] = []
     seen: dict[str, str] = {}
+    top = os.path.realpath(root)
     for folder, subdirs, files in os.walk(root, followlinks=True):  # symlinked scene folders count
         real = os.path.realpath(folder)
+        outside = real != top and not real.startswith(top.rstrip(os.sep) + os.sep)
+        if outside and TRANSFORMS not in files:  # a link out of --data is a scene, or it is not walked (a link to /)
+            warn_input(f"{folder}: a symbolic link to {real[:120]}, outside {root} and not a scene folder; left out")
+            subdirs[:] = []
+            continue
         if real in seen:  # a symlink to a folder already found (or a cycle): encoded once, under its first path
             if TRANSFORMS in files:
                 warn_input(f"{folder}: the same scene folder as {seen[real]} (a symbolic link); encoded once, as that")
@@ -56,6 +64,7 @@ def find_scenes(root: str | PathLike) -> list[Path]:
         subdirs[:] = sorted(d for d in subdirs if not d.startswith("."))
         if TRANSFORMS in files:
             found.append(Path(folder))
+            subdirs[:] = []  # a scene's own folders (a robot test scene's edits/) are not scenes of --data
     if not found:
         raise FileNotFoundError(f"{root}: no scene folders (folders with {TRANSFORMS}) in it")
     return sorted(found)
@@ -83,7 +92,7 @@ def encode_batch(model: ParticleSplat, scenes: list[Scene]) -> list[Particles]:
     K = torch.stack([k for k, _ in cams])
     c2w = torch.stack([c for _, c in cams])
     cfg = model.config
-    poses = [scene_pose(s.path, cfg.bg_static_pose, cfg.bg_static_pose_dims) for s in scenes]
+    poses = [scene_pose(s.path, cfg.bg_static_pose, cfg.bg_static_pose_dims, model.input_ranges) for s in scenes]
     pose = model.batch_pose(poses, dev)
     post = model.refine(model.posterior(rgb, depth, K, c2w, pose), rgb, depth, K, c2w)
     z = model.latents(post, sample=False)
@@ -109,7 +118,7 @@ def stale_output(path: Path, request: dict, object_centre: str) -> str | None:
     not an .npz), or its ``meta`` records another format version, object centre or value of a ``request`` key
     (checkpoint SHA-256, --context request)."""
     try:
-        meta = ParticleArrays.load(path).meta
+        meta = read_npz_meta(path)  # headers and meta only: a lying header allocates nothing
     except (UserError, OSError) as e:
         return one_line(e, 160)
     want = {"format_version": FORMAT_VERSION, "object_centre": object_centre}
@@ -130,7 +139,8 @@ def check_context_memory(model: ParticleSplat, views: int, batch: int, option: s
 
     check_memory(
         batch * encode_memory(model.config, views),
-        f"{option}: encoding {batch} scene(s) of {views} context view(s) at {model.config.resolution}^2",
+        f"{option}: encoding {batch} scene(s) of {views} context view(s) (the model: particles_per_view "
+        f"{model.config.particles_per_view}, {model.config.resolution}^2 pixels)",
     )
 
 

@@ -323,6 +323,8 @@ def evaluate_dataset(
     """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}.
     ``z_t_threshold``: particles drawn (None: the model's, :meth:`ParticleSplat.decode`; 0: every one)."""
     from particlesplat.core.atomic import check_writable
+    from particlesplat.core.errors import blame
+    from particlesplat.core.gaussians import BadGaussiansError
     from particlesplat.data import SceneDataset
 
     if limit is not None and limit < 1:
@@ -343,7 +345,7 @@ def evaluate_dataset(
     cfg = model.config
     for i in tqdm(range(n), desc="eval", disable=not progress_bar):
         item = ds[i]
-        pose = scene_pose(ds.scenes[i], cfg.bg_static_pose, cfg.bg_static_pose_dims)
+        pose = scene_pose(ds.scenes[i], cfg.bg_static_pose, cfg.bg_static_pose_dims, model.input_ranges)
         if pose is not None:
             item["pose"] = pose
         if set(item["target_index"].tolist()) <= set(item["context_index"].tolist()):
@@ -351,17 +353,18 @@ def evaluate_dataset(
                 f"{ds.scenes[i]}: {ds.raw(i).num_frames} frame(s): no target view apart from the "
                 f"{context} context view(s); evaluation needs at least {context + 1} frames"
             )
-        res = evaluate_item(
-            model,
-            item,
-            use_depth=use_depth,
-            prune=prune,
-            fit_steps=fit_steps,
-            fit_lr=fit_lr,
-            fit_latents=fit_latents,
-            true_centres=scene_object_centres(ds.scenes[i]),
-            z_t_threshold=z_t_threshold,
-        )
+        with blame(str(ds.scenes[i]), BadGaussiansError):  # the renderer's refusal, naming the scene
+            res = evaluate_item(
+                model,
+                item,
+                use_depth=use_depth,
+                prune=prune,
+                fit_steps=fit_steps,
+                fit_lr=fit_lr,
+                fit_latents=fit_latents,
+                true_centres=scene_object_centres(ds.scenes[i]),
+                z_t_threshold=z_t_threshold,
+            )
         if figures is not None and i < num_figures:
             save_figure(Path(figures) / f"{ds.scenes[i].name}.png", item, res)
         row = {"scene": ds.scenes[i].name, **{k: res[k] for k in SCALARS}}

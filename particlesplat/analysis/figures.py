@@ -282,7 +282,7 @@ def check_turntable_targets(out: str | PathLike, frames: int) -> None:
         try:
             with Image.open(p) as img:
                 ours = (getattr(img, "text", {}) or {}).get("Software") == "ParticleSplat Studio"
-        except OSError:
+        except (OSError, ValueError):
             ours = False
         if not ours:
             raise OptionError(

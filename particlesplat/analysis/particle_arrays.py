@@ -40,6 +40,7 @@ from particlesplat.core.errors import UserError, one_line
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.sh import SH_C0
 from particlesplat.data.scene import SceneFormatError
+from particlesplat.data.scene_meta import read_scene_json
 from particlesplat.editing.grouping import (
     dense_objects,
     drawing_particles,
@@ -127,10 +128,15 @@ class ParticleArrays:
 
     @classmethod
     def load(cls, path: str | PathLike) -> ParticleArrays:
-        """Read a ``.npz`` written by :meth:`save` (no pickles); ValueError names the file and the array."""
+        """Read a ``.npz`` written by :meth:`save` (no pickles); ValueError names the file and the array. The
+        arrays' headers are checked first (:func:`npz_headers`): a header declaring more bytes than its member
+        holds, or more than the memory limit, is refused before anything is allocated."""
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such .npz file")
+        from particlesplat.core.limits import check_memory
+
+        check_memory(sum(npz_headers(path).values()), f"{path}: its arrays")
         try:
             with np.load(path, allow_pickle=False) as data:
                 missing = [n for n in (*ARRAY_NAMES, "meta") if n not in data.files]
@@ -147,6 +153,66 @@ class ParticleArrays:
         if not isinstance(meta, dict):
             raise ParticleArraysError(f"{path}: meta: expected a JSON object, got {type(meta).__name__}")
         return cls(**values, meta=meta)
+
+
+MAX_META_BYTES = 1 << 20  # the meta array of an .npz this program wrote is a few hundred bytes
+
+
+def npz_headers(path: str | PathLike) -> dict[str, int]:
+    """Array name -> bytes its header declares, for every member of the ``.npz`` at ``path``, read from the zip's
+    directory and each member's ``.npy`` header only (no array is loaded). ParticleArraysError names the file
+    and the array when a member is not an ``.npy``, is compressed, or declares more bytes than it holds (a lying
+    header would otherwise allocate what it claims)."""
+    path = Path(path)
+    out: dict[str, int] = {}
+    try:
+        with zipfile.ZipFile(path) as z:
+            for info in z.infolist():
+                name = info.filename.removesuffix(".npy")
+                with z.open(info) as f:
+                    version = np.lib.format.read_magic(f)
+                    if version == (1, 0):
+                        shape, _, dtype = np.lib.format.read_array_header_1_0(f)
+                    elif version == (2, 0):
+                        shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+                    else:
+                        raise ValueError(f"array '{name[:80]}': .npy format version {version} is not read")
+                    header = f.tell()
+                declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                if dtype.hasobject or declared > info.file_size - header:
+                    raise ParticleArraysError(
+                        f"{path}: array '{name[:80]}': its header declares {declared:,} bytes of {dtype}, the file "
+                        f"holds {max(info.file_size - header, 0):,}"
+                    )
+                out[name] = declared
+    except ParticleArraysError:
+        raise
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile, RuntimeError) as e:
+        raise ParticleArraysError(f"{path}: not a readable .npz file ({one_line(e, 160)})") from None
+    return out
+
+
+def read_npz_meta(path: str | PathLike) -> dict:
+    """The ``meta`` of an ``.npz`` written by :meth:`ParticleArrays.save`, reading its headers
+    (:func:`npz_headers`) and the meta member alone; ParticleArraysError names the file."""
+    path = Path(path)
+    sizes = npz_headers(path)
+    missing = [n for n in (*ARRAY_NAMES, "meta") if n not in sizes]
+    if missing:
+        raise ParticleArraysError(f"{path}: missing array(s) {', '.join(missing)}")
+    if sizes["meta"] > MAX_META_BYTES:
+        raise ParticleArraysError(f"{path}: meta: {sizes['meta']:,} bytes, more than {MAX_META_BYTES:,}")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            text = str(data["meta"])
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile) as e:
+        raise ParticleArraysError(f"{path}: not a readable .npz file ({one_line(e, 160)})") from None
+    from particlesplat.core.jsonfile import parse_json
+
+    meta = parse_json(text, f"{path}: meta", ParticleArraysError)
+    if not isinstance(meta, dict):
+        raise ParticleArraysError(f"{path}: meta: expected a JSON object, got {type(meta).__name__}")
+    return meta
 
 
 def file_sha256(path: str | PathLike) -> str:
@@ -257,10 +323,7 @@ def scene_object_centres(scene_dir: str | PathLike) -> np.ndarray | None:
     path = Path(scene_dir) / "scene.json"
     if not path.is_file():
         return None
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SceneFormatError(f"{path}: not valid JSON ({e})") from e
+    doc = read_scene_json(path)
     objects = doc.get("objects") if isinstance(doc, dict) else None
     if not objects:
         return None
@@ -270,6 +333,15 @@ def scene_object_centres(scene_dir: str | PathLike) -> np.ndarray | None:
         raise SceneFormatError(f"{path}: objects[].center: expected 3 numbers per object ({e})") from e
     if centres.shape[1:] != (3,):
         raise SceneFormatError(f"{path}: objects[].center: expected 3 numbers per object")
+    from particlesplat.core.limits import WORLD_MAX_METRES
+
+    bad = ~(np.isfinite(centres).all(1) & (np.abs(centres) <= WORLD_MAX_METRES).all(1))
+    if bad.any():  # a NaN centre would be scored as a miss
+        i = int(np.nonzero(bad)[0][0])
+        raise SceneFormatError(
+            f"{path}: objects[{i}].center must be 3 finite metres within +-{WORLD_MAX_METRES:g}, got "
+            f"{centres[i].tolist()}"
+        )
     return centres
 
 
@@ -278,6 +350,7 @@ def nearest_distances(truth: np.ndarray, predicted: np.ndarray) -> np.ndarray:
     K is 0."""
     truth = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
     predicted = np.asarray(predicted, dtype=np.float64).reshape(-1, 3)
+    predicted = predicted[np.isfinite(predicted).all(1)]  # an object without a centre is no candidate
     if predicted.shape[0] == 0:
         return np.full(truth.shape[0], np.inf)
     return np.linalg.norm(truth[:, None, :] - predicted[None, :, :], axis=-1).min(axis=1)

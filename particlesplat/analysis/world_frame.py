@@ -274,6 +274,13 @@ def check_world_frame(
     cam_up = -c2w[:, :3, 1].mean(0)  # OpenCV: image y points down
     focus = focus_point(scene.cameras).double().cpu().numpy()
     distance = float(np.median(np.linalg.norm(centres - focus, axis=1)))
+    if not distance > 1e-9 * max(1.0, float(np.abs(centres).max())):
+        from particlesplat.data.scene import TRANSFORMS, SceneFormatError
+
+        raise SceneFormatError(
+            f"{scene.path / TRANSFORMS}: the cameras stand where they look (median distance {distance:.3g} m from the "
+            "point they face): no scale or up axis can be measured from this rig"
+        )
     pts = depth_points(scene)
     depth_frames = sum(d is not None and bool((d > 0).any()) for d in scene.depth)
     depth_ratio: float | None = None  # set exactly when there are depth points

@@ -40,11 +40,11 @@ import torch.nn.functional as F
 
 from particlesplat.analysis.metrics import psnr_of_mse
 from particlesplat.core.atomic import atomic_write
-from particlesplat.core.errors import OptionError, one_line, short_repr
+from particlesplat.core.errors import OptionError, short_repr
 from particlesplat.core.options import HelpFormatter
 from particlesplat.data.families import CHECKPOINT_HELP, tabletop
 from particlesplat.data.scene import Scene, SceneFormatError, read_scene
-from particlesplat.data.scene_meta import default_checkpoint
+from particlesplat.data.scene_meta import default_checkpoint, read_scene_json
 from particlesplat.data.synth import scene_rng, write_tabletop
 from particlesplat.editing.editor import Pick, PickError, SceneEditor
 from particlesplat.editing.move import MoveError
@@ -61,6 +61,7 @@ KINDS = ("move", "remove", "duplicate")
 REGIONS = ("changed", "vacated", "view")
 VARIANTS = ("edit", "noop", "ceiling")
 MOVE_RANGE = (0.2, 0.45)  # metres on the floor
+MAX_DILATE = 64  # pixels --dilate may grow a mask by (the model's images are at most 1024 pixels a side)
 MIN_PICK_PIXELS = 20  # the object must cover this many pixels of a context frame (stored size) to be picked
 
 
@@ -222,10 +223,7 @@ def read_edits(scene_dir: Path, context: list[int]) -> GroundTruth | None:
     scenes). None if the scene has no edit (``object`` null) or the object covers fewer than
     :data:`MIN_PICK_PIXELS` pixels of every context frame."""
     where = scene_dir / "edits.json"
-    try:
-        info = json.loads(where.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
-        raise SceneFormatError(f"{where}: not valid JSON ({one_line(e, 200)})") from None
+    info = read_scene_json(where)
     if not isinstance(info, dict) or "object" not in info:
         raise SceneFormatError(f"{where}: must be an object with key 'object' (an instance id, or null)")
     if info["object"] is None:
@@ -410,13 +408,18 @@ def main(argv: list[str] | None = None) -> int:
         help="the particles that draw (default: the model's, as the viewer; 0 = every particle, "
         "the faint inactive ones too, as before they were dropped)",
     )
-    parser.add_argument("--json", default="bench_edits.json", help="write per-scene and mean results here")
+    parser.add_argument("--json", default=None, help="also write per-scene and mean results to this JSON file")
     args = parser.parse_args(argv)
     from particlesplat.core.atomic import check_writable
+    from particlesplat.core.outputs import guard_outputs
     from particlesplat.model import load_model
 
     if args.scenes < 1:
         parser.error(f"--scenes must be >= 1, got {args.scenes}")
+    if args.start < 0:
+        raise OptionError(f"--start must be >= 0 (the first scene's index), got {args.start}")
+    if not 0 <= args.dilate <= MAX_DILATE:
+        raise OptionError(f"--dilate must be in [0, {MAX_DILATE}] pixels, got {args.dilate}")
     context = parse_context(args.context)
     if context is None:  # an empty --context: parse_context's "use the default" has no meaning here
         raise OptionError(f"--context: expected comma-separated frame indices, got {args.context!r}")
@@ -431,10 +434,18 @@ def main(argv: list[str] | None = None) -> int:
                 f"--data {data}: no scene folder in it has ground-truth edits (edits.json; the robot family writes "
                 "them for its test split)"
             )
-    check_writable(args.json)  # before half an hour of work, not after it
+        if args.start >= len(scene_dirs):
+            raise OptionError(
+                f"--start {args.start}: --data {data} has {len(scene_dirs)} scene folders with edits "
+                f"(0..{len(scene_dirs) - 1})"
+            )
+    checkpoint = Path(args.checkpoint) if args.checkpoint else default_checkpoint(args.data)
+    guard_outputs([("--json", args.json), ("--work", args.work)], [("--checkpoint", checkpoint), ("--data", args.data)])
+    if args.json:
+        check_writable(args.json)  # before half an hour of work, not after it
 
     torch.set_num_threads(min(2, torch.get_num_threads()))
-    model = load_model(args.checkpoint or (default_checkpoint(args.data) if args.data else None))
+    model = load_model(checkpoint)
     rows: list[dict] = []
     skipped: list[str] = []
     t0 = time.perf_counter()
@@ -470,7 +481,7 @@ def main(argv: list[str] | None = None) -> int:
     print(format_table(table, len(rows)))
     source = {"data": str(args.data)} if args.data else {"seed": args.seed, "split": args.split, "res": args.res}
     out = {
-        "checkpoint": args.checkpoint or "assets/model.pt",
+        "checkpoint": str(checkpoint),  # the model that ran (the family's shipped one without --checkpoint)
         "z_t_threshold": args.z_t_threshold,
         **source,
         "context": context,
@@ -481,7 +492,8 @@ def main(argv: list[str] | None = None) -> int:
         "mean": table,
         "scenes": rows,
     }
-    with atomic_write(args.json, "w") as f:
-        json.dump(out, f, indent=1)
-    print(f"wrote {args.json}")
+    if args.json:
+        with atomic_write(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+        print(f"wrote {args.json}")
     return 0

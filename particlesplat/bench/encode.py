@@ -61,12 +61,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--device", default=None, help=DEVICE_HELP)
     parser.add_argument("--json", help="also write the rows to this JSON file")
     args = parser.parse_args(argv)
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs(
+        [("--json", args.json)], [("--data", args.data), *[("--checkpoint", c) for c in args.checkpoint or []]]
+    )
     if args.scenes < 1 or args.rounds < 1:
         raise OptionError(f"--scenes and --rounds must be >= 1, got {args.scenes} and {args.rounds}")
     if args.threads < 0:
         raise OptionError(f"--threads must be >= 0, got {args.threads}")
     if args.threads:
-        torch.set_num_threads(args.threads)
+        from particlesplat.core.threads import bounded_threads
+
+        torch.set_num_threads(bounded_threads(args.threads, "--threads"))
     from particlesplat.data import SceneDataset
     from particlesplat.model.io import load_model
 
@@ -86,7 +93,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     items: list[dict[str, Any]] = [ds[i] for i in range(min(args.scenes, len(ds)))]
     for i, it in enumerate(items):  # each model's pose of each scene (bg_static_pose), read before the timing
-        it["poses"] = [scene_pose(ds.scenes[i], m.config.bg_static_pose, m.config.bg_static_pose_dims) for m in models]
+        it["poses"] = [
+            scene_pose(ds.scenes[i], m.config.bg_static_pose, m.config.bg_static_pose_dims, m.input_ranges)
+            for m in models
+        ]
     time_rounds(models, items[:1], 1)  # warm-up: first-call allocations and kernels
     times = time_rounds(models, items, args.rounds)
     print(

@@ -79,7 +79,7 @@ def run_case(n: int, size: int, repeats: int, rasterizer: str = "auto") -> dict:
         fwd = _time(lambda: render(g, cam), repeats)
     fwd_bwd = _time(_fwd_bwd(render, g, cam), repeats)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    row: dict = {
+    row: dict[str, object] = {
         "rasterizer": resolve_rasterizer(None, torch.device("cpu")),
         "n": n,
         "size": size,
@@ -105,8 +105,9 @@ def run_case(n: int, size: int, repeats: int, rasterizer: str = "auto") -> dict:
         row["max_abs_err"] = float(err.max())
         row["pixels_over_1e-5"] = int((err > 1e-5).sum())
     if pairs <= DENSE_MAX_PAIRS:
-        row["dense_fwd_bwd_ms"] = _time(_fwd_bwd(render_dense, g, cam), max(1, repeats // 3))
-        row["speedup"] = row["dense_fwd_bwd_ms"] / row["fwd_bwd_ms"]
+        dense = _time(_fwd_bwd(render_dense, g, cam), max(1, repeats // 3))
+        row["dense_fwd_bwd_ms"] = dense
+        row["speedup"] = dense / fwd_bwd
     return row
 
 
@@ -147,6 +148,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--case", nargs=2, type=int, metavar=("N", "SIZE"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     rasterizers = rasterizer_list(args.rasterizer)
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs([("--json", args.json)], [])
     if args.case:
         print(json.dumps(run_case(args.case[0], args.case[1], args.repeats, rasterizers[0])))
         return 0

@@ -26,7 +26,7 @@ import torch
 
 from particlesplat.bench.render import machine_line
 from particlesplat.core.device import DEVICE_HELP, resolve_device
-from particlesplat.core.errors import OptionError
+from particlesplat.core.errors import OptionError, is_user_error, one_line, run_command
 from particlesplat.rendering.choice import rasterizer_list
 
 PHASES = ("data", "forward", "backward", "update")
@@ -48,7 +48,12 @@ def run_case(
         if run is not None:
             out.mkdir()
             shutil.copyfile(run / "last.pt", out / "last.pt")
-        trainer = Trainer(cfg, tc, data, out, device, resume=run is not None)
+        try:
+            trainer = Trainer(cfg, tc, data, out, device, resume=run is not None)
+        except Exception as e:  # the temporary copy is the user's --run: name that, not the copy
+            if not is_user_error(e) or run is None:
+                raise
+            raise OptionError(one_line(e).replace(str(out), f"--run {run}")) from None
         start = trainer.step
         try:
             for _ in range(warmup):
@@ -82,7 +87,9 @@ def _threads(text: str) -> list[int]:
         raise OptionError(f"--threads: a comma-separated list of thread counts, got {text!r}") from None
     if not values or min(values) < 1:
         raise OptionError(f"--threads: thread counts must be >= 1, got {text!r}")
-    return values
+    from particlesplat.core.threads import bounded_threads
+
+    return list(dict.fromkeys(bounded_threads(v, "--threads") for v in values))
 
 
 def check_arguments(args: argparse.Namespace) -> tuple[Path, Path, Path | None]:
@@ -103,6 +110,13 @@ def check_arguments(args: argparse.Namespace) -> tuple[Path, Path, Path | None]:
     data = Path(args.data)
     if not (data / "train").is_dir():
         raise OptionError(f"--data {data}: no train/ folder (a dataset written by 'particlesplat synth')")
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs([("--json", args.json)], [("--data", data), ("--config", config), ("--run", run)])
+    if run is not None:  # read here, so that a bad checkpoint is one line naming --run, before any case runs
+        from particlesplat.model import read_checkpoint
+
+        read_checkpoint(run / "last.pt")
     if args.steps < 1 or args.warmup < 0:
         raise OptionError(f"--steps must be >= 1 and --warmup >= 0, got {args.steps} and {args.warmup}")
     return config, data, run
@@ -114,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--data", required=True, help="dataset folder holding train/ (the recipe's data)")
     parser.add_argument(
-        "--config", help="recipe YAML (default: the --run's config.yaml, else the shipped recipe assets/model.yaml)"
+        "--config", help="recipe YAML (default: the --run's config.yaml, else the shipped recipe assets/recipe.yaml)"
     )
     parser.add_argument("--run", help="start from a copy of this run folder's last.pt (default: random initialisation)")
     parser.add_argument("--steps", type=int, default=10, help="timed steps per case (median)")
@@ -132,9 +146,13 @@ def main(argv: list[str] | None = None) -> int:
     config, data, run = check_arguments(args)
     device = str(resolve_device(args.device))
     rasterizers = rasterizer_list(args.rasterizer)
-    if args.case:
-        print(json.dumps(run_case(config, data, run, args.steps, args.warmup, args.case, device, rasterizers[0])))
-        return 0
+    if args.case:  # one case, in its own process: a user error is one line on stderr, exit 2
+
+        def case() -> int:
+            print(json.dumps(run_case(config, data, run, args.steps, args.warmup, args.case, device, rasterizers[0])))
+            return 0
+
+        return run_command("particlesplat bench train", case)
     threads = _threads(args.threads)
     print(machine_line())
     print(f"OpenMP wait policy: {os.environ.get('OMP_WAIT_POLICY') or 'the runtime default (spin, then sleep)'}")
@@ -151,9 +169,13 @@ def main(argv: list[str] | None = None) -> int:
         cmd += ["--config", str(config), "--steps", str(args.steps), "--warmup", str(args.warmup)]
         cmd += ["--device", device, "--rasterizer", rasterizer] + (["--run", str(run)] if run else [])
         proc = subprocess.run(cmd, capture_output=True, text=True)
-        if proc.returncode != 0:
-            print(f"case threads={n} rasterizer={rasterizer} failed:\n{proc.stderr.strip()}", file=sys.stderr)
-            return 1
+        if proc.returncode != 0:  # a user error is its one line; a bug keeps its traceback
+            lines = proc.stderr.strip().splitlines() or ["(no message)"]
+            text = lines[-1] if proc.returncode == 2 else proc.stderr.strip()
+            print(
+                f"particlesplat bench train: case threads={n} rasterizer={rasterizer} failed: {text}", file=sys.stderr
+            )
+            return proc.returncode if proc.returncode == 2 else 1
         row = json.loads(proc.stdout.strip().splitlines()[-1])
         rows.append(row)
         step = row["step_s"]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.errors import OptionError
-from particlesplat.training.curve import RUN_COLOURS, plot_curves, read_log
+from particlesplat.training.curve import RUN_COLOURS, plot_curves, read_curves
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,12 +23,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if len(args.run) > len(RUN_COLOURS):
         raise OptionError(f"curve: at most {len(RUN_COLOURS)} runs on one plot, got {len(args.run)}")
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs([("--out", args.out)], [("RUN", Path(folder) / "metrics.jsonl") for folder in args.run])
     runs, training = [], []
     for folder in args.run:
         path = Path(folder) / "metrics.jsonl"
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no metrics log (is {folder} a run folder?)")
-        rows, losses = read_log(path)
+        rows, losses = read_curves(path)
         runs.append((Path(folder).name if len(args.run) > 1 else "", rows))
         training.append(losses)
     with atomic_path(args.out) as tmp:

@@ -53,6 +53,9 @@ def run(args: argparse.Namespace) -> int:
     check_existing(args.data, "--data")  # before torch loads: a typo is one quick line
     check_file(args.checkpoint, "--checkpoint")
     apply_rasterizer_option(args)
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs([("--out", args.out)], [("--data", args.data), ("--checkpoint", args.checkpoint)])
     from particlesplat.analysis.encode_folder import encode_folder
     from particlesplat.analysis.particle_arrays import file_sha256
     from particlesplat.core.device import resolve_device

@@ -66,6 +66,12 @@ def run(args: argparse.Namespace) -> int:
             f"--fit-steps must be >= 0, --fit-lr > 0 and --fit-latents some of {','.join(FITTED)}; got "
             f"{args.fit_steps}, {args.fit_lr:g}, {','.join(latents)[:80]}"
         )
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs(
+        [("--json", args.json), ("--figures", args.figures)],
+        [("--checkpoint", args.checkpoint), ("--data", args.data)],
+    )
     if args.json:
         check_writable(args.json)  # before the work, not after it
     if args.figures and args.num_figures > 0:

@@ -93,6 +93,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"particlesplat: unknown command '{name}'\n\n{_top_help()}", file=sys.stderr)
         return 2
     _choose_wait_policy(name)
+    from particlesplat.core.threads import bound_thread_variables
+
+    bound_thread_variables()  # before torch reads them
     if name == "bench":
         return _run_bench(rest)
     module = importlib.import_module(COMMANDS[name][0])

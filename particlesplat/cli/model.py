@@ -14,7 +14,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     sub = parser.add_subparsers(dest="action", required=True, metavar="{info,set}")
     info = sub.add_parser(
-        "info", help="print a checkpoint's step, size, inference keys and provenance", formatter_class=HelpFormatter
+        "info",
+        help="describe a checkpoint: its family, resolution, particles, training (steps, hours, data), the "
+        "validation scores it records, inference keys and provenance",
+        formatter_class=HelpFormatter,
     )
     info.add_argument("checkpoint", help="a .pt checkpoint (from 'particlesplat train' or assets/)")
     keys = "; ".join(f"{k}: {v}" for k, v in INFERENCE_KEYS.items())
@@ -38,17 +41,12 @@ def run(args: argparse.Namespace) -> int:
         cfg = write_derived(args.checkpoint, args.out, changes, args.note)
         print(f"wrote {args.out}: " + ", ".join(f"{k} {getattr(cfg, k)}" for k in INFERENCE_KEYS))
         return 0
-    from particlesplat.model.io import model_from_checkpoint, read_checkpoint
-    from particlesplat.model.provenance import describe
+    from particlesplat.model.io import model_from_checkpoint, read_checkpoint, shipped_model_name
+    from particlesplat.model.summary import summarize
 
     ckpt = read_checkpoint(args.checkpoint)
     model = model_from_checkpoint(ckpt, args.checkpoint)
-    cfg = model.config
     weights = sum(v.numel() for v in model.state_dict().values())
     refine = "off" if model.refiner is None else ("on" if model.refine_enabled else "not yet trained (off)")
-    print(f"{args.checkpoint}: step {int(ckpt['step']):,}, {cfg.resolution}x{cfg.resolution}, {weights:,} values")
-    print(f"  {cfg.gaussians_per_particle} Gaussians per particle; refinement {refine}")
-    for key in INFERENCE_KEYS:
-        print(f"  {key}: {getattr(cfg, key)}")
-    print(f"  {describe(ckpt.get('provenance'))}")
+    print("\n".join(summarize(ckpt, model.config, weights, refine, shipped_model_name(args.checkpoint))))
     return 0

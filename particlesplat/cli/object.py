@@ -7,6 +7,7 @@ particles in order of their smallest particle index).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -63,6 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from particlesplat.core.errors import OptionError
+    from particlesplat.core.outputs import guard_outputs
     from particlesplat.data.scene_meta import default_checkpoint
     from particlesplat.editing.compose import export_object_ply, insert_object
     from particlesplat.editing.open_scene import encode_scene
@@ -70,7 +73,31 @@ def run(args: argparse.Namespace) -> int:
     from particlesplat.formats.ply import write_ply
     from particlesplat.model import load_model
 
-    model = load_model(args.checkpoint or default_checkpoint(args.scene))
+    guard_outputs(
+        [("--out", args.out), ("--png", getattr(args, "png", None))],
+        [("--checkpoint", args.checkpoint), ("--scene", args.scene), ("--from", getattr(args, "source", None))],
+    )
+    if getattr(args, "at", None) is not None:
+        from particlesplat.core.limits import WORLD_MAX_METRES
+
+        if not all(math.isfinite(v) and abs(v) <= WORLD_MAX_METRES for v in args.at):
+            raise OptionError(
+                f"--at: X,Y must be finite metres within +-{WORLD_MAX_METRES:g} of the origin, got "
+                f"{args.at[0]:g},{args.at[1]:g}"
+            )
+    if args.action == "insert":  # one model encodes both scenes: they must be of one family
+        from particlesplat.data.scene_meta import read_family
+
+        theirs, ours = read_family(args.source), read_family(args.scene)
+        if theirs and ours and theirs != ours:
+            raise OptionError(
+                f"--from {args.source} is a {theirs} scene and --scene {args.scene} a {ours} scene; one model "
+                "encodes both: insert objects between scenes of one family"
+            )
+    from particlesplat.model.io import shipped_model_name
+
+    checkpoint = args.checkpoint or default_checkpoint(args.scene)  # recorded in the PNG: the model that ran
+    model = load_model(checkpoint)
     enc = encode_scene(model, args.scene, parse_context(args.context))
     if args.action == "export":
         path = export_object_ply(model, enc.particles, args.object, args.out)
@@ -108,8 +135,14 @@ def run(args: argparse.Namespace) -> int:
         from particlesplat.rendering.api import render
 
         camera = default_view(enc.all_cameras, framing=read_framing(enc.path)).camera(640, 480)
-        with torch.no_grad():
+        from particlesplat.rendering.budget import check_render_memory
+
+        check_render_memory(g, camera, f"--png of {enc.path} with object {args.object}")
+        from particlesplat.core.errors import blame
+        from particlesplat.core.gaussians import BadGaussiansError
+
+        with torch.no_grad(), blame(f"{enc.path} with object {args.object} of {src.path}", BadGaussiansError):
             res = render(g, camera, background=scene_background(model))
-        text = png_text(camera, {}, str(args.checkpoint or "assets/model.pt"), {"scene": str(enc.path)})
+        text = png_text(camera, {}, shipped_model_name(checkpoint), {"scene": str(enc.path)})
         print(f"saved {save_png(args.png, res.rgb.numpy(), text)}")
     return 0

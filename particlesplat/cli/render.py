@@ -252,19 +252,34 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_USER
     apply_rasterizer_option(args)
     from particlesplat.core.atomic import check_writable
+    from particlesplat.core.outputs import guard_outputs
     from particlesplat.formats.png import png_text, save_png
 
     targets = output_paths(args.out, args.mode, args.view)
     try:
+        guard_outputs(
+            [("--out", path) for path in targets.values()],
+            [
+                (f"--{k.replace('_', '-')}", getattr(args, k, None))
+                for k in ("checkpoint", "scene", "ply", "edits", "edits_from", "camera_from")
+            ],
+        )
         for path in targets.values():
             try:
                 check_writable(path)  # before the work, not after it
             except OSError as e:
                 raise OSError(f"--out {one_line(e)}") from None
         g, cameras, edits, model_name, source, background, arrays = _scene_and_gaussians(args)
+        from particlesplat.core.errors import blame
+        from particlesplat.core.gaussians import BadGaussiansError
+
+        with blame(f"{source}{' with ' + model_name if model_name else ''}", BadGaussiansError):
+            g.check("the Gaussians it decodes")  # the renderer's own check, as one line naming the input
         from particlesplat.data.scene_meta import read_framing
+        from particlesplat.rendering.budget import check_render_memory
 
         framing = read_framing(source) if cameras else None
+        owners = int(g.owner.max()) + 2 if {"particles", "objects"} & set(args.mode) and g.num else 0
         shots = {}  # view (None: --look, --camera-from or the default) -> (camera, View or None)
         for v in args.view or (None,):
             shots[v] = resolve_camera(argparse.Namespace(**{**vars(args), "view": v}), cameras, g, framing)
@@ -274,6 +289,7 @@ def run(args: argparse.Namespace) -> int:
                     f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
                     f"({MAX_SIDE} a side, {MAX_PIXELS} pixels)"
                 )
+            check_render_memory(g, camera, source, owners)  # the renderer's pairs, before it allocates them
         if args.turntable:
             from particlesplat.analysis.figures import check_turntable_targets, turntable_memory
             from particlesplat.core.limits import check_memory

@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--write",
         metavar="FILE",
         help="write DIR's transforms.json with the transform applied to FILE (put it in a copy of the folder "
-        "as its transforms.json)",
+        "as its transforms.json); an existing FILE is kept beside it as FILE.orig (or FILE.orig-2, ...)",
     )
 
 
@@ -57,18 +57,41 @@ def run(args: argparse.Namespace) -> int:
         for line in transform_lines(report):
             print(line)
     if args.write:
+        from particlesplat.core.atomic import keep_original
+        from particlesplat.core.jsonfile import read_json
+        from particlesplat.core.outputs import guard_outputs
+        from particlesplat.data.scene import MAX_TRANSFORMS_BYTES, SceneFormatError
+
         src = Path(scene.path) / "transforms.json"
-        meta = json.loads(src.read_text())
-        for frame in meta["frames"]:
+        # DIR's own transforms.json may be replaced (it is kept beside); any other file of DIR is an input
+        same = Path(args.write).resolve() == src.resolve()
+        guard_outputs([("--write", args.write)], [] if same else [("DIR", scene.path)])
+        meta = read_json(src, MAX_TRANSFORMS_BYTES, SceneFormatError)
+        assert isinstance(meta, dict)  # read_scene has read and checked it
+
+        def scaled(value: object, where: str) -> float:  # a depth scale read only here when no frame has depth
+            from particlesplat.core.limits import float32_problem
+
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+            problem = float32_problem(value, positive=True) if ok else "not a number"  # type: ignore[arg-type]
+            if problem:
+                raise SceneFormatError(f"{src}: {where}'depth_unit_scale_factor' is {problem}")
+            return float(value) * report.scale  # type: ignore[arg-type]
+
+        for i, frame in enumerate(meta["frames"]):
             m = np.asarray(frame["transform_matrix"], dtype=np.float64)
             if m.shape == (3, 4):
                 m = np.concatenate([m, [[0.0, 0.0, 0.0, 1.0]]])
             frame["transform_matrix"] = transform_matrix(m, report).tolist()
             if "depth_unit_scale_factor" in frame:
-                frame["depth_unit_scale_factor"] = float(frame["depth_unit_scale_factor"]) * report.scale
+                frame["depth_unit_scale_factor"] = scaled(frame["depth_unit_scale_factor"], f"frames[{i}]: key ")
         if "depth_unit_scale_factor" in meta:
-            meta["depth_unit_scale_factor"] = float(meta["depth_unit_scale_factor"]) * report.scale
+            meta["depth_unit_scale_factor"] = scaled(meta["depth_unit_scale_factor"], "key ")
+        kept = keep_original(Path(args.write))
         with atomic_write(args.write, "w") as f:
             json.dump(meta, f, indent=1)
-        print(f"wrote {args.write} ({src} with the transform applied)")
+        print(
+            f"wrote {args.write} ({src} with the transform applied)"
+            + (f"; the file it replaced is {kept}" if kept else "")
+        )
     return 0 if report.ok else 1

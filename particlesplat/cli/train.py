@@ -11,9 +11,11 @@ from pathlib import Path
 
 from particlesplat.core.bundled import recipe_path
 from particlesplat.core.device import DEVICE_HELP
+from particlesplat.core.errors import OptionError
 from particlesplat.core.options import parse_key_values
 from particlesplat.data.folders import check_file
 from particlesplat.model.config import (
+    ConfigError,
     ModelConfig,
     TrainConfig,
     load_config,
@@ -29,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--config",
         default=None,
         help="YAML with 'model:' and 'train:' sections (default: the recipe the shipped "
-        "architecture is trained with, assets/model.yaml, which documents every key; with --resume, the run's "
+        "architecture is trained with, assets/recipe.yaml, which documents every key; with --resume, the run's "
         "own OUT/config.yaml; with --init, the checkpoint's own model config and its run's train section)",
     )
     parser.add_argument("--data", required=True, help="dataset folder holding train/ and val/ scene folders")
@@ -56,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--stop-after",
         type=int,
         default=None,
-        help="run at most this many steps in this invocation, checkpoint, and exit (continue later with --resume)",
+        help="run at most this many steps (>= 1) in this invocation, checkpoint, and exit (continue with --resume)",
     )
     parser.add_argument(
         "overrides",
@@ -88,6 +90,17 @@ def init_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
     return cfg, tc
 
 
+def checkpoint_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
+    """The model and train config a run's checkpoint stores (a resume whose config.yaml is gone)."""
+    from particlesplat.model import read_checkpoint
+
+    ckpt = read_checkpoint(path)
+    cfg = stored_model_config(ckpt["config"], f"{path}: config")
+    if not isinstance(ckpt.get("train"), dict):
+        raise ConfigError(f"{path}: stores no train section and the run has no config.yaml: give --config")
+    return cfg, stored_train_config(ckpt["train"], f"{path}: train")
+
+
 def run(args: argparse.Namespace) -> int:
     changes = parse_key_values(args.overrides, "train", "train.steps=200")  # before torch: quick errors
     data = Path(args.data)
@@ -96,17 +109,35 @@ def run(args: argparse.Namespace) -> int:
     check_file(args.config, "--config")
     check_file(args.init, "--init")
     apply_rasterizer_option(args)
-    run_config = Path(args.out) / "config.yaml"
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs(
+        [],
+        [("--config", args.config), ("--data", args.data), ("--init", args.init)],
+        [("--out", args.out)] if args.overwrite else [],
+    )
+    if args.stop_after is not None and args.stop_after < 1:
+        raise OptionError(f"--stop-after must be >= 1 step (a run checkpoints when it stops), got {args.stop_after}")
+    run_config, last = Path(args.out) / "config.yaml", Path(args.out) / "last.pt"
+    source = f"--config {args.config}"
     if args.config is None and args.init is not None:
         cfg, tc = init_config(Path(args.init))
+        source = f"--init {args.init}"
     elif args.config is None and args.resume and run_config.is_file():
         cfg, tc = load_config(run_config)  # the run goes on as it was started
+        source = str(run_config)
         print(f"--resume without --config: the run's own {run_config}", file=sys.stderr)
+    elif args.config is None and args.resume and last.is_file():
+        cfg, tc = checkpoint_config(last)  # no config.yaml: the config the checkpoint stores
+        source = str(last)
+        print(f"--resume without --config and without {run_config}: the config stored in {last}", file=sys.stderr)
     else:
         cfg, tc = load_config(args.config or recipe_path())
+        source = f"--config {args.config}" if args.config else f"the recipe {recipe_path()}"
     cfg, tc = with_overrides(cfg, tc, changes)
     if changes:
         print("train: recipe changed by " + ", ".join(f"{k}={v}" for k, v in changes.items()), file=sys.stderr)
+        source += " with " + " ".join(f"{k}={v}" for k, v in changes.items())
     import torch
 
     from particlesplat.core.device import resolve_device
@@ -116,11 +147,18 @@ def run(args: argparse.Namespace) -> int:
     if args.device is None and device != "cpu":
         print(f"train: on {device}, which torch found (--device cpu trains on the CPU)", file=sys.stderr)
     if tc.num_threads > 0:
+        from dataclasses import replace
+
+        from particlesplat.core.threads import bounded_threads
+
+        tc = replace(tc, num_threads=bounded_threads(tc.num_threads, "train.num_threads"))
         torch.set_num_threads(tc.num_threads)
     if device.startswith("cuda") and int(os.environ.get("WORLD_SIZE", "1")) > 1:
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
     init = None if args.init is None else Path(args.init)
-    trainer = Trainer(cfg, tc, data, Path(args.out), device, args.resume, overwrite=args.overwrite, init=init)
+    trainer = Trainer(
+        cfg, tc, data, Path(args.out), device, args.resume, overwrite=args.overwrite, init=init, config_source=source
+    )
     code = trainer.run(args.stop_after)
     if code == 0 and trainer.rank == 0:
         out = Path(args.out)

@@ -199,3 +199,21 @@ def atomic_path(path: str | PathLike) -> Iterator[Path]:
     except BaseException as e:
         _discard(tmp, path, e)
         raise
+
+
+def keep_original(path: str | PathLike) -> Path | None:
+    """Before ``path`` is replaced on purpose (``scene check --write DIR/transforms.json``): copy it to the first free
+    name of ``PATH.orig``, ``PATH.orig-2``, ... beside it (never over an earlier copy) and return that name; None when
+    ``path`` does not exist."""
+    import shutil
+
+    path = check_target(path)
+    if not path.exists():
+        return None
+    for n in range(1, 10_000):
+        keep = path.with_name(path.name + (".orig" if n == 1 else f".orig-{n}"))
+        if not keep.exists() and not keep.is_symlink():
+            with atomic_path(keep) as tmp:
+                shutil.copyfile(path, tmp)
+            return keep
+    raise OSError(f"{path}: 9,999 earlier copies beside it; remove some before writing it again")

@@ -43,5 +43,5 @@ def bundled_assets() -> Path:
 
 
 def recipe_path() -> Path:
-    """The bundled recipe (``assets/model.yaml`` in the installed ``particlesplat.assets`` package)."""
-    return bundled_assets() / "model.yaml"
+    """The bundled recipe (``assets/recipe.yaml`` in the installed ``particlesplat.assets`` package)."""
+    return bundled_assets() / "recipe.yaml"

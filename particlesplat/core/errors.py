@@ -13,7 +13,8 @@ from __future__ import annotations
 import os
 import sys
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 EXIT_USER = 2  # bad input, as argparse exits on a bad argument
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
@@ -92,6 +93,16 @@ def is_user_error(e: BaseException) -> bool:
     """User-caused: :class:`UserError` (file formats, configs, options, budgets) and OSError (missing, unreadable
     or unwritable files, a full disk). A bare ValueError, MemoryError, RuntimeError and the rest are bugs."""
     return isinstance(e, (UserError, OSError))
+
+
+@contextmanager
+def blame(what: str, *errors: type[BaseException]) -> Iterator[None]:
+    """Turn ``errors`` raised inside into a :class:`UserError` naming ``what`` (the scene or checkpoint that caused
+    them), e.g. the renderer's refusal of non-finite Gaussians decoded from a checkpoint of huge weights."""
+    try:
+        yield
+    except errors as e:
+        raise UserError(f"{what}: {one_line(e, 300)}") from None
 
 
 def warn_input(message: str) -> None:

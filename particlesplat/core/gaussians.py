@@ -26,6 +26,12 @@ def quats_to_rotations(quats: Tensor) -> Tensor:
     return quaternion_to_rotation_matrix(quats / torch.where(peak > 0, peak, torch.ones_like(peak)))
 
 
+class BadGaussiansError(ValueError):
+    """Gaussians the renderer refuses (:meth:`Gaussians.check`): a non-finite or negative value, an owner out of range.
+    A bug where the library made them; a command that decoded them from a user's checkpoint or scene turns it into
+    one line naming that input (:func:`particlesplat.core.errors.blame`); training skips the step."""
+
+
 @dataclass
 class Gaussians:
     """A set of N 3D Gaussians.
@@ -61,7 +67,7 @@ class Gaussians:
             self.owner = self.owner.to(torch.int64)
 
     def check(self, where: str = "Gaussians") -> None:
-        """ValueError naming ``where``, the field and the first bad Gaussian unless every value is finite,
+        """BadGaussiansError naming ``where``, the field and the first bad Gaussian unless every value is finite,
         the scales and opacities are >= 0 and every owner is -1 or a particle index 0..:data:`MAX_OWNER`.
         One device synchronisation when all is well."""
         checks = [torch.isfinite(getattr(self, name)).all() for name in _FLOAT_FIELDS]
@@ -76,14 +82,14 @@ class Gaussians:
             bad = ~torch.isfinite(getattr(self, name).detach())
             if bool(bad.any()):
                 row = int(bad.reshape(bad.shape[0], -1).any(1).nonzero()[0, 0])
-                raise ValueError(f"{where}: {name}: non-finite value at Gaussian {row}")
+                raise BadGaussiansError(f"{where}: {name}: non-finite value at Gaussian {row}")
         for name in ("scales", "opacities"):
             bad = getattr(self, name).detach() < 0
             if bool(bad.any()):
                 row = int(bad.reshape(bad.shape[0], -1).any(1).nonzero()[0, 0])
-                raise ValueError(f"{where}: {name}: negative value at Gaussian {row}")
+                raise BadGaussiansError(f"{where}: {name}: negative value at Gaussian {row}")
         row = int(((self.owner < BACKGROUND_OWNER) | (self.owner > MAX_OWNER)).nonzero()[0, 0])
-        raise ValueError(
+        raise BadGaussiansError(
             f"{where}: owner: {int(self.owner[row])} at Gaussian {row} is neither -1 (background) "
             f"nor a particle index 0..{MAX_OWNER}"
         )

@@ -26,6 +26,10 @@ MACHINE_SHARE = 0.5  # the default limit: this share of the machine's memory
 # value at least 1e-18 keeps its reciprocal's square finite
 FLOAT32_MAX_ABS = 1e18
 FLOAT32_MIN_POSITIVE = 1e-18
+# world positions and depths a scene may hold: float32 keeps about 8 mm at 1e5 m (6 cm at ECEF's 4e6 m, where
+# objects vanish between representable values); a scene far from the origin is translated near it first
+WORLD_MAX_METRES = 1e5
+MIN_DISTANCE_METRES = 1e-3  # a framing distance below a millimetre is a unit error, not a camera
 _UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
 
 

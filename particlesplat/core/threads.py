@@ -28,6 +28,35 @@ def usable_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def bounded_threads(requested: int, where: str) -> int:
+    """A requested CPU thread count bounded by the cores this process may use (:func:`usable_cores`): more threads
+    than cores only wait for each other (``train.num_threads: 1024`` on 2 cores: 120 s a step instead of 0.1 s) and
+    thousands abort OpenMP's runtime. A larger request is lowered with a warning naming ``where``."""
+    cores = usable_cores()
+    if requested > cores:
+        from particlesplat.core.errors import warn_input
+
+        warn_input(f"{where}: {requested} threads on {cores} usable cores; using {cores}")
+        return cores
+    return requested
+
+
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def bound_thread_variables() -> None:
+    """Lower ``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS`` above the usable cores to the cores, with a warning on
+    stderr (called before torch loads its OpenMP runtime, which reads them once)."""
+    import sys
+
+    cores = usable_cores()
+    for name in THREAD_VARIABLES:
+        text = os.environ.get(name, "").strip()
+        if text.isdigit() and int(text) > cores:
+            print(f"warning: {name}={text[:12]}: {cores} usable cores; using {cores}", file=sys.stderr)
+            os.environ[name] = str(cores)
+
+
 def busy_seconds(stat: Path = PROC_STAT) -> float | None:
     """CPU-seconds all processes have run since boot (every core: user, nice, system, irq, softirq, steal), from
     ``/proc/stat``; None where it cannot be read."""

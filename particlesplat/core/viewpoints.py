@@ -10,7 +10,7 @@ the vertical field of view in degrees.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import torch
 from torch import Tensor
@@ -132,6 +132,11 @@ class Framing:
 
     target: tuple[float, float, float]
     distance: float | None = None
+    source: str = field(default="scene.json", compare=False)  # the file it was read from, for messages
+
+
+FRAMING_TOLERANCE = 10.0  # a framing's target farther than this many camera distances from the cameras' focus, or a
+# distance this many times theirs (or a tenth), is implausible: warned
 
 
 def default_view(
@@ -149,8 +154,23 @@ def default_view(
         target = torch.tensor(framing.target, dtype=torch.float64) if framing else focus_point(cameras)
         centres = torch.stack([c.center.detach().double().cpu() for c in cameras])
         distance = framing.distance if framing and framing.distance else None
+        seen_from = float((centres - target).norm(dim=-1).median())
         if distance is None:
-            distance = float((centres - target).norm(dim=-1).median())
+            distance = seen_from
+        if framing is not None:  # a framing far from what the cameras see renders an empty view
+            scale = float((centres - focus_point(cameras)).norm(dim=-1).median())
+            off = float((target - focus_point(cameras)).norm())
+            if off > FRAMING_TOLERANCE * max(scale, 1e-6) or not (
+                1 / FRAMING_TOLERANCE <= distance / max(seen_from, 1e-9) <= FRAMING_TOLERANCE
+            ):
+                from particlesplat.core.errors import warn_input
+
+                warn_input(
+                    f"{framing.source}: look_at {','.join(f'{v:g}' for v in framing.target)} and distance "
+                    f"{distance:.3g} m frame a point "
+                    f"{off:.3g} m from where the cameras look, {distance / max(seen_from, 1e-9):.3g} x their distance; "
+                    "the default view may show nothing of the scene"
+                )
         mid = cameras[len(cameras) // 2]
         look = look_from_eye(target, mid.center.detach().cpu())
         return View(float3(target), replace(look, distance=distance), round(mid.fov_y, 6))

@@ -15,10 +15,15 @@ from torch import Tensor
 from torch.utils.data import Dataset
 
 from particlesplat.core.errors import one_line
+from particlesplat.core.limits import memory_limit
 from particlesplat.data.folders import TRANSFORMS
 from particlesplat.data.scene import RawScene, SceneFormatError, read_scene
 from particlesplat.data.scene_meta import SCENE_META, read_pose
 from particlesplat.data.views import flip_horizontal, sample_views, supervision_mask
+
+# the share of the job's memory limit a dataset's scene cache may hold (training keeps one dataset per context-view
+# count: the trainer divides it among them); the rest is the model's, the batch's and the renderer's
+CACHE_SHARE = 0.25
 
 
 @dataclass(frozen=True)
@@ -94,6 +99,7 @@ class SceneDataset(Dataset):
         num_targets: int | None = None,
         schedule: tuple[tuple[int, int], tuple[int, int]] | None = None,
         cache_size: int = 256,
+        cache_bytes: int | None = None,
         pose_key: str = "",
         pose_dims: int = 0,
     ) -> None:
@@ -109,6 +115,9 @@ class SceneDataset(Dataset):
                 validation use ``deterministic=True, progress=1.0`` (the full gap range).
             num_targets, schedule: passed to :func:`sample_views`.
             cache_size: decoded scenes kept per process (about 2.8 MB each at 21 x 128 x 128).
+            cache_bytes: and at most this many bytes of them (least recently used evicted first); None =
+                :data:`CACHE_SHARE` of the job's memory limit (:func:`particlesplat.core.limits.memory_limit`), so
+                that a dataset of large images is read again rather than held past the limit.
             pose_key, pose_dims: each item's ``pose``, the ``pose_dims`` numbers its ``scene.json`` records under
                 ``pose_key`` (``model.bg_static_pose``); every scene must record it ("": none read).
         """
@@ -130,6 +139,8 @@ class SceneDataset(Dataset):
         self.num_targets = num_targets
         self.schedule = schedule
         self.cache_size = cache_size
+        self.cache_bytes = int(memory_limit()[0] * CACHE_SHARE) if cache_bytes is None else cache_bytes
+        self._cached_bytes = 0
         self.pose_key, self.pose_dims = pose_key, pose_dims
         self._progress = mp.get_context().Value("d", float(progress), lock=False)
         self._cache: OrderedDict[int, RawScene] = OrderedDict()
@@ -151,10 +162,12 @@ class SceneDataset(Dataset):
             self._cache.move_to_end(index)
             return self._cache[index]
         raw = read_scene(self.scenes[index])
-        if self.cache_size > 0:
+        size = raw.nbytes
+        if self.cache_size > 0 and size <= self.cache_bytes:
             self._cache[index] = raw
-            while len(self._cache) > self.cache_size:
-                self._cache.popitem(last=False)
+            self._cached_bytes += size
+            while len(self._cache) > self.cache_size or self._cached_bytes > self.cache_bytes:
+                self._cached_bytes -= self._cache.popitem(last=False)[1].nbytes
         return raw
 
     def pose(self, index: int) -> list[float]:

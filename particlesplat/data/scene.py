@@ -8,7 +8,6 @@ turns any subset of its frames into a :class:`Scene` of float tensors at any res
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import warnings
@@ -25,6 +24,7 @@ from torch import Tensor
 
 from particlesplat.core.camera import Camera
 from particlesplat.core.errors import UserError, one_line, short_repr
+from particlesplat.core.jsonfile import read_json
 from particlesplat.data.folders import TRANSFORMS
 
 _RIGID_TOL = 1e-3
@@ -96,6 +96,12 @@ class RawScene:
     depth: list[np.ndarray | None]
     masks: list[np.ndarray | None]
     cameras: list[Camera]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes its decoded arrays hold (what a scene cache keeps)."""
+        arrays = [*self.rgb, *self.depth, *self.masks]
+        return sum(a.nbytes for a in arrays if a is not None)
 
     @property
     def num_frames(self) -> int:
@@ -209,15 +215,7 @@ def read_scene(path: str | PathLike) -> RawScene:
     tf_path = path / TRANSFORMS
     if not tf_path.is_file():
         raise FileNotFoundError(f"{tf_path}: no {TRANSFORMS} in the scene folder")
-    size = tf_path.stat().st_size
-    if size > MAX_TRANSFORMS_BYTES:
-        raise SceneFormatError(f"{tf_path}: {size} bytes, more than the {MAX_TRANSFORMS_BYTES} a {TRANSFORMS} may have")
-    try:
-        meta = json.loads(tf_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SceneFormatError(f"{tf_path}: not valid JSON ({one_line(e, 200)})") from None
-    except RecursionError:
-        raise SceneFormatError(f"{tf_path}: not valid JSON (nested too deeply)") from None
+    meta = read_json(tf_path, MAX_TRANSFORMS_BYTES, SceneFormatError)
     if not isinstance(meta, dict):
         raise SceneFormatError(f"{tf_path}: the top level must be an object")
     frames = meta.get("frames")
@@ -388,6 +386,13 @@ def _rigid_matrix(value: Any, where: str) -> np.ndarray:
         raise SceneFormatError(
             f"{where}: key '{key}' has values beyond +-{FLOAT32_MAX_ABS:g} (float32 arithmetic on them overflows)"
         )
+    from particlesplat.core.limits import WORLD_MAX_METRES
+
+    if np.abs(m[:3, 3]).max() > WORLD_MAX_METRES:
+        raise SceneFormatError(
+            f"{where}: key '{key}' puts the camera {np.abs(m[:3, 3]).max():.3g} m from the origin, beyond the "
+            f"{WORLD_MAX_METRES:g} m where float32 keeps millimetres; translate the scene near the origin"
+        )
     R = m[:3, :3]
     err = max(np.abs(R.T @ R - np.eye(3)).max(), np.abs(m[3] - [0, 0, 0, 1]).max())
     if err > _RIGID_TOL or np.linalg.det(R) <= 0:
@@ -443,7 +448,9 @@ def _open(p: Path, key: str, where: str) -> Image.Image:
             f"{where}: key '{key}': image {p} declares more pixels than the "
             f"{MAX_IMAGE_PIXELS} an image may have (a decompression bomb?)"
         ) from None
-    except OSError as e:
+    except (OSError, ValueError) as e:  # Pillow: ValueError for a text chunk that inflates past its limit
+        if isinstance(e, SceneFormatError):
+            raise
         raise SceneFormatError(f"{where}: key '{key}': cannot read image {p} ({one_line(e, 200)})") from None
     return img
 
@@ -489,6 +496,13 @@ def _read_depth(folder: Path, meta: dict, frame: dict, size: tuple[int, int], wh
     _check_size(arr, size, key, p, where)
     if not np.isfinite(arr).all() or (arr < 0).any():
         raise SceneFormatError(f"{where}: key '{key}': {p} has negative or non-finite depth")
+    from particlesplat.core.limits import WORLD_MAX_METRES
+
+    if arr.size and float(arr.max()) > WORLD_MAX_METRES:
+        raise SceneFormatError(
+            f"{where}: key '{key}': {p} has depths up to {float(arr.max()):.3g} m (with depth_unit_scale_factor "
+            f"{scale:g}), beyond the {WORLD_MAX_METRES:g} m a depth may hold"
+        )
     return arr.astype(np.float32)
 
 

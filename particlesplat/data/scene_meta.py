@@ -6,7 +6,6 @@ follow (``model.bg_static_pose``)."""
 
 from __future__ import annotations
 
-import json
 import math
 from os import PathLike
 from pathlib import Path
@@ -14,46 +13,74 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from particlesplat.core.errors import one_line, short_repr, warn_input
+from particlesplat.core.errors import short_repr, warn_input
+from particlesplat.core.jsonfile import MAX_JSON_BYTES, read_json
+from particlesplat.core.limits import MIN_DISTANCE_METRES, WORLD_MAX_METRES
 from particlesplat.core.viewpoints import Framing
 from particlesplat.data.families import family_of
+from particlesplat.data.folders import TRANSFORMS
+from particlesplat.data.pose_ranges import check_limits, generator_range, warn_outside
 from particlesplat.data.scene import SceneFormatError
 
 SCENE_META = "scene.json"
 DATASET_META = "synth.json"  # a dataset folder's settings (particlesplat.data.synth.check_manifest)
-MAX_SCENE_META_BYTES = 16 << 20
+MAX_SCENE_META_BYTES = MAX_JSON_BYTES
 
 
-def _read_json(path: Path) -> object:
-    """The JSON value of a small metadata file; SceneFormatError names the file when it is too big or not JSON."""
-    size = path.stat().st_size
-    if size > MAX_SCENE_META_BYTES:
-        raise SceneFormatError(f"{path}: {size} bytes, more than the {MAX_SCENE_META_BYTES} a {path.name} may have")
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
-        raise SceneFormatError(f"{path}: not valid JSON ({one_line(e, 200)})") from None
+def read_scene_json(path: Path) -> object:
+    """The JSON value of a small metadata file (:func:`particlesplat.core.jsonfile.read_json`, at most
+    :data:`MAX_SCENE_META_BYTES`); SceneFormatError names the file when it is too big or not JSON."""
+    return read_json(path, MAX_SCENE_META_BYTES, SceneFormatError)
 
 
 def read_family(path: str | PathLike) -> str | None:
     """The scene family (:data:`particlesplat.data.families.FAMILIES`) of a scene folder, a split folder or a
-    dataset folder: what the scene's ``scene.json`` records, else the dataset's ``synth.json`` (in the folder or
-    the one above it), else the first scene folder's below it. None when nothing records one."""
+    dataset folder: what the scene's ``scene.json`` records; for a split or dataset folder, what every scene below
+    it records (a folder mixing families is refused: one model would encode them all), else the dataset's
+    ``synth.json`` (in the folder or the one above it). None when nothing records one."""
     path = Path(path)
     if not path.is_dir():
         return None
-    candidates = [path / SCENE_META, path / DATASET_META, path.parent / DATASET_META]
-    below = sorted(p for p in path.iterdir() if p.is_dir())[:1]
-    candidates += [below[0] / SCENE_META] if below else []
-    if below:  # a dataset folder: its first split's first scene
-        deeper = sorted(p for p in below[0].iterdir() if p.is_dir())[:1]
-        candidates += [deeper[0] / SCENE_META] if deeper else []
-    for meta in candidates:
+    own = path / SCENE_META
+    if own.is_file():
+        family = family_of(read_scene_json(own), str(own))
+        if family is not None:
+            return family
+    found: dict[str, Path] = {}
+    for meta in _scene_metas(path):
+        family = family_of(read_scene_json(meta), str(meta))
+        if family is not None:
+            found.setdefault(family, meta)
+    if len(found) > 1:
+        (a, pa), (b, pb) = sorted(found.items())[:2]
+        raise SceneFormatError(
+            f"{path}: mixes scene families ({pa} is {a}, {pb} is {b}); one model encodes every scene of a "
+            "folder: give scenes of one family, or --checkpoint to choose the model"
+        )
+    if found:
+        return next(iter(found))
+    for meta in (path / DATASET_META, path.parent / DATASET_META):
         if meta.is_file():
-            family = family_of(_read_json(meta))
+            family = family_of(read_scene_json(meta), str(meta))
             if family is not None:
                 return family
     return None
+
+
+def _scene_metas(folder: Path) -> list[Path]:
+    """The ``scene.json`` of every scene folder below ``folder`` (a split: its scenes; a dataset: its splits'
+    scenes), hidden folders left out."""
+    metas = []
+    for child in sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        if (child / SCENE_META).is_file():
+            metas.append(child / SCENE_META)
+        elif not (child / TRANSFORMS).is_file():
+            metas += [
+                g / SCENE_META
+                for g in sorted(child.iterdir())
+                if g.is_dir() and not g.name.startswith(".") and (g / SCENE_META).is_file()
+            ]
+    return metas
 
 
 def default_checkpoint(path: str | PathLike | None) -> Path:
@@ -72,17 +99,24 @@ def read_framing(folder: str | PathLike) -> Framing | None:
     path = Path(folder) / SCENE_META
     if not path.is_file():
         return None
-    meta = _read_json(path)
+    meta = read_scene_json(path)
     if not isinstance(meta, dict) or meta.get("look_at") is None:
         return None
     look_at = meta["look_at"]
     if not (isinstance(look_at, list) and len(look_at) == 3 and all(_finite(v) for v in look_at)):
         raise SceneFormatError(f"{path}: key 'look_at' must be 3 finite numbers (metres), got {short_repr(look_at)}")
+    if max(abs(float(v)) for v in look_at) > WORLD_MAX_METRES:
+        raise SceneFormatError(f"{path}: key 'look_at' is beyond {WORLD_MAX_METRES:g} m from the origin")
     distance = meta.get("distance")
-    if distance is not None and not (_finite(distance) and distance > 0):
-        raise SceneFormatError(f"{path}: key 'distance' must be a positive number (metres), got {short_repr(distance)}")
+    if distance is not None and not (_finite(distance) and MIN_DISTANCE_METRES <= distance <= WORLD_MAX_METRES):
+        raise SceneFormatError(
+            f"{path}: key 'distance' must be a number of metres in [{MIN_DISTANCE_METRES:g}, {WORLD_MAX_METRES:g}], "
+            f"got {short_repr(distance)}"
+        )
     return Framing(
-        (float(look_at[0]), float(look_at[1]), float(look_at[2])), None if distance is None else float(distance)
+        (float(look_at[0]), float(look_at[1]), float(look_at[2])),
+        None if distance is None else float(distance),
+        str(path),
     )
 
 
@@ -92,7 +126,7 @@ def _scene_value(folder: str | PathLike, key: str) -> tuple[Path, object] | None
     path = Path(folder) / SCENE_META
     if not path.is_file():
         return None
-    meta = _read_json(path)
+    meta = read_scene_json(path)
     if not isinstance(meta, dict) or meta.get(key) is None:
         return None
     return path, meta[key]
@@ -108,16 +142,25 @@ def read_pose(folder: str | PathLike, key: str, dims: int) -> list[float] | None
     path, value = found
     if not (isinstance(value, list) and len(value) == dims and all(_finite(v) for v in value)):
         raise SceneFormatError(f"{path}: key {key!r} must be {dims} finite numbers, got {short_repr(value)}")
-    return [float(v) for v in value]
+    pose = [float(v) for v in value]
+    check_limits(pose, key, str(path))  # beyond the robot's joint limits: no pose of the robot
+    return pose
 
 
-def scene_pose(folder: str | PathLike, key: str, dims: int) -> Tensor | None:
+def scene_pose(
+    folder: str | PathLike, key: str, dims: int, ranges: dict[str, dict[str, list[float]]] | None = None
+) -> Tensor | None:
     """The pose (D,) a model that follows one (``model.bg_static_pose`` ``key`` of ``dims`` numbers; "" = none)
     reads for the scene at ``folder``: what its scene.json records. None for a model that follows none, and, with
-    an InputWarning (the layer then holds the training scenes' mean pose), for a scene that records none."""
+    an InputWarning (the layer then holds the training scenes' mean pose), for a scene that records none.
+    ``ranges``: the model's ``input_ranges``; a pose outside its trained range is warned about
+    (:mod:`particlesplat.data.pose_ranges`; a model that records none: its generator's range)."""
     if not key:
         return None
     pose = read_pose(folder, key, dims)
+    if pose is not None:
+        trained = (ranges or {}).get(key) or generator_range(key)
+        warn_outside(pose, key, trained, str(Path(folder) / SCENE_META))
     if pose is None:
         warn_input(
             f"{Path(folder) / SCENE_META}: no key {key!r}: the model's workspace layer follows that pose; it holds "

@@ -8,12 +8,16 @@ leaves only whole scenes, and running the same command again skips them.
 
 from __future__ import annotations
 
+import functools
 import json
 import multiprocessing as mp
 import os
 import shutil
+import signal
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, TypeVar
@@ -24,8 +28,9 @@ from tqdm import tqdm
 
 from particlesplat.core.atomic import atomic_write, temp_sibling
 from particlesplat.core.camera import Camera
-from particlesplat.core.errors import OptionError, UserError
+from particlesplat.core.errors import Interrupted, OptionError, UserError
 from particlesplat.core.limits import check_memory
+from particlesplat.core.runlock import RunLock
 from particlesplat.data.families import tabletop
 from particlesplat.data.folders import SPLITS
 from particlesplat.data.scene_files import write_scene_files
@@ -110,15 +115,69 @@ def _init_worker() -> None:
     torch.set_num_threads(1)
 
 
+@contextmanager
+def owned_dataset(out: Path) -> Iterator[None]:
+    """Hold ``out`` for one generator run: its lock (:class:`particlesplat.core.runlock.RunLock`, so a second
+    ``synth`` into the folder ends in one line instead of deleting this one's scene in progress), and SIGTERM
+    handled as Ctrl-C is (finished scenes kept, the worker pool stopped with the command: :func:`run_tasks`)."""
+    lock = RunLock(out).acquire()
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+
+        def on_term(signum, frame):
+            raise Interrupted(f"finished scenes are kept in {out}; run the same command again to resume", signum)
+
+        previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    except KeyboardInterrupt as e:
+        if isinstance(e, Interrupted):
+            raise
+        raise Interrupted(f"finished scenes are kept in {out}; run the same command again to resume") from None
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+        lock.release()
+
+
+def _start_worker(init_worker: Callable[[], None]) -> None:
+    """A pool worker: the default SIGTERM (the pool stops its workers with it) and SIGINT ignored (the parent
+    stops the pool on Ctrl-C; a worker's own KeyboardInterrupt would only print a traceback), then ``init_worker``."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    init_worker()
+
+
+def check_existing_generator(out: Path, generator: str) -> None:
+    """UserError when scene folders already under ``out`` were written by a generator of another family, or by none
+    this program knows (a robot dataset folder without its ``synth.json`` given to the tabletop generator would mix
+    families)."""
+    from particlesplat.data.families import GENERATOR_FAMILY, family_of
+    from particlesplat.data.scene_meta import SCENE_META, read_scene_json
+
+    want = GENERATOR_FAMILY.get(generator)
+    for split in SPLITS:
+        for scene in sorted((out / split).glob("scene_*"))[:1] if (out / split).is_dir() else []:
+            meta = read_scene_json(scene / SCENE_META) if (scene / SCENE_META).is_file() else None
+            have = family_of(meta, str(scene / SCENE_META))
+            if have != want:
+                recorded = meta.get("generator") if isinstance(meta, dict) else None
+                raise UserError(
+                    f"{scene / SCENE_META}: key 'generator' is {str(recorded)[:80]!r} but this run uses {generator!r}; "
+                    "a dataset holds one family: use another output folder"
+                )
+
+
 def check_manifest(out: Path, want: dict) -> None:
     """Record the settings ``want`` of a dataset folder ``out`` in its ``synth.json`` (any generator); refuse
-    to resume a folder made with other settings."""
+    to resume a folder made with other settings, or one whose scenes another generator wrote."""
     path = out / MANIFEST
     if path.exists():
-        try:
-            have = json.loads(path.read_text())
-        except json.JSONDecodeError as e:
-            raise UserError(f"{path}: not valid JSON ({e})") from e
+        from particlesplat.data.scene_meta import read_scene_json
+
+        have = read_scene_json(path)
+        if not isinstance(have, dict):
+            raise UserError(f"{path}: expected a JSON object, got {type(have).__name__}")
         for key, value in want.items():
             if have.get(key) != value:
                 raise UserError(
@@ -126,6 +185,7 @@ def check_manifest(out: Path, want: dict) -> None:
                     "use another output folder or the same settings to resume"
                 )
         return
+    check_existing_generator(out, str(want.get("generator")))
     out.mkdir(parents=True, exist_ok=True)
     with atomic_write(path, "w") as f:
         json.dump(want, f, indent=1)
@@ -173,7 +233,8 @@ def run_tasks(
                 bar.update(1)
         else:
             method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-            with mp.get_context(method).Pool(workers, initializer=init_worker) as pool:
+            start = functools.partial(_start_worker, init_worker)
+            with mp.get_context(method).Pool(workers, initializer=start) as pool:
                 for result in pool.imap_unordered(work, tasks):
                     out.append(result)
                     bar.update(1)
@@ -190,10 +251,11 @@ def generate(
     Returns the seconds each newly written scene took (worker wall time).
     """
     check_settings(out, counts, seed, res, workers)
-    check_manifest(
-        out, {"generator": "particlesplat.data.synth", "format_version": FORMAT_VERSION, "seed": seed, "res": res}
-    )
-    tasks = [(split, index, seed, res, str(out)) for split, index in missing_scenes(out, counts)]
-    total = sum(counts.values())
-    bar = tqdm(total=total, initial=total - len(tasks), desc="synth", unit="scene", disable=not progress)
-    return run_tasks(tasks, _work, _init_worker, workers, bar)
+    with owned_dataset(out):
+        check_manifest(
+            out, {"generator": "particlesplat.data.synth", "format_version": FORMAT_VERSION, "seed": seed, "res": res}
+        )
+        tasks = [(split, index, seed, res, str(out)) for split, index in missing_scenes(out, counts)]
+        total = sum(counts.values())
+        bar = tqdm(total=total, initial=total - len(tasks), desc="synth", unit="scene", disable=not progress)
+        return run_tasks(tasks, _work, _init_worker, workers, bar)

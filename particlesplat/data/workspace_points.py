@@ -46,7 +46,7 @@ def workspace_points(
     """The voxels occupied in at least ``min_share`` of ``scene_dirs`` (every view back-projected at
     ``resolution`` pixels), the ``max_points`` most shared first; colour is the mean over every hit.
 
-    Raises ValueError when no scene has depth.
+    Raises SceneFormatError (a user error naming the folder and the model key) when no scene has depth.
     """
     counts: dict[int, int] = {}
     colour_sum: dict[int, np.ndarray] = {}
@@ -94,7 +94,13 @@ def workspace_points(
                 centre[k] = (np.floor(psum[i] / n[i] / s) + 0.5) * s
                 edge[k] = s
     if used == 0:
-        raise ValueError(f"{scene_dirs[0].parent if scene_dirs else '?'}: no scene with depth to find the workspace in")
+        from particlesplat.data.scene import SceneFormatError
+
+        raise SceneFormatError(
+            f"{scene_dirs[0].parent if scene_dirs else '?'}: none of its first {len(scene_dirs)} scenes has depth "
+            "(depth_file_path), which model.bg_static_points needs to place the workspace layer; give scenes with "
+            "depth or set bg_static_points to 0"
+        )
     kept = [k for k, n in counts.items() if n >= min_share * used]  # voxel keys, most often seen first
     kept.sort(key=lambda k: (-counts[k], k))
     kept = kept[:max_points]

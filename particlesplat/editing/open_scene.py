@@ -76,14 +76,16 @@ def encode_scene(
     from particlesplat.model.io import encode_memory
 
     check_memory(  # the encoder's memory grows with the cube of the context views
-        encode_memory(model.config, len(ctx)), f"--context: {len(ctx)} context views of {raw.path}"
+        encode_memory(model.config, len(ctx)),
+        f"{'--context' if context is not None else 'the default context'}: {len(ctx)} context views of {raw.path} "
+        f"(the model: particles_per_view {model.config.particles_per_view}, {model.config.resolution}^2 pixels)",
     )
     scene = raw.select(ctx, model.config.resolution)
     depth = scene.depth if use_depth and scene.depth is not None and bool((scene.depth > 0).any()) else None
     cfg = model.config
     with warnings.catch_warnings(record=True) as caught:  # shown where the scene's other warnings are
         warnings.simplefilter("always", InputWarning)
-        pose = scene_pose(raw.path, cfg.bg_static_pose, cfg.bg_static_pose_dims)
+        pose = scene_pose(raw.path, cfg.bg_static_pose, cfg.bg_static_pose_dims, model.input_ranges)
     particles = model.encode(scene.rgb, depth, scene.cameras, pose)
     notes = [str(w.message) for w in caught]
     if use_depth and depth is None:

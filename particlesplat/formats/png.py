@@ -83,7 +83,7 @@ def _png_chunks(path: str | PathLike) -> dict[str, str]:
     try:
         with Image.open(path) as img:
             return dict(getattr(img, "text", {}) or {})
-    except OSError as e:
+    except (OSError, ValueError) as e:  # Pillow: ValueError for a text chunk that inflates past its limit
         raise PngError(f"{path}: not a readable image ({one_line(e, 160)})") from None
 
 

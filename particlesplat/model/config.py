@@ -74,7 +74,7 @@ INT_RANGES: dict[str, tuple[int, int]] = {
 
 @dataclass
 class ModelConfig:
-    """Architecture and renderer-side hyperparameters (documented in ``assets/model.yaml``)."""
+    """Architecture and renderer-side hyperparameters (documented in ``assets/recipe.yaml``)."""
 
     resolution: int = 64
     particles_per_view: int = 8
@@ -266,7 +266,7 @@ class ModelConfig:
 
 @dataclass
 class TrainConfig:
-    """Optimisation, loss and data-sampling settings (documented in ``assets/model.yaml``)."""
+    """Optimisation, loss and data-sampling settings (documented in ``assets/recipe.yaml``)."""
 
     batch_size: int = 4
     context_views: list[int] = field(default_factory=lambda: [2])

@@ -6,7 +6,6 @@ model is one: its run's checkpoint with a cheaper refinement pass.
 from __future__ import annotations
 
 from os import PathLike
-from pathlib import Path
 
 from particlesplat.core.choices import INFERENCE_KEYS
 from particlesplat.core.errors import UserError
@@ -50,11 +49,13 @@ def derive_checkpoint(ckpt: dict, changes: dict[str, object], source: str, note:
 def write_derived(src: str | PathLike, dst: str | PathLike, changes: dict[str, object], note: str = "") -> ModelConfig:
     """Read ``src``, derive (:func:`derive_checkpoint`), check the copy loads, write ``dst`` atomically (never
     over ``src``). Returns the new model config."""
-    if Path(dst).resolve() == Path(src).resolve():
-        raise DeriveError(f"{dst}: the output would replace the checkpoint it is made from; write another file")
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs([("--out", dst)], [("CHECKPOINT", src)])
     ckpt = read_checkpoint(src)
     derived = derive_checkpoint(ckpt, changes, str(src), note)
-    model = model_from_checkpoint(derived, str(dst))
+    # what fails to load is the input with the changes: name both, not --out
+    model = model_from_checkpoint(derived, f"{src} with {', '.join(changes)}")
     extra = {k: v for k, v in derived.items() if k not in ("config", "state_dict", "step", "config_sha256")}
     save_checkpoint(dst, model, derived["step"], extra)
     return model.config

@@ -16,7 +16,7 @@ from particlesplat.core.atomic import atomic_path
 from particlesplat.core.bundled import bundled_assets
 from particlesplat.core.errors import UserError, one_line
 from particlesplat.core.limits import check_memory
-from particlesplat.model.config import ModelConfig, stored_model_config
+from particlesplat.model.config import ModelConfig, stored_model_config, stored_train_config
 from particlesplat.model.particlesplat import ParticleSplat
 
 
@@ -29,6 +29,8 @@ def save_checkpoint(path: str | PathLike, model: ParticleSplat, step: int, extra
         "step": int(step),
         "config_sha256": config_digest(config),
     }
+    if model.input_ranges is not None:
+        state["input_ranges"] = model.input_ranges
     if extra:
         state.update(extra)
     try:
@@ -70,6 +72,11 @@ DENSE_DTYPES = (
 )
 
 
+# the largest weight or buffer a checkpoint may hold: the shipped models' largest is 14 (a workspace point's metres,
+# a weight); 1e6 leaves room for any plausible training while a product of a few such values stays finite in float32
+WEIGHT_MAX_ABS = 1e6
+
+
 class CheckpointError(UserError):
     """A checkpoint that cannot be used; the message names the file and the field."""
 
@@ -107,6 +114,28 @@ def read_checkpoint(path: str | PathLike) -> dict:
     if not isinstance(ckpt["config"], dict):
         raise CheckpointError(f"{path}: config: expected a mapping, got {type(ckpt['config']).__name__}")
     check_state_dict(ckpt["state_dict"], str(path))
+    if ckpt.get("provenance") is not None:
+        from particlesplat.model.provenance import provenance_problem
+
+        problem = provenance_problem(ckpt["provenance"])
+        if problem:
+            raise CheckpointError(
+                f"{path}: provenance.{problem}" if ":" in problem else f"{path}: provenance: {problem}"
+            )
+    if ckpt.get("input_ranges") is not None:
+        from particlesplat.data.pose_ranges import check_ranges
+
+        try:
+            check_ranges(ckpt["input_ranges"], str(path))
+        except UserError as e:
+            raise CheckpointError(str(e)) from None
+    if ckpt.get("train") is not None:  # the run's train section, checked as the config is
+        if not isinstance(ckpt["train"], dict):
+            raise CheckpointError(f"{path}: train: expected a mapping, got {type(ckpt['train']).__name__}")
+        try:
+            stored_train_config(ckpt["train"], f"{path}: train")
+        except UserError as e:
+            raise CheckpointError(str(e)) from None
     if isinstance(ckpt["step"], bool) or not isinstance(ckpt["step"], int) or ckpt["step"] < 0:
         raise CheckpointError(f"{path}: step: expected a non-negative integer, got {type(ckpt['step']).__name__}")
     digest = ckpt.get("config_sha256")
@@ -137,6 +166,14 @@ def check_state_dict(state: object, where: str) -> None:
                 f"{where}: state_dict.{one_line(k, 80)}: non-finite weights (NaN or inf); the run "
                 "that wrote it diverged: use an earlier checkpoint"
             )
+        if v.numel() and v.dtype != torch.bool:
+            largest = float(v.detach().abs().max())
+            if largest > WEIGHT_MAX_ABS:
+                raise CheckpointError(
+                    f"{where}: state_dict.{one_line(k, 80)}: values up to {largest:.3g}, beyond the "
+                    f"+-{WEIGHT_MAX_ABS:g} a weight or buffer may hold (float32 arithmetic on it overflows; a trained "
+                    "model's stay below 100)"
+                )
 
 
 class _SmallTensorsOnCpu(TorchFunctionMode):
@@ -195,11 +232,21 @@ def model_from_checkpoint(ckpt: dict, where: str = "checkpoint", device: str | t
     cfg = stored_model_config(ckpt["config"], f"{where}: config")
     check_model_memory(cfg, f"{where}: config")
     model = ParticleSplat(cfg)
+    own = model.state_dict()
+    for k, v in ckpt["state_dict"].items():  # an integer copy of a floating-point weight loses its fractions
+        if k in own and own[k].is_floating_point() and not v.is_floating_point():
+            raise CheckpointError(
+                f"{where}: state_dict.{one_line(k, 80)}: stored as {v.dtype}, but the model's weight is "
+                f"floating-point ({own[k].dtype})"
+            )
     try:
         model.load_state_dict(ckpt["state_dict"])
     except RuntimeError as e:
         raise CheckpointError(f"{where}: state_dict does not match its config ({one_line(e, 300)})") from None
     model.refine_enabled = refinement_trained(ckpt)
+    from particlesplat.data.pose_ranges import check_ranges
+
+    model.input_ranges = check_ranges(ckpt.get("input_ranges"), where)
     return model.to(device).eval()
 
 

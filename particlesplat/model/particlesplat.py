@@ -60,6 +60,9 @@ class ParticleSplat(nn.Module):
         super().__init__()
         config.validate()
         self.config = config
+        # per robot input (a scene.json pose key): {"min": [...], "max": [...]} over the training scenes
+        # (particlesplat.data.pose_ranges); saved with the checkpoint, None when not recorded
+        self.input_ranges: dict[str, dict[str, list[float]]] | None = None
         self.encoder = ParticleEncoder(config)
         self.bg_encoder = BackgroundEncoder(config)
         self.fg_decoder = ForegroundDecoder(config)

@@ -91,6 +91,33 @@ class RunClock:
         )
 
 
+PROVENANCE_TEXT = ("data", "scene_list_sha256", "init", "torch", "git_commit", "device", "derived")
+PROVENANCE_NUMBERS = ("train_scenes", "wall_hours", "cpu_hours")
+MAX_PROVENANCE_TEXT = 4096  # characters of one text field
+
+
+def provenance_problem(prov: object) -> str | None:
+    """What is wrong with a checkpoint's ``provenance`` (None when nothing is): a mapping whose text fields
+    (:data:`PROVENANCE_TEXT`) are text or null, at most :data:`MAX_PROVENANCE_TEXT` characters, and whose
+    counts and hours (:data:`PROVENANCE_NUMBERS`) are finite non-negative numbers or null. Other keys are ignored."""
+    import math
+
+    if not isinstance(prov, dict):
+        return f"expected a mapping, got {type(prov).__name__}"
+    for key in PROVENANCE_TEXT:
+        v = prov.get(key)
+        if v is not None and (not isinstance(v, str) or len(v) > MAX_PROVENANCE_TEXT):
+            what = type(v).__name__ if not isinstance(v, str) else f"{len(v):,} characters"
+            return f"{key}: expected text of at most {MAX_PROVENANCE_TEXT} characters or null, got {what}"
+    for key in PROVENANCE_NUMBERS:
+        v = prov.get(key)
+        if v is None:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+            return f"{key}: expected a finite non-negative number or null, got {str(v)[:40]!r}"
+    return None
+
+
 def describe(prov: dict | None) -> str:
     """One line for ``particlesplat eval``: the run's init, data, cost and code."""
     if not prov:

@@ -23,8 +23,8 @@ RASTERIZERS = ("torch", "fused")
 CHOICES = ("auto", *RASTERIZERS)
 ENV = "PARTICLESPLAT_RASTERIZER"
 RASTERIZER_HELP = (
-    "rasterizer: auto (default: fused on the CPU, torch elsewhere), fused (numba kernels, CPU only) or torch "
-    f"(the pure-torch twin, the CUDA path); the environment variable {ENV} sets it too"
+    "fused (numba kernels) or torch (the pure-torch twin, the CUDA path); auto takes fused on the CPU and torch "
+    f"elsewhere (default: auto, or what {ENV} says)"
 )
 
 _default: str | None = None

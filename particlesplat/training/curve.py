@@ -7,13 +7,12 @@ torn last line is skipped. Drawn with pillow only, so the library needs no plott
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 from PIL import Image, ImageDraw
 
-from particlesplat.training.runlog import LogError
+from particlesplat.training.runlog import read_log
 
 WIDTH, HEIGHT, MARGIN = 560, 300, 48
 LOSS_HEIGHT = 200  # pixels of the training-loss panel below the validation plot
@@ -24,34 +23,31 @@ LEGEND_ROW = 14  # pixels a legend row takes below the plot
 
 
 def read_validation(path: Path) -> list[tuple[int, float, float]]:
-    """(step, PSNR dB, FG-ARI) of every validation record in ``path`` (a metrics.jsonl), in step order."""
-    return read_log(path)[0]
+    """(step, PSNR dB, FG-ARI) of every validation record in ``path`` (a metrics.jsonl), in step order; a metric
+    that is null is NaN."""
+    return read_curves(path)[0]
 
 
 def read_training(path: Path) -> list[tuple[int, float]]:
     """(step, training loss: the running mean the trainer logs) of every logged step in ``path``, in step order."""
-    return read_log(path)[1]
+    return read_curves(path)[1]
 
 
-def read_log(path: Path) -> tuple[list[tuple[int, float, float]], list[tuple[int, float]]]:
+def read_curves(path: Path) -> tuple[list[tuple[int, float, float]], list[tuple[int, float]]]:
     """The validation rows (:func:`read_validation`) and the training-loss rows (:func:`read_training`) of ``path``
-    in one reading. LogError naming the line for a line that is not JSON but the last (a torn write)."""
+    in one reading, line by line, each record checked by :func:`particlesplat.training.runlog.read_log` (LogError
+    naming the line for a bad line but the last, a torn write, which is left out)."""
+    records, _ = read_log(path, keep=lambda r: "val" in r or ("step" in r and "loss" in r))
+
+    def metric(v: object) -> float:
+        return float("nan") if v is None else float(v)  # type: ignore[arg-type]
+
     rows, losses = [], []
-    lines = path.read_text().splitlines()
-    for number, line in enumerate(lines, 1):
-        if not line.strip():
-            continue
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError as e:
-            if number == len(lines):  # a run killed mid-write leaves a torn last line
-                continue
-            raise LogError(f"{path}: line {number} is not JSON ({e.msg})") from e
-        if isinstance(rec, dict) and isinstance(rec.get("val"), dict):
-            v = rec["val"]
-            rows.append((int(rec["step"]), float(v["psnr"]), float(v.get("fg_ari", float("nan")))))
-        elif isinstance(rec, dict) and isinstance(rec.get("loss"), (int, float)) and "step" in rec:
-            losses.append((int(rec["step"]), float(rec["loss"])))
+    for r in records:
+        if isinstance(r.get("val"), dict):
+            rows.append((int(r["step"]), metric(r["val"].get("psnr")), metric(r["val"].get("fg_ari"))))
+        elif isinstance(r.get("loss"), (int, float)) and not isinstance(r["loss"], bool):
+            losses.append((int(r["step"]), float(r["loss"])))
     return sorted(rows), sorted(losses)
 
 
@@ -97,8 +93,8 @@ def _plot_val(runs: list[tuple[str, list[tuple[int, float, float]]]], title: str
         d.text((x0 + 10, (y0 + y1) // 2), "no validation records yet", fill=AXIS_COLOUR)
         return img
     s_max = step_max or max(max(r[0] for r in rows_all), 1)
-    psnrs = [r[1] for r in rows_all]
-    p_lo, p_hi = min(15.0, min(psnrs)), max(30.0, max(psnrs))
+    psnrs = [r[1] for r in rows_all if math.isfinite(r[1])]  # NaN and inf are not drawn and set no axis
+    p_lo, p_hi = min([15.0, *psnrs]), max([30.0, *psnrs])
 
     def px(step: float) -> float:
         return x0 + (x1 - x0) * step / s_max
@@ -118,7 +114,7 @@ def _plot_val(runs: list[tuple[str, list[tuple[int, float, float]]]], title: str
         steps = [r[0] for r in rows]
         series = (([r[1] for r in rows], p_lo, p_hi, psnr_colour), ([r[2] for r in rows], 0.0, 1.0, ari_colour))
         for values, lo, hi, colour in series:
-            pts = [(px(s), py(v, lo, hi)) for s, v in zip(steps, values, strict=True) if v == v]
+            pts = [(px(s), py(v, lo, hi)) for s, v in zip(steps, values, strict=True) if math.isfinite(v)]
             if len(pts) > 1:
                 d.line(pts, fill=colour, width=2)
             for x, y in pts:

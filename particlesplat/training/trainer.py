@@ -26,25 +26,39 @@ from tqdm import tqdm
 from particlesplat.core.atomic import atomic_path, atomic_write, stale_temporaries
 from particlesplat.core.camera import Camera
 from particlesplat.core.device import resolve_device
-from particlesplat.core.errors import Interrupted, UserError, one_line
+from particlesplat.core.errors import Interrupted, OptionError, UserError, one_line, short_repr
+from particlesplat.core.gaussians import BadGaussiansError
+from particlesplat.core.runlock import LOCK_NAME, RunLock
 from particlesplat.core.threads import ThreadGovernor
 from particlesplat.data.dataset import TrainingBatch
+from particlesplat.data.pose_ranges import check_ranges, record_range
 from particlesplat.data.views import WARMUP
 from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig, read_checkpoint, save_checkpoint
-from particlesplat.model.config import ConfigError, config_to_dict, stored_model_config
+from particlesplat.model.config import ConfigError, config_to_dict, stored_model_config, stored_train_config
 from particlesplat.model.io import check_model_memory
 from particlesplat.model.losses import elbo, scene_kl, view_error
 from particlesplat.model.provenance import Provenance, RunClock
 from particlesplat.model.static_background import WorkspaceBackground
 from particlesplat.rendering.api import render_batch
 from particlesplat.training.eta import StepTimes
-from particlesplat.training.runlock import LOCK_NAME, RunLock
-from particlesplat.training.runlog import read_log
+from particlesplat.training.runlog import LogReader, read_log
 
 LAST = "last.pt"
 STEP_FILE = re.compile(r"^step_\d+\.pt$")
 WORKSPACE_SCENES = 40  # training scenes the workspace layer's start is found in
 THREAD_CHECK_STEPS = 10  # steps between checks of the cores other processes keep busy (train.adapt_threads)
+# train keys a --resume may change (with a warning): when and how the run reports, checkpoints and uses the CPU, and
+# its length (extending a finished run); any other key would make the resumed run another run than the one started
+RESUME_MAY_CHANGE = (
+    "steps",
+    "log_every",
+    "val_every",
+    "val_scenes",
+    "ckpt_every",
+    "num_threads",
+    "adapt_threads",
+    "cache_scenes",
+)
 MAX_SKIPPED = 20  # steps in a row with non-finite loss or gradients before the run stops as diverged
 
 
@@ -173,6 +187,28 @@ def training_selection(cfg: ModelConfig, tc: TrainConfig):
         cfg.particles_per_view, cfg.kp_min_separation = saved
 
 
+RUN_FILES = ("config.yaml", "metrics.jsonl")  # what a run writes besides checkpoints
+
+
+def _run_without_checkpoint(out: Path, held: list[Path]) -> bool:
+    """Whether ``held`` (the files of a run folder) are only what a run that stopped before its first checkpoint
+    left: its log and, from earlier versions, its ``config.yaml`` (a mapping of ``model`` and ``train`` only, not a
+    user's own file of that name)."""
+    if not held or any(p.name not in RUN_FILES or not p.is_file() for p in held):
+        return False
+    if not (out / "config.yaml").is_file():
+        return True
+    from particlesplat.core.yamlsafe import YamlError, read_yaml
+
+    try:
+        data = read_yaml(out / "config.yaml", "config")
+    except (YamlError, OSError):
+        return False
+    return (
+        isinstance(data, dict) and set(data) == {"model", "train"} and all(isinstance(v, dict) for v in data.values())
+    )
+
+
 def gap_progress(step: int, tc: TrainConfig) -> float:
     """The data sampler's progress at ``step``: its view-gap range grows linearly to the full range over the
     first ``gap_warmup`` of the steps (0: full from the start)."""
@@ -200,8 +236,10 @@ class Trainer:
         resume: bool,
         overwrite: bool = False,
         init: Path | None = None,
+        config_source: str = "--config",
     ):
         self.cfg, self.tc, self.out = cfg, tc, out
+        self.config_source = config_source  # where cfg and tc come from, in messages
         self.device = device if isinstance(device, torch.device) else resolve_device(device)
         # the folder is owned by this process before anything in it is read or deleted (a folder that does not
         # exist yet is locked when run() creates it)
@@ -232,7 +270,7 @@ class Trainer:
                 f"{out}: --out is not empty; pass --resume to continue the run in it, "
                 "--overwrite to replace it, or choose another folder"
             )
-        if overwrite and not resume and held and not has_run:
+        if overwrite and not resume and held and not has_run and not _run_without_checkpoint(out, held):
             raise FileExistsError(
                 f"{out}: --overwrite replaces a training run, and this folder holds none (no last.pt, best.pt or "
                 f"step_*.pt; it holds {', '.join(sorted(p.name for p in held)[:3])}{', ...' if len(held) > 3 else ''}"
@@ -253,8 +291,12 @@ class Trainer:
             dist.init_process_group("gloo" if self.device.type == "cpu" else "nccl")
         self.rank = dist.get_rank() if self.distributed else 0
         self.world = dist.get_world_size() if self.distributed else 1
+        from particlesplat.core.limits import memory_limit
         from particlesplat.data import SceneDataset
+        from particlesplat.data.dataset import CACHE_SHARE
 
+        # the scene caches count in the job's memory: one share of the limit, divided among the datasets
+        cache_bytes = int(memory_limit()[0] * CACHE_SHARE / len(set(tc.context_views)))
         self.train_sets = {
             c: SceneDataset(
                 data / "train",
@@ -263,6 +305,7 @@ class Trainer:
                 num_targets=tc.target_views,
                 flip=False,
                 cache_size=tc.cache_scenes,
+                cache_bytes=cache_bytes,
                 pose_key=cfg.bg_static_pose,
                 pose_dims=cfg.bg_static_pose_dims,
             )
@@ -274,13 +317,16 @@ class Trainer:
         self.skipped = 0  # steps skipped for non-finite loss or gradients, this invocation
         torch.manual_seed(tc.seed + 1000 * self.rank)
         self.gen = torch.Generator().manual_seed(tc.seed * 7919 + self.rank)
-        check_model_memory(cfg, "--config: model", copies=4)  # before the weights are allocated
+        check_model_memory(cfg, f"{self.config_source}: model", copies=4)  # before the weights are allocated
         self.model = ParticleSplat(cfg).to(self.device)
         copied = self._init_from(init) if init is not None else set()
         if not resume and cfg.bg_static_points > 0 and not any(n.startswith("static_bg.") for n in copied):
             self._start_workspace()
         if not resume and self.model.follows_pose and "static_bg.pose_mean" not in copied:
             self._set_pose_mean()
+        elif not resume and self.model.follows_pose:  # --init kept its pose mean; the range is this run's scenes'
+            ds = next(iter(self.train_sets.values()))
+            self.model.input_ranges = {self.cfg.bg_static_pose: record_range([ds.pose(i) for i in range(len(ds))])}
         # the learned background colour and the static background layer move at lr_background
         is_bg = lambda n: n == "background_logit" or n.startswith("static_bg.")  # noqa: E731
         trained = list(self.model.named_parameters())
@@ -300,6 +346,11 @@ class Trainer:
         self.run_avg: dict[str, float] = {}  # running means of the logged losses (kept across --resume)
         if resume and (out / LAST).is_file():
             self._load(out / LAST)
+        elif resume and held and _run_without_checkpoint(out, held):
+            raise FileNotFoundError(
+                f"{out / LAST}: nothing to resume: the run stopped before its first checkpoint (the folder holds "
+                f"{', '.join(sorted(p.name for p in held))}); start it again with --overwrite"
+            )
         elif resume:
             raise FileNotFoundError(f"{out / LAST}: nothing to resume")
         elif (out / LAST).is_file() and not overwrite:
@@ -340,7 +391,9 @@ class Trainer:
         layer = self.model.static_bg
         if not isinstance(layer, WorkspaceBackground):
             raise RuntimeError("bg_static_pose is set but the model has no workspace layer")
-        layer.set_pose_mean(torch.tensor([ds.pose(i) for i in range(len(ds))]))
+        poses = [ds.pose(i) for i in range(len(ds))]
+        layer.set_pose_mean(torch.tensor(poses))
+        self.model.input_ranges = {self.cfg.bg_static_pose: record_range(poses)}  # saved with every checkpoint
         if self.rank == 0:
             print(
                 f"workspace layer: follows {self.cfg.bg_static_pose} about its mean over {len(ds)} training scenes",
@@ -446,6 +499,17 @@ class Trainer:
                 "provenance": self.provenance_now(),
             },
         )
+        if not getattr(self, "_config_written", False):
+            self._write_config()
+
+    def _write_config(self) -> None:
+        """``config.yaml`` (every key, resolved), written beside the run's first checkpoint and never before: a
+        folder holding it holds a run to resume."""
+        import yaml
+
+        with atomic_write(self.out / "config.yaml", "w") as f:
+            yaml.safe_dump({"model": config_to_dict(self.cfg), "train": config_to_dict(self.tc)}, f, sort_keys=False)
+        self._config_written = True
 
     def provenance_now(self) -> dict:
         """The run's provenance with the hours spent up to now."""
@@ -456,8 +520,16 @@ class Trainer:
         ckpt = read_checkpoint(path)
         stored = stored_model_config(ckpt["config"], f"{path}: config")
         if config_to_dict(stored) != config_to_dict(self.cfg):
-            raise ConfigError(f"{path}: its model config differs from --config; resume with the same config")
+            have, want = config_to_dict(stored), config_to_dict(self.cfg)
+            key = next(k for k in want if have.get(k) != want[k])
+            raise ConfigError(
+                f"{path}: model.{key}: the run was trained with {short_repr(have.get(key))}, {self.config_source} "
+                f"gives {short_repr(want[key])}; resume with the run's config (leave --config out)"
+            )
+        if isinstance(ckpt.get("train"), dict):
+            self._compare_train(path, stored_train_config(ckpt["train"], f"{path}: train"))
         self.model.load_state_dict(ckpt["state_dict"])
+        self.model.input_ranges = check_ranges(ckpt.get("input_ranges"), str(path))
         if "optimizer" in ckpt:
             self._check_layout(path, ckpt)
             try:
@@ -496,6 +568,26 @@ class Trainer:
             raise UserError(f"{path}: saved by {len(states)} process(es), resuming with {self.world}")
         torch.set_rng_state(states[self.rank]["torch"])
         self.gen.set_state(states[self.rank]["gen"])
+
+    def _compare_train(self, path: Path, stored: TrainConfig) -> None:
+        """--resume: the run continues exactly only with the train section it was started with. Keys that change
+        when and how it reports (:data:`RESUME_MAY_CHANGE`) are taken with a warning; another value of any other
+        key is refused naming the key and both values."""
+        have, want = config_to_dict(stored), config_to_dict(self.tc)
+        changed = [k for k in want if have.get(k) != want[k]]
+        refused = [k for k in changed if k not in RESUME_MAY_CHANGE]
+        if refused:
+            k = refused[0]
+            more = f" (and {', '.join(refused[1:4])}{', ...' if len(refused) > 4 else ''})" if len(refused) > 1 else ""
+            raise ConfigError(
+                f"{path}: train.{k}: the run was started with {short_repr(have.get(k))}, {self.config_source} gives "
+                f"{short_repr(want[k])}{more}; a resumed run continues exactly only with its own train section "
+                f"(leave --config out to use the run's config.yaml; these may change: {', '.join(RESUME_MAY_CHANGE)})"
+            )
+        if changed and self.rank == 0:
+            detail = ", ".join(f"{k} {short_repr(have.get(k))} -> {short_repr(want[k])}" for k in changed)
+            note = " (the learning-rate schedule follows the new steps)" if "steps" in changed else ""
+            print(f"warning: {path}: train: resumed with {detail}{note}", file=sys.stderr)
 
     def _check_layout(self, path: Path, ckpt: dict) -> None:
         """UserError unless the checkpoint's optimiser moved the weights this run's optimiser moves, in the same
@@ -544,10 +636,15 @@ class Trainer:
         lap("data")
         self.ddp.train()
         self.model.refine_enabled = self.step >= self.tc.refine_start * self.tc.steps
-        with training_selection(self.model.config, self.tc):
-            parts, _ = training_loss(
-                self.ddp, batch, self.tc, self.cfg.resolution, self.cfg, self.tc.fg_weight(self.step)
-            )
+        try:
+            with training_selection(self.model.config, self.tc):
+                parts, _ = training_loss(
+                    self.ddp, batch, self.tc, self.cfg.resolution, self.cfg, self.tc.fg_weight(self.step)
+                )
+        except BadGaussiansError:  # the forward pass diverged before the loss: skipped as a non-finite loss is
+            self.opt.zero_grad(set_to_none=True)
+            self.step += 1
+            return {"skipped": 1.0}
         lap("forward")
         self.opt.zero_grad(set_to_none=True)
         parts["loss"].backward()
@@ -584,13 +681,20 @@ class Trainer:
         path = self.out / "metrics.jsonl"
         if self.rank != 0 or not path.is_file():
             return
-        records, note = read_log(path)  # a torn last line (disk full, crash) is reported and left out
+
+        # streamed twice (a 1 GB log is never held whole): what to drop, then the kept lines rewritten
+        def later(r: dict) -> bool:
+            return isinstance(r.get("step"), int) and r["step"] > step
+
+        dropped, note = read_log(path, keep=later)  # a torn last line (disk full, crash) is reported, left out
         if note:
             print(f"warning: {note}", file=sys.stderr)
-        keep = [r for r in records if not isinstance(r.get("step"), (int, float)) or r["step"] <= step]
-        if note or len(keep) != len(records):
+        if note or dropped:
+            reader = LogReader(path)
             with atomic_write(path, "w") as f:
-                f.write("".join(json.dumps(r) + "\n" for r in keep))
+                for _, r in reader:
+                    if not later(r):
+                        f.write(json.dumps(r) + "\n")
 
     def log(self, record: dict) -> None:
         if self.rank == 0:
@@ -618,17 +722,12 @@ class Trainer:
         if self.resumed and self.step == tc.steps:
             print(f"{self.out / LAST}: the run is complete (step {self.step} of {tc.steps}); nothing to train")
             return 0
+        if stop_after is not None and stop_after < 1:
+            raise OptionError(f"--stop-after must be >= 1 step (a run checkpoints when it stops), got {stop_after}")
         end = tc.steps if stop_after is None else min(tc.steps, self.step + stop_after)
         if self.rank == 0:
             if self.lock.owner is None and int(os.environ.get("RANK", "0")) == 0:
                 self.lock.acquire()  # a new folder: owned from its creation
-            with atomic_write(self.out / "config.yaml", "w") as f:
-                import yaml
-
-                # every key, resolved
-                yaml.safe_dump(
-                    {"model": config_to_dict(self.cfg), "train": config_to_dict(self.tc)}, f, sort_keys=False
-                )
             self._clean_temporaries()
         stop = {"signum": 0}
 

@@ -211,4 +211,90 @@ def sog_claiming(path: Path, count: int = 10**9) -> Path:
     }
     with zipfile.ZipFile(path, "w") as z:
         z.writestr("meta.json", json.dumps(meta))
+
+
+def checkpoint_with(good: Path, path: Path, weights=None, **keys) -> Path:
+    """A copy of checkpoint ``good`` with top-level ``keys`` replaced (e.g. ``provenance``, ``train``) and every
+    floating-point weight passed through ``weights`` (e.g. ``lambda v: v * 1e30``)."""
+    ckpt = torch.load(good, weights_only=True)
+    ckpt.update(keys)
+    if weights is not None:
+        ckpt["state_dict"] = {k: weights(v) if v.is_floating_point() else v for k, v in ckpt["state_dict"].items()}
+    torch.save(ckpt, path)
+    return path
+
+
+def big_log(path: Path, megabytes: int) -> Path:
+    """A metrics.jsonl of ``megabytes`` MB: training records of ~100 bytes, a validation record every 1,000 lines
+    (what a long run with log_every 1 writes)."""
+    import json
+
+    block = "".join(
+        json.dumps({"step": i, "loss": 917.1, "psnr": 14.48, "active": 7.0, "rec": 0.5}) + "\n" for i in range(999)
+    )
+    block += json.dumps({"step": 999, "val": {"psnr": 20.0, "fg_ari": 0.5}}) + "\n"
+    data = block.encode()
+    with open(path, "wb") as f:
+        for _ in range(megabytes * (1 << 20) // len(data) + 1):
+            f.write(data)
+    return path
+
+
+def edit_json(path: Path, edit) -> Path:
+    """Apply ``edit(data)`` to the JSON file at ``path`` (in place)."""
+    import json
+
+    data = json.loads(path.read_text())
+    edit(data)
+    path.write_text(json.dumps(data))
+    return path
+
+
+def big_gaussians_ply(path: Path, count: int = 20_000, size: float = 0.5) -> Path:
+    """A .ply of ``count`` Gaussians of ``size`` metres about the origin (a 1.4 MB file that covers every tile)."""
+    from particlesplat.core.gaussians import Gaussians
+    from particlesplat.formats.ply import write_ply
+
+    g = torch.Generator().manual_seed(0)
+    means = (torch.rand(count, 3, generator=g) - 0.5) * 2
+    quats = torch.tensor([1.0, 0, 0, 0]).expand(count, 4).clone()
+    owner = torch.full((count,), -1, dtype=torch.int64)
+    write_ply(
+        Gaussians(
+            means,
+            quats,
+            torch.full((count, 3), size),
+            torch.full((count,), 0.5),
+            torch.rand(count, 1, 3, generator=g),
+            owner,
+        ),
+        path,
+    )
+    return path
+
+
+def lying_npz(path: Path, declared: tuple[int, ...] = (10**10, 4)) -> Path:
+    """An .npz whose every member is a tiny float32 array but whose ``z_p`` header declares ``declared`` (149 GiB
+    for the default); its meta is a valid JSON object."""
+    import io
+    import zipfile
+
+    import numpy as np
+
+    from particlesplat.analysis.particle_arrays import ARRAY_NAMES
+
+    with zipfile.ZipFile(path, "w") as z:
+        for name in ARRAY_NAMES:
+            buf = io.BytesIO()
+            np.save(buf, np.zeros((1, 1), np.float32))
+            data = buf.getvalue()
+            if name == "z_p":
+                header = {"descr": "<f4", "fortran_order": False, "shape": declared}
+                buf = io.BytesIO()
+                np.lib.format.write_array_header_1_0(buf, header)
+                data = buf.getvalue() + b"\0" * 16
+            z.writestr(f"{name}.npy", data)
+        buf = io.BytesIO()
+        np.save(buf, np.array('{"format_version": 0}'))
+        z.writestr("meta.npy", buf.getvalue())
     return path

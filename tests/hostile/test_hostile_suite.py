@@ -275,7 +275,7 @@ def _cases(x: dict[str, Path]) -> dict[str, dict]:
         "a config of 8.6 GB of weights, train --config": (
             PS,
             ["train", "--config", str(w / "big.yaml"), "--data", str(x["data"]), "--out", str(w / "big_run")],
-            r"--config: model: a model of [\d,]+ weights .* Adam moments: needs about",
+            r"--config \S+big.yaml: model: a model of [\d,]+ weights .* Adam moments: needs about",
         ),
         "100000 turntable frames, render --turntable": (
             PS,
@@ -285,7 +285,8 @@ def _cases(x: dict[str, Path]) -> dict[str, dict]:
         "40 context views, render --context": (
             PS,
             ["render", "--checkpoint", good, "--scene", scene, "--context", ",".join(["0"] * 40), "--out", out],
-            rf"--context: 40 context views of {scene}: needs about",
+            rf"--context: 40 context views of {scene} \(the model: particles_per_view \d+, \d+\^2 pixels\): "
+            "needs about",
         ),
         "--res beyond the largest image, synth": (
             PS,
@@ -409,6 +410,8 @@ def results(world, tmp_path_factory):
         text=True,
         timeout=900,
         cwd=HERE.parent.parent,
+        # this checkout's package, not an installed one (a script's sys.path starts at its own folder, not the cwd)
+        env={**os.environ, "PYTHONPATH": os.pathsep.join([str(HERE.parent.parent), os.environ.get("PYTHONPATH", "")])},
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     res = json.loads((io / "out.json").read_text())

@@ -18,13 +18,18 @@ CHECKPOINT_HELP = (
 )
 
 
-def family_of(meta: object) -> str | None:
+def family_of(meta: object, where: str = "scene.json") -> str | None:
     """The family a scene's ``scene.json`` (or a dataset's ``synth.json``) records: its ``family``, else the one
-    its ``generator`` implies; None when it records neither."""
+    its ``generator`` implies; None when it records neither. A ``family`` that is not one of :data:`FAMILIES` is an
+    error naming ``where`` (it would otherwise open with the tabletop model in silence)."""
     if not isinstance(meta, dict):
         return None
-    family = meta.get("family")
-    if isinstance(family, str) and family in FAMILIES:
+    if "family" in meta:
+        family = meta["family"]
+        if not isinstance(family, str) or family not in FAMILIES:
+            from particlesplat.core.errors import UserError, short_repr
+
+            raise UserError(f"{where}: key 'family' is {short_repr(family)}, not one of {', '.join(FAMILIES)}")
         return family
     generator = meta.get("generator")
     return GENERATOR_FAMILY.get(generator) if isinstance(generator, str) else None

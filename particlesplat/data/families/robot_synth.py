@@ -24,6 +24,7 @@ from particlesplat.data.synth import (
     check_manifest,
     check_settings,
     missing_scenes,
+    owned_dataset,
     run_tasks,
     scene_name,
 )
@@ -119,9 +120,10 @@ def generate(
         raise OptionError("--heldout: only the wide world (--world wide) has a held-out split")
     assets_dir()  # one line naming what to install, before any folder is made
     import_mujoco()
-    check_manifest(out, manifest(seed, config))
-    tasks = [(str(out), seed, split, i, config, split in edits) for split, i in missing_scenes(out, counts)]
-    total = sum(counts.values())
-    bar = tqdm(total=total, initial=total - len(tasks), desc="synth robot", unit="scene", disable=not progress)
-    # forked workers: the parent has imported mujoco but made no GL context, so each child opens its own
-    return run_tasks(tasks, _work, _init_worker, workers, bar)
+    with owned_dataset(out):
+        check_manifest(out, manifest(seed, config))
+        tasks = [(str(out), seed, split, i, config, split in edits) for split, i in missing_scenes(out, counts)]
+        total = sum(counts.values())
+        bar = tqdm(total=total, initial=total - len(tasks), desc="synth robot", unit="scene", disable=not progress)
+        # forked workers: the parent has imported mujoco but made no GL context, so each child opens its own
+        return run_tasks(tasks, _work, _init_worker, workers, bar)

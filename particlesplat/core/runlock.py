@@ -116,7 +116,7 @@ class RunLock:
         elif owner.pid == os.getpid() or _alive(owner.pid):
             raise RunLockedError(
                 f"{self.folder}: in use by {owner.describe()}; wait for it to end or stop it "
-                f"(a second run would mix its checkpoints and log with that one's)"
+                f"(a second process would mix its files with that one's)"
             )
         else:
             print(
@@ -144,3 +144,14 @@ class RunLock:
 
     def __exit__(self, *exc) -> None:
         self.release()
+
+
+def live_owner(folder: str | os.PathLike) -> LockOwner | None:
+    """The process that holds ``folder``'s run lock, when one does: a live process on this host other than this one,
+    or any process on another host (which cannot be checked). None for no lock, a torn one or a stale one."""
+    owner = _read_owner(Path(folder) / LOCK_NAME)
+    if owner is None or owner.pid == os.getpid() and owner.host == socket.gethostname():
+        return None
+    if owner.host != socket.gethostname() or _alive(owner.pid):
+        return owner
+    return None
