@@ -57,6 +57,31 @@ def test_edit_pairs_move_remove_and_copy_one_object_on_the_floor():
     assert inst[y, x] == k + 1
 
 
+def test_the_scaled_ground_truth_is_the_object_grown_on_the_floor_where_it_has_room():
+    """The scale edit's scene: the edited object 1.5 times its size (every half extent), its bottom still on the
+    floor, clear of the others; drawing it takes nothing from the generator's stream (the other edits keep their
+    scenes). A scene where the grown object would touch another has no scale edit."""
+    from particlesplat.bench.edits import SCALE
+
+    seen = 0
+    for index in range(3, 7):
+        pairs = edit_pairs(0, "test", index, 64, [4, 16])
+        if pairs is None or "scale" not in pairs:
+            continue
+        seen += 1
+        orig, k = pairs["original"], pairs["object"]
+        obj, grown = orig.objects[k], pairs["scale"].objects[k]
+        np.testing.assert_allclose(grown.size, np.multiply(obj.size, SCALE))
+        assert grown.center[:2] == obj.center[:2] and grown.center[2] == pytest.approx(grown.size[2])  # on the floor
+        others = [o for i, o in enumerate(pairs["scale"].objects) if i != k]
+        assert others == orig.objects[:k] + orig.objects[k + 1 :]
+        for o in others:
+            assert math.hypot(o.center[0] - grown.center[0], o.center[1] - grown.center[1]) >= (
+                o.footprint_radius + grown.footprint_radius
+            )
+    assert seen >= 2  # scenes 4 and 5 of the test split have room for it, scene 3 none
+
+
 def test_interior_pixel_and_dilation():
     mask = torch.zeros(9, 12, dtype=torch.bool)
     mask[2:7, 3:10] = True  # rows 2..6, columns 3..9: the centre is (6, 4)

@@ -9,8 +9,9 @@ import torch
 
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
-from particlesplat.editing.editor import MAX_EDIT_PARTICLES, EditFile, EditOp, EditsError, Pick, SceneEditor
+from particlesplat.editing.editor import MAX_EDIT_PARTICLES, EditFile, EditsError, Pick, SceneEditor
 from particlesplat.editing.open_scene import demo_scenes, load_model_scene
+from particlesplat.editing.operations import Duplicate, Translate
 from particlesplat.rendering.api import render
 from particlesplat.rendering.pixel import pixel_weights
 
@@ -98,8 +99,8 @@ def test_replay_decodes_each_particle_once_per_change(scene):
     pick = ed.pick_for(obj)
     start, encoded = ed._decoded.rows_decoded, ed.num_particles
     assert start == encoded
-    ops = [EditOp("duplicate", pick=pick, offset=(0.0, 0.0, 0.0)) for _ in range(12)]
-    ops += [EditOp("translate", pick=pick, offset=(0.01, 0.0, 0.0)) for _ in range(12)]
+    ops = [Duplicate(pick=pick, offset=(0.0, 0.0, 0.0)) for _ in range(12)]
+    ops += [Translate(pick=pick, offset=(0.01, 0.0, 0.0)) for _ in range(12)]
     ed.apply_file(EditFile(2, operations=ops))
     ed.decode()
     members = len(ed.object_members(obj))
@@ -114,8 +115,8 @@ def test_a_file_past_the_particle_cap_is_refused_before_any_work(scene):
     ed = editor(scene)
     pick = ed.pick_for(first_object(ed))
     room = MAX_EDIT_PARTICLES - ed.num_particles
-    ops = [EditOp("translate", pick=pick, offset=(0.01, 0.0, 0.0))] + [
-        EditOp("duplicate", pick=pick, offset=(0.0, 0.0, 0.0)) for _ in range(room + 1)
+    ops = [Translate(pick=pick, offset=(0.01, 0.0, 0.0))] + [
+        Duplicate(pick=pick, offset=(0.0, 0.0, 0.0)) for _ in range(room + 1)
     ]
     before = ed._decoded.rows_decoded
     with pytest.raises(EditsError, match=rf"my.yaml: operations\[{room + 1}\] \(duplicate\): .*more than the 1024"):

@@ -7,8 +7,9 @@ import pytest
 import torch
 
 from particlesplat.cli.main import main
-from particlesplat.editing.editor import EditOp, Insert, SceneEditor, load_edit_file, parse_edit_file
+from particlesplat.editing.editor import Insert, SceneEditor, load_edit_file, parse_edit_file
 from particlesplat.editing.open_scene import demo_scenes, encode_scene
+from particlesplat.editing.operations import InsertObject
 from particlesplat.editing.particle_edits import EditsError
 from particlesplat.model import load_model
 
@@ -28,7 +29,7 @@ def test_insert_is_an_editable_object_and_replays(setup, tmp_path):
     model, b, ins = setup
     ed = _editor(model, b)
     n = ed.num_particles
-    ed.apply_op(EditOp("insert", insert=ins))
+    ed.apply_op(InsertObject(insert=ins))
     new = list(range(n, ed.num_particles))
     assert new and ed.object_members(n) == new  # one object of its own
     assert ed.object_offset(n) == pytest.approx((0.0, 0.0, 0.0), abs=1e-6)
@@ -88,5 +89,5 @@ def test_insert_entries_are_checked(setup):
             parse_edit_file({"version": 2, "operations": [{"insert": bad}]}, "e.yaml")
     ed = _editor(model, b)
     with pytest.raises(EditsError, match="insert: --object 99"):
-        ed.apply_op(EditOp("insert", insert=Insert(ins.scene, 99, (0.8, 0.5), (4, 16))))
+        ed.apply_op(InsertObject(insert=Insert(ins.scene, 99, (0.8, 0.5), (4, 16))))
     assert ed.num_particles == b.particles.num

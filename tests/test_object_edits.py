@@ -8,7 +8,6 @@ import torch
 import yaml
 
 from particlesplat.editing.editor import (
-    EditOp,
     EditsError,
     Pick,
     PickError,
@@ -20,6 +19,7 @@ from particlesplat.editing.editor import (
 )
 from particlesplat.editing.move import anchor_points
 from particlesplat.editing.open_scene import demo_scenes, load_model_scene
+from particlesplat.editing.operations import Remove
 
 CONTEXT = "4,16"
 
@@ -195,7 +195,7 @@ def test_version_1_still_loads_and_bad_files_name_the_field(scene, tmp_path):
         )
     with pytest.raises(EditsError, match="version: expected 1 or 2"):
         parse_edit_file({"version": 3, "operations": []}, "f.yaml")
-    ops = [EditOp("remove", pick=Pick(4, (0, 0)))]
+    ops = [Remove(pick=Pick(4, (0, 0)))]
     save_edit_file(tmp_path / "sky.yaml", ops, scene="scene_00001", context=[4, 16])
     sky = load_edit_file(tmp_path / "sky.yaml")
     with pytest.raises(PickError, match=r"sky.yaml: operations\[0\] \(remove\): pick .* hits no object"):

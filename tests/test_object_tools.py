@@ -11,7 +11,7 @@ from particlesplat.core.camera import Camera
 from particlesplat.editing.move import anchor_points
 from particlesplat.editing.open_scene import demo_scenes, encode_scene
 from particlesplat.model import load_model
-from viewer.session import SceneSession
+from viewer.session import EditableScene
 from viewer.tools.object_tools import FloorDrag, convex_hull, floor_point, gl_projection, gl_view, object_centre
 
 
@@ -54,34 +54,36 @@ def test_convex_hull_of_a_square_with_inner_points():
 
 def test_floor_drag_slides_the_object_on_its_plane_as_one_undo_step(session_parts):
     model, enc = session_parts
-    s = SceneSession(model, enc, source=str(enc.path))
-    g = s.decode()
+    s = EditableScene(model, enc, source=str(enc.path))
+    g = s.editor.decode()
     labels = s.objects()
     own, opacity = g.owner[g.owner >= 0], g.opacities[g.owner >= 0]
     keep = labels[own] >= 0
-    weight = torch.zeros(s.num_particles).index_add_(0, labels[own][keep], opacity[keep].float())
+    weight = torch.zeros(s.editor.num_particles).index_add_(0, labels[own][keep], opacity[keep].float())
     index = int(torch.nonzero(labels == int(weight.argmax()))[0])  # the heaviest object's first particle
-    members = s.object_members(index)
+    members = s.editor.object_members(index)
     cam = Camera.orbit((0.0, 0.0, 0.15), 10.0, 40.0, 3.4, width=320, height=240)
-    centre = object_centre(s, index)
+    centre = object_centre(s.editor, index)
     (u, v), _ = cam.project(centre[None].float())[0][0], None
     drag = FloorDrag()
-    assert drag.start(s, index, cam, float(u), float(v))
-    a0 = anchor_points(s.particles, members, model.config).double()
-    n_ops = len(s.history.undo)
+    assert drag.start(s.editor, index, cam, float(u), float(v))
+    a0 = anchor_points(s.editor.particles, members, model.config).double()
+    n_ops = len(s.editor.history.undo)
     path = [(float(u) + 6.0 * k, float(v) - 3.0 * k) for k in range(1, 6)]
     for x, y in path:
-        assert drag.update(s, cam, x, y) is None
+        assert drag.update(s.editor, cam, x, y) is None
     drag.stop()
-    s.end_gesture()
-    assert len(s.history.undo) == n_ops + 1
+    s.editor.end_gesture()
+    assert len(s.editor.history.undo) == n_ops + 1
     expected = floor_point(cam, *path[-1], drag.height or float(centre[2])) - floor_point(
         cam, float(u), float(v), float(centre[2])
     )
     assert abs(float(expected[2])) < 1e-9
-    moved = anchor_points(s.particles, members, model.config).double() - a0
+    moved = anchor_points(s.editor.particles, members, model.config).double() - a0
     np.testing.assert_allclose(moved.numpy(), expected[None].expand_as(moved).numpy(), atol=1e-4)
     # the object's centre is now under the mouse: it projects to the last pixel (within the move's perspective error)
-    uv, _ = cam.project(object_centre(s, index)[None].float())
+    uv, _ = cam.project(object_centre(s.editor, index)[None].float())
     assert float((uv[0] - torch.tensor(path[-1])).norm()) < 2.0
-    assert s.undo() and all(torch.equal(getattr(s.particles, k), getattr(s.original, k)) for k in ("z_p", "z_d"))
+    assert s.editor.undo() and all(
+        torch.equal(getattr(s.editor.particles, k), getattr(s.editor.original, k)) for k in ("z_p", "z_d")
+    )

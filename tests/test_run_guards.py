@@ -192,8 +192,9 @@ def test_eval_fit_options_are_checked_before_the_work(tmp_path):
 def test_pick_map_sums_object_weights_in_the_rasteriser_as_the_per_particle_map_does():
     """The editor's object map renders object labels as owners (one weight plane per object): the same labels as
     rendering one plane per particle and summing an object's planes, on a scene grown by duplicates."""
-    from particlesplat.editing.editor import EditOp, SceneEditor
+    from particlesplat.editing.editor import SceneEditor
     from particlesplat.editing.open_scene import demo_scenes, encode_scene
+    from particlesplat.editing.operations import Duplicate
     from particlesplat.model import load_model
     from particlesplat.rendering.api import render
 
@@ -203,7 +204,7 @@ def test_pick_map_sums_object_weights_in_the_rasteriser_as_the_per_particle_map_
     ed = SceneEditor(model, enc.particles, enc.all_cameras, enc.context)
     pick = ed.pick_for(next(i for i in range(ed.num_particles) if ed.is_active(i)))
     for i in range(3):
-        ed.apply_op(EditOp("duplicate", pick=pick, offset=(0.1 * (i + 1), 0.0, 0.0)), f"op{i}")
+        ed.apply_op(Duplicate(pick=pick, offset=(0.1 * (i + 1), 0.0, 0.0)), f"op{i}")
     for frame in (enc.context[0], 0):
         cam = ed.frame_cameras[frame]
         with torch.no_grad():

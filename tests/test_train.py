@@ -186,7 +186,7 @@ def test_learned_background_is_rendered_behind_the_gaussians_and_trained():
 
     from particlesplat.core.gaussians import Gaussians
     from particlesplat.model import ModelConfig, ParticleSplat
-    from particlesplat.training.trainer import render_views
+    from particlesplat.training.loss import render_views
 
     m = ParticleSplat(ModelConfig(**TINY_MODEL))
     with torch.no_grad():
@@ -230,7 +230,7 @@ def test_foreground_error_targets_what_the_static_layer_cannot_explain():
     from particlesplat.model import ModelConfig, ParticleSplat
     from particlesplat.model.geometry import stack_cameras
     from particlesplat.rendering.api import render
-    from particlesplat.training.trainer import foreground_error
+    from particlesplat.training.loss import foreground_error
 
     m = ParticleSplat(ModelConfig(**TINY_MODEL)).eval()
     cam = Camera.orbit((0.0, 0.0, 0.15), 20.0, 30.0, 3.3, width=32, height=32)

@@ -70,14 +70,13 @@ def test_viewer_settings_round_trip_and_bad_files(tmp_path, capsys):
 @pytest.mark.parametrize("family", ["tabletop", None])
 def test_default_edit_file_and_autosave_use_the_key(family, tmp_path):
     """The session's default edit file and autosave are named by the scene's key, in the folders given."""
-    from viewer.session import SceneSession
+    from viewer.session import SceneFiles
 
     scene = tmp_path / "scene_00000"
     scene.mkdir()
     if family:
         (scene / "scene.json").write_text(json.dumps({"family": family}))
-    session = SceneSession.__new__(SceneSession)  # the naming only: no model, no particles
-    session.source, session._digest = str(scene), None
+    session = SceneFiles(str(scene), "")  # the naming only: no model, no particles
     key = scene_file_key(scene, family)
     assert session.file_key == key
     assert session.default_edits_path(tmp_path / "out") == tmp_path / "out" / f"{key}.edits.yaml"

@@ -97,7 +97,7 @@ def test_screenshot_and_export(app, tmp_path):
 def test_export_object_ply(app, tmp_path):
     """The panel's "Export object": the selected particle's object alone, its Gaussians as decoded."""
     s = app.session
-    i = next(k for k in range(s.num_particles) if s.is_active(k))
+    i = next(k for k in range(s.editor.num_particles) if s.editor.is_active(k))
     app.fields.output_dir = str(tmp_path)
     app.state.selected = i
     app.req.export_object = True
@@ -105,8 +105,8 @@ def test_export_object_ply(app, tmp_path):
     plys = sorted(tmp_path.glob("particlesplat_*.ply"))
     assert len(plys) == 1, app.fields.status
     exported = Gaussians.load_ply(plys[0])
-    members = s.object_members(i)
-    ref = s.model.decode(s.particles, torch.tensor(members), background=False)
+    members = s.editor.object_members(i)
+    ref = s.model.decode(s.editor.particles, torch.tensor(members), background=False)
     assert set(exported.owner.tolist()) <= set(members)
     ref = ref.subset(ref.opacities >= app.state.prune)
     assert exported.num == ref.num
@@ -137,15 +137,15 @@ def test_insert_object_request(app):
     from particlesplat.editing.open_scene import demo_scenes
 
     s = app.session
-    n = s.num_particles
+    n = s.editor.num_particles
     app.fields.insert.scene, app.fields.insert.object, app.fields.insert.at = str(demo_scenes()[1]), 0, [0.8, 0.5]
     app.req.insert = True
     app.run(1)
-    assert s.num_particles > n, app.fields.status
-    assert app.state.selected == n and s.operations()[-1].kind == "insert"
-    assert s.object_members(n) == list(range(n, s.num_particles))
-    s.undo()
-    assert s.num_particles == n
+    assert s.editor.num_particles > n, app.fields.status
+    assert app.state.selected == n and s.editor.operations()[-1].kind == "insert"
+    assert s.editor.object_members(n) == list(range(n, s.editor.num_particles))
+    s.editor.undo()
+    assert s.editor.num_particles == n
     app.state.selected = None
     app.run(1)
 
@@ -187,12 +187,12 @@ def chord(app, key: str, shift: bool = False) -> None:
 def test_keyboard_shortcuts(app, tmp_path):
     K = imgui.Key
     s = app.session
-    z0 = s.value(0, "z_d")
-    s.set_attribute(0, "z_d", [z0[0] + 1.0])
+    z0 = s.editor.value(0, "z_d")
+    s.editor.set_attribute(0, "z_d", [z0[0] + 1.0])
     chord(app, "z")
-    assert s.value(0, "z_d") == z0
+    assert s.editor.value(0, "z_d") == z0
     chord(app, "z", shift=True)
-    assert s.value(0, "z_d")[0] == pytest.approx(z0[0] + 1.0)
+    assert s.editor.value(0, "z_d")[0] == pytest.approx(z0[0] + 1.0)
     mode = app.state.seg_mode
     press(app, K.m)
     assert app.state.seg_mode != mode
@@ -216,7 +216,7 @@ def test_open_ply_replaces_the_session(app, tmp_path):
     g.save_ply(tmp_path / "g.ply")
     app.req.open_path = str(tmp_path / "g.ply")
     app.run(1)
-    assert not app.session.editable and app.scene_view.renderer.num == 200
+    assert app.session.editor is None and app.scene_view.renderer.num == 200
     app.req.open_path = str(tmp_path / "missing")
     app.run(1)
     assert "error" in app.fields.status and "missing" in app.fields.status
@@ -254,7 +254,7 @@ def test_open_keeps_unsaved_edits_and_offers_them_back(app, tmp_path):
     scene = demo_scenes()[0]
     app.fields.output_dir = str(tmp_path)
     app.open(str(scene))
-    app.session.set_attribute(1, "z_p", [0.3, -0.2])
+    app.session.editor.set_attribute(1, "z_p", [0.3, -0.2])
     assert app.session.unsaved
     app.req.open_path = str(scene)  # the same scene again: the edits would be gone
     app.run(1)
@@ -264,10 +264,10 @@ def test_open_keeps_unsaved_edits_and_offers_them_back(app, tmp_path):
     assert not list(tmp_path.glob("*.yaml"))  # the output folder holds no autosave
     assert f"unsaved edits of the previous scene kept in {kept}" in app.fields.status
     assert "Load edits restores them" in app.fields.status and app.fields.edits_path == str(kept)
-    assert app.session.edits() == {} and not app.session.unsaved
+    assert app.session.editor.edits() == {} and not app.session.unsaved
     app.req.load_edits = True
     app.run(1)
-    assert app.session.value(1, "z_p") == pytest.approx((0.3, -0.2)) and not app.session.unsaved
+    assert app.session.editor.value(1, "z_p") == pytest.approx((0.3, -0.2)) and not app.session.unsaved
 
 
 def test_orbit_frames_move_like_a_drag_then_the_still_frame(app):
@@ -329,7 +329,7 @@ def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
     glfw.set_window_size(win, *args.size)
     app = A.App(win, session, A.initial_view(session, None, None), args, ctx=ctx)
     try:
-        g = session.decode()
+        g = session.editor.decode()
         index = int(g.owner[g.owner >= 0][g.opacities[g.owner >= 0].argmax()])
         app.state.selected = index
         app.run(2)  # the gizmo and the outline draw without error
@@ -344,17 +344,17 @@ def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
         assert glfw.get_framebuffer_size(win) == (400, 300), "the X server did not resize the window in 5 s"
         app.run(2)
         cam = app.view_camera(1.0)
-        uv, _ = cam.project(object_centre(session, index)[None].float())
-        seg = render(session.decode(), cam, owner_weights=True, num_owners=session.num_particles).segmentation(
-            session.objects()
-        )
+        uv, _ = cam.project(object_centre(session.editor, index)[None].float())
+        seg = render(
+            session.editor.decode(), cam, owner_weights=True, num_owners=session.editor.num_particles
+        ).segmentation(session.objects())
         ys, xs = np.nonzero((seg == int(session.objects()[index])).numpy())
         dist = np.hypot(xs + 0.5 - float(uv[0, 0]), ys + 0.5 - float(uv[0, 1]))
         dist[dist < 35.0] = np.inf  # grab the object clear of the gizmo's handles
         sx, sy = app.pixel_ratio()
         u, v = round(float(xs[dist.argmin()]) / sx), round(float(ys[dist.argmin()]) / sy)  # X pointers are whole
         io = imgui.get_io()
-        n_ops = len(session.history.undo)
+        n_ops = len(session.editor.history.undo)
         _point_at(app, u, v)
         io.add_mouse_button_event(0, True)
         app.run(1)
@@ -362,20 +362,20 @@ def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
             _point_at(app, u + 4 * k, v + k)
         io.add_mouse_button_event(0, False)
         app.run(1)
-        assert len(session.history.undo) == n_ops + 1 and session.history.undo[-1].kind == "translate"
-        dx, dy, dz = session.history.undo[-1].offset
+        assert len(session.editor.history.undo) == n_ops + 1 and session.editor.history.undo[-1].kind == "translate"
+        dx, dy, dz = session.editor.history.undo[-1].offset
         assert abs(dz) < 1e-9 and (dx * dx + dy * dy) ** 0.5 > 0.02
-        session.undo()
+        session.editor.undo()
         app.state.panel = True
-        n = session.num_particles
-        members = session.object_members(index)
+        n = session.editor.num_particles
+        members = session.editor.object_members(index)
         K = imgui.Key
         chord(app, "d")
-        assert session.num_particles == n + len(members) and app.state.selected == n  # the copy is selected
+        assert session.editor.num_particles == n + len(members) and app.state.selected == n  # the copy is selected
         press(app, K.delete)
-        assert [op.kind for op in session.history.undo[-2:]] == ["duplicate", "remove"]
+        assert [op.kind for op in session.editor.history.undo[-2:]] == ["duplicate", "remove"]
         assert app.state.selected is None and "removed" in app.fields.status
-        assert not bool((session.decode().owner >= n).any())
+        assert not bool((session.editor.decode().owner >= n).any())
         text = session.save_edits(tmp_path / "e.yaml").read_text()
         assert "duplicate:" in text and "remove: true" in text
     finally:
@@ -400,7 +400,7 @@ def test_a_signal_wakes_the_idle_loop_and_the_edits_are_autosaved(window, tmp_pa
     app = A.App(win, session, A.initial_view(session, None, None), args, ctx=ctx)
     try:
         app.run(2)
-        session.remove_object(0)  # an unsaved edit
+        session.editor.remove_object(0)  # an unsaved edit
         with SignalStop(glfw.post_empty_event) as stop:
             app.stop = stop
             app.run(seconds=0.3)  # settle: then nothing is left to draw
@@ -430,6 +430,105 @@ def _demo_app(window, tmp_path, scene, size=(160, 120)):
     return A.App(win, session, A.initial_view(session, None, None), args, ctx=ctx)
 
 
+def _robot_app_selecting(window, tmp_path):
+    """An app on the first robot demo scene in a 400x300 window, panel hidden, its most opaque particle's object
+    selected: (app, that particle)."""
+    import glfw
+
+    from particlesplat.editing.open_scene import demo_scenes
+
+    app = _demo_app(window, tmp_path, next(p for p in demo_scenes() if "robot" in str(p)), size=(400, 300))
+    deadline = time.monotonic() + 5.0
+    while glfw.get_framebuffer_size(app.window) != (400, 300) and time.monotonic() < deadline:
+        glfw.wait_events_timeout(0.05)
+    g = app.session.editor.decode()
+    index = int(g.owner[g.owner >= 0][g.opacities[g.owner >= 0].argmax()])
+    app.state.selected, app.state.panel = index, False
+    return app, index
+
+
+def test_the_gizmo_centre_handle_slides_a_robot_object_on_its_plane(window, tmp_path):
+    """On a robot demo scene at its default view, a drag that grabs the gizmo's centre handle (which covers a
+    robot-sized object whole) slides the object on the horizontal plane: one translate, no height change, nothing
+    below the table."""
+    from viewer.tools.object_tools import object_centre
+
+    app, index = _robot_app_selecting(window, tmp_path)
+    ed, io = app.session.editor, imgui.get_io()
+    try:
+        app.run(2)
+        uv, _ = app.view_camera(1.0).project(object_centre(ed, index)[None].float())
+        sx, sy = app.pixel_ratio()
+        u, v = round(float(uv[0, 0]) / sx), round(float(uv[0, 1]) / sy)
+        n_ops = len(ed.history.undo)
+        _point_at(app, u, v)
+        io.add_mouse_button_event(0, True)
+        app.run(1)
+        for k in range(1, 6):
+            _point_at(app, u + 5 * k, v + 2 * k)
+        assert app.gizmo.using and app.gizmo.drag.mode == "floor"
+        io.add_mouse_button_event(0, False)
+        app.run(1)
+        assert len(ed.history.undo) == n_ops + 1 and ed.history.undo[-1].kind == "translate"
+        dx, dy, dz = ed.history.undo[-1].offset
+        assert dz == 0.0 and (dx * dx + dy * dy) ** 0.5 > 0.01 and not ed.sunk_objects()
+    finally:
+        io.add_mouse_button_event(0, False)
+        app.run(1)
+        app.scene_view.renderer.release()
+
+
+def test_the_gizmo_scale_handles_scale_the_object_on_its_support(window, tmp_path):
+    """With the scale handles on (S), dragging one away from the object's centre grows the object: one scale
+    operation, its bottom still on the table."""
+    from viewer.tools.object_tools import object_centre
+
+    app, index = _robot_app_selecting(window, tmp_path)
+    ed, io = app.session.editor, imgui.get_io()
+    try:
+        press(app, imgui.Key.s)
+        assert app.state.gizmo_scale
+        app.run(2)
+        cam = app.view_camera(1.0)
+        centre = object_centre(ed, index)
+        sx, sy = app.pixel_ratio()
+        (cu, cv), _ = cam.project(centre[None].float())[0][0], None
+        grabbed = None
+        for axis in range(3):  # the handle at the end of an axis: found by hovering along it
+            tip = centre.clone()
+            tip[axis] += 0.05
+            (tu, tv) = cam.project(tip[None].float())[0][0].tolist()
+            d = np.array([tu - float(cu), tv - float(cv)])
+            if np.linalg.norm(d) < 1e-3:
+                continue
+            d /= np.linalg.norm(d)
+            for r in range(10, 160, 4):
+                u, v = round((float(cu) + r * d[0]) / sx), round((float(cv) + r * d[1]) / sy)
+                _point_at(app, u, v)
+                app.run(1)
+                if app.gizmo.hovered:
+                    grabbed = (u, v, d)
+                    break
+            if grabbed:
+                break
+        assert grabbed is not None, "no scale handle found along the axes"
+        u, v, d = grabbed
+        n_ops = len(ed.history.undo)
+        io.add_mouse_button_event(0, True)
+        app.run(1)
+        for k in range(1, 6):
+            _point_at(app, round(u + 6 * k * d[0]), round(v + 6 * k * d[1]))
+        io.add_mouse_button_event(0, False)
+        app.run(1)
+        assert len(ed.history.undo) == n_ops + 1 and ed.history.undo[-1].kind == "scale", app.fields.status
+        assert ed.history.undo[-1].factor != pytest.approx(1.0) and not ed.sunk_objects()
+    finally:
+        io.add_mouse_button_event(0, False)
+        app.state.gizmo_scale = False
+        app.run(1)
+        app.scene_view.renderer.release()
+
+
 def _load_rgb(path) -> np.ndarray:
     return np.asarray(Image.open(path).convert("RGB"), np.float64) / 255.0
 
@@ -444,7 +543,7 @@ def test_a_screenshot_carries_its_edit_file_and_render_replays_it(window, tmp_pa
     app = _demo_app(window, tmp_path, scene)
     try:
         s = app.session
-        g = s.decode()
+        g = s.editor.decode()
         labels = s.objects()
         weight: dict[int, float] = {}
         for o, w in zip(g.owner.tolist(), g.opacities.tolist(), strict=True):
@@ -452,14 +551,16 @@ def test_a_screenshot_carries_its_edit_file_and_render_replays_it(window, tmp_pa
                 weight[int(labels[o])] = weight.get(int(labels[o]), 0.0) + w
         # the three heaviest objects, each by its first particle
         a, b, c = (int(torch.nonzero(labels == k)[0]) for k in sorted(weight, key=lambda k: -weight[k])[:3])
-        s.move_object(a, [0.06, -0.04, 0.0])
-        s.end_gesture()
-        s.remove_object(b)
-        s.duplicate_object(c, [0.0, 0.12, 0.0])
+        s.editor.move_object(a, [0.06, -0.04, 0.0])
+        s.editor.end_gesture()
+        s.editor.remove_object(b)
+        s.editor.duplicate_object(c, [0.0, 0.12, 0.0])
         app.fields.insert.scene = str(demo_scenes()[1])
         app.req.insert = True
         app.run(1)
-        assert [op.kind for op in s.history.undo] == ["translate", "remove", "duplicate", "insert"], app.fields.status
+        assert [op.kind for op in s.editor.history.undo] == ["translate", "remove", "duplicate", "insert"], (
+            app.fields.status
+        )
         app.fields.shot_size = [128, 96]
         shot = app.screenshot_numbered()
         text = Image.open(shot).text["edits"]
@@ -496,12 +597,12 @@ def test_edits_are_saved_per_scene_and_another_scenes_file_is_not_replaced(windo
     try:
         a_file = out / f"{app.session.file_key}.edits.yaml"
         assert app.fields.edits_path == str(a_file) and a_file.name.startswith("tabletop-scene_00000-")
-        app.session.remove_object(int(app.session.decode().owner.max()))
+        app.session.editor.remove_object(int(app.session.editor.decode().owner.max()))
         app.req.save_edits = True
         app.run(1)
         saved = a_file.read_text()
         assert "remove: true" in saved and str(a_dir.resolve()) in saved, app.fields.status
-        app.session.move_object(0, [0.05, 0.0, 0.0])  # unsaved: autosaved when B opens
+        app.session.editor.move_object(0, [0.05, 0.0, 0.0])  # unsaved: autosaved when B opens
         app.req.open_path = str(b_dir)
         app.run(1)
         kept_a = next(autosave_dir().iterdir())
@@ -510,7 +611,7 @@ def test_edits_are_saved_per_scene_and_another_scenes_file_is_not_replaced(windo
         assert app.fields.edits_path != str(a_file)  # nor shares A's edit file: its path differs
         assert not (out / ".particlesplat-autosave").exists()
         # B's own edits: Save to A's file is refused once, then done
-        app.session.move_object(0, [0.0, 0.05, 0.0])
+        app.session.editor.move_object(0, [0.0, 0.05, 0.0])
         app.fields.edits_path = str(a_file)
         app.req.save_edits = True
         app.run(1)
@@ -538,10 +639,10 @@ def test_fast_undo_taps_are_all_done_at_once(app):
     """Three Ctrl+Z taps arriving in one burst of window events (a busy machine) are three undos, done before the
     loop goes idle again (imgui takes one change of a key a frame: the loop draws until its queue is empty)."""
     s = app.session
-    n0 = len(s.history.undo)
+    n0 = len(s.editor.history.undo)
     for _ in range(3):
-        s.set_attribute(0, "z_d", [s.value(0, "z_d")[0] + 0.1])
-        s.end_gesture()
+        s.editor.set_attribute(0, "z_d", [s.editor.value(0, "z_d")[0] + 0.1])
+        s.editor.end_gesture()
     app.run(2)
     app.run(seconds=0.3)  # idle
     import glfw
@@ -551,11 +652,11 @@ def test_fast_undo_taps_are_all_done_at_once(app):
         app.chords.on_key(app.window, glfw.KEY_Z, 0, glfw.RELEASE, glfw.MOD_CONTROL)
     app.redraw.notify()
     app.run(seconds=1.0)
-    assert len(s.history.undo) == n0
-    while len(s.history.redo):
-        s.redo()
-    while len(s.history.undo) > n0:
-        s.undo()
+    assert len(s.editor.history.undo) == n0
+    while len(s.editor.history.redo):
+        s.editor.redo()
+    while len(s.editor.history.undo) > n0:
+        s.editor.undo()
 
 
 def _wait_for_cursor(window, x: float, y: float, timeout: float = 2.0) -> None:
@@ -627,26 +728,26 @@ def test_the_particle_list_names_deleted_particles_and_colours_copies(app):
     from particlesplat.editing.open_scene import demo_scenes
     from viewer.ui.particles import particle_status
 
-    if not app.session.editable:  # an earlier test opened a .ply
+    if app.session.editor is None:  # an earlier test opened a .ply
         app.open(str(demo_scenes()[0]))
     s = app.session
     app.state.selected = None
     app.run(1)
-    n = s.num_particles
-    first = next(i for i in range(n) if s.is_active(i) and i in app.swatches)
-    members = s.object_members(first)
-    s.duplicate_object(first, [0.0, 0.0, 0.0])
+    n = s.editor.num_particles
+    first = next(i for i in range(n) if s.editor.is_active(i) and i in app.swatches)
+    members = s.editor.object_members(first)
+    s.editor.duplicate_object(first, [0.0, 0.0, 0.0])
     app.run(1)
-    for k, i in enumerate(range(n, s.num_particles)):
+    for k, i in enumerate(range(n, s.editor.num_particles)):
         if members[k] in app.swatches:
             assert app.swatches[i] == pytest.approx(app.swatches[members[k]], abs=1e-5)
-    s.undo()
-    inactive = [i for i in range(n) if not s.is_active(i)]
-    s.remove_object(first)
-    assert all(particle_status(s, i) == "deleted" for i in members)
-    assert all(particle_status(s, i) == "inactive" for i in inactive)
-    s.undo()
-    assert particle_status(s, first) == "active"
+    s.editor.undo()
+    inactive = [i for i in range(n) if not s.editor.is_active(i)]
+    s.editor.remove_object(first)
+    assert all(particle_status(s.editor, i) == "deleted" for i in members)
+    assert all(particle_status(s.editor, i) == "inactive" for i in inactive)
+    s.editor.undo()
+    assert particle_status(s.editor, first) == "active"
     app.run(1)
 
 

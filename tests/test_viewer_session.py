@@ -12,7 +12,7 @@ from particlesplat.editing.open_scene import demo_scenes, encode_scene
 from viewer.gl.renderer import SplatRenderer
 from viewer.scene_view import SceneView
 from viewer.screenshot import save_numbered, save_screenshot
-from viewer.session import SceneSession
+from viewer.session import EditableScene, PlyScene
 from viewer.state import ViewState
 
 
@@ -24,105 +24,105 @@ def encoded():
 
 def test_edit_undo_redo(encoded):
     model, enc = encoded
-    s = SceneSession(model, enc)
+    s = EditableScene(model, enc)
     assert s.take_changes() is None  # first sync uploads everything
-    z0 = s.value(1, "z_p")
-    s.set_attribute(1, "z_p", [0.3, -0.2])
+    z0 = s.editor.value(1, "z_p")
+    s.editor.set_attribute(1, "z_p", [0.3, -0.2])
     assert s.take_changes() == {1}
-    assert s.value(1, "z_p") == pytest.approx((0.3, -0.2))
-    assert s.edits() == {1: {"z_p": pytest.approx((0.3, -0.2))}}
-    assert s.undo() and s.value(1, "z_p") == z0 and s.edits() == {}
+    assert s.editor.value(1, "z_p") == pytest.approx((0.3, -0.2))
+    assert s.editor.edits() == {1: {"z_p": pytest.approx((0.3, -0.2))}}
+    assert s.editor.undo() and s.editor.value(1, "z_p") == z0 and s.editor.edits() == {}
     assert s.take_changes() == {1}
-    assert s.redo() and s.value(1, "z_p") == pytest.approx((0.3, -0.2))
-    assert not s.redo()
+    assert s.editor.redo() and s.editor.value(1, "z_p") == pytest.approx((0.3, -0.2))
+    assert not s.editor.redo()
     # a new edit clears the redo stack
-    s.undo()
-    s.set_attribute(0, "z_t", [0.0])
-    assert not s.redo()
+    s.editor.undo()
+    s.editor.set_attribute(0, "z_t", [0.0])
+    assert not s.editor.redo()
 
 
 def test_objects_are_grouped_once_on_the_encoded_scene(encoded):
     from particlesplat.editing.grouping import dense_objects, drawing_particles, particle_objects
 
     model, enc = encoded
-    s = SceneSession(model, enc)
+    s = EditableScene(model, enc)
     g = model.decode(enc.particles)
     groups = particle_objects(g, enc.particles.num)  # numbered as particlesplat encode numbers them
     want = dense_objects(groups, drawing_particles(enc.particles, g, model.config.bg_mask_threshold))
     assert torch.equal(s.objects(), want)
-    s.set_attribute(0, "z_p", [0.9, 0.9])  # an edit moves a particle but does not regroup
+    s.editor.set_attribute(0, "z_p", [0.9, 0.9])  # an edit moves a particle but does not regroup
     assert torch.equal(s.objects(), want)
     g = model.decode(enc.particles)
-    assert torch.equal(SceneSession(gaussians=g).objects(), torch.arange(int(g.owner.max()) + 1))
+    assert torch.equal(PlyScene(g).objects(), torch.arange(int(g.owner.max()) + 1))
 
 
 def test_move_object_moves_every_member_as_one_undo_step(encoded):
     from particlesplat.editing.move import MoveError, anchor_points
 
     model, enc = encoded
-    s = SceneSession(model, enc)
-    s.editor._objects = torch.tensor([0, 1, 0, 3, 4, 5])[: s.num_particles]  # particles 0 and 2: one object
-    assert s.object_members(2) == [0, 2]
-    before = anchor_points(s.particles, [0, 2], model.config)
+    s = EditableScene(model, enc)
+    s.editor.scene._labels = torch.tensor([0, 1, 0, 3, 4, 5])[: s.editor.num_particles]  # particles 0 and 2: one object
+    assert s.editor.object_members(2) == [0, 2]
+    before = anchor_points(s.editor.particles, [0, 2], model.config)
     for _ in range(3):  # a drag of three steps of 0.05 m along x
-        s.move_object(2, [0.05, 0.0, 0.0], gesture="drag")
-    s.end_gesture()
-    after = anchor_points(s.particles, [0, 2], model.config)
+        s.editor.move_object(2, [0.05, 0.0, 0.0], gesture="drag")
+    s.editor.end_gesture()
+    after = anchor_points(s.editor.particles, [0, 2], model.config)
     torch.testing.assert_close(after - before, torch.tensor([[0.15, 0.0, 0.0]] * 2), rtol=0, atol=1e-4)
-    assert s.object_offset(0) == pytest.approx((0.15, 0.0, 0.0), abs=1e-4)
-    assert len(s.history.undo) == 1 and set(s.edits()) == {0, 2}
+    assert s.editor.object_offset(0) == pytest.approx((0.15, 0.0, 0.0), abs=1e-4)
+    assert len(s.editor.history.undo) == 1 and set(s.editor.edits()) == {0, 2}
     s.take_changes()
-    assert s.undo() and s.edits() == {} and s.take_changes() == {0, 2}
+    assert s.editor.undo() and s.editor.edits() == {} and s.take_changes() == {0, 2}
     with pytest.raises(MoveError):
-        s.move_object(0, [0.0, 0.0, 50.0])
-    assert s.edits() == {} and len(s.history.undo) == 0
+        s.editor.move_object(0, [0.0, 0.0, 50.0])
+    assert s.editor.edits() == {} and len(s.editor.history.undo) == 0
 
 
 def test_drag_gesture_is_one_operation(encoded):
     model, enc = encoded
-    s = SceneSession(model, enc)
-    d0 = s.value(2, "z_d")[0]
+    s = EditableScene(model, enc)
+    d0 = s.editor.value(2, "z_d")[0]
     for k in range(1, 6):
-        s.set_attribute(2, "z_d", [d0 + 0.1 * k], gesture="drag")
-    s.end_gesture()
-    s.set_attribute(2, "z_d", [d0 + 1.0], gesture="drag")  # a new gesture after end_gesture
-    assert len(s.history.undo) == 2
-    s.undo()
-    assert s.value(2, "z_d")[0] == pytest.approx(d0 + 0.5)
-    s.undo()
-    assert s.value(2, "z_d")[0] == pytest.approx(d0)
+        s.editor.set_attribute(2, "z_d", [d0 + 0.1 * k], gesture="drag")
+    s.editor.end_gesture()
+    s.editor.set_attribute(2, "z_d", [d0 + 1.0], gesture="drag")  # a new gesture after end_gesture
+    assert len(s.editor.history.undo) == 2
+    s.editor.undo()
+    assert s.editor.value(2, "z_d")[0] == pytest.approx(d0 + 0.5)
+    s.editor.undo()
+    assert s.editor.value(2, "z_d")[0] == pytest.approx(d0)
 
 
 def test_reset_and_load_edits(encoded, tmp_path):
     model, enc = encoded
-    s = SceneSession(model, enc, model_name="small")
-    s.set_attribute(0, "z_s", [1.0, 1.0])
-    s.set_attribute(0, "z_e", [2.0])
-    s.reset_particle(0)
-    assert s.edits() == {}
-    s.set_attribute(3, "z_d", [0.7])
+    s = EditableScene(model, enc, model_name="small")
+    s.editor.set_attribute(0, "z_s", [1.0, 1.0])
+    s.editor.set_attribute(0, "z_e", [2.0])
+    s.editor.reset_particle(0)
+    assert s.editor.edits() == {}
+    s.editor.set_attribute(3, "z_d", [0.7])
     s.save_edits(tmp_path / "e.yaml")
-    s2 = SceneSession(model, enc)
+    s2 = EditableScene(model, enc)
     s2.load_edits(tmp_path / "e.yaml")
-    assert s2.edits() == s.edits()
-    assert s2.undo() and s2.edits() == {}
+    assert s2.editor.edits() == s.editor.edits()
+    assert s2.editor.undo() and s2.editor.edits() == {}
     with pytest.raises(IndexError):
-        s.set_attribute(99, "z_d", [0.0])
+        s.editor.set_attribute(99, "z_d", [0.0])
     with pytest.raises(KeyError):
-        s.set_attribute(0, "z_f", [0.0])
+        s.editor.set_attribute(0, "z_f", [0.0])
 
 
 def test_edit_redecodes_only_that_particle_and_matches_torch(encoded, compositing):
     """After an edit the GL renderer holds exactly the full decode of the edited particles."""
     model, enc = encoded
     ctx = egl_context()
-    s = SceneSession(model, enc)
+    s = EditableScene(model, enc)
     view = SceneView(SplatRenderer(ctx, color_dtype="f4", compositing=compositing))
     state = ViewState()
     cam = enc.all_cameras[10].resized(80, 80)
     view.draw(s, state, cam)
-    s.set_attribute(2, "z_p", [0.1, 0.1])
-    s.set_attribute(4, "z_d", [2.0])
+    s.editor.set_attribute(2, "z_p", [0.1, 0.1])
+    s.editor.set_attribute(4, "z_d", [2.0])
     calls = []
     orig = s.particle_gaussians
     s.particle_gaussians = lambda i: calls.append(i) or orig(i)
@@ -172,19 +172,22 @@ def test_numbered_files_never_overwrite(tmp_path):
     assert a.stat().st_mode == (tmp_path / "particlesplat_0001.png").stat().st_mode
 
 
-def test_the_session_holds_an_editor_and_passes_its_whole_api_on(encoded):
-    """Composition, not inheritance: every public name of SceneEditor (but objects, which a .ply answers itself)
-    is passed on, and a .ply is a PlyScene with an editor that holds no particles."""
+def test_both_kinds_of_scene_are_scenes_and_only_the_model_scene_has_an_editor(encoded):
+    """Composition: an editable scene holds a SceneEditor (every edit goes through it); a .ply is a PlyScene whose
+    editor is None. Both give the viewer what the Scene protocol names, with the same answers for a model scene
+    as its editor's."""
     from particlesplat.editing.editor import SceneEditor
     from viewer.bench.random_gaussians import random_gaussians
-    from viewer.session import EDITOR_API, PlyScene
+    from viewer.session import Scene
 
     model, enc = encoded
-    s = SceneSession(model, enc)
-    assert not isinstance(s, SceneEditor) and isinstance(s.editor, SceneEditor) and s.ply is None
-    public = {n for n in dir(SceneEditor) if not n.startswith("_")} - {"objects"}
-    assert public <= set(EDITOR_API)
-    s.set_attribute(1, "z_p", [0.1, 0.2])
-    assert s.editor.value(1, "z_p") == s.value(1, "z_p") and len(s.editor.history.undo) == 1
-    ply = SceneSession(gaussians=random_gaussians(20, seed=3), source="x.ply")
-    assert isinstance(ply.ply, PlyScene) and not ply.editable and ply.num_particles == 0
+    s: Scene = EditableScene(model, enc)
+    assert not isinstance(s, SceneEditor) and isinstance(s.editor, SceneEditor)
+    s.editor.set_attribute(1, "z_p", [0.1, 0.2])
+    assert s.version == s.editor.version > 0 and s.num_owners() == s.editor.num_particles and s.unsaved
+    assert torch.equal(s.objects(), s.editor.objects()) and s.context == enc.context
+    g = random_gaussians(20, seed=3)
+    ply: Scene = PlyScene(g, source="x.ply")
+    assert ply.editor is None and ply.model is None and not ply.unsaved and ply.cameras == []
+    assert ply.take_changes() == set() and ply.edit_chunk() == {} and ply.autosave("out") is None
+    assert ply.num_owners() == int(g.owner.max()) + 1 and ply.name == "x"

@@ -47,11 +47,12 @@ from .particle_overlay import ParticleOverlay  # noqa: E402
 from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noqa: E402
 from .scene_view import SceneView  # noqa: E402
 from .screenshot import png_text, save_png, save_screenshot  # noqa: E402
-from .session import SceneSession  # noqa: E402
+from .session import EditableScene, Scene  # noqa: E402
 from .settings import load_settings, save_settings  # noqa: E402
 from .signals import SignalStop, raise_on_stop_signals  # noqa: E402
 from .state import ViewState  # noqa: E402
 from .tools.object_tools import ObjectGizmo  # noqa: E402
+from .tools.ruler import draw_ruler  # noqa: E402
 from .ui.panel import UiFields, UiRequests, clear_of_panel, draw_overlay, draw_panel, draw_status_line  # noqa: E402
 
 STILL_AFTER = 0.2  # seconds without interaction before rendering at full scale
@@ -108,7 +109,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def initial_view(session: SceneSession, look: str | None, fov: float | None) -> View:
+def window_address(window) -> int:
+    """The address of a glfw window (what imgui's glfw backend takes)."""
+    addr = ctypes.cast(window, ctypes.c_void_p).value
+    if addr is None:
+        raise RuntimeError("no GL window")
+    return addr
+
+
+def initial_view(session: Scene, look: str | None, fov: float | None) -> View:
     """Default view of the session (framed as its scene.json records, else by its cameras), with ``--look`` /
     ``--fov`` applied."""
     from particlesplat.data.scene_meta import read_framing
@@ -123,7 +132,7 @@ class App:
     """One window: its GL context, renderer, session, state and UI."""
 
     def __init__(
-        self, window, session: SceneSession, view: View, args: argparse.Namespace, ctx: moderngl.Context | None = None
+        self, window, session: Scene, view: View, args: argparse.Namespace, ctx: moderngl.Context | None = None
     ) -> None:
         self.window = window
         # (moderngl detects a window's context once: pass ``ctx`` to open another App on the same window)
@@ -148,7 +157,7 @@ class App:
         self.particle_overlay = ParticleOverlay()  # keypoints / boxes segmentation modes
         self.frame_times: list[float] = []
         self.swatches = particle_swatches(session)
-        self._swatched = session.num_particles  # the particle count the swatches are of
+        self._swatched = session.num_owners()  # the particle count the swatches are of
         self.redraw = RedrawSchedule()
         self.stop: SignalStop | None = None  # set while signals end the loop (:mod:`viewer.signals`)
         self._xsync = None  # the display's sync call (False: none), found on the first frame
@@ -158,7 +167,7 @@ class App:
         """Route every window event to :attr:`redraw`, under imgui's callbacks (which chain to ours)."""
         from imgui_bundle.imgui import backends
 
-        addr = ctypes.cast(self.window, ctypes.c_void_p).value
+        addr = window_address(self.window)
         backends.glfw_restore_callbacks(addr)
         install_event_callbacks(self.window, self.redraw.notify)
 
@@ -197,16 +206,19 @@ class App:
         backends.glfw_new_frame()
         imgui.new_frame()
         if show_ui:
-            message = self.gizmo.draw(self.session, self.state.selected, self.view_camera(1.0), self.pixel_ratio())
+            message = self.gizmo.draw(
+                self.session, self.state.selected, self.view_camera(1.0), self.pixel_ratio(), self.state.gizmo_scale
+            )
             self.particle_overlay.draw(self.session, self.state.seg_mode, self.view_camera(1.0), self.pixel_ratio())
+            draw_ruler(self.state, self.view_camera(1.0), self.pixel_ratio())
             if message:
                 self.fields.status = message
             self._frame_chords = self.chords.take()
             self.controls.handle(self.viewport())
             self._frame_chords = []
             if self.state.panel:
-                if self.session.num_particles != self._swatched:  # copies and inserted objects get theirs
-                    self.swatches, self._swatched = particle_swatches(self.session), self.session.num_particles
+                if self.session.num_owners() != self._swatched:  # copies and inserted objects get theirs
+                    self.swatches, self._swatched = particle_swatches(self.session), self.session.num_owners()
                 drawn = self.scene_view.renderer.visible_count
                 draw_panel(
                     self.session,
@@ -288,10 +300,11 @@ class App:
             f"{r.compositing} compositing",
             f"{r.visible_count:,} of {r.num:,} Gaussians, {last.primitive or '-'}, sort {last.sort_ms:.1f} ms",
         ]
-        if self.session.editable:
-            active = sum(self.session.is_active(i) for i in range(self.session.num_particles))
+        editor = self.session.editor
+        if editor is not None:
+            active = sum(editor.is_active(i) for i in range(editor.num_particles))
             lines.append(
-                f"{active} of {self.session.num_particles} particles active"
+                f"{active} of {editor.num_particles} particles active"
                 + (f", selected {self.state.selected}" if self.state.selected is not None else "")
             )
         lines.append(f"mode: {self.state.seg_mode}")
@@ -336,8 +349,8 @@ class App:
         return True
 
     def save_edits(self) -> Path | None:
-        """Save the edits to the 'edits YAML' path (:func:`viewer.commands.save_edits`)."""
-        return save_edits(self.session, self.fields)
+        """Save the edits to the 'edits YAML' path (:func:`viewer.commands.save_edits`); None for a .ply."""
+        return save_edits(self.session, self.fields) if isinstance(self.session, EditableScene) else None
 
     def keep_unsaved(self) -> Path | None:
         """Autosave the session's unsaved edits (before it is replaced or the window closes); returns the file."""
@@ -357,7 +370,7 @@ class App:
         view = initial_view(new, None, None)  # (so does a bad scene.json)
         kept = self.keep_unsaved()
         self.session = new
-        self.swatches, self._swatched = particle_swatches(self.session), self.session.num_particles
+        self.swatches, self._swatched = particle_swatches(self.session), self.session.num_owners()
         self.state = ViewState(
             panel=self.state.panel, overlay=self.state.overlay, background=scene_background(self.session.model)
         )
@@ -367,7 +380,8 @@ class App:
         )
         self.fields.edits_path = str(self.session.default_edits_path(self.fields.output_dir))
         self.fields.confirm_overwrite = None
-        found = self.session.autosave_path(autosave_dir()) if self.session.editable else None
+        editable = isinstance(self.session, EditableScene)
+        found = self.session.autosave_path(autosave_dir()) if editable else None
         if found is not None and found.is_file():
             self.fields.edits_path = str(found)
             self.fields.status += f"; autosaved edits of this scene found: Load edits restores them ({found})"
@@ -513,7 +527,7 @@ def create_window(size: tuple[int, int], title: str = "ParticleSplat Studio"):
     glfw.swap_interval(0)
     imgui.create_context()
     imgui.get_io().set_ini_filename("")
-    backends.glfw_init_for_opengl(ctypes.cast(window, ctypes.c_void_p).value, True)
+    backends.glfw_init_for_opengl(window_address(window), True)
     backends.opengl3_init("#version 330")
     return window
 

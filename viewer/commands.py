@@ -10,11 +10,12 @@ from typing import TYPE_CHECKING, Protocol
 import torch
 
 from .screenshot import BUNDLE, export_bundle, export_ply
+from .session import EditableScene
 
 if TYPE_CHECKING:
     from .orbit import OrbitCamera
     from .scene_view import SceneView
-    from .session import SceneSession
+    from .session import Scene
     from .state import ViewState
     from .ui.panel import UiFields, UiRequests
 
@@ -23,7 +24,7 @@ class CommandHost(Protocol):
     """What the commands use of the app: its scene, view and fields, opening a scene, a numbered screenshot."""
 
     orbit: OrbitCamera
-    session: SceneSession
+    session: Scene
     state: ViewState
     fields: UiFields
     scene_view: SceneView
@@ -43,10 +44,11 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
             host.orbit.snap(host.session.cameras[req.snap_camera])
         if req.open_path:
             host.open(req.open_path)
-        if req.save_edits:
-            save_edits(host.session, fields)
-        if req.load_edits:
-            warning = host.session.load_edits(fields.edits_path)
+        editable = host.session if isinstance(host.session, EditableScene) else None
+        if req.save_edits and editable is not None:
+            save_edits(editable, fields)
+        if req.load_edits and editable is not None:
+            warning = editable.load_edits(fields.edits_path)
             fields.status = f"loaded edits from {Path(fields.edits_path).resolve()}" + (
                 f"; warning: {warning}" if warning else ""
             )
@@ -60,14 +62,14 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
             else:
                 path = export_ply(fields.output_dir, g, fields.export_format)
             fields.status = f"exported {Path(path).resolve()}"
-        if req.insert and host.session.editable:
+        editor = host.session.editor
+        if req.insert and editor is not None:
             from .ui.insert import insert_from_fields
 
-            host.state.selected, fields.status = insert_from_fields(host.session, fields.insert)
-        if req.export_object and host.state.selected is not None and host.session.editable:
-            session = host.session
-            members = session.object_members(host.state.selected)  # its Gaussians, as drawn
-            g = session.model.decode(session.particles, torch.tensor(members), background=False)
+            host.state.selected, fields.status = insert_from_fields(editor, fields.insert)
+        if req.export_object and host.state.selected is not None and editor is not None:
+            members = editor.object_members(host.state.selected)  # its Gaussians, as drawn
+            g = editor.model.decode(editor.particles, torch.tensor(members), background=False)
             g = g.subset(g.opacities >= host.state.prune).detach().to("cpu")
             path = export_ply(fields.output_dir, g, fields.export_format if fields.export_format != BUNDLE else ".ply")
             fields.status = f"exported object of particles {members} to {Path(path).resolve()}"
@@ -75,7 +77,7 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
         fields.status = f"error: {e}"
 
 
-def save_edits(session: SceneSession, fields: UiFields) -> Path | None:
+def save_edits(session: EditableScene, fields: UiFields) -> Path | None:
     """Save the edits to the 'edits YAML' path. A file that holds another scene's edits (or is no edit file) is not
     replaced: the status line says so, and a second Save to the same path replaces it."""
     path = fields.edits_path
@@ -87,5 +89,5 @@ def save_edits(session: SceneSession, fields: UiFields) -> Path | None:
         return None
     fields.confirm_overwrite = None
     out = session.save_edits(path)
-    fields.status = f"saved {len(session.history.undo)} edit operation(s) to {out.resolve()}"
+    fields.status = f"saved {len(session.editor.history.undo)} edit operation(s) to {out.resolve()}"
     return out

@@ -15,15 +15,16 @@ from imgui_bundle import imgui
 
 from particlesplat.editing.move import MoveError, stop_at_support
 
-from .state import SEG_MODES
+from .actions import ACTIONS
 from .tools.object_tools import FloorDrag
-from .ui.objects import duplicate_selected, remove_selected
+from .tools.ruler import ruler_click
 
 if TYPE_CHECKING:
     from particlesplat.core.camera import Camera
+    from particlesplat.editing.editor import SceneEditor
 
     from .orbit import OrbitCamera
-    from .session import SceneSession
+    from .session import Scene
     from .state import ViewState
     from .ui.panel import UiRequests
 
@@ -48,7 +49,7 @@ class Viewport:
 
     orbit: OrbitCamera
     state: ViewState
-    session: SceneSession
+    session: Scene
     requests: UiRequests
     camera: Callable[[], Camera]
     pick: Callable[[int, int], int]
@@ -109,13 +110,13 @@ class ViewportControls:
                 self.dragged = True
                 self._begin_drag(vp, io, px * sx, py * sy)
             if self.dragged:
-                sel = vp.state.selected
-                if self.floor.active:
-                    message = self.floor.update(vp.session, vp.camera(), io.mouse_pos.x * sx, io.mouse_pos.y * sy)
+                sel, editor = vp.state.selected, vp.session.editor
+                if self.floor.active and editor is not None:
+                    message = self.floor.update(editor, vp.camera(), io.mouse_pos.x * sx, io.mouse_pos.y * sy)
                     if message:
                         vp.status(message)
-                elif io.key_ctrl and sel is not None and vp.session.editable:
-                    self.lift_object(vp, sel, dy)
+                elif io.key_ctrl and sel is not None and editor is not None:
+                    self.lift_object(vp, editor, sel, dy)
                 else:
                     vp.orbit.orbit(dx, dy)
                 self.last_move = now
@@ -123,7 +124,8 @@ class ViewportControls:
             if not self.dragged:
                 self.pick(vp, io.mouse_pos.x * sx, io.mouse_pos.y * sy)
             self.floor.stop()
-            vp.session.end_gesture()
+            if vp.session.editor is not None:
+                vp.session.editor.end_gesture()
             self.press_pos = None
         for button in (imgui.MouseButton_.right, imgui.MouseButton_.middle):
             if imgui.is_mouse_dragging(button) and (dx or dy):
@@ -133,8 +135,8 @@ class ViewportControls:
     def _begin_drag(self, vp: Viewport, io, x: float, y: float) -> None:
         """A left drag starts at framebuffer pixel (x, y): it slides the selected object on the floor when it
         began on that object (or with Shift held), else it orbits (Ctrl: lifts the object)."""
-        sel = vp.state.selected
-        if sel is None or not vp.session.editable or io.key_ctrl:
+        sel, editor = vp.state.selected, vp.session.editor
+        if sel is None or editor is None or io.key_ctrl:
             return
         on_object = False
         if not io.key_shift:  # on the selected object: inside its outline, even where another object is in front
@@ -143,74 +145,64 @@ class ViewportControls:
             owner = vp.pick(int(x), int(y))
             labels = vp.session.objects()
             on_object = (owner >= 0 and int(labels[owner]) == int(labels[sel])) or inside_hull(
-                outline(vp.session, sel, vp.camera()), x, y
+                outline(editor, sel, vp.camera()), x, y
             )
-        if (io.key_shift or on_object) and not self.floor.start(vp.session, sel, vp.camera(), x, y):
+        if (io.key_shift or on_object) and not self.floor.start(editor, sel, vp.camera(), x, y):
             vp.status("this object cannot slide from here (it draws nothing, or the floor is out of view)")
 
-    def lift_object(self, vp: Viewport, index: int, dy: float) -> None:
+    def lift_object(self, vp: Viewport, editor: SceneEditor, index: int, dy: float) -> None:
         """Move the object of particle ``index`` up or down (world Z) with a vertical drag of ``dy``
         framebuffer pixels (up = up), by the metres a pixel spans at the object's depth; it stops at the
         surface it rests on (:func:`particlesplat.editing.move.stop_at_support`)."""
         from .tools.object_tools import object_centre
 
-        centre = object_centre(vp.session, index)
+        centre = object_centre(editor, index)
         if centre is None:
             return
         cam = vp.camera()
         depth = float(cam.world_to_camera(centre[None].to(cam.K.dtype))[0, 2].clamp_min(1e-3))
         dz = -dy * depth / float(cam.fy)
-        bottom = vp.session.object_bottom(index)
+        bottom = editor.object_bottom(index)
         if bottom is not None:
-            dz = stop_at_support(dz, bottom, vp.session.support_height())
+            dz = stop_at_support(dz, bottom, editor.support_height())
         if dz == 0.0:
             if dy > 0:
                 vp.status("the object rests on the surface: it goes no lower")
             return
         try:
-            vp.session.move_object(index, [0.0, 0.0, dz], gesture="lift-drag")
+            editor.move_object(index, [0.0, 0.0, dz], gesture="lift-drag")
         except MoveError as e:
             vp.status(f"error: {e}")
 
     @staticmethod
     def pick(vp: Viewport, x: float, y: float) -> None:
-        """Select the particle owning framebuffer pixel (x, y) (nothing on background)."""
+        """Select the particle owning framebuffer pixel (x, y) (nothing on background); with the ruler on, pick a
+        ruler point there instead."""
+        if vp.state.ruler:
+            g = vp.session.gaussians()
+            vp.status(ruler_click(vp.state, g.subset(g.opacities >= vp.state.prune), vp.camera(), x, y))
+            return
         owner = vp.pick(int(x), int(y))
-        vp.state.selected = owner if owner >= 0 and vp.session.editable else None
+        vp.state.selected = owner if owner >= 0 and vp.session.editor is not None else None
 
     @staticmethod
     def _keys(vp: Viewport, io) -> None:
-        K = imgui.Key
-        for key, shift in vp.chords:  # Ctrl held when the key went down, as the key event said
-            if key == "z":
-                (vp.session.redo if shift else vp.session.undo)()
-            elif key == "y":
-                vp.session.redo()
-            elif key == "s" and vp.session.editable:
-                vp.requests.save_edits = True
-            elif key == "d" and vp.session.editable:
-                vp.state.selected, message = duplicate_selected(vp.session, vp.state.selected, vp.copy_offset)
-                vp.status(message)
+        """Run the actions whose keys were pressed (:data:`viewer.actions.ACTIONS`): a Ctrl chord as its key event
+        carried it (``vp.chords``: Ctrl and Shift as they were when the key went down, :mod:`viewer.chords`), a
+        plain key without Ctrl."""
+        for key, shift in vp.chords:
+            for action in ACTIONS:
+                if any(c.ctrl and c.key == key and c.shift == shift for c in action.keys):
+                    if action.enabled(vp):
+                        action.run(vp)
+                    break
         if io.key_ctrl or vp.chords:
             return
-        pressed = lambda key: imgui.is_key_pressed(key, False)  # noqa: E731
-        if pressed(K.r):
-            vp.requests.reset_view = True
-        if pressed(K.p) or pressed(K.f12):
-            vp.requests.screenshot = True
-        if pressed(K.e):
-            vp.requests.export_ply = True
-        if pressed(K.h):
-            vp.state.panel = not vp.state.panel
-        if pressed(K.o):
-            vp.state.overlay = not vp.state.overlay
-        if pressed(K.m):
-            vp.state.seg_mode = SEG_MODES[(SEG_MODES.index(vp.state.seg_mode) + 1) % len(SEG_MODES)]
-        if pressed(K.escape):
-            vp.state.selected = None
-        if pressed(K.delete) and vp.session.editable:
-            vp.state.selected, message = remove_selected(vp.session, vp.state.selected)
-            vp.status(message)
-        for i, key in enumerate((K._0, K._1, K._2, K._3, K._4, K._5, K._6, K._7, K._8, K._9)):
-            if pressed(key):
-                vp.requests.snap_camera = i  # 0-based, as --context, render --view and an edit file's pick.frame
+        for action in ACTIONS:
+            for chord in action.keys:
+                if chord.ctrl:
+                    continue
+                if imgui.is_key_pressed(getattr(imgui.Key, chord.key), action.repeat):
+                    if action.enabled(vp):
+                        action.run(vp)
+                    break

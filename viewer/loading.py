@@ -6,18 +6,19 @@ import argparse
 import sys
 
 from particlesplat.core.sh import SH_C0
+from particlesplat.core.vectors import float3
 from particlesplat.editing.open_scene import load_model_scene, load_ply_checked
 
-from .session import SceneSession
+from .session import EditableScene, PlyScene, Scene
 
 
-def load_session(args: argparse.Namespace) -> SceneSession:
+def load_session(args: argparse.Namespace) -> Scene:
     """A session from ``--ply`` or ``--checkpoint`` + ``--scene`` (defaults: the shipped model
     and the first demo scene), with ``--edits`` applied."""
     if getattr(args, "ply", None):
-        return SceneSession(gaussians=load_ply_checked(args.ply), source=str(args.ply))
+        return PlyScene(load_ply_checked(args.ply), source=str(args.ply))
     model, encoded, name = load_model_scene(args.checkpoint, args.scene, getattr(args, "context", None))
-    session = SceneSession(model, encoded, model_name=name, source=str(encoded.path))
+    session = EditableScene(model, encoded, model_name=name, source=str(encoded.path))
     for warning in encoded.warnings:
         print(f"particlesplat-viewer: warning: {warning}", file=sys.stderr)
     if getattr(args, "edits", None):
@@ -27,16 +28,17 @@ def load_session(args: argparse.Namespace) -> SceneSession:
     return session
 
 
-def particle_swatches(session: SceneSession) -> dict[int, tuple[float, float, float]]:
-    """Each particle's base colour: the opacity-weighted mean SH DC colour of its Gaussians."""
-    if not session.editable:
+def particle_swatches(session: Scene) -> dict[int, tuple[float, float, float]]:
+    """Each particle's base colour: the opacity-weighted mean SH DC colour of its Gaussians (none for a .ply)."""
+    editor = session.editor
+    if editor is None:
         return {}
-    g = session.model.decode(session.particles, background=False).detach().to("cpu")
+    g = editor.model.decode(editor.particles, background=False).detach().to("cpu")
     rgb = (g.sh[:, 0] * SH_C0 + 0.5).clamp(0.0, 1.0)
-    out = {}
-    for i in range(session.num_particles):
+    out: dict[int, tuple[float, float, float]] = {}
+    for i in range(editor.num_particles):
         m = g.owner == i
         if m.any():
             w = g.opacities[m].clamp_min(1e-6)[:, None]
-            out[i] = tuple(float(v) for v in ((rgb[m] * w).sum(0) / w.sum()).tolist())
+            out[i] = float3(((rgb[m] * w).sum(0) / w.sum()).tolist())
     return out

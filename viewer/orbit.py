@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 import torch
 
 from particlesplat.core.camera import Camera
+from particlesplat.core.vectors import float3
 from particlesplat.core.viewpoints import Look, View, look_from_eye
 
 ZOOM_RANGE = (0.02, 50.0)  # the nearest and farthest zoom, as factors of the home view's distance
@@ -48,7 +49,7 @@ class OrbitCamera:
         R = cam.c2w[:3, :3].double()
         shift = R[:, 0] * (-dx_px * metres_per_px) + R[:, 1] * (-dy_px * metres_per_px)
         target = torch.tensor(self.view.target, dtype=torch.float64) + shift
-        self.view = replace(self.view, target=tuple(float(v) for v in target))
+        self.view = replace(self.view, target=float3(target))
 
     def zoom(self, wheel_steps: float, factor: float = 0.9) -> None:
         """Scale the distance by ``factor`` per wheel step (positive = closer), within :data:`ZOOM_RANGE` of the
@@ -68,4 +69,4 @@ class OrbitCamera:
         eye, axis = c2w[:3, 3], c2w[:3, 2] / c2w[:3, 2].norm()
         t = float(torch.dot(torch.tensor(self.home.target, dtype=torch.float64) - eye, axis))
         target = eye + max(t, 0.1) * axis
-        self.view = View(tuple(float(v) for v in target), look_from_eye(target, eye), camera.fov_y)
+        self.view = View(float3(target), look_from_eye(target, eye), camera.fov_y)

@@ -15,7 +15,7 @@ from particlesplat.analysis.particle_arrays import ParticleArrays, particle_arra
 from particlesplat.core.camera import Camera
 
 if TYPE_CHECKING:
-    from .session import SceneSession
+    from .session import Scene
 
 OVERLAY_MODES = ("keypoints", "boxes")
 
@@ -27,22 +27,23 @@ class ParticleOverlay:
         self._key: tuple | None = None
         self._arrays: ParticleArrays | None = None
 
-    def arrays(self, session: SceneSession) -> ParticleArrays | None:
+    def arrays(self, session: Scene) -> ParticleArrays | None:
         """The session's particle arrays (None for a .ply: no particles)."""
-        if not session.editable:
+        editor = session.editor
+        if editor is None:
             return None
         key = (id(session), session.version)
         if key != self._key:
             self._key = key
-            self._arrays = particle_arrays(session.model, session.particles)
+            self._arrays = particle_arrays(editor.model, editor.particles)
         return self._arrays
 
-    def marks(self, session: SceneSession, mode: str, camera: Camera) -> list[Mark]:
+    def marks(self, session: Scene, mode: str, camera: Camera) -> list[Mark]:
         """The marks of ``mode`` (keypoints or boxes) in ``camera``'s framebuffer pixels; none otherwise."""
         arrays = self.arrays(session) if mode in OVERLAY_MODES else None
-        return [] if arrays is None else overlay_marks(arrays, camera, mode)
+        return [] if arrays is None else overlay_marks(arrays, camera, "keypoints" if mode == "keypoints" else "boxes")
 
-    def draw(self, session: SceneSession, mode: str, camera: Camera, pixel_ratio: tuple[float, float]) -> int:
+    def draw(self, session: Scene, mode: str, camera: Camera, pixel_ratio: tuple[float, float]) -> int:
         """Draw the marks (``pixel_ratio``: framebuffer pixels per window point). Returns how many."""
         from imgui_bundle import imgui
 
@@ -52,7 +53,8 @@ class ParticleOverlay:
         sx, sy = pixel_ratio
         draw = imgui.get_background_draw_list()
         for m in marks:
-            col = imgui.IM_COL32(*(int(255 * c) for c in m.colour), 255)
+            r, g, b = (int(255 * c) for c in m.colour)
+            col = imgui.IM_COL32(r, g, b, 255)
             pts = [imgui.ImVec2(float(u) / sx, float(v) / sy) for u, v in m.points]
             if m.kind == "dot":
                 draw.add_circle_filled(pts[0], m.radius / sx, col)

@@ -9,7 +9,7 @@ from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
 
 from .gl.renderer import FrameTimes, SplatRenderer, segmentation_from_weights
-from .session import SceneSession
+from .session import Scene
 from .state import SegMode, ViewState
 
 MASK_COLOR = (1.0, 0.85, 0.1)
@@ -25,7 +25,7 @@ class SceneView:
         self._session_id: int | None = None
         self.last_times = FrameTimes()
 
-    def sync(self, session: SceneSession, state: ViewState) -> None:
+    def sync(self, session: Scene, state: ViewState) -> None:
         """Upload changed Gaussians (only the edited particles') and apply the filters."""
         if self._session_id != id(session):
             self._session_id = id(session)
@@ -41,7 +41,7 @@ class SceneView:
         self.renderer.set_filter(state.visible_owners(session.owner_ids()), state.prune)
 
     def draw(
-        self, session: SceneSession, state: ViewState, camera: Camera, *, force: bool = False, finish: bool = False
+        self, session: Scene, state: ViewState, camera: Camera, *, force: bool = False, finish: bool = False
     ) -> FrameTimes | None:
         """Render ``camera`` if anything changed (or ``force``); returns the timings or None."""
         self.sync(session, state)
@@ -75,7 +75,7 @@ class SceneView:
         mask = MASK_COLOR if state.seg_mode is SegMode.MASK_SELECTED and state.selected is not None else None
         self.renderer.blit(viewport, state.background, mask)
 
-    def pick(self, session: SceneSession, camera: Camera, x: int, y: int) -> int:
+    def pick(self, session: Scene, camera: Camera, x: int, y: int) -> int:
         """Owner dominating pixel (x, y) of ``camera``'s image (-1 = background or empty)."""
         w, h = camera.width, camera.height
         if not (0 <= x < w and 0 <= y < h):
@@ -84,14 +84,14 @@ class SceneView:
         self.invalidate()
         return int(segmentation_from_weights(weights, alpha)[0, 0])
 
-    def image(self, session: SceneSession, state: ViewState, camera: Camera) -> np.ndarray:
+    def image(self, session: Scene, state: ViewState, camera: Camera) -> np.ndarray:
         """Render ``camera`` (any size, offscreen) and return (H, W, 3) float32 over the background."""
         self.draw(session, state, camera, force=True)
         rgb = self.renderer.read_rgb(state.background)
         self.invalidate()
         return np.clip(rgb, 0.0, 1.0)
 
-    def visible_gaussians(self, session: SceneSession, state: ViewState) -> Gaussians:
+    def visible_gaussians(self, session: Scene, state: ViewState) -> Gaussians:
         """The Gaussians as drawn: edited, filtered by visibility, segmentation mode and pruning."""
         g = session.gaussians()
         owners = torch.tensor(state.visible_owners(session.owner_ids()), dtype=torch.int64)

@@ -6,12 +6,16 @@ from __future__ import annotations
 import os
 from os import PathLike
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from particlesplat.core.atomic import create_temp_file
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.formats.png import png_info, png_text, save_png, to_image
+
+if TYPE_CHECKING:
+    from .session import Scene
 
 __all__ = ["BUNDLE", "export_bundle", "export_ply", "png_text", "save_numbered", "save_png", "save_screenshot"]
 BUNDLE = "bundle"  # the export menu's entry for an object bundle (particlesplat.formats.bundle)
@@ -60,11 +64,13 @@ def export_ply(folder: str | PathLike, gaussians: Gaussians, suffix: str = ".ply
     return save_numbered(folder, "particlesplat_", fmt.suffix, lambda p: fmt.write(gaussians, p))
 
 
-def export_bundle(folder: str | PathLike, gaussians: Gaussians, session) -> Path:
+def export_bundle(folder: str | PathLike, gaussians: Gaussians, session: Scene) -> Path:
     """A numbered object bundle (folder ``particlesplat_NNNN.bundle``) of ``gaussians`` in ``folder``: by object
-    for a model scene (``session`` editable), by particle (the owners stored) for a Gaussian file."""
+    (the user's groups, as the scene's editor holds them) for a model scene, by particle (the owners stored) for a
+    Gaussian file."""
     from particlesplat.analysis.bundle_parts import bundle_header, bundle_parts
     from particlesplat.analysis.particle_arrays import particle_arrays
+    from particlesplat.editing.scene_objects import SceneObjects
     from particlesplat.formats.bundle import write_bundle
 
     folder = Path(folder)
@@ -73,10 +79,11 @@ def export_bundle(folder: str | PathLike, gaussians: Gaussians, session) -> Path
     while (folder / f"particlesplat_{n:04d}.bundle").exists():
         n += 1
     out = folder / f"particlesplat_{n:04d}.bundle"
-    if session.editable:
-        arrays = particle_arrays(session.model, session.particles)
-        edited = bool(session.editor.operations())
-        header = bundle_header(session.source, session.model_name, session.particles, session.editor.context, edited)
+    editor = session.editor
+    if editor is not None:
+        arrays = particle_arrays(editor.model, editor.particles, objects=SceneObjects(editor.objects()))
+        edited = bool(editor.history.undo)
+        header = bundle_header(session.source, session.model_name, editor.particles, editor.context, edited)
         write_bundle(out, "object", bundle_parts(gaussians, "object", arrays), header)
     else:
         write_bundle(out, "particle", bundle_parts(gaussians, "particle", None), bundle_header(session.source, None))

@@ -1,11 +1,11 @@
-"""The scene session: what the viewer shows and edits. It holds a
-:class:`particlesplat.editing.editor.SceneEditor` (particles, their edits as do/undo operations, objects picked and
-moved in world metres) for a model scene, or a :class:`PlyScene` (a fixed Gaussian set) for a .ply, plus what only
-the viewer needs (names and identity for files, autosaves).
+"""What the viewer shows: a :class:`Scene`. An :class:`EditableScene` holds a model's particles under edit (its
+:attr:`EditableScene.editor`, a :class:`particlesplat.editing.editor.SceneEditor`: do/undo operations, objects
+picked and moved in world metres); a :class:`PlyScene` holds a fixed Gaussian set opened from a .ply (its
+``editor`` is None: nothing to edit). Both carry what only the viewer needs (names and identity for files,
+autosaves).
 
-Panels and mouse tools change the session only through its methods (the editor's, which it passes on:
-:data:`EDITOR_API`); the renderer asks :meth:`SceneSession.take_changes` which owners to re-decode, so an edit
-re-decodes only the edited particles.
+Panels, tools and actions edit only through ``scene.editor``; the renderer asks :meth:`Scene.take_changes` which
+owners to re-decode, so an edit re-decodes only the edited particles.
 """
 
 from __future__ import annotations
@@ -13,139 +13,97 @@ from __future__ import annotations
 import hashlib
 from os import PathLike
 from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
 
 import torch
 
 from particlesplat.core.gaussians import Gaussians
-from particlesplat.editing.editor import (
-    EditsError,
-    SceneEditor,
-    load_edit_file,
-    same_scene,
-    scene_mismatch,
-)
-from particlesplat.editing.open_scene import EncodedScene
+from particlesplat.editing.editor import EditsError, SceneEditor, load_edit_file, same_scene, scene_mismatch
 from particlesplat.editing.scene_id import resolved, scene_digest, scene_file_key
 
-# what the session passes on to its editor (a .ply's editor holds no particles: nothing to edit)
-EDITOR_API = (
-    "model",
-    "particles",
-    "original",
-    "history",
-    "context",
-    "frame_cameras",
-    "version",
-    "editable",
-    "num_particles",
-    "active_threshold",
-    "value",
-    "original_value",
-    "origin",
-    "is_active",
-    "edits",
-    "decode",
-    "object_members",
-    "object_offset",
-    "object_centre",
-    "object_bottom",
-    "support_height",
-    "take_changes",
-    "object_map",
-    "pick",
-    "pick_for",
-    "set_attribute",
-    "move_object",
-    "remove_object",
-    "duplicate_object",
-    "insert_object",
-    "end_gesture",
-    "reset_particle",
-    "set_edits",
-    "undo",
-    "redo",
-    "apply_op",
-    "apply_file",
-    "operations",
-    "save",
-    "edit_text",
-)
+if TYPE_CHECKING:
+    from particlesplat.core.camera import Camera
+    from particlesplat.editing.open_scene import EncodedScene
+    from particlesplat.model.particlesplat import ParticleSplat
 
 
-class PlyScene:
-    """A fixed Gaussian set opened from a .ply: drawn as it is, nothing to edit; each owner id it stores is its
-    own object (a plain 3DGS file stores none: everything is background).
+class Scene(Protocol):
+    """What the viewer draws, picks and saves, whatever the scene was opened from."""
 
-    Args:
-        gaussians: the Gaussians (checked finite; kept on the CPU).
-        source: the .ply path (named in errors).
-    """
+    source: str  # the scene folder or .ply path, as given
+    model_name: str  # how the model is named in screenshots and edit files ("" for a .ply)
 
-    def __init__(self, gaussians: Gaussians, source: str = "") -> None:
-        gaussians.check(source or "Gaussians")  # the GL renderer would draw NaN as nothing, or everything
-        self.gaussians = gaussians.detach().to("cpu")
-        self._owner_ids: list[int] | None = None
+    @property
+    def editor(self) -> SceneEditor | None:
+        """The particles under edit; None when there is nothing to edit (a .ply)."""
+        ...
 
-    def num_owners(self) -> int:
-        """Max owner + 1 (0 without owners)."""
-        return int(self.gaussians.owner.max()) + 1 if self.gaussians.num else 0
+    @property
+    def model(self) -> ParticleSplat | None: ...
 
-    def owner_ids(self) -> list[int]:
-        """The distinct owners >= 0, ascending."""
-        if self._owner_ids is None:
-            self._owner_ids = [int(o) for o in torch.unique(self.gaussians.owner) if int(o) >= 0]
-        return self._owner_ids
+    @property
+    def cameras(self) -> list[Camera]:
+        """The scene's input cameras (all frames), empty for a .ply."""
+        ...
+
+    @property
+    def version(self) -> int:
+        """Bumps on every change of the Gaussians."""
+        ...
+
+    @property
+    def context(self) -> list[int] | None:
+        """The context frames the particles were encoded from (None for a .ply)."""
+        ...
+
+    @property
+    def warnings(self) -> list[str]:
+        """What opening the scene found questionable (shown under its name)."""
+        ...
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def unsaved(self) -> bool: ...
+
+    def gaussians(self) -> Gaussians:
+        """All Gaussians of the current state (background included)."""
+        ...
 
     def objects(self) -> torch.Tensor:
-        """(num_owners,) each owner its own object."""
-        return torch.arange(self.num_owners())
+        """(num_owners,) int64 object label per owner."""
+        ...
+
+    def num_owners(self) -> int: ...
+
+    def owner_ids(self) -> list[int]: ...
+
+    def take_changes(self) -> set[int] | None:
+        """Owners whose Gaussians changed since the last call; None = everything changed."""
+        ...
+
+    def particle_gaussians(self, index: int) -> Gaussians: ...
+
+    def edit_chunk(self) -> str | dict:
+        """The whole edit file of what was done, for a screenshot's ``edits`` chunk."""
+        ...
+
+    def autosave(self, folder: str | PathLike) -> Path | None: ...
+
+    def autosave_path(self, folder: str | PathLike) -> Path: ...
+
+    def default_edits_path(self, folder: str | PathLike) -> Path: ...
 
 
-def _pass_on(name: str) -> property:
-    return property(lambda self: getattr(self.editor, name), doc=f"The editor's ``{name}`` (:class:`SceneEditor`).")
+class SceneFiles:
+    """A scene's identity for file names: its source, resolved path and content digest."""
 
-
-class SceneSession:
-    """What is being viewed: a model's particles (an editor: editable) or a fixed Gaussian set (a .ply).
-
-    Args:
-        model: a ParticleSplat model (needed for particles).
-        encoded: the encoded scene (particles + cameras), or None for a .ply.
-        gaussians: a fixed Gaussian set (a .ply), used when ``encoded`` is None.
-        model_name: how the model is named in screenshots and edits files.
-        source: the scene folder or .ply path.
-
-    Attributes:
-        editor: the scene's :class:`SceneEditor` (for a .ply, one without particles).
-        ply: the .ply's :class:`PlyScene`, or None for a model scene.
-    """
-
-    def __init__(
-        self,
-        model=None,
-        encoded: EncodedScene | None = None,
-        gaussians: Gaussians | None = None,
-        model_name: str = "",
-        source: str = "",
-    ) -> None:
-        if encoded is None and gaussians is None:
-            raise ValueError("SceneSession needs an encoded scene or a Gaussian set")
-        if encoded is not None and model is None:
-            raise ValueError("SceneSession: an encoded scene needs its model")
-        self.editor = SceneEditor(
-            model,
-            encoded.particles if encoded is not None else None,
-            encoded.all_cameras if encoded is not None else [],
-            encoded.context if encoded is not None else None,
-        )
-        self.encoded = encoded
-        self.model_name = model_name
+    def __init__(self, source: str, model_name: str) -> None:
         self.source = source
-        self.ply = PlyScene(gaussians, source) if encoded is None and gaussians is not None else None
-        self._saved_token = self._history_token()
+        self.model_name = model_name
         self._digest: str | None = None
 
-    # ------------------------------------------------------------------ identity
     @property
     def scene_path(self) -> str:
         """The scene folder or .ply, resolved (absolute, symlinks followed); "" when there is none."""
@@ -158,44 +116,6 @@ class SceneSession:
         if self._digest is None and self.source and Path(self.source).exists():
             self._digest = scene_digest(self.source)
         return self._digest
-
-    # ------------------------------------------------------------------ queries
-    @property
-    def cameras(self) -> list:
-        """The scene's input cameras (all frames), empty for a .ply."""
-        return list(self.encoded.all_cameras) if self.encoded is not None else []
-
-    def num_owners(self) -> int:
-        """P for owner maps: particles, or max owner + 1 of a .ply."""
-        return self.ply.num_owners() if self.ply is not None else self.editor.num_particles
-
-    def owner_ids(self) -> list[int]:
-        """The owners >= 0 the scene holds, ascending: every particle, or the distinct owners of a .ply."""
-        return self.ply.owner_ids() if self.ply is not None else list(range(self.editor.num_particles))
-
-    # ------------------------------------------------------------------ Gaussians
-    def gaussians(self) -> Gaussians:
-        """All Gaussians of the current state (particles with edits, plus background)."""
-        return self.ply.gaussians if self.ply is not None else self.editor.decode()
-
-    def objects(self) -> torch.Tensor:
-        """(num_owners,) int64 object label per particle (:meth:`SceneEditor.objects`); a .ply has no
-        particles to group: each owner is its own object."""
-        return self.ply.objects() if self.ply is not None else self.editor.objects()
-
-    def particle_gaussians(self, index: int) -> Gaussians:
-        """The Gaussians of one particle (owner = index), decoded alone (none if it is inactive)."""
-        return self.model.decode(self.particles, torch.tensor([index]), background=False).detach().to("cpu")
-
-    # ------------------------------------------------------------------ files
-    def _history_token(self) -> tuple:
-        undo = self.history.undo
-        return len(undo), id(undo[-1]) if undo else None
-
-    @property
-    def unsaved(self) -> bool:
-        """Edits done since the scene was opened, its edits saved or an edit file loaded."""
-        return self.editable and self._history_token() != self._saved_token
 
     @property
     def name(self) -> str:
@@ -221,22 +141,153 @@ class SceneSession:
         """Where Save edits writes by default: ``FOLDER/FAMILY-NAME-HASH.edits.yaml`` (one file per scene)."""
         return Path(folder) / f"{self.file_key}.edits.yaml"
 
+
+class PlyScene(SceneFiles):
+    """A fixed Gaussian set opened from a .ply: drawn as it is, nothing to edit; each owner id it stores is its
+    own object (a plain 3DGS file stores none: everything is background).
+
+    Args:
+        gaussians: the Gaussians (checked finite; kept on the CPU).
+        source: the .ply path (named in errors).
+    """
+
+    editor: None = None
+    model: None = None
+    context: None = None
+    version = 0
+    unsaved = False
+
+    def __init__(self, gaussians: Gaussians, source: str = "") -> None:
+        super().__init__(source, "")
+        gaussians.check(source or "Gaussians")  # the GL renderer would draw NaN as nothing, or everything
+        self._gaussians = gaussians.detach().to("cpu")
+        self._owner_ids: list[int] | None = None
+
+    @property
+    def cameras(self) -> list[Camera]:
+        return []
+
+    @property
+    def warnings(self) -> list[str]:
+        return []
+
+    def gaussians(self) -> Gaussians:
+        return self._gaussians
+
+    def num_owners(self) -> int:
+        """Max owner + 1 (0 without owners)."""
+        return int(self._gaussians.owner.max()) + 1 if self._gaussians.num else 0
+
+    def owner_ids(self) -> list[int]:
+        """The distinct owners >= 0, ascending."""
+        if self._owner_ids is None:
+            self._owner_ids = [int(o) for o in torch.unique(self._gaussians.owner) if int(o) >= 0]
+        return self._owner_ids
+
+    def objects(self) -> torch.Tensor:
+        """(num_owners,) each owner its own object."""
+        return torch.arange(self.num_owners())
+
+    def take_changes(self) -> set[int] | None:
+        return set()  # a fixed set: nothing ever changes
+
+    def particle_gaussians(self, index: int) -> Gaussians:
+        return self._gaussians.subset(self._gaussians.owner == index)
+
+    def edit_chunk(self) -> str | dict:
+        return {}
+
+    def autosave(self, folder: str | PathLike) -> Path | None:
+        return None
+
+
+class EditableScene(SceneFiles):
+    """A model's scene under edit.
+
+    Args:
+        model: the ParticleSplat model that encoded the scene.
+        encoded: the encoded scene (particles + cameras).
+        model_name: how the model is named in screenshots and edits files.
+        source: the scene folder.
+
+    Attributes:
+        editor: the scene's :class:`SceneEditor` (every edit goes through it).
+    """
+
+    def __init__(self, model: ParticleSplat, encoded: EncodedScene, model_name: str = "", source: str = "") -> None:
+        super().__init__(source, model_name)
+        self.editor = SceneEditor(model, encoded.particles, encoded.all_cameras, encoded.context)
+        self.encoded = encoded
+        self._saved_token = self._history_token()
+
+    # ------------------------------------------------------------------ what is drawn
+    @property
+    def model(self) -> ParticleSplat:
+        return self.editor.model
+
+    @property
+    def cameras(self) -> list[Camera]:
+        return list(self.encoded.all_cameras)
+
+    @property
+    def version(self) -> int:
+        return self.editor.version
+
+    @property
+    def context(self) -> list[int] | None:
+        return self.editor.context
+
+    @property
+    def warnings(self) -> list[str]:
+        return list(self.encoded.warnings)
+
+    def num_owners(self) -> int:
+        """P for owner maps: the particles."""
+        return self.editor.num_particles
+
+    def owner_ids(self) -> list[int]:
+        """Every particle."""
+        return list(range(self.editor.num_particles))
+
+    def gaussians(self) -> Gaussians:
+        """All Gaussians of the current state (particles with edits, plus background)."""
+        return self.editor.decode()
+
+    def objects(self) -> torch.Tensor:
+        """(num_particles,) int64 object label per particle (:meth:`SceneEditor.objects`)."""
+        return self.editor.objects()
+
+    def take_changes(self) -> set[int] | None:
+        return self.editor.take_changes()
+
+    def particle_gaussians(self, index: int) -> Gaussians:
+        """The Gaussians of one particle (owner = index), decoded alone (none if it is inactive)."""
+        ed = self.editor
+        return ed.model.decode(ed.scene.particles, torch.tensor([index]), background=False).detach().to("cpu")
+
+    # ------------------------------------------------------------------ files
+    def _history_token(self) -> tuple:
+        undo = self.editor.history.undo
+        return len(undo), id(undo[-1]) if undo else None
+
+    @property
+    def unsaved(self) -> bool:
+        """Edits done since the scene was opened, its edits saved or an edit file loaded."""
+        return self._history_token() != self._saved_token
+
     def _save(self, path: str | PathLike) -> Path:
-        return self.save(
+        return self.editor.save(
             path, scene=self.scene_path or None, model=self.model_name or None, scene_sha256=self.scene_sha256
         )
 
     def edit_chunk(self) -> str | dict:
-        """The whole edit file of what was done, for a screenshot's ``edits`` chunk (a .ply: no edits)."""
-        if not self.editable:
-            return {}
-        return self.edit_text(
+        return self.editor.edit_text(
             scene=self.scene_path or None, model=self.model_name or None, scene_sha256=self.scene_sha256
         )
 
     def autosave(self, folder: str | PathLike) -> Path | None:
         """Keep unsaved edits (before the scene is replaced or the window closes); returns the file, or None when
-        nothing was unsaved. The session stays unsaved: the user did not save them."""
+        nothing was unsaved. The scene stays unsaved: the user did not save them."""
         if not self.unsaved:
             return None
         path = self.autosave_path(folder)
@@ -267,16 +318,14 @@ class SceneSession:
 
     def load_edits(self, path: str | PathLike) -> str | None:
         """Do the operations of an edit file (version 1: one operation setting the particles' values).
-        Returns a warning when the file names another scene or other context frames, else None."""
+        Returns a warning when the file names another scene or other context frames, or leaves an object below its
+        support, else None."""
         file = load_edit_file(path)
-        self.end_gesture()
+        self.editor.end_gesture()
         if file.version == 2:
-            self.apply_file(file, str(path))
+            self.editor.apply_file(file, str(path))
         else:
-            self.set_edits(file.particles, label=f"load {Path(path).name}")
+            self.editor.set_edits(file.particles, label=f"load {Path(path).name}")
         self._saved_token = self._history_token()
-        return scene_mismatch(file, self.source, self.context) if self.source else None
-
-
-for _name in EDITOR_API:
-    setattr(SceneSession, _name, _pass_on(_name))
+        notes = [scene_mismatch(file, self.source, self.editor.context) if self.source else None]
+        return "; ".join(n for n in notes + self.editor.sunk_objects() if n) or None

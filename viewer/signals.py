@@ -15,6 +15,7 @@ import os
 import signal
 import threading
 from collections.abc import Callable
+from typing import Any
 
 from particlesplat.core.errors import Interrupted
 
@@ -43,7 +44,7 @@ class SignalStop:
     def __init__(self, wake: Callable[[], None]) -> None:
         self.signum: int | None = None
         self._wake = wake
-        self._old_handlers: dict[int, object] = {}
+        self._old_handlers: dict[int, Any] = {}  # what signal.signal returned: a handler, SIG_DFL or None
         self._old_fd = -1
         self._pipe: tuple[int, int] | None = None
         self._thread: threading.Thread | None = None
@@ -85,6 +86,8 @@ class SignalStop:
         for s, old in self._old_handlers.items():
             signal.signal(s, old)
         signal.set_wakeup_fd(self._old_fd)
+        if self._pipe is None:
+            return
         r, w = self._pipe
         os.close(w)
         if self._thread is not None:

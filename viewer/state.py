@@ -35,6 +35,7 @@ class ViewState:
 
     Attributes:
         selected: selected particle index or None.
+        previous: the particle selected before it (what Merge joins the selection with), or None.
         hidden: particle indices hidden by their visibility toggle.
         solo: a particle shown alone (plus the background unless hidden), or None.
         seg_mode: a :class:`SegMode` (its label string is accepted and converted).
@@ -44,9 +45,13 @@ class ViewState:
         overlay: show the frame-time / count overlay.
         panel: show the ImGui panel.
         moving_scale: render scale while the camera or a particle is being dragged.
+        gizmo_scale: the gizmo shows its scale handles instead of its move handles.
+        ruler: a click picks a ruler point (:mod:`viewer.tools.ruler`) instead of selecting; ruler_points: its
+            points (world metres, at most two).
     """
 
     selected: int | None = None
+    previous: int | None = None
     hidden: set[int] = field(default_factory=set)
     solo: int | None = None
     seg_mode: SegMode = SegMode.NORMAL
@@ -55,10 +60,15 @@ class ViewState:
     overlay: bool = True
     panel: bool = True
     moving_scale: float = 0.5
+    gizmo_scale: bool = False
+    ruler: bool = False
+    ruler_points: list[tuple[float, float, float]] = field(default_factory=list)
 
     def __setattr__(self, name, value) -> None:
         if name == "seg_mode":
             value = SegMode(value)  # a label that is no mode raises ValueError here, not a silent normal view
+        if name == "selected" and value is not None and getattr(self, "selected", None) not in (None, value):
+            super().__setattr__("previous", self.selected)
         super().__setattr__(name, value)
 
     def visible_owners(self, owners: int | Iterable[int]) -> list[int]:

@@ -42,13 +42,12 @@ from particlesplat.core.sh import SH_C0
 from particlesplat.data.scene import SceneFormatError
 from particlesplat.data.scene_meta import read_scene_json
 from particlesplat.editing.grouping import (
-    dense_objects,
     drawing_particles,
     object_centres,
-    particle_objects,
     weighted_stats,
 )
 from particlesplat.editing.move import anchor_points
+from particlesplat.editing.scene_objects import SceneObjects
 from particlesplat.model import Particles, ParticleSplat
 
 FORMAT_VERSION = 1
@@ -231,9 +230,11 @@ def particle_arrays(
     *,
     object_centre: ObjectCentre = "resting",
     meta: dict | None = None,
+    objects: SceneObjects | None = None,
 ) -> ParticleArrays:
     """The arrays of already-encoded ``particles`` (``gaussians``: their decode with the background, decoded
-    here when None). ``meta`` is merged into the recorded metadata."""
+    here when None). ``meta`` is merged into the recorded metadata. ``objects``: the particles' objects when a
+    user regrouped them (an editor's, :meth:`SceneEditor.objects`), else grouped here."""
     if gaussians is None:
         gaussians = model.decode(particles)
     g = gaussians.detach().to("cpu")
@@ -247,9 +248,12 @@ def particle_arrays(
     colour = torch.zeros(P, 3, dtype=torch.float64).index_add_(0, g.owner[fg], w[:, None] * dc[fg])
     colour = torch.where(total[:, None] > 0, colour / torch.where(total > 0, total, 1.0)[:, None], 0.0)
     active = drawing_particles(p, g, model.config.bg_mask_threshold)
-    objects = dense_objects(particle_objects(g, P), active)
-    num_objects = int(objects.max()) + 1 if bool((objects >= 0).any()) else 0
-    obj_centre, obj_extent = object_centres(g, objects, num_objects, object_centre)
+    if objects is None:
+        labels = SceneObjects.group(p, g, model.config.bg_mask_threshold).labels
+    else:  # a particle that draws nothing (a removed object's) is in none
+        labels = SceneObjects(torch.where(active, objects.labels[:P].cpu(), -1)).dense().labels
+    num_objects = int(labels.max()) + 1 if bool((labels >= 0).any()) else 0
+    obj_centre, obj_extent = object_centres(g, labels, num_objects, object_centre)
     anchor = anchor_points(p, list(range(P)), model.config).double()
     K = torch.stack([c.K for c in p.cameras]).double()
     c2w = torch.stack([c.c2w for c in p.cameras]).double()
@@ -278,7 +282,7 @@ def particle_arrays(
         extent=f32(extent),
         colour=f32(colour),
         active=active.numpy().astype(bool),
-        object=objects.numpy().astype(np.int64),
+        object=labels.numpy().astype(np.int64),
         object_centroid=f32(obj_centre).reshape(num_objects, 3),
         object_extent=f32(obj_extent).reshape(num_objects, 3),
         K=f32(K),
@@ -379,7 +383,6 @@ def object_localisation(
     :func:`particle_objects` labels (computed when None)."""
     g = gaussians.detach().to("cpu")
     p = particles.detach().to("cpu")
-    groups = particle_objects(g, p.num) if groups is None else groups.cpu()
-    objects = dense_objects(groups, drawing_particles(p, g, model.config.bg_mask_threshold))
+    objects = SceneObjects.group(p, g, model.config.bg_mask_threshold, groups).labels
     K = int(objects.max()) + 1 if bool((objects >= 0).any()) else 0
     return {m: nearest_distances(truth, object_centres(g, objects, K, m)[0].numpy()).tolist() for m in OBJECT_CENTRES}

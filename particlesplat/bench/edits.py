@@ -1,14 +1,16 @@
 """``particlesplat bench edits``: edit fidelity against ground truth (the uORF scene-manipulation protocol).
 
 For each held-out tabletop scene the generator draws ground-truth pairs from one scene: one object
-translated on the floor by 0.2-0.45 m, the same object removed, and a copy of it placed elsewhere on the
-floor. With ``--data`` the ground truth is instead read from disk, where a generator wrote it beside each
-test scene (``edits.json`` and ``edits/{move,remove}/``: the robot family's test split, one object moved by
-0.10-0.20 m on the table and the same object removed, simulated and rendered from the scene's cameras).
+translated on the floor by 0.2-0.45 m, the same object removed, a copy of it placed elsewhere on the
+floor, and (where it stays clear of the others) the object at 1.5 times its size, resting on the floor.
+With ``--data`` the ground truth is instead read from disk, where a generator wrote it beside each test scene
+(``edits.json`` and ``edits/{move,remove}/``: the robot family's test split, one object moved by 0.10-0.20 m
+on the table and the same object removed, simulated and rendered from the scene's cameras).
 
 The original's context views are encoded; the edit is applied as the viewer applies it (pick the object by
 the most interior pixel of its ground-truth mask in the context frame where it is largest, take its object
-group, translate by the true displacement in world metres; remove; duplicate by the true offset); every
+group, translate by the true displacement in world metres; remove; duplicate by the true offset; scale 1.5
+times about its resting centre); every
 other input view is rendered and compared with the simulator's image of the edited scene. PSNR is taken over
 
 - ``changed``: the object's old and new ground-truth masks, dilated by ``--dilate`` pixels;
@@ -42,6 +44,7 @@ from particlesplat.analysis.metrics import psnr_of_mse
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.errors import OptionError, short_repr
 from particlesplat.core.options import HelpFormatter
+from particlesplat.core.vectors import float3
 from particlesplat.data.families import CHECKPOINT_HELP, tabletop
 from particlesplat.data.scene import Scene, SceneFormatError, read_scene
 from particlesplat.data.scene_meta import default_checkpoint, read_scene_json
@@ -57,7 +60,8 @@ if TYPE_CHECKING:
     from particlesplat.model.particles import Particles
     from particlesplat.model.particlesplat import ParticleSplat
 
-KINDS = ("move", "remove", "duplicate")
+KINDS = ("move", "remove", "duplicate", "scale")
+SCALE = 1.5  # the scale edit: the object at 1.5 times its size, resting on the floor
 REGIONS = ("changed", "vacated", "view")
 VARIANTS = ("edit", "noop", "ceiling")
 MOVE_RANGE = (0.2, 0.45)  # metres on the floor
@@ -79,10 +83,17 @@ def _moved(obj: tabletop.TabletopObject, dx: float, dy: float) -> tabletop.Table
     return replace(obj, center=(obj.center[0] + dx, obj.center[1] + dy, obj.center[2]))
 
 
+def _scaled(obj: tabletop.TabletopObject, factor: float) -> tabletop.TabletopObject:
+    """``obj`` ``factor`` times its size, still resting on the floor (its centre's height is its half height)."""
+    x, y, z = obj.center
+    return replace(obj, center=(x, y, z * factor), size=float3(s * factor for s in obj.size))
+
+
 def edit_pairs(seed: int, split: str, index: int, res: int, context: list[int]) -> dict | None:
-    """The ground-truth scenes of one held-out scene: original, moved, removed, duplicated, with the edited
-    object, the move and copy offsets (metres), and the pick (a context-frame pixel deep inside the
-    object's ground-truth mask). None if no object can be moved and copied cleanly."""
+    """The ground-truth scenes of one held-out scene: original, moved, removed, duplicated and (where it stays
+    clear of the others) scaled :data:`SCALE` times, with the edited object, the move and copy offsets (metres),
+    and the pick (a context-frame pixel deep inside the object's ground-truth mask). None if no object can be
+    moved and copied cleanly."""
     scene = tabletop.sample_scene(scene_rng(seed, split, index))
     rng = np.random.default_rng(np.random.SeedSequence([seed, 7, index]))
     from particlesplat.data.synth import scene_cameras
@@ -116,7 +127,7 @@ def edit_pairs(seed: int, split: str, index: int, res: int, context: list[int]) 
                 break
         if move is None or dup is None:
             continue
-        return {
+        pairs = {
             "original": scene,
             "object": k,
             "pick": pick,
@@ -125,6 +136,10 @@ def edit_pairs(seed: int, split: str, index: int, res: int, context: list[int]) 
             "remove": replace(scene, objects=list(others)),
             "duplicate": replace(scene, objects=scene.objects + [_moved(obj, *dup)]),
         }
+        grown = _scaled(obj, SCALE)  # no draw from the generator: the other edits keep their scenes
+        if _fits(grown, others):
+            pairs["scale"] = replace(scene, objects=others[:k] + [grown] + others[k:])
+        return pairs
     return None
 
 
@@ -200,7 +215,7 @@ def bench_scene(
     if pairs is None:
         return None
     folders = {}
-    for name in ("original", *KINDS):
+    for name in ("original", *(k for k in KINDS if k in pairs)):
         folders[name] = work / f"{index:05d}_{name}"
         if not folders[name].is_dir():
             write_tabletop(
@@ -297,7 +312,7 @@ def score_scene(
         gt = gt_scene.rgb
         gt_masks = _scored_masks(gt_scene, truth.folders[kind])
         old = orig_masks == k
-        new = gt_masks == {"move": k, "remove": -1, "duplicate": truth.copy}[kind]
+        new = gt_masks == {"move": k, "remove": -1, "duplicate": truth.copy, "scale": k}[kind]
         if kind == "duplicate":
             old = torch.zeros_like(old)  # the original stays: only the copy's place changes
         regions = {
@@ -314,6 +329,8 @@ def score_scene(
                 editor.move_object(label, [dx, dy, 0.0])
             elif kind == "remove":
                 editor.remove_object(label)
+            elif kind == "scale":
+                editor.scale_object(label, SCALE)
             else:
                 editor.duplicate_object(label, [dx, dy, 0.0])
         except (PickError, MoveError) as e:
@@ -340,17 +357,18 @@ def score_scene(
 
 
 def summarise(rows: list[dict]) -> dict:
-    """Mean over scenes of the per-scene PSNR: {kind: {variant: {region: dB}}}; vacated is not defined for
-    duplicate (nothing leaves)."""
+    """Mean over the scenes that have each edit of the per-scene PSNR: {kind: {variant: {region: dB}}, "scenes":
+    how many}; vacated is not defined for duplicate (nothing leaves) nor for a grown object."""
     table: dict = {}
-    for kind in (k for k in KINDS if all(k in r for r in rows)):
-        table[kind] = {}
+    for kind in (k for k in KINDS if any(k in r for r in rows)):
+        have = [r for r in rows if kind in r]
+        table[kind] = {"scenes": len(have)}
         for variant in VARIANTS:
             table[kind][variant] = {}
             for region in REGIONS:
-                vals = [r[kind][variant][region]["psnr"] for r in rows if r[kind]["pixels"][region] > 0]
+                vals = [r[kind][variant][region]["psnr"] for r in have if r[kind]["pixels"][region] > 0]
                 table[kind][variant][region] = float(np.mean(vals)) if vals else float("nan")
-        table[kind]["failed"] = sum(r[kind]["status"] != "ok" for r in rows)
+        table[kind]["failed"] = sum(r[kind]["status"] != "ok" for r in have)
     return table
 
 
@@ -362,10 +380,12 @@ def format_table(table: dict, n: int) -> str:
     ]
     for kind in (k for k in KINDS if k in table):
         for region in REGIONS:
-            if kind == "duplicate" and region == "vacated":
+            if kind in ("duplicate", "scale") and region == "vacated":
                 continue
             e, o, c = (table[kind][v][region] for v in VARIANTS)
             lines.append(f"{kind:<10} {region:<8} {e:6.2f} {o:6.2f} {c:7.2f} {c - e:6.2f}")
+        if table[kind]["scenes"] < n:
+            lines.append(f"{kind:<10} on {table[kind]['scenes']} of the {n} scenes (the others have no room for it)")
         if table[kind]["failed"]:
             lines.append(f"{kind:<10} {table[kind]['failed']} edit(s) failed (pick or move refused; scored unedited)")
     return "\n".join(lines)

@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
             if scene is not None:
                 from particlesplat.analysis.particle_arrays import particle_arrays
 
-                arrays = particle_arrays(scene.model, scene.particles)
+                arrays = particle_arrays(scene.model, scene.particles, objects=scene.objects)  # user groups win
             parts = bundle_parts(g, args.by, arrays)
             header = (
                 bundle_header(source, None)

@@ -166,7 +166,7 @@ def _scene_and_gaussians(args: argparse.Namespace):
     if set(getattr(args, "mode", ("rgb",))) & set(NEEDS_PARTICLES):
         from particlesplat.analysis.particle_arrays import particle_arrays
 
-        arrays = particle_arrays(model, particles, g)
+        arrays = particle_arrays(model, particles, g, objects=scene.objects)  # the user's groups win
     return g, enc.all_cameras, edits, name, str(enc.path), scene_background(model), arrays
 
 

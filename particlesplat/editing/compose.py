@@ -30,12 +30,10 @@ from particlesplat.core.errors import OptionError
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.world import SUPPORT_Z
 from particlesplat.editing.grouping import (
-    dense_objects,
-    drawing_particles,
     members_centre,
-    particle_objects,
 )
 from particlesplat.editing.move import MoveError, translate
+from particlesplat.editing.scene_objects import SceneObjects
 from particlesplat.model import Particles, ParticleSplat
 
 LATENTS = ("z_e", "z_t", "z_f")  # copied as they are
@@ -44,9 +42,8 @@ PLACE_TOLERANCE = 0.002  # metres: centre corrections stop below this
 
 def scene_objects(model: ParticleSplat, particles: Particles, gaussians: Gaussians | None = None) -> Tensor:
     """(P,) int64 object index 0..K-1 of each drawing particle, -1 for the others (as ``particlesplat encode``)."""
-    g = (model.decode(particles) if gaussians is None else gaussians).detach().to("cpu")
-    p = particles.detach().to("cpu")
-    return dense_objects(particle_objects(g, p.num), drawing_particles(p, g, model.config.bg_mask_threshold))
+    g = model.decode(particles) if gaussians is None else gaussians
+    return SceneObjects.group(particles, g, model.config.bg_mask_threshold).labels
 
 
 def object_members(model: ParticleSplat, particles: Particles, index: int) -> list[int]:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from particlesplat.editing.open_scene import EncodedScene, load_model_scene
+from particlesplat.editing.scene_objects import SceneObjects
 from particlesplat.model import Particles, ParticleSplat
 
 
@@ -24,7 +25,10 @@ class EditedScene:
         particles: the particles after the edits.
         edits: the edit file as replayed (its YAML text, for a PNG's ``edits`` chunk), or {} without one.
         model_name: the checkpoint's name for metadata.
-        warnings: what the user should know (the scene's own warnings, an edit file made on another scene).
+        warnings: what the user should know (the scene's own warnings, an edit file made on another scene, an
+            object it left below its support).
+        objects: the particles' objects as the edits left them (merges and splits win over the grouping), or
+            None without edits (then grouped as encoded).
     """
 
     model: ParticleSplat
@@ -33,6 +37,7 @@ class EditedScene:
     edits: str | dict
     model_name: str
     warnings: list[str] = field(default_factory=list)
+    objects: SceneObjects | None = None
 
 
 def open_edited_scene(
@@ -65,7 +70,7 @@ def open_edited_scene(
             context = ",".join(str(int(c)) for c in file.context)
     model, enc, name = load_model_scene(checkpoint, scene, context)
     warnings = list(enc.warnings)
-    particles = enc.particles
+    particles, objects = enc.particles, None
     text: str | dict = {}  # for png_text: the edit file's text, {} (no edits) without one
     if file is not None:
         mismatch = scene_mismatch(file, enc.path, enc.context)
@@ -75,6 +80,7 @@ def open_edited_scene(
 
         editor = SceneEditor(model, particles, enc.all_cameras, enc.context)
         editor.apply_file(file, where)
-        particles = editor.particles
+        warnings += [f"{where}: {line}" for line in editor.sunk_objects()]  # allowed, but never silently
+        particles, objects = editor.particles, SceneObjects(editor.objects())
         text = editor.edit_text(scene=resolved(enc.path), model=name, scene_sha256=scene_digest(enc.path))
-    return EditedScene(model, enc, particles, text, name, warnings)
+    return EditedScene(model, enc, particles, text, name, warnings, objects)

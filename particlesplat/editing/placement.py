@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 import torch
 
-from particlesplat.editing.grouping import dense_objects, drawing_particles, object_centres, particle_objects
+from particlesplat.editing.grouping import object_centres
+from particlesplat.editing.scene_objects import SceneObjects
 from particlesplat.model import Particles, ParticleSplat
 
 FOOTPRINT_SIGMAS = 2.0  # an object's footprint radius: this many standard deviations of its Gaussians in x, y
@@ -34,7 +35,7 @@ def footprints(model: ParticleSplat, particles: Particles, members: list[int] | 
     g = model.decode(particles).detach().to("cpu")
     p = particles.detach().to("cpu")
     if members is None:
-        objects = dense_objects(particle_objects(g, p.num), drawing_particles(p, g, model.config.bg_mask_threshold))
+        objects = SceneObjects.group(p, g, model.config.bg_mask_threshold).labels
     else:
         objects = torch.full((p.num,), -1, dtype=torch.int64)
         objects[members] = 0

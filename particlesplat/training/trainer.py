@@ -19,12 +19,10 @@ from typing import Any
 
 import torch
 import torch.distributed as dist
-from torch import Tensor
 from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from particlesplat.core.atomic import atomic_path, atomic_write, stale_temporaries
-from particlesplat.core.camera import Camera
 from particlesplat.core.device import resolve_device
 from particlesplat.core.errors import Interrupted, OptionError, UserError, one_line, short_repr
 from particlesplat.core.gaussians import BadGaussiansError
@@ -36,11 +34,10 @@ from particlesplat.data.views import WARMUP
 from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig, read_checkpoint, save_checkpoint
 from particlesplat.model.config import ConfigError, config_to_dict, stored_model_config, stored_train_config
 from particlesplat.model.io import check_model_memory
-from particlesplat.model.losses import elbo, scene_kl, view_error
 from particlesplat.model.provenance import Provenance, RunClock
 from particlesplat.model.static_background import WorkspaceBackground
-from particlesplat.rendering.api import render_batch
 from particlesplat.training.eta import StepTimes
+from particlesplat.training.loss import training_loss
 from particlesplat.training.runlog import LogReader, read_log
 
 LAST = "last.pt"
@@ -87,91 +84,6 @@ def _is_checkpoint(name: str) -> bool:
     tmp = re.match(r"^\.(.+)\.\d+\.[0-9a-f]{8}\.tmp", name)
     name = tmp.group(1) if tmp else name
     return name in (LAST, "best.pt") or bool(STEP_FILE.match(name))
-
-
-def render_views(
-    gaussians: list, K: Tensor, c2w: Tensor, size: int, background: Tensor, foreground: bool = False
-) -> tuple[Tensor, Tensor, Tensor | None]:
-    """Render B scenes in their views in one rasterizer pass.
-
-    gaussians: B sets; K: (B, V, 3, 3); c2w: (B, V, 4, 4); background: (3,) RGB behind the Gaussians
-    (differentiable) -> rgb (B, V, 3, H, W), depth (B, V, 1, H, W), and with ``foreground`` the particles'
-    weight (B, V, 1, H, W) (else None).
-    """
-    B, V = K.shape[:2]
-    views = [(g, Camera(K[b, v], c2w[b, v], size, size)) for b, g in enumerate(gaussians) for v in range(V)]
-    res = render_batch(views, background=background, foreground=foreground)
-    rgb = torch.stack([r.rgb.permute(2, 0, 1) for r in res])
-    depth = torch.stack([r.depth[None] for r in res])
-    fg = torch.stack([r.require_foreground()[None] for r in res]).reshape(B, V, 1, size, size) if foreground else None
-    return rgb.reshape(B, V, 3, size, size), depth.reshape(B, V, 1, size, size), fg
-
-
-def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float) -> Tensor:
-    """Squared error of the particles' weight against what the static background layer cannot explain.
-
-    fg: (M, 1, H, W) rendered particle weight; bg_error: (M, 1, H, W) the layer's own error per pixel
-    (:meth:`ParticleSplat.static_background_error` with ``block=1``). The target is 1 where that error is
-    at least ``threshold`` (an object stands there) and 0 elsewhere. Returns (M,) per-view sums over the pixels.
-    """
-    target = (bg_error >= threshold).to(fg.dtype)
-    return ((fg - target) ** 2).flatten(1).sum(1)
-
-
-def training_loss(
-    model: ParticleSplat | DistributedDataParallel,
-    batch: TrainingBatch,
-    tc: TrainConfig,
-    size: int,
-    cfg: ModelConfig,
-    beta_fg: float | None = None,
-) -> tuple[dict[str, Tensor], Tensor]:
-    """Negative ELBO of a batch. ``beta_fg``: the foreground term's weight at this step (default
-    ``tc.beta_fg``; 0 leaves the term out). Returns the loss parts and the target-view renders
-    (B, T, 3, H, W) (or context renders when there are no targets)."""
-    beta_fg = tc.beta_fg if beta_fg is None else beta_fg
-    post, z, gaussians = model(
-        batch.context_rgb, batch.context_depth, batch.context_K, batch.context_c2w, sample=True, pose=batch.pose
-    )
-    C = batch.context_rgb.shape[1]
-    K = torch.cat([batch.context_K, batch.target_K], 1)
-    c2w = torch.cat([batch.context_c2w, batch.target_c2w], 1)
-    net = model.module if isinstance(model, DistributedDataParallel) else model
-    rgb_hat, depth_hat, fg_hat = render_views(gaussians, K, c2w, size, z["bg_color"], beta_fg > 0)
-    gt_rgb = torch.cat([batch.context_rgb, batch.target_rgb], 1)
-    gt_depth = torch.cat([batch.context_depth, batch.target_depth], 1)
-    B, V = gt_rgb.shape[:2]
-    sup = torch.cat([torch.ones_like(batch.context_depth), batch.target_supervision], 1)
-    err = view_error(
-        rgb_hat.flatten(0, 1),
-        gt_rgb.flatten(0, 1),
-        depth_hat.flatten(0, 1),
-        gt_depth.flatten(0, 1),
-        sup.flatten(0, 1),
-        tc.lambda_depth,
-    ).reshape(B, V)
-    kl = scene_kl(post, z["z_t"], cfg, tc.beta_f)
-    parts = elbo(err[:, :C], err[:, C:] if V > C else None, kl, z["z_t"], tc)
-    if fg_hat is not None:  # particles cover what the floor layer cannot explain, and nothing else
-        # the context views' error is the one the encoder computed (no depth on a step that drops it)
-        bg_err = post.bg_error
-        if V > C:
-            rgb_t, depth_t, K_t, c2w_t = (
-                t.flatten(0, 1) for t in (batch.target_rgb, batch.target_depth, batch.target_K, batch.target_c2w)
-            )
-            pose_t = None if batch.pose is None else batch.pose.repeat_interleave(V - C, 0)
-            tgt_err = net.static_background_error(rgb_t, depth_t, K_t, c2w_t, block=1, pose=pose_t)
-            tgt_err = tgt_err.reshape(B, V - C, 1, size, size)
-            bg_err = torch.cat([bg_err, tgt_err], 1)
-        fg_err = foreground_error(fg_hat.flatten(0, 1), bg_err.flatten(0, 1), tc.fg_threshold)
-        parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
-        parts["loss"] = parts["loss"] + beta_fg * parts["fg"]
-    shown = rgb_hat[:, C:] if V > C else rgb_hat
-    target = gt_rgb[:, C:] if V > C else gt_rgb
-    with torch.no_grad():
-        parts["psnr"] = -10.0 * torch.log10(((shown.clamp(0, 1) - target) ** 2).mean().clamp_min(1e-10))
-        parts["active"] = (z["z_t"] > cfg.bg_mask_threshold).float().sum(1).mean()
-    return parts, shown
 
 
 @contextmanager

@@ -19,11 +19,15 @@ import time
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 
 from particlesplat.core.camera import Camera
+
+if TYPE_CHECKING:
+    import moderngl
 
 REQUIRED = ("renderer_ogl.py", "util.py", "util_gau.py", "shaders/gau_vert.glsl", "shaders/gau_frag.glsl")
 SH_BASES = 16  # its .ply reader asserts SH degree 3
@@ -92,8 +96,8 @@ class PeerSplatter:
         self.gl = importlib.import_module("OpenGL.GL")
         self.workdir = Path(workdir)
         self.size = (0, 0)
-        self._fbo = None
-        self._renderer = None
+        self._fbo: moderngl.Framebuffer | None = None
+        self._renderer: Any = None  # the peer's OpenGLRenderer (its own module: untyped)
         self._camera = None
         self._num = 0
 
@@ -137,7 +141,7 @@ class PeerSplatter:
         from viewer.gl.renderer import FrameTimes
 
         gl = self.gl
-        if self.size != (camera.width, camera.height):
+        if self._fbo is None or self.size != (camera.width, camera.height):
             if self._fbo is not None:
                 self._fbo.release()
             self._fbo = self.ctx.simple_framebuffer((camera.width, camera.height), components=4)
@@ -180,6 +184,8 @@ class PeerSplatter:
         """The last frame: (H, W, 3) float32 in [0, 1], image rows top down (drawn over black; a
         background other than black is not supported: the peer blends its colour straight)."""
         w, h = self.size
+        if self._fbo is None:
+            raise RuntimeError("PeerSplatter.read_rgb: nothing rendered yet")
         raw = np.frombuffer(self._fbo.read(components=3), np.uint8).reshape(h, w, 3)[::-1]
         return raw.astype(np.float32) / 255.0
 

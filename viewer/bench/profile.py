@@ -92,7 +92,7 @@ def profile_case(ctx, renderer, cameras, window: tuple[int, int], num_owners: in
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .run import RANDOM_DISTANCE, RANDOM_ELEVATION, RANDOM_FOV, build_parser, orbit_cameras
+    from .run import EGL, RANDOM_DISTANCE, RANDOM_ELEVATION, RANDOM_FOV, build_parser, orbit_cameras
 
     p = build_parser()
     p.prog = "particlesplat bench viewer --profile"
@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
 
     moving = args.moving_scale or ViewState().moving_scale
     paths = [v.strip() for v in args.compositing.split(",") if v.strip()]
-    ctx = moderngl.create_standalone_context(backend="egl")
+    ctx = moderngl.create_standalone_context(**EGL)
     renderers = [SplatRenderer(ctx, primitive=args.primitive, compositing=v) for v in paths]  # the viewer's target
     cases = []
     for n in [int(v) for v in args.sizes.split(",") if v.strip()]:
@@ -119,12 +119,12 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_scene:
         from particlesplat.editing.open_scene import load_model_scene
 
-        from ..session import SceneSession
+        from ..session import EditableScene
 
         scenes = [None] if args.scenes is None else [v.strip() for v in args.scenes.split(",") if v.strip()]
         for scene in scenes:
             model, enc, _ = load_model_scene(args.checkpoint, scene)
-            g = SceneSession(model, enc).gaussians()
+            g = EditableScene(model, enc).gaussians()
             g = g.subset(g.opacities >= DEFAULT_PRUNE)
             name = f"scene {os.path.basename(str(enc.path))}"
             cases.append((name, g, default_view(enc.all_cameras), int(g.owner.max()) + 1))

@@ -22,7 +22,7 @@ import os
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,8 +32,8 @@ if TYPE_CHECKING:  # the GL modules load only when the benchmark runs
     from particlesplat.core.camera import Camera
     from particlesplat.core.viewpoints import View
 
-    from ..gl.renderer import SplatRenderer
-    from ..session import SceneSession
+    from ..gl.renderer import FrameTimes, SplatRenderer
+    from ..session import EditableScene
 
 DEFAULT_SIZES = (20000, 100000)
 RANDOM_DISTANCE, RANDOM_FOV = 3.0, 90.0  # the peer's default camera
@@ -173,10 +173,11 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+EGL: dict[str, Any] = {"backend": "egl"}  # a headless context (moderngl's stub types its settings oddly)
 BACKGROUND = (0.1, 0.1, 0.1)  # what our frames are presented over (the viewer's default is dark)
 
 
-def _frame(r, camera: Camera, window) -> tuple[object, float]:
+def _frame(r, camera: Camera, window) -> tuple[FrameTimes, float]:
     """One frame of drawer ``r``: ours renders and presents with its blit into ``window`` (a window-sized RGBA8
     framebuffer), the peer draws (into its own RGBA8 framebuffer), both up to ``glFinish`` (ours also before the
     blit, to time it alone: llvmpipe does not overlap the two). Returns the drawer's FrameTimes and the ms of the
@@ -196,7 +197,8 @@ def _time_frames(drawers: list, cameras: list[Camera], window, full: list[Camera
     ``window`` (:func:`_frame`). The drawers take turns on every camera (in alternating order), so a change of
     load on a shared machine falls on all of them alike. ``full``: the same poses at full size, drawn by drawers
     without a render scale (the peer)."""
-    times = [([], [], [], [], [], []) for _ in drawers]  # sort, upload, project, draw, total, blit
+    times: list[tuple[list[float], ...]] = [([], [], [], [], [], []) for _ in drawers]  # sort, upload, project,
+    # draw, total, blit
     pick = lambda r, k: (full or cameras)[k] if r.compositing == "limacv" else cameras[k]  # noqa: E731
     for r in drawers:
         _frame(r, pick(r, 0), window)  # warm-up: shader compile, first upload
@@ -214,7 +216,11 @@ def _time_frames(drawers: list, cameras: list[Camera], window, full: list[Camera
         Row(
             "",
             r.visible_count,
-            *(med(v) for v in series[:5]),
+            sort_ms=med(series[0]),
+            upload_ms=med(series[1]),
+            project_ms=med(series[2]),
+            draw_ms=med(series[3]),
+            frame_ms=med(series[4]),
             blit_ms=med(series[5]),
             area_mpx=r.splat_area() / 1e6,
             primitive=r.kind,
@@ -269,7 +275,7 @@ def orbit_cameras(view: View, width: int, height: int, frames: int) -> list[Came
 
 
 def edit_latency(
-    renderer: SplatRenderer, session: SceneSession, view: View, width: int, height: int, steps: int = 20
+    renderer: SplatRenderer, session: EditableScene, view: View, width: int, height: int, steps: int = 20
 ) -> float:
     """Median ms from a z_p change of one particle to the finished frame (decode, upload, sort, draw)."""
     from ..scene_view import SceneView
@@ -279,15 +285,16 @@ def edit_latency(
     state = ViewState()
     cam = view.camera(width, height)
     sv.draw(session, state, cam, finish=True)
-    index = max(range(session.num_particles), key=lambda i: float(session.particles.z_t[i, 0]))
+    editor = session.editor
+    index = max(range(editor.num_particles), key=lambda i: float(editor.particles.z_t[i, 0]))
     times = []
     for k in range(steps):
-        zp = session.value(index, "z_p")
+        zp = editor.value(index, "z_p")
         t0 = time.perf_counter()
-        session.set_attribute(index, "z_p", [zp[0] + (0.01 if k % 2 == 0 else -0.01), zp[1]], gesture="bench")
+        editor.set_attribute(index, "z_p", [zp[0] + (0.01 if k % 2 == 0 else -0.01), zp[1]], gesture="bench")
         sv.draw(session, state, cam, finish=True)
         times.append((time.perf_counter() - t0) * 1e3)
-    session.end_gesture()
+    editor.end_gesture()
     return float(np.median(times))
 
 
@@ -407,7 +414,7 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    ctx = moderngl.create_standalone_context(backend="egl", **({"require": 430} if args.peer else {}))
+    ctx = moderngl.create_standalone_context(430, **EGL) if args.peer else moderngl.create_standalone_context(**EGL)
     renderers: dict[str, SplatRenderer] = {}
     peer = None
     try:
@@ -427,7 +434,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     renderer = next(iter(renderers.values()))
     window = ctx.simple_framebuffer((args.width, args.height), components=4)  # what our frames are presented into
-    drawers = [*renderers.values(), *([peer] if peer else [])]
+    drawers: list[Any] = [*renderers.values(), *([peer] if peer else [])]  # ours and the peer: one interface
     load0 = os.getloadavg()
     rows: list[Row] = []
 
@@ -457,14 +464,14 @@ def main(argv: list[str] | None = None) -> int:
     for k, scene in enumerate(_scenes(args)):
         from particlesplat.editing.open_scene import load_model_scene
 
-        from ..session import SceneSession
+        from ..session import EditableScene
 
         try:
             model, enc, _ = load_model_scene(args.checkpoint, scene)
         except (OSError, ValueError) as e:  # reported after the table, exit status 1
             failure = f"scene {scene} not measured: {e}"
             continue
-        session = SceneSession(model, enc)
+        session = EditableScene(model, enc)
         g = session.gaussians()
         g = g.subset(g.opacities >= DEFAULT_PRUNE)  # what the viewer draws by default
         view = default_view(enc.all_cameras)

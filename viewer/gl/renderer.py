@@ -31,7 +31,7 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, TypeVar
 
 import moderngl
 import numpy as np
@@ -45,6 +45,16 @@ from particlesplat.rendering.projection import DILATION, FOV_MARGIN
 
 from .caps import Compositing, GLCaps, probe, shader_constants
 from .depth_sort import DepthSorter, SortDevice, resolve_sort_device
+
+T = TypeVar("T")
+
+
+def _made(resource: T | None, what: str) -> T:
+    """A GL resource made earlier (:meth:`SplatRenderer.set_gaussians`, the target's size); RuntimeError if not."""
+    if resource is None:
+        raise RuntimeError(f"SplatRenderer: no {what} yet (set the Gaussians and render first)")
+    return resource
+
 
 ROW = 512  # Gaussians per row of the data and projection textures (fewer if the texture size needs it)
 ID_ATTACHMENTS = 8  # float attachments of the id pass: 3 owners each (core GL 3.3 guarantees 8)
@@ -252,7 +262,7 @@ class SplatRenderer:
         self._filter_version = 0
         self._index_buf: moderngl.Buffer | None = None
         self._order_tex: moderngl.Texture | None = None
-        self._vaos: dict[str, moderngl.VertexArray] = {}
+        self._vaos: dict[tuple[str, str | int], moderngl.VertexArray] = {}
         self._drawn = 0
         self._key: tuple | None = None  # (view, data, filter) of the current sort + projection
         # targets
@@ -329,7 +339,7 @@ class SplatRenderer:
         block = np.zeros(((r1 - r0) * row, texels, 4), np.float32)
         part = self._packed[r0 * row : r1 * row]
         block[: part.shape[0]] = part
-        self._data_tex.write(block.tobytes(), viewport=(0, r0, row * texels, r1 - r0))
+        _made(self._data_tex, "data texture").write(block.tobytes(), viewport=(0, r0, row * texels, r1 - r0))
 
     def replace_owner(self, owner: int, gaussians: Gaussians) -> None:
         """Replace the Gaussians of one owner; uploads only its rows when the count is unchanged."""
@@ -432,9 +442,9 @@ class SplatRenderer:
                     p[name] = uni[name]
             p["near_far"] = (self.near, self.far)
             p["dilation"] = DILATION
-            self._data_tex.use(0)
-            self._order_tex.use(1)
-            self._proj_fbo.use()
+            _made(self._data_tex, "data texture").use(0)
+            _made(self._order_tex, "order texture").use(1)
+            _made(self._proj_fbo, "projection target").use()
             self.ctx.disable(moderngl.BLEND)
             self.ctx.viewport = (0, 0, self.row, math.ceil(self._drawn / self.row))
             self._project_vaos[k].render(moderngl.TRIANGLE_STRIP, vertices=4)
@@ -452,7 +462,7 @@ class SplatRenderer:
         alpha >= ALPHA_MIN ellipse (pixels; radius 0 = culled). Reads the projection texture back."""
         if not self._drawn:
             return np.zeros((0, 4), np.float32)
-        raw = self._proj_fbo.read(
+        raw = _made(self._proj_fbo, "projection target").read(
             viewport=(0, 0, self.row, math.ceil(self._drawn / self.row)), components=4, attachment=0, dtype="f4"
         )
         return np.frombuffer(raw, np.float32).reshape(-1, 4)[: self._drawn]
@@ -526,12 +536,14 @@ class SplatRenderer:
             prog["owner_base"] = owner_base
         self.bind_projection(prog, uni, color_mode)
         if "owner_key" in prog and owner_key is not None:
-            prog["owner_key"].write(owner_key.tobytes())
+            uniform = prog["owner_key"]
+            if isinstance(uniform, moderngl.Uniform):
+                uniform.write(owner_key.tobytes())
         if not self._drawn:
             return
         if self.compositing == "blend":  # front to back: dst += (1 - dst alpha) src, alpha = 1 - T
             self.ctx.enable(moderngl.BLEND)
-            self.ctx.blend_equation = moderngl.FUNC_ADD
+            self.ctx.blend_equation = moderngl.FUNC_ADD, moderngl.FUNC_ADD
             self.ctx.blend_func = moderngl.ONE_MINUS_DST_ALPHA, moderngl.ONE
         else:
             self.ctx.disable(moderngl.BLEND)
@@ -608,8 +620,9 @@ class SplatRenderer:
         times = FrameTimes()
         uni = self._prepare(camera, times, profile)
         t0 = time.perf_counter()
-        self._color_fbo.use()
-        self._clear(self._color_fbo)
+        fbo = _made(self._color_fbo, "colour target")
+        fbo.use()
+        self._clear(fbo)
         if profile:
             self.ctx.finish()
         times.clear_ms = (time.perf_counter() - t0) * 1e3
@@ -625,8 +638,9 @@ class SplatRenderer:
     def render_mask(self, camera: Camera, owner: int) -> None:
         """Render the weight sum T alpha of ``owner`` into the mask target (channel r)."""
         uni = self._prepare(camera, FrameTimes())
-        self._mask_fbo.use()
-        self._clear(self._mask_fbo)
+        fbo = _made(self._mask_fbo, "mask target")
+        fbo.use()
+        self._clear(fbo)
         self._draw(1, uni, owner_base=owner)
 
     def owner_weights(
@@ -645,10 +659,11 @@ class SplatRenderer:
         total = num_owners + 1
         weights = np.zeros((total, h, w), np.float32)
         alpha = np.zeros((h, w), np.float32)
+        id_fbo = _made(self._id_fbo, "id target")
         for base in range(-1, num_owners, OWNERS_PER_ID_PASS):
-            self._id_fbo.use()
+            id_fbo.use()
             self.ctx.scissor = (x, gl_y, w, h)
-            self._clear(self._id_fbo)
+            self._clear(id_fbo)
             self._draw(ID_ATTACHMENTS, uni, owner_base=base)
             self.ctx.scissor = None
             for i in range(len(self._id_tex)):
@@ -656,7 +671,7 @@ class SplatRenderer:
                 if first >= total:
                     break
                 raw = np.frombuffer(
-                    self._id_fbo.read(viewport=(x, gl_y, w, h), components=4, attachment=i, dtype="f4"), np.float32
+                    id_fbo.read(viewport=(x, gl_y, w, h), components=4, attachment=i, dtype="f4"), np.float32
                 ).reshape(h, w, 4)[::-1]
                 n = min(3, total - first)
                 weights[first : first + n] = np.moveaxis(raw[..., :n], -1, 0)
@@ -683,7 +698,9 @@ class SplatRenderer:
     def read_rgba(self) -> np.ndarray:
         """The last render: (H, W, 4) float32 premultiplied rgb and alpha, image rows top down."""
         w, h = self.size
-        raw = np.frombuffer(self._color_fbo.read(components=4, dtype="f4"), np.float32).reshape(h, w, 4)[::-1]
+        raw = np.frombuffer(_made(self._color_fbo, "colour target").read(components=4, dtype="f4"), np.float32).reshape(
+            h, w, 4
+        )[::-1]
         out = raw.copy()
         out[..., :3] *= self._color_scale
         out[..., 3] = self._alpha(raw[..., 3], self._unorm_t)
@@ -707,17 +724,19 @@ class SplatRenderer:
         # one texel a pixel: nearest (exact, and cheaper on llvmpipe); scaled (moving frames): linear
         same = tuple(viewport[2:]) == tuple(self.size)
         filt = (moderngl.NEAREST, moderngl.NEAREST) if same else (moderngl.LINEAR, moderngl.LINEAR)
-        if self._color_tex.filter != filt:
-            self._color_tex.filter = filt
-        self._color_tex.use(0)
+        color = _made(self._color_tex, "colour target")
+        if color.filter != filt:
+            color.filter = filt
+        color.use(0)
         mask = mask_color is not None
         prog = self._blits[mask]
         prog["image"] = 0
         prog["background"] = tuple(background)
-        if mask:
-            if self._mask_tex.filter != filt:
-                self._mask_tex.filter = filt
-            self._mask_tex.use(1)
+        if mask_color is not None:
+            mask_tex = _made(self._mask_tex, "mask target")
+            if mask_tex.filter != filt:
+                mask_tex.filter = filt
+            mask_tex.use(1)
             prog["mask"] = 1
             prog["mask_color"] = tuple(mask_color)
         self._blit_vaos[mask].render(moderngl.TRIANGLE_STRIP, vertices=4)

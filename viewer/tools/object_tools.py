@@ -1,8 +1,8 @@
 """Moving a selected object in the world: slide it on the floor with the mouse, a world-space gizmo
 (ImGuizmo) with X / Y / Z handles at its centre, and an outline of it in the viewport.
 
-Tools get narrow dependencies: the session (a :class:`particlesplat.editing.editor.SceneEditor`), the selected
-particle and the viewing camera; they never see the App. Every move is a do/undo operation of the session
+Tools get narrow dependencies: the scene's editor (a :class:`particlesplat.editing.editor.SceneEditor`), the
+selected particle and the viewing camera; they never see the App. Every move is a do/undo operation of the editor
 (one per drag, by its gesture id).
 """
 
@@ -15,22 +15,25 @@ import torch
 from torch import Tensor
 
 from particlesplat.core.camera import Camera
-from particlesplat.editing.move import MoveError
+from particlesplat.editing.move import MoveError, stop_at_support
 
 if TYPE_CHECKING:
-    from ..session import SceneSession
+    from particlesplat.editing.editor import SceneEditor
+
+    from ..session import Scene
 
 FLOOR_GESTURE = "floor-drag"
 GIZMO_GESTURE = "gizmo"
+SCALE_GESTURE = "gizmo-scale"
 MAX_STEP = 0.5  # metres one mouse event may slide an object (a ray grazing the plane goes far)
 OUTLINE_OPACITY = 0.1  # Gaussians at least this opaque outline the selected object
 GL_FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV camera axes -> OpenGL (y up, looking down -z)
 
 
-def object_centre(session: SceneSession, index: int) -> Tensor | None:
+def object_centre(editor: SceneEditor, index: int) -> Tensor | None:
     """(3,) float64 world metres: the centre of particle ``index``'s object as drawn now (the resting centre,
     :meth:`particlesplat.editing.editor.SceneEditor.object_centre`), or None if it draws nothing."""
-    return session.object_centre(index)
+    return editor.object_centre(index)
 
 
 def floor_point(camera: Camera, x: float, y: float, height: float) -> Tensor | None:
@@ -50,7 +53,7 @@ def floor_point(camera: Camera, x: float, y: float, height: float) -> Tensor | N
 class FloorDrag:
     """Slides the selected object on the horizontal plane through its centre, following the mouse.
 
-    :meth:`start` at the press, :meth:`update` per mouse event, the session's ``end_gesture`` at release
+    :meth:`start` at the press, :meth:`update` per mouse event, the editor's ``end_gesture`` at release
     (one undo step per drag)."""
 
     def __init__(self) -> None:
@@ -62,10 +65,10 @@ class FloorDrag:
     def active(self) -> bool:
         return self.index is not None
 
-    def start(self, session: SceneSession, index: int, camera: Camera, x: float, y: float) -> bool:
+    def start(self, editor: SceneEditor, index: int, camera: Camera, x: float, y: float) -> bool:
         """Begin sliding particle ``index``'s object from framebuffer pixel (x, y); False if it draws nothing
         or the pixel's ray misses its plane."""
-        centre = object_centre(session, index)
+        centre = object_centre(editor, index)
         if centre is None:
             return False
         self.height = float(centre[2])
@@ -73,10 +76,10 @@ class FloorDrag:
         self.index = index if self.last is not None else None
         return self.active
 
-    def update(self, session: SceneSession, camera: Camera, x: float, y: float) -> str | None:
+    def update(self, editor: SceneEditor, camera: Camera, x: float, y: float) -> str | None:
         """Move the object so the plane point under the mouse stays under it; an error message if the
         move was refused (nothing moved), else None."""
-        if not self.active:
+        if self.index is None or self.last is None:
             return None
         p = floor_point(camera, x, y, self.height)
         if p is None:
@@ -87,7 +90,7 @@ class FloorDrag:
         if step > MAX_STEP:
             delta = delta * (MAX_STEP / step)
         try:
-            session.move_object(self.index, delta.tolist(), gesture=FLOOR_GESTURE)
+            editor.move_object(self.index, delta.tolist(), gesture=FLOOR_GESTURE)
         except MoveError as e:
             return f"error: {e}"
         self.last = self.last + delta
@@ -95,6 +98,71 @@ class FloorDrag:
 
     def stop(self) -> None:
         self.index, self.last = None, None
+
+
+class GizmoDrag:
+    """One drag of the gizmo's handles, as moves that respect the surface the object rests on.
+
+    An arrow or plane handle moves the object along its axes, but never lower than its support
+    (:func:`particlesplat.editing.move.stop_at_support`). The centre handle (which ImGuizmo moves in the screen
+    plane, and which covers a small object whole) slides the object on the horizontal plane through its centre,
+    following the mouse as a plain drag does (:class:`FloorDrag`). Which handle it is, is read from the first step:
+    the centre handle's moves all three coordinates at once, an arrow one, a plane two.
+    """
+
+    def __init__(self) -> None:
+        self.mode: str | None = None  # None before the first step, then "axes" or "floor"
+        self.floor = FloorDrag()
+        self.scaled = 1.0  # the scale handles' factor so far in this drag
+
+    def scale(self, editor: SceneEditor, index: int, total: float) -> str | None:
+        """The scale handles show ``total`` (the factor since the drag began): scale the object by what it adds
+        (about its resting centre, on its support; one operation per drag). An error message if refused."""
+        step = total / self.scaled
+        if not (np.isfinite(step) and step > 0.0) or abs(step - 1.0) < 1e-6:
+            return None
+        try:
+            editor.scale_object(index, step, gesture=SCALE_GESTURE)
+        except MoveError as e:
+            return f"error: {e}"
+        self.scaled = total
+        return None
+
+    def step(
+        self,
+        editor: SceneEditor,
+        index: int,
+        step: np.ndarray,
+        camera: Camera,
+        mouse: tuple[float, float],
+        previous: tuple[float, float],
+    ) -> str | None:
+        """Apply one gizmo step (3,) world metres, with the mouse at framebuffer pixel ``mouse`` (at ``previous``
+        the frame before). Returns an error message when a move was refused, else None."""
+        if self.mode is None:
+            self.mode = "floor" if int(np.count_nonzero(np.abs(step) > 1e-9)) == 3 else "axes"
+            if self.mode == "floor" and not self.floor.start(editor, index, camera, *previous):
+                self.mode = "axes"
+        if self.mode == "floor":
+            return self.floor.update(editor, camera, *mouse)
+        step = np.asarray(step, dtype=np.float64).copy()
+        if step[2] < 0.0:
+            bottom = editor.object_bottom(index)
+            if bottom is not None:
+                step[2] = stop_at_support(float(step[2]), bottom, editor.support_height())
+        if not np.any(step):
+            return None
+        try:
+            editor.move_object(index, step.tolist(), gesture=GIZMO_GESTURE)
+        except MoveError as e:
+            return f"error: {e}"
+        return None
+
+    def stop(self, editor: SceneEditor) -> None:
+        """The drag ends: one operation in the history."""
+        editor.end_gesture()
+        self.mode, self.scaled = None, 1.0
+        self.floor.stop()
 
 
 def gl_view(camera: Camera) -> np.ndarray:
@@ -114,11 +182,11 @@ def gl_projection(camera: Camera, near: float = 0.01, far: float = 100.0) -> np.
     return P
 
 
-def outline(session: SceneSession, index: int, camera: Camera) -> np.ndarray:
+def outline(editor: SceneEditor, index: int, camera: Camera) -> np.ndarray:
     """(M, 2) framebuffer pixels: the convex hull of the projected centres of the selected object's
     Gaussians (opacity >= OUTLINE_OPACITY), counter-clockwise; empty if fewer than 3."""
-    members = session.object_members(index)
-    g = session.model.decode(session.particles, torch.tensor(members), background=False)
+    members = editor.object_members(index)
+    g = editor.model.decode(editor.particles, torch.tensor(members), background=False)
     g = g.subset(g.opacities >= OUTLINE_OPACITY)
     if g.num < 3:
         return np.zeros((0, 2))
@@ -159,38 +227,46 @@ class ObjectGizmo:
         self._hull = np.zeros((0, 2))
         self.using = False  # a handle is being dragged
         self.hovered = False  # the mouse is over a handle: the viewport should not orbit
+        self.drag = GizmoDrag()
 
     @property
     def capturing(self) -> bool:
         return self.using or self.hovered
 
-    def _refresh(self, session: SceneSession, index: int, camera: Camera) -> None:
-        key = (id(session), session.version, index, camera.c2w.detach().cpu().numpy().tobytes(), camera.width)
+    def _refresh(self, editor: SceneEditor, index: int, camera: Camera) -> None:
+        key = (id(editor), editor.version, index, camera.c2w.detach().cpu().numpy().tobytes(), camera.width)
         if key != self._key:
             self._key = key
-            self._centre = object_centre(session, index)
-            self._hull = outline(session, index, camera)
+            self._centre = object_centre(editor, index)
+            self._hull = outline(editor, index, camera)
 
     def draw(
-        self, session: SceneSession, index: int | None, camera: Camera, pixel_ratio: tuple[float, float]
+        self,
+        session: Scene,
+        index: int | None,
+        camera: Camera,
+        pixel_ratio: tuple[float, float],
+        scale_handles: bool = False,
     ) -> str | None:
         """Draw the outline and the handles of particle ``index``'s object (nothing when None) seen by
         ``camera`` (framebuffer pixels; ``pixel_ratio`` = framebuffer pixels per window point) and apply a
-        handle drag as a move. Returns an error message when a move was refused."""
+        handle drag as a move, or with ``scale_handles`` the uniform scale handles' drag as a scale. Returns an
+        error message when an edit was refused."""
         from imgui_bundle import imgui, imguizmo
 
         gz = imguizmo.im_guizmo
         self.hovered = False
-        if index is None or not session.editable or not 0 <= index < session.num_particles:
-            if self.using:
-                session.end_gesture()
+        editor = session.editor
+        if editor is None or index is None or not 0 <= index < editor.num_particles:
+            if self.using and editor is not None:
+                self.drag.stop(editor)
             self.using = False
             return None
-        self._refresh(session, index, camera)
+        self._refresh(editor, index, camera)
         sx, sy = pixel_ratio
         draw = imgui.get_background_draw_list()
         if len(self._hull) >= 3:
-            pts = [imgui.ImVec2(float(u) / sx, float(v) / sy) for u, v in self._hull]
+            pts: list = [imgui.ImVec2(float(u) / sx, float(v) / sy) for u, v in self._hull]
             draw.add_polyline(pts, imgui.IM_COL32(255, 220, 40, 255), 2.0, imgui.ImDrawFlags_.closed.value)
         if self._centre is None:
             return None
@@ -206,7 +282,7 @@ class ObjectGizmo:
         changed = gz.manipulate(
             gz.Matrix16(gl_view(camera).T.flatten().tolist()),
             gz.Matrix16(gl_projection(camera).T.flatten().tolist()),
-            gz.OPERATION.translate,
+            gz.OPERATION.scaleu if scale_handles else gz.OPERATION.translate,
             gz.MODE.world,
             obj,
             delta,
@@ -214,14 +290,18 @@ class ObjectGizmo:
         using = gz.is_using()
         self.hovered = bool(gz.is_over())
         message = None
-        if changed:
-            step = np.array(obj.values, dtype=np.float64).reshape(4, 4).T[:3, 3] - self._centre.numpy()
+        matrix = np.array(obj.values, dtype=np.float64).reshape(4, 4).T
+        scales = np.linalg.norm(matrix[:3, :3], axis=0)  # ImGuizmo returns the drag's whole scale on a unit matrix
+        if changed and scale_handles:
+            if np.isfinite(scales).all():
+                message = self.drag.scale(editor, index, float(scales.mean()))
+        elif changed:
+            step = matrix[:3, 3] - self._centre.numpy()
             if np.isfinite(step).all() and np.linalg.norm(step) > 0:
-                try:
-                    session.move_object(index, step.tolist(), gesture=GIZMO_GESTURE)
-                except MoveError as e:
-                    message = f"error: {e}"
+                mouse = (io.mouse_pos.x * sx, io.mouse_pos.y * sy)
+                previous = (mouse[0] - io.mouse_delta.x * sx, mouse[1] - io.mouse_delta.y * sy)
+                message = self.drag.step(editor, index, step, camera, mouse, previous)
         if self.using and not using:
-            session.end_gesture()
+            self.drag.stop(editor)
         self.using = bool(using)
         return message

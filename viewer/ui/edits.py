@@ -1,4 +1,4 @@
-"""The "Edits" section: undo, redo, the edits file to save to or load from."""
+"""The "Edits" section: undo, redo (:mod:`viewer.actions`), the edits file to save to or load from."""
 
 from __future__ import annotations
 
@@ -6,25 +6,25 @@ from typing import TYPE_CHECKING
 
 from imgui_bundle import imgui
 
-from ..session import SceneSession
+from .buttons import action_button
 
 if TYPE_CHECKING:
-    from .fields import UiFields, UiRequests
+    from particlesplat.editing.editor import SceneEditor
+
+    from ..actions import ActionContext
+    from .fields import UiFields
 
 
-def draw_edits_section(session: SceneSession, req: UiRequests, fields: UiFields) -> None:
+def draw_edits_section(editor: SceneEditor, ctx: ActionContext, fields: UiFields) -> None:
     if not imgui.collapsing_header("Edits", imgui.TreeNodeFlags_.default_open):
         return
-    h = session.history
-    if imgui.button(f"Undo ({len(h.undo)})"):
-        session.undo()
+    h = editor.history
+    action_button("undo", ctx, f"Undo ({len(h.undo)})")
     imgui.same_line()
-    if imgui.button(f"Redo ({len(h.redo)})"):
-        session.redo()
-    imgui.text(f"edited particles: {len(session.edits())}")
+    action_button("redo", ctx, f"Redo ({len(h.redo)})")
+    imgui.text(f"edited particles: {len(editor.edits())}")
     _, fields.edits_path = imgui.input_text("edits YAML", fields.edits_path)
-    if imgui.button("Save edits"):
-        req.save_edits = True
+    action_button("save_edits", ctx, "Save edits")
     imgui.same_line()
     if imgui.button("Load edits"):
-        req.load_edits = True
+        ctx.requests.load_edits = True

@@ -11,7 +11,7 @@ from particlesplat.editing.editor import Insert
 from particlesplat.editing.open_scene import demo_scene_name, demo_scenes, encode_scene
 
 if TYPE_CHECKING:
-    from ..session import SceneSession
+    from particlesplat.editing.editor import SceneEditor
 
 
 @dataclass
@@ -55,8 +55,8 @@ def draw_insert_section(fields: InsertFields) -> bool:
     return bool(imgui.button("Insert")) and bool(fields.scene.strip())
 
 
-def insert_from_fields(session: SceneSession, fields: InsertFields) -> tuple[int, str]:
-    """Encode ``fields.scene`` with the session's model (its default context frames) and insert the object at
+def insert_from_fields(editor: SceneEditor, fields: InsertFields) -> tuple[int, str]:
+    """Encode ``fields.scene`` with the editor's model (its default context frames) and insert the object at
     (x, y) or at a free spot: returns (the new object's first particle, a status line, which warns when the
     object lands on another one). Errors (no such scene or object, no free spot, a move out of range) propagate
     for the app to show."""
@@ -64,10 +64,10 @@ def insert_from_fields(session: SceneSession, fields: InsertFields) -> tuple[int
     from particlesplat.editing.placement import footprints, free_spot, overlapping
 
     scene = fields.scene.strip()
-    source = encode_scene(session.model, scene)
-    members = object_members(session.model, source.particles, int(fields.object))
-    radius = footprints(session.model, source.particles, members)[0].radius
-    feet = footprints(session.model, session.particles)
+    source = encode_scene(editor.model, scene)
+    members = object_members(editor.model, source.particles, int(fields.object))
+    radius = footprints(editor.model, source.particles, members)[0].radius
+    feet = footprints(editor.model, editor.particles)
     note = ""
     if fields.free_spot:
         at = free_spot(feet, radius)
@@ -80,8 +80,8 @@ def insert_from_fields(session: SceneSession, fields: InsertFields) -> tuple[int
         if hit is not None:
             note = f"; warning: it overlaps object {hit} of this scene (tick 'at a free spot' to avoid that)"
     ins = Insert(scene, int(fields.object), at, tuple(source.context))
-    first = session.insert_object(source.particles, ins)
+    first = editor.insert_object(source.particles, ins)
     return first, (
         f"inserted object {ins.object} of {Path(ins.scene).name} as particles "
-        f"{first}..{session.num_particles - 1} at ({ins.at[0]:g}, {ins.at[1]:g}){note}"
+        f"{first}..{editor.num_particles - 1} at ({ins.at[0]:g}, {ins.at[1]:g}){note}"
     )

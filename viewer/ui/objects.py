@@ -1,17 +1,24 @@
 """The selected object's panel section: its particles, its offset in metres (typed or dragged), delete and
-duplicate. Every change is a do/undo operation of the session."""
+duplicate (:mod:`viewer.actions`). Every change is a do/undo operation of the scene's editor."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import torch
+
 from particlesplat.core import palette
-from particlesplat.editing.editor import PickError
+from particlesplat.editing.grouping import OPAQUE
 from particlesplat.editing.move import MoveError
+from particlesplat.editing.operations import Scale, Translate
+
+from .buttons import action_button
 
 if TYPE_CHECKING:
-    from ..session import SceneSession
+    from particlesplat.editing.editor import SceneEditor
+
+    from ..actions import ActionContext
 
 ROTATION_NOTE = (
     "Rotation is not available: a particle is a patch lifted along its own view's rays, with "
@@ -28,35 +35,40 @@ def segmentation_colour(key: int) -> tuple[float, float, float]:
 
 @dataclass
 class ObjectFields:
-    """Persistent inputs of the object section: the copy's offset (metres)."""
+    """Persistent inputs of the object section: the copy's offset (metres), the scale field's value during a drag
+    (1 between drags), the last measure (its key: editor, version, particle)."""
 
     copy_offset: list[float] = field(default_factory=lambda: [0.3, 0.0, 0.0])
+    scale: float = 1.0
+    measured: tuple[tuple, list[float], list[float]] | None = None
 
 
-def remove_selected(session: SceneSession, selected: int | None) -> tuple[int | None, str]:
-    """Remove the selected particle's object (one operation). Returns (new selection, status message)."""
-    if selected is None or not session.editable:
-        return selected, "select an object first (click it)"
-    members = session.object_members(selected)
-    session.remove_object(selected)
-    return (
-        None,
-        f"removed the object of particle{'s' if len(members) > 1 else ''} {', '.join(map(str, members))}"
-        " (Ctrl+Z brings it back)",
-    )
+def object_measure(editor: SceneEditor, index: int) -> tuple[list[float], list[float]]:
+    """(size, resting centre) of particle ``index``'s object as drawn: its extent along world x, y, z (metres,
+    from the 2 % to the 98 % quantile of its opaque Gaussians' centres) and its resting centre (metres; zeros when
+    it draws nothing)."""
+    g = editor.model.decode(editor.particles, torch.tensor(editor.object_members(index)), background=False)
+    x = g.means[g.opacities >= OPAQUE].detach().double()
+    if x.shape[0] < 2:
+        return [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+    size = (torch.quantile(x, 0.98, dim=0) - torch.quantile(x, 0.02, dim=0)).tolist()
+    centre = editor.object_centre(index)
+    return size, [0.0, 0.0, 0.0] if centre is None else centre.tolist()
 
 
-def duplicate_selected(session: SceneSession, selected: int | None, offset) -> tuple[int | None, str]:
-    """Copy the selected particle's object, moved by ``offset`` (3,) metres (one operation); the copy becomes
-    the selection. Returns (new selection, status message)."""
-    if selected is None or not session.editable:
-        return selected, "select an object first (click it)"
-    try:
-        copy = session.duplicate_object(selected, [float(v) for v in offset])
-    except (MoveError, PickError) as e:
-        return selected, f"error: {e}"
-    members = session.object_members(copy)
-    return copy, f"copied the object: new particles {', '.join(map(str, members))}, offset {_metres(offset)}"
+def gesture_readout(editor: SceneEditor, index: int) -> str | None:
+    """What the drag under way has done to particle ``index``'s object so far, or None."""
+    gesture = editor.history.gesture
+    op = gesture.operation if gesture is not None else None
+    if isinstance(op, Translate) and index in op.members:
+        return "this drag: " + _metres(op.offset)
+    if isinstance(op, Scale) and index in op.members:
+        return f"this drag: x{op.factor:.3f}"
+    return None
+
+
+def _metres(v) -> str:
+    return "(" + ", ".join(f"{float(x):+.3f}" for x in v) + ") m"
 
 
 def hint(text: str) -> None:
@@ -68,40 +80,57 @@ def hint(text: str) -> None:
     imgui.pop_style_color()
 
 
-def _metres(v) -> str:
-    return "(" + ", ".join(f"{float(x):+.3f}" for x in v) + ") m"
-
-
-def draw_object_section(session: SceneSession, selected: int, fields: ObjectFields) -> tuple[int | None, str | None]:
-    """The selected particle's object: members, offset (m) to type or drag, delete, duplicate.
-
-    Returns (the selection after this frame, a status message or None)."""
+def draw_object_section(editor: SceneEditor, selected: int, ctx: ActionContext, fields: ObjectFields) -> None:
+    """The selected particle's object: members, its size and resting centre, offset (m) and scale to type or
+    drag, grow / shrink, merge / split, delete, duplicate."""
     from imgui_bundle import imgui
 
-    members = session.object_members(selected)
+    members = editor.object_members(selected)
     imgui.separator_text("Object")
     imgui.text(f"particle{'s' if len(members) > 1 else ''} {', '.join(map(str, members))}")
-    message = None
-    offset = list(session.object_offset(selected))
+    key = (id(editor), editor.version, selected)
+    if fields.measured is None or fields.measured[0] != key:
+        fields.measured = (key, *object_measure(editor, selected))
+    _, size, centre = fields.measured
+    imgui.text(f"size {size[0]:.3f} x {size[1]:.3f} x {size[2]:.3f} m (x, y, z)")
+    imgui.text(f"resting centre ({centre[0]:+.3f}, {centre[1]:+.3f}, {centre[2]:+.3f}) m")
+    readout = gesture_readout(editor, selected)
+    if readout:
+        imgui.text(readout)
+    offset = list(editor.object_offset(selected))
     changed, new = imgui.drag_float3("offset (m)", offset, 0.005, 0.0, 0.0, "%.3f")
     if changed:
         try:
-            session.move_object(selected, [a - b for a, b in zip(new, offset, strict=False)], gesture="panel-offset")
+            editor.move_object(selected, [a - b for a, b in zip(new, offset, strict=False)], gesture="panel-offset")
         except MoveError as e:
-            message = f"error: {e}"
+            ctx.status(f"error: {e}")
     if imgui.is_item_deactivated():
-        session.end_gesture()
+        editor.end_gesture()
     hint("world X / Y on the floor, Z up; double-click a box to type metres")
-    if imgui.button("Delete object (Del)"):
-        selected, message = remove_selected(session, selected)
-        return selected, message
+    changed, value = imgui.drag_float("scale (x)", fields.scale, 0.005, 0.1, 10.0, "%.3f")
+    if changed and value > 0.0 and fields.scale > 0.0:
+        try:
+            editor.scale_object(selected, value / fields.scale, gesture="panel-scale")
+            fields.scale = value
+        except MoveError as e:
+            ctx.status(f"error: {e}")
+    if imgui.is_item_deactivated():
+        editor.end_gesture()
+        fields.scale = 1.0
+    for i, name in enumerate(("grow", "shrink", "merge", "split")):
+        if i % 2:
+            imgui.same_line()
+        action_button(name, ctx)
+    if ctx.state.previous is not None and ctx.state.previous < editor.num_particles:
+        hint(f"Merge joins it with the object of particle {ctx.state.previous} (selected before)")
+    if action_button("delete", ctx):
+        return
     imgui.same_line()
-    if imgui.button("Duplicate (Ctrl+D)"):
-        return duplicate_selected(session, selected, fields.copy_offset)
-    changed, value = imgui.input_float3("copy offset (m)", fields.copy_offset, "%.3f")
+    if action_button("duplicate", ctx):
+        return
+    changed, offset = imgui.input_float3("copy offset (m)", fields.copy_offset, "%.3f")
     if changed:
-        fields.copy_offset = [float(v) for v in value]
+        fields.copy_offset[:] = [float(v) for v in offset]
     if imgui.tree_node("Rotation"):
         imgui.text_wrapped(ROTATION_NOTE)
         imgui.tree_pop()
-    return selected, message

@@ -8,7 +8,8 @@ from imgui_bundle import imgui
 
 from particlesplat.core.camera import Camera
 
-from ..session import SceneSession
+from ..actions import ActionTarget, help_rows
+from ..session import Scene
 from ..settings import PANEL_WIDTH, clamp_width
 from ..state import ViewState
 from .edits import draw_edits_section
@@ -19,29 +20,6 @@ from .particles import draw_particles_section
 from .scene import draw_scene_section
 from .selected import draw_selected_section
 from .view import draw_view_section
-
-SHORTCUTS = (
-    ("left drag", "orbit"),
-    ("right / middle drag", "pan"),
-    ("wheel", "zoom"),
-    ("click", "select the particle under the cursor (its object is outlined)"),
-    ("left drag on the selected object", "slide it on the floor (world X / Y)"),
-    ("Shift + left drag", "slide the selected object on the floor from anywhere"),
-    ("Ctrl + left drag", "lift or lower the selected object (world Z)"),
-    ("gizmo arrows / planes", "move the selected object along world X, Y or Z, or in a plane"),
-    ("Del / Ctrl+D", "delete / duplicate the selected object"),
-    ("R", "reset the view"),
-    ("0 .. 9", "snap to input camera 0 .. 9 (numbered as --context and render --view)"),
-    ("Ctrl+Z / Ctrl+Shift+Z or Ctrl+Y", "undo / redo"),
-    ("Ctrl+S", "save the edits to the 'edits YAML' path"),
-    ("P or F12", "screenshot (no UI)"),
-    ("E", "export the drawn Gaussians (format: Output section)"),
-    ("M", "next segmentation mode"),
-    ("H", "hide / show the panel"),
-    ("O", "hide / show the overlay"),
-    ("Esc", "deselect"),
-)
-
 
 PANEL_MARGIN = 10.0  # window points: the panel docks at the right edge, this far from it
 
@@ -69,7 +47,7 @@ def draw_overlay(text_lines: list[str]) -> None:
 
 
 def draw_panel(
-    session: SceneSession,
+    session: Scene,
     state: ViewState,
     req: UiRequests,
     fields: UiFields,
@@ -97,14 +75,20 @@ def draw_panel(
     imgui.push_item_width(-min(150.0, 0.45 * imgui.get_window_width()))
     draw_scene_section(session, req, fields)
     draw_view_section(session, state, req, counts)
-    if session.editable:
-        draw_particles_section(session, state, swatches)
-        draw_selected_section(session, state, fields)
-        draw_edits_section(session, req, fields)
+
+    def status(message: str) -> None:
+        fields.status = message
+
+    ctx = ActionTarget(session, state, req, status, fields.objects.copy_offset)
+    editor = session.editor
+    if editor is not None:
+        draw_particles_section(editor, state, swatches)
+        draw_selected_section(editor, ctx, fields)
+        draw_edits_section(editor, ctx, fields)
         req.insert = draw_insert_section(fields.insert) or req.insert
-    draw_output_section(req, fields, session.editable and state.selected is not None)
+    draw_output_section(ctx, fields, editor is not None and state.selected is not None)
     if imgui.collapsing_header("Shortcuts"):
-        for keys, what in SHORTCUTS:
+        for keys, what in help_rows():
             imgui.bullet_text(f"{keys}: {what}")
     imgui.pop_item_width()
     imgui.end()

@@ -6,20 +6,21 @@ from typing import Literal
 
 from imgui_bundle import imgui
 
-from ..session import SceneSession
+from particlesplat.editing.editor import SceneEditor
+
 from ..state import SegMode, ViewState
 from .objects import segmentation_colour
 
 
 def draw_particles_section(
-    session: SceneSession, state: ViewState, swatches: dict[int, tuple[float, float, float]]
+    editor: SceneEditor, state: ViewState, swatches: dict[int, tuple[float, float, float]]
 ) -> None:
     if not imgui.collapsing_header("Particles", imgui.TreeNodeFlags_.default_open):
         return
     by_object = state.seg_mode is SegMode.BY_OBJECT
-    labels = session.objects() if by_object else None
+    labels = editor.objects() if by_object else None
     imgui.text(f"idx  {'object' if by_object else 'seg'} colour  active  visible  solo")
-    for i in range(session.num_particles):
+    for i in range(editor.num_particles):
         imgui.push_id(i)
         r, g, b = swatches.get(i, (0.5, 0.5, 0.5))
         clicked, _ = imgui.selectable(f"{i:3d}", state.selected == i, 0, imgui.ImVec2(28.0, 0.0))
@@ -31,7 +32,7 @@ def draw_particles_section(
         imgui.same_line()
         imgui.color_button("##swatch", imgui.ImVec4(r, g, b, 1.0), 0, imgui.ImVec2(22.0, 0.0))
         imgui.same_line()
-        status = particle_status(session, i)
+        status = particle_status(editor, i)
         imgui.text_colored(
             imgui.ImVec4(0.5, 1.0, 0.5, 1.0) if status == "active" else imgui.ImVec4(0.6, 0.6, 0.6, 1.0),
             f"{status:<8}",
@@ -47,9 +48,9 @@ def draw_particles_section(
         imgui.pop_id()
 
 
-def particle_status(session: SceneSession, i: int) -> Literal["active", "deleted", "inactive"]:
+def particle_status(editor: SceneEditor, i: int) -> Literal["active", "deleted", "inactive"]:
     """How the particle list names particle ``i``: drawn, deleted (drawn as encoded, its object removed since), or
     inactive (the encoder left it off)."""
-    if session.is_active(i):
+    if editor.is_active(i):
         return "active"
-    return "deleted" if session.original_value(i, "z_t")[0] >= session.active_threshold else "inactive"
+    return "deleted" if editor.original_value(i, "z_t")[0] >= editor.active_threshold else "inactive"

@@ -10,17 +10,17 @@ from imgui_bundle import imgui
 
 from particlesplat.editing.open_scene import demo_scene_name, demo_scenes
 
-from ..session import SceneSession
+from ..session import Scene
 
 if TYPE_CHECKING:
     from .fields import UiFields, UiRequests
 
 
-def draw_scene_section(session: SceneSession, req: UiRequests, fields: UiFields) -> None:
+def draw_scene_section(session: Scene, req: UiRequests, fields: UiFields) -> None:
     if not imgui.collapsing_header("Scene", imgui.TreeNodeFlags_.default_open):
         return
     imgui.text_wrapped(f"{session.source}")
-    for warning in getattr(session.encoded, "warnings", None) or []:
+    for warning in session.warnings:
         imgui.push_style_color(imgui.Col_.text, imgui.ImVec4(1.0, 0.75, 0.3, 1.0))
         imgui.text_wrapped(f"warning: {warning}")
         imgui.pop_style_color()

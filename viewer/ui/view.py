@@ -7,17 +7,21 @@ from typing import TYPE_CHECKING
 
 from imgui_bundle import imgui
 
-from ..session import SceneSession
+from particlesplat.core.vectors import float3
+
+from ..actions import BY_NAME
+from ..session import Scene
 from ..state import SEG_MODES, SegMode, ViewState
+from ..tools.ruler import ruler_distance
 
 if TYPE_CHECKING:
     from .fields import UiRequests
 
 
-def draw_view_section(session: SceneSession, state: ViewState, req: UiRequests, counts: tuple[int, int]) -> None:
+def draw_view_section(session: Scene, state: ViewState, req: UiRequests, counts: tuple[int, int]) -> None:
     if not imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
         return
-    if imgui.button("Reset view (R)"):
+    if imgui.button(BY_NAME["reset_view"].button_label()):
         req.reset_view = True
     cams = session.cameras
     if cams:
@@ -38,7 +42,7 @@ def draw_view_section(session: SceneSession, state: ViewState, req: UiRequests, 
     changed, idx = imgui.combo("segmentation", SEG_MODES.index(state.seg_mode), [m.value for m in SEG_MODES])
     if changed:
         state.seg_mode = SEG_MODES[idx]
-    if not session.editable and state.seg_mode is not SegMode.NORMAL:
+    if session.editor is None and state.seg_mode is not SegMode.NORMAL:
         imgui.text_wrapped(
             "a .ply holds Gaussians, not particles: the particle and object modes show the owner ids it stores "
             + ("(this file stores none, so everything is background)" if not session.owner_ids() else "")
@@ -48,9 +52,12 @@ def draw_view_section(session: SceneSession, state: ViewState, req: UiRequests, 
     if changed:
         state.prune = max(0.0, value)
     imgui.text(f"Gaussians drawn: {counts[0]:,} of {counts[1]:,}")
+    if state.ruler:
+        distance = ruler_distance(state)
+        imgui.text("ruler: click two points" if distance is None else f"ruler: {distance:.3f} m")
     changed, value = imgui.slider_float("scale while moving", state.moving_scale, 0.25, 1.0, "%.2f")
     if changed:
         state.moving_scale = value
     changed, col = imgui.color_edit3("background", list(state.background))
     if changed:
-        state.background = tuple(float(c) for c in col)
+        state.background = float3(col)
