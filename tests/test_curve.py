@@ -88,3 +88,23 @@ def test_training_loss_is_plotted_below_and_a_run_without_validation_says_so(tmp
     # (40, 25): log10(25) is 1/3 of the way from log10(12.5) to log10(100)
     assert drawn(x0 + (x1 - x0) * 40 / 80, y0 - (y0 - y1) / 3)
     assert not drawn(x0 + (x1 - x0) * 40 / 80, y0 - (y0 - y1) / 2)
+
+
+def test_a_long_log_keeps_evenly_spaced_loss_rows_and_the_last(tmp_path):
+    """A line a step over 10,000 steps: at most 2 x MAX_LOSS_POINTS rows, every k-th step for one k, the last
+    step kept, every logged step counted; validation rows all kept."""
+    import json
+
+    from particlesplat.training.curve import MAX_LOSS_POINTS, read_curves
+
+    path = tmp_path / "metrics.jsonl"
+    lines = [json.dumps({"step": i, "loss": float(i)}) for i in range(10_000)]
+    lines.insert(5_000, json.dumps({"step": 4_999, "val": {"psnr": 20.0, "fg_ari": None}}))
+    path.write_text("\n".join(lines) + "\n")
+    rows, losses, logged = read_curves(path)
+    assert logged == 10_000 and len(rows) == 1 and rows[0][2] != rows[0][2]  # null FG-ARI: NaN
+    assert MAX_LOSS_POINTS <= len(losses) <= 2 * MAX_LOSS_POINTS
+    steps = [s for s, _ in losses]
+    assert steps[0] == 0 and steps[-1] == 9_999 and all(v == float(s) for s, v in losses)
+    gaps = {b - a for a, b in zip(steps[:-2], steps[1:-1], strict=True)}
+    assert len(gaps) == 1  # evenly thinned (the last row is added whatever its gap)

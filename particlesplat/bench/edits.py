@@ -436,6 +436,9 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.scenes < 1:
         parser.error(f"--scenes must be >= 1, got {args.scenes}")
+    from particlesplat.core.limits import check_option_range
+
+    check_option_range(args.z_t_threshold, "--z-t-threshold", 0.0, 1.0)
     if args.start < 0:
         raise OptionError(f"--start must be >= 0 (the first scene's index), got {args.start}")
     if not 0 <= args.dilate <= MAX_DILATE:

@@ -131,6 +131,36 @@ def _fmt(row: dict, key: str, spec: str) -> str:
     return format(row[key], spec) if key in row else "n/a"
 
 
+# bytes a benchmark Gaussian holds with its gradient and the projection's per-Gaussian intermediates (23 values of
+# 4 bytes, an int64 owner, twice over for the gradients, and the projected means, conics, colours and depths)
+BENCH_BYTES_PER_GAUSSIAN = 400.0
+
+
+def check_cases(counts: list[int], sizes: list[int], repeats: int) -> None:
+    """OptionError naming the option for a case no machine can run (counts and sizes below 1, images beyond the
+    renderer's largest) and BudgetError for one whose Gaussians and render would not fit the memory limit, before
+    any case starts."""
+    from particlesplat.core.errors import OptionError
+    from particlesplat.core.limits import check_memory
+    from particlesplat.rendering.budget import BYTES_PER_PAIR, BYTES_PER_PIXEL
+    from particlesplat.rendering.rasterize import TILE
+
+    if min(counts) < 1 or repeats < 1:
+        raise OptionError(f"--n and --repeats must be >= 1, got {min(counts)} and {repeats}")
+    if not all(1 <= s <= MAX_BENCH_SIDE for s in sizes):
+        raise OptionError(f"--sizes must be in [1, {MAX_BENCH_SIDE}], got {sizes}")
+    for n in counts:
+        for s in sizes:  # the scene's Gaussians cover a few pixels each: a tile or four a Gaussian, estimated at 4
+            pairs = 4.0 * n * max(1.0, (s / 128.0) ** 2 / TILE)
+            check_memory(
+                n * BENCH_BYTES_PER_GAUSSIAN + 2 * (pairs * BYTES_PER_PAIR + s * s * BYTES_PER_PIXEL),
+                f"--n {n} --sizes {s}: {n:,} Gaussians rendered forward and backward at {s}x{s}",
+            )
+
+
+MAX_BENCH_SIDE = 8192  # pixels, as render --width
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="particlesplat bench render", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -151,6 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     from particlesplat.core.outputs import guard_outputs
 
     guard_outputs([("--json", args.json)], [])
+    check_cases(args.n, args.sizes, args.repeats)
     if args.case:
         print(json.dumps(run_case(args.case[0], args.case[1], args.repeats, rasterizers[0])))
         return 0

@@ -26,18 +26,19 @@ def run(args: argparse.Namespace) -> int:
     from particlesplat.core.outputs import guard_outputs
 
     guard_outputs([("--out", args.out)], [("RUN", Path(folder) / "metrics.jsonl") for folder in args.run])
-    runs, training = [], []
+    runs, training, counts = [], [], []
     for folder in args.run:
         path = Path(folder) / "metrics.jsonl"
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no metrics log (is {folder} a run folder?)")
-        rows, losses = read_curves(path)
+        rows, losses, logged = read_curves(path)
         runs.append((Path(folder).name if len(args.run) > 1 else "", rows))
         training.append(losses)
+        counts.append(logged)
     with atomic_path(args.out) as tmp:
         plot_curves(runs, args.title, training).save(tmp, format="PNG")
-    for folder, (_, rows), losses in zip(args.run, runs, training, strict=True):
-        loss = f"; training loss of {len(losses)} logged step(s) to step {losses[-1][0]}" if losses else ""
+    for folder, (_, rows), losses, logged in zip(args.run, runs, training, counts, strict=True):
+        loss = f"; training loss of {logged} logged step(s) to step {losses[-1][0]}" if losses else ""
         if rows:
             last = f"; last: step {rows[-1][0]}, PSNR {rows[-1][1]:.2f} dB, FG-ARI {rows[-1][2]:.3f}"
             print(f"{folder}: {len(rows)} validation point(s){last}{loss}")

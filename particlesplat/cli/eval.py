@@ -14,6 +14,8 @@ from particlesplat.data.families import CHECKPOINT_HELP
 from particlesplat.data.folders import check_file, check_split_folder
 from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
+MAX_FIT_LR = 10.0  # --fit-lr: Adam's step on the latents; past this the fit diverges at once
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
@@ -72,6 +74,10 @@ def run(args: argparse.Namespace) -> int:
         [("--json", args.json), ("--figures", args.figures)],
         [("--checkpoint", args.checkpoint), ("--data", args.data)],
     )
+    from particlesplat.core.limits import check_option_range
+
+    check_option_range(args.fit_lr, "--fit-lr", 0.0, MAX_FIT_LR, low_open=True)
+    check_option_range(args.z_t_threshold, "--z-t-threshold", 0.0, 1.0)  # z_t is a probability
     if args.json:
         check_writable(args.json)  # before the work, not after it
     if args.figures and args.num_figures > 0:

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, cast
 
 from particlesplat.core.choices import MODES, NEEDS_PARTICLES
 from particlesplat.core.errors import OptionError
+from particlesplat.core.limits import check_option_range
 from particlesplat.data.folders import check_existing, check_file
 from particlesplat.editing.source_options import add_source_arguments, check_source_arguments
 from particlesplat.formats.splat_files import SUFFIX_HELP
@@ -228,6 +229,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
     for name in ("ply", "checkpoint", "edits", "camera_from", "edits_from"):
         check_file(getattr(args, name, None), f"--{name.replace('_', '-')}")
     check_source_arguments(args)
+    check_option_range(args.prune, "--prune", 0.0, 1.0)  # an opacity
     several = len(args.mode) > 1 or (args.view is not None and len(args.view) > 1)
     if args.turntable < 0:
         raise OptionError(f"--turntable must be >= 0 frames, got {args.turntable}")

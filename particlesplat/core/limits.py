@@ -96,6 +96,18 @@ def check_memory(estimate: float, what: str) -> None:
         )
 
 
+def check_option_range(value: float | None, flag: str, lo: float, hi: float, low_open: bool = False) -> None:
+    """OptionError naming ``flag`` unless ``value`` (None: not given) is a finite number in [lo, hi] (``low_open``:
+    above ``lo``): a NaN threshold would compare false everywhere and render an empty scene in silence."""
+    if value is None:
+        return
+    from particlesplat.core.errors import OptionError
+
+    ok = math.isfinite(value) and (value > lo if low_open else value >= lo) and value <= hi
+    if not ok:
+        raise OptionError(f"{flag} must be in {'(' if low_open else '['}{lo:g}, {hi:g}], got {value!r}")
+
+
 def float32_problem(value: float, positive: bool = False) -> str | None:
     """What is wrong with ``value`` as a float32 quantity (None when nothing is): not finite, beyond
     :data:`FLOAT32_MAX_ABS` in size, or (``positive``) not positive or below :data:`FLOAT32_MIN_POSITIVE`."""

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from PIL import Image, ImageDraw
 
-from particlesplat.training.runlog import read_log
+from particlesplat.training.runlog import LogReader, check_record
 
 WIDTH, HEIGHT, MARGIN = 560, 300, 48
 LOSS_HEIGHT = 200  # pixels of the training-loss panel below the validation plot
@@ -20,6 +20,7 @@ PSNR_COLOUR, ARI_COLOUR, AXIS_COLOUR = (31, 119, 180), (214, 39, 40), (60, 60, 6
 # (PSNR, FG-ARI) colours of each run on one plot: the first run's are PSNR_COLOUR and ARI_COLOUR
 RUN_COLOURS = ((PSNR_COLOUR, ARI_COLOUR), ((23, 190, 207), (255, 127, 14)), ((44, 160, 44), (148, 103, 189)))
 LEGEND_ROW = 14  # pixels a legend row takes below the plot
+MAX_LOSS_POINTS = 2048  # loss rows kept for the plot (it is WIDTH pixels across): a long log is thinned
 
 
 def read_validation(path: Path) -> list[tuple[int, float, float]]:
@@ -29,26 +30,39 @@ def read_validation(path: Path) -> list[tuple[int, float, float]]:
 
 
 def read_training(path: Path) -> list[tuple[int, float]]:
-    """(step, training loss: the running mean the trainer logs) of every logged step in ``path``, in step order."""
+    """(step, training loss: the running mean the trainer logs) of the logged steps in ``path``, in step order
+    (at most :data:`MAX_LOSS_POINTS` of them, evenly thinned, the last always kept)."""
     return read_curves(path)[1]
 
 
-def read_curves(path: Path) -> tuple[list[tuple[int, float, float]], list[tuple[int, float]]]:
-    """The validation rows (:func:`read_validation`) and the training-loss rows (:func:`read_training`) of ``path``
-    in one reading, line by line, each record checked by :func:`particlesplat.training.runlog.read_log` (LogError
-    naming the line for a bad line but the last, a torn write, which is left out)."""
-    records, _ = read_log(path, keep=lambda r: "val" in r or ("step" in r and "loss" in r))
+def read_curves(path: Path) -> tuple[list[tuple[int, float, float]], list[tuple[int, float]], int]:
+    """The validation rows (:func:`read_validation`), the training-loss rows (:func:`read_training`) and the number
+    of logged training steps of ``path``, in one streaming reading: each record checked as
+    :func:`particlesplat.training.runlog.read_log` checks it (LogError naming the line for a bad line but the
+    last, a torn write, which is left out). A long run's log (a line a step) keeps only every k-th loss row
+    (k doubling as needed), so its memory stays small whatever the log's size."""
 
     def metric(v: object) -> float:
         return float("nan") if v is None else float(v)  # type: ignore[arg-type]
 
-    rows, losses = [], []
-    for r in records:
+    rows: list[tuple[int, float, float]] = []
+    losses: list[tuple[int, float]] = []
+    count, stride, last = 0, 1, None
+    reader = LogReader(path)
+    for number, r in reader:
+        check_record(r, reader.path, number)
         if isinstance(r.get("val"), dict):
             rows.append((int(r["step"]), metric(r["val"].get("psnr")), metric(r["val"].get("fg_ari"))))
-        elif isinstance(r.get("loss"), (int, float)) and not isinstance(r["loss"], bool):
-            losses.append((int(r["step"]), float(r["loss"])))
-    return sorted(rows), sorted(losses)
+        elif "step" in r and isinstance(r.get("loss"), (int, float)) and not isinstance(r["loss"], bool):
+            last = (int(r["step"]), float(r["loss"]))
+            if count % stride == 0:
+                losses.append(last)
+                if len(losses) >= 2 * MAX_LOSS_POINTS:
+                    losses, stride = losses[::2], stride * 2
+            count += 1
+    if last is not None and (not losses or losses[-1] != last):
+        losses.append(last)
+    return sorted(rows), sorted(losses), count
 
 
 def plot_curve(rows: list[tuple[int, float, float]], title: str = "") -> Image.Image:

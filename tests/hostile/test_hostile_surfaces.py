@@ -94,6 +94,8 @@ def world(tmp_path_factory) -> dict[str, Path]:
     checkpoint_with(good, w / "huge.pt", weights=lambda v: v * 1e30)
     checkpoint_with(good, w / "int.pt", weights=lambda v: (v * 100).to(torch.int64))
     big_config_checkpoint(good, w / "big_init.pt", token_dim=2048, transformer_layers=64)
+    # with its run's train section, as a trainer writes it (without one, --init reads the shipped recipe's)
+    checkpoint_with(w / "big_init.pt", w / "big_init.pt", train=yaml.safe_load(cfg.read_text())["train"])
     big_config_checkpoint(good, w / "mismatch.pt", channels=16)  # its weights are of channels 8
     shutil.copytree(w / "run", w / "nan_bench_run")
     checkpoint_with(w / "run" / "last.pt", w / "nan_bench_run" / "last.pt", weights=lambda v: v * float("nan"))
@@ -297,6 +299,22 @@ def _refusals(x: dict[str, Path]) -> dict[str, tuple[list[str], str]]:
             ["render", "--ply", str(w / "big.ply"), "--width", "2048", "--height", "2048", "--out", str(w / "o.png")],
             r"big.ply: 20,000 Gaussians covering [\d,]+ \(tile, Gaussian\) pairs at 2048x2048: needs about "
             ".* more than the memory",
+        ),
+        "render --prune nan": (
+            ["render", "--checkpoint", good, "--scene", str(scene), "--prune", "nan", "--out", str(w / "o.png")],
+            r"--prune must be in \[0, 1\], got nan",
+        ),
+        "eval --z-t-threshold nan": (
+            ["eval", "--checkpoint", good, "--data", str(w / "split"), "--z-t-threshold", "nan"],
+            r"--z-t-threshold must be in \[0, 1\], got nan",
+        ),
+        "eval --fit-lr 1e300": (
+            ["eval", "--checkpoint", good, "--data", str(w / "split"), "--fit-steps", "2", "--fit-lr", "1e300"],
+            r"--fit-lr must be in \(0, 10\], got 1e\+300",
+        ),
+        "bench render --n 1e9": (
+            ["bench", "render", "--n", "1000000000", "--sizes", "64"],
+            r"--n 1000000000 --sizes 64: 1,000,000,000 Gaussians rendered forward and backward at 64x64: needs",
         ),
         "bench edits --start -100": (["bench", "edits", "--start", "-100"], r"--start must be >= 0"),
         "bench edits --dilate -1": (["bench", "edits", "--dilate", "-1"], r"--dilate must be in \[0, 64\]"),
