@@ -211,6 +211,7 @@ def sog_claiming(path: Path, count: int = 10**9) -> Path:
     }
     with zipfile.ZipFile(path, "w") as z:
         z.writestr("meta.json", json.dumps(meta))
+    return path
 
 
 def checkpoint_with(good: Path, path: Path, weights=None, **keys) -> Path:
