@@ -35,3 +35,36 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
         if bad or not paths:
             raise pytest.UsageError(f"--compositing: expected paths from {PATHS}, got {bad or paths}")
         metafunc.parametrize("compositing", paths, scope="module")
+
+
+@pytest.fixture(autouse=True)
+def _user_folders(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The user's XDG folders (autosaves, settings, outputs) in a temporary folder: a test never writes to the
+    home folder of whoever runs the suite."""
+    home = tmp_path_factory.mktemp("xdg")
+    for name in ("XDG_STATE_HOME", "XDG_CONFIG_HOME", "XDG_DATA_HOME"):
+        monkeypatch.setenv(name, str(home / name.lower()))
+
+
+def skipped_groups(reports: list) -> list[tuple[str, int, list[str]]]:
+    """(reason, number of tests, their files) of skipped test reports, most tests first."""
+    groups: dict[str, tuple[int, set[str]]] = {}
+    for r in reports:
+        if isinstance(r.longrepr, tuple) and len(r.longrepr) == 3:  # (file, line, "Skipped: reason")
+            reason = str(r.longrepr[2]).removeprefix("Skipped: ")
+        else:
+            reason = str(r.longrepr)
+        count, files = groups.get(reason, (0, set()))
+        groups[reason] = (count + 1, files | {r.nodeid.split("::")[0]})
+    return sorted(((k, n, sorted(f)) for k, (n, f) in groups.items()), key=lambda g: -g[1])
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus: int, config: pytest.Config) -> None:
+    """Which groups of tests were skipped and why (the reason says what runs them: an extra to install, a GPU,
+    a variable to set), so a skipped group is never mistaken for a passed one."""
+    groups = skipped_groups(terminalreporter.stats.get("skipped", []))
+    if not groups:
+        return
+    terminalreporter.section("skipped groups")
+    for reason, count, files in groups:
+        terminalreporter.write_line(f"{count} test(s) in {', '.join(files)}: {reason}")

@@ -14,7 +14,8 @@ from PIL import Image
 
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
-from particlesplat.core.viewpoints import attach_option_values, parse_look
+from particlesplat.core.options import attach_option_values
+from particlesplat.core.viewpoints import parse_look
 from particlesplat.editing.open_scene import demo_scenes
 from particlesplat.formats.png import camera_from_png, png_text, save_png
 

@@ -43,3 +43,13 @@ def test_bench_lists_the_benchmarks_of_the_library_and_the_viewer(capsys):
     assert main(["bench", "--help"]) == 0
     listed = capsys.readouterr().out.split("benchmarks:")[1].split()
     assert {"edits", "encode", "render", "train", "viewer"} <= set(listed)
+
+
+def test_bench_edits_help_states_each_default_once(capsys):
+    from particlesplat.bench.edits import main as bench_edits
+
+    with pytest.raises(SystemExit) as e:
+        bench_edits(["--help"])
+    assert e.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "(default: None)" not in text and "(default: 12)" in text  # --scenes keeps its default

@@ -56,3 +56,55 @@ def test_two_runs_share_the_axes_each_in_its_own_colours(tmp_path, capsys):
     assert img.getpixel((x1, round(y0 - (y0 - y1) * 11 / 15))) == RUN_COLOURS[1][0]
     with pytest.raises(ValueError, match="at most 3 runs"):
         main(["curve", *[str(tmp_path / "a")] * 4, "--out", str(out)])
+
+
+def test_training_loss_is_plotted_below_and_a_run_without_validation_says_so(tmp_path, capsys):
+    """A short run (loss logged every 10 steps, no validation yet): the plot has the loss panel, its first and last
+    points at the panel's top left and bottom right (log axis), and the command says no validation came yet."""
+    from PIL import Image
+
+    from particlesplat.cli.main import main
+    from particlesplat.training.curve import LOSS_HEIGHT, RUN_COLOURS, read_training
+
+    run = tmp_path / "short"
+    run.mkdir()
+    records = [{"step": s, "loss": 1000.0 / s, "psnr": 15.0} for s in (10, 20, 40, 80)]
+    (run / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in records))
+    assert read_training(run / "metrics.jsonl") == [(10, 100.0), (20, 50.0), (40, 25.0), (80, 12.5)]
+    out = tmp_path / "c.png"
+    assert main(["curve", str(run), "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "no validation yet" in said and "training loss of 4 logged step(s) to step 80" in said
+    img = Image.open(out).convert("RGB")
+    assert img.size == (WIDTH, HEIGHT + LOSS_HEIGHT)
+    x0, x1, y0, y1 = MARGIN, WIDTH - MARGIN, HEIGHT + LOSS_HEIGHT - MARGIN, HEIGHT + 8
+    colour = RUN_COLOURS[0][0]
+    # log axis from 12.5 (bottom) to 100 (top), steps 0..80 across: (10, 100) and (80, 12.5)
+
+    def drawn(x: float, y: float) -> bool:  # within a pixel (the line's rounding)
+        return any(img.getpixel((round(x), round(y) + d)) == colour for d in (-1, 0, 1))
+
+    assert drawn(x0 + (x1 - x0) * 10 / 80, y1) and drawn(x1, y0)
+    # (40, 25): log10(25) is 1/3 of the way from log10(12.5) to log10(100)
+    assert drawn(x0 + (x1 - x0) * 40 / 80, y0 - (y0 - y1) / 3)
+    assert not drawn(x0 + (x1 - x0) * 40 / 80, y0 - (y0 - y1) / 2)
+
+
+def test_a_long_log_keeps_evenly_spaced_loss_rows_and_the_last(tmp_path):
+    """A line a step over 10,000 steps: at most 2 x MAX_LOSS_POINTS rows, every k-th step for one k, the last
+    step kept, every logged step counted; validation rows all kept."""
+    import json
+
+    from particlesplat.training.curve import MAX_LOSS_POINTS, read_curves
+
+    path = tmp_path / "metrics.jsonl"
+    lines = [json.dumps({"step": i, "loss": float(i)}) for i in range(10_000)]
+    lines.insert(5_000, json.dumps({"step": 4_999, "val": {"psnr": 20.0, "fg_ari": None}}))
+    path.write_text("\n".join(lines) + "\n")
+    rows, losses, logged = read_curves(path)
+    assert logged == 10_000 and len(rows) == 1 and rows[0][2] != rows[0][2]  # null FG-ARI: NaN
+    assert MAX_LOSS_POINTS <= len(losses) <= 2 * MAX_LOSS_POINTS
+    steps = [s for s, _ in losses]
+    assert steps[0] == 0 and steps[-1] == 9_999 and all(v == float(s) for s, v in losses)
+    gaps = {b - a for a, b in zip(steps[:-2], steps[1:-1], strict=True)}
+    assert len(gaps) == 1  # evenly thinned (the last row is added whatever its gap)

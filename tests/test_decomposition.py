@@ -11,7 +11,6 @@ from PIL import Image
 
 from particlesplat.analysis.figures import (
     DIM,
-    MODES,
     depth_image,
     render_mode,
     turntable_cameras,
@@ -20,6 +19,7 @@ from particlesplat.analysis.figures import (
 from particlesplat.analysis.particle_arrays import particle_arrays
 from particlesplat.cli.main import main
 from particlesplat.core.camera import Camera
+from particlesplat.core.choices import MODES
 from particlesplat.core.palette import colour
 from particlesplat.core.viewpoints import Look, View
 from particlesplat.editing.open_scene import encode_scene

@@ -6,7 +6,8 @@ import pytest
 import torch
 from test_model import scene_inputs, tiny_model
 
-from particlesplat.model.fit import FITTED, fit_particles
+from particlesplat.core.choices import FITTED
+from particlesplat.model.fit import fit_particles
 from particlesplat.model.losses import view_error
 from particlesplat.rendering.api import render
 

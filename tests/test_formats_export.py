@@ -152,7 +152,10 @@ def test_bad_requests_are_one_line_errors(tmp_path, capsys):
             ["--ply", str(tmp_path / "g.ply"), "--by", "particle", "--out", str(tmp_path / "keep")],
             "neither empty nor a",
         ),
-        (["--ply", str(tmp_path / "nope.spz"), "--out", str(tmp_path / "x.ply")], "nope.spz: Gaussian file not found"),
+        (
+            ["--ply", str(tmp_path / "nope.spz"), "--out", str(tmp_path / "x.ply")],
+            "--ply " + str(tmp_path / "nope.spz") + ": no such file",
+        ),
         (["--ply", str(tmp_path / "g.ply"), "--by", "particle", "--out", str(tmp_path / "b.spz")], "writes a folder"),
         (["--ply", str(tmp_path / "g.ply"), "--prune", "2", "--out", str(tmp_path / "x.ply")], "--prune must be"),
         (["--ply", str(tmp_path / "g.ply"), "--context", "1,2", "--out", str(tmp_path / "x.ply")], "--context needs"),

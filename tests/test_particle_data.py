@@ -10,8 +10,8 @@ import pytest
 import torch
 from model_data import TINY_MODEL, tiny_dataset
 
+from particlesplat.analysis.encode_folder import encode_batch, encode_folder, find_scenes
 from particlesplat.analysis.particle_arrays import ParticleArrays, encode_scene_arrays, particle_arrays
-from particlesplat.cli.encode import encode_batch, encode_folder, find_scenes
 from particlesplat.cli.main import main
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians

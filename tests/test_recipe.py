@@ -36,8 +36,8 @@ def test_config_defaults_are_the_recipe_and_the_recipe_lists_every_key():
         for key, value in recipe[section].items():
             assert defaults[key] == value and type(defaults[key]) is type(value), f"{section}.{key}"
     # the bundled recipe is what `particlesplat train` uses without --config
+    from particlesplat.core.bundled import recipe_path
     from particlesplat.model import load_config
-    from particlesplat.training.trainer import recipe_path
 
     cfg, tc = load_config(recipe_path())
     assert cfg == ModelConfig() and tc == TrainConfig()

@@ -334,11 +334,35 @@ def test_train_takes_the_gpu_torch_finds_unless_told_and_says_so(monkeypatch, ca
     """Without --device a run trains on cuda where torch sees a GPU (one line on stderr), else on the CPU."""
     monkeypatch.setattr(torch.cuda, "is_available", lambda: gpu)
     monkeypatch.setattr(torch.cuda, "device_count", lambda: int(gpu))
-    # no train/ split: the command stops right after choosing the device, before anything touches it
+    # an empty train/ split: the command stops right after choosing the device, before anything touches it
+    (tmp_path / "none" / "train").mkdir(parents=True)
     args = ["train", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "run")]
-    with pytest.raises(FileNotFoundError, match="no training split"):
+    with pytest.raises(FileNotFoundError, match="no scene folders"):
         main(args)
     assert ("train: on cuda, which torch found (--device cpu trains on the CPU)" in capsys.readouterr().err) == gpu
-    with pytest.raises(FileNotFoundError, match="no training split"):
+    with pytest.raises(FileNotFoundError, match="no scene folders"):
         main([*args, "--device", "cpu"])
     assert "train: on" not in capsys.readouterr().err
+
+
+def test_a_smoke_test_from_overrides_of_the_recipe(tmp_path_factory, tmp_path, capsys):
+    """``train.steps=3 train.val_every=2``: the run trains 3 steps with a validation at step 2 (and at the last),
+    records the changed recipe in its config.yaml, and ``curve`` plots it."""
+    from particlesplat.model.config import load_config
+
+    data = tiny_dataset(tmp_path_factory)
+    cfg = tiny_config(tmp_path / "tiny.yaml", steps=50, val_every=25)
+    assert _train(cfg, data, tmp_path / "run", "train.steps=3", "train.val_every=2") == 0
+    err = capsys.readouterr().err
+    assert "recipe changed by train.steps=3, train.val_every=2" in err
+    assert "left=" in err and "s_step=" in err  # the bar's time left from the median step
+    _, tc = load_config(tmp_path / "run" / "config.yaml")
+    assert (tc.steps, tc.val_every) == (3, 2)
+    val_steps = [
+        json.loads(line)["step"]
+        for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()
+        if "val" in json.loads(line)
+    ]
+    assert val_steps == [2, 3]
+    assert main(["curve", str(tmp_path / "run"), "--out", str(tmp_path / "c.png")]) == 0
+    assert "2 validation point(s)" in capsys.readouterr().out

@@ -87,7 +87,7 @@ def test_init_refuses_a_checkpoint_with_nothing_in_common(tmp_path_factory, tmp_
     torch.save(ckpt, tmp_path / "other.pt")
     with pytest.raises(UserError, match=r"other\.pt: --init: none of its \d+ weights has a name and shape"):
         _train(cfg, data, tmp_path / "b", "--init", str(tmp_path / "other.pt"))
-    with pytest.raises(FileNotFoundError, match="missing.pt: checkpoint not found"):
+    with pytest.raises(FileNotFoundError, match="--init .*missing.pt: no such file"):
         _train(cfg, data, tmp_path / "c", "--init", str(tmp_path / "missing.pt"))
 
 
@@ -121,8 +121,8 @@ def test_init_without_config_keeps_the_checkpoints_architecture_and_recipe(tmp_p
     assert f"{len(a['state_dict'])} of this model's {len(a['state_dict'])} weights copied" in err
     # a checkpoint that records no run (a shipped copy): the bundled recipe's train section
     from particlesplat.cli.train import init_config
+    from particlesplat.core.bundled import recipe_path
     from particlesplat.model import load_config
-    from particlesplat.training.trainer import recipe_path
 
     ckpt = read_checkpoint(src)
     del ckpt["train"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from viewer_helpers import psnr, small_model
 
 from particlesplat import render
 from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.userdirs import autosave_dir
 from particlesplat.model import save_checkpoint
 from viewer import app as A
 from viewer.bench.random_gaussians import random_gaussians
@@ -172,14 +174,24 @@ def press(app, *keys) -> None:
     app.run(1)
 
 
+def chord(app, key: str, shift: bool = False) -> None:
+    """A Ctrl chord as glfw's key callback reports it (the key with its modifiers), then two frames."""
+    import glfw
+
+    code = {"z": glfw.KEY_Z, "y": glfw.KEY_Y, "s": glfw.KEY_S, "d": glfw.KEY_D}[key]
+    app.chords.on_key(app.window, code, 0, glfw.PRESS, glfw.MOD_CONTROL | (glfw.MOD_SHIFT if shift else 0))
+    app.run(1)
+    app.run(1)
+
+
 def test_keyboard_shortcuts(app, tmp_path):
     K = imgui.Key
     s = app.session
     z0 = s.editor.value(0, "z_d")
     s.editor.set_attribute(0, "z_d", [z0[0] + 1.0])
-    press(app, K.mod_ctrl, K.left_ctrl, K.z)
+    chord(app, "z")
     assert s.editor.value(0, "z_d") == z0
-    press(app, K.mod_ctrl, K.left_ctrl, K.mod_shift, K.left_shift, K.z)
+    chord(app, "z", shift=True)
     assert s.editor.value(0, "z_d")[0] == pytest.approx(z0[0] + 1.0)
     mode = app.state.seg_mode
     press(app, K.m)
@@ -246,8 +258,10 @@ def test_open_keeps_unsaved_edits_and_offers_them_back(app, tmp_path):
     assert app.session.unsaved
     app.req.open_path = str(scene)  # the same scene again: the edits would be gone
     app.run(1)
-    kept = app.session.autosave_path(tmp_path)  # keyed by the resolved path and content of the scene
-    assert kept.name.startswith(f"{scene.name}-") and kept.is_file()
+    kept = app.session.autosave_path(autosave_dir())  # keyed by the resolved path and content of the scene
+    assert kept.name.startswith(f"tabletop-{scene.name}-") and kept.is_file()
+    assert kept.parent == Path(os.environ["XDG_STATE_HOME"]) / "particlesplat" / "autosave"
+    assert not list(tmp_path.glob("*.yaml"))  # the output folder holds no autosave
     assert f"unsaved edits of the previous scene kept in {kept}" in app.fields.status
     assert "Load edits restores them" in app.fields.status and app.fields.edits_path == str(kept)
     assert app.session.editor.edits() == {} and not app.session.unsaved
@@ -356,7 +370,7 @@ def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
         n = session.editor.num_particles
         members = session.editor.object_members(index)
         K = imgui.Key
-        press(app, K.mod_ctrl, K.left_ctrl, K.d)
+        chord(app, "d")
         assert session.editor.num_particles == n + len(members) and app.state.selected == n  # the copy is selected
         press(app, K.delete)
         assert [op.kind for op in session.editor.history.undo[-2:]] == ["duplicate", "remove"]
@@ -566,9 +580,9 @@ def test_a_screenshot_carries_its_edit_file_and_render_replays_it(window, tmp_pa
 
 
 def test_edits_are_saved_per_scene_and_another_scenes_file_is_not_replaced(window, tmp_path):
-    """Save edits writes NAME.edits.yaml of the scene shown; a file holding another scene's edits is replaced only
-    by a second Save; two scene folders of one name have their own autosaves, and loading one's edits onto the
-    other warns."""
+    """Save edits writes FAMILY-NAME-HASH.edits.yaml of the scene shown (two folders of one name: two files); a file
+    holding another scene's edits is replaced only by a second Save; two scene folders of one name have their own
+    autosaves (in the user's state folder, not the output folder), and loading one's edits onto the other warns."""
     import shutil
 
     from particlesplat.editing.open_scene import demo_scenes
@@ -581,28 +595,31 @@ def test_edits_are_saved_per_scene_and_another_scenes_file_is_not_replaced(windo
     out = tmp_path / "out"
     app = _demo_app(window, out, a_dir)
     try:
-        assert app.fields.edits_path == str(out / "scene_00000.edits.yaml")
+        a_file = out / f"{app.session.file_key}.edits.yaml"
+        assert app.fields.edits_path == str(a_file) and a_file.name.startswith("tabletop-scene_00000-")
         app.session.editor.remove_object(int(app.session.editor.decode().owner.max()))
         app.req.save_edits = True
         app.run(1)
-        saved = (out / "scene_00000.edits.yaml").read_text()
+        saved = a_file.read_text()
         assert "remove: true" in saved and str(a_dir.resolve()) in saved, app.fields.status
         app.session.editor.move_object(0, [0.05, 0.0, 0.0])  # unsaved: autosaved when B opens
         app.req.open_path = str(b_dir)
         app.run(1)
-        kept_a = next((out / ".particlesplat-autosave").iterdir())
+        kept_a = next(autosave_dir().iterdir())
         assert "kept in" in app.fields.status and "autosaved edits of this scene found" not in app.fields.status
-        assert app.session.autosave_path(out) != kept_a  # B does not see A's autosave
+        assert app.session.autosave_path(autosave_dir()) != kept_a  # B does not see A's autosave
+        assert app.fields.edits_path != str(a_file)  # nor shares A's edit file: its path differs
+        assert not (out / ".particlesplat-autosave").exists()
         # B's own edits: Save to A's file is refused once, then done
         app.session.editor.move_object(0, [0.0, 0.05, 0.0])
-        app.fields.edits_path = str(out / "scene_00000.edits.yaml")
+        app.fields.edits_path = str(a_file)
         app.req.save_edits = True
         app.run(1)
         assert app.fields.status.startswith("error: not saved") and "another scene" in app.fields.status
-        assert (out / "scene_00000.edits.yaml").read_text() == saved
+        assert a_file.read_text() == saved
         app.req.save_edits = True
         app.run(1)
-        assert str(b_dir.resolve()) in (out / "scene_00000.edits.yaml").read_text(), app.fields.status
+        assert str(b_dir.resolve()) in a_file.read_text(), app.fields.status
         # A's autosave loaded onto B: a warning, by content (the names are the same)
         app.fields.edits_path = str(kept_a)
         app.req.load_edits = True
@@ -612,7 +629,8 @@ def test_edits_are_saved_per_scene_and_another_scenes_file_is_not_replaced(windo
         # a demo scene of another name gets its own default file
         app.req.open_path = str(demo_scenes()[1])
         app.run(1)
-        assert app.fields.edits_path == str(out / "scene_00001.edits.yaml")
+        assert app.fields.edits_path == str(out / f"{app.session.file_key}.edits.yaml")
+        assert app.session.file_key.startswith("tabletop-scene_00001-")
     finally:
         app.scene_view.renderer.release()
 
@@ -627,15 +645,12 @@ def test_fast_undo_taps_are_all_done_at_once(app):
         s.editor.end_gesture()
     app.run(2)
     app.run(seconds=0.3)  # idle
-    io, K = imgui.get_io(), imgui.Key
-    io.add_key_event(K.mod_ctrl, True)
-    io.add_key_event(K.left_ctrl, True)
-    for _ in range(3):
-        io.add_key_event(K.z, True)
-        io.add_key_event(K.z, False)
-    io.add_key_event(K.left_ctrl, False)
-    io.add_key_event(K.mod_ctrl, False)
-    app.redraw.notify()  # the glfw callbacks of that burst
+    import glfw
+
+    for _ in range(3):  # the key callbacks of that burst: each Z press carries Ctrl
+        app.chords.on_key(app.window, glfw.KEY_Z, 0, glfw.PRESS, glfw.MOD_CONTROL)
+        app.chords.on_key(app.window, glfw.KEY_Z, 0, glfw.RELEASE, glfw.MOD_CONTROL)
+    app.redraw.notify()
     app.run(seconds=1.0)
     assert len(s.editor.history.undo) == n0
     while len(s.editor.history.redo):
@@ -734,3 +749,67 @@ def test_the_particle_list_names_deleted_particles_and_colours_copies(app):
     s.editor.undo()
     assert particle_status(s.editor, first) == "active"
     app.run(1)
+
+
+def test_status_line_at_the_bottom_mirrored_on_the_terminal(app, capsys):
+    """A message shows on one line at the bottom of the window, below the panel, and once on the terminal; the
+    panel's layout is the same with or without it (no shift under the mouse)."""
+    find = imgui.internal.find_window_by_name
+    app.state.panel = True
+    app.fields.status = ""
+    app.run(2)
+    content = (find("ParticleSplat").content_size.x, find("ParticleSplat").content_size.y)
+    capsys.readouterr()
+    app.fields.status = "saved 3 edit operation(s) to /somewhere/e.yaml\nand a second line"
+    app.run(2)
+    status, panel, vp = find("##status"), find("ParticleSplat"), imgui.get_main_viewport()
+    assert status.active and status.pos.y + status.size.y == pytest.approx(vp.work_pos.y + vp.work_size.y)
+    assert status.size.x == pytest.approx(vp.work_size.x)
+    assert panel.pos.y + panel.size.y <= status.pos.y + 0.5  # the panel ends above it
+    assert (panel.content_size.x, panel.content_size.y) == content  # the panel's layout did not change
+    out = capsys.readouterr().out
+    assert out.count("particlesplat-viewer: saved 3 edit operation(s) to /somewhere/e.yaml and a second line\n") == 1
+    app.fields.status = ""
+    app.run(2)
+    assert not find("##status").active
+
+
+def test_panel_width_follows_a_drag_of_its_edge_and_is_remembered(app):
+    """Dragging the panel's left edge 80 points to the left widens it by 80; the width is written to the settings
+    file once the mouse is released, and the next viewer starts with it."""
+    import glfw
+
+    from viewer.settings import load_settings, settings_path
+
+    app.state.panel = True
+    glfw.set_window_size(app.window, 900, 400)
+    app.run(3)
+    panel = imgui.internal.find_window_by_name("ParticleSplat")
+    x0, y, w0 = panel.pos.x, panel.pos.y + 0.5 * panel.size.y, panel.size.x
+    assert w0 == pytest.approx(app.fields.panel_width)
+    io = imgui.get_io()
+    start = glfw.get_cursor_pos(app.window)
+    x, y = int(round(x0)), int(round(y))
+    _point_at(app, x, y)
+    app.run(2)  # hovered: the edge's resize cursor
+    io.add_mouse_button_event(0, True)
+    app.run(1)
+    for step in range(1, 9):
+        io.add_mouse_pos_event(x - 10.0 * step, y)
+        app.run(1)
+    glfw.set_cursor_pos(app.window, x - 80.0, y)
+    _wait_for_cursor(app.window, x - 80.0, y)
+    io.add_mouse_button_event(0, False)
+    app.run(2)
+    try:
+        assert app.fields.panel_width == pytest.approx(w0 + 80.0, abs=1.0)
+        assert load_settings(settings_path()).panel_width == pytest.approx(w0 + 80.0, abs=1.0)
+        assert str(settings_path()).startswith(os.environ["XDG_CONFIG_HOME"])
+        cam = app.view_camera(1.0)
+        assert cam.K[0, 2] < cam.width / 2 - 0.5 * (w0 + 80.0)  # the scene is framed in the narrower free part
+    finally:
+        io.add_mouse_button_event(0, False)
+        glfw.set_window_size(app.window, 160, 120)
+        app.fields.panel_width = app.settings.panel_width = w0
+        glfw.set_cursor_pos(app.window, *start)
+        app.run(2)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import os
 import sys
 import time
 from pathlib import Path
@@ -21,18 +22,21 @@ import torch  # noqa: E402
 from imgui_bundle import imgui  # import before glfw so both use the same GLFW library
 
 from particlesplat.core.camera import Camera  # noqa: E402
+from particlesplat.core.errors import UserError  # noqa: E402
+from particlesplat.core.options import attach_option_values  # noqa: E402
+from particlesplat.core.userdirs import autosave_dir, output_dir  # noqa: E402
 from particlesplat.core.viewpoints import (
     DEFAULT_FOV,
     View,
-    attach_option_values,
     check_fov,
     default_view,  # noqa: E402
     parse_look,
     scene_background,
 )
-from particlesplat.editing.open_scene import add_source_arguments, check_source_arguments  # noqa: E402
+from particlesplat.editing.source_options import add_source_arguments, check_source_arguments  # noqa: E402
 from particlesplat.formats.splat_files import SUFFIX_HELP, SUFFIXES  # noqa: E402
 
+from .chords import ChordQueue  # noqa: E402
 from .commands import carry_out, save_edits  # noqa: E402
 from .controls import Viewport, ViewportControls  # noqa: E402
 from .gl.caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
@@ -44,11 +48,12 @@ from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noq
 from .scene_view import SceneView  # noqa: E402
 from .screenshot import png_text, save_png, save_screenshot  # noqa: E402
 from .session import EditableScene, Scene  # noqa: E402
+from .settings import load_settings, save_settings  # noqa: E402
 from .signals import SignalStop, raise_on_stop_signals  # noqa: E402
 from .state import ViewState  # noqa: E402
 from .tools.object_tools import ObjectGizmo  # noqa: E402
 from .tools.ruler import draw_ruler  # noqa: E402
-from .ui.panel import UiFields, UiRequests, clear_of_panel, draw_overlay, draw_panel  # noqa: E402
+from .ui.panel import UiFields, UiRequests, clear_of_panel, draw_overlay, draw_panel, draw_status_line  # noqa: E402
 
 STILL_AFTER = 0.2  # seconds without interaction before rendering at full scale
 ORBIT_STEP = 1.0  # degrees per frame with --orbit
@@ -94,7 +99,12 @@ def build_parser() -> argparse.ArgumentParser:
         "(both exact; the default); points = always sprites (large splats clipped)",
     )
     p.add_argument("--compositing", choices=COMPOSITING, default="auto", help=COMPOSITING_HELP)
-    p.add_argument("--output-dir", default=".", help="folder for screenshots and .ply exports (default: .)")
+    p.add_argument(
+        "--output-dir",
+        help="folder for screenshots, .ply exports and edit files (default: ~/.local/share/particlesplat, or "
+        "$XDG_DATA_HOME/particlesplat; printed at start); unsaved edits are autosaved in "
+        "~/.local/state/particlesplat/autosave ($XDG_STATE_HOME)",
+    )
     p.add_argument("--no-ui", action="store_true", help="start with the panel hidden (H toggles)")
     return p
 
@@ -135,8 +145,13 @@ class App:
         self.orbit = OrbitCamera.from_view(view)
         self.state = ViewState(panel=not args.no_ui, background=scene_background(session.model))
         self.req = UiRequests()
-        self.fields = UiFields(output_dir=args.output_dir)
-        self.fields.edits_path = str(session.default_edits_path(args.output_dir))
+        self.settings = load_settings()
+        out = str(args.output_dir or output_dir())
+        self.fields = UiFields(output_dir=out, panel_width=self.settings.panel_width)
+        self.fields.edits_path = str(session.default_edits_path(out))
+        self.chords = ChordQueue()  # Ctrl chords with the modifiers of their key events
+        self._frame_chords: list[tuple[str, bool]] = []
+        self._shown_status = ""  # the status line last mirrored on the terminal
         self.controls = ViewportControls()
         self.gizmo = ObjectGizmo()  # world-space handles and outline of the selected object
         self.particle_overlay = ParticleOverlay()  # keypoints / boxes segmentation modes
@@ -155,6 +170,12 @@ class App:
         addr = window_address(self.window)
         backends.glfw_restore_callbacks(addr)
         install_event_callbacks(self.window, self.redraw.notify)
+
+        def on_key(window, key, scancode, action, mods) -> None:  # modifiers as the event carried them
+            self.redraw.notify()
+            self.chords.on_key(window, key, scancode, action, mods)
+
+        glfw.set_key_callback(self.window, on_key)
         backends.glfw_install_callbacks(addr)
 
     # ------------------------------------------------------------------ frame
@@ -172,7 +193,7 @@ class App:
         w, h = self.framebuffer_size()
         cam = self.orbit.camera(max(1, round(w * scale)), max(1, round(h * scale)))
         if clear_panel and self.state.panel:
-            cam = clear_of_panel(cam, self.pixel_ratio()[0] * scale)
+            cam = clear_of_panel(cam, self.pixel_ratio()[0] * scale, self.fields.panel_width)
         return cam
 
     def frame(self, show_ui: bool = True) -> bool:
@@ -192,7 +213,9 @@ class App:
             draw_ruler(self.state, self.view_camera(1.0), self.pixel_ratio())
             if message:
                 self.fields.status = message
+            self._frame_chords = self.chords.take()
             self.controls.handle(self.viewport())
+            self._frame_chords = []
             if self.state.panel:
                 if self.session.num_owners() != self._swatched:  # copies and inserted objects get theirs
                     self.swatches, self._swatched = particle_swatches(self.session), self.session.num_owners()
@@ -205,10 +228,15 @@ class App:
                     self.swatches,
                     (drawn, self.scene_view.renderer.num),
                 )
+                self.remember_panel_width()
             if self.state.overlay:
                 draw_overlay(self.overlay_lines())
+            draw_status_line(self.fields, self.fields.panel_width if self.state.panel else 0.0)
+        else:
+            self.chords.take()  # no UI: no shortcuts
         imgui.render()
         requested = self.process_requests()
+        self.mirror_status()
         scale = self.render_scale()
         rendered = self.scene_view.draw(self.session, self.state, self.view_camera(scale)) is not None
         fw, fh = self.framebuffer_size()
@@ -224,6 +252,25 @@ class App:
         queued = len(imgui.get_current_context().input_events_queue) > 0
         self.redraw.drawn(changed or queued, self.next_wake(scale))
         return changed
+
+    def mirror_status(self) -> None:
+        """Print a new status line on the terminal too (saved, exported, errors), where a user who looks away from
+        the window, or whose window is small, still sees it."""
+        status = self.fields.status
+        if status and status != self._shown_status:
+            print(f"particlesplat-viewer: {' '.join(status.split())}", flush=True)
+        self._shown_status = status
+
+    def remember_panel_width(self) -> None:
+        """Keep the panel's width in the settings file once the user has dragged its edge (mouse released)."""
+        width = self.fields.panel_width
+        if abs(width - self.settings.panel_width) < 0.5 or imgui.is_mouse_down(imgui.MouseButton_.left):
+            return
+        self.settings.panel_width = width
+        try:
+            save_settings(self.settings)
+        except OSError as e:  # a read-only home: the width holds for this run
+            self.fields.status = f"error: the panel width is not remembered: {e}"
 
     def display_sync(self) -> None:
         """Wait until the display server has taken the frame just swapped (X11: ``XSync``), so at most one frame
@@ -283,6 +330,7 @@ class App:
             height=self.framebuffer_size()[1],
             copy_offset=self.fields.objects.copy_offset,
             gizmo_capturing=self.gizmo.capturing,
+            chords=self._frame_chords,
         )
 
     def pixel_ratio(self) -> tuple[float, float]:
@@ -306,7 +354,7 @@ class App:
 
     def keep_unsaved(self) -> Path | None:
         """Autosave the session's unsaved edits (before it is replaced or the window closes); returns the file."""
-        return self.session.autosave(self.fields.output_dir)
+        return self.session.autosave(autosave_dir())
 
     def open(self, path: str) -> None:
         """Open a scene folder or a Gaussian file (.ply, .compressed.ply, .splat, .spz, .sog; replaces the
@@ -333,7 +381,7 @@ class App:
         self.fields.edits_path = str(self.session.default_edits_path(self.fields.output_dir))
         self.fields.confirm_overwrite = None
         editable = isinstance(self.session, EditableScene)
-        found = self.session.autosave_path(self.fields.output_dir) if editable else None
+        found = self.session.autosave_path(autosave_dir()) if editable else None
         if found is not None and found.is_file():
             self.fields.edits_path = str(found)
             self.fields.status += f"; autosaved edits of this scene found: Load edits restores them ({found})"
@@ -435,12 +483,30 @@ def _x11_sync_function():
     return lambda: xsync(display, 0)
 
 
+class NoDisplay(UserError):
+    """No display to open a window on: the viewer ends with one line naming DISPLAY and xvfb-run."""
+
+
+def check_display() -> None:
+    """NoDisplay (one line) on Linux when neither DISPLAY nor WAYLAND_DISPLAY is set: before the scene loads."""
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise NoDisplay(
+            "no display: DISPLAY is not set; on a machine without a screen run xvfb-run -a particlesplat-viewer"
+        )
+
+
 def create_window(size: tuple[int, int], title: str = "ParticleSplat Studio"):
     """A glfw window with a GL 3.3 core context (current) and imgui's native backends."""
     from imgui_bundle.imgui import backends
 
+    check_display()
+    reporting, glfw.ERROR_REPORTING = glfw.ERROR_REPORTING, "ignore"  # a failure below is one line, no warnings
     if not glfw.init():
-        raise RuntimeError("glfw.init() failed: no display? (run under xvfb-run for headless use)")
+        raise NoDisplay(
+            f"cannot open the display {os.environ.get('DISPLAY') or os.environ.get('WAYLAND_DISPLAY')!r}: check "
+            "DISPLAY, or run xvfb-run -a particlesplat-viewer"
+        )
+    glfw.ERROR_REPORTING = reporting
     window = None
     # EGL first: a process that also holds a headless EGL context (tests, benches) cannot make
     # a GLX context current (X error BadAccess); fall back to the platform's native API.
@@ -478,10 +544,11 @@ def destroy_window(window) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """The viewer under the error policy (:func:`particlesplat.core.errors.run_command`): a bad file or argument is
-    one line and exit code 2, Ctrl-C one line and 130; a bug keeps its traceback."""
-    from particlesplat.core.errors import run_command
+    one line and exit code 2, Ctrl-C one line and 130 (the process then ends at once, its edits autosaved); a bug
+    keeps its traceback."""
+    from particlesplat.core.errors import end_at_once_if_interrupted, run_command
 
-    return run_command("particlesplat-viewer", lambda: _main(argv))
+    return end_at_once_if_interrupted(run_command("particlesplat-viewer", lambda: _main(argv)))
 
 
 def _main(argv: list[str] | None = None) -> int:
@@ -500,6 +567,7 @@ def _main(argv: list[str] | None = None) -> int:
     if args.frames is not None and args.frames < 1:
         print("particlesplat-viewer: --frames must be >= 1", file=sys.stderr)
         return 2
+    check_display()  # before the scene is encoded
     try:
         session = load_session(args)
         view = initial_view(session, args.look, args.fov)
@@ -525,7 +593,8 @@ def _main(argv: list[str] | None = None) -> int:
             if args.frames is None:
                 print(
                     f"particlesplat-viewer: showing {app.session.source or 'the scene'}; screenshots, exports, edits "
-                    f"go to {Path(args.output_dir).resolve()}; close the window or press Ctrl-C here to quit",
+                    f"go to {Path(app.fields.output_dir).resolve()} (unsaved edits are kept in {autosave_dir()}); "
+                    "close the window or press Ctrl-C here to quit",
                     flush=True,
                 )
             code = _run_app(app, args)

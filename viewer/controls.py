@@ -43,6 +43,8 @@ class Viewport:
         height: the framebuffer's height in pixels.
         copy_offset: (3,) metres between an object and its copy (Ctrl+D).
         gizmo_capturing: the object gizmo holds the mouse this frame.
+        chords: the Ctrl chords pressed since the last frame, with their modifiers as the key events carried them
+            (:class:`viewer.chords.ChordQueue`): ("z", shift held), ...
     """
 
     orbit: OrbitCamera
@@ -56,6 +58,7 @@ class Viewport:
     height: int = 1
     copy_offset: Sequence[float] = (0.0, 0.0, 0.0)
     gizmo_capturing: bool = False
+    chords: Sequence[tuple[str, bool]] = ()
 
 
 CLICK_SLOP = 3.0  # window pixels a press may move and still count as a click
@@ -184,11 +187,20 @@ class ViewportControls:
 
     @staticmethod
     def _keys(vp: Viewport, io) -> None:
-        """Run the actions whose keys were pressed (:data:`viewer.actions.ACTIONS`): a Ctrl chord matches with
-        Ctrl (and Shift as it names it) held, a plain key without Ctrl."""
+        """Run the actions whose keys were pressed (:data:`viewer.actions.ACTIONS`): a Ctrl chord as its key event
+        carried it (``vp.chords``: Ctrl and Shift as they were when the key went down, :mod:`viewer.chords`), a
+        plain key without Ctrl."""
+        for key, shift in vp.chords:
+            for action in ACTIONS:
+                if any(c.ctrl and c.key == key and c.shift == shift for c in action.keys):
+                    if action.enabled(vp):
+                        action.run(vp)
+                    break
+        if io.key_ctrl or vp.chords:
+            return
         for action in ACTIONS:
             for chord in action.keys:
-                if chord.ctrl != bool(io.key_ctrl) or (chord.ctrl and chord.shift != bool(io.key_shift)):
+                if chord.ctrl:
                     continue
                 if imgui.is_key_pressed(getattr(imgui.Key, chord.key), action.repeat):
                     if action.enabled(vp):

@@ -19,14 +19,12 @@ import torch
 
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.editing.editor import EditsError, SceneEditor, load_edit_file, same_scene, scene_mismatch
-from particlesplat.editing.scene_id import resolved, scene_digest
+from particlesplat.editing.scene_id import resolved, scene_digest, scene_file_key
 
 if TYPE_CHECKING:
     from particlesplat.core.camera import Camera
     from particlesplat.editing.open_scene import EncodedScene
     from particlesplat.model.particlesplat import ParticleSplat
-
-AUTOSAVE_DIR = ".particlesplat-autosave"  # under the viewer's --output-dir
 
 
 class Scene(Protocol):
@@ -124,16 +122,24 @@ class SceneFiles:
         """The scene's file or folder name (for file names)."""
         return Path(self.source).stem if self.source.endswith(".ply") else (Path(self.source).name or "scene")
 
+    @property
+    def file_key(self) -> str:
+        """The stem of this scene's files, ``FAMILY-NAME-HASH`` (:func:`~particlesplat.editing.scene_id.scene_file_key`:
+        demo scenes of two families, or two folders of one name, never share a file)."""
+        from particlesplat.data.scene_meta import read_family
+
+        return scene_file_key(self.source or "scene", read_family(self.source) if self.source else None)
+
     def autosave_path(self, folder: str | PathLike) -> Path:
-        """Where unsaved edits are kept: ``FOLDER/.particlesplat-autosave/NAME-KEY.edits.yaml``, KEY from the
-        resolved scene path and its content (two scenes of one name, or a scene whose files changed, never share
-        an autosave)."""
+        """Where :meth:`autosave` keeps this scene's unsaved edits: ``FOLDER/FAMILY-NAME-HASH-KEY.edits.yaml`` (the
+        viewer's FOLDER: :func:`particlesplat.core.userdirs.autosave_dir`), KEY from the resolved scene path and its
+        content (two scenes of one name, or a scene whose files changed, never share an autosave)."""
         key = hashlib.sha256(f"{self.scene_path}\0{self.scene_sha256 or ''}".encode()).hexdigest()[:16]
-        return Path(folder) / AUTOSAVE_DIR / f"{self.name}-{key}.edits.yaml"
+        return Path(folder) / f"{self.file_key}-{key}.edits.yaml"
 
     def default_edits_path(self, folder: str | PathLike) -> Path:
-        """Where Save edits writes by default: ``FOLDER/NAME.edits.yaml`` (one file per scene)."""
-        return Path(folder) / f"{self.name}.edits.yaml"
+        """Where Save edits writes by default: ``FOLDER/FAMILY-NAME-HASH.edits.yaml`` (one file per scene)."""
+        return Path(folder) / f"{self.file_key}.edits.yaml"
 
 
 class PlyScene(SceneFiles):

@@ -24,18 +24,19 @@ from particlesplat.analysis.metrics import (
     summarise_region_errors,
 )
 from particlesplat.analysis.particle_arrays import (
-    OBJECT_CENTRES,
     localisation_summary,
     object_localisation,
     scene_object_centres,
 )
+from particlesplat.core import palette
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.camera import Camera
+from particlesplat.core.choices import DEFAULT_FIT, OBJECT_CENTRES
 from particlesplat.core.errors import OptionError, UserError
 from particlesplat.data.scene_meta import scene_pose
 from particlesplat.data.views import supervision_mask
 from particlesplat.editing.grouping import particle_objects
-from particlesplat.model.fit import DEFAULT_FIT, fit_particles
+from particlesplat.model.fit import fit_particles
 from particlesplat.rendering.api import render
 
 if TYPE_CHECKING:
@@ -254,18 +255,16 @@ def _nanmean(values: list[float]) -> float:
     return float(np.mean(v)) if v else float("nan")
 
 
-def _palette(n: int) -> np.ndarray:
-    rng = np.random.default_rng(7)
-    return rng.integers(40, 255, size=(max(n, 1), 3)).astype(np.uint8)
-
-
 FIGURE_ROWS = ("context", "target", "render", "depth", "objects")  # the rows of save_figure, labelled on the left
 FIGURE_LABEL_WIDTH = 56  # pixels of the label column
 
 
-def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
+def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> list[float]:
     """PNG grid, each row labelled in a column on the left (:data:`FIGURE_ROWS`): row 1 context views, row 2 target
-    ground truth, row 3 renders, row 4 depth, row 5 segmentation into objects."""
+    ground truth, row 3 renders with each view's PSNR (dB) written under it, row 4 depth (black = 0 m, white = the
+    98th percentile, its metres in the row's label), row 5 segmentation into objects in the shared palette
+    (:mod:`particlesplat.core.palette`: the colours of ``render --mode objects`` and the viewer). Returns the
+    per-view PSNRs written."""
 
     def img(t: Tensor) -> np.ndarray:
         return (t.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255).astype(np.uint8)
@@ -275,7 +274,6 @@ def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
     H = W = r["rgb"].shape[-1]
     d = r["depth"][:, 0]
     dmax = float(torch.quantile(d[d > 0], 0.98)) if bool((d > 0).any()) else 1.0
-    pal = _palette(int(r["seg_objects"].max()) + 1)
     cols = max(T, item["context_rgb"].shape[0])
     grid = np.zeros((5 * H, cols * W, 3), np.uint8)
     for i in range(item["context_rgb"].shape[0]):
@@ -287,7 +285,7 @@ def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
             ..., None
         ]
         s = r["seg_objects"][i].cpu().numpy()
-        grid[4 * H : 5 * H, i * W : (i + 1) * W] = np.where(s[..., None] >= 0, pal[np.clip(s, 0, None)], 0)
+        grid[4 * H : 5 * H, i * W : (i + 1) * W] = np.round(palette.colour_map(s) * 255.0).astype(np.uint8)
     from PIL import ImageDraw
 
     out = Image.new("RGB", (FIGURE_LABEL_WIDTH + grid.shape[1], grid.shape[0]), (0, 0, 0))
@@ -295,8 +293,15 @@ def save_figure(path: Path, item: dict[str, Tensor], res: dict) -> None:
     draw = ImageDraw.Draw(out)
     for row, label in enumerate(FIGURE_ROWS):
         draw.text((4, row * H + H // 2 - 6), label, fill=(235, 235, 235))
+    draw.text((4, 3 * H + H // 2 + 6), f"0-{dmax:.2f} m", fill=(235, 235, 235))
+    scores = [psnr(r["rgb"][i], item["target_rgb"][i].to(r["rgb"].device)) for i in range(T)]
+    for i, score in enumerate(scores):  # under each render, on a dark band
+        x, y = FIGURE_LABEL_WIDTH + i * W + 2, 3 * H - 12
+        draw.rectangle([x - 2, y - 1, x + 6 * 7 + 2, y + 10], fill=(0, 0, 0))
+        draw.text((x, y), f"{score:.1f} dB", fill=(255, 255, 255))
     with atomic_path(path) as tmp:
         out.save(tmp, format="PNG")
+    return scores
 
 
 def evaluate_dataset(

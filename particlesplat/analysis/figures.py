@@ -32,29 +32,71 @@ from particlesplat.analysis.particle_arrays import ParticleArrays
 from particlesplat.core import palette
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.camera import Camera
+from particlesplat.core.choices import MODES, NEEDS_PARTICLES, RenderMode
 from particlesplat.core.errors import OptionError
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.viewpoints import Look, View
 from particlesplat.rendering.api import render
 
-RenderMode = Literal["rgb", "depth", "particles", "objects", "foreground", "background", "keypoints", "boxes"]
-MODES: tuple[str, ...] = ("rgb", "depth", "particles", "objects", "foreground", "background", "keypoints", "boxes")
-NEEDS_PARTICLES: tuple[str, ...] = ("particles", "objects", "foreground", "background", "keypoints", "boxes")
 DIM = 0.55  # the scene's brightness under the keypoint and box overlays
 BOX_SIGMAS = 2.0  # a particle's box reaches this many standard deviations (extent) from its centroid
 ANIMATIONS = (".gif", ".webp")
 FRAME_MS = 80  # per turntable frame
 
 
-def depth_image(depth: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-    """(H, W) planar metres and accumulated opacity -> (H, W, 3) grey: near bright, far dark, nothing black."""
+def depth_span(depth: np.ndarray, alpha: np.ndarray) -> tuple[float, float] | None:
+    """The planar depths (metres) the grey of :func:`depth_image` spans: the 2nd and 98th percentiles of the covered
+    pixels (accumulated opacity > 0.5); None when nothing is covered."""
     covered = alpha > 0.5
     if not covered.any():
-        return np.zeros(depth.shape + (3,))
+        return None
     lo, hi = np.percentile(depth[covered], [2.0, 98.0])
-    t = np.clip((hi - depth) / max(hi - lo, 1e-6), 0.0, 1.0)
-    grey = np.where(covered, 0.15 + 0.85 * t, 0.0)  # the depth alone: a semi-transparent floor is no darker
+    return float(lo), float(hi)
+
+
+def depth_grey(depth: np.ndarray, span: tuple[float, float]) -> np.ndarray:
+    """Planar metres -> grey in [0.15, 1]: 1 at ``span[0]`` (near) to 0.15 at ``span[1]`` (far), clipped."""
+    lo, hi = span
+    return 0.15 + 0.85 * np.clip((hi - depth) / max(hi - lo, 1e-6), 0.0, 1.0)
+
+
+def depth_image(depth: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """(H, W) planar metres and accumulated opacity -> (H, W, 3) grey: near bright, far dark, nothing black."""
+    span = depth_span(depth, alpha)
+    if span is None:
+        return np.zeros(depth.shape + (3,))
+    grey = np.where(alpha > 0.5, depth_grey(depth, span), 0.0)  # the depth alone: a semi-transparent floor is no darker
     return np.repeat(grey[..., None], 3, axis=-1)
+
+
+BAR_GAP, BAR_WIDTH, BAR_LABELS = 6, 12, 56  # pixels: before the colour bar, the bar, its labels
+
+
+def with_depth_bar(image: np.ndarray, span: tuple[float, float] | None) -> np.ndarray:
+    """``image`` (H, W, 3) in [0, 1] with a colour bar on its right (H, W + 74, 3): the greys of
+    :func:`depth_grey` from ``span[0]`` (top, near) to ``span[1]`` (bottom, far), row r at depth
+    ``lo + (hi - lo) * r / (H - 1)``, labelled in metres at the top, middle and bottom. No span (nothing
+    covered): the bar is black and labelled "no depth"."""
+    H, W = image.shape[:2]
+    out = np.zeros((H, W + BAR_GAP + BAR_WIDTH + BAR_LABELS, 3))
+    out[:, :W] = image
+    x0 = W + BAR_GAP
+    if span is not None:
+        rows = span[0] + (span[1] - span[0]) * np.arange(H) / max(H - 1, 1)
+        out[:, x0 : x0 + BAR_WIDTH] = depth_grey(rows, span)[:, None, None]
+    canvas = Image.fromarray((np.clip(out, 0.0, 1.0) * 255.0).round().astype(np.uint8))
+    draw = ImageDraw.Draw(canvas)
+    tx = x0 + BAR_WIDTH + 3
+    if span is None:
+        draw.text((tx, 0), "no depth", fill=(255, 255, 255))
+    else:
+        ticks = (0, H // 2, H - 1) if H >= 48 else (0, H - 1)
+        for r in ticks:
+            z = span[0] + (span[1] - span[0]) * r / max(H - 1, 1)
+            y = min(max(r - 5, 0), max(H - 11, 0))
+            draw.line([(x0 + BAR_WIDTH, r), (tx - 1, r)], fill=(255, 255, 255))
+            draw.text((tx, y), f"{z:.2f} m", fill=(255, 255, 255))
+    return np.asarray(canvas, dtype=np.float64) / 255.0
 
 
 def _object_labels(arrays: ParticleArrays) -> torch.Tensor:
@@ -148,10 +190,12 @@ def render_mode(
     *,
     background: Sequence[float] = (0.0, 0.0, 0.0),
     arrays: ParticleArrays | None = None,
+    colour_bar: bool = False,
 ) -> np.ndarray:
     """One view of ``gaussians`` (the decoded scene, owner = particle index) as ``mode`` -> (H, W, 3) in [0, 1].
 
     ``arrays``: the scene's particle arrays, needed by every mode but rgb and depth (ValueError without).
+    ``colour_bar``: depth gets its colour bar in metres on the right (:func:`with_depth_bar`: wider by 74 px).
     """
     if mode not in MODES:
         raise OptionError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
@@ -168,7 +212,9 @@ def render_mode(
     if mode in ("rgb", "foreground", "background"):
         return r.rgb.numpy().astype(np.float64)
     if mode == "depth":
-        return depth_image(r.depth.numpy(), r.alpha.numpy())
+        depth, alpha = r.depth.numpy(), r.alpha.numpy()
+        image = depth_image(depth, alpha)
+        return with_depth_bar(image, depth_span(depth, alpha)) if colour_bar else image
     assert arrays is not None  # every other mode needs the particles (checked above)
     if segment:
         labels = r.segmentation(_object_labels(arrays) if mode == "objects" else None).numpy()

@@ -35,14 +35,13 @@ import torch
 from torch import Tensor
 
 from particlesplat.core.atomic import atomic_path
+from particlesplat.core.choices import OBJECT_CENTRES, ObjectCentre
 from particlesplat.core.errors import UserError, one_line
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.sh import SH_C0
 from particlesplat.data.scene import SceneFormatError
 from particlesplat.data.scene_meta import read_scene_json
 from particlesplat.editing.grouping import (
-    OBJECT_CENTRES,
-    ObjectCentre,
     drawing_particles,
     object_centres,
     weighted_stats,

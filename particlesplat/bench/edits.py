@@ -43,14 +43,16 @@ import torch.nn.functional as F
 from particlesplat.analysis.metrics import psnr_of_mse
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.errors import OptionError, short_repr
+from particlesplat.core.options import HelpFormatter
 from particlesplat.core.vectors import float3
-from particlesplat.data.families import tabletop
+from particlesplat.data.families import CHECKPOINT_HELP, tabletop
 from particlesplat.data.scene import Scene, SceneFormatError, read_scene
-from particlesplat.data.scene_meta import CHECKPOINT_HELP, default_checkpoint, read_scene_json
+from particlesplat.data.scene_meta import default_checkpoint, read_scene_json
 from particlesplat.data.synth import scene_rng, write_tabletop
 from particlesplat.editing.editor import Pick, PickError, SceneEditor
 from particlesplat.editing.move import MoveError
-from particlesplat.editing.open_scene import encode_scene, parse_context
+from particlesplat.editing.open_scene import encode_scene
+from particlesplat.editing.source_options import parse_context
 from particlesplat.rendering.api import render
 
 if TYPE_CHECKING:
@@ -393,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="particlesplat bench edits",
         description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument(
         "--checkpoint",

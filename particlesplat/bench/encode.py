@@ -22,7 +22,8 @@ from particlesplat.bench.render import machine_line
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.device import DEVICE_HELP, resolve_device
 from particlesplat.core.errors import OptionError
-from particlesplat.data.scene_meta import CHECKPOINT_HELP, default_checkpoint, scene_pose
+from particlesplat.data.families import CHECKPOINT_HELP
+from particlesplat.data.scene_meta import default_checkpoint, scene_pose
 
 
 def time_rounds(models: list, items: list[dict], rounds: int) -> list[list[tuple[float, float]]]:

@@ -102,7 +102,7 @@ def check_arguments(args: argparse.Namespace) -> tuple[Path, Path, Path | None]:
     elif run is not None:
         config = run / "config.yaml"
     else:
-        from particlesplat.training.trainer import recipe_path
+        from particlesplat.core.bundled import recipe_path
 
         config = recipe_path()
     if not config.is_file():

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.errors import OptionError
-from particlesplat.training.curve import RUN_COLOURS, plot_curves, read_validation
+from particlesplat.training.curve import RUN_COLOURS, plot_curves, read_curves
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,16 +26,34 @@ def run(args: argparse.Namespace) -> int:
     from particlesplat.core.outputs import guard_outputs
 
     guard_outputs([("--out", args.out)], [("RUN", Path(folder) / "metrics.jsonl") for folder in args.run])
-    runs = []
+    runs, training, counts = [], [], []
     for folder in args.run:
         path = Path(folder) / "metrics.jsonl"
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no metrics log (is {folder} a run folder?)")
-        runs.append((Path(folder).name if len(args.run) > 1 else "", read_validation(path)))
+        rows, losses, logged = read_curves(path)
+        runs.append((Path(folder).name if len(args.run) > 1 else "", rows))
+        training.append(losses)
+        counts.append(logged)
     with atomic_path(args.out) as tmp:
-        plot_curves(runs, args.title).save(tmp, format="PNG")
-    for folder, (_, rows) in zip(args.run, runs, strict=True):
-        last = f"; last: step {rows[-1][0]}, PSNR {rows[-1][1]:.2f} dB, FG-ARI {rows[-1][2]:.3f}" if rows else ""
-        print(f"{folder}: {len(rows)} validation point(s){last}")
+        plot_curves(runs, args.title, training).save(tmp, format="PNG")
+    for folder, (_, rows), losses, logged in zip(args.run, runs, training, counts, strict=True):
+        loss = f"; training loss of {logged} logged step(s) to step {losses[-1][0]}" if losses else ""
+        if rows:
+            last = f"; last: step {rows[-1][0]}, PSNR {rows[-1][1]:.2f} dB, FG-ARI {rows[-1][2]:.3f}"
+            print(f"{folder}: {len(rows)} validation point(s){last}{loss}")
+        else:
+            print(f"{folder}: no validation yet ({_first_validation(Path(folder))}){loss}")
     print(f"wrote {args.out}")
     return 0
+
+
+def _first_validation(run: Path) -> str:
+    """When the run's first validation comes, from its config.yaml (``train.val_every``), for the message."""
+    from particlesplat.model.config import load_config
+
+    try:
+        every = load_config(run / "config.yaml")[1].val_every
+    except (OSError, ValueError):
+        return "the first comes at the recipe's train.val_every"
+    return f"the first comes at step {every}, train.val_every of {run / 'config.yaml'}"

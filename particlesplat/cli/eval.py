@@ -6,13 +6,12 @@ import argparse
 import json
 from pathlib import Path
 
-from particlesplat.analysis.evaluate import evaluate_dataset, json_safe
-from particlesplat.analysis.metrics import FAR_HEIGHTS, OVERLAYS, PARTICLES_DRAW, REGIONS
-from particlesplat.analysis.particle_arrays import OBJECT_CENTRES
-from particlesplat.core.atomic import atomic_write
+from particlesplat.core.atomic import check_writable
+from particlesplat.core.choices import DEFAULT_FIT, FITTED, OBJECT_CENTRES
 from particlesplat.core.device import DEVICE_HELP
-from particlesplat.data.scene_meta import CHECKPOINT_HELP
-from particlesplat.model.fit import DEFAULT_FIT, FITTED
+from particlesplat.core.errors import OptionError
+from particlesplat.data.families import CHECKPOINT_HELP
+from particlesplat.data.folders import check_file, check_split_folder
 from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
 MAX_FIT_LR = 10.0  # --fit-lr: Adam's step on the latents; past this the fit diverges at once
@@ -63,15 +62,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    apply_rasterizer_option(args)
-    from particlesplat.core.atomic import check_writable
-    from particlesplat.core.device import resolve_device
-    from particlesplat.core.errors import OptionError
-    from particlesplat.data.scene_meta import default_checkpoint
-    from particlesplat.model import load_model, read_checkpoint
-    from particlesplat.model.provenance import describe
-
-    device = resolve_device(args.device)
     latents = tuple(k.strip() for k in args.fit_latents.split(","))
     if args.fit_steps < 0 or not args.fit_lr > 0 or not set(latents) <= set(FITTED):
         raise OptionError(
@@ -92,6 +82,18 @@ def run(args: argparse.Namespace) -> int:
         check_writable(args.json)  # before the work, not after it
     if args.figures and args.num_figures > 0:
         check_writable(Path(args.figures) / "figure.png")
+    check_split_folder(args.data, "--data")  # before torch loads: a typo is one quick line
+    check_file(args.checkpoint, "--checkpoint")
+    apply_rasterizer_option(args)
+    from particlesplat.analysis.evaluate import evaluate_dataset, json_safe
+    from particlesplat.analysis.metrics import FAR_HEIGHTS, OVERLAYS, PARTICLES_DRAW, REGIONS
+    from particlesplat.core.atomic import atomic_write
+    from particlesplat.core.device import resolve_device
+    from particlesplat.data.scene_meta import default_checkpoint
+    from particlesplat.model import load_model, read_checkpoint
+    from particlesplat.model.provenance import describe
+
+    device = resolve_device(args.device)
     path = args.checkpoint or default_checkpoint(args.data)  # the shipped model of the data's family
     model = load_model(path, device=device)
     ckpt = read_checkpoint(path)

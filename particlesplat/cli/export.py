@@ -14,7 +14,8 @@ import sys
 from pathlib import Path
 
 from particlesplat.core.errors import OptionError
-from particlesplat.editing.open_scene import add_source_arguments, check_source_arguments, load_ply_checked
+from particlesplat.data.folders import check_existing, check_file
+from particlesplat.editing.source_options import add_source_arguments, check_source_arguments
 from particlesplat.formats.splat_files import SUFFIX_HELP
 
 PRUNE_DEFAULT = 1.0 / 255.0  # below half an 8-bit opacity step every compact format stores 0
@@ -65,6 +66,9 @@ def run(args: argparse.Namespace) -> int:
             raise OptionError("--by object needs a model scene (its particles' objects), not --ply: use --by particle")
         if not 0.0 <= args.prune <= 1.0:
             raise OptionError(f"--prune must be an opacity in [0, 1], got {args.prune:g}")
+        check_existing(args.scene, "--scene")  # before torch loads: a typo is one quick line
+        for name in ("ply", "checkpoint", "edits", "edits_from"):
+            check_file(getattr(args, name), f"--{name.replace('_', '-')}")
         from particlesplat.formats.splat_files import SUFFIXES, format_for
 
         if args.by is None:
@@ -80,6 +84,8 @@ def run(args: argparse.Namespace) -> int:
                 raise OptionError(f"--out {args.out}: --by writes a folder (e.g. {Path(args.out).stem}_parts/)")
             check_bundle_target(args.out)
         if args.ply:
+            from particlesplat.editing.open_scene import load_ply_checked
+
             g = load_ply_checked(args.ply)
             source = str(args.ply)
         else:

@@ -13,6 +13,10 @@ import os
 import sys
 from importlib.metadata import entry_points
 
+from particlesplat.core.options import HelpFormatter, attach_option_values
+
+__all__ = ["COMMANDS", "HelpFormatter", "console_main", "main"]
+
 COMMANDS: dict[str, tuple[str, str]] = {
     "synth": ("particlesplat.cli.synth", "generate a scene dataset"),
     "train": ("particlesplat.cli.train", "train a ParticleSplat model"),
@@ -26,18 +30,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "scene": ("particlesplat.cli.scene", "check a scene folder's world frame (+z up, support at z = 0, metres)"),
     "bench": ("", "run a benchmark: " + ", ".join(sorted(e.name for e in entry_points(group="particlesplat.bench")))),
 }
-
-
-class HelpFormatter(argparse.HelpFormatter):
-    """Options' help with their default appended once: not when the help already says it (``default``, ``none =``)
-    and not for a default that says nothing (None, False)."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        text = action.help or ""
-        said = "%(default)" in text or "default" in text.lower() or "none =" in text.lower()
-        if said or action.default in (None, False, argparse.SUPPRESS) or not action.option_strings:
-            return text
-        return f"{text} (default: %(default)s)"
 
 
 def _top_help() -> str:
@@ -113,8 +105,6 @@ def main(argv: list[str] | None = None) -> int:
         formatter_class=HelpFormatter,
     )
     module.add_arguments(parser)
-    from particlesplat.core.viewpoints import attach_option_values
-
     args = parser.parse_args(attach_option_values(rest))  # --look -30,20,3: a negative azimuth
     return int(module.run(args) or 0)
 
@@ -125,7 +115,7 @@ def console_main() -> int:
     line and 130; a bug keeps its traceback. :func:`main` itself lets the exceptions through for programmatic
     use and tests.
     """
-    from particlesplat.core.errors import one_line, run_command
+    from particlesplat.core.errors import end_at_once_if_interrupted, one_line, run_command
 
     command = one_line(sys.argv[1], 40) if len(sys.argv) > 1 else ""
-    return run_command(f"particlesplat {command}".strip(), main)
+    return end_at_once_if_interrupted(run_command(f"particlesplat {command}".strip(), main))

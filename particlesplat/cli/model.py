@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from particlesplat.core.errors import OptionError
-from particlesplat.core.yamlsafe import YamlError, load_yaml
-from particlesplat.model.derive import INFERENCE_KEYS
+from particlesplat.core.choices import INFERENCE_KEYS
+from particlesplat.core.options import parse_key_values
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,26 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     change.add_argument("--note", default="", help="why, recorded in the copy's provenance")
 
 
-def _parse(changes: list[str]) -> dict[str, object]:
-    out: dict[str, object] = {}
-    for item in changes:
-        key, sep, text = item.partition("=")
-        if not sep or not key or not text:
-            raise OptionError(f"model set: {item!r}: expected KEY=VALUE, e.g. refine_scale=0.5")
-        if key in out:
-            raise OptionError(f"model set: {key} given twice")
-        try:
-            out[key] = load_yaml(text, f"model set: {key}")
-        except YamlError as e:
-            raise OptionError(str(e)) from None
-    return out
-
-
 def run(args: argparse.Namespace) -> int:
     if args.action == "set":
         from particlesplat.model.derive import write_derived
 
-        cfg = write_derived(args.checkpoint, args.out, _parse(args.changes), args.note)
+        changes = parse_key_values(args.changes, "model set", "refine_scale=0.5")
+        cfg = write_derived(args.checkpoint, args.out, changes, args.note)
         print(f"wrote {args.out}: " + ", ".join(f"{k} {getattr(cfg, k)}" for k in INFERENCE_KEYS))
         return 0
     from particlesplat.model.io import model_from_checkpoint, read_checkpoint, shipped_model_name

@@ -11,8 +11,8 @@ import math
 import sys
 from pathlib import Path
 
-from particlesplat.analysis.particle_arrays import OBJECT_CENTRES
-from particlesplat.data.scene_meta import CHECKPOINT_HELP
+from particlesplat.core.choices import OBJECT_CENTRES
+from particlesplat.data.families import CHECKPOINT_HELP
 
 
 def _xy(text: str) -> tuple[float, float]:
@@ -68,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
     from particlesplat.core.outputs import guard_outputs
     from particlesplat.data.scene_meta import default_checkpoint
     from particlesplat.editing.compose import export_object_ply, insert_object
-    from particlesplat.editing.open_scene import encode_scene, parse_context
+    from particlesplat.editing.open_scene import encode_scene
+    from particlesplat.editing.source_options import parse_context
     from particlesplat.formats.ply import write_ply
     from particlesplat.model import load_model
 

@@ -1,25 +1,29 @@
 """``particlesplat render``: render a (possibly edited) scene headless with the torch renderer.
 
 The default camera is the viewer's default view (:func:`particlesplat.core.viewpoints.default_view`);
-``--look AZ,EL,DIST`` and ``--fov DEG`` mean what they mean in ``particlesplat-viewer``.
+``--look AZ,EL,DIST`` and ``--fov DEG`` mean what they mean in ``particlesplat-viewer``. Several ``--mode`` and
+``--view`` values render several images from one encode. Torch loads after the arguments were checked.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
-from particlesplat.analysis.figures import MODES, NEEDS_PARTICLES
-from particlesplat.core.camera import Camera
+from particlesplat.core.choices import MODES, NEEDS_PARTICLES
 from particlesplat.core.errors import OptionError
-from particlesplat.core.viewpoints import Framing, View, check_fov, default_view, parse_look, scene_background
-from particlesplat.editing.open_scene import (
-    add_source_arguments,
-    check_source_arguments,
-    load_ply_checked,
-)
+from particlesplat.core.limits import check_option_range
+from particlesplat.data.folders import check_existing, check_file
+from particlesplat.editing.source_options import add_source_arguments, check_source_arguments
 from particlesplat.formats.splat_files import SUFFIX_HELP
 from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
+
+if TYPE_CHECKING:
+    from particlesplat.core.camera import Camera
+    from particlesplat.core.choices import RenderMode
+    from particlesplat.core.viewpoints import Framing, View
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480  # pixels, when --width / --height are not given
 MAX_SIDE = 8192  # pixels, as the viewer's --size
@@ -36,13 +40,54 @@ def _background(text: str) -> tuple[float, float, float]:
     return vals
 
 
+def _modes(text: str) -> tuple[str, ...]:
+    """``"rgb,depth"`` -> ("rgb", "depth"): each of :data:`MODES`, none twice."""
+    modes = tuple(m.strip() for m in text.split(","))
+    bad = [m for m in modes if m not in MODES]
+    if bad or len(set(modes)) != len(modes):
+        raise argparse.ArgumentTypeError(
+            f"expected one or more of {', '.join(MODES)}, comma-separated, each once; got {text[:80]!r}"
+        )
+    return modes
+
+
+def _views(text: str) -> tuple[int, ...]:
+    """``"4,10,16"`` -> (4, 10, 16): input camera indices, each once."""
+    try:
+        views = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected camera indices I or I,J,..., got {text[:80]!r}") from None
+    if len(set(views)) != len(views):
+        raise argparse.ArgumentTypeError(f"a camera index given twice: {text[:80]!r}")
+    return views
+
+
+def output_paths(out: str, modes: tuple[str, ...], views: tuple[int, ...] | None) -> dict[tuple[str, int | None], Path]:
+    """The PNG of each (mode, view): ``OUT`` for one image; several get ``OUT_STEM_viewI_MODE.png`` beside it (the
+    view part with several views, the mode part with several modes)."""
+    path = Path(out)
+    keys = [(m, v) for v in (views or (None,)) for m in modes]
+    if len(keys) == 1:
+        return {keys[0]: path}
+    several_views = views is not None and len(views) > 1
+    out_paths = {}
+    for m, v in keys:
+        parts = ([f"view{v}"] if several_views else []) + ([m] if len(modes) > 1 else [])
+        out_paths[(m, v)] = path.with_name(f"{path.stem}_{'_'.join(parts)}{path.suffix or '.png'}")
+    return out_paths
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_source_arguments(
         parser, ply_help=f"render a Gaussian file ({SUFFIX_HELP}, or a bundle's manifest.json) instead of a model scene"
     )
     add_rasterizer_option(parser)
     cam = parser.add_mutually_exclusive_group()
-    cam.add_argument("--view", type=int, help="render from input camera I of the scene (0-based)")
+    cam.add_argument(
+        "--view",
+        type=_views,
+        help="render from input camera I of the scene (0-based); I,J,... renders one image a camera (OUT_viewI.png)",
+    )
     cam.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
     cam.add_argument(
         "--camera-from",
@@ -87,10 +132,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--mode",
-        choices=MODES,
-        default="rgb",
-        help="layer to render: the scene, depth, segmentation by particle or object, foreground or "
-        "background alone, or the particles' 3D keypoints or boxes over the scene",
+        type=_modes,
+        default=("rgb",),
+        help=f"layer(s) to render, of {', '.join(MODES)}: the scene, depth (with a colour bar in metres), "
+        "segmentation by particle or object, foreground or background alone, or the particles' 3D keypoints or "
+        "boxes over the scene; M,N,... renders one image a mode from one encode (OUT_M.png) (default: rgb)",
     )
     parser.add_argument(
         "--turntable",
@@ -103,7 +149,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _scene_and_gaussians(args: argparse.Namespace):
     """(Gaussians, all input cameras, edits (the edit file's text, else {}), model name, source, background colour,
     particle arrays or None) for the arguments (the arrays only for a --mode that draws from the particles)."""
+    from particlesplat.core.viewpoints import scene_background
+
     check_source_arguments(args)
+    from particlesplat.editing.open_scene import load_ply_checked
+
     if args.ply:
         return load_ply_checked(args.ply), [], {}, "", str(args.ply), scene_background(None), None
     from particlesplat.editing.edited_scene import open_edited_scene
@@ -114,7 +164,7 @@ def _scene_and_gaussians(args: argparse.Namespace):
     model, enc, particles, edits, name = scene.model, scene.encoded, scene.particles, scene.edits, scene.model_name
     g = model.decode(particles).detach().to("cpu")
     arrays = None
-    if getattr(args, "mode", "rgb") in NEEDS_PARTICLES:
+    if set(getattr(args, "mode", ("rgb",))) & set(NEEDS_PARTICLES):
         from particlesplat.analysis.particle_arrays import particle_arrays
 
         arrays = particle_arrays(model, particles, g, objects=scene.objects)  # the user's groups win
@@ -130,6 +180,8 @@ def resolve_camera(
     With ``--view`` a missing --width or --height follows the input camera's aspect ratio (an
     input view is never stretched unless both are given).
     """
+    from particlesplat.core.viewpoints import View, check_fov, default_view, parse_look
+
     for name in ("width", "height"):
         if getattr(args, name) is not None and not 1 <= getattr(args, name) <= MAX_SIDE:
             raise OptionError(f"--{name} must be in [1, {MAX_SIDE}], got {getattr(args, name)}")
@@ -171,36 +223,54 @@ def resolve_camera(
     return view.camera(args.width or DEFAULT_WIDTH, args.height or DEFAULT_HEIGHT), view
 
 
+def _check_inputs(args: argparse.Namespace) -> None:
+    """What the user named exists, and the options agree: checked before torch loads (a typo is one quick line)."""
+    check_existing(args.scene, "--scene")
+    for name in ("ply", "checkpoint", "edits", "camera_from", "edits_from"):
+        check_file(getattr(args, name, None), f"--{name.replace('_', '-')}")
+    check_source_arguments(args)
+    check_option_range(args.prune, "--prune", 0.0, 1.0)  # an opacity
+    several = len(args.mode) > 1 or (args.view is not None and len(args.view) > 1)
+    if args.turntable < 0:
+        raise OptionError(f"--turntable must be >= 0 frames, got {args.turntable}")
+    if args.turntable and args.view is not None:
+        raise OptionError("--turntable orbits the default target: use --look (or nothing), not --view")
+    if args.turntable and getattr(args, "camera_from", None):
+        raise OptionError("--turntable orbits the default target: use --look (or nothing), not --camera-from")
+    if args.turntable and several:
+        raise OptionError("--turntable renders one mode: give one --mode")
+    needs = [m for m in args.mode if m in NEEDS_PARTICLES]
+    if needs and args.ply:
+        raise OptionError(f"--mode {','.join(needs)} needs a model scene (particles), not --ply")
+
+
 def run(args: argparse.Namespace) -> int:
+    from particlesplat.core.errors import EXIT_USER, one_line
+
+    try:
+        _check_inputs(args)
+    except (OSError, ValueError) as e:
+        print(f"particlesplat render: {one_line(e)}", file=sys.stderr)
+        return EXIT_USER
     apply_rasterizer_option(args)
     from particlesplat.core.atomic import check_writable
-    from particlesplat.core.errors import EXIT_USER, one_line
     from particlesplat.core.outputs import guard_outputs
     from particlesplat.formats.png import png_text, save_png
 
+    targets = output_paths(args.out, args.mode, args.view)
     try:
         guard_outputs(
-            [("--out", args.out)],
+            [("--out", path) for path in targets.values()],
             [
                 (f"--{k.replace('_', '-')}", getattr(args, k, None))
                 for k in ("checkpoint", "scene", "ply", "edits", "edits_from", "camera_from")
             ],
         )
-        try:
-            check_writable(args.out)  # before the work, not after it
-        except OSError as e:
-            raise OSError(f"--out {one_line(e)}") from None
-        from particlesplat.core.limits import check_option_range
-
-        check_option_range(args.prune, "--prune", 0.0, 1.0)  # an opacity
-        if args.turntable < 0:
-            raise OptionError(f"--turntable must be >= 0 frames, got {args.turntable}")
-        if args.turntable and args.view is not None:
-            raise OptionError("--turntable orbits the default target: use --look (or nothing), not --view")
-        if args.turntable and getattr(args, "camera_from", None):
-            raise OptionError("--turntable orbits the default target: use --look (or nothing), not --camera-from")
-        if args.mode in NEEDS_PARTICLES and args.ply:
-            raise OptionError(f"--mode {args.mode} needs a model scene (particles), not --ply")
+        for path in targets.values():
+            try:
+                check_writable(path)  # before the work, not after it
+            except OSError as e:
+                raise OSError(f"--out {one_line(e)}") from None
         g, cameras, edits, model_name, source, background, arrays = _scene_and_gaussians(args)
         from particlesplat.core.errors import blame
         from particlesplat.core.gaussians import BadGaussiansError
@@ -208,17 +278,20 @@ def run(args: argparse.Namespace) -> int:
         with blame(f"{source}{' with ' + model_name if model_name else ''}", BadGaussiansError):
             g.check("the Gaussians it decodes")  # the renderer's own check, as one line naming the input
         from particlesplat.data.scene_meta import read_framing
-
-        camera, view = resolve_camera(args, cameras, g, read_framing(source) if cameras else None)
-        if camera.width > MAX_SIDE or camera.height > MAX_SIDE or camera.width * camera.height > MAX_PIXELS:
-            raise OptionError(
-                f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
-                f"({MAX_SIDE} a side, {MAX_PIXELS} pixels)"
-            )
         from particlesplat.rendering.budget import check_render_memory
 
-        owners = int(g.owner.max()) + 2 if args.mode in ("particles", "objects") and g.num else 0
-        check_render_memory(g, camera, source, owners)  # the renderer's pairs, before it allocates them
+        framing = read_framing(source) if cameras else None
+        owners = int(g.owner.max()) + 2 if {"particles", "objects"} & set(args.mode) and g.num else 0
+        shots = {}  # view (None: --look, --camera-from or the default) -> (camera, View or None)
+        for v in args.view or (None,):
+            shots[v] = resolve_camera(argparse.Namespace(**{**vars(args), "view": v}), cameras, g, framing)
+            camera = shots[v][0]
+            if camera.width > MAX_SIDE or camera.height > MAX_SIDE or camera.width * camera.height > MAX_PIXELS:
+                raise OptionError(
+                    f"--width/--height: {camera.width}x{camera.height} is beyond the largest image "
+                    f"({MAX_SIDE} a side, {MAX_PIXELS} pixels)"
+                )
+            check_render_memory(g, camera, source, owners)  # the renderer's pairs, before it allocates them
         if args.turntable:
             from particlesplat.analysis.figures import check_turntable_targets, turntable_memory
             from particlesplat.core.limits import check_memory
@@ -236,14 +309,11 @@ def run(args: argparse.Namespace) -> int:
     from particlesplat.analysis.figures import render_mode, write_turntable
 
     background = background if args.background is None else args.background
-    extra = {"scene": source, "mode": args.mode}
-    if view is not None:
-        extra.update(
-            look=f"{view.look.azimuth:.6g},{view.look.elevation:.6g},{view.look.distance:.6g}", fov=f"{view.fov:.6g}"
-        )
     try:
         if args.turntable:
+            camera, view = shots[None]
             assert view is not None  # resolve_camera has one but for --view and --camera-from, refused above
+            extra = {"scene": source, "mode": args.mode[0], **_look_text(view)}
             frames, anim = write_turntable(
                 g,
                 view,
@@ -251,20 +321,32 @@ def run(args: argparse.Namespace) -> int:
                 camera.width,
                 camera.height,
                 args.out,
-                args.mode,
+                args.mode[0],
                 background=background,
                 arrays=arrays,
                 save_frame=lambda p, rgb, c: save_png(p, rgb, png_text(c, edits, model_name, extra)),
             )
             print(f"saved {anim} and {len(frames)} frames {frames[0]} .. {frames[-1]} ({camera.width}x{camera.height})")
             return 0
-        path = save_png(
-            args.out,
-            render_mode(g, camera, args.mode, background=background, arrays=arrays),
-            png_text(camera, edits, model_name, extra),
-        )
+        for (mode, v), target in targets.items():
+            camera, view = shots[v]
+            extra = {"scene": source, "mode": mode, **_look_text(view)}
+            image = render_mode(
+                g, camera, cast("RenderMode", mode), background=background, arrays=arrays, colour_bar=True
+            )
+            path = save_png(target, image, png_text(camera, edits, model_name, extra))
+            print(f"saved {path} ({camera.width}x{camera.height}, {mode}, {g.num} Gaussians)")
     except OSError as e:
         print(f"particlesplat render: --out {args.out}: cannot write ({one_line(e.strerror or e)})", file=sys.stderr)
         return EXIT_USER
-    print(f"saved {path} ({camera.width}x{camera.height}, {g.num} Gaussians)")
     return 0
+
+
+def _look_text(view: View | None) -> dict[str, str]:
+    """The ``look`` and ``fov`` text chunks of a view (none for an input camera)."""
+    if view is None:
+        return {}
+    return {
+        "look": f"{view.look.azimuth:.6g},{view.look.elevation:.6g},{view.look.distance:.6g}",
+        "fov": f"{view.fov:.6g}",
+    }

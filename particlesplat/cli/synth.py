@@ -5,10 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from particlesplat.core.errors import OptionError
-from particlesplat.data.synth import SPLITS, generate
+from particlesplat.data.folders import SPLITS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,6 +64,10 @@ def run(args: argparse.Namespace) -> int:
         counts = {split: (n if split == args.split else 0) for split, n in counts.items()}
     if counts["heldout"] and (args.family != "robot" or args.world != "wide"):
         raise OptionError("--heldout: only the robot family's wide world (--family robot --world wide) has one")
+    import numpy as np
+
+    from particlesplat.data.synth import generate
+
     # errors follow the one policy (particlesplat.core.errors.run_command): bad input, one line, exit 2
     if args.family == "robot":
         from particlesplat.data.families.robot import RobotSceneConfig

@@ -1,4 +1,6 @@
-"""``particlesplat train``: train a model on a folder of scenes (the trainer: :mod:`particlesplat.training.trainer`)."""
+"""``particlesplat train``: train a model on a folder of scenes (the trainer: :mod:`particlesplat.training.trainer`).
+
+Torch loads only after the arguments, the recipe and its overrides were checked: a typo is one quick line."""
 
 from __future__ import annotations
 
@@ -7,14 +9,21 @@ import os
 import sys
 from pathlib import Path
 
-import torch
-
-from particlesplat.core.device import DEVICE_HELP, resolve_device
+from particlesplat.core.bundled import recipe_path
+from particlesplat.core.device import DEVICE_HELP
 from particlesplat.core.errors import OptionError
-from particlesplat.model import ModelConfig, TrainConfig, load_config, read_checkpoint
-from particlesplat.model.config import ConfigError, stored_model_config, stored_train_config
+from particlesplat.core.options import parse_key_values
+from particlesplat.data.folders import check_file
+from particlesplat.model.config import (
+    ConfigError,
+    ModelConfig,
+    TrainConfig,
+    load_config,
+    stored_model_config,
+    stored_train_config,
+    with_overrides,
+)
 from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
-from particlesplat.training.trainer import Trainer, recipe_path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,11 +60,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="run at most this many steps (>= 1) in this invocation, checkpoint, and exit (continue with --resume)",
     )
+    parser.add_argument(
+        "overrides",
+        nargs="*",
+        metavar="SECTION.KEY=VALUE",
+        help="change keys of the recipe, checked as the file's are: a smoke test is 'train.steps=200 "
+        "train.val_every=50'; the run's config.yaml records the result",
+    )
 
 
 def init_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
     """``--init`` without ``--config``: the checkpoint's own model config (a fine-tune keeps the architecture of its
     weights) and the train section of the run that wrote it, or the bundled recipe's where it records none."""
+    from particlesplat.model import read_checkpoint
+
     ckpt = read_checkpoint(path)
     cfg = stored_model_config(ckpt["config"], f"{path}: config")
     train = ckpt.get("train")
@@ -74,6 +92,8 @@ def init_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
 
 def checkpoint_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
     """The model and train config a run's checkpoint stores (a resume whose config.yaml is gone)."""
+    from particlesplat.model import read_checkpoint
+
     ckpt = read_checkpoint(path)
     cfg = stored_model_config(ckpt["config"], f"{path}: config")
     if not isinstance(ckpt.get("train"), dict):
@@ -82,10 +102,13 @@ def checkpoint_config(path: Path) -> tuple[ModelConfig, TrainConfig]:
 
 
 def run(args: argparse.Namespace) -> int:
+    changes = parse_key_values(args.overrides, "train", "train.steps=200")  # before torch: quick errors
+    data = Path(args.data)
+    if not (data / "train").is_dir():
+        raise FileNotFoundError(f"--data {data}: no training split ({data / 'train'})")
+    check_file(args.config, "--config")
+    check_file(args.init, "--init")
     apply_rasterizer_option(args)
-    device = str(resolve_device(args.device))  # a typo or a missing device is one line before anything is read
-    if args.device is None and device != "cpu":
-        print(f"train: on {device}, which torch found (--device cpu trains on the CPU)", file=sys.stderr)
     from particlesplat.core.outputs import guard_outputs
 
     guard_outputs(
@@ -111,6 +134,18 @@ def run(args: argparse.Namespace) -> int:
     else:
         cfg, tc = load_config(args.config or recipe_path())
         source = f"--config {args.config}" if args.config else f"the recipe {recipe_path()}"
+    cfg, tc = with_overrides(cfg, tc, changes)
+    if changes:
+        print("train: recipe changed by " + ", ".join(f"{k}={v}" for k, v in changes.items()), file=sys.stderr)
+        source += " with " + " ".join(f"{k}={v}" for k, v in changes.items())
+    import torch
+
+    from particlesplat.core.device import resolve_device
+    from particlesplat.training.trainer import Trainer
+
+    device = str(resolve_device(args.device))  # a typo or a missing device is one line before anything is read
+    if args.device is None and device != "cpu":
+        print(f"train: on {device}, which torch found (--device cpu trains on the CPU)", file=sys.stderr)
     if tc.num_threads > 0:
         from dataclasses import replace
 
@@ -118,9 +153,6 @@ def run(args: argparse.Namespace) -> int:
 
         tc = replace(tc, num_threads=bounded_threads(tc.num_threads, "train.num_threads"))
         torch.set_num_threads(tc.num_threads)
-    data = Path(args.data)
-    if not (data / "train").is_dir():
-        raise FileNotFoundError(f"{data / 'train'}: no training split")
     if device.startswith("cuda") and int(os.environ.get("WORLD_SIZE", "1")) > 1:
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}"
     init = None if args.init is None else Path(args.init)

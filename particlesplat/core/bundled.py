@@ -40,3 +40,8 @@ def data_dir(package: str, folder: str, checkout: Path = CHECKOUT) -> Path:
 def bundled_assets() -> Path:
     """The shipped models, their recipes and the demo scenes (``assets/``)."""
     return data_dir("particlesplat.assets", "assets")
+
+
+def recipe_path() -> Path:
+    """The bundled recipe (``assets/recipe.yaml`` in the installed ``particlesplat.assets`` package)."""
+    return bundled_assets() / "recipe.yaml"

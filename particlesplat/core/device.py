@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import re
-
-import torch
+from typing import TYPE_CHECKING
 
 from particlesplat.core.errors import OptionError
+
+if TYPE_CHECKING:
+    import torch
 
 DEVICE_HELP = "cpu, cuda or cuda:N (none = cuda when present, else cpu)"
 
@@ -14,6 +16,8 @@ DEVICE_HELP = "cpu, cuda or cuda:N (none = cuda when present, else cpu)"
 def resolve_device(text: str | None, option: str = "--device") -> torch.device:
     """The torch device ``text`` names (``cpu``, ``cuda``, ``cuda:N``, ``mps``; None = cuda when present, else
     cpu). OptionError naming ``option`` for a typo or a device this machine does not have."""
+    import torch  # here, not above: a command's --help and argument errors come before torch loads
+
     if text is None or str(text).strip() == "":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     name = str(text).strip().lower()

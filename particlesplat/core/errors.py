@@ -10,6 +10,7 @@ printed as one line each.
 
 from __future__ import annotations
 
+import os
 import sys
 import warnings
 from collections.abc import Callable, Iterator
@@ -135,3 +136,18 @@ def run_command(prog: str, fn: Callable[[], int]) -> int:
         return EXIT_USER
     finally:
         warnings.showwarning = show
+
+
+def end_at_once_if_interrupted(code: int) -> int:
+    """A console script's last step: after Ctrl-C or a stop signal (``code`` > 128, the one line already printed)
+    flush the output and end the process now, skipping the interpreter's teardown of torch and the model (0.7-1.2 s
+    measured on a loaded 2-core machine, which made Ctrl-C feel ignored). The work was unwound before (its
+    ``finally`` blocks ran: temporary files removed, locks released). Any other code is returned."""
+    if code > 128:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(code)
+    return code

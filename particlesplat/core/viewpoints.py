@@ -87,21 +87,6 @@ def parse_look(text: str) -> Look:
     return Look(az, el, dist)
 
 
-def attach_option_values(argv: list[str], options: tuple[str, ...] = ("--look",)) -> list[str]:
-    """``["--look", "-30,20,3"]`` -> ``["--look=-30,20,3"]``: argparse takes a value that starts with ``-``
-    (a negative azimuth) for an option, so the value is attached to its option first."""
-    out: list[str] = []
-    i = 0
-    while i < len(argv):
-        if argv[i] in options and i + 1 < len(argv) and argv[i + 1][:1] == "-" and argv[i + 1][1:2].isdigit():
-            out.append(f"{argv[i]}={argv[i + 1]}")
-            i += 2
-            continue
-        out.append(argv[i])
-        i += 1
-    return out
-
-
 def check_fov(fov: float) -> float:
     """Validate a vertical field of view in degrees."""
     if not (math.isfinite(fov) and 1.0 <= fov <= 170.0):

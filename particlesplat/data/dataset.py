@@ -16,7 +16,8 @@ from torch.utils.data import Dataset
 
 from particlesplat.core.errors import one_line
 from particlesplat.core.limits import memory_limit
-from particlesplat.data.scene import TRANSFORMS, RawScene, SceneFormatError, read_scene
+from particlesplat.data.folders import TRANSFORMS
+from particlesplat.data.scene import RawScene, SceneFormatError, read_scene
 from particlesplat.data.scene_meta import SCENE_META, read_pose
 from particlesplat.data.views import flip_horizontal, sample_views, supervision_mask
 

@@ -25,8 +25,8 @@ from torch import Tensor
 from particlesplat.core.camera import Camera
 from particlesplat.core.errors import UserError, one_line, short_repr
 from particlesplat.core.jsonfile import read_json
+from particlesplat.data.folders import TRANSFORMS
 
-TRANSFORMS = "transforms.json"
 _RIGID_TOL = 1e-3
 # Largest image a scene may hold: 4096 x 4096 (decoded RGB 50 MB). Checked from the PNG header before decoding,
 # so a decompression bomb (a few KB declaring 10^10 pixels) is refused without allocating it.

@@ -18,6 +18,7 @@ from particlesplat.core.jsonfile import MAX_JSON_BYTES, read_json
 from particlesplat.core.limits import MIN_DISTANCE_METRES, WORLD_MAX_METRES
 from particlesplat.core.viewpoints import Framing
 from particlesplat.data.families import family_of
+from particlesplat.data.folders import TRANSFORMS
 from particlesplat.data.pose_ranges import check_limits, generator_range, warn_outside
 from particlesplat.data.scene import SceneFormatError
 
@@ -73,18 +74,13 @@ def _scene_metas(folder: Path) -> list[Path]:
     for child in sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith(".")):
         if (child / SCENE_META).is_file():
             metas.append(child / SCENE_META)
-        elif not (child / "transforms.json").is_file():
+        elif not (child / TRANSFORMS).is_file():
             metas += [
                 g / SCENE_META
                 for g in sorted(child.iterdir())
                 if g.is_dir() and not g.name.startswith(".") and (g / SCENE_META).is_file()
             ]
     return metas
-
-
-CHECKPOINT_HELP = (
-    "model checkpoint (default: the shipped model of the scenes' family: assets/model.pt, assets/robot/model.pt)"
-)
 
 
 def default_checkpoint(path: str | PathLike | None) -> Path:

@@ -32,9 +32,9 @@ from particlesplat.core.errors import Interrupted, OptionError, UserError
 from particlesplat.core.limits import check_memory
 from particlesplat.core.runlock import RunLock
 from particlesplat.data.families import tabletop
+from particlesplat.data.folders import SPLITS
 from particlesplat.data.scene_files import write_scene_files
 
-SPLITS = ("train", "val", "test", "heldout")  # heldout: the wide robot world's split outside the training ranges
 MAX_RES = 4096  # a scene image may have at most 4096 x 4096 pixels (particlesplat.data.scene.MAX_IMAGE_PIXELS)
 # peak bytes a worker holds per pixel of its scene (renders of 21 views in float64 and their PNG encodings): 9.4 GB
 # measured at --res 4100 with one worker, ~560 bytes a pixel

@@ -25,11 +25,11 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from particlesplat.core.choices import ObjectCentre
 from particlesplat.core.errors import OptionError
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.world import SUPPORT_Z
 from particlesplat.editing.grouping import (
-    ObjectCentre,
     members_centre,
 )
 from particlesplat.editing.move import MoveError, translate

@@ -15,11 +15,12 @@ particle index, -1 for particles that draw nothing). :func:`members_centre` is t
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
 
+from particlesplat.core.choices import OBJECT_CENTRES, ObjectCentre
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.world import SUPPORT_Z
 from particlesplat.model import Particles
@@ -38,9 +39,6 @@ OVERLAP = 0.3
 CHUNK = 2048  # Gaussians per block of the pairwise distance test (bounds its memory)
 DRAW_OPACITY = 1.0 / 255.0  # a Gaussian draws nowhere below this opacity (the renderer's alpha cut-off)
 TOP_QUANTILE = 0.95  # an object's top: this quantile of its opaque Gaussians' heights
-
-ObjectCentre = Literal["resting", "weighted"]
-OBJECT_CENTRES: tuple[ObjectCentre, ...] = ("resting", "weighted")
 
 
 def touching_counts(means: Tensor, radius: Tensor, owner: Tensor, num_particles: int) -> Tensor:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import warnings
 from dataclasses import dataclass, field
 from os import PathLike
@@ -14,6 +13,7 @@ from particlesplat.core.limits import check_memory
 from particlesplat.core.viewpoints import default_context_views
 from particlesplat.data import Scene, read_scene
 from particlesplat.data.scene_meta import scene_pose
+from particlesplat.editing.source_options import parse_context
 from particlesplat.model import Particles, ParticleSplat
 
 # the shipped model on the 32 test scenes, as the README's results table: particlesplat eval [--no-depth]
@@ -61,45 +61,6 @@ def demo_scene_name(path: Path) -> str:
     (``robot/scene_00000``)."""
     rel = Path(path).relative_to(bundled_assets())
     return rel.name if rel.parts[0] == "scenes" else f"{rel.parts[0]}/{rel.name}"
-
-
-def add_source_arguments(parser: argparse.ArgumentParser, ply_help: str) -> None:
-    """``--checkpoint``, ``--scene`` | ``--ply``, ``--context``, ``--edits``: what the viewer and
-    ``particlesplat render`` open (see :func:`load_model_scene`)."""
-    parser.add_argument(
-        "--checkpoint",
-        help="model checkpoint; none = the shipped model of the scene's family (assets/model.pt, "
-        "assets/robot/model.pt)",
-    )
-    src = parser.add_mutually_exclusive_group()
-    src.add_argument("--scene", help="scene folder to encode; none = the first demo scene in assets/scenes")
-    src.add_argument("--ply", help=ply_help)
-    parser.add_argument(
-        "--context", help="context frame indices of the scene, e.g. 4,16; none = two frames 12 apart about the middle"
-    )
-    parser.add_argument(
-        "--edits",
-        help="edits YAML to apply: version 2 object operations (pick by a pixel of an "
-        "input frame; translate, remove, duplicate) or version 1 particle values",
-    )
-
-
-def check_source_arguments(args: argparse.Namespace) -> None:
-    """ValueError when ``--ply`` is combined with what only a model scene has (--edits, --context)."""
-    if getattr(args, "ply", None):
-        for name in ("edits", "context"):
-            if getattr(args, name, None):
-                raise OptionError(f"--{name} needs a model scene, not --ply")
-
-
-def parse_context(text: str | None) -> list[int] | None:
-    """``"4,16"`` -> [4, 16]; None stays None (use the default)."""
-    if text is None or str(text).strip() == "":
-        return None
-    try:
-        return [int(v) for v in str(text).split(",")]
-    except ValueError:
-        raise OptionError(f"--context: expected comma-separated frame indices, got {text!r}") from None
 
 
 def encode_scene(

@@ -30,3 +30,14 @@ def scene_digest(path: str | PathLike) -> str:
 def resolved(path: str | PathLike) -> str:
     """The absolute path with symlinks resolved, as edit files and autosaves record a scene."""
     return str(Path(path).expanduser().resolve())
+
+
+def scene_file_key(path: str | PathLike, family: str | None) -> str:
+    """The stem of a scene's own files (edits, autosaves): ``FAMILY-NAME-HASH``, NAME the folder's (or the .ply's
+    stem), HASH 8 hex digits of the resolved path's sha256. Two scenes never share it: demo scenes of two families
+    with one name differ by family, two folders of one name by path. ``family`` None: "scene" (".ply": "ply")."""
+    p = Path(resolved(path))  # a link to a scene names the scene
+    kind = family or ("ply" if p.suffix.lower() == ".ply" else "scene")
+    name = (p.stem if p.suffix.lower() == ".ply" else p.name) or "scene"
+    digest = hashlib.sha256(str(p).encode("utf-8", "surrogateescape")).hexdigest()[:8]
+    return f"{kind}-{name}-{digest}"

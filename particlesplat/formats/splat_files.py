@@ -16,10 +16,12 @@ from __future__ import annotations
 import importlib
 from os import PathLike
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 from particlesplat.core.errors import OptionError, one_line
-from particlesplat.formats.ply import GaussianFields, PlyFields, read_header
+
+if TYPE_CHECKING:  # the table loads without torch: commands name the extensions in their --help
+    from particlesplat.formats.ply import GaussianFields, PlyFields
 
 
 class SplatFormat(NamedTuple):
@@ -84,8 +86,10 @@ def sniff_format(path: str | PathLike) -> SplatFormat:
         head = f.read(4)
         if head[:3] == b"ply":
             f.seek(0)
-            _, elements = read_header(f, path)
             from particlesplat.formats.compressed_ply import is_compressed
+            from particlesplat.formats.ply import read_header
+
+            _, elements = read_header(f, path)
 
             return by_suffix[".compressed.ply" if is_compressed(elements) else ".ply"]
     if head[:2] == b"\x1f\x8b" or head == b"NGSP":

@@ -479,3 +479,23 @@ def load_config(path: str | PathLike) -> tuple[ModelConfig, TrainConfig]:
 
 def config_to_dict(cfg) -> dict:
     return asdict(cfg)
+
+
+def with_overrides(model: ModelConfig, train: TrainConfig, changes: dict[str, Any]) -> tuple[ModelConfig, TrainConfig]:
+    """The configs with ``SECTION.KEY: value`` changes (``{"train.steps": 200}``, as ``particlesplat train`` takes
+    them after its options), each checked as a config file's key is (known key, type, range, the section's
+    consistency). ConfigError naming the change (``override train.steps: expected int, got 'x'``)."""
+    sections: dict[str, dict[str, Any]] = {"model": {}, "train": {}}
+    for name, value in changes.items():
+        section, dot, key = name.partition(".")
+        if not dot or section not in sections or not key:
+            raise ConfigError(f"override {one_line(name, 60)}: expected model.KEY=VALUE or train.KEY=VALUE")
+        sections[section][key] = value
+    return (
+        _from_dict(ModelConfig, {**asdict(model), **sections["model"]}, "override model")
+        if sections["model"]
+        else model,
+        _from_dict(TrainConfig, {**asdict(train), **sections["train"]}, "override train")
+        if sections["train"]
+        else train,
+    )

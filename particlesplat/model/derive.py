@@ -7,22 +7,10 @@ from __future__ import annotations
 
 from os import PathLike
 
+from particlesplat.core.choices import INFERENCE_KEYS
 from particlesplat.core.errors import UserError
 from particlesplat.model.config import ModelConfig, config_to_dict, model_config_from_dict, stored_model_config
 from particlesplat.model.io import model_from_checkpoint, read_checkpoint, save_checkpoint
-
-# model keys a trained checkpoint may change, and what each decides
-INFERENCE_KEYS: dict[str, str] = {
-    "refine_steps": "amortised refinement steps (0 leaves the refiner out and drops its weights)",
-    "refine_scale": "fraction of the resolution the refinement renders the context views at",
-    "refine_keep": "Gaussians per particle the refinement renders (0: all)",
-    "refine_static": "how the refinement draws the static layer: render (among the particles) or behind (the "
-    "encoder's full-size render of it, pooled, behind them)",
-    "particles_per_view": "foreground particles kept per context view",
-    "kp_min_separation": "least distance between kept keypoints (normalised image units)",
-    "bg_mask_threshold": "z_t above which a particle is active and draws",
-    "support_cut": "metres below the support surface under which a particle Gaussian does not draw (< 0: off)",
-}
 
 # run state a derived checkpoint does not carry: it is a model, not a run to resume
 RUN_STATE = ("optimizer", "optimizer_layout", "rng", "best", "run_avg")

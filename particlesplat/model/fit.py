@@ -16,6 +16,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from particlesplat.core.camera import Camera
+from particlesplat.core.choices import DEFAULT_FIT, FITTED
 from particlesplat.model.geometry import stack_cameras
 from particlesplat.model.losses import view_error
 from particlesplat.model.particles import Particles
@@ -23,11 +24,6 @@ from particlesplat.rendering.api import render_batch
 
 if TYPE_CHECKING:
     from particlesplat.model.particlesplat import ParticleSplat
-
-# the latents a fit may move; z_t (which particles exist) and the background stay as encoded
-FITTED = ("z_p", "z_s", "z_d", "z_e", "z_f")
-# what a fit moves unless told otherwise: the appearance alone, so the particles (and the objects they form) stay
-DEFAULT_FIT = ("z_f",)
 
 
 def context_error(

@@ -23,7 +23,6 @@ from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from particlesplat.core.atomic import atomic_path, atomic_write, stale_temporaries
-from particlesplat.core.bundled import bundled_assets
 from particlesplat.core.device import resolve_device
 from particlesplat.core.errors import Interrupted, OptionError, UserError, one_line, short_repr
 from particlesplat.core.gaussians import BadGaussiansError
@@ -37,6 +36,7 @@ from particlesplat.model.config import ConfigError, config_to_dict, stored_model
 from particlesplat.model.io import check_model_memory
 from particlesplat.model.provenance import Provenance, RunClock
 from particlesplat.model.static_background import WorkspaceBackground
+from particlesplat.training.eta import StepTimes
 from particlesplat.training.loss import training_loss
 from particlesplat.training.runlog import LogReader, read_log
 
@@ -84,11 +84,6 @@ def _is_checkpoint(name: str) -> bool:
     tmp = re.match(r"^\.(.+)\.\d+\.[0-9a-f]{8}\.tmp", name)
     name = tmp.group(1) if tmp else name
     return name in (LAST, "best.pt") or bool(STEP_FILE.match(name))
-
-
-def recipe_path() -> Path:
-    """The bundled recipe (``assets/recipe.yaml`` in the installed ``particlesplat.assets`` package)."""
-    return bundled_assets() / "recipe.yaml"
 
 
 @contextmanager
@@ -685,16 +680,24 @@ class Trainer:
     def _loop(self, end: int, stop: dict | None = None) -> None:
         tc = self.tc
         stop = stop if stop is not None else {}
-        self._bar = bar = tqdm(
-            total=tc.steps, initial=self.step, desc="train", disable=self.rank != 0, dynamic_ncols=True
+        self._bar = bar = tqdm(  # time left: the median of the recent steps (particlesplat.training.eta)
+            total=tc.steps,
+            initial=self.step,
+            desc="train",
+            disable=self.rank != 0,
+            dynamic_ncols=True,
+            bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}, {postfix}]",
         )
+        step_times = StepTimes()
         run_avg = self.run_avg
         skipped_in_a_row = 0
         governor = None
         if tc.adapt_threads and self.device.type == "cpu" and not self.distributed:
             governor = ThreadGovernor(tc.num_threads or torch.get_num_threads())
         while self.step < end:
+            t0 = time.perf_counter()
             parts = self.train_step()
+            step_times.add(time.perf_counter() - t0)
             bar.update(1)
             if governor is not None and self.step % THREAD_CHECK_STEPS == 0:
                 governor.update()
@@ -716,6 +719,8 @@ class Trainer:
                     run_avg[k] = v if k not in run_avg else 0.9 * run_avg[k] + 0.1 * v
             if run_avg:
                 bar.set_postfix(
+                    left=step_times.eta(tc.steps - self.step),
+                    s_step=f"{step_times.median():.2f}",
                     loss=f"{run_avg['loss']:.1f}",
                     psnr=f"{run_avg['psnr']:.2f}",
                     active=f"{run_avg['active']:.1f}",

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from ..settings import PANEL_WIDTH
 from .insert import InsertFields
 from .objects import ObjectFields
 
@@ -30,7 +31,7 @@ class UiFields:
 
     scene_path: str = ""
     edits_path: str = "edits.yaml"
-    output_dir: str = "."
+    output_dir: str = "."  # the app sets the user's output folder (particlesplat.core.userdirs.output_dir)
     export_format: str = ".ply"  # the extension of what Export writes (particlesplat.formats.splat_files)
     shot_size: list[int] = field(default_factory=lambda: [0, 0])
     insert: InsertFields = field(default_factory=InsertFields)
@@ -38,3 +39,5 @@ class UiFields:
     objects: ObjectFields = field(default_factory=ObjectFields)
     layout_size: tuple[float, float] = (0.0, 0.0)  # the window size the panel was last placed for
     confirm_overwrite: str | None = None  # a file of another scene that a second Save may replace
+    panel_width: float = PANEL_WIDTH  # window points: the panel's width (the user drags its edge; remembered)
+    panel_placed: float = 0.0  # window points: the width the panel was last given (0: not yet placed)

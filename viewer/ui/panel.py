@@ -10,6 +10,7 @@ from particlesplat.core.camera import Camera
 
 from ..actions import ActionTarget, help_rows
 from ..session import Scene
+from ..settings import PANEL_WIDTH, clamp_width
 from ..state import ViewState
 from .edits import draw_edits_section
 from .fields import UiFields, UiRequests
@@ -20,14 +21,14 @@ from .scene import draw_scene_section
 from .selected import draw_selected_section
 from .view import draw_view_section
 
-PANEL_WIDTH, PANEL_MARGIN = 400.0, 10.0  # window points: the panel docks at the right edge
+PANEL_MARGIN = 10.0  # window points: the panel docks at the right edge, this far from it
 
 
-def clear_of_panel(camera: Camera, px_per_point: float) -> Camera:
-    """``camera`` with its principal point moved left by half the panel's width (``px_per_point`` camera
-    pixels per window point), so what the orbit looks at sits in the middle of the part of the window the
-    panel leaves free. Unchanged when the window is less than twice as wide as the panel."""
-    shift = 0.5 * (PANEL_WIDTH + PANEL_MARGIN) * px_per_point
+def clear_of_panel(camera: Camera, px_per_point: float, panel_width: float = PANEL_WIDTH) -> Camera:
+    """``camera`` with its principal point moved left by half the panel's width (``panel_width`` window points,
+    ``px_per_point`` camera pixels per window point), so what the orbit looks at sits in the middle of the part
+    of the window the panel leaves free. Unchanged when the window is less than twice as wide as the panel."""
+    shift = 0.5 * (panel_width + PANEL_MARGIN) * px_per_point
     if camera.width < 4.0 * shift:
         return camera
     K = camera.K.clone()
@@ -53,27 +54,25 @@ def draw_panel(
     swatches: dict[int, tuple[float, float, float]],
     counts: tuple[int, int],
 ) -> None:
-    """The side panel. ``swatches``: particle colours; ``counts``: (drawn, total) Gaussians."""
+    """The side panel, docked at the right edge above the status line; its width is the user's (drag its left
+    edge: ``fields.panel_width``, remembered by the app). Messages go to the status line, so the panel's layout
+    never shifts under the mouse. ``swatches``: particle colours; ``counts``: (drawn, total) Gaussians."""
     vp = imgui.get_main_viewport()
     size = (float(vp.work_size.x), float(vp.work_size.y))
     cond = imgui.Cond_.always if size != fields.layout_size else imgui.Cond_.first_use_ever
     fields.layout_size = size  # the panel follows a window resize (docked right, full height)
+    width = min(fields.panel_width, max(vp.work_size.x - 2.0 * PANEL_MARGIN, 1.0))
     imgui.set_next_window_pos(
-        imgui.ImVec2(vp.work_pos.x + vp.work_size.x - PANEL_WIDTH - PANEL_MARGIN, vp.work_pos.y + 8.0), cond
+        imgui.ImVec2(vp.work_pos.x + vp.work_size.x - width - PANEL_MARGIN, vp.work_pos.y + 8.0), cond
     )
-    imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, vp.work_size.y - 16.0), cond)
+    imgui.set_next_window_size(imgui.ImVec2(width, vp.work_size.y - 16.0 - status_line_height()), cond)
+    if cond == imgui.Cond_.always or fields.panel_placed == 0.0:
+        fields.panel_placed = width
     imgui.begin("ParticleSplat")
-    imgui.push_item_width(-150.0)
-    if fields.status:  # at the top, where the user looks after a click (saved, exported, errors)
-        error = fields.status.startswith("error")
-        imgui.push_style_color(
-            imgui.Col_.text, imgui.ImVec4(1.0, 0.45, 0.4, 1.0) if error else imgui.ImVec4(0.55, 1.0, 0.55, 1.0)
-        )
-        imgui.text_wrapped(fields.status)
-        imgui.pop_style_color()
-        if imgui.small_button("dismiss"):
-            fields.status = ""
-        imgui.separator()
+    if abs(imgui.get_window_width() - fields.panel_placed) > 0.5:  # the user dragged its edge
+        fields.panel_placed = imgui.get_window_width()
+        fields.panel_width = clamp_width(fields.panel_placed)
+    imgui.push_item_width(-min(150.0, 0.45 * imgui.get_window_width()))
     draw_scene_section(session, req, fields)
     draw_view_section(session, state, req, counts)
 
@@ -92,4 +91,42 @@ def draw_panel(
         for keys, what in help_rows():
             imgui.bullet_text(f"{keys}: {what}")
     imgui.pop_item_width()
+    imgui.end()
+
+
+def status_line_height() -> float:
+    """Window points the status line takes at the bottom of the window: one line and the window's padding (at
+    least imgui's smallest window)."""
+    style = imgui.get_style()
+    return max(imgui.get_frame_height() + 2.0 * style.window_padding.y, style.window_min_size.y)
+
+
+def draw_status_line(fields: UiFields, panel_width: float) -> None:
+    """The last message (saved, exported, errors: ``fields.status``) on one line at the bottom of the window, where
+    it is seen whatever the panel shows; errors in red, the rest in green; hovered, the whole message; a small
+    button dismisses it. ``panel_width``: window points the panel takes on the right (0: hidden); the line spans
+    the window."""
+    if not fields.status:
+        return
+    vp = imgui.get_main_viewport()
+    height = status_line_height()
+    imgui.set_next_window_pos(imgui.ImVec2(vp.work_pos.x, vp.work_pos.y + vp.work_size.y - height))
+    imgui.set_next_window_size(imgui.ImVec2(vp.work_size.x, height))
+    flags = (
+        imgui.WindowFlags_.no_decoration
+        | imgui.WindowFlags_.no_move
+        | imgui.WindowFlags_.no_saved_settings
+        | imgui.WindowFlags_.no_focus_on_appearing
+        | imgui.WindowFlags_.no_nav
+    )
+    imgui.begin("##status", None, flags)
+    if imgui.small_button("x"):
+        fields.status = ""
+    imgui.same_line()
+    error = fields.status.startswith("error")
+    colour = imgui.ImVec4(1.0, 0.45, 0.4, 1.0) if error else imgui.ImVec4(0.55, 1.0, 0.55, 1.0)
+    line = " ".join(fields.status.split())  # one line: a long message is cut at the window's edge
+    imgui.text_colored(colour, line)
+    if imgui.is_item_hovered():
+        imgui.set_tooltip(fields.status)
     imgui.end()

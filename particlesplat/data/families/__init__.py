@@ -13,6 +13,9 @@ GENERATOR_FAMILY = {
     "particlesplat.data.families.robot": "robot",
     "particlesplat.data.families.robot_wide": "robot",
 }
+CHECKPOINT_HELP = (
+    "model checkpoint (default: the shipped model of the scenes' family: assets/model.pt, assets/robot/model.pt)"
+)
 
 
 def family_of(meta: object, where: str = "scene.json") -> str | None:

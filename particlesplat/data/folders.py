@@ -1,0 +1,63 @@
+"""What the user named as scenes, checked before anything heavy loads (no torch): a command's path errors come in
+well under a second, with a hint where the user named the dataset root instead of one of its splits."""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+
+TRANSFORMS = "transforms.json"  # the file that makes a folder a scene folder (docs/dataset.md)
+SPLITS = ("train", "val", "test", "heldout")  # heldout: the wide robot world's split outside the training ranges
+
+
+def is_scene_folder(path: Path) -> bool:
+    """A folder holding ``transforms.json``."""
+    return (path / TRANSFORMS).is_file()
+
+
+def holds_scenes(path: Path) -> bool:
+    """A folder with at least one scene folder directly below it (hidden folders do not count)."""
+    try:
+        return any(not p.name.startswith(".") and is_scene_folder(p) for p in path.iterdir())
+    except OSError:
+        return False
+
+
+def check_split_folder(path: str | PathLike, option: str) -> Path:
+    """``path`` as a folder of scene folders (a split: ``DATA/test``). FileNotFoundError naming ``option`` when it
+    does not exist or holds no scene folder; when it is a dataset root, the message names its splits
+    (``--data data/tabletop: a dataset root; evaluate one split, e.g. --data data/tabletop/test``)."""
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{option} {p}: no such folder")
+    if not p.is_dir():
+        raise NotADirectoryError(f"{option} {p}: not a folder (a folder of scene folders is expected)")
+    if holds_scenes(p):
+        return p
+    splits = [s for s in SPLITS if holds_scenes(p / s)]
+    if splits:
+        best = "test" if "test" in splits else splits[0]
+        raise FileNotFoundError(
+            f"{option} {p}: a dataset root (splits {', '.join(splits)}); name one split, e.g. {option} {p / best}"
+        )
+    if is_scene_folder(p):
+        raise FileNotFoundError(f"{option} {p}: one scene folder; name the folder that holds it, {option} {p.parent}")
+    raise FileNotFoundError(f"{option} {p}: no scene folders (sub-folders with {TRANSFORMS})")
+
+
+def check_file(path: str | PathLike | None, option: str) -> None:
+    """FileNotFoundError naming ``option`` when ``path`` is given and is no file (None: not given, nothing to
+    check)."""
+    if path is None:
+        return
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{option} {p}: no such file")
+    if not p.is_file():
+        raise IsADirectoryError(f"{option} {p}: not a file")
+
+
+def check_existing(path: str | PathLike | None, option: str) -> None:
+    """FileNotFoundError naming ``option`` when ``path`` is given and does not exist (a file or a folder)."""
+    if path is not None and not Path(path).exists():
+        raise FileNotFoundError(f"{option} {path}: no such file or folder")
