@@ -44,18 +44,6 @@ def _numpy(t: Tensor) -> np.ndarray:
     return t.detach().contiguous().numpy()
 
 
-def _sync_threads() -> None:
-    """Run the kernels on as many threads as torch uses (the thread governor may lower it during training)."""
-    import numba
-
-    wanted = torch.get_num_threads()
-    n = max(1, min(wanted, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
-    if numba.get_num_threads() != n:
-        numba.set_num_threads(n)
-        if torch.get_num_threads() != wanted:  # an OpenMP pool shared with torch: numba's count became torch's
-            torch.set_num_threads(wanted)
-
-
 @functools.lru_cache(maxsize=32)
 def _tile_layout(sizes: tuple[tuple[int, int], ...]) -> tuple[list[tuple[int, int, int]], np.ndarray, np.ndarray]:
     """Tile grids, tile centres (T, 2) float64 and per view (width, height, tiles_x, first tile) (V, 4) int64 of a
@@ -88,7 +76,6 @@ def bin_fused(
 
     grids, origin, per_view = _tile_layout(tuple(sizes))
     order = torch.sort(depths.detach(), stable=True).indices
-    _sync_threads()
     gauss, tile_start = k.bin_tiles(
         _numpy(means2d.double()),
         _numpy(radius.double()),
@@ -123,7 +110,6 @@ class FusedRasterize(torch.autograd.Function):
         con = conics.detach().contiguous()
         out = torch.zeros(bins.num_tiles, TILE * TILE, feats.shape[1] + 1, dtype=dtype)
         last = torch.zeros(bins.num_tiles, TILE * TILE, dtype=torch.int64)
-        _sync_threads()
         if bins.gauss.shape[0]:
             k.rasterize_forward(
                 bins.tile_start,
@@ -150,7 +136,6 @@ class FusedRasterize(torch.autograd.Function):
         bins: FusedBins = ctx.bins
         C = feats.shape[1]
         d_pair = torch.zeros(bins.gauss.shape[0], 6 + C, dtype=con.dtype)
-        _sync_threads()
         if bins.gauss.shape[0]:
             k.rasterize_backward(
                 bins.tile_start,

@@ -35,11 +35,20 @@ T_MIN = 1e-4
 HIT_MARGIN = 1e-3  # the binning test's margin below ln(1/255): the raster decides exactly
 LOG_ALPHA_MIN = math.log(ALPHA_MIN)  # below this exponent α < 1/255: skipped before its exp() is paid
 
-# numba's own thread pool, not its OpenMP layer: that one shares torch's libgomp and resets torch's thread count
-# (omp_set_num_threads) when it starts, so a one-thread training run found itself on every core
-if "NUMBA_THREADING_LAYER" not in os.environ:
-    numba.config.THREADING_LAYER = "workqueue"  # type: ignore[attr-defined]
-# the workqueue pool runs one parallel kernel at a time: callers from several Python threads take turns
+# Threads: numba's default layer, OpenMP where numba finds it, which shares torch's libgomp pool (on two cores,
+# numba's own workqueue pool beside torch's spinning OpenMP threads made a 2-thread render 1.6x slower). A process
+# forked after that pool started must not start OpenMP threads of its own (GNU OpenMP aborts it), so a forked child
+# runs the serial builds.
+_in_forked_child = False
+
+
+def _forked() -> None:
+    global _in_forked_child
+    _in_forked_child = True
+
+
+os.register_at_fork(after_in_child=_forked)
+# parallel kernels are launched one at a time (callers from several Python threads take turns)
 KERNEL_LOCK = threading.Lock()
 PARALLEL_CHUNK = 32  # prange iterations (tiles, Gaussians, instances) a thread takes at a time
 
@@ -60,12 +69,28 @@ class _Compiled:
         self.__doc__ = py_func.__doc__
 
     def __call__(self, *args):
-        if numba.get_num_threads() == 1:
+        if _in_forked_child or sync_threads() == 1:
             return self.serial(*args)
         # small chunks handed out as threads free up, not one equal share each: tiles' lists differ in length,
         # and a thread the machine's other work delays would otherwise hold the whole kernel up
         with KERNEL_LOCK, numba.parallel_chunksize(PARALLEL_CHUNK):
             return self.parallel(*args)
+
+
+def sync_threads() -> int:
+    """The threads a kernel runs on: as many as torch uses (the thread governor may lower that during training).
+
+    Starting numba's OpenMP pool sets the shared OpenMP thread count to numba's maximum, which is torch's count
+    too: torch's is put back, or a one-thread run would go on every core."""
+    import torch
+
+    wanted = torch.get_num_threads()
+    n = max(1, min(wanted, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
+    if numba.get_num_threads() != n:
+        numba.set_num_threads(n)
+    if torch.get_num_threads() != wanted:
+        torch.set_num_threads(wanted)
+    return n
 
 
 def parallel_kernel(py_func):
