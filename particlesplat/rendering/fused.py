@@ -91,6 +91,12 @@ def bin_fused(
     return FusedBins(grids, gauss, tile_start, origin)
 
 
+def _kernel_inputs(bins: FusedBins, *tensors: Tensor) -> tuple:
+    """The arguments the compositing kernels share: the tile lists, then the tensors' numpy views (Gaussian rows:
+    means2d, conics, ln o, features; the forward's output and last-weighed positions)."""
+    return (bins.tile_start, bins.gauss, bins.tile_origin, *(t.numpy() for t in tensors))
+
+
 class FusedRasterize(torch.autograd.Function):
     """Composite per-Gaussian features front to back in every tile.
 
@@ -111,17 +117,7 @@ class FusedRasterize(torch.autograd.Function):
         out = torch.zeros(bins.num_tiles, TILE * TILE, feats.shape[1] + 1, dtype=dtype)
         last = torch.zeros(bins.num_tiles, TILE * TILE, dtype=torch.int64)
         if bins.gauss.shape[0]:
-            k.rasterize_forward(
-                bins.tile_start,
-                bins.gauss,
-                bins.tile_origin,
-                m2.numpy(),
-                con.numpy(),
-                log_o.numpy(),
-                feats.numpy(),
-                out.numpy(),
-                last.numpy(),
-            )
+            k.rasterize_forward(*_kernel_inputs(bins, m2, con, log_o, feats, out, last))
         if any(ctx.needs_input_grad[:4]):
             ctx.save_for_backward(m2, con, log_o, feats, out, last, opacities.detach())
             ctx.bins = bins
@@ -137,19 +133,8 @@ class FusedRasterize(torch.autograd.Function):
         C = feats.shape[1]
         d_pair = torch.zeros(bins.gauss.shape[0], 6 + C, dtype=con.dtype)
         if bins.gauss.shape[0]:
-            k.rasterize_backward(
-                bins.tile_start,
-                bins.gauss,
-                bins.tile_origin,
-                m2.numpy(),
-                con.numpy(),
-                log_o.numpy(),
-                feats.numpy(),
-                out.numpy(),
-                last.numpy(),
-                _numpy(grad_out.to(con.dtype)),
-                d_pair.numpy(),
-            )
+            grad = _numpy(grad_out.to(con.dtype))
+            k.rasterize_backward(*_kernel_inputs(bins, m2, con, log_o, feats, out, last), grad, d_pair.numpy())
         rows = torch.from_numpy(bins.gauss)
         d_rows = torch.zeros(m2.shape[0], 6 + C, dtype=con.dtype).index_add_(0, rows, d_pair)
         d_means = d_rows[:, :2].to(ctx.means_dtype)

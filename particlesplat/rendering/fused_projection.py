@@ -77,7 +77,17 @@ def _setup(means, rotations, scales, r, Kv, Wv, size):
     u0 = _vec_mat(t0[0], t0[1], t0[2], R)  # t R; a = (t R) ∘ s are the rows of A = J W R S
     u1 = _vec_mat(t1[0], t1[1], t1[2], R)
     cross = _vec_mat(q[0], q[1], q[2], R)
-    return x, y, z, xz, yz, free, t0, t1, q, kk, u0, u1, cross
+    s0, s1, s2 = scales[r, 0], scales[r, 1], scales[r, 2]
+    a0 = (u0[0] * s0, u0[1] * s1, u0[2] * s2)
+    a1 = (u1[0] * s0, u1[1] * s1, u1[2] * s2)
+    # the 2D covariance A Aᵀ before dilation: [[sxx, sxy], [sxy, syy]]
+    cov = (
+        a0[0] * a0[0] + a0[1] * a0[1] + a0[2] * a0[2],
+        a1[0] * a1[0] + a1[1] * a1[1] + a1[2] * a1[2],
+        a0[0] * a1[0] + a0[1] * a1[1] + a0[2] * a1[2],
+    )
+    cof = (s1 * s2, s0 * s2, s0 * s1)  # the cofactors of S
+    return x, y, z, xz, yz, free, t0, t1, q, kk, u0, u1, cross, a0, a1, cov, cof
 
 
 @parallel_kernel
@@ -91,16 +101,13 @@ def project_forward(means, rotations, scales, rows, view, K, w2c, sizes, means2d
     for k in numba.prange(rows.shape[0]):
         r, v = rows[k], view[k]
         Kv = K[v]
-        x, y, z, _, _, _, _, _, _, _, u0, u1, cross = _setup(means, rotations, scales, r, Kv, w2c[v], sizes[v])
+        x, y, z, _, _, _, _, _, _, _, _, _, cross, _, _, cov, cof = _setup(
+            means, rotations, scales, r, Kv, w2c[v], sizes[v]
+        )
         means2d[k, 0] = Kv[0, 0] * x / z + Kv[0, 2]
         means2d[k, 1] = Kv[1, 1] * y / z + Kv[1, 2]
-        s0, s1, s2 = scales[r, 0], scales[r, 1], scales[r, 2]
-        a0 = (u0[0] * s0, u0[1] * s1, u0[2] * s2)
-        a1 = (u1[0] * s0, u1[1] * s1, u1[2] * s2)
-        sxx = a0[0] * a0[0] + a0[1] * a0[1] + a0[2] * a0[2]
-        syy = a1[0] * a1[0] + a1[1] * a1[1] + a1[2] * a1[2]
-        sxy = a0[0] * a1[0] + a0[1] * a1[1] + a0[2] * a1[2]
-        c0, c1, c2 = cross[0] * s1 * s2, cross[1] * s0 * s2, cross[2] * s0 * s1
+        sxx, syy, sxy = cov
+        c0, c1, c2 = cross[0] * cof[0], cross[1] * cof[1], cross[2] * cof[2]
         det = c0 * c0 + c1 * c1 + c2 * c2 + eps * (sxx + syy) + eps * eps
         conics[k, 0] = (syy + eps) / det
         conics[k, 1] = -sxy / det
@@ -119,14 +126,11 @@ def project_backward(means, rotations, scales, rows, view, K, w2c, sizes, g2d, g
         r, v = rows[k], view[k]
         Kv, Wv = K[v], w2c[v]
         fx, fy = Kv[0, 0], Kv[1, 1]
-        x, y, z, xz, yz, free, t0, t1, q, kk, u0, u1, cross = _setup(means, rotations, scales, r, Kv, Wv, sizes[v])
+        x, y, z, xz, yz, free, t0, t1, q, kk, u0, u1, cross, a0, a1, cov, cof = _setup(
+            means, rotations, scales, r, Kv, Wv, sizes[v]
+        )
         s0, s1, s2 = scales[r, 0], scales[r, 1], scales[r, 2]
-        a0 = (u0[0] * s0, u0[1] * s1, u0[2] * s2)
-        a1 = (u1[0] * s0, u1[1] * s1, u1[2] * s2)
-        sxx = a0[0] * a0[0] + a0[1] * a0[1] + a0[2] * a0[2]
-        syy = a1[0] * a1[0] + a1[1] * a1[1] + a1[2] * a1[2]
-        sxy = a0[0] * a1[0] + a0[1] * a1[1] + a0[2] * a1[2]
-        cof = (s1 * s2, s0 * s2, s0 * s1)
+        sxx, syy, sxy = cov
         cc = (cross[0] * cof[0], cross[1] * cof[1], cross[2] * cof[2])
         det = cc[0] * cc[0] + cc[1] * cc[1] + cc[2] * cc[2] + eps * (sxx + syy) + eps * eps
         A, C = sxx + eps, syy + eps
