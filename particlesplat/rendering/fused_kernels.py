@@ -2,8 +2,8 @@
 
 They follow the rules of the torch twin (:mod:`particlesplat.rendering.rasterize`) exactly: 4×4-pixel tiles; a
 Gaussian is listed in a tile iff its exponent reaches ln(1/255) − 1e-3 at one of the tile's pixel centres; lists
-run front to back by depth (ties by row); at a pixel, α = min(0.99, o·exp(max(e, −6))) where e = ln o − ½dᵀCd,
-α < 1/255 is skipped, and the pixel stops before the Gaussian that would take its transmittance T to ≤ 1e-4.
+run front to back by depth (ties by row); at a pixel, α = min(0.99, exp(e)) with e = ln o − ½dᵀCd, α < 1/255 is
+skipped, and the pixel stops before the Gaussian that would take its transmittance T to ≤ 1e-4.
 
 Where the twin builds a padded (tile, pixel, slot) tensor per chunk and lets autograd hold per-pair tensors, these
 kernels walk each tile's list once, all 16 pixels in step, stop as soon as every pixel of the tile is done, and
@@ -36,7 +36,7 @@ HIT_MARGIN = 1e-3  # the binning test's margin below ln(1/255): the raster decid
 LOG_ALPHA_MIN = math.log(ALPHA_MIN)  # below this exponent α < 1/255: skipped before its exp() is paid
 
 # Threads: numba's default layer, OpenMP where numba finds it, which shares torch's libgomp pool (on two cores,
-# numba's own workqueue pool beside torch's spinning OpenMP threads made a 2-thread render 1.6x slower). A process
+# numba's own workqueue pool beside torch's spinning OpenMP threads made a 2-thread render 1.4-1.8x slower). A process
 # forked after that pool started must not start OpenMP threads of its own (GNU OpenMP aborts it), so a forked child
 # runs the serial builds.
 _in_forked_child = False
