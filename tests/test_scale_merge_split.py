@@ -185,3 +185,11 @@ def test_user_groups_win_in_the_particle_arrays_and_the_object_colours(scene, tm
         ]
     )
     assert out.is_file()
+    # encode --edits: the arrays a learner reads carry the same groups
+    from particlesplat.analysis.particle_arrays import ParticleArrays
+
+    args = ["encode", "--data", str(enc.path), "--edits", str(path), "--out", str(tmp_path / "enc"), "--no-progress"]
+    assert main(args) == 0
+    (written,) = (tmp_path / "enc").glob("*.npz")
+    encoded = ParticleArrays.load(written)
+    assert encoded.num_objects == arrays.num_objects and encoded.object.tolist() == arrays.object.tolist()
