@@ -27,12 +27,14 @@ class FusedBins:
         gauss: (P,) int64 Gaussian row of each pair, grouped by tile, front to back.
         tile_start: (T + 1,) int64 offset of each tile's list in ``gauss``.
         tile_origin: (T, 2) float64 tile centres, pixels.
+        log_o: (M,) ln opacity of each Gaussian row (the binning's and the compositing's), working dtype.
     """
 
     grids: list[tuple[int, int, int]]
     gauss: np.ndarray
     tile_start: np.ndarray
     tile_origin: np.ndarray
+    log_o: Tensor
 
     @property
     def num_tiles(self) -> int:
@@ -88,7 +90,7 @@ def bin_fused(
         _numpy(log_o),
         origin,
     )
-    return FusedBins(grids, gauss, tile_start, origin)
+    return FusedBins(grids, gauss, tile_start, origin, log_o.detach().contiguous())
 
 
 def _kernel_inputs(bins: FusedBins, *tensors: Tensor) -> tuple:
@@ -110,7 +112,7 @@ class FusedRasterize(torch.autograd.Function):
         from particlesplat.rendering import fused_kernels as k
 
         dtype = conics.dtype
-        log_o = torch.log(opacities.detach().clamp_min(1e-30)).to(dtype)
+        log_o = bins.log_o
         feats = features.detach().to(dtype).contiguous()
         m2 = means2d.detach().double().contiguous()
         con = conics.detach().contiguous()
