@@ -15,7 +15,7 @@ from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians, quats_to_rotations
 from particlesplat.core.limits import check_memory
 from particlesplat.rendering.projection import footprint_extents, project_views
-from particlesplat.rendering.rasterize import TILE
+from particlesplat.rendering.rasterize import tile_boxes
 
 # peak bytes per candidate pair while the tile lists are built (about a dozen int64 arrays of the pair count alive
 # at once) and per pixel (the colour, depth, alpha and weight planes and their composited copies). Measured
@@ -36,13 +36,10 @@ def candidate_pairs(gaussians: Gaussians, camera: Camera) -> int:
         cam = camera.to(device=g.means.device, dtype=g.means.dtype)
         rows = torch.arange(len(g), device=g.means.device)
         proj = project_views(g.means, quats_to_rotations(g.quats), g.scales, rows, torch.zeros_like(rows), [cam])
-        radius = footprint_extents(proj, g.opacities.index_select(0, rows.index_select(0, proj.index))).double()
-        m = proj.means2d.double()
-        wh = torch.tensor([cam.width, cam.height], dtype=torch.float64, device=m.device)
-        lo = torch.maximum(torch.ceil(m - radius - 0.5), torch.zeros_like(m))
-        hi = torch.minimum(torch.floor(m + radius - 0.5), wh - 1)
-        ok = (radius[:, 0] >= 0) & (hi >= lo).all(-1) & torch.isfinite(m).all(-1)
-        tiles = torch.floor(hi / TILE) - torch.floor(lo / TILE) + 1
+        radius = footprint_extents(proj, g.opacities.index_select(0, rows.index_select(0, proj.index)))
+        wh = torch.tensor([cam.width, cam.height], dtype=torch.float64, device=proj.means2d.device)
+        first, last, ok = tile_boxes(proj.means2d, radius, wh)
+        tiles = last - first + 1
         return int(torch.where(ok, tiles[:, 0] * tiles[:, 1], 0.0).sum())
 
 

@@ -89,13 +89,7 @@ def bin_gaussians(
             [[w, h, tx, f] for (w, h), (tx, _, f) in zip(sizes, grids, strict=True)], dtype=torch.float64, device=device
         ).index_select(0, view)
         wh = per_view[:, :2]
-        m = means2d.detach().double()
-        r = radius.detach().double()
-        # pixel u is covered if its centre u + 0.5 lies within [m - r, m + r]
-        lo = torch.maximum(torch.ceil(m - r - 0.5), torch.zeros_like(m))
-        hi = torch.minimum(torch.floor(m + r - 0.5), wh - 1)
-        ok = (r[:, 0] >= 0) & (hi >= lo).all(-1) & torch.isfinite(m).all(-1)
-        t0, t1 = torch.floor(lo / TILE), torch.floor(hi / TILE)
+        t0, t1, ok = tile_boxes(means2d, radius, wh)
         nx = torch.where(ok, t1[:, 0] - t0[:, 0] + 1, 0.0).long()
         ny = torch.where(ok, t1[:, 1] - t0[:, 1] + 1, 0.0).long()
         corner = torch.where(ok, per_view[:, 3] + t0[:, 1] * per_view[:, 2] + t0[:, 0], 0.0).long()  # box's first tile
@@ -120,6 +114,20 @@ def bin_gaussians(
         count = torch.bincount(tile_sorted, minlength=n_tiles)
         chunks = _make_chunks(count)
     return TileBins(grids, gauss, tile_sorted, count, origin, chunks)
+
+
+def tile_boxes(means2d: Tensor, radius: Tensor, wh: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Each Gaussian's footprint box in tiles, clipped to its image: first and last tile (x, y) (M, 2) float64, and
+    whether it covers a pixel at all (M,) bool.
+
+    means2d: (M, 2) pixels; radius: (M, 2) half extents (< 0: no footprint); wh: (M, 2) or (2,) image size. Pixel u
+    is covered if its centre u + 0.5 lies within [m - r, m + r].
+    """
+    m, r = means2d.detach().double(), radius.detach().double()
+    lo = torch.maximum(torch.ceil(m - r - 0.5), torch.zeros_like(m))
+    hi = torch.minimum(torch.floor(m + r - 0.5), wh - 1)
+    ok = (r[:, 0] >= 0) & (hi >= lo).all(-1) & torch.isfinite(m).all(-1)
+    return torch.floor(lo / TILE), torch.floor(hi / TILE), ok
 
 
 def tile_grids(sizes: list[tuple[int, int]]) -> list[tuple[int, int, int]]:
