@@ -16,6 +16,7 @@ from torch import Tensor
 from particlesplat.core.errors import short_repr, warn_input
 from particlesplat.core.jsonfile import MAX_JSON_BYTES, read_json
 from particlesplat.core.limits import MIN_DISTANCE_METRES, WORLD_MAX_METRES
+from particlesplat.core.panda_arm import ARM_STATE_KEY, pack_arm_state
 from particlesplat.core.viewpoints import Framing
 from particlesplat.data.families import family_of
 from particlesplat.data.folders import TRANSFORMS
@@ -135,7 +136,15 @@ def _scene_value(folder: str | PathLike, key: str) -> tuple[Path, object] | None
 def read_pose(folder: str | PathLike, key: str, dims: int) -> list[float] | None:
     """The pose ``folder/scene.json`` records under ``key`` (``model.bg_static_pose``: a robot's joint angles), a
     list of ``dims`` finite numbers. None when the folder has no scene.json or it lacks the key. SceneFormatError
-    names the file and the key of a value of another length or type."""
+    names the file and the key of a value of another length or type.
+
+    The key :data:`~particlesplat.core.panda_arm.ARM_STATE_KEY` is the robot state packed from what the scene
+    records of the robot (:func:`read_arm_state`)."""
+    if key == ARM_STATE_KEY:
+        state = read_arm_state(folder)
+        if state is not None and len(state) != dims:
+            raise SceneFormatError(f"{Path(folder) / SCENE_META}: the robot state has {len(state)} numbers, the model reads {dims}")
+        return state
     found = _scene_value(folder, key)
     if found is None:
         return None
@@ -158,7 +167,7 @@ def scene_pose(
     if not key:
         return None
     pose = read_pose(folder, key, dims)
-    if pose is not None:
+    if pose is not None and key != ARM_STATE_KEY:  # the arm's state is read by exact kinematics, not learned
         trained = (ranges or {}).get(key) or generator_range(key)
         warn_outside(pose, key, trained, str(Path(folder) / SCENE_META))
     if pose is None:
@@ -168,6 +177,24 @@ def scene_pose(
         )
         return None
     return torch.tensor(pose)
+
+
+def read_arm_state(folder: str | PathLike) -> list[float] | None:
+    """What ``folder/scene.json`` says of the robot, packed (:func:`~particlesplat.core.panda_arm.pack_arm_state`):
+    ``arm_joints_rad`` (required: None without it), ``robot_base`` (default robosuite's) and ``gripper`` (default:
+    the largest). SceneFormatError names the file and the key of a bad value."""
+    joints = read_pose(folder, "arm_joints_rad", 7)
+    if joints is None:
+        return None
+    base = read_robot_base(folder)
+    found = _scene_value(folder, "gripper")
+    gripper = None
+    if found is not None:
+        path, value = found
+        if not isinstance(value, str) or len(value) > 64:
+            raise SceneFormatError(f"{path}: key 'gripper' must be a gripper's name, got {short_repr(value)}")
+        gripper = value
+    return pack_arm_state(joints, base, gripper)
 
 
 def read_robot_base(folder: str | PathLike) -> list[list[float]] | None:

@@ -96,6 +96,8 @@ class ModelConfig:
     bg_static_pose: str = ""
     bg_static_pose_dims: int = 0
     bg_per_view: bool = False
+    fg_evidence: bool = False
+    canonical_frame: bool = False
     patch_gaussians: int = 16
     patch_base: int = 4
     patch_channels: int = 64
@@ -166,9 +168,15 @@ class ModelConfig:
             "and bg_static_pose_dims go together: a scene.json key and the length of its list ('' and 0: off)",
         )
         need(
-            self.bg_static_pose == "" or self.bg_static_points > 0,
+            self.bg_static_pose == "" or self.bg_static_points > 0 or self.fg_evidence,
             "bg_static_pose",
-            "moves the workspace layer: it needs bg_static_points > 0",
+            "moves the workspace layer: it needs bg_static_points > 0 (or fg_evidence, which reads the robot state)",
+        )
+        need(
+            not self.fg_evidence or (self.bg_per_view and self.bg_latent_stride == self.bg_block),
+            "fg_evidence",
+            "needs the per-view background (bg_per_view: true) with bg_latent_stride equal to bg_block (its "
+            "anchors are per block)",
         )
         need(
             self.bg_per_view or self.has_static_background,

@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from particlesplat.core.sh import num_sh_bases
+from particlesplat.core.sh import SH_C0, num_sh_bases
 from particlesplat.core.world import SUPPORT_Z
 from particlesplat.model.config import ModelConfig
 from particlesplat.model.geometry import (
@@ -126,7 +126,8 @@ class BackgroundDecoder(nn.Module):
             self.head,
             cfg.sh_degree,
             opacity_logit=3.0,
-            depth_logit=float(torch.logit(torch.tensor(min(max(mid, 0.05), 0.95)))),
+            # anchored (fg_evidence): the depth channel is a residual about the view's own depth, 0 at the start
+            depth_logit=0.0 if cfg.fg_evidence else float(torch.logit(torch.tensor(min(max(mid, 0.05), 0.95)))),
         )
 
     def forward(self, latent: Tensor, rays: Tensor) -> Tensor:
@@ -306,11 +307,51 @@ def background_rays(K: Tensor, c2w: Tensor, cfg: ModelConfig) -> Tensor:
     return plucker_at(pix, K, c2w).transpose(1, 2).reshape(K.shape[0], 6, n, n)
 
 
-def background_gaussians(raw: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig) -> dict[str, Tensor]:
+ANCHOR_CHANNELS = 5
+"""Per-block anchors of an anchored background (``fg_evidence``): colour (3, [0, 1]), planar depth (1, metres) and
+the share of the block's pixels they were taken from (1, in [0, 1]; 0 = none: the block shows an object or has
+no depth)."""
+ANCHOR_DEPTH_RANGE = 0.05
+"""How far an anchored background Gaussian may move off its anchor depth: ± this fraction of it."""
+
+
+def block_anchors(rgb: Tensor, depth: Tensor | None, hidden: Tensor, k: int) -> Tensor:
+    """The anchors of an anchored background: each k×k block's mean colour and depth over its pixels that are
+    neither hidden nor without depth.
+
+    rgb: (M, 3, H, W); depth: (M, 1, H, W) planar metres (0 = missing) or None; hidden: (M, 1, H, W) in [0, 1]
+    (1 = an object's pixel). Returns (M, :data:`ANCHOR_CHANNELS`, H/k, W/k).
+    """
+    keep = 1.0 - hidden
+    if depth is not None:
+        keep = keep * (depth > 0).to(rgb.dtype)
+    colour, w = masked_block_mean(rgb, keep, k)
+    d = masked_block_mean(depth, keep, k)[0] if depth is not None else torch.zeros_like(w)
+    return torch.cat([colour, d, w], dim=1)
+
+
+def _anchored_depth(zeta_free: Tensor, dd: Tensor, anchor: Tensor, pix: Tensor, K: Tensor, c2w: Tensor) -> Tensor:
+    """Planar depths of anchored background Gaussians (M, N): within ± :data:`ANCHOR_DEPTH_RANGE` of the block's
+    own depth where more than half its pixels gave one; else of where the block's ray meets the support surface
+    (the table behind an object); else ``zeta_free`` (the latent's own depth). anchor: (M, N, 5); dd: (M, N)."""
+    dirs = ray_dirs(pix[..., None, :], K, c2w)[..., 0, :]
+    plane = clamp_to_support(torch.full_like(zeta_free, float("inf")), c2w[..., 2, 3], dirs[..., 2])
+    seen = anchor[..., 4] > 0.5
+    base = torch.where(seen, anchor[..., 3], plane)
+    usable = seen | torch.isfinite(plane)
+    base = torch.where(usable, base, torch.ones_like(base))
+    return torch.where(usable, base * (1.0 + ANCHOR_DEPTH_RANGE * torch.tanh(dd)), zeta_free)
+
+
+def background_gaussians(
+    raw: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig, anchor: Tensor | None = None
+) -> dict[str, Tensor]:
     """raw: (M, Hb*Wb, C) per-block parameters; K: (M, 3, 3); c2w: (M, 4, 4) -> fields with dims (M, Hb*Wb).
 
     Pixel-aligned: a block centre plus a bounded sub-block offset; depth ζ = d_min + σ(·)(d_max − d_min)
-    from the depth-residual channel; opacity σ(o) (no transparency gate).
+    from the depth-residual channel; opacity σ(o) (no transparency gate). With ``anchor`` (M, Hb*Wb, 5)
+    (:func:`block_anchors`, ``fg_evidence``) the depth is a residual about the block's own depth
+    (:func:`_anchored_depth`) and the colour one about its own colour, weighted by the share it was taken from.
     """
     k = cfg.bg_block
     p = split_gaussian_params(raw, cfg.sh_degree)
@@ -321,5 +362,9 @@ def background_gaussians(raw: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig) 
     opacity = torch.sigmoid(p["opacity"][..., 0])
     Kn = K[:, None].expand(-1, n, -1, -1)
     cn = c2w[:, None].expand(-1, n, -1, -1)
+    if anchor is not None:
+        zeta = _anchored_depth(zeta, p["dd"][..., 0], anchor, pix, Kn, cn)
+        dc = p["sh"][..., 0, :] + anchor[..., 4:5] * (anchor[..., :3] - 0.5) / SH_C0
+        p = {**p, "sh": torch.cat([dc[..., None, :], p["sh"][..., 1:, :]], dim=-2)}
     zeta, means, opacity = _place(pix, zeta, Kn, cn, opacity)
     return _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg)

@@ -17,11 +17,13 @@ from particlesplat.model.decoder import (
     ForegroundDecoder,
     background_gaussians,
     background_rays,
+    block_anchors,
     foreground_gaussians,
     masked_block_mean,
     split_gaussian_params,
 )
 from particlesplat.model.encoder import BackgroundEncoder, ParticleEncoder, box_mask, depth_input
+from particlesplat.model.evidence import ARM_STATE_KEY, canonical_turn, dilate, foreground_evidence
 from particlesplat.model.geometry import plucker_map, stack_cameras
 from particlesplat.model.particles import Particles
 from particlesplat.model.posterior import ParticlePosterior, Posterior
@@ -113,10 +115,21 @@ class ParticleSplat(nn.Module):
         d = None if depth is None else depth.reshape(B * V, 1, H, W)
         dep = depth_input(d, x, cfg)
         Kf, cf = K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4)
-        rays = plucker_map(Kf, cf, H, W)
-        # what the background alone explains badly: the keypoints go there
+        # the network reads rays in a frame turned to face the context cameras (canonical_frame): a turn of the
+        # world about z leaves its inputs as they were; the Gaussians are placed with the real cameras
+        cn = (canonical_turn(c2w)[:, None] @ c2w).reshape(B * V, 4, 4) if cfg.canonical_frame else cf
+        rays = plucker_map(Kf, cn, H, W)
+        # what the background alone explains badly (or, with fg_evidence, what stands on the table and is not
+        # the arm): the keypoints go there
         static = None
-        if self.static_bg is not None:
+        evidence = None
+        if cfg.fg_evidence:
+            if d is None:
+                raise ValueError("this model reads objects from depth (fg_evidence): the scene needs depth maps")
+            evidence = foreground_evidence(d, Kf, cf, None if pose is None else pose.repeat_interleave(V, 0))
+            pixel_err = evidence
+            block_err = F.avg_pool2d(evidence, cfg.bg_block)
+        elif self.static_bg is not None:
             static = self.static_layer(Kf, cf, W, H, None if pose is None else pose.repeat_interleave(V, 0))
             pixel_err = layer_error(static, x, d, block=1)
             block_err = F.avg_pool2d(pixel_err, cfg.bg_block)
@@ -134,8 +147,11 @@ class ParticleSplat(nn.Module):
                 t_mean[..., 0] > cfg.bg_mask_threshold,
                 cfg.resolution,
             )
+            if evidence is not None:  # the background never sees an object, whether a particle took it or not
+                mask = torch.maximum(mask, dilate(evidence, 1))
         mu_bg, lv_bg, bg_feats = self.bg_encoder(x, dep, rays, mask)
-        part = self.encoder.interact(att, h, Kf, cf, bg_feats, V)
+        part = self.encoder.interact(att, h, Kf, cn, bg_feats, V)
+        anchor = None if evidence is None else block_anchors(x, d, mask, cfg.bg_block)
         return Posterior(
             **{f.name: getattr(part, f.name) for f in fields(ParticlePosterior)},
             mu_bg=mu_bg.reshape(B, V, *mu_bg.shape[1:]),
@@ -145,6 +161,7 @@ class ParticleSplat(nn.Module):
             bg_error=pixel_err.reshape(B, V, 1, H, W),
             static_layer=None if static is None else static.reshape(B, V, 5, H, W),
             pose=pose,
+            bg_anchor=None if anchor is None else anchor.reshape(B, V, *anchor.shape[1:]),
         )
 
     def coarse_background_error(
@@ -291,6 +308,8 @@ class ParticleSplat(nn.Module):
         a, b = post.beta_a, post.beta_b
         z_t = torch.distributions.Beta(a, b).rsample() if sample else a / (a + b)
         bg = g(post.mu_bg, post.lv_bg)
+        if post.bg_anchor is not None:  # an anchored background's latent carries its anchors (fg_evidence)
+            bg = torch.cat([bg, post.bg_anchor], dim=2)
         return {
             "z_p": post.kp + g(post.mu_o, post.lv_o),
             "z_s": g(post.mu_s, post.lv_s),
@@ -318,15 +337,26 @@ class ParticleSplat(nn.Module):
         raw = self.fg_decoder(z_f)
         return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config, keep)
 
-    def background(self, bg: Tensor, K: Tensor, c2w: Tensor) -> dict[str, Tensor]:
-        """bg: (M, d_bg, h, w) latents of M views; K (M, 3, 3), c2w (M, 4, 4) -> fields (M, Hb*Wb, ·)."""
-        raw = self._bg_decoder()(bg, background_rays(K, c2w, self.config))
-        return background_gaussians(raw, K, c2w, self.config)
+    def background(self, bg: Tensor, K: Tensor, c2w: Tensor, c2w_net: Tensor | None = None) -> dict[str, Tensor]:
+        """bg: (M, d_bg, h, w) latents of M views (with ``fg_evidence``, (M, d_bg + 5, h, w): the latents, then the
+        blocks' anchors); K (M, 3, 3), c2w (M, 4, 4); c2w_net (M, 4, 4): the cameras as the network reads them
+        (``canonical_frame``; default c2w) -> fields (M, Hb*Wb, ·)."""
+        cfg = self.config
+        anchor = None
+        if cfg.fg_evidence:
+            bg, anchor = bg[:, : cfg.d_bg], bg[:, cfg.d_bg :].flatten(2).transpose(1, 2)
+        raw = self._bg_decoder()(bg, background_rays(K, c2w if c2w_net is None else c2w_net, cfg))
+        return background_gaussians(raw, K, c2w, cfg, anchor)
 
     def batch_pose(self, poses: list[Tensor | None], device: torch.device) -> Tensor | None:
         """The scenes' poses (each (D,) or None: the layer's mean pose) as the batch (B, D) the layer reads, on
         ``device``; None for a model whose layer follows no pose. ValueError for a pose of another length."""
         layer = self.static_bg
+        if self.config.fg_evidence and self.config.bg_static_pose == ARM_STATE_KEY:
+            # the robot state the evidence reads to leave the arm out; without it for every scene, nothing is
+            if any(pose is None for pose in poses):
+                return None
+            return torch.stack([pose.to(device=device, dtype=torch.float32) for pose in poses])  # type: ignore[union-attr]
         if not (isinstance(layer, WorkspaceBackground) and layer.pose_dims > 0):
             return None
         for pose in poses:
@@ -358,7 +388,10 @@ class ParticleSplat(nn.Module):
         B, V = K.shape[:2]
         parts = []
         if self.config.bg_per_view:
-            f = self.background(bg.reshape(B * V, *bg.shape[2:]), K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4))
+            net = (canonical_turn(c2w)[:, None] @ c2w).reshape(B * V, 4, 4) if self.config.canonical_frame else None
+            f = self.background(
+                bg.reshape(B * V, *bg.shape[2:]), K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4), net
+            )
             parts.append({k: v.reshape(B, -1, *v.shape[2:]) for k, v in f.items()})
         if self.static_bg is not None:
             parts.append(self.static_fields(B, pose))

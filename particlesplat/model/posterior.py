@@ -59,7 +59,9 @@ class Posterior(ParticlePosterior):
     depth error in metres where depth is known): the static layer's per pixel, else the per-view background's
     per ``bg_block``² block; static_layer: (B, V, 5, H, W) the static layer alone rendered into the context views
     (colour over the background colour, depth in metres, alpha: :mod:`particlesplat.rendering.layers`), or None
-    (no static layer); pose: (B, D) the scenes' poses the workspace layer follows (``bg_static_pose``), or None.
+    (no static layer); pose: (B, D) the scenes' poses the workspace layer follows (``bg_static_pose``), or None;
+    bg_anchor: (B, V, 5, Hb, Wb) the anchored background's per-block colour, depth and weight (``fg_evidence``:
+    :func:`particlesplat.model.decoder.block_anchors`), or None.
     """
 
     mu_bg: Tensor
@@ -69,6 +71,7 @@ class Posterior(ParticlePosterior):
     bg_error: Tensor
     static_layer: Tensor | None = None
     pose: Tensor | None = None
+    bg_anchor: Tensor | None = None
 
 
 __all__ = ["ParticlePosterior", "Posterior"]

@@ -1,6 +1,6 @@
 """The training objective: a batch's negative ELBO (:func:`training_loss`) over renders of its context and
 target views (:func:`render_views`), with the foreground term (:func:`foreground_error`) where a static
-background layer explains the rest."""
+background layer explains the rest, or where depth shows what stands on the table (``model.fg_evidence``)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from torch.nn.parallel import DistributedDataParallel
 from particlesplat.core.camera import Camera
 from particlesplat.data.dataset import TrainingBatch
 from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig
+from particlesplat.model.evidence import foreground_evidence
 from particlesplat.model.losses import elbo, scene_kl, view_error
 from particlesplat.rendering.api import render_batch
 
@@ -78,7 +79,18 @@ def training_loss(
     ).reshape(B, V)
     kl = scene_kl(post, z["z_t"], cfg, tc.beta_f)
     parts = elbo(err[:, :C], err[:, C:] if V > C else None, kl, z["z_t"], tc)
-    if fg_hat is not None:  # particles cover what the floor layer cannot explain, and nothing else
+    if fg_hat is not None and cfg.fg_evidence:  # particles draw what stands on the table, and nothing else
+        evidence = post.bg_error  # the context views' evidence, as the encoder computed it
+        if V > C:
+            arm = None if batch.pose is None else batch.pose.repeat_interleave(V - C, 0)
+            tgt = foreground_evidence(
+                batch.target_depth.flatten(0, 1), batch.target_K.flatten(0, 1), batch.target_c2w.flatten(0, 1), arm
+            )
+            evidence = torch.cat([evidence, tgt.reshape(B, V - C, 1, size, size)], 1)
+        fg_err = foreground_error(fg_hat.flatten(0, 1), evidence.flatten(0, 1), 0.5)
+        parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
+        parts["loss"] = parts["loss"] + beta_fg * parts["fg"]
+    elif fg_hat is not None:  # particles cover what the floor layer cannot explain, and nothing else
         # the context views' error is the one the encoder computed (no depth on a step that drops it)
         bg_err = post.bg_error
         if V > C:

@@ -193,10 +193,11 @@ class Trainer:
         )
         self.provenance = Provenance.start(data, None, str(self.device))  # --init names its source below
         self.clock = RunClock()
-        if tc.beta_fg > 0 and not cfg.has_static_background:
+        if tc.beta_fg > 0 and not (cfg.has_static_background or cfg.fg_evidence):
             raise ConfigError(
-                f"train.beta_fg: the foreground term compares with the static background layer; "
-                f"set model.bg_static_grid or model.bg_static_points > 0, or beta_fg to 0 (got {tc.beta_fg})"
+                f"train.beta_fg: the foreground term compares with the static background layer or with the "
+                f"foreground evidence of depth; set model.bg_static_grid or model.bg_static_points > 0, or "
+                f"model.fg_evidence, or beta_fg to 0 (got {tc.beta_fg})"
             )
         self.distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
         if self.distributed:
@@ -236,7 +237,8 @@ class Trainer:
             self._start_workspace()
         if not resume and self.model.follows_pose and "static_bg.pose_mean" not in copied:
             self._set_pose_mean()
-        elif not resume and self.model.follows_pose:  # --init kept its pose mean; the range is this run's scenes'
+        elif not resume and (self.model.follows_pose or (cfg.fg_evidence and cfg.bg_static_pose)):
+            # --init kept its pose mean, or the model reads the robot state: the range is this run's scenes'
             ds = next(iter(self.train_sets.values()))
             self.model.input_ranges = {self.cfg.bg_static_pose: record_range([ds.pose(i) for i in range(len(ds))])}
         # the learned background colour and the static background layer move at lr_background
