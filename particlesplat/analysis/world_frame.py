@@ -2,12 +2,12 @@
 metres, cameras at the family's distances from the objects) and, when it is not, the similarity transform that
 brings it there.
 
-The family (tabletop or robot) picks the camera distances the scale is judged against: the tabletop scenes'
-(:data:`particlesplat.data.families.tabletop.DISTANCE_RANGE`) or the robot rigs' (:data:`ROBOT_DISTANCE_RANGE`).
-A robot scene is also checked for a turn about z: robosuite's convention has the robot base behind the table at -x
-(facing +x). The base's direction comes from scene.json's ``robot_base`` where the scene records one, else from the
-depth: the robot is what stands above the support surface near the scene, beyond the table's edge
-(:func:`robot_azimuth`).
+The family picks the camera distances the scale is judged against (its registered
+:attr:`particlesplat.data.families.Family.camera_distances`: the tabletop scenes' 3.0-3.6 m, the robot rigs'
+0.8-1.25 m). A scene of a family with a robot (:attr:`~particlesplat.data.families.Family.robot`) is also checked
+for a turn about z: robosuite's convention has the robot base behind the table at -x (facing +x). The base's
+direction comes from scene.json's ``robot_base`` where the scene records one, else from the depth: the robot is
+what stands above the support surface near the scene, beyond the table's edge (:func:`robot_azimuth`).
 
 The up axis is the normal of the largest plane of the depth points (the table or floor; found by RANSAC), turned
 towards the cameras; without depth, the normal of the plane of the camera centres (cameras around a scene), else
@@ -29,14 +29,11 @@ from typing import Literal
 import numpy as np
 
 from particlesplat.core.viewpoints import focus_point
-from particlesplat.data.families.tabletop import DISTANCE_RANGE
+from particlesplat.data.families import DEFAULT_FAMILY, get_family
 from particlesplat.data.scene import RawScene
 
 UpSource = Literal["support plane", "camera centres", "camera up vectors"]
 RobotSource = Literal["scene.json robot_base", "depth above the table"]
-# the robot rigs' camera distances (metres): the wide world's arc and RLBench-style cameras (0.8-1.2 m), the narrow
-# world's arc (0.85-1.0 m) and its fixed cameras (about 1.0-1.25 m)
-ROBOT_DISTANCE_RANGE = (0.8, 1.25)
 ROBOT_AZIMUTH = 180.0  # degrees: robosuite's convention, the robot base at -x of the table centre
 TURN_TOLERANCE_DEG = 15.0  # a robot within this of -x is not turned
 TURN_SNAP_DEG = 20.0  # a measured turn within this of a quarter turn is read as that quarter turn
@@ -49,7 +46,7 @@ ROBOT_MIN_POINTS = 50
 UP_TOLERANCE_DEG = 3.0  # the up axis is +z when within this angle (and snapped to an axis when within it of one)
 SUPPORT_TOLERANCE = 0.05  # metres: the support surface is at z = 0 within this
 CENTRE_RADIUS = 1.0  # metres: the training scenes' objects lie within this of the origin (x, y)
-SCALE_SLACK = 2.0  # the camera distance may be this factor outside DISTANCE_RANGE before the scale is flagged
+SCALE_SLACK = 2.0  # the camera distance may be this factor outside the family's distances before the scale is flagged
 DEPTH_RATIO_RANGE = (0.3, 3.0)  # median depth / camera distance of a plausible depth scale
 POINTS_PER_FRAME = 3000
 RANSAC_ITERATIONS = 300
@@ -70,7 +67,7 @@ class WorldFrameReport:
         centre: (2,) x, y of the looked-at point after the transform's rotation and scale (metres).
         rotation: (3, 3); scale: metres per scene unit; translation: (3,) metres (the transform to apply).
         unit: the unit mistake the scale suggests, or "".
-        family: "tabletop" or "robot" (the camera distances it was judged against).
+        family: a registered family's name (the camera distances it was judged against).
         robot_azimuth: robot scenes: degrees (counter-clockwise from +x, after the up rotation) of the robot base
             seen from the looked-at point, or None when it could not be told; robot_source: where it came from.
         turn: degrees the robot stands turned from robosuite's -x (0 when within the tolerance; the transform's
@@ -90,7 +87,7 @@ class WorldFrameReport:
     scale: float
     translation: np.ndarray
     unit: str
-    family: str = "tabletop"
+    family: str = DEFAULT_FAMILY
     robot_azimuth: float | None = None
     robot_source: RobotSource | None = None
     turn: float | None = None
@@ -195,8 +192,8 @@ def _snap(up: np.ndarray) -> np.ndarray:
 
 
 def distance_range(family: str) -> tuple[float, float]:
-    """The training cameras' distances (metres) of a family's scenes."""
-    return ROBOT_DISTANCE_RANGE if family == "robot" else DISTANCE_RANGE
+    """The training cameras' distances (metres) of a family's scenes (its registered ``camera_distances``)."""
+    return get_family(family).camera_distances
 
 
 def _scale(distance: float, family: str) -> tuple[float, str]:
@@ -265,10 +262,11 @@ def _turn(azimuth: float, exact: bool) -> float:
 
 
 def check_world_frame(
-    scene: RawScene, family: str = "tabletop", robot_base: np.ndarray | None = None
+    scene: RawScene, family: str = DEFAULT_FAMILY, robot_base: np.ndarray | None = None
 ) -> WorldFrameReport:
-    """Measure a scene's up axis, scale, depth scale and support height and, for a robot scene (``family``), the
-    robot's turn about z from ``robot_base`` (4, 4; scene.json's) or the depth (see the module's docstring)."""
+    """Measure a scene's up axis, scale, depth scale and support height and, for a scene of a family with a robot
+    (``family``), the robot's turn about z from ``robot_base`` (4, 4; scene.json's) or the depth (see the module's
+    docstring)."""
     c2w = _c2w(scene)
     centres = c2w[:, :3, 3]
     cam_up = -c2w[:, :3, 1].mean(0)  # OpenCV: image y points down
@@ -312,7 +310,7 @@ def check_world_frame(
     azimuth: float | None = None
     robot_source: RobotSource | None = None
     turn: float | None = None
-    if family == "robot":
+    if get_family(family).robot:
         if robot_base is not None:
             base = R @ robot_base[:3, 3] - R @ focus
             azimuth = round(math.degrees(math.atan2(base[1], base[0])), 1) % 360.0
@@ -383,7 +381,7 @@ def report_lines(r: WorldFrameReport) -> list[str]:
         f"scene centre: x, y = ({r.centre[0]:+.3f}, {r.centre[1]:+.3f}) m, within {CENTRE_RADIUS:g} m of the "
         f"origin: {mark(r.centre_ok)}"
     )
-    if r.family == "robot":
+    if get_family(r.family).robot:
         if r.robot_azimuth is None or r.turn is None:
             lines.append(
                 "robot: not found (it needs scene.json's robot_base, or depth of the arm standing above the table)"

@@ -45,7 +45,7 @@ from particlesplat.core.atomic import atomic_write
 from particlesplat.core.errors import OptionError, short_repr
 from particlesplat.core.options import HelpFormatter
 from particlesplat.core.vectors import float3
-from particlesplat.data.families import CHECKPOINT_HELP, tabletop
+from particlesplat.data.families import checkpoint_help, tabletop
 from particlesplat.data.scene import Scene, SceneFormatError, read_scene
 from particlesplat.data.scene_meta import default_checkpoint, read_scene_json
 from particlesplat.data.synth import scene_rng, write_tabletop
@@ -400,7 +400,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--checkpoint",
         default=None,
-        help=CHECKPOINT_HELP,
+        help=checkpoint_help(),
     )
     parser.add_argument(
         "--data",

@@ -22,7 +22,7 @@ from particlesplat.bench.render import machine_line
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.device import DEVICE_HELP, resolve_device
 from particlesplat.core.errors import OptionError
-from particlesplat.data.families import CHECKPOINT_HELP
+from particlesplat.data.families import checkpoint_help
 from particlesplat.data.scene_meta import default_checkpoint, scene_pose
 
 
@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="particlesplat bench encode", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--checkpoint", nargs="+", help=f"one or more: {CHECKPOINT_HELP}")
+    parser.add_argument("--checkpoint", nargs="+", help=f"one or more: {checkpoint_help()}")
     parser.add_argument("--data", required=True, help="a folder of scene folders, e.g. data/robot/test")
     parser.add_argument("--scenes", type=int, default=16, help="scenes per round, the first of the folder (default 16)")
     parser.add_argument("--rounds", type=int, default=3, help="rounds; the median round counts (default 3)")

@@ -10,7 +10,7 @@ from pathlib import Path
 from particlesplat.core.choices import OBJECT_CENTRES
 from particlesplat.core.device import DEVICE_HELP
 from particlesplat.core.errors import OptionError
-from particlesplat.data.families import CHECKPOINT_HELP
+from particlesplat.data.families import checkpoint_help
 from particlesplat.data.folders import check_existing, check_file
 from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--checkpoint",
-        help=CHECKPOINT_HELP,
+        help=checkpoint_help(),
     )
     parser.add_argument(
         "--context", help="context frame indices, e.g. 4,16; none = two frames 12 apart about the middle"

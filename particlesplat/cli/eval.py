@@ -10,7 +10,7 @@ from particlesplat.core.atomic import check_writable
 from particlesplat.core.choices import DEFAULT_FIT, FITTED, OBJECT_CENTRES
 from particlesplat.core.device import DEVICE_HELP
 from particlesplat.core.errors import OptionError
-from particlesplat.data.families import CHECKPOINT_HELP
+from particlesplat.data.families import checkpoint_help
 from particlesplat.data.folders import check_file, check_split_folder
 from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--checkpoint",
         default=None,
-        help=CHECKPOINT_HELP,
+        help=checkpoint_help(),
     )
     parser.add_argument("--data", required=True, help="folder of scene folders (e.g. data/tabletop/test)")
     parser.add_argument("--context", type=int, choices=(1, 2), default=2, help="number of context views")

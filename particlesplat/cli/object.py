@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from particlesplat.core.choices import OBJECT_CENTRES
-from particlesplat.data.families import CHECKPOINT_HELP
+from particlesplat.data.families import checkpoint_help
 
 
 def _xy(text: str) -> tuple[float, float]:
@@ -56,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for p in (exp, ins):
         p.add_argument(
             "--checkpoint",
-            help=CHECKPOINT_HELP,
+            help=checkpoint_help(),
         )
         p.add_argument(
             "--context", help="context frames of --scene, e.g. 4,16; none = two frames 12 apart about the middle"

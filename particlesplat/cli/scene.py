@@ -9,6 +9,8 @@ import argparse
 import json
 from pathlib import Path
 
+from particlesplat.data.families import DEFAULT_FAMILY, family_names
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", required=True)
@@ -23,9 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     check.add_argument("scene", metavar="DIR", help="scene folder (transforms.json, images, optional depth)")
     check.add_argument(
         "--family",
-        choices=("tabletop", "robot"),
+        choices=family_names(),
         help="judge the scene as this family's (default: what its scene.json or its dataset's synth.json records, "
-        "else tabletop)",
+        f"else {DEFAULT_FAMILY})",
     )
     check.add_argument(
         "--write",
@@ -41,17 +43,18 @@ def run(args: argparse.Namespace) -> int:
     from particlesplat.analysis.world_frame import check_world_frame, report_lines, transform_lines, transform_matrix
     from particlesplat.core.atomic import atomic_write
     from particlesplat.data import read_scene
+    from particlesplat.data.families import get_family
     from particlesplat.data.scene_meta import read_family, read_robot_base
 
     scene = read_scene(args.scene)
-    family = args.family or read_family(args.scene) or "tabletop"
-    base = read_robot_base(args.scene) if family == "robot" else None
+    family = args.family or read_family(args.scene) or DEFAULT_FAMILY
+    base = read_robot_base(args.scene) if get_family(family).robot else None
     report = check_world_frame(scene, family, None if base is None else np.asarray(base, dtype=np.float64))
     print(f"scene check: {scene.path} ({report.frames} frames, {report.depth_frames} with depth, {family} family)")
     for line in report_lines(report):
         print(f"  {line}")
     if report.ok:
-        robot = ", the robot at -x" if family == "robot" and report.turn is not None else ""
+        robot = ", the robot at -x" if get_family(family).robot and report.turn is not None else ""
         print(f"matches the expected world frame (+z up, support surface at z = 0, metres{robot})")
     else:
         for line in transform_lines(report):

@@ -6,19 +6,21 @@ import argparse
 from pathlib import Path
 
 from particlesplat.core.errors import OptionError
+from particlesplat.data.families import DEFAULT_FAMILY, families, family_names, get_family
 from particlesplat.data.folders import SPLITS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    kinds = [f"{f.name} ({'the default: ' if f.name == DEFAULT_FAMILY else ''}{f.summary})" for f in families()]
     parser.description = (
         "Generate a scene dataset (docs/dataset.md): OUT/{train,val,test}/scene_NNNNN "
-        "folders with RGB, planar 16-bit depth and instance masks for 21 views, of the tabletop family "
-        "(the default) or the robot-workspace family (MuJoCo + robosuite's assets; test scenes carry "
-        "ground-truth edits). The robot family's wide world (--world wide: robosuite's frame, randomised objects, "
+        "folders with RGB, planar 16-bit depth and instance masks for 21 views, of one scene family: "
+        f"{', '.join(kinds[:-1])}{' or ' if len(kinds) > 1 else ''}{kinds[-1]}. "
+        "The robot family's wide world (--world wide: robosuite's frame, randomised objects, "
         "colours, textures, lights, grippers, arm poses and cameras) also has a held-out split, OUT/heldout, drawn "
         "outside its training ranges. Deterministic for a seed; re-running resumes and skips finished scenes."
     )
-    parser.add_argument("--family", choices=("tabletop", "robot"), default="tabletop", help="scene family")
+    parser.add_argument("--family", choices=family_names(), default=DEFAULT_FAMILY, help="scene family")
     parser.add_argument("out", type=Path, help="output folder (created)")
     parser.add_argument("--train", type=int, default=1000, help="number of training scenes")
     parser.add_argument("--val", type=int, default=32, help="number of validation scenes")
@@ -62,22 +64,18 @@ def run(args: argparse.Namespace) -> int:
     counts = {"train": args.train, "val": args.val, "test": args.test, "heldout": args.heldout}
     if args.split is not None:
         counts = {split: (n if split == args.split else 0) for split, n in counts.items()}
-    if counts["heldout"] and (args.family != "robot" or args.world != "wide"):
-        raise OptionError("--heldout: only the robot family's wide world (--family robot --world wide) has one")
+    family = get_family(args.family)
+    if counts["heldout"] and args.world not in family.heldout_worlds:
+        worlds = [
+            f"the {f.name} family's {w} world (--family {f.name} --world {w})"
+            for f in families()
+            for w in f.heldout_worlds
+        ]
+        raise OptionError(f"--heldout: only {' or '.join(worlds) or 'no family'} has one")
     import numpy as np
 
-    from particlesplat.data.synth import generate
-
     # errors follow the one policy (particlesplat.core.errors.run_command): bad input, one line, exit 2
-    if args.family == "robot":
-        from particlesplat.data.families.robot import RobotSceneConfig
-        from particlesplat.data.families.robot_synth import generate as generate_robot
-
-        config = RobotSceneConfig(args.res, args.res, cameras=args.cameras, arm=args.arm, world=args.world)
-        times = [t["total"] for t in generate_robot(args.out, counts, args.seed, config, args.workers)]
-    else:
-        counts.pop("heldout")
-        times = generate(args.out, counts, args.seed, args.res, args.workers)
+    times = family.generate(args.out, counts, args.seed, args)
     if times:
         print(f"wrote {len(times)} scenes to {args.out}, {np.mean(times):.2f} s per scene per worker")
     else:

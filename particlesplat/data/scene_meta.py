@@ -18,7 +18,7 @@ from particlesplat.core.jsonfile import MAX_JSON_BYTES, read_json
 from particlesplat.core.limits import MIN_DISTANCE_METRES, WORLD_MAX_METRES
 from particlesplat.core.panda_arm import ARM_STATE_KEY, pack_arm_state
 from particlesplat.core.viewpoints import Framing
-from particlesplat.data.families import family_of
+from particlesplat.data.families import DEFAULT_FAMILY, family_of, get_family
 from particlesplat.data.folders import TRANSFORMS
 from particlesplat.data.pose_ranges import check_limits, generator_range, warn_outside
 from particlesplat.data.scene import SceneFormatError
@@ -35,10 +35,10 @@ def read_scene_json(path: Path) -> object:
 
 
 def read_family(path: str | PathLike) -> str | None:
-    """The scene family (:data:`particlesplat.data.families.FAMILIES`) of a scene folder, a split folder or a
-    dataset folder: what the scene's ``scene.json`` records; for a split or dataset folder, what every scene below
-    it records (a folder mixing families is refused: one model would encode them all), else the dataset's
-    ``synth.json`` (in the folder or the one above it). None when nothing records one."""
+    """The scene family (a registered one, :func:`particlesplat.data.families.family_names`) of a scene folder, a
+    split folder or a dataset folder: what the scene's ``scene.json`` records; for a split or dataset folder, what
+    every scene below it records (a folder mixing families is refused: one model would encode them all), else the
+    dataset's ``synth.json`` (in the folder or the one above it). None when nothing records one."""
     path = Path(path)
     if not path.is_dir():
         return None
@@ -85,12 +85,10 @@ def _scene_metas(folder: Path) -> list[Path]:
 
 
 def default_checkpoint(path: str | PathLike | None) -> Path:
-    """The shipped model for the scenes at ``path`` (:func:`read_family`; the tabletop model when no family is
-    recorded): what every command opens when ``--checkpoint`` is not given."""
-    from particlesplat.model.io import shipped_model_path
-
+    """The shipped model for the scenes at ``path`` (:func:`read_family`; the default family's model when no family
+    is recorded): what every command opens when ``--checkpoint`` is not given."""
     family = read_family(path) if path is not None else None
-    return shipped_model_path(family or "tabletop")
+    return get_family(family or DEFAULT_FAMILY).shipped_model_path()
 
 
 def read_framing(folder: str | PathLike) -> Framing | None:

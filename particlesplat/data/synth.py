@@ -8,6 +8,7 @@ leaves only whole scenes, and running the same command again skips them.
 
 from __future__ import annotations
 
+import argparse
 import functools
 import json
 import multiprocessing as mp
@@ -152,10 +153,10 @@ def check_existing_generator(out: Path, generator: str) -> None:
     """UserError when scene folders already under ``out`` were written by a generator of another family, or by none
     this program knows (a robot dataset folder without its ``synth.json`` given to the tabletop generator would mix
     families)."""
-    from particlesplat.data.families import GENERATOR_FAMILY, family_of
+    from particlesplat.data.families import family_of, family_of_generator
     from particlesplat.data.scene_meta import SCENE_META, read_scene_json
 
-    want = GENERATOR_FAMILY.get(generator)
+    want = family_of_generator(generator)
     for split in SPLITS:
         for scene in sorted((out / split).glob("scene_*"))[:1] if (out / split).is_dir() else []:
             meta = read_scene_json(scene / SCENE_META) if (scene / SCENE_META).is_file() else None
@@ -259,3 +260,10 @@ def generate(
         total = sum(counts.values())
         bar = tqdm(total=total, initial=total - len(tasks), desc="synth", unit="scene", disable=not progress)
         return run_tasks(tasks, _work, _init_worker, workers, bar)
+
+
+def generate_family(out: Path, counts: dict[str, int], seed: int, options: argparse.Namespace) -> list[float]:
+    """The tabletop family's generator entry (:class:`particlesplat.data.families.Family`): :func:`generate` with
+    ``synth``'s ``options`` (``res``, ``workers``); the family has no held-out split, so ``counts``'s is left out."""
+    counts = {split: n for split, n in counts.items() if split != "heldout"}
+    return generate(out, counts, seed, options.res, options.workers)

@@ -12,6 +12,7 @@ from particlesplat.core.errors import InputWarning, OptionError
 from particlesplat.core.limits import check_memory
 from particlesplat.core.viewpoints import default_context_views
 from particlesplat.data import Scene, read_scene
+from particlesplat.data.families import DEFAULT_FAMILY, Family, families, get_family
 from particlesplat.data.scene_meta import scene_pose
 from particlesplat.editing.source_options import parse_context
 from particlesplat.model import Particles, ParticleSplat
@@ -42,25 +43,30 @@ class EncodedScene:
     warnings: list[str] = field(default_factory=list)
 
 
-DEMO_SCENE_FOLDERS = ("scenes", "robot/scenes")  # under assets/: the tabletop family's, then the robot family's
+def _demo_families() -> list[Family]:
+    """The registered families, the default one first."""
+    return sorted(families(), key=lambda f: f.name != DEFAULT_FAMILY)
 
 
 def demo_scenes() -> list[Path]:
-    """Scene folders shipped in ``assets/scenes`` and ``assets/robot/scenes`` (where it exists), each sorted,
-    the tabletop ones first (the first is the default scene)."""
+    """Scene folders shipped in each registered family's demo folder (``assets/scenes``, ``assets/robot/scenes``;
+    where it exists), each sorted, the default family's first (the first is the default scene)."""
     out: list[Path] = []
-    for sub in DEMO_SCENE_FOLDERS:
-        root = bundled_assets() / sub
+    for family in _demo_families():
+        root = bundled_assets() / family.demo_scenes
         if root.is_dir():
             out += sorted(p for p in root.iterdir() if (p / "transforms.json").is_file())
     return out
 
 
 def demo_scene_name(path: Path) -> str:
-    """A demo scene's name in the viewer's picker: its folder name, after its family's for the robot family's
-    (``robot/scene_00000``)."""
-    rel = Path(path).relative_to(bundled_assets())
-    return rel.name if rel.parts[0] == "scenes" else f"{rel.parts[0]}/{rel.name}"
+    """A demo scene's name in the viewer's picker: its folder name, after its family's name for a family other
+    than the default one (``robot/scene_00000``)."""
+    path = Path(path)
+    for family in _demo_families():
+        if path.parent == bundled_assets() / family.demo_scenes:
+            return path.name if family.name == DEFAULT_FAMILY else f"{family.name}/{path.name}"
+    return path.name
 
 
 def encode_scene(
@@ -109,7 +115,8 @@ def load_model_scene(checkpoint: str | None, scene: str | PathLike | None, conte
     if scene is None:
         scenes = demo_scenes()
         if not scenes:
-            raise FileNotFoundError("no demo scenes in assets/scenes; pass --scene DIR (or --ply FILE)")
+            where = f"assets/{get_family(DEFAULT_FAMILY).demo_scenes}"
+            raise FileNotFoundError(f"no demo scenes in {where}; pass --scene DIR (or --ply FILE)")
         scene = scenes[0]
     path = checkpoint or default_checkpoint(scene)  # the shipped model of the scene's family
     model = load_model(path)

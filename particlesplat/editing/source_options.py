@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 
 from particlesplat.core.errors import OptionError
+from particlesplat.data.families import DEFAULT_FAMILY, get_family, shipped_models_text
 
 
 def add_source_arguments(parser: argparse.ArgumentParser, ply_help: str) -> None:
@@ -13,11 +14,11 @@ def add_source_arguments(parser: argparse.ArgumentParser, ply_help: str) -> None
     ``particlesplat render`` open (see :func:`load_model_scene`)."""
     parser.add_argument(
         "--checkpoint",
-        help="model checkpoint; none = the shipped model of the scene's family (assets/model.pt, "
-        "assets/robot/model.pt)",
+        help=f"model checkpoint; none = the shipped model of the scene's family ({shipped_models_text()})",
     )
     src = parser.add_mutually_exclusive_group()
-    src.add_argument("--scene", help="scene folder to encode; none = the first demo scene in assets/scenes")
+    demos = f"assets/{get_family(DEFAULT_FAMILY).demo_scenes}"
+    src.add_argument("--scene", help=f"scene folder to encode; none = the first demo scene in {demos}")
     src.add_argument("--ply", help=ply_help)
     parser.add_argument(
         "--context", help="context frame indices of the scene, e.g. 4,16; none = two frames 12 apart about the middle"

@@ -13,9 +13,9 @@ from torch.overrides import TorchFunctionMode
 from torch.torch_version import TorchVersion
 
 from particlesplat.core.atomic import atomic_path
-from particlesplat.core.bundled import bundled_assets
 from particlesplat.core.errors import UserError, one_line
 from particlesplat.core.limits import check_memory
+from particlesplat.data.families import DEFAULT_FAMILY, families, get_family
 from particlesplat.model.config import ModelConfig, stored_model_config, stored_train_config
 from particlesplat.model.particlesplat import ParticleSplat
 
@@ -264,31 +264,27 @@ def refinement_trained(ckpt: dict) -> bool:
     return int(ckpt["step"]) >= start * steps
 
 
-SHIPPED_MODELS = {"tabletop": "model.pt", "robot": "robot/model.pt"}  # scene family -> its model in assets/
-
-
-def shipped_model_path(family: str = "tabletop") -> Path:
-    """Path of the shipped model of a scene ``family`` (:data:`SHIPPED_MODELS`) in the installed
-    ``particlesplat.assets`` package."""
-    if family not in SHIPPED_MODELS:
-        raise ValueError(f"no shipped model for scene family {family!r} (families: {', '.join(SHIPPED_MODELS)})")
-    return bundled_assets() / SHIPPED_MODELS[family]
+def shipped_model_path(family: str = DEFAULT_FAMILY) -> Path:
+    """Path of the shipped model of a registered scene ``family`` (:attr:`Family.shipped_model`) in the installed
+    ``particlesplat.assets`` package; ValueError naming the registered families for another name."""
+    return get_family(family).shipped_model_path()
 
 
 def shipped_model_name(path: str | PathLike) -> str:
     """How a model is named in screenshots, edit files and ``encode`` output: ``assets/…`` for a shipped one,
     else the path as given."""
-    for family, rel in SHIPPED_MODELS.items():
-        if Path(path) == shipped_model_path(family):
-            return f"assets/{rel}"
+    for family in families():
+        if Path(path) == family.shipped_model_path():
+            return f"assets/{family.shipped_model}"
     return str(path)
 
 
 def load_model(path: str | PathLike | None = None, device: str | torch.device = "cpu") -> ParticleSplat:
-    """Load a trained model (eval mode). ``path=None`` loads the shipped tabletop model ``assets/model.pt``."""
+    """Load a trained model (eval mode). ``path=None`` loads the default family's shipped model
+    (``assets/model.pt``)."""
     if path is None:
         path = shipped_model_path()
-    if not Path(path).is_file() and any(Path(path) == shipped_model_path(f) for f in SHIPPED_MODELS):
+    if not Path(path).is_file() and any(Path(path) == f.shipped_model_path() for f in families()):
         raise FileNotFoundError(
             f"{path}: the shipped model is missing; train one with 'particlesplat train' or pass a checkpoint path"
         )

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
+from particlesplat.data.families import families
 from particlesplat.model.config import ModelConfig
 from particlesplat.model.derive import INFERENCE_KEYS
 from particlesplat.model.provenance import describe
@@ -27,13 +28,13 @@ VAL_METRICS = (
 
 
 def family_of(cfg: ModelConfig) -> str:
-    """The scene family a model's static layer is built for: a floor grid is the tabletop family's, free
+    """The scene family a model's static layer is built for, by its registered title (the first family whose
+    :attr:`~particlesplat.data.families.Family.static_layer` it is): a floor grid is the tabletop family's, free
     workspace Gaussians the robot workspace family's."""
-    if cfg.bg_static_points > 0:
-        return "robot workspace"
-    if cfg.bg_static_grid > 0:
-        return "tabletop"
-    return "none recorded (no static layer)"
+    layer = "points" if cfg.bg_static_points > 0 else "grid" if cfg.bg_static_grid > 0 else None
+    if layer is None:
+        return "none recorded (no static layer)"
+    return next((f.title for f in families() if f.static_layer == layer), f"none registered (a {layer} static layer)")
 
 
 def static_layer(cfg: ModelConfig) -> str:

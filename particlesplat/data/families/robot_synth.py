@@ -10,6 +10,7 @@ are skipped when the command runs again. Each worker process holds its own MuJoC
 
 from __future__ import annotations
 
+import argparse
 import time
 from dataclasses import asdict
 from functools import partial
@@ -127,3 +128,10 @@ def generate(
         bar = tqdm(total=total, initial=total - len(tasks), desc="synth robot", unit="scene", disable=not progress)
         # forked workers: the parent has imported mujoco but made no GL context, so each child opens its own
         return run_tasks(tasks, _work, _init_worker, workers, bar)
+
+
+def generate_family(out: Path, counts: dict[str, int], seed: int, options: argparse.Namespace) -> list[float]:
+    """The robot family's generator entry (:class:`particlesplat.data.families.Family`): :func:`generate` with
+    ``synth``'s ``options`` (``res``, ``workers``, ``cameras``, ``arm``, ``world``); seconds per new scene."""
+    config = RobotSceneConfig(options.res, options.res, cameras=options.cameras, arm=options.arm, world=options.world)
+    return [t["total"] for t in generate(out, counts, seed, config, options.workers)]
