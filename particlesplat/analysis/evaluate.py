@@ -35,7 +35,7 @@ from particlesplat.core.choices import DEFAULT_FIT, OBJECT_CENTRES
 from particlesplat.core.errors import OptionError, UserError
 from particlesplat.data.scene_meta import scene_pose
 from particlesplat.data.views import supervision_mask
-from particlesplat.editing.grouping import particle_objects
+from particlesplat.editing.grouping import arm_state, particle_objects, robot_particles
 from particlesplat.model.fit import fit_particles
 from particlesplat.rendering.api import render
 
@@ -166,6 +166,9 @@ def evaluate_item(
     gaussians = model.decode(particles, z_t_threshold=z_t_threshold)  # None: the particles that draw
     dec_ms = _ms(t0, device)
     objects = particle_objects(gaussians, particles.num)
+    # the robot's particles are in no object: their pixels count as background in FG-ARI and mIoU
+    robot = robot_particles(particles, gaussians, arm_state(model, particles))
+    objects = torch.where(robot, torch.full_like(objects, -1), objects)
     bg = model.background_color()
     out = render_views(gaussians, tgt_cams, particles.num, bg, objects)
     active = (particles.z_t[:, 0] >= model.config.bg_mask_threshold).cpu()  # the particles that draw (decode)
@@ -176,7 +179,8 @@ def evaluate_item(
         "ssim": ssim(out["rgb"], gt),
         "depth_abs_rel": depth_abs_rel(out["depth"], item["target_depth"]),
         "active_particles": int(active.sum()),
-        "objects": len(torch.unique(objects[active])),
+        "objects": len(torch.unique(objects[active & ~robot])),
+        "robot_particles": int((active & robot).sum()),
         "gaussians": len(gaussians),
         "below_support": below_support(gaussians.means, gaussians.opacities, gaussians.owner),
         "encode_ms": enc_ms,
@@ -241,6 +245,7 @@ SCALARS = (
     "miou_particles",
     "active_particles",
     "objects",
+    "robot_particles",
     "gaussians",
     "below_support",
     "encode_ms",

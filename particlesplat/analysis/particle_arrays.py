@@ -12,7 +12,11 @@ K objects and V context views (world metres, +z up, OpenCV cameras):
 - ``colour`` (P, 3): the opacity-weighted mean of their view-independent (SH degree 0) colour, in [0, 1].
 - ``active`` (P,) bool: the particle draws (:func:`drawing_particles`).
 - ``object`` (P,) int64: the object of an active particle, 0..K-1 (particles grouped by
-  :func:`particlesplat.editing.grouping.particle_objects`, numbered by their smallest particle index); -1 when inactive.
+  :func:`particlesplat.editing.grouping.particle_objects`, numbered by their smallest particle index); -1 when inactive
+  or the robot's.
+- ``robot`` (P,) bool: the particle draws the robot (:func:`particlesplat.editing.grouping.robot_particles`: its
+  centre lies in the room the arm takes, by the scene's joint angles); never an object. All false for a model that
+  reads no robot state.
 - ``object_centroid`` (K, 3), ``object_extent`` (K, 3): per object (:func:`object_centres`).
 - ``K`` (V, 3, 3), ``c2w`` (V, 4, 4): the context cameras at the model's resolution (pixels; OpenCV).
 - ``meta``: a JSON string (model, checkpoint SHA-256, context frames, scene path, resolution, object centre
@@ -42,15 +46,21 @@ from particlesplat.core.sh import SH_C0
 from particlesplat.data.scene import SceneFormatError
 from particlesplat.data.scene_meta import read_scene_json
 from particlesplat.editing.grouping import (
+    arm_state,
     drawing_particles,
     object_centres,
+    robot_particles,
     weighted_stats,
 )
 from particlesplat.editing.move import anchor_points
 from particlesplat.editing.scene_objects import SceneObjects
 from particlesplat.model import Particles, ParticleSplat
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: the robot array
+
+
+LATER_ARRAYS = ("robot",)
+"""Arrays a file of an earlier format version lacks; reading one fills them in (no particle the robot's)."""
 
 
 class ParticleArraysError(UserError):
@@ -71,6 +81,7 @@ ARRAY_NAMES = (
     "colour",
     "active",
     "object",
+    "robot",
     "object_centroid",
     "object_extent",
     "K",
@@ -98,6 +109,7 @@ class ParticleArrays:
     colour: np.ndarray
     active: np.ndarray
     object: np.ndarray
+    robot: np.ndarray
     object_centroid: np.ndarray
     object_extent: np.ndarray
     K: np.ndarray
@@ -138,10 +150,12 @@ class ParticleArrays:
         check_memory(sum(npz_headers(path).values()), f"{path}: its arrays")
         try:
             with np.load(path, allow_pickle=False) as data:
-                missing = [n for n in (*ARRAY_NAMES, "meta") if n not in data.files]
+                missing = [n for n in (*ARRAY_NAMES, "meta") if n not in data.files and n not in LATER_ARRAYS]
                 if missing:
                     raise ParticleArraysError(f"{path}: missing array(s) {', '.join(missing)}")
-                values = {n: data[n] for n in ARRAY_NAMES}
+                values = {n: data[n] for n in ARRAY_NAMES if n in data.files}
+                if "robot" not in values:  # format 1: no particle was the robot's
+                    values["robot"] = np.zeros(values["active"].shape, dtype=bool)
                 meta = json.loads(str(data["meta"]))
         except json.JSONDecodeError as e:
             raise ParticleArraysError(f"{path}: meta: not valid JSON ({e})") from e
@@ -196,7 +210,7 @@ def read_npz_meta(path: str | PathLike) -> dict:
     (:func:`npz_headers`) and the meta member alone; ParticleArraysError names the file."""
     path = Path(path)
     sizes = npz_headers(path)
-    missing = [n for n in (*ARRAY_NAMES, "meta") if n not in sizes]
+    missing = [n for n in (*ARRAY_NAMES, "meta") if n not in sizes and n not in LATER_ARRAYS]
     if missing:
         raise ParticleArraysError(f"{path}: missing array(s) {', '.join(missing)}")
     if sizes["meta"] > MAX_META_BYTES:
@@ -248,8 +262,9 @@ def particle_arrays(
     colour = torch.zeros(P, 3, dtype=torch.float64).index_add_(0, g.owner[fg], w[:, None] * dc[fg])
     colour = torch.where(total[:, None] > 0, colour / torch.where(total > 0, total, 1.0)[:, None], 0.0)
     active = drawing_particles(p, g, model.config.bg_mask_threshold)
+    robot = robot_particles(p, g, arm_state(model, p)) & active
     if objects is None:
-        labels = SceneObjects.group(p, g, model.config.bg_mask_threshold).labels
+        labels = SceneObjects.group(p, g, model.config.bg_mask_threshold, arm=arm_state(model, p)).labels
     else:  # a particle that draws nothing (a removed object's) is in none
         labels = SceneObjects(torch.where(active, objects.labels[:P].cpu(), -1)).dense().labels
     num_objects = int(labels.max()) + 1 if bool((labels >= 0).any()) else 0
@@ -283,6 +298,7 @@ def particle_arrays(
         colour=f32(colour),
         active=active.numpy().astype(bool),
         object=labels.numpy().astype(np.int64),
+        robot=robot.numpy().astype(bool),
         object_centroid=f32(obj_centre).reshape(num_objects, 3),
         object_extent=f32(obj_extent).reshape(num_objects, 3),
         K=f32(K),
@@ -383,6 +399,6 @@ def object_localisation(
     :func:`particle_objects` labels (computed when None)."""
     g = gaussians.detach().to("cpu")
     p = particles.detach().to("cpu")
-    objects = SceneObjects.group(p, g, model.config.bg_mask_threshold, groups).labels
+    objects = SceneObjects.group(p, g, model.config.bg_mask_threshold, groups, arm=arm_state(model, p)).labels
     K = int(objects.max()) + 1 if bool((objects >= 0).any()) else 0
     return {m: nearest_distances(truth, object_centres(g, objects, K, m)[0].numpy()).tolist() for m in OBJECT_CENTRES}

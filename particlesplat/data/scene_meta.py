@@ -141,7 +141,9 @@ def read_pose(folder: str | PathLike, key: str, dims: int) -> list[float] | None
     if key == ARM_STATE_KEY:
         state = read_arm_state(folder)
         if state is not None and len(state) != dims:
-            raise SceneFormatError(f"{Path(folder) / SCENE_META}: the robot state has {len(state)} numbers, the model reads {dims}")
+            raise SceneFormatError(
+                f"{Path(folder) / SCENE_META}: the robot state has {len(state)} numbers, the model reads {dims}"
+            )
         return state
     found = _scene_value(folder, key)
     if found is None:

@@ -29,9 +29,7 @@ from particlesplat.core.choices import ObjectCentre
 from particlesplat.core.errors import OptionError
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.world import SUPPORT_Z
-from particlesplat.editing.grouping import (
-    members_centre,
-)
+from particlesplat.editing.grouping import arm_state, members_centre
 from particlesplat.editing.move import MoveError, translate
 from particlesplat.editing.scene_objects import SceneObjects
 from particlesplat.model import Particles, ParticleSplat
@@ -43,7 +41,7 @@ PLACE_TOLERANCE = 0.002  # metres: centre corrections stop below this
 def scene_objects(model: ParticleSplat, particles: Particles, gaussians: Gaussians | None = None) -> Tensor:
     """(P,) int64 object index 0..K-1 of each drawing particle, -1 for the others (as ``particlesplat encode``)."""
     g = model.decode(particles) if gaussians is None else gaussians
-    return SceneObjects.group(particles, g, model.config.bg_mask_threshold).labels
+    return SceneObjects.group(particles, g, model.config.bg_mask_threshold, arm=arm_state(model, particles)).labels
 
 
 def object_members(model: ParticleSplat, particles: Particles, index: int) -> list[int]:

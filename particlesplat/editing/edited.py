@@ -18,7 +18,7 @@ from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.vectors import float3
 from particlesplat.core.world import SUPPORT_Z
 from particlesplat.editing.decoded import DecodedParticles
-from particlesplat.editing.grouping import OPAQUE
+from particlesplat.editing.grouping import OPAQUE, arm_state
 from particlesplat.editing.move import MoveError, anchor_points
 from particlesplat.editing.scene_objects import SceneObjects
 from particlesplat.model.config import ModelConfig
@@ -119,7 +119,9 @@ class EditedParticles:
         if self._labels is None:
             if self.particles.num != self.original.num:
                 raise RuntimeError("EditedParticles: rows were appended before the scene was grouped")
-            self._labels = SceneObjects.group(self.original, self.decode(self.original), self.active_threshold).labels
+            arm = arm_state(self.model, self.original)
+            g = self.decode(self.original)
+            self._labels = SceneObjects.group(self.original, g, self.active_threshold, arm=arm).labels
         return SceneObjects(self._labels)
 
     def labels_now(self) -> Tensor | None:

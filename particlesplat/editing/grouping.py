@@ -22,6 +22,7 @@ from torch import Tensor
 
 from particlesplat.core.choices import OBJECT_CENTRES, ObjectCentre
 from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.panda_arm import ARM_STATE_DIMS, ARM_STATE_KEY, capsule_distance
 from particlesplat.core.world import SUPPORT_Z
 from particlesplat.model import Particles
 
@@ -127,6 +128,30 @@ def drawing_particles(particles: Particles, gaussians: Gaussians, bg_mask_thresh
     has = torch.zeros(P, dtype=torch.bool, device=own.device)
     has[own[draws]] = True
     return has.cpu() & (particles.z_t[:, 0].detach().cpu() >= bg_mask_threshold)
+
+
+def arm_state(model: ParticleSplat, particles: Particles) -> Tensor | None:
+    """The robot state (:data:`~particlesplat.core.panda_arm.ARM_STATE_DIMS`,) the particles were encoded with, when
+    ``model`` reads one (``bg_static_pose: robot_state``); else None."""
+    cfg = model.config
+    if cfg.bg_static_pose != ARM_STATE_KEY or particles.pose is None or particles.pose.numel() != ARM_STATE_DIMS:
+        return None
+    return particles.pose
+
+
+def robot_particles(particles: Particles, gaussians: Gaussians, arm: Tensor | None) -> Tensor:
+    """(P,) bool: the particles that draw the robot, not an object: the opacity-weighted centre of their
+    Gaussians lies in the room the arm takes (:func:`particlesplat.core.panda_arm.capsule_distance`), which the
+    robot state ``arm`` (:func:`arm_state`; None: no particle is the robot's) gives."""
+    P = particles.num
+    if arm is None:
+        return torch.zeros(P, dtype=torch.bool)
+    from particlesplat.model.evidence import arm_capsules_of
+
+    centre, _, total = weighted_stats(gaussians.means.cpu(), gaussians.opacities.cpu(), gaussians.owner.cpu(), P)
+    starts, ends, radii = (t.double() for t in arm_capsules_of(arm.cpu()))
+    inside = capsule_distance(centre, starts, ends, radii) < 0
+    return inside & (total > 0)
 
 
 def dense_objects(groups: Tensor, active: Tensor) -> Tensor:

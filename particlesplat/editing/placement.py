@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import torch
 
-from particlesplat.editing.grouping import object_centres
+from particlesplat.editing.grouping import arm_state, object_centres
 from particlesplat.editing.scene_objects import SceneObjects
 from particlesplat.model import Particles, ParticleSplat
 
@@ -35,7 +35,7 @@ def footprints(model: ParticleSplat, particles: Particles, members: list[int] | 
     g = model.decode(particles).detach().to("cpu")
     p = particles.detach().to("cpu")
     if members is None:
-        objects = SceneObjects.group(p, g, model.config.bg_mask_threshold).labels
+        objects = SceneObjects.group(p, g, model.config.bg_mask_threshold, arm=arm_state(model, p)).labels
     else:
         objects = torch.full((p.num,), -1, dtype=torch.int64)
         objects[members] = 0

@@ -10,7 +10,7 @@ import torch
 from torch import Tensor
 
 from particlesplat.core.gaussians import Gaussians
-from particlesplat.editing.grouping import dense_objects, drawing_particles, particle_objects
+from particlesplat.editing.grouping import dense_objects, drawing_particles, particle_objects, robot_particles
 from particlesplat.model.particles import Particles
 
 
@@ -23,15 +23,22 @@ class SceneObjects:
 
     @classmethod
     def group(
-        cls, particles: Particles, gaussians: Gaussians, bg_mask_threshold: float, groups: Tensor | None = None
+        cls,
+        particles: Particles,
+        gaussians: Gaussians,
+        bg_mask_threshold: float,
+        groups: Tensor | None = None,
+        arm: Tensor | None = None,
     ) -> SceneObjects:
         """Group ``particles`` whose decode (owner = particle index, background included or not) is ``gaussians``;
         a particle draws at z_t >= ``bg_mask_threshold`` (the model's). ``groups``: the
-        :func:`particle_objects` labels when already computed."""
+        :func:`particle_objects` labels when already computed. ``arm``: the robot state
+        (:func:`~particlesplat.editing.grouping.arm_state`): the robot's particles are in no object."""
         g = gaussians.detach().to("cpu")
         p = particles.detach().to("cpu")
         groups = particle_objects(g, p.num) if groups is None else groups.cpu()
-        return cls(dense_objects(groups, drawing_particles(p, g, bg_mask_threshold)))
+        objects = drawing_particles(p, g, bg_mask_threshold) & ~robot_particles(p, g, arm)
+        return cls(dense_objects(groups, objects))
 
     @property
     def count(self) -> int:

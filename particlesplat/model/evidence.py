@@ -34,8 +34,11 @@ SURFACE_BAND = 0.006
 """Metres about the support surface within which a point counts as the table top."""
 FOOTPRINT_MARGIN = 0.03
 """Metres added to the radius the visible table top spans."""
+
+
 def arm_capsules_of(state: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """state: (ARM_STATE_DIMS,) packed (:func:`particlesplat.core.panda_arm.pack_arm_state`) -> capsule starts (N, 3), ends (N, 3), radii (N,) on its device."""
+    """state: (ARM_STATE_DIMS,) packed (:func:`particlesplat.core.panda_arm.pack_arm_state`) -> capsule starts
+    (N, 3), ends (N, 3), radii (N,) on its device."""
     s = state.detach().double().cpu().numpy()
     base = np.eye(4)
     base[:3] = s[7:19].reshape(3, 4)
@@ -62,7 +65,8 @@ def foreground_evidence(depth: Tensor, K: Tensor, c2w: Tensor, arm: Tensor | Non
     """Which pixels show an object standing on the support surface (module docstring).
 
     depth: (M, 1, H, W) planar metres (0 = missing); K: (M, 3, 3); c2w: (M, 4, 4); arm: (M, 21) each view's
-    robot state (:func:`particlesplat.core.panda_arm.pack_arm_state`) or None (no arm is left out). Returns (M, 1, H, W) in {0, 1}.
+    robot state (:func:`particlesplat.core.panda_arm.pack_arm_state`) or None (no arm is left out).
+    Returns (M, 1, H, W) in {0, 1}.
     """
     with torch.no_grad():
         pts = world_points(depth, K, c2w)

@@ -389,9 +389,7 @@ class ParticleSplat(nn.Module):
         parts = []
         if self.config.bg_per_view:
             net = (canonical_turn(c2w)[:, None] @ c2w).reshape(B * V, 4, 4) if self.config.canonical_frame else None
-            f = self.background(
-                bg.reshape(B * V, *bg.shape[2:]), K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4), net
-            )
+            f = self.background(bg.reshape(B * V, *bg.shape[2:]), K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4), net)
             parts.append({k: v.reshape(B, -1, *v.shape[2:]) for k, v in f.items()})
         if self.static_bg is not None:
             parts.append(self.static_fields(B, pose))
