@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
@@ -17,3 +19,20 @@ def test_the_library_snippet_runs_outside_the_repository(tmp_path):
     proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "scene.ply").is_file()  # what the snippet saves, in the directory it ran in
+
+
+def test_the_snippet_gives_a_robot_model_the_robot_scene_s_pose():
+    """``scene.pose(model)`` in the snippet hands a robot model what its scene.json records of the arm (the
+    joint angles it reads), so the snippet works on robot scenes as written; a tabletop model reads nothing."""
+    import json
+
+    from particlesplat.data import load_scene
+    from particlesplat.editing import demo_scenes
+    from particlesplat.model import load_model
+
+    robot_scene = next(p for p in demo_scenes() if "robot" in str(p))
+    robot = load_model(README.parent / "assets" / "robot" / "model.pt")
+    scene = load_scene(robot_scene, resolution=robot.config.resolution)
+    joints = json.loads((robot_scene / "scene.json").read_text())["arm_joints_rad"]
+    assert scene.pose(robot).tolist() == pytest.approx(joints, abs=1e-6)  # float32
+    assert scene.pose(load_model()) is None

@@ -31,8 +31,8 @@ PANDA_CHAIN: tuple[tuple[tuple[float, float, float], tuple[float, float, float, 
 )
 HAND_OFFSET = (0.0, 0.0, 0.1065)
 """The hand (the gripper's mount) from link 7, metres: along link 7's z, where the gripper starts."""
-HAND_QUAT = (math.cos(math.pi / 8), 0.0, 0.0, -math.sin(math.pi / 8))
-"""The hand's rotation from link 7, (w, x, y, z): -45° about z."""
+HAND_QUAT = (0.924, 0.0, 0.0, -0.383)
+"""The hand's rotation from link 7, (w, x, y, z; normalised when used): about -45° about z, as robot.xml writes it."""
 
 GRIPPER_REACH = {"panda": 0.12, "rethink": 0.14, "robotiq85": 0.16, "robotiq140": 0.22}
 """How far each gripper reaches past the hand along its axis, metres (fingers included, open or closed)."""
@@ -67,7 +67,8 @@ def pack_arm_state(joints: list[float], base: list[list[float]] | None, gripper:
 
 
 def _quat_matrix(q: tuple[float, float, float, float]) -> np.ndarray:
-    w, x, y, z = q
+    n = math.sqrt(sum(v * v for v in q))
+    w, x, y, z = (v / n for v in q)
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],

@@ -62,6 +62,15 @@ class Scene:
     def num_views(self) -> int:
         return int(self.rgb.shape[0])
 
+    def pose(self, model) -> Tensor | None:
+        """What ``model`` (a :class:`~particlesplat.model.ParticleSplat`) reads of the robot from this scene's
+        ``scene.json`` (its ``bg_static_pose``: the arm's joint angles, or the packed robot state), to pass to
+        ``model.encode``; None for a model that reads nothing, or a scene that records nothing (with a warning)."""
+        from particlesplat.data.scene_meta import scene_pose
+
+        cfg = model.config
+        return scene_pose(self.path, cfg.bg_static_pose, cfg.bg_static_pose_dims, model.input_ranges)
+
     @property
     def height(self) -> int:
         return int(self.rgb.shape[2])

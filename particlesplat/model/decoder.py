@@ -362,9 +362,72 @@ def background_gaussians(
     opacity = torch.sigmoid(p["opacity"][..., 0])
     Kn = K[:, None].expand(-1, n, -1, -1)
     cn = c2w[:, None].expand(-1, n, -1, -1)
-    if anchor is not None:
-        zeta = _anchored_depth(zeta, p["dd"][..., 0], anchor, pix, Kn, cn)
-        dc = p["sh"][..., 0, :] + anchor[..., 4:5] * (anchor[..., :3] - 0.5) / SH_C0
-        p = {**p, "sh": torch.cat([dc[..., None, :], p["sh"][..., 1:, :]], dim=-2)}
+    if anchor is None:
+        zeta, means, opacity = _place(pix, zeta, Kn, cn, opacity)
+        return _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg)
+    zeta = _anchored_depth(zeta, p["dd"][..., 0], anchor, pix, Kn, cn)
+    dc = p["sh"][..., 0, :] + anchor[..., 4:5] * (anchor[..., :3] - 0.5) / SH_C0
+    p = {**p, "sh": torch.cat([dc[..., None, :], p["sh"][..., 1:, :]], dim=-2)}
     zeta, means, opacity = _place(pix, zeta, Kn, cn, opacity)
-    return _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg)
+    fields = _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg)
+    quats, scales = _surface_shapes(p["scale"], anchor, zeta, K, c2w, cfg)
+    return {**fields, "quats": quats, "scales": scales}
+
+
+SURFACE_THICKNESS = 0.1
+"""An anchored background Gaussian's thickness along its surface's normal, as a fraction of its block's width."""
+SURFACE_STEP_LIMIT = 3.0
+"""A step to the next block's anchor longer than this many block widths crosses a depth edge: the block's own
+camera-facing width is used instead."""
+
+
+def _surface_shapes(
+    scale_raw: Tensor, anchor: Tensor, zeta: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig
+) -> tuple[Tensor, Tensor]:
+    """Shapes of anchored background Gaussians that lie flat on the surface their blocks see, spanning the steps
+    to the neighbouring blocks' anchors, so a view from another side sees the surface without gaps.
+
+    scale_raw: (M, N, 3) the head's scale channels (in-surface x, y and thickness factors in [s_min, s_max]);
+    anchor: (M, N, 5) (:func:`block_anchors`); zeta: (M, N) the Gaussians' planar depths, metres; K (M, 3, 3),
+    c2w (M, 4, 4). Returns quats (M, N, 4), scales (M, N, 3).
+    The two in-surface axes are the half-steps to the next block's anchor point along x and y (the shorter of the
+    steps forward and back, so that a depth edge is not bridged; a step over :data:`SURFACE_STEP_LIMIT` block
+    widths, or from a block without an anchor, falls back to the camera-facing block width).
+    """
+    k = cfg.bg_block
+    n = cfg.resolution // k
+    M = anchor.shape[0]
+    pix = block_centres(cfg, anchor.device, anchor.dtype)[None].expand(M, -1, -1)
+    dirs = ray_dirs(pix, K, c2w)  # (M, N, 3), camera z = 1
+    depth = torch.where(anchor[..., 4] > 0.5, anchor[..., 3], torch.full_like(anchor[..., 3], float("nan")))
+    pts = (c2w[:, None, :3, 3] + depth[..., None] * dirs).reshape(M, n, n, 3)
+    width = (zeta.detach() * k / K[:, None, 0, 0]).reshape(M, n, n, 1)  # metres a block spans, facing the camera
+
+    def step(axis: int, fallback: Tensor) -> Tensor:
+        fwd = torch.diff(pts, dim=axis, append=pts.narrow(axis, n - 1, 1))
+        back = torch.diff(pts, dim=axis, prepend=pts.narrow(axis, 0, 1))
+        fwd_n, back_n = fwd.norm(dim=-1, keepdim=True), back.norm(dim=-1, keepdim=True)
+        fwd_n, back_n = torch.nan_to_num(fwd_n, nan=float("inf")), torch.nan_to_num(back_n, nan=float("inf"))
+        fwd_n = torch.where(fwd_n == 0, torch.full_like(fwd_n, float("inf")), fwd_n)
+        back_n = torch.where(back_n == 0, torch.full_like(back_n, float("inf")), back_n)
+        best = torch.where(fwd_n <= back_n, fwd, back)
+        ok = torch.minimum(fwd_n, back_n) <= SURFACE_STEP_LIMIT * width
+        return torch.where(ok & (width > 0), best, fallback)
+
+    cam = c2w[:, None, None, :3, :3]  # (M, 1, 1, 3, 3)
+    fallback_w = width.clamp_min(1e-4)
+    u = step(2, cam[..., 0] * fallback_w)
+    v = step(1, cam[..., 1] * fallback_w)
+    normal = torch.linalg.cross(u, v)
+    normal = normal / normal.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    thick = SURFACE_THICKNESS * torch.maximum(u.norm(dim=-1, keepdim=True), v.norm(dim=-1, keepdim=True))
+    s = cfg.s_min + (cfg.s_max - cfg.s_min) * torch.sigmoid(scale_raw)  # (M, N, 3)
+    cols = torch.stack(
+        [
+            u.reshape(M, -1, 3) * s[..., 0:1],
+            v.reshape(M, -1, 3) * s[..., 1:2],
+            (normal * thick).reshape(M, -1, 3) * s[..., 2:3],
+        ],
+        dim=-1,
+    )  # (M, N, 3, 3): columns are the axes
+    return covariance_to_quat_scale(cols)
