@@ -55,6 +55,11 @@ def layer_error(layer: Tensor, x: Tensor, depth: Tensor | None, block: int) -> T
     return F.avg_pool2d(err, block)
 
 
+EVIDENCE_DILATION = 2
+"""Pixels by which the foreground evidence grows before the background encoder's mask hides it: an object's rim
+just above the table, below the evidence's height threshold, must not show the background its colour."""
+
+
 class ParticleSplat(nn.Module):
     """Encoder q(Z | context views) and Gaussian-splatting decoder p(x | Z)."""
 
@@ -148,7 +153,7 @@ class ParticleSplat(nn.Module):
                 cfg.resolution,
             )
             if evidence is not None:  # the background never sees an object, whether a particle took it or not
-                mask = torch.maximum(mask, dilate(evidence, 1))
+                mask = torch.maximum(mask, dilate(evidence, EVIDENCE_DILATION))
         mu_bg, lv_bg, bg_feats = self.bg_encoder(x, dep, rays, mask)
         part = self.encoder.interact(att, h, Kf, cn, bg_feats, V)
         anchor = None if evidence is None else block_anchors(x, d, mask, cfg.bg_block)
