@@ -89,7 +89,7 @@ def training_loss(
             evidence = torch.cat([evidence, tgt.reshape(B, V - C, 1, size, size)], 1)
         # one-sided: the particles must cover what stands on the table (the background cannot); where they draw
         # beyond it is left to the reconstruction, which a particle's box overhanging its object barely harms
-        fg_err = (((1.0 - fg_hat) * evidence) ** 2).flatten(1).sum(1)
+        fg_err = (((1.0 - fg_hat) * evidence) ** 2).flatten(2).sum(2)  # (B, V)
         parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
         parts["loss"] = parts["loss"] + beta_fg * parts["fg"]
     elif fg_hat is not None:  # particles cover what the floor layer cannot explain, and nothing else
