@@ -7,11 +7,18 @@ import json
 from pathlib import Path
 
 from particlesplat.core.atomic import check_writable
-from particlesplat.core.choices import DEFAULT_FIT, FITTED, OBJECT_CENTRES
+from particlesplat.core.choices import DEFAULT_FIT, FITTED
 from particlesplat.core.device import DEVICE_HELP
 from particlesplat.core.errors import OptionError
 from particlesplat.data.families import checkpoint_help
-from particlesplat.data.folders import check_file, check_split_folder
+from particlesplat.data.folders import (
+    DEFAULT_EVAL_SPLITS,
+    EVAL_SPLITS,
+    check_file,
+    check_split_folder,
+    choose_splits,
+    dataset_splits,
+)
 from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
 MAX_FIT_LR = 10.0  # --fit-lr: Adam's step on the latents; past this the fit diverges at once
@@ -23,13 +30,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help=checkpoint_help(),
     )
-    parser.add_argument("--data", required=True, help="folder of scene folders (e.g. data/tabletop/test)")
+    parser.add_argument(
+        "--data",
+        required=True,
+        help="a folder of scene folders (e.g. data/tabletop/test), or a dataset folder of split folders (e.g. "
+        "data/robot-wide): then each split --splits names in turn, one table row a split",
+    )
+    parser.add_argument(
+        "--splits",
+        default=None,
+        help=f"with a dataset folder: the comma-separated splits to evaluate, of {','.join(EVAL_SPLITS)} (default: "
+        f"those of {','.join(DEFAULT_EVAL_SPLITS)} it has)",
+    )
     parser.add_argument("--context", type=int, choices=(1, 2), default=2, help="number of context views")
     parser.add_argument("--no-depth", action="store_true", help="encode the context views without depth")
-    parser.add_argument("--json", default=None, help="write per-scene and mean metrics to this JSON file")
-    parser.add_argument("--figures", default=None, help="write PNG grids of a few scenes to this folder")
+    parser.add_argument(
+        "--json",
+        default=None,
+        help='write per-scene and mean metrics to this JSON file (a dataset folder: one entry a split, under "splits")',
+    )
+    parser.add_argument(
+        "--figures",
+        default=None,
+        help="write PNG grids of a few scenes to this folder (a dataset folder: a folder per split, DIR/<split>)",
+    )
     parser.add_argument("--num-figures", type=int, default=4, help="how many scenes get a figure")
-    parser.add_argument("--limit", type=int, default=None, help="evaluate only the first N scenes")
+    parser.add_argument("--limit", type=int, default=None, help="evaluate only the first N scenes (of each split)")
     parser.add_argument(
         "--prune",
         action="store_true",
@@ -70,23 +96,28 @@ def run(args: argparse.Namespace) -> int:
         )
     from particlesplat.core.outputs import guard_outputs
 
-    guard_outputs(
-        [("--json", args.json), ("--figures", args.figures)],
-        [("--checkpoint", args.checkpoint), ("--data", args.data)],
-    )
+    inputs = [("--checkpoint", args.checkpoint), ("--data", args.data)]
+    guard_outputs([("--json", args.json), ("--figures", args.figures)], inputs)
     from particlesplat.core.limits import check_option_range
 
     check_option_range(args.fit_lr, "--fit-lr", 0.0, MAX_FIT_LR, low_open=True)
     check_option_range(args.z_t_threshold, "--z-t-threshold", 0.0, 1.0)  # z_t is a probability
     if args.json:
         check_writable(args.json)  # before the work, not after it
-    if args.figures and args.num_figures > 0:
-        check_writable(Path(args.figures) / "figure.png")
-    check_split_folder(args.data, "--data")  # before torch loads: a typo is one quick line
+    figures = Path(args.figures) if args.figures else None
+    if figures and args.num_figures > 0:
+        check_writable(figures / "figure.png")
+    splits = _splits(args)  # before torch loads: a typo is one quick line
+    # a dataset folder's figures go to a folder per split, DIR/<split>; a split folder's to DIR itself
+    figure_dirs = {s: figures / s for s in splits} if figures else {}
+    guard_outputs([("--figures", d) for d in figure_dirs.values()], inputs)
+    if args.num_figures > 0:
+        for folder in figure_dirs.values():
+            check_writable(folder / "figure.png")
     check_file(args.checkpoint, "--checkpoint")
     apply_rasterizer_option(args)
+    from particlesplat.analysis.eval_summary import detail_lines, split_table, summary_line
     from particlesplat.analysis.evaluate import evaluate_dataset, json_safe
-    from particlesplat.analysis.metrics import FAR_HEIGHTS, OVERLAYS, PARTICLES_DRAW, REGIONS
     from particlesplat.core.atomic import atomic_write
     from particlesplat.core.device import resolve_device
     from particlesplat.data.scene_meta import default_checkpoint
@@ -98,80 +129,62 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(path, device=device)
     ckpt = read_checkpoint(path)
     print(f"{path}: step {ckpt['step']}; {describe(ckpt.get('provenance'))}")
-    out = evaluate_dataset(
-        model,
-        args.data,
-        context=args.context,
-        limit=args.limit,
-        figures=Path(args.figures) if args.figures else None,
-        num_figures=args.num_figures,
-        prune=args.prune,
-        use_depth=not args.no_depth,
-        fit_steps=args.fit_steps,
-        fit_lr=args.fit_lr,
-        fit_latents=latents,
-        z_t_threshold=args.z_t_threshold,
-    )
-    m = out["mean"]
-    print(
-        f"{len(out['scenes'])} scenes, {args.context} context view(s): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, "
-        f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f} (objects; per "
-        f"particle {m['fg_ari_particles']:.3f}, {m['miou_particles']:.3f}), active particles "
-        f"{m['active_particles']:.1f} in {m['objects']:.1f} objects, Gaussians {m['gaussians']:.0f} "
-        f"({100 * m['below_support']:.1f} % of the opaque object ones > 1 cm below z = 0), "
-        f"encode {m['encode_ms']:.1f} ms, "
-        + (f"fit {m['fit_ms']:.0f} ms, " if args.fit_steps else "")
-        + f"decode {m['decode_ms']:.1f} ms, render {m['render_ms']:.1f} ms/view"
-    )
-    if "error_regions" in out:
-        print(
-            "target-view error by region: "
-            + "; ".join(
-                f"{k.replace('_', ' ')} {v['pixel_share']:.1%} of pixels, {v['error_share']:.0%} of the error, "
-                f"{v['psnr']:.1f} dB"
-                for k, v in out["error_regions"].items()
-                if k in REGIONS
-            )
+
+    def evaluate(data: str | Path, figure_dir: Path | None) -> dict:
+        return evaluate_dataset(
+            model,
+            data,
+            context=args.context,
+            limit=args.limit,
+            figures=figure_dir,
+            num_figures=args.num_figures,
+            prune=args.prune,
+            use_depth=not args.no_depth,
+            fit_steps=args.fit_steps,
+            fit_lr=args.fit_lr,
+            fit_latents=latents,
+            z_t_threshold=args.z_t_threshold,
         )
-        heights = {k: v for k, v in out["error_regions"].items() if k in FAR_HEIGHTS}
-        if heights:
-            print(
-                "  floor far by height over the support surface: "
-                + "; ".join(
-                    f"{k.removeprefix('floor_far_').replace('_', ' ')} {v['pixel_share']:.1%} of pixels, "
-                    f"{v['error_share']:.0%} of the error, {v['psnr']:.1f} dB"
-                    for k, v in heights.items()
-                )
-            )
-        overlays = {k: v for k, v in out["error_regions"].items() if k in OVERLAYS}
-        if overlays:
-            print(
-                f"  the same pixels split otherwise (particles draw: their weight > {PARTICLES_DRAW}; seen: visible "
-                "in a context view): "
-                + "; ".join(
-                    f"{k.replace('_', ' ')} {v['pixel_share']:.1%} of pixels, {v['error_share']:.0%} of the error, "
-                    f"{v['psnr']:.1f} dB"
-                    for k, v in overlays.items()
-                )
-            )
-    if "localisation" in out:
-        print(
-            "object localisation (true centre to nearest object centre): "
-            + "; ".join(
-                f"{m} {s['within_0.05']:.0%} / {s['within_0.1']:.0%} / {s['within_0.15']:.0%} within 0.05 / 0.10 / "
-                f"0.15 m (median {s['median_m']:.3f} m)"
-                for m, s in out["localisation"].items()
-            )
-            + f", {out['localisation'][OBJECT_CENTRES[0]]['objects']} objects"
-        )
-    if "pruning" in out:
-        print("z_t thr  opacity thr  per particle  PSNR   FG-ARI  Gaussians  render ms")
-        for r in out["pruning"]:
-            print(
-                f"{r['z_t_threshold']:7.2f}  {r['opacity_threshold']:11.2f}  {r['max_per_particle']:12d}  "
-                f"{r['psnr']:5.2f}  {r['fg_ari']:6.3f}  {r['gaussians']:9.0f}  {r['render_ms']:9.1f}"
-            )
+
+    fit = bool(args.fit_steps)
+    if not splits:  # a split folder
+        out = evaluate(args.data, figures)
+        print(summary_line(out, args.context, fit))
+        for line in detail_lines(out):
+            print(line)
+    else:  # a dataset folder: its splits one after the other, the same model and options
+        outs = {s: evaluate(Path(args.data) / s, figure_dirs.get(s)) for s in splits}
+        print(f"{args.data}: {args.context} context view(s), the mean over each split's scenes")
+        for line in split_table(outs, fit):
+            print(line)
+        for split, res in outs.items():
+            lines = detail_lines(res)
+            if lines:
+                print(f"{split}:")
+                for line in lines:
+                    print("  " + line)
+        out = {
+            "data": str(args.data),
+            "context": args.context,
+            "depth": not args.no_depth,
+            "splits": outs,
+        }
     if args.json:
         with atomic_write(args.json, "w") as f:
             json.dump(json_safe(out), f, indent=2, allow_nan=False)
     return 0
+
+
+def _splits(args: argparse.Namespace) -> list[str]:
+    """The splits of a dataset folder ``--data`` to evaluate (:func:`choose_splits`); [] for a split folder.
+    One-line errors for a path that is neither, a split that is not there, or --splits with a split folder."""
+    have = dataset_splits(args.data)
+    if have:
+        return choose_splits(args.data, have, args.splits, "--splits")
+    check_split_folder(args.data, "--data")
+    if args.splits is not None:
+        raise OptionError(
+            f"--splits: --data {args.data} is a split folder (it holds scene folders); --splits chooses among a "
+            "dataset folder's splits"
+        )
+    return []

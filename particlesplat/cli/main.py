@@ -20,7 +20,7 @@ __all__ = ["COMMANDS", "HelpFormatter", "console_main", "main"]
 COMMANDS: dict[str, tuple[str, str]] = {
     "synth": ("particlesplat.cli.synth", "generate a scene dataset"),
     "train": ("particlesplat.cli.train", "train a ParticleSplat model"),
-    "eval": ("particlesplat.cli.eval", "evaluate a model on a folder of scenes"),
+    "eval": ("particlesplat.cli.eval", "evaluate a model on a folder of scenes, or on each split of a dataset"),
     "render": ("particlesplat.cli.render", "render a (possibly edited) scene headless to PNG"),
     "export": ("particlesplat.cli.export", "write a (possibly edited) scene as .ply/.splat/.spz/.sog, or a bundle"),
     "encode": ("particlesplat.cli.encode", "write the particles of scene folders as .npz arrays"),

@@ -8,6 +8,8 @@ from pathlib import Path
 
 TRANSFORMS = "transforms.json"  # the file that makes a folder a scene folder (docs/dataset.md)
 SPLITS = ("train", "val", "test", "heldout")  # heldout: the wide robot world's split outside the training ranges
+EVAL_SPLITS = ("val", "test", "heldout")  # what eval --splits may name of a dataset folder
+DEFAULT_EVAL_SPLITS = ("test", "heldout")  # what eval reads of a dataset folder without --splits
 
 
 def is_scene_folder(path: Path) -> bool:
@@ -43,6 +45,49 @@ def check_split_folder(path: str | PathLike, option: str) -> Path:
     if is_scene_folder(p):
         raise FileNotFoundError(f"{option} {p}: one scene folder; name the folder that holds it, {option} {p.parent}")
     raise FileNotFoundError(f"{option} {p}: no scene folders (sub-folders with {TRANSFORMS})")
+
+
+def dataset_splits(path: str | PathLike) -> tuple[str, ...]:
+    """The splits (of :data:`SPLITS`, in that order) holding scene folders of the dataset folder ``path``; () when
+    ``path`` holds scene folders itself (a split folder), is no folder, or has no split holding scenes."""
+    p = Path(path)
+    if not p.is_dir() or holds_scenes(p):
+        return ()
+    return tuple(s for s in SPLITS if holds_scenes(p / s))
+
+
+def choose_splits(path: str | PathLike, have: tuple[str, ...], requested: str | None, option: str) -> list[str]:
+    """The splits of the dataset folder ``path`` (its splits ``have``) that ``eval`` reads: those named in
+    ``requested`` (comma-separated, some of :data:`EVAL_SPLITS`, in the order given), else those of
+    :data:`DEFAULT_EVAL_SPLITS` it has. One-line FileNotFoundError naming the folder and its splits when one named
+    is not there or it has none of the default ones; OptionError naming ``option`` for a name that is no
+    evaluation split."""
+    from particlesplat.core.errors import OptionError
+
+    listed = f"its splits: {', '.join(have)}"
+    if requested is None:
+        chosen = [s for s in DEFAULT_EVAL_SPLITS if s in have]
+        if not chosen:
+            others = [s for s in EVAL_SPLITS if s in have]
+            hint = (
+                f"choose with {option} {','.join(others)}"
+                if others
+                else f"name one, e.g. --data {Path(path) / have[0]}"
+            )
+            raise FileNotFoundError(
+                f"--data {path}: a dataset folder without {' or '.join(DEFAULT_EVAL_SPLITS)} ({listed}); {hint}"
+            )
+        return chosen
+    chosen = list(dict.fromkeys(s.strip() for s in requested.split(",")))  # in order, once each
+    bad = [s for s in chosen if s not in EVAL_SPLITS]
+    if bad or not chosen:
+        raise OptionError(f"{option} must name some of {','.join(EVAL_SPLITS)}, got {requested[:80]!r}")
+    missing = [s for s in chosen if s not in have]
+    if missing:
+        raise FileNotFoundError(
+            f"{option} {','.join(chosen)}: --data {path} has no {' or '.join(missing)} split ({listed})"
+        )
+    return chosen
 
 
 def check_file(path: str | PathLike | None, option: str) -> None:
