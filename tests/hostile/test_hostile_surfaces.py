@@ -1,6 +1,8 @@
-"""Hostile input on the newer surfaces: outputs over inputs, run folders, checkpoints' other fields, logs, threads,
-synth's folder. Each command runs in its own process under the memory cap (``runner.py``); a refusal is one line,
-exit 2, nothing changed; a case that must succeed does so within the cap."""
+"""Hostile input on the newer surfaces: outputs over inputs (the commands, the benchmarks' --json, the viewer's
+screenshots, exports, edit files and autosaves), run folders, checkpoints' other fields, logs, threads, synth's
+folder. Each command runs in its own process under the memory cap (``runner.py``; the viewer's panel without a
+window, ``viewer_panel.py``); a refusal is one line, exit 2, nothing changed; a case that must succeed does so
+within the cap."""
 
 from __future__ import annotations
 
@@ -33,7 +35,7 @@ from hostile_files import (  # noqa: E402
 from model_data import TINY_MODEL, tiny_config, tiny_dataset  # noqa: E402
 from test_hostile_suite import CAP_MB, _lines  # noqa: E402
 
-PS = "particlesplat"
+PS, VIEWER = "particlesplat", "particlesplat-viewer"
 ROOT = HERE.parent.parent
 TAB0, ROB0 = ROOT / "assets" / "scenes" / "scene_00000", ROOT / "assets" / "robot" / "scenes" / "scene_00000"
 
@@ -178,12 +180,77 @@ def _scene_world(w: Path, scene: Path) -> None:
     big_gaussians_ply(w / "big.ply")
 
 
-def _refusals(x: dict[str, Path]) -> dict[str, tuple[list[str], str]]:
-    """name -> (arguments, the words the one line must hold)."""
+def _refusals(x: dict[str, Path]) -> dict[str, tuple]:
+    """name -> (arguments, the words the one line must hold[, the case's other keys: entry, env])."""
     w, scene, good, data = x["w"], x["scene"], str(x["good"]), x["data"]
     train = ["train", "--config", str(x["cfg"]), "--data", str(data)]
     curve = lambda name: ["curve", str(w / "logs" / name), "--out", str(w / "c.png")]  # noqa: E731
+    shown = ["--checkpoint", good, "--scene", str(scene)]  # the viewer opened on a model scene
+    viewer = {"entry": VIEWER}
+
+    def panel(request: str, value: Path | str, line: str, env: dict | None = None) -> tuple:
+        """A panel request of the viewer opened on ``shown`` (its status line printed on stderr)."""
+        argv = ["viewer_panel:panel", request, str(value), *shown, "--output-dir", str(w / "viewer_out")]
+        return argv, line, {"entry": "call", "env": env}
+
     return {
+        # the viewer's outputs: --screenshot refused before the display opens; the panel's on its status line
+        "viewer --screenshot over its checkpoint": (
+            [*shown, "--frames", "1", "--screenshot", good],
+            r"--screenshot \S+good.pt: is --checkpoint \S+good.pt, which this command reads",
+            viewer,
+        ),
+        "viewer --screenshot over a scene image": (
+            [*shown, "--frames", "1", "--screenshot", str(x["rgb"])],
+            r"--screenshot \S+png: would replace a file inside --scene \S+scene, which this command reads",
+            viewer,
+        ),
+        "viewer --screenshot over its .ply": (
+            ["--ply", str(w / "big.ply"), "--frames", "1", "--screenshot", str(w / "big.ply")],
+            r"--screenshot \S+big.ply: is --ply \S+big.ply",
+            viewer,
+        ),
+        "viewer --screenshot into a locked run": (
+            [*shown, "--frames", "1", "--screenshot", str(w / "locked_run" / "shot.png")],
+            rf"--screenshot \S+shot.png: lies in the run folder \S+locked_run, in use by process {os.getpid()}",
+            viewer,
+        ),
+        "viewer panel, a screenshot into a locked run": panel(
+            "screenshot",
+            w / "locked_run",
+            r"^error: screenshot \S+locked_run/particlesplat_0001.png: lies in the run folder \S+locked_run, in use",
+        ),
+        "viewer panel, an export into a locked run": panel(
+            "export",
+            w / "locked_run",
+            r"^error: export \S+locked_run/particlesplat_0001.ply: lies in the run folder \S+locked_run, in use",
+        ),
+        "viewer panel, Save edits over its checkpoint twice": panel(
+            "save",
+            good,
+            r"^error: edits file \S+good.pt: is --checkpoint \S+good.pt, which this command reads",
+        ),
+        "viewer panel, Save edits over the scene's transforms.json": panel(
+            "save",
+            scene / "transforms.json",
+            r"^error: edits file \S+transforms.json: would replace a file inside --scene \S+scene",
+        ),
+        "viewer panel, opening a scene with the autosave folder in a locked run": panel(
+            "open",
+            scene,
+            r"^error: autosave \S+locked_run/state/particlesplat/autosave/\S+.edits.yaml: lies in the run folder "
+            r"\S+locked_run, in use by .*; \S+scene not opened: save the edits elsewhere",
+            {"XDG_STATE_HOME": str(w / "locked_run" / "state")},
+        ),
+        # the benchmarks' --json goes through the same guard, the default model included
+        "bench formats --json over its checkpoint": (
+            ["bench", "formats", *shown, "--json", good],
+            r"--json \S+good.pt: is --checkpoint \S+good.pt, which this command reads",
+        ),
+        "bench formats --json over its .ply": (
+            ["bench", "formats", "--ply", str(w / "big.ply"), "--json", str(w / "big.ply")],
+            r"--json \S+big.ply: is --ply \S+big.ply, which this command reads",
+        ),
         # outputs never replace an input, nor a file of a locked run
         "curve --out its own log": (
             ["curve", str(w / "run"), "--out", str(w / "run" / "metrics.jsonl")],
@@ -415,8 +482,8 @@ def _successes(x: dict[str, Path]) -> dict[str, tuple[list[str], str | None]]:
 def results(world, tmp_path_factory):
     refusals, successes = _refusals(world), _successes(world)
     specs = [
-        {"entry": PS, "argv": argv, "cap_mb": CAP_MB, "timeout": 120, "watch": [str(world["w"])]}
-        for argv, _ in refusals.values()
+        {"entry": PS, "argv": c[0], "cap_mb": CAP_MB, "timeout": 120, "watch": [str(world["w"])], **dict(*c[2:])}
+        for c in refusals.values()
     ] + [{"entry": PS, "argv": argv, "cap_mb": CAP_MB, "timeout": 300} for argv, _ in successes.values()]
     io = tmp_path_factory.mktemp("runner")
     (io / "cases.json").write_text(json.dumps(specs))
