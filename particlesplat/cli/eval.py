@@ -98,20 +98,23 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(path, device=device)
     ckpt = read_checkpoint(path)
     print(f"{path}: step {ckpt['step']}; {describe(ckpt.get('provenance'))}")
-    out = evaluate_dataset(
-        model,
-        args.data,
-        context=args.context,
-        limit=args.limit,
-        figures=Path(args.figures) if args.figures else None,
-        num_figures=args.num_figures,
-        prune=args.prune,
-        use_depth=not args.no_depth,
-        fit_steps=args.fit_steps,
-        fit_lr=args.fit_lr,
-        fit_latents=latents,
-        z_t_threshold=args.z_t_threshold,
-    )
+    from particlesplat.rendering.budget import render_budget
+
+    with render_budget(f"{path} ({model.config.render_keys()})"):  # every render pass priced before it runs
+        out = evaluate_dataset(
+            model,
+            args.data,
+            context=args.context,
+            limit=args.limit,
+            figures=Path(args.figures) if args.figures else None,
+            num_figures=args.num_figures,
+            prune=args.prune,
+            use_depth=not args.no_depth,
+            fit_steps=args.fit_steps,
+            fit_lr=args.fit_lr,
+            fit_latents=latents,
+            z_t_threshold=args.z_t_threshold,
+        )
     m = out["mean"]
     print(
         f"{len(out['scenes'])} scenes, {args.context} context view(s): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, "
