@@ -24,6 +24,7 @@ from imgui_bundle import imgui  # import before glfw so both use the same GLFW l
 from particlesplat.core.camera import Camera  # noqa: E402
 from particlesplat.core.errors import UserError  # noqa: E402
 from particlesplat.core.options import attach_option_values  # noqa: E402
+from particlesplat.core.outputs import OutputError, guard_outputs  # noqa: E402
 from particlesplat.core.userdirs import autosave_dir, output_dir  # noqa: E402
 from particlesplat.core.viewpoints import (
     DEFAULT_FOV,
@@ -41,7 +42,7 @@ from .commands import carry_out, save_edits  # noqa: E402
 from .controls import Viewport, ViewportControls  # noqa: E402
 from .gl.caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
 from .gl.renderer import SplatRenderer  # noqa: E402
-from .loading import load_session, particle_swatches  # noqa: E402
+from .loading import load_session, particle_swatches, source_inputs  # noqa: E402
 from .orbit import OrbitCamera  # noqa: E402
 from .particle_overlay import ParticleOverlay  # noqa: E402
 from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noqa: E402
@@ -368,7 +369,10 @@ class App:
         )
         new = load_session(args)  # a bad path leaves the current scene as it is
         view = initial_view(new, None, None)  # (so does a bad scene.json)
-        kept = self.keep_unsaved()
+        try:
+            kept = self.keep_unsaved()
+        except OutputError as e:  # the scene stays open with its edits: nothing is lost
+            raise OutputError(f"{e}; {p} not opened: save the edits elsewhere (Save edits) first") from None
         self.session = new
         self.swatches, self._swatched = particle_swatches(self.session), self.session.num_owners()
         self.state = ViewState(
@@ -410,8 +414,14 @@ class App:
         )
 
     def screenshot_numbered(self) -> Path:
+        """A numbered screenshot in the output folder (refused, nothing written, where the scene's guard says so)."""
         cam = self.shot_camera()
-        return save_screenshot(self.fields.output_dir, self.screenshot_image(cam), self.screenshot_text(cam))
+        return save_screenshot(
+            self.fields.output_dir,
+            self.screenshot_image(cam),
+            self.screenshot_text(cam),
+            lambda p: self.session.guard_output("screenshot", p),
+        )
 
     # ------------------------------------------------------------------ loop
     def run(self, frames: int | None = None, orbit: bool = False, seconds: float | None = None) -> list[float]:
@@ -567,6 +577,8 @@ def _main(argv: list[str] | None = None) -> int:
     if args.frames is not None and args.frames < 1:
         print("particlesplat-viewer: --frames must be >= 1", file=sys.stderr)
         return 2
+    if args.screenshot:  # before the display and the scene: never over what the viewer reads, nor into a live run
+        guard_outputs([("--screenshot", args.screenshot)], [*source_inputs(args), ("--edits", args.edits)])
     check_display()  # before the scene is encoded
     try:
         session = load_session(args)
@@ -599,7 +611,10 @@ def _main(argv: list[str] | None = None) -> int:
                 )
             code = _run_app(app, args)
     finally:
-        kept = app.keep_unsaved() if app is not None else None  # closing the window (or a signal) loses no edits
+        try:
+            kept = app.keep_unsaved() if app is not None else None  # closing the window (or a signal) loses no edits
+        except OutputError as e:  # the autosave folder lies in a scene folder or a live run's folder
+            kept, note = None, f"unsaved edits not kept: {e}"
         if kept is not None:
             note = f"unsaved edits kept in {kept.resolve()} (open them with --edits {kept.resolve()})"
         destroy_window(window)

@@ -1,6 +1,8 @@
 """The UI requests of a frame (:class:`viewer.ui.panel.UiRequests`), carried out after it: view resets and snaps,
 opening a scene, saving and loading edits, screenshots, exports and inserts. A failure becomes the status line's
-error: a bad path or file never closes the viewer."""
+error: a bad path or file never closes the viewer. Every file written is first asked of the scene's guard
+(:meth:`viewer.session.SceneFiles.guard_output`): none replaces what the scene was opened from or lies in a live
+run's folder."""
 
 from __future__ import annotations
 
@@ -55,12 +57,13 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
         if req.screenshot:
             path = host.screenshot_numbered()
             fields.status = f"saved screenshot {Path(path).resolve()}"
+        guard = lambda p: host.session.guard_output("export", p)  # noqa: E731
         if req.export_ply:
             g = host.scene_view.visible_gaussians(host.session, host.state)
             if fields.export_format == BUNDLE:
                 path = export_bundle(fields.output_dir, g, host.session)
             else:
-                path = export_ply(fields.output_dir, g, fields.export_format)
+                path = export_ply(fields.output_dir, g, fields.export_format, guard)
             fields.status = f"exported {Path(path).resolve()}"
         editor = host.session.editor
         if req.insert and editor is not None:
@@ -71,7 +74,8 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
             members = editor.object_members(host.state.selected)  # its Gaussians, as drawn
             g = editor.model.decode(editor.particles, torch.tensor(members), background=False)
             g = g.subset(g.opacities >= host.state.prune).detach().to("cpu")
-            path = export_ply(fields.output_dir, g, fields.export_format if fields.export_format != BUNDLE else ".ply")
+            suffix = fields.export_format if fields.export_format != BUNDLE else ".ply"
+            path = export_ply(fields.output_dir, g, suffix, guard)
             fields.status = f"exported object of particles {members} to {Path(path).resolve()}"
     except Exception as e:  # noqa: BLE001 - a bad path or file must not close the app: show it
         fields.status = f"error: {e}"
@@ -79,8 +83,10 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
 
 def save_edits(session: EditableScene, fields: UiFields) -> Path | None:
     """Save the edits to the 'edits YAML' path. A file that holds another scene's edits (or is no edit file) is not
-    replaced: the status line says so, and a second Save to the same path replaces it."""
+    replaced: the status line says so, and a second Save to the same path replaces it. A path the scene was opened
+    from (the checkpoint, a file of the scene folder) or in a live run's folder is refused, every time."""
     path = fields.edits_path
+    session.guard_output("edits file", path)
     conflict = session.foreign_edit_file(path)
     target = str(Path(path).resolve())
     if conflict and fields.confirm_overwrite != target:

@@ -7,9 +7,19 @@ import sys
 
 from particlesplat.core.sh import SH_C0
 from particlesplat.core.vectors import float3
-from particlesplat.editing.open_scene import load_model_scene, load_ply_checked
+from particlesplat.data.scene_meta import default_checkpoint
+from particlesplat.editing.open_scene import demo_scenes, load_model_scene, load_ply_checked
 
 from .session import EditableScene, PlyScene, Scene
+
+
+def source_inputs(args: argparse.Namespace) -> list[tuple[str, str]]:
+    """(flag, path) of the files ``args`` open, nothing read: ``--ply``, or ``--scene`` (default: the first demo
+    scene) and ``--checkpoint`` (default: the shipped model of the scene's family)."""
+    if getattr(args, "ply", None):
+        return [("--ply", str(args.ply))]
+    scene = args.scene or next(iter(demo_scenes()), None)
+    return [("--scene", str(scene or "")), ("--checkpoint", str(args.checkpoint or default_checkpoint(scene)))]
 
 
 def load_session(args: argparse.Namespace) -> Scene:
@@ -18,7 +28,8 @@ def load_session(args: argparse.Namespace) -> Scene:
     if getattr(args, "ply", None):
         return PlyScene(load_ply_checked(args.ply), source=str(args.ply))
     model, encoded, name = load_model_scene(args.checkpoint, args.scene, getattr(args, "context", None))
-    session = EditableScene(model, encoded, model_name=name, source=str(encoded.path))
+    checkpoint = str(args.checkpoint or default_checkpoint(encoded.path))
+    session = EditableScene(model, encoded, model_name=name, source=str(encoded.path), checkpoint=checkpoint)
     for warning in encoded.warnings:
         print(f"particlesplat-viewer: warning: {warning}", file=sys.stderr)
     if getattr(args, "edits", None):

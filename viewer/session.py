@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Protocol
 import torch
 
 from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.outputs import guard_outputs
 from particlesplat.editing.editor import EditsError, SceneEditor, load_edit_file, same_scene, scene_mismatch
 from particlesplat.editing.scene_id import resolved, scene_digest, scene_file_key
 
@@ -93,6 +94,14 @@ class Scene(Protocol):
 
     def autosave_path(self, folder: str | PathLike) -> Path: ...
 
+    def inputs(self) -> list[tuple[str, str]]:
+        """(flag, path) of what the scene was opened from (:meth:`SceneFiles.inputs`)."""
+        ...
+
+    def guard_output(self, what: str, path: str | PathLike) -> None:
+        """OutputError unless the viewer may write ``path`` (:meth:`SceneFiles.guard_output`)."""
+        ...
+
     def default_edits_path(self, folder: str | PathLike) -> Path: ...
 
 
@@ -103,6 +112,18 @@ class SceneFiles:
         self.source = source
         self.model_name = model_name
         self._digest: str | None = None
+
+    def inputs(self) -> list[tuple[str, str]]:
+        """(flag, path) of what the scene was opened from, as the command line names it (``--ply``; ``--scene``
+        and ``--checkpoint``): what no output of the viewer may replace."""
+        raise NotImplementedError
+
+    def guard_output(self, what: str, path: str | PathLike) -> None:
+        """OutputError (one line, ``what`` naming the output: ``screenshot``, ``export``, ``edits file``,
+        ``autosave``) when ``path`` is one of :meth:`inputs`, an existing file inside the scene folder, or lies in a
+        run folder a live process holds (:func:`particlesplat.core.outputs.guard_outputs`); checked before anything
+        is written, so nothing is replaced."""
+        guard_outputs([(what, path)], self.inputs())
 
     @property
     def scene_path(self) -> str:
@@ -197,6 +218,10 @@ class PlyScene(SceneFiles):
     def edit_chunk(self) -> str | dict:
         return {}
 
+    def inputs(self) -> list[tuple[str, str]]:
+        """The Gaussian file (``--ply``)."""
+        return [("--ply", self.source)]
+
     def autosave(self, folder: str | PathLike) -> Path | None:
         return None
 
@@ -209,13 +234,17 @@ class EditableScene(SceneFiles):
         encoded: the encoded scene (particles + cameras).
         model_name: how the model is named in screenshots and edits files.
         source: the scene folder.
+        checkpoint: the checkpoint the model was loaded from (an input no output may replace).
 
     Attributes:
         editor: the scene's :class:`SceneEditor` (every edit goes through it).
     """
 
-    def __init__(self, model: ParticleSplat, encoded: EncodedScene, model_name: str = "", source: str = "") -> None:
+    def __init__(
+        self, model: ParticleSplat, encoded: EncodedScene, model_name: str = "", source: str = "", checkpoint: str = ""
+    ) -> None:
         super().__init__(source, model_name)
+        self.checkpoint = checkpoint  # the model's file ("" when it was built in memory)
         self.editor = SceneEditor(model, encoded.particles, encoded.all_cameras, encoded.context)
         self.encoded = encoded
         self._saved_token = self._history_token()
@@ -266,6 +295,10 @@ class EditableScene(SceneFiles):
         return ed.model.decode(ed.scene.particles, torch.tensor([index]), background=False).detach().to("cpu")
 
     # ------------------------------------------------------------------ files
+    def inputs(self) -> list[tuple[str, str]]:
+        """The scene folder (``--scene``) and the checkpoint (``--checkpoint``)."""
+        return [("--scene", self.source), ("--checkpoint", self.checkpoint)]
+
     def _history_token(self) -> tuple:
         undo = self.editor.history.undo
         return len(undo), id(undo[-1]) if undo else None
@@ -291,6 +324,7 @@ class EditableScene(SceneFiles):
         if not self.unsaved:
             return None
         path = self.autosave_path(folder)
+        self.guard_output("autosave", path)  # the state folder could lie in a scene folder or a live run
         path.parent.mkdir(parents=True, exist_ok=True)
         return self._save(path)
 

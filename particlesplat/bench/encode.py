@@ -63,9 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     from particlesplat.core.outputs import guard_outputs
 
-    guard_outputs(
-        [("--json", args.json)], [("--data", args.data), *[("--checkpoint", c) for c in args.checkpoint or []]]
-    )
+    paths = [Path(p) for p in (args.checkpoint or [default_checkpoint(Path(args.data))])]  # the default is read too
+    guard_outputs([("--json", args.json)], [("--data", args.data), *[("--checkpoint", p) for p in paths]])
     if args.scenes < 1 or args.rounds < 1:
         raise OptionError(f"--scenes and --rounds must be >= 1, got {args.scenes} and {args.rounds}")
     if args.threads < 0:
@@ -77,7 +76,6 @@ def main(argv: list[str] | None = None) -> int:
     from particlesplat.data import SceneDataset
     from particlesplat.model.io import load_model
 
-    paths = [Path(p) for p in (args.checkpoint or [default_checkpoint(Path(args.data))])]
     device = resolve_device(args.device)
     models = [load_model(p, device=device) for p in paths]
     sizes = {m.config.resolution for m in models}

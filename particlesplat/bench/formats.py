@@ -65,6 +65,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not (1 <= args.width <= 4096 and 1 <= args.height <= 4096):
         raise OptionError(f"--width/--height must be in [1, 4096], got {args.width}x{args.height}")
+    from particlesplat.core.outputs import guard_outputs
+    from particlesplat.data.scene_meta import default_checkpoint
+    from particlesplat.editing.open_scene import demo_scenes
+
+    scene = None if args.ply else args.scene or next(iter(demo_scenes()), None)  # what is read, defaults included
+    checkpoint = None if args.ply else args.checkpoint or default_checkpoint(scene)
+    guard_outputs([("--json", args.json)], [("--ply", args.ply), ("--scene", scene), ("--checkpoint", checkpoint)])
     from particlesplat.core.viewpoints import default_view, scene_background
 
     arrays, source = None, args.ply

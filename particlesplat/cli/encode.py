@@ -88,17 +88,20 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(checkpoint, device=device)
     meta = {"model": shipped_model_name(checkpoint), "checkpoint_sha256": file_sha256(checkpoint)}
     batch = args.batch if args.batch is not None else (8 if device.type == "cuda" else 1)
-    stats = encode_folder(
-        model,
-        args.data,
-        args.out,
-        context=parse_context(args.context),
-        batch=batch,
-        object_centre=args.object_centre,
-        meta=meta,
-        progress=not args.no_progress,
-        force=args.force,
-    )
+    from particlesplat.rendering.budget import render_budget
+
+    with render_budget(f"{checkpoint} ({model.config.render_keys()})"):  # the refinement's renders, priced first
+        stats = encode_folder(
+            model,
+            args.data,
+            args.out,
+            context=parse_context(args.context),
+            batch=batch,
+            object_centre=args.object_centre,
+            meta=meta,
+            progress=not args.no_progress,
+            force=args.force,
+        )
     rate = f", {stats['scenes_per_s']:.2f} scenes/s" if stats["written"] else ""
     again = f", {stats['replaced']} of them over a stale file" if stats["replaced"] else ""
     print(f"wrote {stats['written']} .npz files to {args.out}{again} ({stats['skipped']} existed){rate} on {device}")

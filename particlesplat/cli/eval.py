@@ -130,21 +130,24 @@ def run(args: argparse.Namespace) -> int:
     ckpt = read_checkpoint(path)
     print(f"{path}: step {ckpt['step']}; {describe(ckpt.get('provenance'))}")
 
+    from particlesplat.rendering.budget import render_budget
+
     def evaluate(data: str | Path, figure_dir: Path | None) -> dict:
-        return evaluate_dataset(
-            model,
-            data,
-            context=args.context,
-            limit=args.limit,
-            figures=figure_dir,
-            num_figures=args.num_figures,
-            prune=args.prune,
-            use_depth=not args.no_depth,
-            fit_steps=args.fit_steps,
-            fit_lr=args.fit_lr,
-            fit_latents=latents,
-            z_t_threshold=args.z_t_threshold,
-        )
+        with render_budget(f"{path} ({model.config.render_keys()})"):  # every render pass priced before it runs
+            return evaluate_dataset(
+                model,
+                data,
+                context=args.context,
+                limit=args.limit,
+                figures=figure_dir,
+                num_figures=args.num_figures,
+                prune=args.prune,
+                use_depth=not args.no_depth,
+                fit_steps=args.fit_steps,
+                fit_lr=args.fit_lr,
+                fit_latents=latents,
+                z_t_threshold=args.z_t_threshold,
+            )
 
     fit = bool(args.fit_steps)
     if not splits:  # a split folder

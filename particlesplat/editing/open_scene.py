@@ -92,7 +92,10 @@ def encode_scene(
     with warnings.catch_warnings(record=True) as caught:  # shown where the scene's other warnings are
         warnings.simplefilter("always", InputWarning)
         pose = scene_pose(raw.path, cfg.bg_static_pose, cfg.bg_static_pose_dims, model.input_ranges)
-    particles = model.encode(scene.rgb, depth, scene.cameras, pose)
+    from particlesplat.rendering.budget import render_budget
+
+    with render_budget(f"encoding {raw.path} ({cfg.render_keys()})"):  # the refinement's renders, priced first
+        particles = model.encode(scene.rgb, depth, scene.cameras, pose)
     notes = [str(w.message) for w in caught]
     if use_depth and depth is None:
         notes.append(

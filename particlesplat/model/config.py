@@ -244,6 +244,15 @@ class ModelConfig:
         """S², doubled by the back layer (``patch_back``)."""
         return self.patch_gaussians**2 * (2 if self.patch_back else 1)
 
+    def render_keys(self, particles_key: str = "model.particles_per_view") -> str:
+        """The keys that size this model's renders, with their values, for memory messages: ``model.resolution 64,
+        model.particles_per_view 8, model.patch_gaussians 16`` (its pixels, particles and Gaussians a particle; with
+        the refinement, ``model.refine_scale``). ``particles_key``: where the particle count comes from (training
+        may take ``train.particles_per_view``)."""
+        keys = f"model.resolution {self.resolution}, {particles_key} {self.particles_per_view}, "
+        keys += f"model.patch_gaussians {self.patch_gaussians}"
+        return keys + (f", model.refine_scale {self.refine_scale:g}" if self.refine_steps > 0 else "")
+
     @property
     def particle_decoder_channels(self) -> int:
         """Channels of the particle decoder's feature grid: ``patch_channels``, else ``channels``."""

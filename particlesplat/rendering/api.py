@@ -11,6 +11,7 @@ from torch import Tensor
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians, quats_to_rotations
 from particlesplat.core.sh import eval_sh_colors
+from particlesplat.rendering.budget import check_pass
 from particlesplat.rendering.choice import resolve_rasterizer
 from particlesplat.rendering.fused import rasterize_fused
 from particlesplat.rendering.fused_projection import project_views_fused
@@ -153,7 +154,8 @@ def render_batch(
 
     All views share one tile list and one set of rasterizer chunks, which amortises the
     per-call overhead when training renders many small views. The Gaussians of all views must
-    share dtype, device and SH degree.
+    share dtype, device and SH degree. Inside :func:`particlesplat.rendering.budget.render_budget` a pass whose
+    estimated memory is over the limit raises BudgetError before its pairs are built.
     """
     if not views:
         return []
@@ -185,6 +187,12 @@ def render_batch(
     view = view.index_select(0, proj.index)
     opac = g.opacities.index_select(0, rows)
     radius = footprint_extents(proj, opac)
+    P = 0
+    if owner_weights:
+        P = int(num_owners) if num_owners is not None else (int(g.owner.max()) + 1 if len(g) else 0)
+    grad = torch.is_grad_enabled() and any(t.requires_grad for t in (g.means, g.quats, g.scales, g.opacities, g.sh))
+    # inside a job's render_budget: refused here, before the pairs are built, when they would not fit
+    check_pass(proj.means2d, radius, view, sizes, P + 1 if owner_weights else 0, grad)
     centres = torch.stack([cam.center for cam in cams])
     dirs = torch.nn.functional.normalize(g.means.index_select(0, rows) - centres.index_select(0, view), dim=-1)
     colors = eval_sh_colors(g.sh.index_select(0, rows), dirs)
@@ -194,10 +202,6 @@ def render_batch(
     # particles' weight; the rasterizer appends Σ w (alpha) as the last column
     columns = [colors, proj.depths[:, None]]
     if owner_weights:
-        if num_owners is not None:
-            P = int(num_owners)
-        else:
-            P = int(g.owner.max()) + 1 if len(g) else 0
         slot = torch.where((owner >= 0) & (owner < P), owner + 1, torch.zeros_like(owner))
         columns.append(torch.nn.functional.one_hot(slot, P + 1).to(colors.dtype))
     if foreground:

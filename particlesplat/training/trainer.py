@@ -271,6 +271,7 @@ class Trainer:
             raise FileExistsError(
                 f"{out / LAST}: this run already exists; pass --resume to continue it or choose another --out"
             )
+        self._check_step_renders()  # before --overwrite deletes anything
         # steps before refine_start leave the refiner's weights without gradients
         unused = cfg.refine_steps > 0 and tc.refine_start > 0
         self.ddp = (
@@ -278,6 +279,45 @@ class Trainer:
         )
         if overwrite and not resume and self.rank == 0 and out.is_dir():
             self._clear_run()
+
+    def _check_step_renders(self) -> None:
+        """BudgetError before the run starts when a training step's render pass would not fit the memory limit
+        (:mod:`particlesplat.rendering.budget`): the first training scene is encoded once without the refinement
+        (which renders; no gradients, the random state kept), its Gaussians priced in the scene's context and target
+        views at ``model.resolution`` with gradients, times ``train.batch_size`` (one pass renders the batch,
+        :func:`particlesplat.training.loss.render_views`). The refinement's pass (context views only, at most as many
+        pixels and Gaussians, no gradients) and a validation render (one view) are smaller."""
+        from particlesplat.core.camera import Camera
+        from particlesplat.core.limits import check_memory
+        from particlesplat.rendering.budget import candidate_pairs, pass_memory
+
+        cfg, tc = self.cfg, self.tc
+        ds = self.train_sets[max(self.train_sets)]  # the most context views: the most particles
+        devices = [self.device] if self.device.type == "cuda" else []
+        with torch.random.fork_rng(devices=devices), torch.no_grad(), training_selection(cfg, tc):
+            item = TrainingBatch.collate([ds[0]]).to(self.device)
+            refine, self.model.refine_enabled = self.model.refine_enabled, False
+            try:
+                _, _, gaussians = self.model(
+                    item.context_rgb, item.context_depth, item.context_K, item.context_c2w, sample=False, pose=item.pose
+                )
+            finally:
+                self.model.refine_enabled = refine
+            K = torch.cat([item.context_K, item.target_K], 1)[0]
+            c2w = torch.cat([item.context_c2w, item.target_c2w], 1)[0]
+            size = cfg.resolution
+            pairs = tc.batch_size * sum(
+                candidate_pairs(gaussians[0], Camera(K[v], c2w[v], size, size)) for v in range(len(K))
+            )
+            keys = cfg.render_keys("train.particles_per_view" if tc.particles_per_view else "model.particles_per_view")
+        views = tc.batch_size * len(K)
+        check_memory(
+            pass_memory(pairs, views * size * size, grad=True),
+            f"{self.config_source}: a training step renders {tc.batch_size} scene(s) x {len(K)} views "
+            f"(train.batch_size {tc.batch_size}; {max(self.train_sets)} context + train.target_views "
+            f"{tc.target_views}) at {size}x{size} with gradients ({keys}): {len(gaussians[0]):,} Gaussians a scene "
+            f"(the first training scene's) covering {pairs:,} (tile, Gaussian) pairs",
+        )
 
     def _start_workspace(self) -> None:
         """Start the workspace layer (``model.bg_static_points``) at the voxels most of the first
@@ -582,11 +622,17 @@ class Trainer:
 
     def validate(self) -> dict[str, float]:
         from particlesplat.analysis.evaluate import evaluate_dataset
+        from particlesplat.rendering.budget import render_budget
 
         self.model.eval()
-        res = evaluate_dataset(
-            self.model, self.val_dir, context=max(self.tc.context_views), limit=self.tc.val_scenes, progress_bar=False
-        )
+        with render_budget(f"{self.config_source}: validation ({self.cfg.render_keys()})"):
+            res = evaluate_dataset(
+                self.model,
+                self.val_dir,
+                context=max(self.tc.context_views),
+                limit=self.tc.val_scenes,
+                progress_bar=False,
+            )
         self.model.train()
         return res["mean"]
 

@@ -6,10 +6,11 @@ space may grow by at most ``cap_mb`` over the parent's (``resource.setrlimit(RLI
 file-size limit (``fsize``: a full disk as far as the command can tell). A result is the exit code, the
 output (stdout, stderr), the wall time and the child's peak resident memory.
 
-CASES.json: a list of {"entry": "particlesplat" | "particlesplat-viewer" | "alloc" (argv: [MB]),
+CASES.json: a list of {"entry": "particlesplat" | "particlesplat-viewer" | "alloc" (argv: [MB]) | "call" (argv:
+["module:function", arguments...], a function of a module beside this file, returning the exit code),
 "argv": [...], "cap_mb": int,
-"fsize": int | null, "timeout": seconds, "watch": [folders]}; a result also lists the files under
-``watch`` that were added, removed or changed ("changed").
+"fsize": int | null, "env": {variable: value} | null, "timeout": seconds, "watch": [folders]}; a result also lists
+the files under ``watch`` that were added, removed or changed ("changed").
 """
 
 from __future__ import annotations
@@ -40,11 +41,17 @@ def _child(case: dict, out_fd: int, err_fd: int) -> None:
     if case.get("fsize"):
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes past the limit fail with EFBIG instead
         resource.setrlimit(resource.RLIMIT_FSIZE, (case["fsize"], case["fsize"]))
+    os.environ.update(case.get("env") or {})
     code = 99
     try:
         if case["entry"] == "alloc":  # the cap's own check: allocate argv[0] MB
             bytearray(int(case["argv"][0]) << 20)
             code = 0
+        elif case["entry"] == "call":
+            import importlib
+
+            module, _, name = case["argv"][0].partition(":")
+            code = getattr(importlib.import_module(module), name)(*case["argv"][1:])
         elif case["entry"] == "particlesplat":
             from particlesplat.cli.main import console_main
 

@@ -1,5 +1,7 @@
-"""Hostile input on the newer surfaces: outputs over inputs, run folders, checkpoints' other fields, logs, threads,
-synth's folder. Each command runs in its own process under the memory cap (``runner.py``); a refusal is one line,
+"""Hostile input on the newer surfaces: outputs over inputs (the commands, the benchmarks' --json, the viewer's
+screenshots, exports, edit files and autosaves), run folders, checkpoints' other fields, logs, threads, synth's
+folder, render passes past the memory limit in eval, encode and training. Each command runs in its own process under
+the memory cap (``runner.py``; the viewer's panel without a window, ``viewer_panel.py``); a refusal is one line,
 exit 2, nothing changed; a case that must succeed does so within the cap."""
 
 from __future__ import annotations
@@ -33,7 +35,9 @@ from hostile_files import (  # noqa: E402
 from model_data import TINY_MODEL, tiny_config, tiny_dataset  # noqa: E402
 from test_hostile_suite import CAP_MB, _lines  # noqa: E402
 
-PS = "particlesplat"
+PS, VIEWER = "particlesplat", "particlesplat-viewer"
+WIDE_MODEL = {**TINY_MODEL, "patch_gaussians": 16, "s_min": 20.0, "s_max": 40.0}  # every Gaussian covers its views
+WIDE_LIMIT = {"PARTICLESPLAT_MEMORY_LIMIT": "24M"}  # above the encoder's estimate (10 MB), below the render passes
 ROOT = HERE.parent.parent
 TAB0, ROB0 = ROOT / "assets" / "scenes" / "scene_00000", ROOT / "assets" / "robot" / "scenes" / "scene_00000"
 
@@ -97,6 +101,12 @@ def world(tmp_path_factory) -> dict[str, Path]:
     # with its run's train section, as a trainer writes it (without one, --init reads the shipped recipe's)
     checkpoint_with(w / "big_init.pt", w / "big_init.pt", train=yaml.safe_load(cfg.read_text())["train"])
     big_config_checkpoint(good, w / "mismatch.pt", channels=16)  # its weights are of channels 8
+    # render passes past the limit: Gaussian scales of 20-40 cells (s_min, s_max), 512 a particle, in 32^2 views
+    save_checkpoint(w / "wide.pt", ParticleSplat(model_config_from_dict(WIDE_MODEL)), 0)
+    wide = yaml.safe_load(cfg.read_text())
+    wide["model"] = WIDE_MODEL
+    (w / "wide.yaml").write_text(yaml.safe_dump(wide))
+    shutil.copytree(w / "run", w / "wide_run")  # --overwrite refused before the run starts: the old run is kept
     shutil.copytree(w / "run", w / "nan_bench_run")
     checkpoint_with(w / "run" / "last.pt", w / "nan_bench_run" / "last.pt", weights=lambda v: v * float("nan"))
     # synth: a folder another synth holds; a robot scene (scene.json) in a folder without synth.json
@@ -178,12 +188,100 @@ def _scene_world(w: Path, scene: Path) -> None:
     big_gaussians_ply(w / "big.ply")
 
 
-def _refusals(x: dict[str, Path]) -> dict[str, tuple[list[str], str]]:
-    """name -> (arguments, the words the one line must hold)."""
+def _refusals(x: dict[str, Path]) -> dict[str, tuple]:
+    """name -> (arguments, the words the one line must hold[, the case's other keys: entry, env])."""
     w, scene, good, data = x["w"], x["scene"], str(x["good"]), x["data"]
     train = ["train", "--config", str(x["cfg"]), "--data", str(data)]
     curve = lambda name: ["curve", str(w / "logs" / name), "--out", str(w / "c.png")]  # noqa: E731
+    shown = ["--checkpoint", good, "--scene", str(scene)]  # the viewer opened on a model scene
+    viewer = {"entry": VIEWER}
+
+    def panel(request: str, value: Path | str, line: str, env: dict | None = None) -> tuple:
+        """A panel request of the viewer opened on ``shown`` (its status line printed on stderr)."""
+        argv = ["viewer_panel:panel", request, str(value), *shown, "--output-dir", str(w / "viewer_out")]
+        return argv, line, {"entry": "call", "env": env}
+
+    wide = str(w / "wide.pt")
+    wide_keys = r"\(model.resolution 32, model.particles_per_view 3, model.patch_gaussians 16, model.refine_scale 1\)"
+    wide_pass = r": a render pass of 2 views of 32x32, [\d,]+ Gaussians .*covering [\d,]+ \(tile, Gaussian\) pairs: "
     return {
+        # the viewer's outputs: --screenshot refused before the display opens; the panel's on its status line
+        "viewer --screenshot over its checkpoint": (
+            [*shown, "--frames", "1", "--screenshot", good],
+            r"--screenshot \S+good.pt: is --checkpoint \S+good.pt, which this command reads",
+            viewer,
+        ),
+        "viewer --screenshot over a scene image": (
+            [*shown, "--frames", "1", "--screenshot", str(x["rgb"])],
+            r"--screenshot \S+png: would replace a file inside --scene \S+scene, which this command reads",
+            viewer,
+        ),
+        "viewer --screenshot over its .ply": (
+            ["--ply", str(w / "big.ply"), "--frames", "1", "--screenshot", str(w / "big.ply")],
+            r"--screenshot \S+big.ply: is --ply \S+big.ply",
+            viewer,
+        ),
+        "viewer --screenshot into a locked run": (
+            [*shown, "--frames", "1", "--screenshot", str(w / "locked_run" / "shot.png")],
+            rf"--screenshot \S+shot.png: lies in the run folder \S+locked_run, in use by process {os.getpid()}",
+            viewer,
+        ),
+        "viewer panel, a screenshot into a locked run": panel(
+            "screenshot",
+            w / "locked_run",
+            r"^error: screenshot \S+locked_run/particlesplat_0001.png: lies in the run folder \S+locked_run, in use",
+        ),
+        "viewer panel, an export into a locked run": panel(
+            "export",
+            w / "locked_run",
+            r"^error: export \S+locked_run/particlesplat_0001.ply: lies in the run folder \S+locked_run, in use",
+        ),
+        "viewer panel, Save edits over its checkpoint twice": panel(
+            "save",
+            good,
+            r"^error: edits file \S+good.pt: is --checkpoint \S+good.pt, which this command reads",
+        ),
+        "viewer panel, Save edits over the scene's transforms.json": panel(
+            "save",
+            scene / "transforms.json",
+            r"^error: edits file \S+transforms.json: would replace a file inside --scene \S+scene",
+        ),
+        "viewer panel, opening a scene with the autosave folder in a locked run": panel(
+            "open",
+            scene,
+            r"^error: autosave \S+locked_run/state/particlesplat/autosave/\S+.edits.yaml: lies in the run folder "
+            r"\S+locked_run, in use by .*; \S+scene not opened: save the edits elsewhere",
+            {"XDG_STATE_HOME": str(w / "locked_run" / "state")},
+        ),
+        # the benchmarks' --json goes through the same guard, the default model included
+        "bench formats --json over its checkpoint": (
+            ["bench", "formats", *shown, "--json", good],
+            r"--json \S+good.pt: is --checkpoint \S+good.pt, which this command reads",
+        ),
+        "bench formats --json over its .ply": (
+            ["bench", "formats", "--ply", str(w / "big.ply"), "--json", str(w / "big.ply")],
+            r"--json \S+big.ply: is --ply \S+big.ply, which this command reads",
+        ),
+        # render passes priced from their tile pairs where the Gaussians are the model's
+        "eval, render passes past the limit": (
+            ["eval", "--checkpoint", wide, "--data", str(w / "split")],
+            wide_keys + wide_pass,
+            {"env": WIDE_LIMIT},
+        ),
+        "encode, the refinement's render pass past the limit": (
+            ["encode", "--checkpoint", wide, "--data", str(scene), "--out", str(w / "wide_enc"), "--no-progress"],
+            wide_keys + wide_pass,
+            {"env": WIDE_LIMIT},
+        ),
+        "train --overwrite, a step's render pass past the limit": (
+            ["train", "--config", str(w / "wide.yaml"), "--data", str(data), "--out", str(w / "wide_run")]
+            + ["--overwrite"],
+            r"wide.yaml: a training step renders 2 scene\(s\) x 3 views \(train.batch_size 2; 2 context \+ "
+            r"train.target_views 1\) at 32x32 with gradients \(model.resolution 32, train.particles_per_view 4, "
+            r"model.patch_gaussians 16, .*\): [\d,]+ Gaussians a scene .* covering [\d,]+ \(tile, Gaussian\) pairs: "
+            r"needs about .* more than the memory limit of 24.0 MiB",
+            {"env": WIDE_LIMIT},
+        ),
         # outputs never replace an input, nor a file of a locked run
         "curve --out its own log": (
             ["curve", str(w / "run"), "--out", str(w / "run" / "metrics.jsonl")],
@@ -415,8 +513,8 @@ def _successes(x: dict[str, Path]) -> dict[str, tuple[list[str], str | None]]:
 def results(world, tmp_path_factory):
     refusals, successes = _refusals(world), _successes(world)
     specs = [
-        {"entry": PS, "argv": argv, "cap_mb": CAP_MB, "timeout": 120, "watch": [str(world["w"])]}
-        for argv, _ in refusals.values()
+        {"entry": PS, "argv": c[0], "cap_mb": CAP_MB, "timeout": 120, "watch": [str(world["w"])], **dict(*c[2:])}
+        for c in refusals.values()
     ] + [{"entry": PS, "argv": argv, "cap_mb": CAP_MB, "timeout": 300} for argv, _ in successes.values()]
     io = tmp_path_factory.mktemp("runner")
     (io / "cases.json").write_text(json.dumps(specs))
