@@ -16,7 +16,7 @@ def test_fitting_lowers_the_context_error_and_leaves_the_model_alone():
     """fit_particles (test-time fitting): 0 steps returns the particles as encoded; 5 Adam steps lower the
     context-view error (recomputed independently with the torch renderer), move only the fitted latents, and
     leave the decoder's weights and their gradients untouched; bad input is refused by name."""
-    m = tiny_model(6, patch_back=True)
+    m = tiny_model(6)
     rgb, depth, cs = scene_inputs(2)
     p = m.encode(rgb, depth, cs)
     assert fit_particles(m, p, rgb, depth, steps=0) is p

@@ -313,12 +313,12 @@ def test_scene_paths_stay_inside_the_folder(scene, bad):
 @pytest.mark.parametrize(
     "key, value, message",
     [
-        ("refine_hidden", 40000, r"refine_hidden: must be in \[1, 4096\] \(got 40000\)"),
+        ("refine_hidden", 40000, r"refine\.hidden: must be in \[1, 4096\] \(got 40000\)"),
         ("resolution", 1048576, r"resolution: must be in \[16, 1024\]"),
-        ("transformer_heads", 0, r"transformer_heads: must be in \[1, 64\] \(got 0\)"),
-        ("token_dim", -4, r"token_dim: must be in \[1, 2048\] \(got -4\)"),
+        ("transformer_heads", 0, r"transformer\.heads: must be in \[1, 64\] \(got 0\)"),
+        ("token_dim", -4, r"transformer\.token_dim: must be in \[1, 2048\] \(got -4\)"),
         ("d_max", float("inf"), r"d_max: must be a finite number \(got inf\)"),
-        ("prior_depth_mean", float("nan"), r"prior_depth_mean: must be a finite number \(got nan\)"),
+        ("prior_depth_mean", float("nan"), r"prior\.depth_mean: must be a finite number \(got nan\)"),
     ],
 )
 def test_model_config_ranges_and_finite_values(key, value, message):
@@ -414,10 +414,10 @@ def test_checkpoint_config_out_of_range_is_refused_before_building(tiny_ckpt, tm
     from particlesplat.model.config import ConfigError
 
     def change(c):
-        c["config"]["refine_hidden"] = 40000
+        c["config"]["refine"]["hidden"] = 40000
         c.pop("config_sha256")
 
-    with pytest.raises(ConfigError, match=r"bad\.pt: config\.refine_hidden: must be in \[1, 4096\]"):
+    with pytest.raises(ConfigError, match=r"bad\.pt: config\.refine\.hidden: must be in \[1, 4096\]"):
         load_model(_tampered(tiny_ckpt, tmp_path, change))
 
 

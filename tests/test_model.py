@@ -77,7 +77,7 @@ def test_keep_lifts_each_particles_most_opaque_gaussians_as_they_draw():
     """``keep`` = k: the k most opaque of each particle's Gaussians, chosen before the lift, equal the full lift
     with each particle's k largest opacities picked afterwards (brute force), also where ``support_cut`` has
     zeroed Gaussians that lie below the support surface."""
-    cfg = replace(ModelConfig(**TINY, patch_back=True), support_cut=0.0)
+    cfg = replace(ModelConfig(**TINY), support_cut=0.0)
     S = cfg.patch_gaussians
     K, c2w = stack_cameras(cams(1))
     M = 3
@@ -120,19 +120,19 @@ def test_sh_rotation_degree_one_matches_rotated_directions():
 def test_foreground_lifting_matches_projection_and_jacobian():
     """Step 2-3 by hand: with zero head outputs the Gaussians sit at the cell centres of the particle's box,
     at planar depth d, and their covariance is (ζ/f)² J diag(s̄²) J in camera axes, where J's depth entry is
-    the mean width of a canonical cell (cubic cells)."""
-    cfg = ModelConfig(**TINY, patch_back=False)
+    the mean width of a canonical cell (cubic cells). The front layer (the first S*S Gaussians) is checked."""
+    cfg = ModelConfig(**TINY)
     S = cfg.patch_gaussians
     cam = cams(1)[0]
     K, c2w = stack_cameras([cam])
-    raw = torch.zeros(1, S * S, gaussian_channels(0))
+    raw = torch.zeros(1, 2 * S * S, gaussian_channels(0))
     raw[..., 7] = 1.0  # quaternion w -> identity
     z_p = torch.tensor([[0.3, -0.2]])
     z_s = torch.logit(torch.tensor([[0.25, 0.4]]))
     z_d = torch.tensor([[0.1]])
     z_e = torch.tensor([[-1.0]])
     z_t = torch.tensor([[0.7]])
-    f = foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, cfg)
+    f = {k: v[:, : S * S] for k, v in foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, cfg).items()}
     W = cfg.resolution
     d = cfg.d_min + torch.sigmoid(z_d) * (cfg.d_max - cfg.d_min)
     cells = (torch.arange(S) + 0.5) / S * 2 - 1  # patch-normalised centres
@@ -162,10 +162,10 @@ def test_foreground_lifting_matches_projection_and_jacobian():
 
 
 def test_back_layer_sits_behind_the_front_on_the_same_ray():
-    """patch_back: with zero head outputs (σ = 0.5) each back Gaussian projects onto its front Gaussian's
+    """The back layer: with zero head outputs (σ = 0.5) each back Gaussian projects onto its front Gaussian's
     pixel, half the particle box's width (σ(z_s) W / f · ζ, metres, along x and y averaged) deeper; its
-    opacity is z_t σ(its own opacity logit) and the front layer is exactly the layer without the back."""
-    cfg = ModelConfig(**TINY, patch_back=True)
+    opacity is z_t σ(its own opacity logit), and the front layer does not depend on the back cells' parameters."""
+    cfg = ModelConfig(**TINY)
     S = cfg.patch_gaussians
     cam = cams(1)[0]
     K, c2w = stack_cameras([cam])
@@ -180,10 +180,13 @@ def test_back_layer_sits_behind_the_front_on_the_same_ray():
         z_t=torch.tensor([[0.8]]),
     )
     f = foreground_gaussians(raw, **z, K=K, c2w=c2w, cfg=cfg)
-    front = foreground_gaussians(raw[:, : S * S], **z, K=K, c2w=c2w, cfg=replace(cfg, patch_back=False))
+    other = raw.clone()
+    other[:, S * S :] = torch.randn(1, S * S, gaussian_channels(0), generator=gen)
+    moved = foreground_gaussians(other, **z, K=K, c2w=c2w, cfg=cfg)
     assert f["means"].shape == (1, 2 * S * S, 3)
-    for k in front:
-        torch.testing.assert_close(f[k][:, : S * S], front[k])
+    for k in f:
+        torch.testing.assert_close(moved[k][:, : S * S], f[k][:, : S * S], rtol=0, atol=0)
+        assert not torch.equal(moved[k][:, S * S :], f[k][:, S * S :]), k
     uv_f, z_f = cam.project(f["means"][0, : S * S])
     uv_b, z_b = cam.project(f["means"][0, S * S :])
     torch.testing.assert_close(uv_b, uv_f, rtol=1e-4, atol=1e-4)
@@ -236,7 +239,7 @@ def test_encode_rejects_wrong_size():
         m.encode(rgb, depth, cs)
 
 
-@pytest.mark.parametrize("kw", [{}, {"patch_back": False}, PER_VIEW], ids=["recipe", "no back layer", "per-view bg"])
+@pytest.mark.parametrize("kw", [{}, PER_VIEW], ids=["recipe", "per-view bg"])
 def test_subset_decode_equals_full_decode_restricted(kw):
     m = tiny_model(**kw)
     rgb, depth, cs = scene_inputs(2)
@@ -390,20 +393,15 @@ def test_checkpoint_round_trip_and_errors(tmp_path):
 
 
 def test_shipped_model_loads_and_matches_its_yaml():
-    import yaml
-
+    """The shipped checkpoint's config (written flat, with keys of removed branches) is the nested recipe's."""
     from particlesplat.core.bundled import bundled_assets
 
     m = load_model()
-    shipped = yaml.safe_load((bundled_assets() / "recipe.yaml").read_text())
-    from dataclasses import asdict
-
-    cfg = asdict(m.config)
+    shipped = load_config(bundled_assets() / "recipe.yaml")[0]
     # the one setting that differs: the shipped checkpoint hides what hangs more than 1 cm under the floor at
     # decode (its recipe trains without the cut; the weights do not depend on it)
-    assert cfg["support_cut"] == 0.01 and shipped["model"]["support_cut"] == -1.0
-    for k, v in shipped["model"].items():
-        assert cfg[k] == v or k == "support_cut", k
+    assert m.config.support_cut == 0.01 and shipped.support_cut == -1.0
+    assert replace(m.config, support_cut=-1.0) == shipped
     size = m.config.resolution
     rgb, depth, _ = scene_inputs(2, size)
     p = m.encode(rgb, depth, cams(2, size))
@@ -559,7 +557,7 @@ def test_static_layer_config_and_decode():
     g2 = both.decode(both.encode(*scene_inputs(2)[:2], cams(2)))
     assert int((g2.owner == -1).sum()) == 24 * 24 + 2 * (32 // both.config.bg_block) ** 2
     assert tiny_model(**PER_VIEW).static_bg is None
-    with pytest.raises(ConfigError, match="bg_per_view"):
+    with pytest.raises(ConfigError, match=r"model\.background\.per_view: false needs a static background layer"):
         ModelConfig(**{**TINY, "bg_per_view": False, "bg_static_grid": 0}).validate()
 
 
@@ -569,41 +567,53 @@ def test_finer_patch_starts_from_the_base_patch_split_into_children():
     from particlesplat.model.decoder import ForegroundDecoder
 
     torch.manual_seed(0)
-    coarse = ForegroundDecoder(ModelConfig(**{**TINY, "patch_gaussians": 4, "patch_base": 0, "patch_back": False}))
+    coarse = ForegroundDecoder(ModelConfig(**{**TINY, "patch_gaussians": 4, "patch_base": 0}))
     with torch.no_grad():
         w = coarse.conv[1].weight
         w.zero_()
         w[:, :, 1, 1] = torch.randn(w.shape[:2])  # a 3x3 conv with only its centre tap: pointwise
         coarse.head.weight.normal_()
-    fine = ForegroundDecoder(ModelConfig(**{**TINY, "patch_gaussians": 8, "patch_base": 4, "patch_back": False}))
+        coarse.back_head.weight.normal_()
+    fine = ForegroundDecoder(ModelConfig(**{**TINY, "patch_gaussians": 8, "patch_base": 4}))
     missing = fine.load_state_dict(coarse.state_dict(), strict=False).missing_keys
     assert missing == ["up.0.weight", "up.0.bias"]
     z_f = torch.randn(3, TINY["d_obj"])
-    base = coarse(z_f).reshape(3, 4, 4, -1)
-    want = base.repeat_interleave(2, dim=1).repeat_interleave(2, dim=2).reshape(3, 64, -1)
+    base = coarse(z_f).reshape(3, 2, 4, 4, -1)  # front and back layers, each 4x4 cells
+    want = base.repeat_interleave(2, dim=2).repeat_interleave(2, dim=3).reshape(3, 2 * 64, -1)
     torch.testing.assert_close(fine(z_f), want)
-    with pytest.raises(ConfigError, match="patch_base"):
+    with pytest.raises(ConfigError, match=r"model\.patch\.base"):
         ModelConfig(**{**TINY, "patch_gaussians": 8, "patch_base": 3}).validate()
-    with pytest.raises(ConfigError, match="patch_channels"):
+    with pytest.raises(ConfigError, match=r"model\.patch\.channels"):
         ModelConfig(**{**TINY, "patch_channels": 2}).validate()
 
 
-def test_shipped_yaml_documents_every_config_key():
-    """assets/recipe.yaml lists every ModelConfig and TrainConfig key (the file documents them)."""
-    from dataclasses import fields
+@pytest.mark.parametrize("recipe", ["recipe.yaml", "robot/recipe.yaml"])
+def test_shipped_yaml_documents_every_config_key(recipe):
+    """Each recipe lists every ModelConfig key by its nested path (``background.block``) and every TrainConfig
+    key, each with a comment (the file documents them)."""
+    import re
 
     from particlesplat.core.bundled import bundled_assets
-    from particlesplat.model.config import TrainConfig
+    from particlesplat.model.config import TrainConfig, model_key
 
-    text = (bundled_assets() / "recipe.yaml").read_text()
-    lines = {
-        ln.split(":")[0].strip(): ln
-        for ln in text.splitlines()
-        if ln.startswith("  ") and ":" in ln and not ln.strip().startswith("#")
-    }
-    for cls in (ModelConfig, TrainConfig):
-        for f in fields(cls):
-            assert f.name in lines, f"assets/recipe.yaml does not list {cls.__name__}.{f.name}"
+    listed: dict[str, str] = {}  # "model.background.block" -> its line
+    section = group = ""
+    for ln in (bundled_assets() / recipe).read_text().splitlines():
+        m = re.match(r"^( *)(\w+):(.*)$", ln)
+        if not m:
+            continue
+        depth, name, rest = len(m.group(1)) // 2, m.group(2), m.group(3)
+        if depth == 0:
+            section, group = name, ""
+        elif depth == 1 and rest.split("#")[0].strip() == "":
+            group = name  # a group's header: its keys follow, indented
+        else:
+            listed[".".join(p for p in (section, group if depth == 2 else "", name) if p)] = ln
+    want = [f"model.{model_key(f.name)}" for f in fields(ModelConfig)]
+    want += [f"train.{f.name}" for f in fields(TrainConfig)]
+    assert sorted(listed) == sorted(want)
+    for key, line in listed.items():
+        assert "#" in line, f"{recipe}: {key} has no comment"
 
 
 def test_posterior_fields_have_the_documented_shapes():

@@ -37,14 +37,14 @@ def test_set_refine_scale_runs_as_the_model_with_that_key_and_keeps_the_original
     before = digest(path)
     out = tmp_path / "half.pt"
     assert (
-        main(["model", "set", str(path), "refine_scale=0.5", "refine_keep=3", "--out", str(out), "--note", "why"]) == 0
-    )
+        main(["model", "set", str(path), "refine.scale=0.5", "refine_keep=3", "--out", str(out), "--note", "why"]) == 0
+    )  # a key by its nested path or by its flat name
     assert digest(path) == before
     ckpt = read_checkpoint(out)
     assert "optimizer" not in ckpt and "rng" not in ckpt  # a model, not a run to resume
     assert (
         ckpt["provenance"]["derived"]
-        == f"derived from {path} step 40: refine_scale 1.0 -> 0.5, refine_keep 0 -> 3 (why)"
+        == f"derived from {path} step 40: refine.scale 1.0 -> 0.5, refine.keep 0 -> 3 (why)"
     )
     # truth: the original weights in a model built with those keys
     want = tiny_model(0, refine_steps=1, refine_hidden=16, refine_scale=0.5, refine_keep=3)
@@ -58,9 +58,9 @@ def test_set_refine_scale_runs_as_the_model_with_that_key_and_keeps_the_original
     text = capsys.readouterr().out
     assert (
         "step 40" in text
-        and "refine_scale 0.5" in text
-        and "refine_keep 3" in text
-        and "refine_scale 1.0 -> 0.5" in text
+        and "refine.scale 0.5" in text
+        and "refine.keep 3" in text
+        and "refine.scale 1.0 -> 0.5" in text
     )
 
 
@@ -107,7 +107,7 @@ def test_info_describes_the_model_its_run_data_and_scores_from_the_checkpoint(tm
 @pytest.mark.parametrize(
     ("model", "says"),
     [
-        ("model.pt", ["tabletop family, 64x64 RGB-D, step 3,000", "a 72x72 floor grid", "support_cut 0.01"]),
+        ("model.pt", ["tabletop family, 64x64 RGB-D, step 3,000", "a 72x72 floor grid", "support.cut 0.01"]),
         (
             "robot/model.pt",
             [
@@ -143,7 +143,7 @@ def test_dropping_the_refiner_is_the_model_with_refinement_off(trained, tmp_path
     # a second change appends to the first in the provenance
     again = derive_checkpoint(ckpt, {"support_cut": 0.01}, "plain.pt")
     assert again["provenance"]["derived"].startswith(ckpt["provenance"]["derived"] + "; derived from plain.pt step 40")
-    with pytest.raises(DeriveError, match="refine_steps: plain.pt has no refiner weights"):
+    with pytest.raises(DeriveError, match=r"refine\.steps: plain\.pt has no refiner weights"):
         derive_checkpoint(ckpt, {"refine_steps": 1}, "plain.pt")
 
 
@@ -151,10 +151,12 @@ def test_dropping_the_refiner_is_the_model_with_refinement_off(trained, tmp_path
     ("change", "message"),
     [
         ("resolution=64", r"resolution: not a key a trained model can change"),
-        ("refine_scale=2", r"refine_scale: must be in \(0, 1\]"),
-        ("refine_keep=-1", r"refine_keep"),
-        ("refine_static=ahead", r"refine_static: must be render or behind"),
-        ("refine_static=1", r"refine_static: expected str"),
+        ("refine_scale=2", r"model\.refine\.scale: must be in \(0, 1\]"),
+        ("refine.scale=2", r"model\.refine\.scale: must be in \(0, 1\]"),
+        ("refine_keep=-1", r"refine\.keep"),
+        ("refine_static=ahead", r"refine\.static: must be render or behind"),
+        ("refine.static=1", r"refine\.static: expected str"),
+        ("patch.base=2", r"patch\.base: not a key a trained model can change"),
         ("refine_scale=[1", r"model set: refine_scale: not valid YAML"),
         ("refine_scale", r"expected KEY=VALUE"),
         ("refine_scale=1.0", r"nothing to change"),
@@ -165,6 +167,14 @@ def test_bad_changes_are_refused_and_write_nothing(trained, tmp_path, change, me
     out = tmp_path / "out.pt"
     with pytest.raises((DeriveError, ConfigError, ValueError), match=message):
         main(["model", "set", str(path), change, "--out", str(out)])
+    assert not out.exists()
+
+
+def test_set_refuses_a_key_given_by_both_its_names(trained, tmp_path):
+    path, _ = trained
+    out = tmp_path / "out.pt"
+    with pytest.raises(ConfigError, match=r"^model set: refine_scale and refine\.scale are the same key"):
+        main(["model", "set", str(path), "refine_scale=0.5", "refine.scale=0.25", "--out", str(out)])
     assert not out.exists()
 
 

@@ -16,8 +16,7 @@ DELTA = (0.15, -0.1, 0.08)
 @pytest.fixture(scope="module")
 def scene():
     torch.manual_seed(0)
-    # the front layer only, as before TINY_MODEL became the recipe's (the back layer exceeds the bound slightly)
-    model = ParticleSplat(ModelConfig(**{**TINY_MODEL, "patch_gaussians": 4, "patch_back": False})).eval()
+    model = ParticleSplat(ModelConfig(**{**TINY_MODEL, "patch_gaussians": 4})).eval()
     cams = [Camera.orbit((0.0, 0.0, 0.15), az, 30.0, 3.3, width=32, height=32) for az in (-40, 35)]
     gen = torch.Generator().manual_seed(1)
     rgb = torch.rand(2, 3, 32, 32, generator=gen)
@@ -46,14 +45,17 @@ def test_anchors_move_by_delta_and_gaussians_follow(scene):
             model.decode(q, torch.tensor([i]), background=False),
         )
         cam = p.cameras[int(p.view[i])]
-        _, zeta = cam.project(a.means)
+        # the bound and the kept size are checked on the front layer (the first S*S Gaussians of a particle): a
+        # back Gaussian's depth behind its front one follows the box's width, and it strays slightly
+        front = cfg.patch_gaussians**2
+        _, zeta = cam.project(a.means[:front])
         d = cfg.d_min + torch.sigmoid(p.z_d[i, 0]) * (cfg.d_max - cfg.d_min)
         _, d_new = cam.project(anchor_points(q, [i], cfg)[0])
         bound = float(delta.norm()) * (zeta - d).abs() / d_new + 1e-5  # the module's perspective bound
-        err = (b.means - a.means - delta).norm(dim=-1)
+        err = (b.means[:front] - a.means[:front] - delta).norm(dim=-1)
         assert bool((err <= bound).all()), (err - bound).max()
         # metric size kept (particle 4 moves 0.19 m nearer its view: without the z_s change it grows 6 %)
-        rel = (b.scales.amax(-1) / a.scales.amax(-1) - 1.0).abs()
+        rel = (b.scales[:front].amax(-1) / a.scales[:front].amax(-1) - 1.0).abs()
         assert float(rel.max()) < 1e-3
         torch.testing.assert_close(b.opacities, a.opacities)
 

@@ -59,11 +59,11 @@ def test_each_mean_moves_by_its_jacobian_times_the_pose_offset():
 
 
 def test_the_pose_keys_go_together_and_need_the_workspace_layer():
-    with pytest.raises(ConfigError, match="bg_static_pose"):
+    with pytest.raises(ConfigError, match=r"background\.static_pose: and background\.static_pose_dims go together"):
         ModelConfig(**{**POSED, "bg_static_pose_dims": 0}).validate()
-    with pytest.raises(ConfigError, match="bg_static_pose"):
+    with pytest.raises(ConfigError, match=r"background\.static_pose"):
         ModelConfig(**{**POSED, "bg_static_pose": ""}).validate()
-    with pytest.raises(ConfigError, match="needs bg_static_points > 0"):
+    with pytest.raises(ConfigError, match=r"needs background\.static_points > 0"):
         ModelConfig(**{**POSED, "bg_static_grid": 16, "bg_static_points": 0}).validate()
     ModelConfig(**POSED).validate()
 

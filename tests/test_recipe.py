@@ -18,7 +18,7 @@ from particlesplat.cli.main import main
 from particlesplat.core.bundled import bundled_assets
 from particlesplat.core.camera import Camera
 from particlesplat.model import ConfigError, ModelConfig, ParticleSplat, TrainConfig, load_model, read_checkpoint
-from particlesplat.model.config import REMOVED_KEYS, without_removed_keys
+from particlesplat.model.config import REMOVED_KEYS, config_to_dict, without_removed_keys
 from particlesplat.model.io import model_from_checkpoint
 
 
@@ -26,15 +26,26 @@ def _recipe() -> dict:
     return yaml.safe_load((bundled_assets() / "recipe.yaml").read_text())
 
 
+def _leaves(d: dict, prefix: str = "") -> dict:
+    """{"background.block": 2, ...} of a nested mapping."""
+    out = {}
+    for k, v in d.items():
+        out.update(_leaves(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
+    return out
+
+
 def test_config_defaults_are_the_recipe_and_the_recipe_lists_every_key():
-    """ModelConfig() and TrainConfig() equal assets/recipe.yaml exactly: the same keys, the same values and types."""
+    """ModelConfig() and TrainConfig() equal assets/recipe.yaml exactly: the same keys (the model's nested, as a
+    run's config.yaml writes them, in the same order), the same values and types."""
     recipe = _recipe()
     assert set(recipe) == {"model", "train"}
     for cls, section in ((ModelConfig, "model"), (TrainConfig, "train")):
-        defaults = asdict(cls())
-        assert sorted(recipe[section]) == sorted(f.name for f in fields(cls)), section  # every key, no other
-        for key, value in recipe[section].items():
-            assert defaults[key] == value and type(defaults[key]) is type(value), f"{section}.{key}"
+        written = config_to_dict(cls())
+        assert list(_leaves(recipe[section])) == list(_leaves(written)), section  # every key, no other
+        for key, value in _leaves(recipe[section]).items():
+            want = _leaves(written)[key]
+            assert want == value and type(want) is type(value), f"{section}.{key}"
+    assert len(_leaves(recipe["model"])) == len(fields(ModelConfig))
     # the bundled recipe is what `particlesplat train` uses without --config
     from particlesplat.core.bundled import recipe_path
     from particlesplat.model import load_config
@@ -154,6 +165,8 @@ LEGACY_OFF = {
     "patch_copy_threshold": 0.3,
     "particle_depth_scale": "cell",
     "refine_glimpse": 0,
+    "learned_background": True,
+    "patch_back": True,
 }
 LEGACY_TRAIN_OFF = {"beta_coarse": 2.5, "fg_band": 0, "depth_dropout": 0.0, "bg_off_steps": 0, "freeze": []}
 
@@ -199,6 +212,8 @@ def test_removed_keys_at_their_off_value_are_dropped(tmp_path):
         ("bg_detail", False),
         ("particle_depth_scale", "pixel"),
         ("refine_glimpse", 24),
+        ("learned_background", False),
+        ("patch_back", False),
     ],
 )
 def test_removed_keys_that_switch_a_branch_on_are_refused_by_name(tmp_path, key, value):

@@ -198,19 +198,19 @@ def test_refinement_trains_end_to_end():
 
 
 def test_refinement_config_errors():
-    with pytest.raises(ConfigError, match="refine_steps"):
+    with pytest.raises(ConfigError, match=r"model\.refine\.steps"):
         ModelConfig(**{**TINY, "refine_steps": -1}).validate()
-    with pytest.raises(ConfigError, match="glimpse_size.*multiple of 8"):
+    with pytest.raises(ConfigError, match=r"keypoints\.glimpse_size.*multiple of 8"):
         ModelConfig(**{**TINY, "glimpse_size": 12, "refine_steps": 1}).validate()
     for bad in (0.0, 1.5):
-        with pytest.raises(ConfigError, match=r"refine_scale: must be in \(0, 1\]"):
+        with pytest.raises(ConfigError, match=r"refine\.scale: must be in \(0, 1\]"):
             ModelConfig(**{**TINY, "refine_scale": bad}).validate()
-    with pytest.raises(ConfigError, match="refine_scale: resolution x refine_scale must be a whole number"):
+    with pytest.raises(ConfigError, match=r"refine\.scale: resolution x refine\.scale must be a whole number"):
         ModelConfig(**{**TINY, "refine_scale": 0.3}).validate()  # 32 x 0.3 = 9.6 pixels
-    with pytest.raises(ConfigError, match="refine_keep: must be >= 0"):
+    with pytest.raises(ConfigError, match=r"refine\.keep: must be >= 0"):
         ModelConfig(**{**TINY, "refine_keep": -1}).validate()
-    with pytest.raises(ConfigError, match="refine_static: must be render or behind"):
+    with pytest.raises(ConfigError, match=r"refine\.static: must be render or behind"):
         ModelConfig(**{**TINY, "refine_static": "under"}).validate()
     for no_layer in ({"bg_static_grid": 0, "bg_per_view": True}, {"bg_per_view": True}):
-        with pytest.raises(ConfigError, match="refine_static: behind needs a static layer"):
+        with pytest.raises(ConfigError, match=r"refine\.static: behind needs a static layer"):
             ModelConfig(**{**TINY, **no_layer, "refine_static": "behind"}).validate()

@@ -200,11 +200,6 @@ def test_learned_background_is_rendered_behind_the_gaussians_and_trained():
     torch.testing.assert_close(rgb[0, 0], torch.tensor([0.2, 0.5, 0.7])[:, None, None].expand(3, 32, 32))
     (grad,) = torch.autograd.grad(rgb.sum(), bg)
     torch.testing.assert_close(grad, torch.full((3,), 32.0 * 32.0))
-    assert ParticleSplat(ModelConfig(**{**TINY_MODEL, "learned_background": False})).background_color().tolist() == [
-        0,
-        0,
-        0,
-    ]
 
 
 def test_static_layer_trains_at_the_background_learning_rate(tmp_path_factory, tmp_path):

@@ -45,9 +45,9 @@ def test_the_robot_recipe_is_the_same_architecture_with_its_own_values_and_every
 
 
 def test_the_two_static_layers_exclude_each_other():
-    with pytest.raises(ConfigError, match="bg_static_points"):
+    with pytest.raises(ConfigError, match=r"model\.background\.static_points: the static layer is either"):
         ModelConfig(bg_static_grid=8, bg_static_points=100).validate()
-    with pytest.raises(ConfigError, match="bg_per_view"):
+    with pytest.raises(ConfigError, match=r"model\.background\.per_view"):
         ModelConfig(bg_static_grid=0, bg_static_points=0, bg_per_view=False).validate()
     ModelConfig(bg_static_grid=0, bg_static_points=100).validate()
 

@@ -154,8 +154,8 @@ class ParticleArrays:
                 if missing:
                     raise ParticleArraysError(f"{path}: missing array(s) {', '.join(missing)}")
                 values = {n: data[n] for n in ARRAY_NAMES if n in data.files}
-                if "robot" not in values:  # format 1: no particle was the robot's
-                    values["robot"] = np.zeros(values["active"].shape, dtype=bool)
+                for name in LATER_ARRAYS:  # format 1 has no robot array: no particle was the robot's
+                    values.setdefault(name, np.zeros(values["active"].shape, dtype=bool))
                 meta = json.loads(str(data["meta"]))
         except json.JSONDecodeError as e:
             raise ParticleArraysError(f"{path}: meta: not valid JSON ({e})") from e

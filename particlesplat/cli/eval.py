@@ -80,7 +80,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--z-t-threshold",
         type=float,
         default=None,
-        help="draw the particles with z_t at or above this (default: the model's bg_mask_threshold, "
+        help="draw the particles with z_t at or above this (default: the model's background.mask_threshold, "
         "as the viewer and particlesplat render draw them; 0 = every particle)",
     )
     parser.add_argument("--device", default=None, help=DEVICE_HELP)

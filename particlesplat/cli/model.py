@@ -24,22 +24,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     change = sub.add_parser(
         "set",
         help="write a copy of a checkpoint with inference keys changed (no retraining)",
-        description=f"Write a copy of CHECKPOINT with model keys changed. Keys: {keys}.",
+        description=f"Write a copy of CHECKPOINT with model keys changed. Keys (a key's flat name, e.g. "
+        f"refine_steps, works too): {keys}.",
         formatter_class=HelpFormatter,
     )
     change.add_argument("checkpoint", help="the checkpoint to copy (left unchanged)")
-    change.add_argument("changes", nargs="+", metavar="KEY=VALUE", help="e.g. refine_scale=0.5 refine_keep=128")
+    change.add_argument("changes", nargs="+", metavar="KEY=VALUE", help="e.g. refine.scale=0.5 refine.keep=128")
     change.add_argument("--out", required=True, help="the .pt to write (not the input)")
     change.add_argument("--note", default="", help="why, recorded in the copy's provenance")
 
 
 def run(args: argparse.Namespace) -> int:
     if args.action == "set":
+        from particlesplat.model.config import model_value
         from particlesplat.model.derive import write_derived
 
-        changes = parse_key_values(args.changes, "model set", "refine_scale=0.5")
+        changes = parse_key_values(args.changes, "model set", "refine.scale=0.5")
         cfg = write_derived(args.checkpoint, args.out, changes, args.note)
-        print(f"wrote {args.out}: " + ", ".join(f"{k} {getattr(cfg, k)}" for k in INFERENCE_KEYS))
+        print(f"wrote {args.out}: " + ", ".join(f"{k} {model_value(cfg, k)}" for k in INFERENCE_KEYS))
         return 0
     from particlesplat.model.io import model_from_checkpoint, read_checkpoint, shipped_model_name
     from particlesplat.model.summary import summarize

@@ -17,15 +17,16 @@ FITTED = ("z_p", "z_s", "z_d", "z_e", "z_f")
 # what a fit moves unless told otherwise: the appearance alone, so the particles (and the objects they form) stay
 DEFAULT_FIT = ("z_f",)
 
-# model keys a trained checkpoint may change, and what each decides
+# model keys a trained checkpoint may change (by their nested path; the flat name, refine_steps, is read too), and
+# what each decides
 INFERENCE_KEYS: dict[str, str] = {
-    "refine_steps": "amortised refinement steps (0 leaves the refiner out and drops its weights)",
-    "refine_scale": "fraction of the resolution the refinement renders the context views at",
-    "refine_keep": "Gaussians per particle the refinement renders (0: all)",
-    "refine_static": "how the refinement draws the static layer: render (among the particles) or behind (the "
+    "refine.steps": "amortised refinement steps (0 leaves the refiner out and drops its weights)",
+    "refine.scale": "fraction of the resolution the refinement renders the context views at",
+    "refine.keep": "Gaussians per particle the refinement renders (0: all)",
+    "refine.static": "how the refinement draws the static layer: render (among the particles) or behind (the "
     "encoder's full-size render of it, pooled, behind them)",
     "particles_per_view": "foreground particles kept per context view",
-    "kp_min_separation": "least distance between kept keypoints (normalised image units)",
-    "bg_mask_threshold": "z_t above which a particle is active and draws",
-    "support_cut": "metres below the support surface under which a particle Gaussian does not draw (< 0: off)",
+    "keypoints.min_separation": "least distance between kept keypoints (normalised image units)",
+    "background.mask_threshold": "z_t above which a particle is active and draws",
+    "support.cut": "metres below the support surface under which a particle Gaussian does not draw (< 0: off)",
 }

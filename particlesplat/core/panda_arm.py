@@ -40,7 +40,8 @@ DEFAULT_GRIPPER_REACH = 0.22
 """The reach assumed for a gripper the scene does not name, or one not in :data:`GRIPPER_REACH`: the longest."""
 
 ARM_STATE_KEY = "robot_state"
-"""The pose key (``model.bg_static_pose``) under which a model reads a scene's robot state (:func:`pack_arm_state`)."""
+"""The pose key (``model.background.static_pose``) under which a model reads a scene's robot state
+(:func:`pack_arm_state`)."""
 ARM_STATE_DIMS = 21
 ROBOSUITE_BASE = ((1.0, 0.0, 0.0, -0.56), (0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.112))
 """The base pose (top 3 rows, metres) a scene that records none is given: robosuite's, behind the table at -x

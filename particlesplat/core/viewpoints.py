@@ -28,9 +28,9 @@ DEFAULT_BACKGROUND = (0.12, 0.14, 0.18)  # the viewer's and ``particlesplat rend
 
 
 def scene_background(model=None) -> tuple[float, float, float]:
-    """The colour behind a scene: the model's learned background colour (``learned_background``), else
-    :data:`DEFAULT_BACKGROUND` (also for a .ply, ``model`` None)."""
-    if model is not None and model.config.learned_background:
+    """The colour behind a scene: the model's learned background colour, else :data:`DEFAULT_BACKGROUND` (for a
+    .ply, ``model`` None)."""
+    if model is not None:
         return float3(model.background_color().detach().cpu())
     return DEFAULT_BACKGROUND
 

@@ -36,7 +36,7 @@ class TrainingBatch:
     - ``context_K`` (B, C, 3, 3), ``target_K`` (B, T, 3, 3): intrinsics in pixels at H x W.
     - ``context_c2w`` (B, C, 4, 4), ``target_c2w`` (B, T, 4, 4): OpenCV camera-to-world.
     - ``target_supervision`` (B, T, 1, H, W): float32 {0, 1}; 1 where the target pixel is supervised.
-    - ``pose`` (B, D): each scene's pose (``model.bg_static_pose``), or None where the dataset reads none.
+    - ``pose`` (B, D): each scene's pose (``model.background.static_pose``), or None where the dataset reads none.
     """
 
     context_rgb: Tensor
@@ -119,7 +119,7 @@ class SceneDataset(Dataset):
                 :data:`CACHE_SHARE` of the job's memory limit (:func:`particlesplat.core.limits.memory_limit`), so
                 that a dataset of large images is read again rather than held past the limit.
             pose_key, pose_dims: each item's ``pose``, the ``pose_dims`` numbers its ``scene.json`` records under
-                ``pose_key`` (``model.bg_static_pose``); every scene must record it ("": none read).
+                ``pose_key`` (``model.background.static_pose``); every scene must record it ("": none read).
         """
         root = Path(root_split_dir)
         if not root.is_dir():
@@ -175,7 +175,7 @@ class SceneDataset(Dataset):
         pose = read_pose(self.scenes[index], self.pose_key, self.pose_dims)
         if pose is None:
             raise SceneFormatError(
-                f"{self.scenes[index] / SCENE_META}: no key {self.pose_key!r} (the model's bg_static_pose: "
+                f"{self.scenes[index] / SCENE_META}: no key {self.pose_key!r} (the model's background.static_pose: "
                 f"{self.pose_dims} numbers a scene)"
             )
         return pose

@@ -1,5 +1,5 @@
-"""The robot inputs a model reads (a scene's pose: ``scene.json``'s ``arm_joints_rad``, ``model.bg_static_pose``),
-checked against what the robot can do and what the model was trained on.
+"""The robot inputs a model reads (a scene's pose: ``scene.json``'s ``arm_joints_rad``,
+``model.background.static_pose``), checked against what the robot can do and what the model was trained on.
 
 - **Joint limits** (:data:`POSE_LIMITS`): a pose beyond them is no pose of the robot; every reader refuses it in one
   line naming the scene.json, the key and the joint (a 100-rad training scene would shift the workspace layer).

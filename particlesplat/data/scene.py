@@ -26,16 +26,13 @@ from particlesplat.core.camera import Camera
 from particlesplat.core.errors import UserError, one_line, short_repr
 from particlesplat.core.jsonfile import read_json
 from particlesplat.data.folders import TRANSFORMS
+from particlesplat.data.scene_errors import SceneFormatError
 
 _RIGID_TOL = 1e-3
 # Largest image a scene may hold: 4096 x 4096 (decoded RGB 50 MB). Checked from the PNG header before decoding,
 # so a decompression bomb (a few KB declaring 10^10 pixels) is refused without allocating it.
 MAX_IMAGE_PIXELS = 4096 * 4096
 MAX_TRANSFORMS_BYTES = 64 << 20  # transforms.json: ~100,000 frames
-
-
-class SceneFormatError(UserError):
-    """A scene folder does not follow the format; the message names the file and the key."""
 
 
 @dataclass

@@ -2,7 +2,7 @@
 where its cameras look (``look_at``, ``distance``), so that the default view, the orbit and ``--look`` follow the
 scene's own scale rather than one family's; its family, so that a command without ``--checkpoint`` opens it
 with the shipped model of that family; and a pose (a robot's joint angles) that a model's workspace layer may
-follow (``model.bg_static_pose``)."""
+follow (``model.background.static_pose``)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from particlesplat.core.viewpoints import Framing
 from particlesplat.data.families import DEFAULT_FAMILY, family_of, get_family
 from particlesplat.data.folders import TRANSFORMS
 from particlesplat.data.pose_ranges import check_limits, generator_range, warn_outside
-from particlesplat.data.scene import SceneFormatError
+from particlesplat.data.scene_errors import SceneFormatError
 
 SCENE_META = "scene.json"
 DATASET_META = "synth.json"  # a dataset folder's settings (particlesplat.data.synth.check_manifest)
@@ -132,9 +132,9 @@ def _scene_value(folder: str | PathLike, key: str) -> tuple[Path, object] | None
 
 
 def read_pose(folder: str | PathLike, key: str, dims: int) -> list[float] | None:
-    """The pose ``folder/scene.json`` records under ``key`` (``model.bg_static_pose``: a robot's joint angles), a
-    list of ``dims`` finite numbers. None when the folder has no scene.json or it lacks the key. SceneFormatError
-    names the file and the key of a value of another length or type.
+    """The pose ``folder/scene.json`` records under ``key`` (``model.background.static_pose``: a robot's joint
+    angles), a list of ``dims`` finite numbers. None when the folder has no scene.json or it lacks the key.
+    SceneFormatError names the file and the key of a value of another length or type.
 
     The key :data:`~particlesplat.core.panda_arm.ARM_STATE_KEY` is the robot state packed from what the scene
     records of the robot (:func:`read_arm_state`)."""
@@ -159,7 +159,7 @@ def read_pose(folder: str | PathLike, key: str, dims: int) -> list[float] | None
 def scene_pose(
     folder: str | PathLike, key: str, dims: int, ranges: dict[str, dict[str, list[float]]] | None = None
 ) -> Tensor | None:
-    """The pose (D,) a model that follows one (``model.bg_static_pose`` ``key`` of ``dims`` numbers; "" = none)
+    """The pose (D,) a model that follows one (``model.background.static_pose`` ``key`` of ``dims`` numbers; "" = none)
     reads for the scene at ``folder``: what its scene.json records. None for a model that follows none, and, with
     an InputWarning (the layer then holds the training scenes' mean pose), for a scene that records none.
     ``ranges``: the model's ``input_ranges``; a pose outside its trained range is warned about

@@ -98,8 +98,8 @@ def workspace_points(
 
         raise SceneFormatError(
             f"{scene_dirs[0].parent if scene_dirs else '?'}: none of its first {len(scene_dirs)} scenes has depth "
-            "(depth_file_path), which model.bg_static_points needs to place the workspace layer; give scenes with "
-            "depth or set bg_static_points to 0"
+            "(depth_file_path), which model.background.static_points needs to place the workspace layer; give "
+            "scenes with depth or set model.background.static_points to 0"
         )
     kept = [k for k, n in counts.items() if n >= min_share * used]  # voxel keys, most often seen first
     kept.sort(key=lambda k: (-counts[k], k))

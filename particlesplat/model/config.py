@@ -1,8 +1,16 @@
-"""Model and training configuration: dataclasses loaded from YAML with clear validation errors."""
+"""Model and training configuration: dataclasses loaded from YAML with clear validation errors.
+
+The model config is written nested (``model: {resolution: 64, background: {block: 2, ...}, refine: {...}}``):
+:data:`MODEL_GROUPS` names each group's keys and the :class:`ModelConfig` field each one is. The dataclass stays
+flat (``cfg.bg_block``), and the nesting lives at the dict boundary: :func:`flat_model_dict` reads either form
+(an old flat config, an old checkpoint) and :func:`nested_model_dict` writes the nested one (``config.yaml``,
+checkpoints). Errors name a key by its nested path (``model.background.block``); a flat name is read too.
+"""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from os import PathLike
 from pathlib import Path
@@ -17,24 +25,94 @@ class ConfigError(UserError):
     """A configuration value is missing, unknown or out of range."""
 
 
-# how the refinement's render draws the static layer: its Gaussians among the particles' at ``refine_scale``
+# how the refinement's render draws the static layer: its Gaussians among the particles' at ``refine.scale``
 # (render), or the encoder's full-resolution render of the layer, pooled and composited behind them (behind)
 RefineStatic = Literal["render", "behind"]
 
+# The model config's groups: group -> {key inside the group: the ModelConfig field it is}. A field in no group is
+# a top-level key of the same name. Which module reads each group: docs/architecture.md.
+MODEL_GROUPS: dict[str, dict[str, str]] = {
+    "keypoints": {
+        "patch": "kp_patch",
+        "min_separation": "kp_min_separation",
+        "glimpse_ratio": "glimpse_ratio",
+        "glimpse_size": "glimpse_size",
+    },
+    "background": {
+        "per_view": "bg_per_view",
+        "latent_channels": "d_bg",
+        "latent_stride": "bg_latent_stride",
+        "block": "bg_block",
+        "static_grid": "bg_static_grid",
+        "static_extent": "bg_static_extent",
+        "static_points": "bg_static_points",
+        "static_pose": "bg_static_pose",
+        "static_pose_dims": "bg_static_pose_dims",
+        "mask_threshold": "bg_mask_threshold",
+    },
+    "patch": {
+        "gaussians": "patch_gaussians",
+        "base": "patch_base",
+        "channels": "patch_channels",
+        "hidden": "patch_hidden",
+    },
+    "support": {"clamp": "support_clamp", "cut": "support_cut"},
+    "refine": {
+        "steps": "refine_steps",
+        "hidden": "refine_hidden",
+        "scale": "refine_scale",
+        "keep": "refine_keep",
+        "static": "refine_static",
+    },
+    "transformer": {"token_dim": "token_dim", "layers": "transformer_layers", "heads": "transformer_heads"},
+    "prior": {
+        "offset_std": "prior_offset_std",
+        "scale_mean": "prior_scale_mean",
+        "scale_std": "prior_scale_std",
+        "depth_mean": "prior_depth_mean",
+        "depth_std": "prior_depth_std",
+        "extent_mean": "prior_extent_mean",
+        "extent_std": "prior_extent_std",
+        "t_a": "prior_t_a",
+        "t_b": "prior_t_b",
+    },
+}
+# field -> its nested path ("bg_block" -> "background.block"); and every name a key may be given by -> its field
+_PATH_OF: dict[str, str] = {f: f"{g}.{k}" for g, keys in MODEL_GROUPS.items() for k, f in keys.items()}
+_FIELD_OF: dict[str, str] = {**{f: f for f in _PATH_OF}, **{p: f for f, p in _PATH_OF.items()}}
 
-def _checker(cfg, where: str):
-    """need(cond, key, msg): raise ConfigError naming ``where.key`` and its value unless ``cond``."""
+
+def model_key(name: str) -> str:
+    """The nested path of ModelConfig field ``name`` (``"bg_block"`` -> ``"background.block"``; a top-level key
+    is its own)."""
+    return _PATH_OF.get(name, name)
+
+
+def model_field(name: str) -> str:
+    """The ModelConfig field a model key names, by its nested path or its flat name (``"background.block"`` and
+    ``"bg_block"`` -> ``"bg_block"``); a name that is neither comes back unchanged (for the unknown-key error)."""
+    return _FIELD_OF.get(name, name)
+
+
+def model_value(cfg: ModelConfig, name: str) -> Any:
+    """The value of the model key ``name`` (nested path or flat name) in ``cfg``."""
+    return getattr(cfg, model_field(name))
+
+
+def _checker(cfg, where: str, path: Callable[[str], str]):
+    """need(cond, key, msg): raise ConfigError naming ``where.path(key)`` and its value unless ``cond``."""
 
     def need(cond: bool, key: str, msg: str) -> None:
         if not cond:
-            raise ConfigError(f"{where}.{key}: {msg} (got {short_repr(getattr(cfg, key))})")
+            raise ConfigError(f"{where}.{path(key)}: {msg} (got {short_repr(getattr(cfg, key))})")
 
     return need
 
 
 # Integer ranges checked before validation and before anything is allocated: far beyond any model or run that
-# fits this machine, so a typo (refine_hidden: 40000, resolution: 1048576) or a hostile checkpoint config is one
-# clear line instead of gigabytes of weights; the lower ends keep divisions and tensor shapes valid.
+# fits this machine, so a typo (refine.hidden: 40000, resolution: 1048576) or a hostile checkpoint config is one
+# clear line instead of gigabytes of weights; the lower ends keep divisions and tensor shapes valid. Keyed by
+# field (a model key's flat name).
 INT_RANGES: dict[str, tuple[int, int]] = {
     "resolution": (16, 1024),
     "particles_per_view": (0, 1024),
@@ -74,52 +152,58 @@ INT_RANGES: dict[str, tuple[int, int]] = {
 
 @dataclass
 class ModelConfig:
-    """Architecture and renderer-side hyperparameters (documented in ``assets/recipe.yaml``)."""
+    """Architecture and renderer-side hyperparameters (documented in ``assets/recipe.yaml``). Flat for code
+    (``cfg.bg_block``); a config file and a checkpoint hold it nested (:data:`MODEL_GROUPS`). Fields in the order
+    the nested form lists them: the top-level keys, then each group's."""
 
     resolution: int = 64
     particles_per_view: int = 8
-    kp_patch: int = 4
-    glimpse_ratio: float = 0.15
-    kp_min_separation: float = 0.25
     offset_bound: float = 0.15
     scale_logit_bound: float = 1.5
-    glimpse_size: int = 16
     channels: int = 32
     d_obj: int = 64
-    d_bg: int = 5
-    bg_latent_stride: int = 64
-    bg_block: int = 2
-    learned_background: bool = True
-    bg_static_grid: int = 72
-    bg_static_extent: float = 2.25
-    bg_static_points: int = 0
-    bg_static_pose: str = ""
-    bg_static_pose_dims: int = 0
-    bg_per_view: bool = False
-    fg_evidence: bool = False
-    canonical_frame: bool = False
-    patch_gaussians: int = 16
-    patch_base: int = 4
-    patch_channels: int = 64
-    patch_hidden: int = 256
-    patch_back: bool = True
-    support_clamp: bool = False
-    support_cut: float = -1.0
-    refine_steps: int = 1
-    refine_hidden: int = 256
-    refine_scale: float = 1.0
-    refine_keep: int = 0
-    refine_static: RefineStatic = "render"
-    token_dim: int = 64
-    transformer_layers: int = 2
-    transformer_heads: int = 4
     sh_degree: int = 0
     d_min: float = 1.0
     d_max: float = 7.0
     s_min: float = 0.2
     s_max: float = 0.8
+    fg_evidence: bool = False
+    canonical_frame: bool = False
+    # keypoints:
+    kp_patch: int = 4
+    kp_min_separation: float = 0.25
+    glimpse_ratio: float = 0.15
+    glimpse_size: int = 16
+    # background:
+    bg_per_view: bool = False
+    d_bg: int = 5
+    bg_latent_stride: int = 64
+    bg_block: int = 2
+    bg_static_grid: int = 72
+    bg_static_extent: float = 2.25
+    bg_static_points: int = 0
+    bg_static_pose: str = ""
+    bg_static_pose_dims: int = 0
     bg_mask_threshold: float = 0.2
-    # priors (prior table, RLBench column)
+    # patch:
+    patch_gaussians: int = 16
+    patch_base: int = 4
+    patch_channels: int = 64
+    patch_hidden: int = 256
+    # support:
+    support_clamp: bool = False
+    support_cut: float = -1.0
+    # refine:
+    refine_steps: int = 1
+    refine_hidden: int = 256
+    refine_scale: float = 1.0
+    refine_keep: int = 0
+    refine_static: RefineStatic = "render"
+    # transformer:
+    token_dim: int = 64
+    transformer_layers: int = 2
+    transformer_heads: int = 4
+    # prior: (prior table, RLBench column)
     prior_offset_std: float = 0.2
     prior_scale_mean: float = 0.15
     prior_scale_std: float = 0.3
@@ -131,7 +215,7 @@ class ModelConfig:
     prior_t_b: float = 0.01
 
     def validate(self, where: str = "model") -> None:
-        need = _checker(self, where)
+        need = _checker(self, where, model_key)
         need(self.resolution >= 16 and self.resolution % 16 == 0, "resolution", "must be a multiple of 16, >= 16")
         need(self.particles_per_view >= 1, "particles_per_view", "must be >= 1")
         need(
@@ -142,7 +226,7 @@ class ModelConfig:
         need(
             (self.resolution // self.kp_patch) ** 2 >= self.particles_per_view,
             "particles_per_view",
-            "must not exceed the number of keypoint proposals (resolution/kp_patch)^2",
+            "must not exceed the number of keypoint proposals (resolution/keypoints.patch)^2",
         )
         need(0.0 < self.glimpse_ratio < 1.0, "glimpse_ratio", "must be in (0, 1)")
         need(self.kp_min_separation >= 0.0, "kp_min_separation", "must be >= 0")
@@ -150,7 +234,8 @@ class ModelConfig:
         need(self.scale_logit_bound > 0.0, "scale_logit_bound", "must be > 0")
         need(self.glimpse_size >= 4 and self.glimpse_size % 4 == 0, "glimpse_size", "must be a multiple of 4")
         need(self.channels >= 4, "channels", "must be >= 4")
-        need(self.d_obj >= 1 and self.d_bg >= 1, "d_obj", "d_obj and d_bg must be >= 1")
+        need(self.d_obj >= 1, "d_obj", "must be >= 1")
+        need(self.d_bg >= 1, "d_bg", "must be >= 1")
         for key in ("bg_latent_stride", "bg_block"):
             v = getattr(self, key)
             need(v >= 1 and self.resolution % v == 0, key, "must divide the resolution")
@@ -160,29 +245,30 @@ class ModelConfig:
         need(
             self.bg_static_grid == 0 or self.bg_static_points == 0,
             "bg_static_points",
-            "the static layer is either the floor grid (bg_static_grid) or the workspace points; set one to 0",
+            "the static layer is either the floor grid (background.static_grid) or the workspace points; set one to 0",
         )
         need(
             (self.bg_static_pose == "") == (self.bg_static_pose_dims == 0),
             "bg_static_pose",
-            "and bg_static_pose_dims go together: a scene.json key and the length of its list ('' and 0: off)",
+            "and background.static_pose_dims go together: a scene.json key and the length of its list ('' and 0: off)",
         )
         need(
             self.bg_static_pose == "" or self.bg_static_points > 0 or self.fg_evidence,
             "bg_static_pose",
-            "moves the workspace layer: it needs bg_static_points > 0 (or fg_evidence, which reads the robot state)",
+            "moves the workspace layer: it needs background.static_points > 0 (or fg_evidence, which reads the "
+            "robot state)",
         )
         need(
             not self.fg_evidence or (self.bg_per_view and self.bg_latent_stride == self.bg_block),
             "fg_evidence",
-            "needs the per-view background (bg_per_view: true) with bg_latent_stride equal to bg_block (its "
-            "anchors are per block)",
+            "needs the per-view background (background.per_view: true) with background.latent_stride equal to "
+            "background.block (its anchors are per block)",
         )
         need(
             self.bg_per_view or self.has_static_background,
             "bg_per_view",
-            "false needs a static background layer (bg_static_grid or bg_static_points > 0): nothing would draw "
-            "the background",
+            "false needs a static background layer (background.static_grid or background.static_points > 0): "
+            "nothing would draw the background",
         )
         need(self.support_cut < 1.0, "support_cut", "must be < 1 (metres below the support surface; < 0 = off)")
         need(self.patch_gaussians >= 1, "patch_gaussians", "must be >= 1")
@@ -191,7 +277,7 @@ class ModelConfig:
         need(
             self.patch_base >= 0 and ratio >= 1 and base * ratio == self.patch_gaussians and ratio & (ratio - 1) == 0,
             "patch_base",
-            "must be 0 (= patch_gaussians) or patch_gaussians divided by a power of 2",
+            "must be 0 (= patch.gaussians) or patch.gaussians divided by a power of 2",
         )
         need(self.patch_channels == 0 or self.patch_channels >= 4, "patch_channels", "must be 0 (= channels) or >= 4")
         need(self.patch_hidden >= 0, "patch_hidden", "must be >= 0 (0: twice the patch channels)")
@@ -199,7 +285,7 @@ class ModelConfig:
         need(
             self.refine_steps == 0 or self.glimpse_size % 8 == 0,
             "glimpse_size",
-            "must be a multiple of 8 with refine_steps > 0 (the refiner's glimpse)",
+            "must be a multiple of 8 with refine.steps > 0 (the refiner's glimpse)",
         )
         need(self.refine_hidden >= 1, "refine_hidden", "must be >= 1")
         need(0.0 < self.refine_scale <= 1.0, "refine_scale", "must be in (0, 1]")
@@ -208,15 +294,15 @@ class ModelConfig:
         need(
             self.refine_static == "render" or (self.has_static_background and not self.bg_per_view),
             "refine_static",
-            "behind needs a static layer (bg_static_grid or bg_static_points > 0) and no per-view background "
-            "(bg_per_view: false)",
+            "behind needs a static layer (background.static_grid or background.static_points > 0) and no per-view "
+            "background (background.per_view: false)",
         )
         need(
             (self.resolution * self.refine_scale).is_integer() and self.resolution * self.refine_scale >= 8,
             "refine_scale",
-            f"resolution x refine_scale must be a whole number of pixels, at least 8 (resolution {self.resolution})",
+            f"resolution x refine.scale must be a whole number of pixels, at least 8 (resolution {self.resolution})",
         )
-        need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer_heads")
+        need(self.token_dim % self.transformer_heads == 0, "token_dim", "must be divisible by transformer.heads")
         need(self.transformer_layers >= 0, "transformer_layers", "must be >= 0")
         need(self.sh_degree in (0, 1), "sh_degree", "must be 0 or 1")
         need(0.0 < self.d_min < self.d_max, "d_min", "need 0 < d_min < d_max")
@@ -241,8 +327,8 @@ class ModelConfig:
 
     @property
     def gaussians_per_particle(self) -> int:
-        """S², doubled by the back layer (``patch_back``)."""
-        return self.patch_gaussians**2 * (2 if self.patch_back else 1)
+        """2 S²: a front and a back Gaussian per cell of the S x S patch."""
+        return 2 * self.patch_gaussians**2
 
     def render_keys(self, particles_key: str = "model.particles_per_view") -> str:
         """The keys that size this model's renders, with their values, for memory messages: ``model.resolution 64,
@@ -255,12 +341,12 @@ class ModelConfig:
 
     @property
     def particle_decoder_channels(self) -> int:
-        """Channels of the particle decoder's feature grid: ``patch_channels``, else ``channels``."""
+        """Channels of the particle decoder's feature grid: ``patch.channels``, else ``channels``."""
         return self.patch_channels or self.channels
 
     @property
     def particle_decoder_hidden(self) -> int:
-        """Width of the particle decoder's hidden layer (z_f -> hidden -> base grid): ``patch_hidden``, else
+        """Width of the particle decoder's hidden layer (z_f -> hidden -> base grid): ``patch.hidden``, else
         twice :attr:`particle_decoder_channels`."""
         return self.patch_hidden or 2 * self.particle_decoder_channels
 
@@ -320,7 +406,7 @@ class TrainConfig:
         return self.beta_fg if step < self.beta_fg_until * self.steps else 0.0
 
     def validate(self, where: str = "train") -> None:
-        need = _checker(self, where)
+        need = _checker(self, where, str)
         need(self.batch_size >= 1, "batch_size", "must be >= 1")
         need(
             isinstance(self.context_views, list)
@@ -357,18 +443,23 @@ class TrainConfig:
 
 
 def _from_dict(cls, data: Any, where: str):
+    """``cls`` (ModelConfig or TrainConfig) from a flat dict of its fields; errors name ``where`` and the key (a
+    model key by its nested path)."""
     if data is None:
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__}")
+    path: Callable[[str], str] = model_key if cls is ModelConfig else str
     known = {f.name: f for f in fields(cls)}
     unknown = sorted(one_line(k, 40) for k in set(data) - set(known))
     if unknown:
+        listed = list(_top_level_keys()) + list(MODEL_GROUPS) if cls is ModelConfig else list(known)
         raise ConfigError(
-            f"{where}: unknown key(s) {one_line(', '.join(unknown[:5]), 200)} (known: {', '.join(known)})"
+            f"{where}: unknown key(s) {one_line(', '.join(unknown[:5]), 200)} (known: {', '.join(listed)})"
         )
     out = cls()
     for k, v in data.items():
+        name = path(k)
         default = getattr(out, k)
         if isinstance(default, (bool, list, str)):
             ok = isinstance(v, type(default))
@@ -387,25 +478,87 @@ def _from_dict(cls, data: Any, where: str):
                     hint = " (text, not a number: write it without quotes, e.g. 1.0e-4 or 0.0001)"
                 except ValueError:
                     pass
-            raise ConfigError(f"{where}.{k}: expected {type(default).__name__}, got {short_repr(v)}{hint}")
+            raise ConfigError(f"{where}.{name}: expected {type(default).__name__}, got {short_repr(v)}{hint}")
         if isinstance(v, float) and not math.isfinite(v):
-            raise ConfigError(f"{where}.{k}: must be a finite number (got {v})")
+            raise ConfigError(f"{where}.{name}: must be a finite number (got {v})")
         if isinstance(v, float) and float32_problem(v) is not None:  # the model computes in float32
-            raise ConfigError(f"{where}.{k}: {float32_problem(v)} (got {v:g})")
+            raise ConfigError(f"{where}.{name}: {float32_problem(v)} (got {v:g})")
         if k in INT_RANGES and isinstance(v, int) and not isinstance(v, bool):
             lo, hi = INT_RANGES[k]
             if not lo <= v <= hi:
-                raise ConfigError(f"{where}.{k}: must be in [{lo}, {hi}] (got {short_repr(v)})")
+                raise ConfigError(f"{where}.{name}: must be in [{lo}, {hi}] (got {short_repr(v)})")
         if isinstance(v, list) and len(v) > 64:
-            raise ConfigError(f"{where}.{k}: a list of at most 64 entries (got {len(v)})")
+            raise ConfigError(f"{where}.{name}: a list of at most 64 entries (got {len(v)})")
         setattr(out, k, v)
     out.validate(where)
     return out
 
 
-# Keys of experiment branches the recipe does not use; the code behind them is gone. Checkpoints written before
-# (the shipped assets/model.pt among them) still store them: each maps to the value that turned its branch off,
-# which is what the code now always does (ANY: it only tuned a removed branch, so any value reads as off).
+def _top_level_keys() -> list[str]:
+    """The model keys outside every group, in field order."""
+    return [f.name for f in fields(ModelConfig) if f.name not in _PATH_OF]
+
+
+def nested_model_dict(flat: dict[str, Any]) -> dict[str, Any]:
+    """The nested form of a flat model config dict (fields as keys, e.g. ``asdict(cfg)``): its top-level keys,
+    then one mapping per group of :data:`MODEL_GROUPS` (a group none of whose fields is in ``flat`` is left out).
+    What ``config.yaml`` and checkpoints hold; :func:`flat_model_dict` reads it back."""
+    out = {k: v for k, v in flat.items() if k not in _PATH_OF}
+    for group, keys in MODEL_GROUPS.items():
+        inner = {name: flat[f] for name, f in keys.items() if f in flat}
+        if inner:
+            out[group] = inner
+    return out
+
+
+def flat_model_dict(data: Any, where: str) -> Any:
+    """A model config dict, nested (``background: {block: 2}``), flat (``bg_block: 2``, as configs and
+    checkpoints were written before the groups) or both, with every key as its ModelConfig field. A key given
+    twice (flat and nested) is a ConfigError naming ``where`` and both spellings; a group that is not a mapping
+    or holds an unknown key is one naming the group. Anything else (unknown top-level keys, the keys of removed
+    branches, a non-mapping ``data``) passes through for the checks after it."""
+    if not isinstance(data, dict):
+        return data
+    out: dict[Any, Any] = {}
+    given: dict[Any, str] = {}
+
+    def put(key: Any, spelled: str, value: Any) -> None:
+        if key in out:
+            raise ConfigError(
+                f"{where}: {one_line(given[key], 60)} and {one_line(spelled, 60)} are the same key "
+                f"({model_key(key)}); give it once"
+            )
+        out[key], given[key] = value, spelled
+
+    for k, v in data.items():
+        if isinstance(k, str) and k in MODEL_GROUPS:
+            keys = MODEL_GROUPS[k]
+            if not isinstance(v, dict):
+                raise ConfigError(
+                    f"{where}.{k}: expected a mapping of {k} keys ({', '.join(keys)}), got {type(v).__name__}"
+                )
+            unknown = sorted(one_line(n, 40) for n in set(v) - set(keys))
+            if unknown:
+                raise ConfigError(
+                    f"{where}.{k}: unknown key(s) {one_line(', '.join(unknown[:5]), 200)} (known: {', '.join(keys)})"
+                )
+            for name, value in v.items():
+                put(keys[name], f"{k}.{name}", value)
+        else:
+            put(model_field(k) if isinstance(k, str) else k, k if isinstance(k, str) else repr(k), v)
+    return out
+
+
+def config_to_dict(cfg: ModelConfig | TrainConfig) -> dict:
+    """A config as written (``config.yaml``, checkpoints): a model config nested (:func:`nested_model_dict`), a
+    train config flat."""
+    return nested_model_dict(asdict(cfg)) if isinstance(cfg, ModelConfig) else asdict(cfg)
+
+
+# Keys of experiment branches the recipes do not use; the code behind them is gone. Checkpoints and configs
+# written before (the shipped assets/model.pt among them) still hold them: each maps to the value that turned its
+# branch off, which is what the code now always does (ANY: it only tuned a removed branch, so any value reads as
+# off). Removed keys were only ever written flat.
 ANY = object()
 REMOVED_KEYS: dict[str, dict[str, Any]] = {
     "model": {
@@ -420,6 +573,10 @@ REMOVED_KEYS: dict[str, dict[str, Any]] = {
         "patch_copy_threshold": ANY,
         "particle_depth_scale": "cell",
         "refine_glimpse": 0,
+        # black behind the Gaussians instead of the learned colour
+        "learned_background": True,
+        # a patch without its back layer
+        "patch_back": True,
     },
     "train": {
         "beta_coarse": ANY,
@@ -453,7 +610,8 @@ def without_removed_keys(data: Any, section: str, where: str) -> Any:
 
 
 def model_config_from_dict(data: Any, where: str = "model") -> ModelConfig:
-    return _from_dict(ModelConfig, data, where)
+    """A validated ModelConfig from a nested or flat dict (:func:`flat_model_dict`); errors name ``where``."""
+    return _from_dict(ModelConfig, flat_model_dict(data, where), where)
 
 
 def train_config_from_dict(data: Any, where: str = "train") -> TrainConfig:
@@ -461,19 +619,20 @@ def train_config_from_dict(data: Any, where: str = "train") -> TrainConfig:
 
 
 def stored_model_config(data: Any, where: str) -> ModelConfig:
-    """The ``model`` config a checkpoint stored, through the dataclass: a key added since it was written takes
-    its default, a removed one that held its "off" value is dropped (:func:`without_removed_keys`); errors name
-    ``where``."""
-    return model_config_from_dict(without_removed_keys(data, "model", where), where)
+    """The ``model`` config a checkpoint or a config file holds, nested or flat, through the dataclass: a key
+    added since it was written takes its default, a removed one that held its "off" value is dropped
+    (:func:`without_removed_keys`); errors name ``where``."""
+    return model_config_from_dict(without_removed_keys(flat_model_dict(data, where), "model", where), where)
 
 
 def stored_train_config(data: Any, where: str) -> TrainConfig:
-    """The ``train`` config a checkpoint stored (as :func:`stored_model_config`)."""
+    """The ``train`` config a checkpoint or a config file holds (as :func:`stored_model_config`)."""
     return train_config_from_dict(without_removed_keys(data, "train", where), where)
 
 
 def load_config(path: str | PathLike) -> tuple[ModelConfig, TrainConfig]:
-    """Read a YAML file with top-level ``model:`` and ``train:`` mappings."""
+    """Read a YAML file with top-level ``model:`` and ``train:`` mappings (the model section nested or flat; keys
+    of removed branches at their "off" value are dropped, so a run's old ``config.yaml`` still reads)."""
     path = Path(path)
     try:
         data = read_yaml(path, "config")
@@ -489,18 +648,15 @@ def load_config(path: str | PathLike) -> tuple[ModelConfig, TrainConfig]:
             f"{path}: unknown top-level key(s) {one_line(', '.join(unknown[:5]), 200)} (known: model, train)"
         )
     return (
-        model_config_from_dict(data.get("model"), f"{path}: model"),
-        train_config_from_dict(data.get("train"), f"{path}: train"),
+        stored_model_config(data.get("model"), f"{path}: model"),
+        stored_train_config(data.get("train"), f"{path}: train"),
     )
 
 
-def config_to_dict(cfg) -> dict:
-    return asdict(cfg)
-
-
 def with_overrides(model: ModelConfig, train: TrainConfig, changes: dict[str, Any]) -> tuple[ModelConfig, TrainConfig]:
-    """The configs with ``SECTION.KEY: value`` changes (``{"train.steps": 200}``, as ``particlesplat train`` takes
-    them after its options), each checked as a config file's key is (known key, type, range, the section's
+    """The configs with ``SECTION.KEY: value`` changes (``{"train.steps": 200, "model.refine.steps": 0}``, as
+    ``particlesplat train`` takes them after its options; a model key by its nested path or its flat name,
+    ``model.refine_steps``), each checked as a config file's key is (known key, type, range, the section's
     consistency). ConfigError naming the change (``override train.steps: expected int, got 'x'``)."""
     sections: dict[str, dict[str, Any]] = {"model": {}, "train": {}}
     for name, value in changes.items():
@@ -509,7 +665,9 @@ def with_overrides(model: ModelConfig, train: TrainConfig, changes: dict[str, An
             raise ConfigError(f"override {one_line(name, 60)}: expected model.KEY=VALUE or train.KEY=VALUE")
         sections[section][key] = value
     return (
-        _from_dict(ModelConfig, {**asdict(model), **sections["model"]}, "override model")
+        _from_dict(
+            ModelConfig, {**asdict(model), **flat_model_dict(sections["model"], "override model")}, "override model"
+        )
         if sections["model"]
         else model,
         _from_dict(TrainConfig, {**asdict(train), **sections["train"]}, "override train")

@@ -65,9 +65,8 @@ class ForegroundDecoder(nn.Module):
     is S×S, so a model trained with S = ``patch_base`` starts an S-times-finer
     patch from its own Gaussians, each split into children at the finer cell centres.
 
-    With ``patch_back`` a second head gives every cell a back Gaussian (rows S*S .. 2*S*S - 1), which
-    :func:`foreground_gaussians` places behind the cell's front Gaussian on the same ray; it starts nearly
-    transparent (opacity logit -2), so a model trained without it starts from what it drew before.
+    A second head gives every cell a back Gaussian (rows S*S .. 2*S*S - 1), which :func:`foreground_gaussians`
+    places behind the cell's front Gaussian on the same ray; it starts nearly transparent (opacity logit -2).
     """
 
     def __init__(self, cfg: ModelConfig):
@@ -90,21 +89,17 @@ class ForegroundDecoder(nn.Module):
         self.conv = nn.Sequential(nn.SiLU(), nn.Conv2d(c, c, 3, padding=1), nn.SiLU())
         self.head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
         init_gaussian_head(self.head, cfg.sh_degree, opacity_logit=2.0)
-        self.back_head = None
-        if cfg.patch_back:
-            self.back_head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
-            init_gaussian_head(self.back_head, cfg.sh_degree, opacity_logit=-2.0)
+        self.back_head = nn.Conv2d(c, gaussian_channels(cfg.sh_degree), 1)
+        init_gaussian_head(self.back_head, cfg.sh_degree, opacity_logit=-2.0)
 
     def forward(self, z_f: Tensor) -> Tensor:
-        """z_f: (M, D) -> (M, S*S, C) with cells in row-major (y, x) order; (M, 2*S*S, C) with ``patch_back``
-        (front cells, then back cells)."""
+        """z_f: (M, D) -> (M, 2*S*S, C): the front cells in row-major (y, x) order, then the back cells."""
         h = self.fc(z_f).reshape(-1, self.c, self.base, self.base)
         for conv in self.up:
             h = F.interpolate(h, scale_factor=2, mode="nearest")
             h = h + conv(F.silu(h))
         h = self.conv(h)
-        out = [self.head(h)] if self.back_head is None else [self.head(h), self.back_head(h)]
-        return torch.cat([o.flatten(2).transpose(1, 2) for o in out], dim=1)
+        return torch.cat([o(h).flatten(2).transpose(1, 2) for o in (self.head, self.back_head)], dim=1)
 
 
 class BackgroundDecoder(nn.Module):
@@ -224,11 +219,12 @@ def foreground_gaussians(
 ) -> dict[str, Tensor]:
     """Steps 2-3 for M particles.
 
-    raw: (M, N, C) canonical patch parameters (N = S*S, row-major cells; 2*S*S with ``patch_back``);
+    raw: (M, 2*S*S, C) canonical patch parameters (the S*S front cells row-major, then the back cells);
     z_p: (M, 2) in [-1, 1]; z_s: (M, 2), z_d: (M, 1), z_e: (M, 1) pre-sigmoid; z_t: (M, 1) in [0, 1];
-    K: (M, 3, 3) and c2w: (M, 4, 4) of each particle's view. Returns Gaussian fields with leading dims (M, N);
-    with ``keep`` = k in (0, N), (M, k): each particle's k most opaque Gaussians, in their order among its N,
-    chosen before they are lifted to the world (the opacity needs no lifting; the lift is most of the cost).
+    K: (M, 3, 3) and c2w: (M, 4, 4) of each particle's view. Returns Gaussian fields with leading dims (M, N),
+    N = 2*S*S; with ``keep`` = k in (0, N), (M, k): each particle's k most opaque Gaussians, in their order among
+    its N, chosen before they are lifted to the world (the opacity needs no lifting; the lift is most of the
+    cost).
 
     A back Gaussian sits on its front Gaussian's ray, σ(its depth channel) x the particle box's width
     (metres, at the front depth) further away: the far side of the object along the context view's ray,
@@ -249,13 +245,12 @@ def foreground_gaussians(
     zeta = d + half * torch.tanh(p["dd"][..., 0])
     jac_px = scale * size / S  # s_x / (S_w / W): pixels per canonical cell
     opacity = z_t * torch.sigmoid(p["opacity"][..., 0])
-    if cfg.patch_back:
-        pb = split_gaussian_params(raw[:, S * S :], cfg.sh_degree)
-        box = jac_px.mean(-1) * S * zeta / K[:, 0, 0, None]  # (M, N) the particle box's width in metres
-        p = {k: torch.cat([p[k], pb[k]], dim=1) for k in p}
-        pix = torch.cat([pix, pix], dim=1)
-        zeta = torch.cat([zeta, zeta + torch.sigmoid(pb["dd"][..., 0]) * box], dim=1)
-        opacity = torch.cat([opacity, z_t * torch.sigmoid(pb["opacity"][..., 0])], dim=1)
+    pb = split_gaussian_params(raw[:, S * S :], cfg.sh_degree)
+    box = jac_px.mean(-1) * S * zeta / K[:, 0, 0, None]  # (M, S*S) the particle box's width in metres
+    p = {k: torch.cat([p[k], pb[k]], dim=1) for k in p}
+    pix = torch.cat([pix, pix], dim=1)
+    zeta = torch.cat([zeta, zeta + torch.sigmoid(pb["dd"][..., 0]) * box], dim=1)
+    opacity = torch.cat([opacity, z_t * torch.sigmoid(pb["opacity"][..., 0])], dim=1)
     return _lift_cells(p, pix, zeta, jac_px, opacity, K, c2w, cfg, keep)
 
 

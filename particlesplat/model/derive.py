@@ -5,11 +5,20 @@ model is one: its run's checkpoint with a cheaper refinement pass.
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from os import PathLike
 
 from particlesplat.core.choices import INFERENCE_KEYS
 from particlesplat.core.errors import UserError
-from particlesplat.model.config import ModelConfig, config_to_dict, model_config_from_dict, stored_model_config
+from particlesplat.model.config import (
+    ModelConfig,
+    flat_model_dict,
+    model_config_from_dict,
+    model_field,
+    model_key,
+    nested_model_dict,
+    stored_model_config,
+)
 from particlesplat.model.io import model_from_checkpoint, read_checkpoint, save_checkpoint
 
 # run state a derived checkpoint does not carry: it is a model, not a run to resume
@@ -22,21 +31,27 @@ class DeriveError(UserError):
 
 def derive_checkpoint(ckpt: dict, changes: dict[str, object], source: str, note: str = "") -> dict:
     """A copy of checkpoint dict ``ckpt`` (from ``source``) with the model keys in ``changes`` set
-    (:data:`INFERENCE_KEYS` only). Its provenance says what changed ("derived"), after any earlier change;
-    optimiser and RNG state are left out. Raises DeriveError or ConfigError naming the key."""
+    (:data:`INFERENCE_KEYS` only, by nested path or flat name). Its config is written nested; its provenance says
+    what changed ("derived"), after any earlier change; optimiser and RNG state are left out. Raises DeriveError
+    or ConfigError naming the key."""
     old = stored_model_config(ckpt["config"], f"{source}: config")
+    allowed = {model_field(k) for k in INFERENCE_KEYS}
     for key in changes:
-        if key not in INFERENCE_KEYS:
+        if model_field(key) not in allowed:
             known = ", ".join(INFERENCE_KEYS)
             raise DeriveError(f"{key}: not a key a trained model can change (those are: {known})")
-    config = {**config_to_dict(old), **changes}  # as loading reads it: keys of removed branches dropped
+    flat = flat_model_dict(changes, "model set")  # a key given flat and nested is refused naming both
+    # as loading reads it: keys of removed branches dropped; written nested
+    config = nested_model_dict({**asdict(old), **flat})
     new = model_config_from_dict(config, "model")  # validated
     state = dict(ckpt["state_dict"])
     if new.refine_steps > 0 and not any(k.startswith("refiner.") for k in state):
-        raise DeriveError(f"refine_steps: {source} has no refiner weights (its refine_steps is {old.refine_steps})")
+        raise DeriveError(f"refine.steps: {source} has no refiner weights (its refine.steps is {old.refine_steps})")
     if new.refine_steps == 0:
         state = {k: v for k, v in state.items() if not k.startswith("refiner.")}
-    said = [f"{k} {getattr(old, k)} -> {getattr(new, k)}" for k in changes if getattr(old, k) != getattr(new, k)]
+    said = [
+        f"{model_key(k)} {getattr(old, k)} -> {getattr(new, k)}" for k in flat if getattr(old, k) != getattr(new, k)
+    ]
     if not said:
         raise DeriveError("nothing to change: every key already has that value")
     prov = dict(ckpt.get("provenance") or {})

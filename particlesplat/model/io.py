@@ -206,8 +206,8 @@ def check_model_memory(cfg: ModelConfig, where: str, copies: int = 1) -> None:
     if n is not None:
         check_memory(
             4.0 * copies * n,
-            f"{where}: a model of {n:,} weights (token_dim {cfg.token_dim}, transformer_layers "
-            f"{cfg.transformer_layers}){' with gradients and Adam moments' if copies > 1 else ''}",
+            f"{where}: a model of {n:,} weights (transformer.token_dim {cfg.token_dim}, "
+            f"transformer.layers {cfg.transformer_layers}){' with gradients and Adam moments' if copies > 1 else ''}",
         )
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, fields, replace
+from dataclasses import fields, replace
 
 import torch
 import torch.nn.functional as F
@@ -11,7 +11,7 @@ from torch import Tensor, nn
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import BACKGROUND_OWNER, Gaussians
 from particlesplat.core.sh import SH_C0
-from particlesplat.model.config import ModelConfig
+from particlesplat.model.config import ModelConfig, config_to_dict
 from particlesplat.model.decoder import (
     BackgroundDecoder,
     ForegroundDecoder,
@@ -83,19 +83,17 @@ class ParticleSplat(nn.Module):
         self.refiner = Refiner(config) if config.refine_steps > 0 else None
         # training switches the refinement on at ``train.refine_start``; off, encode returns the first look
         self.refine_enabled = True
-        # one colour behind all Gaussians (sigmoid of 3 logits; near black at the start, as without it)
-        self.background_logit = nn.Parameter(torch.full((3,), -3.0)) if config.learned_background else None
+        # one colour behind all Gaussians, learned (sigmoid of 3 logits; near black at the start)
+        self.background_logit = nn.Parameter(torch.full((3,), -3.0))
 
     def background_color(self) -> Tensor:
-        """(3,) RGB in [0, 1] rendered behind the Gaussians: learned (``learned_background``) or black."""
-        if self.background_logit is None:
-            return torch.zeros(3, device=next(self.parameters()).device)
+        """(3,) RGB in [0, 1] rendered behind the Gaussians: the learned background colour."""
         return torch.sigmoid(self.background_logit)
 
     def _bg_decoder(self) -> BackgroundDecoder:
         """The per-view background decoder: only a model with ``bg_per_view`` has one."""
         if self.bg_decoder is None:
-            raise ValueError("this model has no per-view background decoder (bg_per_view is false)")
+            raise ValueError("this model has no per-view background decoder (background.per_view is false)")
         return self.bg_decoder
 
     # ------------------------------------------------------------------ batched internals
@@ -214,7 +212,9 @@ class ParticleSplat(nn.Module):
         K (M, 3, 3), c2w (M, 4, 4), pose (M, D) the pose of each view's scene (``bg_static_pose``; None: the
         layer's mean pose) -> layers (M, 5, height, width) (:mod:`particlesplat.rendering.layers`)."""
         if self.static_bg is None:
-            raise ValueError("this model has no static background layer (bg_static_grid and bg_static_points are 0)")
+            raise ValueError(
+                "this model has no static background layer (background.static_grid and background.static_points are 0)"
+            )
         owner = torch.full((self.static_bg.num,), BACKGROUND_OWNER, device=K.device)
         M = K.shape[0]
         if self.follows_pose and pose is not None:
@@ -263,7 +263,7 @@ class ParticleSplat(nn.Module):
         behind = None
         if cfg.refine_static == "behind":
             if post.static_layer is None:
-                raise ValueError("refine_static behind: the posterior holds no render of the static layer")
+                raise ValueError("refine.static behind: the posterior holds no render of the static layer")
             behind = pool_layer(post.static_layer.flatten(0, 1), (h, w))
         for _ in range(cfg.refine_steps):
             with torch.no_grad():
@@ -337,7 +337,7 @@ class ParticleSplat(nn.Module):
         c2w: Tensor,
         keep: int = 0,
     ) -> dict[str, Tensor]:
-        """M particles -> Gaussian fields (M, S*S, ·) ((M, 2*S*S, ·) with ``patch_back``). Latents (M, ·);
+        """M particles -> Gaussian fields (M, 2*S*S, ·): the front Gaussians, then the back layer. Latents (M, ·);
         K (M, 3, 3), c2w (M, 4, 4) of their views. ``keep`` = k > 0: each particle's k most opaque (M, k, ·)."""
         raw = self.fg_decoder(z_f)
         return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config, keep)
@@ -381,7 +381,9 @@ class ParticleSplat(nn.Module):
         """The static layer's Gaussian fields for B scenes (B, N, ·); pose (B, D) or None (the mean pose) moves
         a workspace layer that follows one (:attr:`follows_pose`)."""
         if self.static_bg is None:
-            raise ValueError("this model has no static background layer (bg_static_grid and bg_static_points are 0)")
+            raise ValueError(
+                "this model has no static background layer (background.static_grid and background.static_points are 0)"
+            )
         if isinstance(self.static_bg, WorkspaceBackground) and self.follows_pose and pose is not None:
             return self.static_bg(pose)
         return {k: v[None].expand(B, *v.shape) for k, v in self.static_bg().items()}
@@ -557,4 +559,5 @@ class ParticleSplat(nn.Module):
         return g
 
     def config_dict(self) -> dict:
-        return asdict(self.config)
+        """The config as a checkpoint stores it: nested (:func:`~particlesplat.model.config.config_to_dict`)."""
+        return config_to_dict(self.config)

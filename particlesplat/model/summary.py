@@ -12,7 +12,7 @@ import math
 from collections.abc import Mapping
 
 from particlesplat.data.families import families
-from particlesplat.model.config import ModelConfig
+from particlesplat.model.config import ModelConfig, model_value
 from particlesplat.model.derive import INFERENCE_KEYS
 from particlesplat.model.provenance import describe
 
@@ -118,19 +118,18 @@ def summarize(ckpt: Mapping, cfg: ModelConfig, weights: int, refinement: str, na
     """The lines ``model info`` prints for checkpoint ``ckpt`` (read from ``name``) of a model built with
     ``cfg``, holding ``weights`` learned values, its refinement state in words."""
     step = int(ckpt["step"])
-    per = cfg.patch_gaussians**2 * (2 if cfg.patch_back else 1)
-    back = " and a back layer" if cfg.patch_back else ""
+    per = cfg.gaussians_per_particle
     lines = [
         f"{name}: a ParticleSplat model of the {family_of(cfg)} family, {cfg.resolution}x{cfg.resolution} RGB-D, "
         f"step {step:,}",
         f"particles: {cfg.particles_per_view} a context view, {per} Gaussians each "
-        f"({cfg.patch_gaussians}x{cfg.patch_gaussians} patch{back}); refinement {refinement}; "
+        f"({cfg.patch_gaussians}x{cfg.patch_gaussians} patch and a back layer); refinement {refinement}; "
         f"depth {cfg.d_min:g}-{cfg.d_max:g} m; {weights:,} learned values",
         f"static layer: {static_layer(cfg)}",
         training_line(step, ckpt.get("train")),
         *provenance_lines(ckpt.get("provenance")),
         scores_line(ckpt.get("val"), ckpt.get("train")),
         "inference keys ('particlesplat model set' changes them): "
-        + ", ".join(f"{key} {getattr(cfg, key)}" for key in INFERENCE_KEYS),
+        + ", ".join(f"{key} {model_value(cfg, key)}" for key in INFERENCE_KEYS),
     ]
     return lines[:1] + ["  " + line for line in lines[1:]]

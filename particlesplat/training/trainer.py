@@ -13,7 +13,7 @@ import threading
 import time
 import weakref
 from contextlib import contextmanager
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +32,13 @@ from particlesplat.data.dataset import TrainingBatch
 from particlesplat.data.pose_ranges import check_ranges, record_range
 from particlesplat.data.views import WARMUP
 from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig, read_checkpoint, save_checkpoint
-from particlesplat.model.config import ConfigError, config_to_dict, stored_model_config, stored_train_config
+from particlesplat.model.config import (
+    ConfigError,
+    config_to_dict,
+    model_key,
+    stored_model_config,
+    stored_train_config,
+)
 from particlesplat.model.io import check_model_memory
 from particlesplat.model.provenance import Provenance, RunClock
 from particlesplat.model.static_background import WorkspaceBackground
@@ -196,8 +202,8 @@ class Trainer:
         if tc.beta_fg > 0 and not (cfg.has_static_background or cfg.fg_evidence):
             raise ConfigError(
                 f"train.beta_fg: the foreground term compares with the static background layer or with the "
-                f"foreground evidence of depth; set model.bg_static_grid or model.bg_static_points > 0, or "
-                f"model.fg_evidence, or beta_fg to 0 (got {tc.beta_fg})"
+                f"foreground evidence of depth; set model.background.static_grid or model.background.static_points "
+                f"> 0, or model.fg_evidence, or beta_fg to 0 (got {tc.beta_fg})"
             )
         self.distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
         if self.distributed:
@@ -320,7 +326,7 @@ class Trainer:
         )
 
     def _start_workspace(self) -> None:
-        """Start the workspace layer (``model.bg_static_points``) at the voxels most of the first
+        """Start the workspace layer (``model.background.static_points``) at the voxels most of the first
         ``WORKSPACE_SCENES`` training scenes share (:func:`particlesplat.data.workspace_points.workspace_points`;
         no labels are read). Deterministic: the same data gives the same start."""
         from particlesplat.data.workspace_points import workspace_points
@@ -329,7 +335,9 @@ class Trainer:
         found = workspace_points(scenes, self.cfg.bg_static_points)
         layer = self.model.static_bg
         if not isinstance(layer, WorkspaceBackground):
-            raise RuntimeError(f"bg_static_points is {self.cfg.bg_static_points} but the model has no workspace layer")
+            raise RuntimeError(
+                f"background.static_points is {self.cfg.bg_static_points} but the model has no workspace layer"
+            )
         layer.initialise(*(torch.from_numpy(a) for a in (found.points, found.colours, found.sizes)))
         if self.rank == 0:
             print(
@@ -339,12 +347,12 @@ class Trainer:
             )
 
     def _set_pose_mean(self) -> None:
-        """The workspace layer follows each scene's pose (``model.bg_static_pose``) about the mean pose of the
+        """The workspace layer follows each scene's pose (``model.background.static_pose``) about the mean pose of the
         training scenes (each must record one)."""
         ds = next(iter(self.train_sets.values()))
         layer = self.model.static_bg
         if not isinstance(layer, WorkspaceBackground):
-            raise RuntimeError("bg_static_pose is set but the model has no workspace layer")
+            raise RuntimeError("background.static_pose is set but the model has no workspace layer")
         poses = [ds.pose(i) for i in range(len(ds))]
         layer.set_pose_mean(torch.tensor(poses))
         self.model.input_ranges = {self.cfg.bg_static_pose: record_range(poses)}  # saved with every checkpoint
@@ -473,12 +481,12 @@ class Trainer:
     def _load(self, path: Path) -> None:
         ckpt = read_checkpoint(path)
         stored = stored_model_config(ckpt["config"], f"{path}: config")
-        if config_to_dict(stored) != config_to_dict(self.cfg):
-            have, want = config_to_dict(stored), config_to_dict(self.cfg)
+        if stored != self.cfg:
+            have, want = asdict(stored), asdict(self.cfg)
             key = next(k for k in want if have.get(k) != want[k])
             raise ConfigError(
-                f"{path}: model.{key}: the run was trained with {short_repr(have.get(key))}, {self.config_source} "
-                f"gives {short_repr(want[key])}; resume with the run's config (leave --config out)"
+                f"{path}: model.{model_key(key)}: the run was trained with {short_repr(have.get(key))}, "
+                f"{self.config_source} gives {short_repr(want[key])}; resume with the run's config (leave --config out)"
             )
         if isinstance(ckpt.get("train"), dict):
             self._compare_train(path, stored_train_config(ckpt["train"], f"{path}: train"))

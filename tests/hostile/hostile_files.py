@@ -147,10 +147,11 @@ def many_frames_one_image(good_scene: Path, folder: Path, frames: int = 200, sid
 def big_config_checkpoint(good: Path, path: Path, **model) -> Path:
     """A copy of checkpoint ``good`` (a few KB of weights) whose config, with a valid digest, builds a model of
     ``model`` (e.g. token_dim 2048 and 64 transformer layers: ~8.6 GB of weights)."""
+    from particlesplat.model.config import flat_model_dict, nested_model_dict
     from particlesplat.model.io import config_digest
 
     ckpt = torch.load(good, weights_only=True)
-    ckpt["config"] = {**ckpt["config"], **model}
+    ckpt["config"] = nested_model_dict({**flat_model_dict(ckpt["config"], str(good)), **model})
     ckpt["config_sha256"] = config_digest(ckpt["config"])
     torch.save(ckpt, path)
     return path

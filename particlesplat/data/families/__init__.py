@@ -20,7 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-StaticLayer = Literal["grid", "points"]  # a floor grid (model.bg_static_grid), free Gaussians (bg_static_points)
+# a floor grid (model.background.static_grid), free Gaussians (model.background.static_points)
+StaticLayer = Literal["grid", "points"]
 # a generator entry: (out folder, scenes per split, seed, the synth command's options) -> seconds per new scene
 Generator = Callable[[Path, dict[str, int], int, argparse.Namespace], list[float]]
 
