@@ -195,3 +195,45 @@ def test_training_an_evidence_model_and_encoding_flags_the_robot(scenes, tmp_pat
     arrays = ParticleArrays.load(next(out.rglob("*.npz")))
     assert arrays.robot.shape == arrays.active.shape
     assert not bool((arrays.object[arrays.robot] >= 0).any())
+
+
+def test_anchored_background_gaussians_lie_flat_on_the_surface_they_see():
+    """A camera 45° above a plane z = 0, anchors at the plane's exact depths: every background Gaussian sits on the
+    plane (to 1 mm), its thinnest axis along z, and its in-plane spread spans the step to the next block (no gaps
+    seen from above: the largest in-plane standard deviation is at least a third of the block spacing there)."""
+    from particlesplat.model.decoder import background_gaussians, block_anchors, gaussian_channels
+
+    res, k = 32, 2
+    cfg = ModelConfig(
+        resolution=res,
+        bg_block=k,
+        bg_latent_stride=k,
+        bg_per_view=True,
+        bg_static_grid=0,
+        fg_evidence=True,
+        d_min=0.3,
+        d_max=5.0,
+    )
+    K = torch.tensor([[[40.0, 0, 16], [0, 40.0, 16], [0, 0, 1]]])
+    a = math.radians(45)
+    R = torch.tensor([[1.0, 0, 0], [0, -math.sin(a), -math.cos(a)], [0, math.cos(a), -math.sin(a)]])
+    c2w = torch.eye(4)[None]
+    c2w[0, :3, :3] = R
+    c2w[0, :3, 3] = torch.tensor([0.0, -1.0, 1.0])
+    v, u = torch.meshgrid(torch.arange(res) + 0.5, torch.arange(res) + 0.5, indexing="ij")
+    rays = torch.stack([(u - 16) / 40, (v - 16) / 40, torch.ones_like(u)], -1) @ R.T  # world dirs, camera z = 1
+    depth = (1.0 / -rays[..., 2])[None, None]  # planar depth where each pixel's ray meets z = 0
+    anchor = block_anchors(torch.full((1, 3, res, res), 0.5), depth, torch.zeros(1, 1, res, res), k)
+    n = (res // k) ** 2
+    raw = torch.zeros(1, n, gaussian_channels(0))
+    raw[..., 6] = 1.0  # identity quaternion (unused by anchored shapes)
+    g = background_gaussians(raw, K, c2w, cfg, anchor.flatten(2).transpose(1, 2))
+    assert float(g["means"][..., 2].abs().max()) < 1e-3  # a block's mean depth: within a millimetre
+    from particlesplat.model.geometry import quaternion_to_rotation_matrix
+
+    axes = quaternion_to_rotation_matrix(g["quats"][0])  # (n, 3, 3), columns the axes
+    thin = g["scales"][0].argmin(-1)
+    normal = axes[torch.arange(n), :, thin]
+    assert float(normal[:, 2].abs().min()) > 0.99
+    spacing = (depth[0, 0, 0, 0] * k / 40.0).item()  # the nearest block's width on the plane, at least
+    assert float(g["scales"][0].max(-1).values.min()) > spacing / 3
