@@ -334,7 +334,8 @@ def test_scene_kl_masks_geometry_but_not_transparency():
     cfg = m.config
     zero = scene_kl(post, torch.zeros(1, 6, 1), cfg, beta_f=1.0)
     t_only = kl_beta(post.beta_a, post.beta_b, cfg.prior_t_a, cfg.prior_t_b).sum()
-    bg = kl_normal(post.mu_bg, post.lv_bg, 0.0, 1.0).sum()
+    # the background latents count only where they are decoded (bg_per_view)
+    bg = kl_normal(post.mu_bg, post.lv_bg, 0.0, 1.0).sum() if cfg.bg_per_view else torch.zeros(())
     torch.testing.assert_close(zero, (t_only + bg)[None])
     one = scene_kl(post, torch.ones(1, 6, 1), cfg, beta_f=0.5)
     geo = (
@@ -345,6 +346,11 @@ def test_scene_kl_masks_geometry_but_not_transparency():
     )
     feat = kl_normal(post.mu_f, post.lv_f, 0.0, 1.0).sum()
     torch.testing.assert_close(one, (geo + 0.5 * feat + t_only + 0.5 * bg)[None], rtol=1e-5, atol=1e-3)
+    per_view = replace(cfg, bg_per_view=True)
+    torch.testing.assert_close(
+        scene_kl(post, torch.zeros(1, 6, 1), per_view, beta_f=1.0),
+        (t_only + kl_normal(post.mu_bg, post.lv_bg, 0.0, 1.0).sum())[None],
+    )
 
 
 def test_view_error_ignores_unsupervised_and_depthless_pixels():

@@ -34,7 +34,8 @@ def scene_kl(post: Posterior, z_t: Tensor, cfg: ModelConfig, beta_f: float) -> T
     """Scene-level masked KL of the appendix, one value per scene (B,), not normalised by views.
 
     post: posterior parameters (B, N, ·) and background (B, V, d_bg, h, w); z_t: (B, N, 1) the transparency
-    that masks the geometric and appearance KL terms (the Beta KL of z_t itself is unmasked).
+    that masks the geometric and appearance KL terms (the Beta KL of z_t itself is unmasked). The background
+    latents' KL counts only for a model that decodes them (``bg_per_view``).
     """
     geo = (
         kl_normal(post.mu_o, post.lv_o, 0.0, cfg.prior_offset_std).sum(-1)
@@ -46,6 +47,8 @@ def scene_kl(post: Posterior, z_t: Tensor, cfg: ModelConfig, beta_f: float) -> T
     t = kl_beta(post.beta_a, post.beta_b, cfg.prior_t_a, cfg.prior_t_b).sum(-1)
     mask = z_t[..., 0]
     fg = ((geo + beta_f * feat) * mask + t).sum(-1)
+    if not cfg.bg_per_view:  # no background latent is decoded: it carries no information and costs nothing
+        return fg
     bg = beta_f * kl_normal(post.mu_bg, post.lv_bg, 0.0, 1.0).flatten(1).sum(-1)
     return fg + bg
 
