@@ -28,6 +28,7 @@ from particlesplat.analysis.particle_arrays import (
     object_localisation,
     scene_object_centres,
 )
+from particlesplat.analysis.world_turn import turn_item, turn_points
 from particlesplat.core import palette
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.camera import Camera
@@ -324,9 +325,11 @@ def evaluate_dataset(
     fit_lr: float = 0.02,
     fit_latents: tuple[str, ...] = DEFAULT_FIT,
     z_t_threshold: float | None = None,
+    turn: float = 0.0,
 ) -> dict:
     """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}.
-    ``z_t_threshold``: particles drawn (None: the model's, :meth:`ParticleSplat.decode`; 0: every one)."""
+    ``z_t_threshold``: particles drawn (None: the model's, :meth:`ParticleSplat.decode`; 0: every one).
+    ``turn``: degrees by which every scene's world frame is turned about z first (:mod:`.world_turn`)."""
     from particlesplat.core.atomic import check_writable
     from particlesplat.core.errors import blame
     from particlesplat.core.gaussians import BadGaussiansError
@@ -353,6 +356,10 @@ def evaluate_dataset(
         pose = scene_pose(ds.scenes[i], cfg.bg_static_pose, cfg.bg_static_pose_dims, model.input_ranges)
         if pose is not None:
             item["pose"] = pose
+        true_centres = scene_object_centres(ds.scenes[i])
+        if turn:
+            item = turn_item(item, turn, cfg.bg_static_pose)
+            true_centres = turn_points(true_centres, turn)
         if set(item["target_index"].tolist()) <= set(item["context_index"].tolist()):
             raise UserError(
                 f"{ds.scenes[i]}: {ds.raw(i).num_frames} frame(s): no target view apart from the "
@@ -367,7 +374,7 @@ def evaluate_dataset(
                 fit_steps=fit_steps,
                 fit_lr=fit_lr,
                 fit_latents=fit_latents,
-                true_centres=scene_object_centres(ds.scenes[i]),
+                true_centres=true_centres,
                 z_t_threshold=z_t_threshold,
             )
         if figures is not None and i < num_figures:
@@ -384,6 +391,8 @@ def evaluate_dataset(
             prune_rows.append(res["pruning"])
     mean = {k: _nanmean([s[k] for s in scenes]) for k in SCALARS}
     out = {"data": str(data_dir), "context": context, "depth": use_depth, "scenes": scenes, "mean": mean}
+    if turn:
+        out["turn_deg"] = turn
     if located[OBJECT_CENTRES[0]]:  # scenes whose generator recorded the object centres
         out["localisation"] = {m: localisation_summary(d) for m, d in located.items()}
     if regions:  # where the squared error of the target views lies, pooled over the scenes

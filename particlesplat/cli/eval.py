@@ -83,6 +83,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="draw the particles with z_t at or above this (default: the model's background.mask_threshold, "
         "as the viewer and particlesplat render draw them; 0 = every particle)",
     )
+    parser.add_argument(
+        "--turn",
+        type=float,
+        default=0.0,
+        metavar="DEG",
+        help="turn every scene's world frame by DEG degrees about z first (cameras, robot base and object centres; "
+        "images unchanged): a model that reads its workspace from the views scores the same (default: 0)",
+    )
     parser.add_argument("--device", default=None, help=DEVICE_HELP)
     add_rasterizer_option(parser)
 
@@ -102,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
 
     check_option_range(args.fit_lr, "--fit-lr", 0.0, MAX_FIT_LR, low_open=True)
     check_option_range(args.z_t_threshold, "--z-t-threshold", 0.0, 1.0)  # z_t is a probability
+    check_option_range(args.turn, "--turn", -360.0, 360.0)
     if args.json:
         check_writable(args.json)  # before the work, not after it
     figures = Path(args.figures) if args.figures else None
@@ -147,6 +156,7 @@ def run(args: argparse.Namespace) -> int:
                 fit_lr=args.fit_lr,
                 fit_latents=latents,
                 z_t_threshold=args.z_t_threshold,
+                turn=args.turn,
             )
 
     fit = bool(args.fit_steps)
