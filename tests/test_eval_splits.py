@@ -155,3 +155,22 @@ def test_a_refused_split_is_answered_before_torch_loads(two_splits):
     proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.splitlines() == ["--splits must name some of val,test,heldout, got 'test,heldot'", "False"]
+
+
+def test_the_shipped_model_eval_chose_is_an_input_its_outputs_may_not_replace(
+    tiny_ckpt, two_splits, tmp_path, monkeypatch, capsys
+):
+    """Without --checkpoint, eval opens the family's shipped model: --json naming that file is one line, exit 2,
+    and the model is left as it was."""
+    import particlesplat.data.scene_meta as scene_meta
+
+    shipped = tmp_path / "shipped.pt"
+    shutil.copy(tiny_ckpt, shipped)
+    before = shipped.read_bytes()
+    monkeypatch.setattr(scene_meta, "default_checkpoint", lambda data: shipped)
+    code = run_command(
+        "particlesplat eval", lambda: main(["eval", "--data", str(two_splits / "test"), "--json", str(shipped)])
+    )
+    assert code == EXIT_USER
+    assert "shipped model" in capsys.readouterr().err
+    assert shipped.read_bytes() == before

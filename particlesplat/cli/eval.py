@@ -135,6 +135,8 @@ def run(args: argparse.Namespace) -> int:
 
     device = resolve_device(args.device)
     path = args.checkpoint or default_checkpoint(args.data)  # the shipped model of the data's family
+    if not args.checkpoint:  # the shipped model it chose is an input too
+        guard_outputs([("--json", args.json), ("--figures", args.figures)], [("the shipped model", str(path))])
     model = load_model(path, device=device)
     ckpt = read_checkpoint(path)
     print(f"{path}: step {ckpt['step']}; {describe(ckpt.get('provenance'))}")
