@@ -110,7 +110,7 @@ def test_refiner_gets_no_gradient_before_refine_start_and_does_after(tmp_path_fa
 
 
 def test_training_selection_restores_the_model_config_even_on_error():
-    from particlesplat.training.trainer import training_selection
+    from particlesplat.training.schedules import training_selection
 
     cfg = ModelConfig(**TINY_MODEL)
     tc = TrainConfig(particles_per_view=5, kp_min_separation=0.4)

@@ -154,7 +154,7 @@ def test_two_process_ddp_run(tmp_path_factory, tmp_path, model):
 
 def test_lr_factor_is_a_cosine_from_one_to_lr_final():
     from particlesplat.model import TrainConfig
-    from particlesplat.training.trainer import lr_factor
+    from particlesplat.training.schedules import lr_factor
 
     tc = TrainConfig(steps=101, lr_final=0.2)
     assert lr_factor(0, tc) == pytest.approx(1.0)
@@ -169,7 +169,7 @@ def test_lr_factor_is_a_cosine_from_one_to_lr_final():
 def test_view_gaps_reach_their_full_range_after_gap_warmup():
     from particlesplat.data.views import gap_range
     from particlesplat.model import TrainConfig
-    from particlesplat.training.trainer import gap_progress
+    from particlesplat.training.schedules import gap_progress
 
     tc = TrainConfig(steps=1000, gap_warmup=0.2)
     assert gap_range(gap_progress(0, tc), "multi") == (1, 4)

@@ -12,7 +12,6 @@ import sys
 import threading
 import time
 import weakref
-from contextlib import contextmanager
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
@@ -30,7 +29,6 @@ from particlesplat.core.runlock import LOCK_NAME, RunLock
 from particlesplat.core.threads import ThreadGovernor
 from particlesplat.data.dataset import TrainingBatch
 from particlesplat.data.pose_ranges import check_ranges, record_range
-from particlesplat.data.views import WARMUP
 from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig, read_checkpoint, save_checkpoint
 from particlesplat.model.config import (
     ConfigError,
@@ -45,6 +43,8 @@ from particlesplat.model.static_background import WorkspaceBackground
 from particlesplat.training.eta import StepTimes
 from particlesplat.training.loss import training_loss
 from particlesplat.training.runlog import LogReader, read_log
+from particlesplat.training.schedules import gap_progress, lr_factor, training_selection
+from particlesplat.training.step_budget import check_step_renders
 
 LAST = "last.pt"
 STEP_FILE = re.compile(r"^step_\d+\.pt$")
@@ -92,19 +92,6 @@ def _is_checkpoint(name: str) -> bool:
     return name in (LAST, "best.pt") or bool(STEP_FILE.match(name))
 
 
-@contextmanager
-def training_selection(cfg: ModelConfig, tc: TrainConfig):
-    """Inside: the model keeps ``tc.particles_per_view`` particles per view, ``tc.kp_min_separation`` apart (0 keeps
-    the model's values); outside, the model config (what inference and checkpoints use) is unchanged."""
-    saved = (cfg.particles_per_view, cfg.kp_min_separation)
-    cfg.particles_per_view = tc.particles_per_view or cfg.particles_per_view
-    cfg.kp_min_separation = tc.kp_min_separation or cfg.kp_min_separation
-    try:
-        yield
-    finally:
-        cfg.particles_per_view, cfg.kp_min_separation = saved
-
-
 RUN_FILES = ("config.yaml", "metrics.jsonl")  # what a run writes besides checkpoints
 
 
@@ -125,20 +112,6 @@ def _run_without_checkpoint(out: Path, held: list[Path]) -> bool:
     return (
         isinstance(data, dict) and set(data) == {"model", "train"} and all(isinstance(v, dict) for v in data.values())
     )
-
-
-def gap_progress(step: int, tc: TrainConfig) -> float:
-    """The data sampler's progress at ``step``: its view-gap range grows linearly to the full range over the
-    first ``gap_warmup`` of the steps (0: full from the start)."""
-    done = 1.0 if tc.gap_warmup == 0 else min(step / (tc.steps * tc.gap_warmup), 1.0)
-    return 1.0 if done >= 1.0 else done * WARMUP
-
-
-def lr_factor(step: int, tc: TrainConfig) -> float:
-    """Learning-rate multiplier of optimiser step ``step`` (0-based): a cosine from 1 at step 0 to
-    ``lr_final`` at the last step (``lr_final`` 1: constant)."""
-    t = min(step / max(tc.steps - 1, 1), 1.0)
-    return tc.lr_final + (1.0 - tc.lr_final) * 0.5 * (1.0 + math.cos(math.pi * t))
 
 
 class Trainer:
@@ -277,7 +250,8 @@ class Trainer:
             raise FileExistsError(
                 f"{out / LAST}: this run already exists; pass --resume to continue it or choose another --out"
             )
-        self._check_step_renders()  # before --overwrite deletes anything
+        check_step_renders(self.model, self.cfg, self.tc, self.train_sets, self.device, self.config_source)
+        # (before --overwrite deletes anything)
         # steps before refine_start leave the refiner's weights without gradients
         unused = cfg.refine_steps > 0 and tc.refine_start > 0
         self.ddp = (
@@ -285,45 +259,6 @@ class Trainer:
         )
         if overwrite and not resume and self.rank == 0 and out.is_dir():
             self._clear_run()
-
-    def _check_step_renders(self) -> None:
-        """BudgetError before the run starts when a training step's render pass would not fit the memory limit
-        (:mod:`particlesplat.rendering.budget`): the first training scene is encoded once without the refinement
-        (which renders; no gradients, the random state kept), its Gaussians priced in the scene's context and target
-        views at ``model.resolution`` with gradients, times ``train.batch_size`` (one pass renders the batch,
-        :func:`particlesplat.training.loss.render_views`). The refinement's pass (context views only, at most as many
-        pixels and Gaussians, no gradients) and a validation render (one view) are smaller."""
-        from particlesplat.core.camera import Camera
-        from particlesplat.core.limits import check_memory
-        from particlesplat.rendering.budget import candidate_pairs, pass_memory
-
-        cfg, tc = self.cfg, self.tc
-        ds = self.train_sets[max(self.train_sets)]  # the most context views: the most particles
-        devices = [self.device] if self.device.type == "cuda" else []
-        with torch.random.fork_rng(devices=devices), torch.no_grad(), training_selection(cfg, tc):
-            item = TrainingBatch.collate([ds[0]]).to(self.device)
-            refine, self.model.refine_enabled = self.model.refine_enabled, False
-            try:
-                _, _, gaussians = self.model(
-                    item.context_rgb, item.context_depth, item.context_K, item.context_c2w, sample=False, pose=item.pose
-                )
-            finally:
-                self.model.refine_enabled = refine
-            K = torch.cat([item.context_K, item.target_K], 1)[0]
-            c2w = torch.cat([item.context_c2w, item.target_c2w], 1)[0]
-            size = cfg.resolution
-            pairs = tc.batch_size * sum(
-                candidate_pairs(gaussians[0], Camera(K[v], c2w[v], size, size)) for v in range(len(K))
-            )
-            keys = cfg.render_keys("train.particles_per_view" if tc.particles_per_view else "model.particles_per_view")
-        views = tc.batch_size * len(K)
-        check_memory(
-            pass_memory(pairs, views * size * size, grad=True),
-            f"{self.config_source}: a training step renders {tc.batch_size} scene(s) x {len(K)} views "
-            f"(train.batch_size {tc.batch_size}; {max(self.train_sets)} context + train.target_views "
-            f"{tc.target_views}) at {size}x{size} with gradients ({keys}): {len(gaussians[0]):,} Gaussians a scene "
-            f"(the first training scene's) covering {pairs:,} (tile, Gaussian) pairs",
-        )
 
     def _start_workspace(self) -> None:
         """Start the workspace layer (``model.background.static_points``) at the voxels most of the first
