@@ -385,6 +385,7 @@ class TrainConfig:
     beta_fg: float = 0.4
     beta_fg_until: float = 1.0
     fg_threshold: float = 0.02
+    fg_outside: float = 1.0
     beta_rec_ctx: float = 1.0
     beta_rec_tgt: float = 1.0
     lambda_depth: float = 0.5
@@ -434,6 +435,7 @@ class TrainConfig:
             "beta_reg",
             "beta_fg",
             "fg_threshold",
+            "fg_outside",
             "beta_rec_ctx",
             "beta_rec_tgt",
             "lambda_depth",

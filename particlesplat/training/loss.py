@@ -87,9 +87,10 @@ def training_loss(
                 batch.target_depth.flatten(0, 1), batch.target_K.flatten(0, 1), batch.target_c2w.flatten(0, 1), arm
             )
             evidence = torch.cat([evidence, tgt.reshape(B, V - C, 1, size, size)], 1)
-        # one-sided: the particles must cover what stands on the table (the background cannot); where they draw
-        # beyond it is left to the reconstruction, which a particle's box overhanging its object barely harms
-        fg_err = (((1.0 - fg_hat) * evidence) ** 2).flatten(2).sum(2)  # (B, V)
+        # the particles must cover what stands on the table (the background cannot), and draw beyond it at
+        # fg_outside of that weight: weighed alike, a box overhanging its object turns the particle off before it
+        # learns its object; not weighed at all, a few particles grow over the whole table
+        fg_err = (((1.0 - fg_hat) * evidence) ** 2 + tc.fg_outside * (fg_hat * (1.0 - evidence)) ** 2).flatten(2).sum(2)
         parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
         parts["loss"] = parts["loss"] + beta_fg * parts["fg"]
     elif fg_hat is not None:  # particles cover what the floor layer cannot explain, and nothing else
