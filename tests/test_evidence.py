@@ -264,3 +264,15 @@ def test_turn_item_turns_cameras_and_the_robot_base_only():
     assert out["pose"][7 + 3].item() == pytest.approx(0.0, abs=1e-6)  # base x: -0.56 turned onto -y
     assert out["pose"][7 + 7].item() == pytest.approx(-0.56, abs=1e-6)
     assert turn_points(None, 30.0) is None
+
+
+def test_evidence_error_weighs_the_miss_and_the_overhang():
+    """One view of 4 pixels, evidence on the first two: weight 0.5 on each gives 2 x 0.25 on the evidence plus
+    outside x 2 x 0.25 beyond it."""
+    from particlesplat.training.loss import evidence_error
+
+    fg = torch.full((1, 1, 2, 2), 0.5)
+    ev = torch.tensor([[[[1.0, 1.0], [0.0, 0.0]]]])
+    assert evidence_error(fg, ev, 0.0).item() == pytest.approx(0.5)
+    assert evidence_error(fg, ev, 0.25).item() == pytest.approx(0.5 + 0.125)
+    assert evidence_error(ev, ev, 1.0).item() == 0.0

@@ -45,6 +45,18 @@ def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float) -> Tensor:
     return ((fg - target) ** 2).flatten(1).sum(1)
 
 
+def evidence_error(fg: Tensor, evidence: Tensor, outside: float) -> Tensor:
+    """The foreground term against the evidence of depth (``model.fg_evidence``): per view, the squared miss of the
+    particles' weight where the evidence is, plus ``outside`` times its square where it is not.
+
+    fg: (M, 1, H, W) rendered particle weight; evidence: (M, 1, H, W) in {0, 1}. Returns (M,) sums over the pixels.
+    The particles must cover what stands on the table (the background cannot) and draw beyond it at ``outside`` of
+    that weight: weighed alike, a box overhanging its object turns the particle off before it learns its object;
+    not weighed at all, a few particles grow over the whole table.
+    """
+    return (((1.0 - fg) * evidence) ** 2 + outside * (fg * (1.0 - evidence)) ** 2).flatten(1).sum(1)
+
+
 def training_loss(
     model: ParticleSplat | DistributedDataParallel,
     batch: TrainingBatch,
@@ -87,10 +99,7 @@ def training_loss(
                 batch.target_depth.flatten(0, 1), batch.target_K.flatten(0, 1), batch.target_c2w.flatten(0, 1), arm
             )
             evidence = torch.cat([evidence, tgt.reshape(B, V - C, 1, size, size)], 1)
-        # the particles must cover what stands on the table (the background cannot), and draw beyond it at
-        # fg_outside of that weight: weighed alike, a box overhanging its object turns the particle off before it
-        # learns its object; not weighed at all, a few particles grow over the whole table
-        fg_err = (((1.0 - fg_hat) * evidence) ** 2 + tc.fg_outside * (fg_hat * (1.0 - evidence)) ** 2).flatten(2).sum(2)
+        fg_err = evidence_error(fg_hat.flatten(0, 1), evidence.flatten(0, 1), tc.fg_outside).reshape(B, V)
         parts["fg"] = fg_err.reshape(B, V).sum(1).mean()
         parts["loss"] = parts["loss"] + beta_fg * parts["fg"]
     elif fg_hat is not None:  # particles cover what the floor layer cannot explain, and nothing else
