@@ -94,7 +94,7 @@ def encode_batch(model: ParticleSplat, scenes: list[Scene]) -> list[Particles]:
     cfg = model.config
     poses = [scene_pose(s.path, cfg.bg_static_pose, cfg.bg_static_pose_dims, model.input_ranges) for s in scenes]
     pose = model.batch_pose(poses, dev)
-    post = model.refine(model.posterior(rgb, depth, K, c2w, pose), rgb, depth, K, c2w)
+    post = model.encode_posterior(rgb, depth, K, c2w, pose)
     z = model.latents(post, sample=False)
     return [
         Particles(

@@ -55,6 +55,7 @@ MODEL_GROUPS: dict[str, dict[str, str]] = {
         "base": "patch_base",
         "channels": "patch_channels",
         "hidden": "patch_hidden",
+        "colour_anchor": "patch_colour_anchor",
     },
     "support": {"clamp": "support_clamp", "cut": "support_cut"},
     "refine": {
@@ -190,6 +191,7 @@ class ModelConfig:
     patch_base: int = 4
     patch_channels: int = 64
     patch_hidden: int = 256
+    patch_colour_anchor: bool = False
     # support:
     support_clamp: bool = False
     support_cut: float = -1.0

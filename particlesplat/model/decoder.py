@@ -216,6 +216,7 @@ def foreground_gaussians(
     c2w: Tensor,
     cfg: ModelConfig,
     keep: int = 0,
+    colour_anchor: Tensor | None = None,
 ) -> dict[str, Tensor]:
     """Steps 2-3 for M particles.
 
@@ -229,6 +230,9 @@ def foreground_gaussians(
     A back Gaussian sits on its front Gaussian's ray, σ(its depth channel) x the particle box's width
     (metres, at the front depth) further away: the far side of the object along the context view's ray,
     which the view cannot see. Its offset channels are unused; the rest are its own.
+
+    ``colour_anchor`` (M, N, 3) in [0, 1] (``patch.colour_anchor``): each cell's colour is a residual about it (the
+    context view's colour under the cell, :meth:`ParticleSplat.with_colour_anchors`).
     """
     S = cfg.patch_gaussians
     H = W = cfg.resolution
@@ -251,7 +255,18 @@ def foreground_gaussians(
     pix = torch.cat([pix, pix], dim=1)
     zeta = torch.cat([zeta, zeta + torch.sigmoid(pb["dd"][..., 0]) * box], dim=1)
     opacity = torch.cat([opacity, z_t * torch.sigmoid(pb["opacity"][..., 0])], dim=1)
+    if colour_anchor is not None:
+        dc = p["sh"][..., 0, :] + (colour_anchor - 0.5) / SH_C0
+        p = {**p, "sh": torch.cat([dc[..., None, :], p["sh"][..., 1:, :]], dim=-2)}
     return _lift_cells(p, pix, zeta, jac_px, opacity, K, c2w, cfg, keep)
+
+
+def cell_pixels(z_p: Tensor, z_s: Tensor, S: int, size: tuple[int, int]) -> Tensor:
+    """Pixel centres (M, S*S, 2) of M particles' S×S cells without their learned offsets: z_p (M, 2) in [-1, 1],
+    z_s (M, 2) pre-sigmoid; size (W, H) of the view."""
+    u = cell_centres(S, z_p.device, z_p.dtype)[None]
+    u_img = 0.5 * (torch.sigmoid(z_s)[:, None, :] * (2.0 * u - 1.0) + z_p[:, None, :] + 1.0)
+    return u_img * torch.tensor(size, device=z_p.device, dtype=z_p.dtype)
 
 
 def _lift_cells(

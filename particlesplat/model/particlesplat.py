@@ -18,6 +18,7 @@ from particlesplat.model.decoder import (
     background_gaussians,
     background_rays,
     block_anchors,
+    cell_pixels,
     foreground_gaussians,
     masked_block_mean,
     split_gaussian_params,
@@ -267,7 +268,7 @@ class ParticleSplat(nn.Module):
             behind = pool_layer(post.static_layer.flatten(0, 1), (h, w))
         for _ in range(cfg.refine_steps):
             with torch.no_grad():
-                z = self.latents(post, sample=False)
+                z = self.latents(self.with_colour_anchors(post, rgb), sample=False)
                 gaussians = self.decode_batch(
                     z, view, K, c2w, background=behind is None, max_per_particle=cfg.refine_keep, pose=post.pose
                 )
@@ -303,6 +304,34 @@ class ParticleSplat(nn.Module):
             post = self.refiner.corrected(post, delta, self.encoder.scale_centre)
         return post
 
+    def encode_posterior(
+        self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, pose: Tensor | None = None
+    ) -> Posterior:
+        """The posterior of B scenes as encode and training use it (shapes as in :meth:`posterior`): refined
+        (:meth:`refine`), with the colours under the particles' cells (:meth:`with_colour_anchors`)."""
+        post = self.refine(self.posterior(rgb, depth, K, c2w, pose), rgb, depth, K, c2w)
+        return self.with_colour_anchors(post, rgb)
+
+    def with_colour_anchors(self, post: Posterior, rgb: Tensor) -> Posterior:
+        """``post`` with ``colour_anchor`` (``patch.colour_anchor``; else ``post`` as it is): each particle's cells'
+        colours in its context view, (B, N, 2*S*S*3) (front cells, then the back cells with the same colours),
+        sampled bilinearly at the cells' centres under the posterior means of ``z_p`` and ``z_s``. The colours are
+        kept with the particle (in ``z_f``, after its ``d_obj`` features), so an edit moves them with it.
+        rgb: (B, V, 3, H, W) the context views."""
+        cfg = self.config
+        if not cfg.patch_colour_anchor:
+            return post
+        B, N = post.kp.shape[:2]
+        H, W = rgb.shape[-2:]
+        S = cfg.patch_gaussians
+        z_p = (post.kp + post.mu_o).reshape(B * N, 2)
+        pix = cell_pixels(z_p, post.mu_s.reshape(B * N, 2), S, (W, H))  # (B*N, S*S, 2)
+        grid = (pix / torch.tensor([W, H], device=pix.device, dtype=pix.dtype) * 2.0 - 1.0)[:, :, None, :]
+        images = rgb[:, post.view].reshape(B * N, 3, H, W)
+        colours = F.grid_sample(images, grid.detach(), mode="bilinear", padding_mode="border", align_corners=False)
+        colours = colours[..., 0].transpose(1, 2)  # (B*N, S*S, 3)
+        return replace(post, colour_anchor=torch.cat([colours, colours], dim=1).reshape(B, N, -1).detach())
+
     @staticmethod
     def latents(post: Posterior, sample: bool) -> dict[str, Tensor]:
         """Posterior samples (reparameterised) or means: z_p, z_s, z_d, z_e, z_t, z_f (B, N, ·), bg (B, V, ·)."""
@@ -321,7 +350,10 @@ class ParticleSplat(nn.Module):
             "z_d": g(post.mu_d, post.lv_d),
             "z_e": g(post.mu_e, post.lv_e),
             "z_t": z_t,
-            "z_f": g(post.mu_f, post.lv_f),
+            # the colours under the cells, when the model keeps them (patch.colour_anchor), follow the features
+            "z_f": g(post.mu_f, post.lv_f)
+            if post.colour_anchor is None
+            else torch.cat([g(post.mu_f, post.lv_f), post.colour_anchor], dim=-1),
             "bg": bg,
         }
 
@@ -339,8 +371,10 @@ class ParticleSplat(nn.Module):
     ) -> dict[str, Tensor]:
         """M particles -> Gaussian fields (M, 2*S*S, ·): the front Gaussians, then the back layer. Latents (M, ·);
         K (M, 3, 3), c2w (M, 4, 4) of their views. ``keep`` = k > 0: each particle's k most opaque (M, k, ·)."""
-        raw = self.fg_decoder(z_f)
-        return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config, keep)
+        d = self.config.d_obj
+        anchor = z_f[:, d:].reshape(z_f.shape[0], -1, 3) if z_f.shape[-1] > d else None
+        raw = self.fg_decoder(z_f[:, :d])
+        return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config, keep, anchor)
 
     def background(self, bg: Tensor, K: Tensor, c2w: Tensor, c2w_net: Tensor | None = None) -> dict[str, Tensor]:
         """bg: (M, d_bg, h, w) latents of M views (with ``fg_evidence``, (M, d_bg + 5, h, w): the latents, then the
@@ -447,7 +481,7 @@ class ParticleSplat(nn.Module):
         """Training pass for B scenes (shapes as in :meth:`posterior`): posterior, latents (with the background
         colour to render behind the Gaussians, ``bg_color`` (3,), computed here so that under DDP every weight
         is used inside the forward pass), Gaussians per scene."""
-        post = self.refine(self.posterior(rgb, depth, K, c2w, pose), rgb, depth, K, c2w)
+        post = self.encode_posterior(rgb, depth, K, c2w, pose)
         z = self.latents(post, sample)
         z["bg_color"] = self.background_color()
         return post, z, self.decode_batch(z, post.view, K, c2w, background, pose=post.pose)
@@ -477,9 +511,7 @@ class ParticleSplat(nn.Module):
         K, c2w = stack_cameras(cameras, device=dev)
         rgb_b, depth_b = rgb[None].to(dev), None if depth is None else depth[None].to(dev)
         pose_b = self.batch_pose([pose], dev)
-        post = self.refine(
-            self.posterior(rgb_b, depth_b, K[None], c2w[None], pose_b), rgb_b, depth_b, K[None], c2w[None]
-        )
+        post = self.encode_posterior(rgb_b, depth_b, K[None], c2w[None], pose_b)
         z = self.latents(post, sample=False)
         return Particles(
             z_p=z["z_p"][0],

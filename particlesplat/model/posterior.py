@@ -61,7 +61,9 @@ class Posterior(ParticlePosterior):
     (colour over the background colour, depth in metres, alpha: :mod:`particlesplat.rendering.layers`), or None
     (no static layer); pose: (B, D) the scenes' poses the workspace layer follows (``bg_static_pose``), or None;
     bg_anchor: (B, V, 5, Hb, Wb) the anchored background's per-block colour, depth and weight (``fg_evidence``:
-    :func:`particlesplat.model.decoder.block_anchors`), or None.
+    :func:`particlesplat.model.decoder.block_anchors`), or None; colour_anchor: (B, N, 2*S*S*3) the colours of
+    the context views under each particle's cells (``patch.colour_anchor``: :meth:`ParticleSplat.with_colour_anchors`),
+    or None.
     """
 
     mu_bg: Tensor
@@ -72,6 +74,7 @@ class Posterior(ParticlePosterior):
     static_layer: Tensor | None = None
     pose: Tensor | None = None
     bg_anchor: Tensor | None = None
+    colour_anchor: Tensor | None = None
 
 
 __all__ = ["ParticlePosterior", "Posterior"]
