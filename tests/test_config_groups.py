@@ -119,8 +119,9 @@ def test_every_recipe_and_every_recorded_run_config_loads():
     assert len(runs) >= 10
     for path in runs:
         raw = yaml.safe_load(path.read_text())["model"]
+        grid = raw["bg_static_grid"] if "bg_static_grid" in raw else raw["background"]["static_grid"]  # flat, nested
         cfg, _ = load_config(path)
-        assert cfg.resolution == raw["resolution"] and cfg.bg_static_grid == raw["bg_static_grid"], path
+        assert cfg.resolution == raw["resolution"] and cfg.bg_static_grid == grid, path
 
 
 def test_a_key_given_flat_and_nested_is_refused_naming_the_file_and_both(tmp_path):
