@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from particlesplat.core.panda_arm import ARM_STATE_DIMS, ARM_STATE_KEY, arm_capsules, capsule_distance
+from particlesplat.core.panda_arm import arm_capsules, capsule_distance
 from particlesplat.core.world import SUPPORT_Z
 
 MIN_HEIGHT = 0.012
@@ -64,7 +64,7 @@ def world_points(depth: Tensor, K: Tensor, c2w: Tensor) -> Tensor:
 def foreground_evidence(depth: Tensor, K: Tensor, c2w: Tensor, arm: Tensor | None = None) -> Tensor:
     """Which pixels show an object standing on the support surface (module docstring).
 
-    depth: (M, 1, H, W) planar metres (0 = missing); K: (M, 3, 3); c2w: (M, 4, 4); arm: (M, 21) each view's
+    depth: (M, 1, H, W) planar metres (0 = missing); K: (M, 3, 3); c2w: (M, 4, 4); arm: (M, ARM_STATE_DIMS) each view's
     robot state (:func:`particlesplat.core.panda_arm.pack_arm_state`) or None (no arm is left out).
     Returns (M, 1, H, W) in {0, 1}.
     """
@@ -84,8 +84,9 @@ def foreground_evidence(depth: Tensor, K: Tensor, c2w: Tensor, arm: Tensor | Non
         if arm is not None:
             for m in range(depth.shape[0]):
                 starts, ends, radii = arm_capsules_of(arm[m])
-                inside = capsule_distance(pts[m][ev[m]], starts, ends, radii) < 0
-                ev[m][ev[m].clone()] = ~inside
+                candidates = ev[m].nonzero(as_tuple=True)
+                inside = capsule_distance(pts[m][candidates], starts, ends, radii) < 0
+                ev[m][candidates] = ~inside
         return ev[:, None].to(depth.dtype)
 
 
@@ -113,8 +114,7 @@ def dilate(mask: Tensor, pixels: int) -> Tensor:
 
 
 __all__ = [
-    "ARM_STATE_DIMS",
-    "ARM_STATE_KEY",
+    "arm_capsules_of",
     "canonical_turn",
     "dilate",
     "foreground_evidence",

@@ -10,6 +10,7 @@ from torch import Tensor, nn
 
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import BACKGROUND_OWNER, Gaussians
+from particlesplat.core.panda_arm import ARM_STATE_KEY
 from particlesplat.core.sh import SH_C0
 from particlesplat.model.config import ModelConfig, config_to_dict
 from particlesplat.model.decoder import (
@@ -24,7 +25,7 @@ from particlesplat.model.decoder import (
     split_gaussian_params,
 )
 from particlesplat.model.encoder import BackgroundEncoder, ParticleEncoder, box_mask, depth_input
-from particlesplat.model.evidence import ARM_STATE_KEY, canonical_turn, dilate, foreground_evidence
+from particlesplat.model.evidence import canonical_turn, dilate, foreground_evidence
 from particlesplat.model.geometry import plucker_map, stack_cameras
 from particlesplat.model.particles import Particles
 from particlesplat.model.posterior import ParticlePosterior, Posterior
