@@ -97,3 +97,34 @@ def test_packed_state_defaults_and_refusals():
     assert pack_arm_state([0.0] * 7, None, "panda")[19] == GRIPPER_REACH["panda"]
     with pytest.raises(ValueError, match="7 joint angles"):
         pack_arm_state([0.0] * 6, None, None)
+
+
+def test_particles_whose_gaussians_the_arm_holds_are_the_robot_s():
+    """Two particles: one whose Gaussians sit around the hand (placed by the kinematics), one on the table 0.4 m in
+    front of the base. Only the first is the robot's; without a robot state, neither is."""
+    from particlesplat.core.gaussians import Gaussians
+    from particlesplat.editing.grouping import robot_particles
+    from particlesplat.model import Particles
+
+    q = [0.0, 0.3, 0.0, -2.0, 0.0, 2.3, 0.8]
+    state = torch.tensor(pack_arm_state(q, None, "panda"))
+    base = np.eye(4)
+    base[:3] = np.asarray(state[7:19]).reshape(3, 4)
+    hand = torch.from_numpy(link_frames(q, base)[-1, :3, 3]).float()
+    g = torch.Generator().manual_seed(0)
+    near = hand + 0.02 * torch.randn(20, 3, generator=g)
+    table = torch.tensor([-0.16, 0.0, 0.03]) + 0.02 * torch.randn(20, 3, generator=g)
+    means = torch.cat([near, table])
+    n = len(means)
+    gauss = Gaussians(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n, 3), 0.01),
+        torch.full((n,), 0.9),
+        torch.zeros(n, 1, 3),
+        torch.cat([torch.zeros(20), torch.ones(20)]).long(),
+    )
+    rows = {k: torch.zeros(2, w) for k, w in (("z_p", 2), ("z_s", 2), ("z_d", 1), ("z_e", 1), ("z_t", 1), ("z_f", 4))}
+    particles = Particles(**rows, view=torch.zeros(2, dtype=torch.long), background=torch.zeros(1, 1, 1, 1))
+    assert robot_particles(particles, gauss, state).tolist() == [True, False]
+    assert robot_particles(particles, gauss, None).tolist() == [False, False]

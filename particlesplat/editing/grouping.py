@@ -25,6 +25,7 @@ from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.panda_arm import ARM_STATE_DIMS, ARM_STATE_KEY, capsule_distance
 from particlesplat.core.world import SUPPORT_Z
 from particlesplat.model import Particles
+from particlesplat.model.evidence import arm_capsules_of
 
 if TYPE_CHECKING:
     from particlesplat.model import ParticleSplat
@@ -146,8 +147,6 @@ def robot_particles(particles: Particles, gaussians: Gaussians, arm: Tensor | No
     P = particles.num
     if arm is None:
         return torch.zeros(P, dtype=torch.bool)
-    from particlesplat.model.evidence import arm_capsules_of
-
     centre, _, total = weighted_stats(gaussians.means.cpu(), gaussians.opacities.cpu(), gaussians.owner.cpu(), P)
     starts, ends, radii = (t.double() for t in arm_capsules_of(arm.cpu()))
     inside = capsule_distance(centre, starts, ends, radii) < 0
