@@ -105,16 +105,18 @@ def test_every_field_has_one_nested_place_and_a_written_config_reads_back():
 
 def test_every_recipe_and_every_recorded_run_config_loads():
     """Both recipes (nested) and the configs of the finished runs in docs/runs (written flat, some with keys of
-    removed branches at their off value) load; the robot recipe's values arrive."""
+    removed branches at their off value) load; the robot recipe's values arrive, and they are its run's."""
     tabletop, tc = load_config(bundled_assets() / "recipe.yaml")
     assert tabletop == ModelConfig() and tc == TrainConfig()
-    robot, _ = load_config(bundled_assets() / "robot" / "recipe.yaml")
-    assert (robot.resolution, robot.bg_static_points, robot.bg_static_pose, robot.support_clamp) == (
+    robot, robot_train = load_config(bundled_assets() / "robot" / "recipe.yaml")
+    assert (robot.resolution, robot.bg_static_points, robot.bg_static_pose, robot.fg_evidence) == (
         128,
-        8000,
-        "arm_joints_rad",
+        0,
+        "robot_state",
         True,
     )
+    # the robot recipe is the shipped robot model's run, as its run folder records it
+    assert load_config(bundled_assets() / "model-training" / "robot-wide" / "config.yaml") == (robot, robot_train)
     runs = sorted((ROOT / "docs" / "runs").glob("*/config.yaml"))
     assert len(runs) >= 10
     for path in runs:
@@ -164,11 +166,12 @@ def test_overrides_take_the_nested_path_and_the_flat_name():
         with_overrides(cfg, tc, {"model.refine.stepz": 1})
 
 
-@pytest.mark.parametrize("model", ["model.pt", "robot/model.pt"])
+@pytest.mark.parametrize("model", ["model.pt"])
 def test_a_shipped_flat_checkpoint_loads_and_its_nested_copy_gives_identical_outputs(model, tmp_path):
-    """The shipped checkpoints store flat configs (the tabletop one with keys of removed branches): they load,
-    equal the model built from their flat dict by hand (the removed keys dropped), and a copy saved now stores
-    the nested config and encodes and decodes a demo scene bit for bit as the original does."""
+    """The shipped tabletop checkpoint stores a flat config with keys of removed branches: it loads, equals the
+    model built from its flat dict by hand (the removed keys dropped), and a copy saved now stores the nested
+    config and encodes and decodes a demo scene bit for bit as the original does. (The robot model was saved
+    nested.)"""
     from particlesplat.editing.open_scene import encode_scene
     from particlesplat.model import load_model, save_checkpoint
 

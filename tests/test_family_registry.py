@@ -80,7 +80,7 @@ def test_the_built_in_families_and_their_facts():
     firsts = {p.parent.relative_to(bundled_assets()).as_posix(): p for p in reversed(demo_scenes())}
     assert list(firsts)[::-1] == ["scenes", "robot/scenes"]  # the default family's demo scenes first
     names = [demo_scene_name(p) for p in demo_scenes()]  # the viewer's picker: the robot's after its family
-    assert names[0] == "scene_00000" and "robot/scene_00000" in names and "scenes/scene_00000" not in names
+    assert names[0] == "scene_00000" and "robot/scene_00019" in names and "scenes/scene_00019" not in names
 
 
 def test_a_registered_family_is_offered_and_run_by_synth(kitchen, tmp_path, capsys):

@@ -15,7 +15,7 @@ from particlesplat.editing.open_scene import demo_scenes, load_model_scene
 from particlesplat.model.io import shipped_model_name, shipped_model_path
 
 ROOT = Path(__file__).resolve().parents[1]
-TABLETOP, ROBOT = ROOT / "assets" / "scenes" / "scene_00000", ROOT / "assets" / "robot" / "scenes" / "scene_00000"
+TABLETOP, ROBOT = ROOT / "assets" / "scenes" / "scene_00000", ROOT / "assets" / "robot" / "scenes" / "scene_00019"
 
 
 def test_a_scene_folder_names_its_family():
@@ -52,7 +52,7 @@ def test_each_family_opens_with_its_own_model():
     assert name == "assets/model.pt" and tabletop.config.resolution == 64
     robot, enc, name = load_model_scene(None, ROBOT)
     assert name == "assets/robot/model.pt" and robot.config.resolution == 128
-    assert robot.config.bg_static_points > 0 and enc.particles.num > 0
+    assert robot.config.fg_evidence and enc.particles.num > 0
     assert shipped_model_name(shipped_model_path("robot")) == "assets/robot/model.pt"
     assert shipped_model_name("runs/x/last.pt") == "runs/x/last.pt"
 
@@ -71,14 +71,14 @@ def test_every_shipped_checkpoint_records_its_provenance():
     assert "staged chain" in tabletop["init"] and "hours not recorded" in describe(tabletop)
 
 
-def test_refinement_runs_once_its_run_trained_it_and_the_robot_model_follows_the_arm():
+def test_refinement_runs_once_its_run_trained_it_and_the_robot_model_reads_the_arm():
     """A checkpoint written before its run's refine_start loads with refinement off (the refiner is still at its
     start, a correction of exactly zero: tests/test_refiner.py); one that records no schedule, like the tabletop
-    model, keeps it. The shipped robot model is its run's checkpoint without the refiner (``particlesplat model
-    set refine_steps=0``, said in its provenance), and its workspace layer follows each scene's joint angles."""
-    from particlesplat.data.scene_meta import scene_pose
+    model, keeps it. The shipped robot model trains without refinement and reads what each scene's robot knows
+    of itself (joint angles, base, gripper: ``robot_state``), which places the arm's capsules for its evidence."""
+    from particlesplat.data.scene_meta import read_arm_state
+    from particlesplat.model.config import model_config_from_dict
     from particlesplat.model.io import read_checkpoint, refinement_trained
-    from particlesplat.model.provenance import describe
 
     tabletop = read_checkpoint(shipped_model_path("tabletop"))
     assert refinement_trained(tabletop)
@@ -86,15 +86,13 @@ def test_refinement_runs_once_its_run_trained_it_and_the_robot_model_follows_the
     assert not refinement_trained({**tabletop, "step": 49, "train": schedule})
     assert refinement_trained({**tabletop, "step": 50, "train": schedule})
     robot_ckpt = read_checkpoint(shipped_model_path("robot"))
-    cfg = robot_ckpt["config"]
-    assert (cfg["refine_steps"], cfg["bg_static_pose"], cfg["bg_static_pose_dims"]) == (0, "arm_joints_rad", 7)
-    assert not any(k.startswith("refiner.") for k in robot_ckpt["state_dict"])  # refine_steps 0 drops its weights
-    derived = robot_ckpt["provenance"]["derived"]
-    assert "refine_steps 1 -> 0" in derived and describe(robot_ckpt["provenance"]).endswith(derived)
+    cfg = model_config_from_dict(robot_ckpt["config"])
+    assert (cfg.refine_steps, cfg.bg_static_pose, cfg.bg_static_pose_dims) == (0, "robot_state", 21)
+    assert cfg.fg_evidence and cfg.bg_static_points == 0 and cfg.bg_static_grid == 0
+    assert not any(k.startswith("refiner.") for k in robot_ckpt["state_dict"])
     torch.set_num_threads(1)
     robot, enc, _ = load_model_scene(None, ROBOT)
-    assert robot.refiner is None and enc.particles.num == cfg["particles_per_view"] * len(enc.context)
-    pose = scene_pose(ROBOT, "arm_joints_rad", 7)
-    assert pose is not None
-    moved = (robot.static_bg(pose[None])["means"][0] - robot.static_bg()["means"]).norm(dim=-1)
-    assert moved.max() > 0.05  # the arm's Gaussians move with this scene's joints (a learned Jacobian, not zero)
+    assert robot.refiner is None and enc.particles.num == cfg.particles_per_view * len(enc.context)
+    state = read_arm_state(ROBOT)
+    assert state is not None and enc.particles.pose is not None
+    assert torch.allclose(enc.particles.pose.cpu().double(), torch.tensor(state, dtype=torch.float64), atol=1e-6)

@@ -277,3 +277,25 @@ def test_cli_robot_family_bad_assets_one_line(tmp_path):
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and INSTALL in lines[0] and not (tmp_path / "o").exists()
+
+
+def test_a_narrow_scene_records_its_robot_base_and_an_older_one_gets_it(scene_dir, tmp_path):
+    """The narrow world's scene.json records the robot base the simulator placed (at +y, facing -y, its frame
+    turned from robosuite's), so a model reading the robot's state places the arm where MuJoCo drew it; a scene
+    written before the key was recorded gets the same base from its generator's name."""
+    import shutil
+
+    from particlesplat.core.panda_arm import link_frames
+    from particlesplat.data.scene_meta import read_arm_state
+
+    meta = json.loads((scene_dir / "scene.json").read_text())
+    base = np.array(meta["robot_base"])
+    assert np.allclose(base[:3, 3], [0.0, 0.56, 0.0]) and np.allclose(base[:3, 0], [0.0, -1.0, 0.0], atol=1e-12)
+    # the hand by forward kinematics from that base lies over the table near the base's side, as drawn
+    hand = link_frames(meta["arm_joints_rad"], base)[-1, :3, 3]
+    assert hand[1] > 0.0 and hand[2] > 0.0
+    older = tmp_path / "older"
+    shutil.copytree(scene_dir, older)
+    del meta["robot_base"]
+    (older / "scene.json").write_text(json.dumps(meta))
+    assert read_arm_state(older) == pytest.approx(read_arm_state(scene_dir), abs=1e-12)

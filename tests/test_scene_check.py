@@ -65,12 +65,31 @@ def test_a_turned_scaled_raised_scene_is_reported_and_fixed(tmp_path, capsys):
     )
 
 
-def test_a_robot_demo_scene_is_judged_against_robot_rigs_and_found_turned(capsys):
-    """A shipped robot scene (the narrow world: robot at +y) is at the robot rigs' scale, and turned a quarter
-    turn from robosuite's convention (robot at -x); the transform turns +y to -x."""
+def test_a_robot_demo_scene_is_judged_against_robot_rigs_and_found_turned(capsys, tmp_path):
+    """A shipped robot scene (robosuite's frame: robot at -x) is at the robot rigs' scale and matches; the same
+    scene turned a quarter turn about z (cameras and robot base: the robot at +y) is found turned, and the
+    transform turns +y back to -x."""
     robot = [p for p in demo_scenes() if p.parent.parent.name == "robot"][0]
-    assert main(["scene", "check", str(robot)]) == 1
+    assert main(["scene", "check", str(robot)]) == 0
     out = capsys.readouterr().out
-    assert "robot family" in out and "robot training scenes' are 0.8-1.25 m: ok" in out and "s = 1," in out
-    assert "turned -90 degrees about z" in out
-    assert "R = [+0.000000 -1.000000 +0.000000; +1.000000 +0.000000 +0.000000; +0.000000 +0.000000 +1.000000]" in out
+    assert "robot family" in out and "robot training scenes' are 0.8-1.25 m: ok" in out
+    assert "at -x, robosuite's convention: ok" in out and "matches the expected world frame" in out
+
+    turned = tmp_path / robot.name
+    shutil.copytree(robot, turned)
+    turn = np.eye(4)
+    turn[:2, :2] = [[0.0, 1.0], [-1.0, 0.0]]  # -90 degrees about z: -x goes to +y
+    transforms = json.loads((turned / "transforms.json").read_text())
+    for frame in transforms["frames"]:
+        frame["transform_matrix"] = (turn @ np.array(frame["transform_matrix"])).tolist()
+    (turned / "transforms.json").write_text(json.dumps(transforms))
+    meta = json.loads((turned / "scene.json").read_text())
+    meta["robot_base"] = (turn @ np.array(meta["robot_base"])).tolist()
+    (turned / "scene.json").write_text(json.dumps(meta))
+    assert main(["scene", "check", str(turned)]) == 1
+    out = capsys.readouterr().out
+    assert "s = 1," in out and "turned -90 degrees about z" in out
+    rows = out.split("R = [")[1].split("]")[0].split(";")
+    R = np.array([[float(v) for v in row.split()] for row in rows])
+    assert np.allclose(R, [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], atol=0.01)  # the base's azimuth
+    # is measured from the scene centre, a few millimetres off the origin

@@ -4,7 +4,7 @@ one name), the user's XDG folders (autosaves, settings, outputs), and the viewer
 from __future__ import annotations
 
 import json
-from pathlib import Path
+import shutil
 
 import pytest
 
@@ -14,13 +14,18 @@ from particlesplat.editing.open_scene import demo_scenes
 from particlesplat.editing.scene_id import scene_file_key
 
 
-def test_demo_scenes_of_two_families_get_their_own_files():
+def test_demo_scenes_of_two_families_get_their_own_files(tmp_path):
     scenes = demo_scenes()
     keys = {scene_file_key(s, read_family(s)) for s in scenes}
-    assert len(keys) == len(scenes)  # robot/scene_00000 and scene_00000 no longer share a file
-    names = {Path(s).name for s in scenes}
-    assert len(names) < len(scenes)  # (they do share their folder names)
+    assert len(keys) == len(scenes)
     assert {k.split("-")[0] for k in keys} == {"tabletop", "robot"}
+    # scenes of two families with the same folder name do not share a file either
+    tabletop = next(s for s in scenes if read_family(s) == "tabletop")
+    robot = next(s for s in scenes if read_family(s) == "robot")
+    a, b = tmp_path / "a" / "scene_00000", tmp_path / "b" / "scene_00000"
+    shutil.copytree(tabletop, a)
+    shutil.copytree(robot, b)
+    assert scene_file_key(a, read_family(a)) != scene_file_key(b, read_family(b))
 
 
 def test_scene_file_key_is_family_name_and_path(tmp_path):

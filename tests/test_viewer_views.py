@@ -93,3 +93,49 @@ def test_snap_to_input_camera_reproduces_it():
         cam = oc.camera(raw.cameras[i].width, raw.cameras[i].height)
         assert torch.allclose(cam.c2w, raw.cameras[i].c2w, atol=1e-4)
         assert math.isclose(oc.view.fov, raw.cameras[i].fov_y, abs_tol=1e-4)
+
+
+def test_a_robot_scene_opens_with_its_whole_arm_in_view():
+    """A robot demo scene's default view shows the arm whole: every joint, the base and the gripper's tip (from
+    the scene's joint angles by forward kinematics) and the table top's corners project inside a square image
+    through the view's own camera, though the middle camera's framing cuts the arm off. The camera only rises and
+    backs off: azimuth and elevation stay the middle camera's, and no more than needed (a shorter distance leaves
+    a point out)."""
+    from dataclasses import replace
+
+    from particlesplat.core.panda_arm import arm_points
+    from particlesplat.core.viewpoints import KEEP_BACKOFF, KEEP_MARGIN
+    from particlesplat.data.scene_meta import read_arm_state, read_framing
+
+    def inside(view, pts, margin=1.0):
+        cam = view.camera(200, 200)
+        uv, z = cam.project(pts.float())
+        lo, hi = 100 * (1 - margin), 100 * (1 + margin)
+        return bool((z > 0).all() and ((uv >= lo) & (uv <= hi)).all())
+
+    robots = [p for p in demo_scenes() if "robot" in str(p)]
+    assert robots
+    cut_before = 0
+    for scene in robots:
+        framing = read_framing(scene)
+        state = read_arm_state(scene)
+        assert framing is not None and state is not None
+        pts = torch.tensor(arm_points(state), dtype=torch.float64)
+        assert torch.allclose(torch.tensor(framing.keep[: len(pts)], dtype=torch.float64), pts)
+        corners = torch.tensor(framing.keep[len(pts) :], dtype=torch.float64)
+        assert corners.shape == (4, 3) and bool((corners[:, :2].abs() > 0.3).all())  # the 0.8 m table's corners
+        pts = torch.cat([pts, corners])
+        cams = read_scene(scene).cameras
+        plain = default_view(cams, framing=replace(framing, keep=()))
+        view = default_view(cams, framing=framing)
+        cut_before += not inside(plain, pts)
+        assert inside(view, pts, KEEP_MARGIN + 1e-6), scene
+        assert view.look.azimuth == pytest.approx(plain.look.azimuth)
+        assert view.look.elevation == pytest.approx(plain.look.elevation)
+        assert view.target[2] >= plain.target[2] and view.look.distance >= plain.look.distance
+        if view.look.distance > plain.look.distance * (1 + 1e-9):  # backed off: one step less would not fit
+            closer = replace(
+                view, look=replace(view.look, distance=view.look.distance - KEEP_BACKOFF[2] * plain.look.distance)
+            )
+            assert not inside(closer, pts, KEEP_MARGIN)
+    assert cut_before >= 1  # the check means something: the cameras' own framing cuts an arm off

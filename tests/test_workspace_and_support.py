@@ -34,8 +34,9 @@ def test_the_robot_recipe_is_the_same_architecture_with_its_own_values_and_every
     for section in ("model", "train"):
         assert sorted(robot[section]) == sorted(tabletop[section]), section  # one architecture, a config per family
     cfg, tc = load_config(bundled_assets() / "robot/recipe.yaml")
-    assert cfg.resolution == 128 and cfg.bg_static_points > 0 and cfg.bg_static_grid == 0 and cfg.support_clamp
-    assert tc.beta_fg > 0  # the foreground term compares with the workspace layer
+    # nothing memorised in world coordinates: no static layer; the evidence of depth and the arm's kinematics
+    assert cfg.resolution == 128 and cfg.bg_static_points == 0 and cfg.bg_static_grid == 0 and cfg.support_clamp
+    assert cfg.fg_evidence and cfg.bg_per_view and tc.beta_fg > 0  # the foreground term reads the evidence
     # every key is documented: a comment on its line, or its name in a comment (s_max beside s_min)
     text = _recipe_text("robot/recipe.yaml")
     comments = " ".join(line.partition("#")[2] for line in text.splitlines())

@@ -118,6 +118,13 @@ def window_address(window) -> int:
     return addr
 
 
+def session_background(session: Scene) -> tuple[float, float, float]:
+    """The colour behind the session's scene (:func:`scene_background`): its particles' own where they read it
+    from their views."""
+    editor = session.editor
+    return scene_background(session.model, editor.particles if editor is not None else None)
+
+
 def initial_view(session: Scene, look: str | None, fov: float | None) -> View:
     """Default view of the session (framed as its scene.json records, else by its cameras), with ``--look`` /
     ``--fov`` applied."""
@@ -144,7 +151,7 @@ class App:
         )
         self.session = session
         self.orbit = OrbitCamera.from_view(view)
-        self.state = ViewState(panel=not args.no_ui, background=scene_background(session.model))
+        self.state = ViewState(panel=not args.no_ui, background=session_background(session))
         self.req = UiRequests()
         self.settings = load_settings()
         out = str(args.output_dir or output_dir())
@@ -376,7 +383,7 @@ class App:
         self.session = new
         self.swatches, self._swatched = particle_swatches(self.session), self.session.num_owners()
         self.state = ViewState(
-            panel=self.state.panel, overlay=self.state.overlay, background=scene_background(self.session.model)
+            panel=self.state.panel, overlay=self.state.overlay, background=session_background(self.session)
         )
         self.orbit = OrbitCamera.from_view(view)
         self.fields.status = f"opened {p}" + (

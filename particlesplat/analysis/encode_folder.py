@@ -108,6 +108,7 @@ def encode_batch(model: ParticleSplat, scenes: list[Scene]) -> list[Particles]:
             background=z["bg"][b],
             pose=None if pose is None else pose[b],
             cameras=[c.to(dev) for c in s.cameras],
+            backdrop=model.views_backdrop(rgb[b], None if depth is None else depth[b], K[b], c2w[b]),
         )
         for b, s in enumerate(scenes)
     ]

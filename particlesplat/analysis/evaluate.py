@@ -170,7 +170,7 @@ def evaluate_item(
     # the robot's particles are in no object: their pixels count as background in FG-ARI and mIoU
     robot = robot_particles(particles, gaussians, arm_state(model, particles))
     objects = torch.where(robot, torch.full_like(objects, -1), objects)
-    bg = model.background_color()
+    bg = model.backdrop(particles)
     out = render_views(gaussians, tgt_cams, particles.num, bg, objects)
     active = (particles.z_t[:, 0] >= model.config.bg_mask_threshold).cpu()  # the particles that draw (decode)
     sup = item.get("target_supervision")

@@ -168,7 +168,7 @@ def _renders(
 ) -> torch.Tensor:
     """(V, 3, H, W) renders of the particles (edits applied) in ``cameras``."""
     g = model.decode(particles, z_t_threshold=z_t_threshold).detach().to("cpu")
-    bg = model.background_color().detach().cpu()
+    bg = model.backdrop(particles).detach().cpu()
     with torch.no_grad():
         return torch.stack([render(g, c, background=bg).rgb.permute(2, 0, 1) for c in cameras])
 

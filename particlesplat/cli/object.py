@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
         from particlesplat.core.gaussians import BadGaussiansError
 
         with torch.no_grad(), blame(f"{enc.path} with object {args.object} of {src.path}", BadGaussiansError):
-            res = render(g, camera, background=scene_background(model))
+            res = render(g, camera, background=scene_background(model, enc.particles))
         text = png_text(camera, {}, shipped_model_name(checkpoint), {"scene": str(enc.path)})
         print(f"saved {save_png(args.png, res.rgb.numpy(), text)}")
     return 0

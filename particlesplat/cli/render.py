@@ -168,7 +168,7 @@ def _scene_and_gaussians(args: argparse.Namespace):
         from particlesplat.analysis.particle_arrays import particle_arrays
 
         arrays = particle_arrays(model, particles, g, objects=scene.objects)  # the user's groups win
-    return g, enc.all_cameras, edits, name, str(enc.path), scene_background(model), arrays
+    return g, enc.all_cameras, edits, name, str(enc.path), scene_background(model, particles), arrays
 
 
 def resolve_camera(

@@ -28,5 +28,9 @@ INFERENCE_KEYS: dict[str, str] = {
     "particles_per_view": "foreground particles kept per context view",
     "keypoints.min_separation": "least distance between kept keypoints (normalised image units)",
     "background.mask_threshold": "z_t above which a particle is active and draws",
+    "background.colour_from_views": "the colour behind the Gaussians is read from each scene's context views (the "
+    "median colour below the support surface: floor, table sides) instead of the learned one",
+    "background.hidden_from_views": "a per-view background block an object hides is drawn in the colour of the "
+    "support surface its view shows (with fg_evidence) instead of the colour its latent guesses",
     "support.cut": "metres below the support surface under which a particle Gaussian does not draw (< 0: off)",
 }

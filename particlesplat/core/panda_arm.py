@@ -46,6 +46,9 @@ ARM_STATE_DIMS = 21
 ROBOSUITE_BASE = ((1.0, 0.0, 0.0, -0.56), (0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.112))
 """The base pose (top 3 rows, metres) a scene that records none is given: robosuite's, behind the table at -x
 facing +x."""
+NARROW_WORLD_BASE = ((0.0, 1.0, 0.0, 0.0), (-1.0, 0.0, 0.0, 0.56), (0.0, 0.0, 1.0, 0.0))
+"""The narrow robot world's base pose (its frame turned a quarter turn: behind the table at +y facing -y), for
+its scenes written before they recorded ``robot_base``."""
 
 ARM_RADIUS = 0.13
 """The room a link takes about the segment between its origin and the next one's, metres: the Panda's links are
@@ -137,6 +140,18 @@ def arm_capsules(
     radii = np.full(len(starts), ARM_RADIUS)
     radii[-1] = gripper_radius
     return starts, ends, radii
+
+
+def arm_points(state: list[float]) -> np.ndarray:
+    """The points that outline the arm of a packed state (:func:`pack_arm_state`): the base, the origins of
+    links 1-7, the hand and the gripper's tip (its reach along the hand's z axis). Returns (10, 3) world metres."""
+    if len(state) != ARM_STATE_DIMS:
+        raise ValueError(f"a packed arm state has {ARM_STATE_DIMS} numbers, got {len(state)}")
+    base = np.eye(4)
+    base[:3] = np.asarray(state[7:19], dtype=np.float64).reshape(3, 4)
+    frames = link_frames(state[:7], base)
+    tip = frames[-1, :3, 3] + float(state[19]) * frames[-1, :3, 2]
+    return np.concatenate([frames[:, :3, 3], tip[None]])
 
 
 def capsule_distance(points: Tensor, starts: Tensor, ends: Tensor, radii: Tensor) -> Tensor:

@@ -27,11 +27,12 @@ FALLBACK_DISTANCE = 3.0  # metres: the view distance when neither cameras nor Ga
 DEFAULT_BACKGROUND = (0.12, 0.14, 0.18)  # the viewer's and ``particlesplat render``'s background colour
 
 
-def scene_background(model=None) -> tuple[float, float, float]:
-    """The colour behind a scene: the model's learned background colour, else :data:`DEFAULT_BACKGROUND` (for a
-    .ply, ``model`` None)."""
+def scene_background(model=None, particles=None) -> tuple[float, float, float]:
+    """The colour behind a scene: the colour its ``particles`` read from their context views or else the model's
+    learned background colour (``ParticleSplat.backdrop``), else :data:`DEFAULT_BACKGROUND` (for a .ply,
+    ``model`` None)."""
     if model is not None:
-        return float3(model.background_color().detach().cpu())
+        return float3(model.backdrop(particles).detach().cpu())
     return DEFAULT_BACKGROUND
 
 
@@ -128,15 +129,49 @@ def focus_point(cameras: list[Camera]) -> Tensor:
 @dataclass(frozen=True)
 class Framing:
     """Where a scene's cameras look, as its generator records it in ``scene.json``: ``target`` (x, y, z) world
-    metres (``look_at``) and ``distance`` metres from it (None: the cameras' median distance)."""
+    metres (``look_at``) and ``distance`` metres from it (None: the cameras' median distance); ``keep``: world
+    points (metres) the default view must show, such as a robot arm's joints (the view backs off until they fit)."""
 
     target: tuple[float, float, float]
     distance: float | None = None
     source: str = field(default="scene.json", compare=False)  # the file it was read from, for messages
+    keep: tuple[tuple[float, float, float], ...] = ()
 
 
 FRAMING_TOLERANCE = 10.0  # a framing's target farther than this many camera distances from the cameras' focus, or a
 # distance this many times theirs (or a tenth), is implausible: warned
+KEEP_MARGIN = 0.9  # a framing's keep points stay within this fraction of the half field of view
+KEEP_BACKOFF = (1.0, 2.5, 0.05)  # the default view's distance grows by these factors (from, to, step) to show them
+
+
+def framed_to_keep(target: Tensor, look: Look, fov_y: float, keep: Tensor) -> tuple[Tensor, Look]:
+    """The orbit about ``target`` (3,) with ``look``, changed to show every point of ``keep`` (N, 3) world metres
+    within :data:`KEEP_MARGIN` of the half field of view ``fov_y`` (degrees, vertical; a landscape window shows
+    more across), in front of the camera: the target rises halfway to the highest point (a robot's arm stands
+    over its table), then the camera backs off along its direction (azimuth and elevation kept) by the least
+    factor of :data:`KEEP_BACKOFF` that shows them all, or the largest. Returns (target (3,), look)."""
+    pts = keep.double()
+    target = target.double().clone()
+    target[2] = 0.5 * (target[2] + max(float(pts[:, 2].max()), float(target[2])))
+    start, stop, step = KEEP_BACKOFF
+    limit = KEEP_MARGIN * math.tan(math.radians(fov_y) / 2.0)
+    up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    factor = start
+    while True:
+        distance = look.distance * factor
+        eye = Camera.orbit_eye(target, look.azimuth, look.elevation, distance)
+        forward = (target - eye) / distance
+        right = torch.linalg.cross(forward, up)
+        right = right / right.norm().clamp_min(1e-12)
+        true_up = torch.linalg.cross(right, forward)
+        rel = pts - eye
+        z = rel @ forward
+        fits = bool((z > 0).all()) and bool(
+            ((rel @ right).abs() <= limit * z).all() and ((rel @ true_up).abs() <= limit * z).all()
+        )
+        if fits or factor + step > stop + 1e-9:
+            return target, replace(look, distance=distance)
+        factor += step
 
 
 def default_view(
@@ -146,7 +181,8 @@ def default_view(
 
     With cameras (a scene folder): orbit about ``framing.target`` (else :func:`focus_point` of all cameras) at
     ``framing.distance`` (else the cameras' median distance from the target), from the middle camera's
-    direction, with its vertical field of view: a scene's own scale (a tabletop 3 m away, a robot table 1 m away).
+    direction, with its vertical field of view: a scene's own scale (a tabletop 3 m away, a robot table 1 m away);
+    raised and backed off until ``framing.keep`` (a robot's arm) is in view (:func:`framed_to_keep`).
     With Gaussians only (a .ply): about the median of the means, azimuth 0, elevation 25°, at a
     distance that frames the 90th-percentile radius in a 40° view.
     """
@@ -172,8 +208,10 @@ def default_view(
                     "the default view may show nothing of the scene"
                 )
         mid = cameras[len(cameras) // 2]
-        look = look_from_eye(target, mid.center.detach().cpu())
-        return View(float3(target), replace(look, distance=distance), round(mid.fov_y, 6))
+        look = replace(look_from_eye(target, mid.center.detach().cpu()), distance=distance)
+        if framing is not None and framing.keep:
+            target, look = framed_to_keep(target, look, mid.fov_y, torch.tensor(framing.keep, dtype=torch.float64))
+        return View(float3(target), look, round(mid.fov_y, 6))
     if gaussians is not None and gaussians.num:
         means = gaussians.means.detach().double().cpu()
         target = means.median(0).values

@@ -16,12 +16,14 @@ from torch import Tensor
 from particlesplat.core.errors import short_repr, warn_input
 from particlesplat.core.jsonfile import MAX_JSON_BYTES, read_json
 from particlesplat.core.limits import MIN_DISTANCE_METRES, WORLD_MAX_METRES
-from particlesplat.core.panda_arm import ARM_STATE_KEY, pack_arm_state
+from particlesplat.core.panda_arm import ARM_STATE_KEY, NARROW_WORLD_BASE, arm_points, pack_arm_state
 from particlesplat.core.viewpoints import Framing
 from particlesplat.data.families import DEFAULT_FAMILY, family_of, get_family
 from particlesplat.data.folders import TRANSFORMS
 from particlesplat.data.pose_ranges import check_limits, generator_range, warn_outside
 from particlesplat.data.scene_errors import SceneFormatError
+
+NARROW_GENERATOR = "particlesplat.data.families.robot"  # the narrow robot world's generator, as scene.json names it
 
 SCENE_META = "scene.json"
 DATASET_META = "synth.json"  # a dataset folder's settings (particlesplat.data.synth.check_manifest)
@@ -94,7 +96,9 @@ def default_checkpoint(path: str | PathLike | None) -> Path:
 def read_framing(folder: str | PathLike) -> Framing | None:
     """The framing ``folder/scene.json`` records: ``look_at`` (3 numbers, world metres) and, when present,
     ``distance`` (metres, > 0). None when the folder has no scene.json or it records no ``look_at`` (the
-    cameras alone then frame the scene). SceneFormatError names the file and the key of a bad value."""
+    cameras alone then frame the scene). A robot scene's arm (:func:`read_arm_state`) and its table top's corners
+    (``table_half_extent``) are the framing's ``keep``: the points its default view must show. SceneFormatError
+    names the file and the key of a bad value."""
     path = Path(folder) / SCENE_META
     if not path.is_file():
         return None
@@ -112,11 +116,25 @@ def read_framing(folder: str | PathLike) -> Framing | None:
             f"{path}: key 'distance' must be a number of metres in [{MIN_DISTANCE_METRES:g}, {WORLD_MAX_METRES:g}], "
             f"got {short_repr(distance)}"
         )
+    state = read_arm_state(folder)  # a robot scene: its default view shows the arm whole, and the table's top
+    arm = [] if state is None else [(float(p[0]), float(p[1]), float(p[2])) for p in arm_points(state)]
+    keep = tuple([*arm, *_table_corners(meta)]) if arm else ()
     return Framing(
         (float(look_at[0]), float(look_at[1]), float(look_at[2])),
         None if distance is None else float(distance),
         str(path),
+        keep,
     )
+
+
+def _table_corners(meta: dict) -> list[tuple[float, float, float]]:
+    """The corners of a table top centred on the origin at z = 0, from scene.json's ``table_half_extent`` (x, y
+    metres; none when the key is absent or not two positive numbers below 10 m)."""
+    half = meta.get("table_half_extent")
+    if not (isinstance(half, list) and len(half) == 2 and all(_finite(v) and 0 < v < 10 for v in half)):
+        return []
+    hx, hy = float(half[0]), float(half[1])
+    return [(sx * hx, sy * hy, 0.0) for sx in (-1.0, 1.0) for sy in (-1.0, 1.0)]
 
 
 def _scene_value(folder: str | PathLike, key: str) -> tuple[Path, object] | None:
@@ -181,12 +199,17 @@ def scene_pose(
 
 def read_arm_state(folder: str | PathLike) -> list[float] | None:
     """What ``folder/scene.json`` says of the robot, packed (:func:`~particlesplat.core.panda_arm.pack_arm_state`):
-    ``arm_joints_rad`` (required: None without it), ``robot_base`` (default robosuite's) and ``gripper`` (default:
-    the largest). SceneFormatError names the file and the key of a bad value."""
+    ``arm_joints_rad`` (required: None without it), ``robot_base`` (default robosuite's, or the narrow world's for
+    its scenes that predate the key) and ``gripper`` (default: the largest). SceneFormatError names the file and
+    the key of a bad value."""
     joints = read_pose(folder, "arm_joints_rad", 7)
     if joints is None:
         return None
     base = read_robot_base(folder)
+    if base is None and _scene_value(folder, "world") is None:
+        generator = _scene_value(folder, "generator")
+        if generator is not None and generator[1] == NARROW_GENERATOR:  # its base was not recorded, but is known
+            base = [list(row) for row in NARROW_WORLD_BASE]
     found = _scene_value(folder, "gripper")
     gripper = None
     if found is not None:

@@ -136,7 +136,7 @@ def label_render(scene: EditedParticles, g: Gaussians, cam: Camera, labels: Tens
         res = render(
             g,
             cam.to("cpu", torch.float32),
-            background=scene.model.background_color().cpu(),
+            background=scene.model.backdrop(scene.particles).cpu(),
             owner_weights=True,
             num_owners=count,
         )

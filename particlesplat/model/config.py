@@ -49,6 +49,8 @@ MODEL_GROUPS: dict[str, dict[str, str]] = {
         "static_pose": "bg_static_pose",
         "static_pose_dims": "bg_static_pose_dims",
         "mask_threshold": "bg_mask_threshold",
+        "colour_from_views": "bg_colour_from_views",
+        "hidden_from_views": "bg_hidden_from_views",
     },
     "patch": {
         "gaussians": "patch_gaussians",
@@ -186,6 +188,8 @@ class ModelConfig:
     bg_static_pose: str = ""
     bg_static_pose_dims: int = 0
     bg_mask_threshold: float = 0.2
+    bg_colour_from_views: bool = False
+    bg_hidden_from_views: bool = False
     # patch:
     patch_gaussians: int = 16
     patch_base: int = 4

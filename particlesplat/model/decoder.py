@@ -353,6 +353,29 @@ def _anchored_depth(zeta_free: Tensor, dd: Tensor, anchor: Tensor, pix: Tensor, 
     return torch.where(usable, base * (1.0 + ANCHOR_DEPTH_RANGE * torch.tanh(dd)), zeta_free)
 
 
+SUPPORT_BAND = 0.01
+"""Metres about the support surface z = 0 within which a background block's anchor point lies on it."""
+MIN_SUPPORT_BLOCKS = 20
+"""The least number of a view's blocks on the support surface for their colour to stand for it."""
+
+
+def support_colours(anchor: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor]:
+    """The colour of the support surface each view shows: the median anchor colour of its blocks whose anchor
+    point lies within :data:`SUPPORT_BAND` of z = 0 (blocks more than half seen, :func:`block_anchors`).
+
+    anchor: (M, N, 5); K: (M, 3, 3); c2w: (M, 4, 4) -> colours (M, 3) in [0, 1], and (M,) bool: the view has at
+    least :data:`MIN_SUPPORT_BLOCKS` such blocks (else its colour is 0.5 grey and unused)."""
+    M = anchor.shape[0]
+    pix = block_centres(cfg, anchor.device, anchor.dtype)[None].expand(M, -1, -1)
+    height = c2w[:, None, 2, 3] + anchor[..., 3] * ray_dirs(pix, K, c2w)[..., 2]  # (M, N) world z, metres
+    on = (anchor[..., 4] > 0.5) & ((height - SUPPORT_Z).abs() < SUPPORT_BAND)
+    colours = torch.full((M, 3), 0.5, dtype=anchor.dtype, device=anchor.device)
+    found = on.sum(dim=1) >= MIN_SUPPORT_BLOCKS
+    for m in torch.nonzero(found).flatten().tolist():
+        colours[m] = anchor[m, on[m], :3].median(dim=0).values
+    return colours.detach(), found
+
+
 def background_gaussians(
     raw: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig, anchor: Tensor | None = None
 ) -> dict[str, Tensor]:
@@ -361,7 +384,9 @@ def background_gaussians(
     Pixel-aligned: a block centre plus a bounded sub-block offset; depth ζ = d_min + σ(·)(d_max − d_min)
     from the depth-residual channel; opacity σ(o) (no transparency gate). With ``anchor`` (M, Hb*Wb, 5)
     (:func:`block_anchors`, ``fg_evidence``) the depth is a residual about the block's own depth
-    (:func:`_anchored_depth`) and the colour one about its own colour, weighted by the share it was taken from.
+    (:func:`_anchored_depth`) and the colour one about its own colour, weighted by the share it was taken from;
+    with ``bg_hidden_from_views`` a block an object hides takes the colour of the support surface its view shows
+    (:func:`support_colours`).
     """
     k = cfg.bg_block
     p = split_gaussian_params(raw, cfg.sh_degree)
@@ -377,6 +402,10 @@ def background_gaussians(
         return _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg)
     zeta = _anchored_depth(zeta, p["dd"][..., 0], anchor, pix, Kn, cn)
     dc = p["sh"][..., 0, :] + anchor[..., 4:5] * (anchor[..., :3] - 0.5) / SH_C0
+    if cfg.bg_hidden_from_views:
+        surface, found = support_colours(anchor, K, c2w, cfg)  # (M, 3), (M,)
+        hidden = (anchor[..., 4] <= 0.5) & found[:, None]  # (M, N)
+        dc = torch.where(hidden[..., None], ((surface - 0.5) / SH_C0)[:, None, :].expand_as(dc), dc)
     p = {**p, "sh": torch.cat([dc[..., None, :], p["sh"][..., 1:, :]], dim=-2)}
     zeta, means, opacity = _place(pix, zeta, Kn, cn, opacity)
     fields = _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg)

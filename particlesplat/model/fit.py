@@ -48,7 +48,7 @@ def context_error(
     (gaussians,) = model.decode_batch(z, particles.view, K[None], c2w[None], pose=pose)
     size = model.config.resolution
     res = render_batch(
-        [(gaussians, Camera(K[v], c2w[v], size, size)) for v in range(K.shape[0])], background=model.background_color()
+        [(gaussians, Camera(K[v], c2w[v], size, size)) for v in range(K.shape[0])], background=model.backdrop(particles)
     )
     rgb_hat = torch.stack([r.rgb.permute(2, 0, 1) for r in res])
     depth_hat = torch.stack([r.depth[None] for r in res])

@@ -11,6 +11,9 @@ from torch import Tensor
 
 from particlesplat.core.camera import Camera
 
+SCENE_FIELDS = ("background", "cameras", "pose", "backdrop")  # one per scene, not one per particle
+OPTIONAL_FIELDS = ("cameras", "pose", "backdrop")  # not tensors, or tensors that may be None
+
 # The attributes a user may edit, in the paper's order, with their widths.
 EDITABLE = MappingProxyType({"z_p": 2, "z_s": 2, "z_d": 1, "z_e": 1, "z_t": 1})
 
@@ -35,6 +38,8 @@ class Particles:
         cameras: the V context cameras (OpenCV).
         pose: (D,) the scene's pose the workspace layer follows (``bg_static_pose``: a robot's joint angles), or
             None (the layer's mean pose).
+        backdrop: (3,) RGB in [0, 1] behind the Gaussians, read from the context views
+            (``background.colour_from_views``), or None (the model's learned colour).
     """
 
     z_p: Tensor
@@ -47,6 +52,7 @@ class Particles:
     background: Tensor
     cameras: list[Camera] = field(default_factory=list)
     pose: Tensor | None = None
+    backdrop: Tensor | None = None
 
     @property
     def num(self) -> int:
@@ -54,8 +60,9 @@ class Particles:
 
     @classmethod
     def row_fields(cls) -> tuple[str, ...]:
-        """The fields with one row per particle: all but ``background``, ``cameras`` and ``pose``."""
-        return tuple(f.name for f in fields(cls) if f.name not in ("background", "cameras", "pose"))
+        """The fields with one row per particle: all but the scene's (``background``, ``cameras``, ``pose`` and
+        ``backdrop``)."""
+        return tuple(f.name for f in fields(cls) if f.name not in SCENE_FIELDS)
 
     def _rows(self, fn) -> Particles:
         return replace(self, **{name: fn(name, getattr(self, name)) for name in self.row_fields()})
@@ -77,8 +84,13 @@ class Particles:
         return self.take(slice(0, num))
 
     def _map(self, fn) -> Particles:
-        out = {f.name: fn(getattr(self, f.name)) for f in fields(self) if f.name not in ("cameras", "pose")}
-        return Particles(**out, cameras=list(self.cameras), pose=None if self.pose is None else fn(self.pose))
+        out = {f.name: fn(getattr(self, f.name)) for f in fields(self) if f.name not in OPTIONAL_FIELDS}
+        return Particles(
+            **out,
+            cameras=list(self.cameras),
+            pose=None if self.pose is None else fn(self.pose),
+            backdrop=None if self.backdrop is None else fn(self.backdrop),
+        )
 
     def detach(self) -> Particles:
         return self._map(lambda t: t.detach())

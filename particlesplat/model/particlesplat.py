@@ -12,6 +12,7 @@ from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import BACKGROUND_OWNER, Gaussians
 from particlesplat.core.panda_arm import ARM_STATE_KEY
 from particlesplat.core.sh import SH_C0
+from particlesplat.model.backdrop import views_backdrop
 from particlesplat.model.config import ModelConfig, config_to_dict
 from particlesplat.model.decoder import (
     BackgroundDecoder,
@@ -91,6 +92,21 @@ class ParticleSplat(nn.Module):
     def background_color(self) -> Tensor:
         """(3,) RGB in [0, 1] rendered behind the Gaussians: the learned background colour."""
         return torch.sigmoid(self.background_logit)
+
+    def backdrop(self, particles: Particles | None = None) -> Tensor:
+        """(3,) RGB in [0, 1] behind a scene's Gaussians: the colour its particles read from their context views
+        (``background.colour_from_views``), else the learned background colour."""
+        if particles is not None and particles.backdrop is not None:
+            return particles.backdrop.to(self.background_logit.device)
+        return self.background_color()
+
+    def views_backdrop(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Tensor | None:
+        """What :attr:`Particles.backdrop` holds for one scene's context views (rgb (V, 3, H, W), depth
+        (V, 1, H, W) or None, K (V, 3, 3), c2w (V, 4, 4)): :func:`~particlesplat.model.backdrop.views_backdrop`
+        with ``background.colour_from_views``, else None."""
+        if not self.config.bg_colour_from_views:
+            return None
+        return views_backdrop(rgb, depth, K, c2w)
 
     def _bg_decoder(self) -> BackgroundDecoder:
         """The per-view background decoder: only a model with ``bg_per_view`` has one."""
@@ -481,10 +497,16 @@ class ParticleSplat(nn.Module):
     ) -> tuple[Posterior, dict[str, Tensor], list[Gaussians]]:
         """Training pass for B scenes (shapes as in :meth:`posterior`): posterior, latents (with the background
         colour to render behind the Gaussians, ``bg_color`` (3,), computed here so that under DDP every weight
-        is used inside the forward pass), Gaussians per scene."""
+        is used inside the forward pass, and with ``background.colour_from_views`` each scene's own,
+        ``backdrop`` (B, 3)), Gaussians per scene."""
         post = self.encode_posterior(rgb, depth, K, c2w, pose)
         z = self.latents(post, sample)
         z["bg_color"] = self.background_color()
+        if self.config.bg_colour_from_views:  # (B, 3): each scene's colour from its views, else the learned one
+            read = [
+                self.views_backdrop(rgb[b], None if depth is None else depth[b], K[b], c2w[b]) for b in range(len(rgb))
+            ]
+            z["backdrop"] = torch.stack([z["bg_color"] if c is None else c.to(z["bg_color"]) for c in read])
         return post, z, self.decode_batch(z, post.view, K, c2w, background, pose=post.pose)
 
     # ------------------------------------------------------------------ scene-level API
@@ -525,6 +547,7 @@ class ParticleSplat(nn.Module):
             background=z["bg"][0],
             cameras=[c.to(dev) for c in cameras],
             pose=None if pose_b is None else pose_b[0],
+            backdrop=self.views_backdrop(rgb_b[0], None if depth_b is None else depth_b[0], K, c2w),
         )
 
     @torch.no_grad()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
+from particlesplat.core.panda_arm import ARM_STATE_KEY
 from particlesplat.data.families import families
 from particlesplat.model.config import ModelConfig, model_value
 from particlesplat.model.derive import INFERENCE_KEYS
@@ -30,7 +31,10 @@ VAL_METRICS = (
 def family_of(cfg: ModelConfig) -> str:
     """The scene family a model's static layer is built for, by its registered title (the first family whose
     :attr:`~particlesplat.data.families.Family.static_layer` it is): a floor grid is the tabletop family's, free
-    workspace Gaussians the robot workspace family's."""
+    workspace Gaussians the robot workspace family's. A model that reads what a robot knows of itself
+    (``bg_static_pose`` :data:`~particlesplat.core.panda_arm.ARM_STATE_KEY`) is the first robot family's."""
+    if cfg.bg_static_pose == ARM_STATE_KEY:
+        return next((f.title for f in families() if f.robot), "none registered (a robot's state)")
     layer = "points" if cfg.bg_static_points > 0 else "grid" if cfg.bg_static_grid > 0 else None
     if layer is None:
         return "none recorded (no static layer)"

@@ -21,14 +21,18 @@ def render_views(
 ) -> tuple[Tensor, Tensor, Tensor | None]:
     """Render B scenes in their views in one rasterizer pass.
 
-    gaussians: B sets; K: (B, V, 3, 3); c2w: (B, V, 4, 4); background: (3,) RGB behind the Gaussians
-    (differentiable) -> rgb (B, V, 3, H, W), depth (B, V, 1, H, W), and with ``foreground`` the particles'
-    weight (B, V, 1, H, W) (else None).
+    gaussians: B sets; K: (B, V, 3, 3); c2w: (B, V, 4, 4); background: (3,) RGB behind the Gaussians of every
+    scene, or (B, 3) one per scene (differentiable) -> rgb (B, V, 3, H, W), depth (B, V, 1, H, W), and with
+    ``foreground`` the particles' weight (B, V, 1, H, W) (else None).
     """
     B, V = K.shape[:2]
     views = [(g, Camera(K[b, v], c2w[b, v], size, size)) for b, g in enumerate(gaussians) for v in range(V)]
-    res = render_batch(views, background=background, foreground=foreground)
+    per_scene = background.ndim == 2
+    res = render_batch(views, background=background.new_zeros(3) if per_scene else background, foreground=foreground)
     rgb = torch.stack([r.rgb.permute(2, 0, 1) for r in res])
+    if per_scene:  # over black, then each scene's colour where the Gaussians leave it: C + (1 - alpha) bg
+        alpha = torch.stack([r.alpha[None] for r in res])  # (B*V, 1, H, W)
+        rgb = rgb + (1.0 - alpha) * background.repeat_interleave(V, 0)[:, :, None, None]
     depth = torch.stack([r.depth[None] for r in res])
     fg = torch.stack([r.require_foreground()[None] for r in res]).reshape(B, V, 1, size, size) if foreground else None
     return rgb.reshape(B, V, 3, size, size), depth.reshape(B, V, 1, size, size), fg
@@ -76,7 +80,7 @@ def training_loss(
     K = torch.cat([batch.context_K, batch.target_K], 1)
     c2w = torch.cat([batch.context_c2w, batch.target_c2w], 1)
     net = model.module if isinstance(model, DistributedDataParallel) else model
-    rgb_hat, depth_hat, fg_hat = render_views(gaussians, K, c2w, size, z["bg_color"], beta_fg > 0)
+    rgb_hat, depth_hat, fg_hat = render_views(gaussians, K, c2w, size, z.get("backdrop", z["bg_color"]), beta_fg > 0)
     gt_rgb = torch.cat([batch.context_rgb, batch.target_rgb], 1)
     gt_depth = torch.cat([batch.context_depth, batch.target_depth], 1)
     B, V = gt_rgb.shape[:2]

@@ -431,6 +431,7 @@ class SettledScene:
             "support_z": 0.0,
             "objects": self.objects_json(self.objects),
             "arm_joints_rad": [float(v) for v in self.arm],
+            "robot_base": self.comp.robot_base.tolist(),
             "table_half_extent": [float(v) for v in self.comp.table_half],
             **self.arc.to_json(),
         }
