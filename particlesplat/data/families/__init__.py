@@ -40,7 +40,8 @@ class Family:
         shipped_model: its shipped model, a path under ``assets/``: what its scenes open with without
             ``--checkpoint``.
         demo_scenes: the folder of its demo scenes under ``assets/`` (need not exist).
-        static_layer: the static layer its model learns: ``"grid"`` or ``"points"``.
+        static_layer: the static layer its models learn or learned: ``"grid"`` or ``"points"`` (``model info``
+            names a checkpoint's family by it; a model that reads a robot's state is the robot family's).
         camera_distances: (min, max) metres from the training cameras to the point they look at; ``scene check``
             judges a capture's scale against them.
         robot: its scenes hold a robot, its base at -x of the table (robosuite's convention): ``scene check``
@@ -171,7 +172,7 @@ register(
         generators=("particlesplat.data.families.robot", "particlesplat.data.families.robot_wide"),
         shipped_model="robot/model.pt",
         demo_scenes="robot/scenes",
-        static_layer="points",
+        static_layer="points",  # the narrow robot model's; the shipped one reads the robot's state instead
         # the rigs' distances: the wide world's arc and RLBench-style cameras (0.8-1.2 m), the narrow world's arc
         # (0.85-1.0 m) and its fixed cameras (about 1.0-1.25 m)
         camera_distances=(0.8, 1.25),
