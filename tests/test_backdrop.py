@@ -143,3 +143,18 @@ def test_a_hidden_block_takes_the_colour_of_the_surface_its_view_shows():
     assert torch.allclose(rgb[hidden], TABLE.double().expand(int(hidden.sum()), 3))
     assert torch.equal(keyed["sh"][0, ~hidden], plain["sh"][0, ~hidden])
     assert torch.equal(keyed["means"], plain["means"])
+    # a camera 5 degrees above the horizon: its upper blocks' rays never meet the table, so an unseen block there
+    # (no depth) is not one an object hides on the table, and keeps its latent's colour
+    low = Camera.orbit((0.0, 0.0, 0.0), 20.0, 5.0, 1.0, width=32, height=32)
+    K2, c2w2 = (t.double() for t in stack_cameras([low]))
+    down = ray_dirs(pix, K2, c2w2)[0][:, 2] < 0
+    assert bool(down.any()) and bool((~down).any())
+    anchor2 = anchor.clone()
+    anchor2[0, :, 3] = torch.where(down & (kind != 1), -c2w2[0, 2, 3] / ray_dirs(pix, K2, c2w2)[0][:, 2], 1.0)
+    anchor2[0, ~down, 4] = 0.0  # the sky: no depth
+    plain2 = background_gaussians(raw, K2, c2w2, cfg, anchor2)
+    keyed2 = background_gaussians(raw, K2, c2w2, replace(cfg, bg_hidden_from_views=True), anchor2)
+    assert torch.equal(keyed2["sh"][0, ~down], plain2["sh"][0, ~down])
+    rgb2 = keyed2["sh"][0, :, 0, :] * SH_C0 + 0.5
+    hidden2 = down & (kind == 2)
+    assert torch.allclose(rgb2[hidden2], TABLE.double().expand(int(hidden2.sum()), 3))

@@ -385,8 +385,8 @@ def background_gaussians(
     from the depth-residual channel; opacity σ(o) (no transparency gate). With ``anchor`` (M, Hb*Wb, 5)
     (:func:`block_anchors`, ``fg_evidence``) the depth is a residual about the block's own depth
     (:func:`_anchored_depth`) and the colour one about its own colour, weighted by the share it was taken from;
-    with ``bg_hidden_from_views`` a block an object hides takes the colour of the support surface its view shows
-    (:func:`support_colours`).
+    with ``bg_hidden_from_views`` a block an object hides (one placed where its ray meets the support surface)
+    takes the colour of the support surface its view shows (:func:`support_colours`).
     """
     k = cfg.bg_block
     p = split_gaussian_params(raw, cfg.sh_degree)
@@ -404,7 +404,10 @@ def background_gaussians(
     dc = p["sh"][..., 0, :] + anchor[..., 4:5] * (anchor[..., :3] - 0.5) / SH_C0
     if cfg.bg_hidden_from_views:
         surface, found = support_colours(anchor, K, c2w, cfg)  # (M, 3), (M,)
-        hidden = (anchor[..., 4] <= 0.5) & found[:, None]  # (M, N)
+        # the blocks placed on the table behind an object: not seen, and their ray meets the support surface
+        down = ray_dirs(block_centres(cfg, raw.device, raw.dtype)[None].expand(len(K), -1, -1), K, c2w)[..., 2] < 0
+        on_table = down & (c2w[:, None, 2, 3] > SUPPORT_Z)
+        hidden = (anchor[..., 4] <= 0.5) & on_table & found[:, None]  # (M, N)
         dc = torch.where(hidden[..., None], ((surface - 0.5) / SH_C0)[:, None, :].expand_as(dc), dc)
     p = {**p, "sh": torch.cat([dc[..., None, :], p["sh"][..., 1:, :]], dim=-2)}
     zeta, means, opacity = _place(pix, zeta, Kn, cn, opacity)
