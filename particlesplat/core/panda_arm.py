@@ -142,16 +142,21 @@ def arm_capsules(
     return starts, ends, radii
 
 
-def arm_points(state: list[float]) -> np.ndarray:
+def state_capsules(state) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`arm_capsules` of a packed state (:func:`pack_arm_state`, :data:`ARM_STATE_DIMS` numbers)."""
+    s = np.asarray(state, dtype=np.float64).reshape(-1)
+    if s.shape[0] != ARM_STATE_DIMS:
+        raise ValueError(f"a packed arm state has {ARM_STATE_DIMS} numbers, got {s.shape[0]}")
+    base = np.eye(4)
+    base[:3] = s[7:19].reshape(3, 4)
+    return arm_capsules(s[:7], base, reach=float(s[19]), gripper_radius=float(s[20]))
+
+
+def arm_points(state) -> np.ndarray:
     """The points that outline the arm of a packed state (:func:`pack_arm_state`): the base, the origins of
     links 1-7, the hand and the gripper's tip (its reach along the hand's z axis). Returns (10, 3) world metres."""
-    if len(state) != ARM_STATE_DIMS:
-        raise ValueError(f"a packed arm state has {ARM_STATE_DIMS} numbers, got {len(state)}")
-    base = np.eye(4)
-    base[:3] = np.asarray(state[7:19], dtype=np.float64).reshape(3, 4)
-    frames = link_frames(state[:7], base)
-    tip = frames[-1, :3, 3] + float(state[19]) * frames[-1, :3, 2]
-    return np.concatenate([frames[:, :3, 3], tip[None]])
+    starts, ends, _ = state_capsules(state)
+    return np.concatenate([starts, ends[-1:]])
 
 
 def capsule_distance(points: Tensor, starts: Tensor, ends: Tensor, radii: Tensor) -> Tensor:

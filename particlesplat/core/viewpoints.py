@@ -154,21 +154,13 @@ def framed_to_keep(target: Tensor, look: Look, fov_y: float, keep: Tensor) -> tu
     target = target.double().clone()
     target[2] = 0.5 * (target[2] + max(float(pts[:, 2].max()), float(target[2])))
     start, stop, step = KEEP_BACKOFF
-    limit = KEEP_MARGIN * math.tan(math.radians(fov_y) / 2.0)
-    up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    size = 1000  # a square image, in pixels: the margin is a share of its half side
     factor = start
     while True:
         distance = look.distance * factor
-        eye = Camera.orbit_eye(target, look.azimuth, look.elevation, distance)
-        forward = (target - eye) / distance
-        right = torch.linalg.cross(forward, up)
-        right = right / right.norm().clamp_min(1e-12)
-        true_up = torch.linalg.cross(right, forward)
-        rel = pts - eye
-        z = rel @ forward
-        fits = bool((z > 0).all()) and bool(
-            ((rel @ right).abs() <= limit * z).all() and ((rel @ true_up).abs() <= limit * z).all()
-        )
+        cam = Camera.orbit(target, look.azimuth, look.elevation, distance, fov_y_deg=fov_y, width=size, height=size)
+        uv, z = cam.to(dtype=torch.float64).project(pts)
+        fits = bool((z > 0).all()) and bool(((uv - size / 2).abs() <= KEEP_MARGIN * size / 2).all())
         if fits or factor + step > stop + 1e-9:
             return target, replace(look, distance=distance)
         factor += step

@@ -340,17 +340,21 @@ def block_anchors(rgb: Tensor, depth: Tensor | None, hidden: Tensor, k: int) -> 
     return torch.cat([colour, d, w], dim=1)
 
 
-def _anchored_depth(zeta_free: Tensor, dd: Tensor, anchor: Tensor, pix: Tensor, K: Tensor, c2w: Tensor) -> Tensor:
+def _anchored_depth(
+    zeta_free: Tensor, dd: Tensor, anchor: Tensor, pix: Tensor, K: Tensor, c2w: Tensor
+) -> tuple[Tensor, Tensor]:
     """Planar depths of anchored background Gaussians (M, N): within ± :data:`ANCHOR_DEPTH_RANGE` of the block's
     own depth where more than half its pixels gave one; else of where the block's ray meets the support surface
-    (the table behind an object); else ``zeta_free`` (the latent's own depth). anchor: (M, N, 5); dd: (M, N)."""
+    (the table behind an object); else ``zeta_free`` (the latent's own depth). anchor: (M, N, 5); dd: (M, N).
+    Also returns (M, N) bool: the blocks placed on the support surface (not seen, their ray meets it)."""
     dirs = ray_dirs(pix[..., None, :], K, c2w)[..., 0, :]
     plane = clamp_to_support(torch.full_like(zeta_free, float("inf")), c2w[..., 2, 3], dirs[..., 2])
     seen = anchor[..., 4] > 0.5
     base = torch.where(seen, anchor[..., 3], plane)
-    usable = seen | torch.isfinite(plane)
+    on_support = ~seen & torch.isfinite(plane)
+    usable = seen | on_support
     base = torch.where(usable, base, torch.ones_like(base))
-    return torch.where(usable, base * (1.0 + ANCHOR_DEPTH_RANGE * torch.tanh(dd)), zeta_free)
+    return torch.where(usable, base * (1.0 + ANCHOR_DEPTH_RANGE * torch.tanh(dd)), zeta_free), on_support
 
 
 SUPPORT_BAND = 0.01
@@ -400,14 +404,11 @@ def background_gaussians(
     if anchor is None:
         zeta, means, opacity = _place(pix, zeta, Kn, cn, opacity)
         return _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg)
-    zeta = _anchored_depth(zeta, p["dd"][..., 0], anchor, pix, Kn, cn)
+    zeta, behind = _anchored_depth(zeta, p["dd"][..., 0], anchor, pix, Kn, cn)
     dc = p["sh"][..., 0, :] + anchor[..., 4:5] * (anchor[..., :3] - 0.5) / SH_C0
     if cfg.bg_hidden_from_views:
         surface, found = support_colours(anchor, K, c2w, cfg)  # (M, 3), (M,)
-        # the blocks placed on the table behind an object: not seen, and their ray meets the support surface
-        down = ray_dirs(block_centres(cfg, raw.device, raw.dtype)[None].expand(len(K), -1, -1), K, c2w)[..., 2] < 0
-        on_table = down & (c2w[:, None, 2, 3] > SUPPORT_Z)
-        hidden = (anchor[..., 4] <= 0.5) & on_table & found[:, None]  # (M, N)
+        hidden = behind & found[:, None]  # (M, N): placed on the table behind an object
         dc = torch.where(hidden[..., None], ((surface - 0.5) / SH_C0)[:, None, :].expand_as(dc), dc)
     p = {**p, "sh": torch.cat([dc[..., None, :], p["sh"][..., 1:, :]], dim=-2)}
     zeta, means, opacity = _place(pix, zeta, Kn, cn, opacity)

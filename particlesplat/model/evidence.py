@@ -18,12 +18,11 @@ The robot state a scene carries reaches it packed (:func:`particlesplat.core.pan
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from particlesplat.core.panda_arm import arm_capsules, capsule_distance
+from particlesplat.core.panda_arm import capsule_distance, state_capsules
 from particlesplat.core.world import SUPPORT_Z
 
 MIN_HEIGHT = 0.012
@@ -39,10 +38,7 @@ FOOTPRINT_MARGIN = 0.03
 def arm_capsules_of(state: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """state: (ARM_STATE_DIMS,) packed (:func:`particlesplat.core.panda_arm.pack_arm_state`) -> capsule starts
     (N, 3), ends (N, 3), radii (N,) on its device."""
-    s = state.detach().double().cpu().numpy()
-    base = np.eye(4)
-    base[:3] = s[7:19].reshape(3, 4)
-    starts, ends, radii = arm_capsules(s[:7], base, reach=float(s[19]), gripper_radius=float(s[20]))
+    starts, ends, radii = state_capsules(state.detach().double().cpu().numpy())
     return tuple(torch.as_tensor(a, dtype=state.dtype, device=state.device) for a in (starts, ends, radii))  # type: ignore[return-value]
 
 
