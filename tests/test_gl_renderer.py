@@ -391,3 +391,40 @@ def test_the_viewers_normalized_target_shows_what_torch_shows(ctx, compositing, 
     assert psnr(blitted, shown) >= 40.0
     fbo.release()
     r.release()
+
+
+def test_the_blit_draws_the_support_map_behind_the_render_as_its_torch_twin(ctx, compositing):
+    """blit.frag's SUPPORT_MAP part against particlesplat.model.support_map.support_map_image: the ray-cast world's
+    map (tests/test_support_map.py) behind a few Gaussians, in a camera that sees the table, past it and the sky,
+    blitted into an 8-bit framebuffer at the render's size; and without the camera, the colour alone."""
+    from test_support_map import _context
+
+    from particlesplat.model.geometry import stack_cameras
+    from particlesplat.model.support_map import support_map_image, views_support_map
+
+    rgb, depth, cams = _context()
+    m = views_support_map(rgb, depth, *stack_cameras(cams))
+    assert m is not None
+    g = random_gaussians(60, seed=4, pixel_scale=0.03)
+    cam = Camera.orbit((0.0, 0.0, 0.0), 160.0, 16.0, 1.0, fov_y_deg=50.0, width=96, height=72)
+    bg = (0.2, 0.3, 0.4)
+    back = support_map_image(m, torch.tensor(bg), cam)
+    assert float((back - torch.tensor(bg)).abs().amax(-1).gt(0.05).float().mean()) > 0.2  # the map shows
+    shown = np.clip(render(g, cam, background=back).rgb.numpy(), 0.0, 1.0)
+    r = SplatRenderer(ctx, compositing=compositing)
+    r.set_gaussians(g)
+    r.set_support_map(m.permute(1, 2, 0).numpy())
+    r.render(cam)
+    np.testing.assert_allclose(np.clip(r.read_rgb(back.numpy()), 0, 1), shown, atol=0.01)  # the screenshot's path
+    fbo = ctx.simple_framebuffer((96, 72), components=4)
+    fbo.use()
+    r.blit((0, 0, 96, 72), bg, support_camera=cam)
+    blitted = np.frombuffer(fbo.read(components=3), np.uint8).reshape(72, 96, 3)[::-1] / 255.0
+    assert psnr(blitted, shown) >= 40.0
+    assert np.abs(blitted - shown).max() < 0.03  # half-float texels, 8-bit output
+    r.blit((0, 0, 96, 72), bg)  # no camera: the colour
+    plain = np.frombuffer(fbo.read(components=3), np.uint8).reshape(72, 96, 3)[::-1] / 255.0
+    assert psnr(plain, np.clip(render(g, cam, background=bg).rgb.numpy(), 0, 1)) >= 40.0
+    r.set_support_map(None)
+    fbo.release()
+    r.release()

@@ -29,7 +29,7 @@ def particles(n: int, seed: int, views: int = 2) -> Particles:
 
 def rows(p: Particles) -> list[tuple]:
     """Each particle as a tuple of its per-particle fields' rows, in the dataclass's order."""
-    names = [f.name for f in fields(Particles) if f.name not in ("background", "cameras", "pose", "backdrop")]
+    names = [f.name for f in fields(Particles) if f.name in Particles.row_fields()]
     return [tuple(getattr(p, name)[i].tolist() for name in names) for i in range(p.num)]
 
 

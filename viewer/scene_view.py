@@ -7,12 +7,21 @@ import torch
 
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
+from particlesplat.model.support_map import support_map_image
 
 from .gl.renderer import FrameTimes, SplatRenderer, segmentation_from_weights
 from .session import Scene
 from .state import SegMode, ViewState
 
 MASK_COLOR = (1.0, 0.85, 0.1)
+
+
+def session_support_map(session: Scene) -> torch.Tensor | None:
+    """The support map (4, N, N) float32 on the CPU the session's particles read from their views, or None (a .ply,
+    a model without ``background.support_map``, a scene without depth)."""
+    editor = session.editor
+    found = None if editor is None else editor.particles.support_map
+    return None if found is None else found.detach().to("cpu", torch.float32)
 
 
 class SceneView:
@@ -23,6 +32,8 @@ class SceneView:
         self.renderer = renderer
         self._last_key: tuple | None = None
         self._session_id: int | None = None
+        self._camera: Camera | None = None  # the last render's
+        self._support_map: torch.Tensor | None = None  # the session's (4, N, N), or None
         self.last_times = FrameTimes()
 
     def sync(self, session: Scene, state: ViewState) -> None:
@@ -31,6 +42,9 @@ class SceneView:
             self._session_id = id(session)
             session.take_changes()
             self.renderer.set_gaussians(session.gaussians())
+            self._support_map = session_support_map(session)
+            arr = None if self._support_map is None else self._support_map.permute(1, 2, 0).numpy()
+            self.renderer.set_support_map(arr)
         else:
             changed = session.take_changes()
             if changed is None:
@@ -63,6 +77,7 @@ class SceneView:
         if state.seg_mode is SegMode.MASK_SELECTED and state.selected is not None:
             self.renderer.render_mask(camera, state.selected)
         self._last_key = key
+        self._camera = camera
         self.last_times = times
         return times
 
@@ -73,7 +88,8 @@ class SceneView:
     def present(self, state: ViewState, viewport: tuple[int, int, int, int]) -> None:
         """Blit the last render into ``viewport`` of the bound framebuffer."""
         mask = MASK_COLOR if state.seg_mode is SegMode.MASK_SELECTED and state.selected is not None else None
-        self.renderer.blit(viewport, state.background, mask)
+        support = self._camera if state.support_map and self._support_map is not None else None
+        self.renderer.blit(viewport, state.background, mask, support)
 
     def pick(self, session: Scene, camera: Camera, x: int, y: int) -> int:
         """Owner dominating pixel (x, y) of ``camera``'s image (-1 = background or empty)."""
@@ -87,9 +103,17 @@ class SceneView:
     def image(self, session: Scene, state: ViewState, camera: Camera) -> np.ndarray:
         """Render ``camera`` (any size, offscreen) and return (H, W, 3) float32 over the background."""
         self.draw(session, state, camera, force=True)
-        rgb = self.renderer.read_rgb(state.background)
+        rgb = self.renderer.read_rgb(self.backdrop(state, camera))
         self.invalidate()
         return np.clip(rgb, 0.0, 1.0)
+
+    def backdrop(self, state: ViewState, camera: Camera) -> tuple[float, float, float] | np.ndarray:
+        """What is behind the Gaussians in ``camera``, as :meth:`present` draws it: the background colour, or
+        with the support map on, (H, W, 3) float32 of the support map over it (its torch twin)."""
+        if not state.support_map or self._support_map is None:
+            return state.background
+        colour = torch.tensor(state.background, dtype=torch.float32)
+        return support_map_image(self._support_map, colour, camera.to("cpu", torch.float32)).numpy()
 
     def visible_gaussians(self, session: Scene, state: ViewState) -> Gaussians:
         """The Gaussians as drawn: edited, filtered by visibility, segmentation mode and pruning."""

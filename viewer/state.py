@@ -42,6 +42,8 @@ class ViewState:
         prune: opacity threshold; Gaussians below it are not drawn (and not exported). Default
             :data:`DEFAULT_PRUNE`.
         background: RGB behind the Gaussians.
+        support_map: where the scene's particles carry a support map (``background.support_map``), draw it behind
+            the Gaussians where a ray meets the support surface (over ``background`` elsewhere).
         overlay: show the frame-time / count overlay.
         panel: show the ImGui panel.
         moving_scale: render scale while the camera or a particle is being dragged.
@@ -57,6 +59,7 @@ class ViewState:
     seg_mode: SegMode = SegMode.NORMAL
     prune: float = DEFAULT_PRUNE
     background: tuple[float, float, float] = DEFAULT_BACKGROUND
+    support_map: bool = True
     overlay: bool = True
     panel: bool = True
     moving_scale: float = 0.5
@@ -97,4 +100,5 @@ class ViewState:
             self.seg_mode,
             self.prune,
             self.background,
+            self.support_map,
         )

@@ -75,17 +75,19 @@ def render_views(
     gaussians,
     cameras: list[Camera],
     num_owners: int,
-    background: Tensor | tuple[float, float, float] = (0.0, 0.0, 0.0),
+    background: Tensor | tuple[float, float, float] | list[Tensor] = (0.0, 0.0, 0.0),
     objects: Tensor | None = None,
 ) -> ViewRenders:
-    """Render ``gaussians`` in each camera over ``background`` (3,): rgb (V, 3, H, W), depth (V, 1, H, W),
+    """Render ``gaussians`` in each camera over ``background`` ((3,), or a list of one (3,) or (H, W, 3) per
+    camera): rgb (V, 3, H, W), depth (V, 1, H, W),
     seg (V, H, W) per particle, particle_weight (V, H, W), and with ``objects`` ((num_owners,) object label per
     particle) seg_objects (V, H, W) per object; ms per view. The renders are on the CPU, whatever device
     ``gaussians`` are on."""
     rgb, depth, seg, seg_obj, weight = [], [], [], [], []
     t0 = time.perf_counter()
-    for cam in cameras:
-        r = render(gaussians, cam, background=background, owner_weights=True, num_owners=num_owners)
+    backs = background if isinstance(background, list) else [background] * len(cameras)
+    for cam, back in zip(cameras, backs, strict=True):
+        r = render(gaussians, cam, background=back, owner_weights=True, num_owners=num_owners)
         rgb.append(r.rgb.permute(2, 0, 1))
         depth.append(r.depth[None])
         seg.append(r.segmentation())
@@ -170,7 +172,7 @@ def evaluate_item(
     # the robot's particles are in no object: their pixels count as background in FG-ARI and mIoU
     robot = robot_particles(particles, gaussians, arm_state(model, particles))
     objects = torch.where(robot, torch.full_like(objects, -1), objects)
-    bg = model.backdrop(particles)
+    bg = [model.backdrop_image(particles, cam) for cam in tgt_cams]
     out = render_views(gaussians, tgt_cams, particles.num, bg, objects)
     active = (particles.z_t[:, 0] >= model.config.bg_mask_threshold).cpu()  # the particles that draw (decode)
     sup = item.get("target_supervision")

@@ -35,7 +35,7 @@ from particlesplat.core.camera import Camera
 from particlesplat.core.choices import MODES, NEEDS_PARTICLES, RenderMode
 from particlesplat.core.errors import OptionError
 from particlesplat.core.gaussians import Gaussians
-from particlesplat.core.viewpoints import Look, View
+from particlesplat.core.viewpoints import Backdrop, Look, View, backdrop_for
 from particlesplat.rendering.api import render
 
 DIM = 0.55  # the scene's brightness under the keypoint and box overlays
@@ -188,12 +188,14 @@ def render_mode(
     camera: Camera,
     mode: RenderMode,
     *,
-    background: Sequence[float] = (0.0, 0.0, 0.0),
+    background: Backdrop = (0.0, 0.0, 0.0),
     arrays: ParticleArrays | None = None,
     colour_bar: bool = False,
 ) -> np.ndarray:
     """One view of ``gaussians`` (the decoded scene, owner = particle index) as ``mode`` -> (H, W, 3) in [0, 1].
 
+    ``background``: a colour, or a function of the camera giving (H, W, 3)
+    (:func:`~particlesplat.core.viewpoints.scene_backdrop`).
     ``arrays``: the scene's particle arrays, needed by every mode but rgb and depth (ValueError without).
     ``colour_bar``: depth gets its colour bar in metres on the right (:func:`with_depth_bar`: wider by 74 px).
     """
@@ -208,7 +210,8 @@ def render_mode(
         g = g.subset(g.owner < 0)
     segment = mode in ("particles", "objects")
     P = arrays.num_particles if arrays is not None else None
-    r = render(g, camera, background=background, owner_weights=segment, num_owners=P if segment else None)
+    back = backdrop_for(background, camera)
+    r = render(g, camera, background=back, owner_weights=segment, num_owners=P if segment else None)
     if mode in ("rgb", "foreground", "background"):
         return r.rgb.numpy().astype(np.float64)
     if mode == "depth":
@@ -300,7 +303,7 @@ def write_turntable(
     out: str | PathLike,
     mode: RenderMode = "rgb",
     *,
-    background: Sequence[float] = (0.0, 0.0, 0.0),
+    background: Backdrop = (0.0, 0.0, 0.0),
     arrays: ParticleArrays | None = None,
     save_frame: Callable[[Path, np.ndarray, Camera], object] | None = None,
     progress: bool = False,

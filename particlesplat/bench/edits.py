@@ -168,9 +168,10 @@ def _renders(
 ) -> torch.Tensor:
     """(V, 3, H, W) renders of the particles (edits applied) in ``cameras``."""
     g = model.decode(particles, z_t_threshold=z_t_threshold).detach().to("cpu")
-    bg = model.backdrop(particles).detach().cpu()
     with torch.no_grad():
-        return torch.stack([render(g, c, background=bg).rgb.permute(2, 0, 1) for c in cameras])
+        backs = [model.backdrop_image(particles, c).detach().cpu() for c in cameras]
+        renders = [render(g, c, background=b).rgb for c, b in zip(cameras, backs, strict=True)]
+    return torch.stack(renders).permute(0, 3, 1, 2)
 
 
 def _sq_err(pred: torch.Tensor, gt: torch.Tensor, region: torch.Tensor) -> tuple[float, int]:
@@ -374,8 +375,8 @@ def summarise(rows: list[dict]) -> dict:
 
 def format_table(table: dict, n: int) -> str:
     lines = [
-        f"edit fidelity on {n} held-out scenes (PSNR dB, mean over scenes; ceiling = the model's own encoding "
-        "of the edited scene)",
+        f"edit fidelity on {n} scenes the model never trained on (PSNR dB, mean over scenes; ceiling = the model's "
+        "own encoding of the edited scene)",
         f"{'edit':<10} {'region':<8} {'edit':>6} {'no-op':>6} {'ceiling':>7} {'gap':>6}",
     ]
     for kind in (k for k in KINDS if k in table):
@@ -409,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
         "family's test split, e.g. DATA/test) instead of the tabletop generator's; --seed, --split, --res and "
         "--work are then unused",
     )
-    parser.add_argument("--scenes", type=int, default=12, help="held-out scenes")
+    parser.add_argument("--scenes", type=int, default=12, help="number of scenes (none the model trained on)")
     parser.add_argument(
         "--start", type=int, default=0, help="first scene: index of the split (with --data: of its scene folders)"
     )

@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
     if args.png:
         import torch
 
-        from particlesplat.core.viewpoints import default_view, scene_background
+        from particlesplat.core.viewpoints import default_view
         from particlesplat.data.scene_meta import read_framing
         from particlesplat.formats.png import png_text, save_png
         from particlesplat.rendering.api import render
@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
         from particlesplat.core.gaussians import BadGaussiansError
 
         with torch.no_grad(), blame(f"{enc.path} with object {args.object} of {src.path}", BadGaussiansError):
-            res = render(g, camera, background=scene_background(model, enc.particles))
+            res = render(g, camera, background=model.backdrop_image(enc.particles, camera).cpu())
         text = png_text(camera, {}, shipped_model_name(checkpoint), {"scene": str(enc.path)})
         print(f"saved {save_png(args.png, res.rgb.numpy(), text)}")
     return 0

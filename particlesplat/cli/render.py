@@ -121,8 +121,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--background",
         type=_background,
         default=None,
-        help="background colour R,G,B (default: the model's learned background colour, if it "
-        "has one, else 0.12,0.14,0.18)",
+        help="background colour R,G,B (default: what the model puts behind the scene: the colours its particles "
+        "read from their views, or its learned colour; for a .ply, 0.12,0.14,0.18)",
     )
     parser.add_argument("--prune", type=float, default=0.0, help="drop Gaussians with opacity below this")
     parser.add_argument(
@@ -147,9 +147,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _scene_and_gaussians(args: argparse.Namespace):
-    """(Gaussians, all input cameras, edits (the edit file's text, else {}), model name, source, background colour,
-    particle arrays or None) for the arguments (the arrays only for a --mode that draws from the particles)."""
-    from particlesplat.core.viewpoints import scene_background
+    """(Gaussians, all input cameras, edits (the edit file's text, else {}), model name, source, what is behind the
+    scene (:func:`~particlesplat.core.viewpoints.scene_backdrop`), particle arrays or None) for the arguments (the
+    arrays only for a --mode that draws from the particles)."""
+    from particlesplat.core.viewpoints import scene_backdrop, scene_background
 
     check_source_arguments(args)
     from particlesplat.editing.open_scene import load_ply_checked
@@ -168,7 +169,7 @@ def _scene_and_gaussians(args: argparse.Namespace):
         from particlesplat.analysis.particle_arrays import particle_arrays
 
         arrays = particle_arrays(model, particles, g, objects=scene.objects)  # the user's groups win
-    return g, enc.all_cameras, edits, name, str(enc.path), scene_background(model, particles), arrays
+    return g, enc.all_cameras, edits, name, str(enc.path), scene_backdrop(model, particles), arrays
 
 
 def resolve_camera(

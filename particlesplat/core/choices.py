@@ -32,5 +32,7 @@ INFERENCE_KEYS: dict[str, str] = {
     "median colour below the support surface: floor, table sides) instead of the learned one",
     "background.hidden_from_views": "a per-view background block an object hides is drawn in the colour of the "
     "support surface its view shows (with fg_evidence) instead of the colour its latent guesses",
+    "background.support_map": "where no Gaussian draws the support surface, a render shows a top-down map of it "
+    "read from each scene's context views (with colour_from_views' colour around it) instead of one colour",
     "support.cut": "metres below the support surface under which a particle Gaussian does not draw (< 0: off)",
 }

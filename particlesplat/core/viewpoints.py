@@ -10,6 +10,7 @@ the vertical field of view in degrees.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import torch
@@ -34,6 +35,24 @@ def scene_background(model=None, particles=None) -> tuple[float, float, float]:
     if model is not None:
         return float3(model.backdrop(particles).detach().cpu())
     return DEFAULT_BACKGROUND
+
+
+Backdrop = Sequence[float] | Callable[[Camera], Tensor]
+"""What a render of a scene composites over: one colour, or a function of the camera giving (H, W, 3) RGB."""
+
+
+def scene_backdrop(model=None, particles=None) -> Backdrop:
+    """What is behind a scene in any camera: where its ``particles`` carry a support map
+    (``background.support_map``), a function of the camera giving (H, W, 3) RGB on the CPU
+    (``ParticleSplat.backdrop_image``), else :func:`scene_background`'s colour."""
+    if model is None or particles is None or particles.support_map is None:
+        return scene_background(model, particles)
+    return lambda camera: model.backdrop_image(particles, camera).detach().cpu()
+
+
+def backdrop_for(backdrop: Backdrop, camera: Camera) -> Sequence[float] | Tensor:
+    """What ``backdrop`` puts behind ``camera``'s render: its colour, or its (H, W, 3) image for that camera."""
+    return backdrop(camera) if callable(backdrop) else backdrop
 
 
 @dataclass(frozen=True)

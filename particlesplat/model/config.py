@@ -51,6 +51,7 @@ MODEL_GROUPS: dict[str, dict[str, str]] = {
         "mask_threshold": "bg_mask_threshold",
         "colour_from_views": "bg_colour_from_views",
         "hidden_from_views": "bg_hidden_from_views",
+        "support_map": "bg_support_map",
     },
     "patch": {
         "gaussians": "patch_gaussians",
@@ -190,6 +191,7 @@ class ModelConfig:
     bg_mask_threshold: float = 0.2
     bg_colour_from_views: bool = False
     bg_hidden_from_views: bool = False
+    bg_support_map: bool = False
     # patch:
     patch_gaussians: int = 16
     patch_base: int = 4

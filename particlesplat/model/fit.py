@@ -47,8 +47,9 @@ def context_error(
     pose = model.batch_pose([particles.pose], dev)
     (gaussians,) = model.decode_batch(z, particles.view, K[None], c2w[None], pose=pose)
     size = model.config.resolution
+    cams = [Camera(K[v], c2w[v], size, size) for v in range(K.shape[0])]
     res = render_batch(
-        [(gaussians, Camera(K[v], c2w[v], size, size)) for v in range(K.shape[0])], background=model.backdrop(particles)
+        [(gaussians, cam) for cam in cams], backgrounds=[model.backdrop_image(particles, cam) for cam in cams]
     )
     rgb_hat = torch.stack([r.rgb.permute(2, 0, 1) for r in res])
     depth_hat = torch.stack([r.depth[None] for r in res])

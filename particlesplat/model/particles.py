@@ -11,8 +11,8 @@ from torch import Tensor
 
 from particlesplat.core.camera import Camera
 
-SCENE_FIELDS = ("background", "cameras", "pose", "backdrop")  # one per scene, not one per particle
-OPTIONAL_FIELDS = ("cameras", "pose", "backdrop")  # not tensors, or tensors that may be None
+SCENE_FIELDS = ("background", "cameras", "pose", "backdrop", "support_map")  # one per scene, not one per particle
+OPTIONAL_FIELDS = ("cameras", "pose", "backdrop", "support_map")  # not tensors, or tensors that may be None
 
 # The attributes a user may edit, in the paper's order, with their widths.
 EDITABLE = MappingProxyType({"z_p": 2, "z_s": 2, "z_d": 1, "z_e": 1, "z_t": 1})
@@ -40,6 +40,8 @@ class Particles:
             None (the layer's mean pose).
         backdrop: (3,) RGB in [0, 1] behind the Gaussians, read from the context views
             (``background.colour_from_views``), or None (the model's learned colour).
+        support_map: (4, N, N) top-down RGB and support share of the support surface, read from the context views
+            (``background.support_map``: :mod:`particlesplat.model.support_map`), or None.
     """
 
     z_p: Tensor
@@ -53,6 +55,7 @@ class Particles:
     cameras: list[Camera] = field(default_factory=list)
     pose: Tensor | None = None
     backdrop: Tensor | None = None
+    support_map: Tensor | None = None
 
     @property
     def num(self) -> int:
@@ -60,8 +63,7 @@ class Particles:
 
     @classmethod
     def row_fields(cls) -> tuple[str, ...]:
-        """The fields with one row per particle: all but the scene's (``background``, ``cameras``, ``pose`` and
-        ``backdrop``)."""
+        """The fields with one row per particle: all but the scene's (:data:`SCENE_FIELDS`)."""
         return tuple(f.name for f in fields(cls) if f.name not in SCENE_FIELDS)
 
     def _rows(self, fn) -> Particles:
@@ -90,6 +92,7 @@ class Particles:
             cameras=list(self.cameras),
             pose=None if self.pose is None else fn(self.pose),
             backdrop=None if self.backdrop is None else fn(self.backdrop),
+            support_map=None if self.support_map is None else fn(self.support_map),
         )
 
     def detach(self) -> Particles:

@@ -32,6 +32,7 @@ from particlesplat.model.particles import Particles
 from particlesplat.model.posterior import ParticlePosterior, Posterior
 from particlesplat.model.refiner import BOX_MARGIN, Refiner, box_glimpses, latent_vector
 from particlesplat.model.static_background import StaticBackground, WorkspaceBackground
+from particlesplat.model.support_map import support_map_image, views_support_map
 from particlesplat.rendering.api import render_batch
 from particlesplat.rendering.layers import composite_over, pool_layer, render_layer
 
@@ -99,6 +100,23 @@ class ParticleSplat(nn.Module):
         if particles is not None and particles.backdrop is not None:
             return particles.backdrop.to(self.background_logit.device)
         return self.background_color()
+
+    def backdrop_image(self, particles: Particles | None, camera: Camera) -> Tensor:
+        """What ``camera`` sees behind a scene's Gaussians: (H, W, 3) RGB in [0, 1] where its particles carry a
+        support map (``background.support_map``: :func:`~particlesplat.model.support_map.support_map_image` over
+        :meth:`backdrop`), else :meth:`backdrop`'s (3,) colour. On the model's device."""
+        colour = self.backdrop(particles)
+        if particles is None or particles.support_map is None:
+            return colour
+        return support_map_image(particles.support_map.to(colour.device), colour, camera)
+
+    def views_support_map(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Tensor | None:
+        """What :attr:`Particles.support_map` holds for one scene's context views (shapes as in
+        :meth:`views_backdrop`): :func:`~particlesplat.model.support_map.views_support_map` with
+        ``background.support_map``, else None."""
+        if not self.config.bg_support_map:
+            return None
+        return views_support_map(rgb, depth, K, c2w)
 
     def views_backdrop(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Tensor | None:
         """What :attr:`Particles.backdrop` holds for one scene's context views (rgb (V, 3, H, W), depth
@@ -548,6 +566,7 @@ class ParticleSplat(nn.Module):
             cameras=[c.to(dev) for c in cameras],
             pose=None if pose_b is None else pose_b[0],
             backdrop=self.views_backdrop(rgb_b[0], None if depth_b is None else depth_b[0], K, c2w),
+            support_map=self.views_support_map(rgb_b[0], None if depth_b is None else depth_b[0], K, c2w),
         )
 
     @torch.no_grad()

@@ -88,6 +88,17 @@ class RenderResult:
         return object_segmentation(self.owner_weights, bg, objects)
 
 
+def behind(background: Sequence[float] | Tensor, size: tuple[int, ...], dtype: torch.dtype, device) -> Tensor:
+    """``background`` as what a render of ``size`` (H, W) composites over: (1, 1, 3) for a colour, (H, W, 3)
+    for an image of that size; ValueError for anything else."""
+    bg = torch.as_tensor(background, dtype=dtype, device=device)
+    if bg.numel() == 3:
+        return bg.reshape(1, 1, 3)
+    if tuple(bg.shape) != (*size, 3):
+        raise ValueError(f"render: background must be (3,) or {(*size, 3)}, got {tuple(bg.shape)}")
+    return bg
+
+
 def render(
     gaussians: Gaussians,
     camera: Camera,
@@ -116,7 +127,7 @@ def render(
     dtype and on the device of ``gaussians`` (the camera is converted).
 
     Args:
-        background: (3,) colour behind everything.
+        background: (3,) colour behind everything, or (H, W, 3) one per pixel.
         owner_weights: also return per-owner weight maps (for masks and segmentation).
         num_owners: P for the owner maps (default: max owner + 1); owners outside 0..P-1
             count as background.
@@ -146,8 +157,12 @@ def render_batch(
     num_owners: int | None = None,
     foreground: bool = False,
     rasterizer: str | None = None,
+    backgrounds: Sequence[Tensor] | None = None,
 ) -> list[RenderResult]:
     """Render several (Gaussians, camera) pairs in one pass; same rules and results as :func:`render`.
+
+    ``background``: (3,) colour or (H, W, 3) image behind every view; ``backgrounds``, one of them per view
+    instead.
 
     ``foreground``: also return the differentiable weight of the particles' Gaussians (owner >= 0) per
     pixel (``RenderResult.foreground``), one more feature column of the same pass.
@@ -169,7 +184,9 @@ def render_batch(
             set_of[id(gaussians)] = len(sets)
             sets.append(gaussians)
     dtype, device = views[0][0].means.dtype, views[0][0].means.device
-    bg = torch.as_tensor(background, dtype=dtype, device=device).reshape(3)
+    if backgrounds is not None and len(backgrounds) != len(views):
+        raise ValueError(f"render: {len(backgrounds)} backgrounds for {len(views)} views")
+    bgs = [background] * len(views) if backgrounds is None else list(backgrounds)
     g = sets[0] if len(sets) == 1 else Gaussians.cat(sets)
     first = [0]
     for s in sets[:-1]:
@@ -214,9 +231,9 @@ def render_batch(
         tiles = RasterizeFunction.apply(*pair_inputs(bins, proj.means2d, proj.conics, opac, features), bins)
         grids = bins.grids
     results = []
-    for acc in tiles_to_images(tiles, grids, sizes):
+    for acc, back in zip(tiles_to_images(tiles, grids, sizes), bgs, strict=True):
         alpha = acc[..., -1]
-        rgb = acc[..., :3] + (1.0 - alpha)[..., None] * bg
+        rgb = acc[..., :3] + (1.0 - alpha)[..., None] * behind(back, acc.shape[:2], dtype, device)
         depth = torch.where(alpha > 0, acc[..., 3] / alpha.clamp_min(1e-12), torch.zeros_like(alpha))
         result = RenderResult(rgb, alpha, depth)
         if foreground:

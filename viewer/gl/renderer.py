@@ -41,6 +41,8 @@ from particlesplat.core import palette
 from particlesplat.core.bundled import data_dir
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.world import SUPPORT_Z
+from particlesplat.model.support_map import EDGE_SOFTNESS, HALF_EXTENT
 from particlesplat.rendering.projection import DILATION, FOV_MARGIN
 
 from .caps import Compositing, GLCaps, probe, shader_constants
@@ -82,6 +84,11 @@ def load_shader(name: str, defines: dict[str, str | int] | None = None) -> str:
     constants = {**shader_constants(), **palette.shader_defines(), **(defines or {})}
     lines = [f"#define {k} {v}" for k, v in constants.items()]
     return "\n".join([first, *lines, rest])
+
+
+def blit_defines(mask: bool, support_map: bool) -> dict[str, str | int]:
+    """blit.frag's variant: with the mask tint, with the support map behind the render."""
+    return {**({"MASK": 1} if mask else {}), **({"SUPPORT_MAP": 1} if support_map else {})}
 
 
 def point_max_radius(caps: GLCaps) -> float:
@@ -234,13 +241,15 @@ class SplatRenderer:
             self._progs[kind] = progs
         self.kind = "quads" if primitive == "auto" else primitive  # the primitive of the current sort
         coverage = {} if self.compositing == "fetch" else {"COVERAGE_ALPHA": 1}
-        self._blits = {  # without and with the mask tint
-            m: ctx.program(
+        self._blits = {  # (mask tint, support map): without and with each
+            (m, s): ctx.program(
                 vertex_shader=load_shader("fullscreen.vert"),
-                fragment_shader=load_shader("blit.frag", {**coverage, **encode, **({"MASK": 1} if m else {})}),
+                fragment_shader=load_shader("blit.frag", {**coverage, **encode, **blit_defines(m, s)}),
             )
             for m in (False, True)
+            for s in (False, True)
         }
+        self._support_tex: moderngl.Texture | None = None  # set_support_map's
         self._project_vaos: dict[int, moderngl.VertexArray] = {}
         self._blit_vaos = {m: ctx.vertex_array(p, []) for m, p in self._blits.items()}
         # data
@@ -706,19 +715,54 @@ class SplatRenderer:
         out[..., 3] = self._alpha(raw[..., 3], self._unorm_t)
         return out
 
-    def read_rgb(self, background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
-        """The last render composited over ``background``: (H, W, 3) float32."""
+    def read_rgb(self, background: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0)) -> np.ndarray:
+        """The last render composited over ``background``, a colour or an (H, W, 3) image: (H, W, 3) float32."""
         rgba = self.read_rgba()
         return rgba[..., :3] + (1.0 - rgba[..., 3:]) * np.asarray(background, np.float32)
+
+    def set_support_map(self, support_map: np.ndarray | None) -> None:
+        """The scene's support map (:mod:`particlesplat.model.support_map`): (N, N, 4) RGB and support share, rows
+        along world y from -HALF_EXTENT; None: none (a blit draws the background colour alone)."""
+        if self._support_tex is not None:
+            self._support_tex.release()
+            self._support_tex = None
+        if support_map is None:
+            return
+        n = support_map.shape[0]
+        if support_map.shape != (n, n, 4):
+            raise ValueError(f"set_support_map: expected (N, N, 4), got {support_map.shape}")
+        # half floats filter linearly on every GL 3.3 driver (float32 textures need not)
+        tex = self.ctx.texture((n, n), 4, data=np.ascontiguousarray(support_map, np.float16).tobytes(), dtype="f2")
+        tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        tex.repeat_x = tex.repeat_y = False  # clamp to the edge texels, as the torch twin's border padding
+        self._support_tex = tex
+
+    def _bind_support_map(self, prog: moderngl.Program, camera: Camera) -> None:
+        """The uniforms of blit.frag's SUPPORT_MAP part for ``camera`` (the camera of the last render)."""
+        assert self._support_tex is not None
+        self._support_tex.use(2)
+        prog["support_map"] = 2
+        K = camera.K.detach().double().cpu().numpy()
+        c2w = camera.c2w.detach().double().cpu().numpy()
+        prog["cam_rot"] = tuple(float(v) for v in c2w[:3, :3].T.reshape(-1))  # column-major
+        prog["cam_eye"] = tuple(float(v) for v in c2w[:3, 3])
+        prog["intrinsics"] = (float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
+        prog["image_size"] = (float(camera.width), float(camera.height))
+        prog["support_z"] = float(SUPPORT_Z)
+        prog["support_half"] = float(HALF_EXTENT)
+        prog["edge_softness"] = float(EDGE_SOFTNESS)
 
     def blit(
         self,
         viewport: tuple[int, int, int, int],
         background: tuple[float, float, float],
         mask_color: tuple[float, float, float] | None = None,
+        support_camera: Camera | None = None,
     ) -> None:
         """Draw the last render over ``background`` into the bound framebuffer's ``viewport``
-        (x, y, w, h in GL pixels); with ``mask_color``, tint the last :meth:`render_mask`."""
+        (x, y, w, h in GL pixels); with ``mask_color``, tint the last :meth:`render_mask`. With ``support_camera``
+        (the last render's camera) and a :meth:`set_support_map`, over the support map where a pixel's ray meets
+        it."""
         self.ctx.viewport = viewport
         self.ctx.disable(moderngl.BLEND)
         # one texel a pixel: nearest (exact, and cheaper on llvmpipe); scaled (moving frames): linear
@@ -729,9 +773,12 @@ class SplatRenderer:
             color.filter = filt
         color.use(0)
         mask = mask_color is not None
-        prog = self._blits[mask]
+        support = support_camera is not None and self._support_tex is not None
+        prog = self._blits[mask, support]
         prog["image"] = 0
         prog["background"] = tuple(background)
+        if support_camera is not None and support:
+            self._bind_support_map(prog, support_camera)
         if mask_color is not None:
             mask_tex = _made(self._mask_tex, "mask target")
             if mask_tex.filter != filt:
@@ -739,7 +786,7 @@ class SplatRenderer:
             mask_tex.use(1)
             prog["mask"] = 1
             prog["mask_color"] = tuple(mask_color)
-        self._blit_vaos[mask].render(moderngl.TRIANGLE_STRIP, vertices=4)
+        self._blit_vaos[mask, support].render(moderngl.TRIANGLE_STRIP, vertices=4)
 
     def release(self) -> None:
         """Free the GL objects."""
@@ -754,6 +801,7 @@ class SplatRenderer:
             self._color_tex,
             self._mask_fbo,
             self._mask_tex,
+            self._support_tex,
             self._id_fbo,
             *self._id_tex,
             *self._project_vaos.values(),

@@ -1,5 +1,5 @@
 """The "View" section: reset, snapping to input cameras (numbered from 0), segmentation mode, pruning, render scale
-while moving, background."""
+while moving, background and the support map behind the Gaussians."""
 
 from __future__ import annotations
 
@@ -61,3 +61,9 @@ def draw_view_section(session: Scene, state: ViewState, req: UiRequests, counts:
     changed, col = imgui.color_edit3("background", list(state.background))
     if changed:
         state.background = float3(col)
+    if session.editor is not None and session.editor.particles.support_map is not None:
+        changed, on = imgui.checkbox("support map", state.support_map)
+        if changed:
+            state.support_map = on
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("behind the Gaussians, the table top as the context views saw it (else one colour)")
