@@ -207,3 +207,27 @@ def test_the_viewer_s_cpu_backdrop_is_the_library_s(tmp_path):
     np.testing.assert_allclose(view.backdrop(state, novel), expect, atol=1e-6)
     state.support_map = False
     assert view.backdrop(state, novel) == (0.1, 0.2, 0.3)
+
+
+def test_training_renders_each_view_over_its_scene_s_map(rasterizer):
+    """With the key, the training pass carries each scene's map (share 0 for a scene without depth) and the training
+    render composites each view over its own image, as a render of that view over it does."""
+    from particlesplat.training.loss import render_views, support_map_images
+
+    rgb, depth, cams = _context(size=32)
+    model = tiny_model(bg_support_map=True, bg_colour_from_views=True)
+    K, c2w = stack_cameras(cams)
+    _, z, gaussians = model(rgb[None], depth[None], K[None], c2w[None], sample=False)
+    m = views_support_map(rgb, depth, K, c2w)
+    assert m is not None
+    torch.testing.assert_close(z["support_map"], m[None])
+    _, z_none, _ = model(rgb[None], None, K[None], c2w[None], sample=False)
+    assert float(z_none["support_map"].abs().max()) == 0.0  # no depth: nothing read, the colour alone
+    images = support_map_images(z["support_map"], z["backdrop"], K[None], c2w[None], 32)
+    assert images.shape == (1, 2, 32, 32, 3)
+    for v, cam in enumerate(cams):
+        torch.testing.assert_close(images[0, v], support_map_image(m, z["backdrop"][0], cam))
+    out, _, _ = render_views(gaussians, K[None], c2w[None], 32, images)
+    for v, cam in enumerate(cams):
+        alone = render(gaussians[0], cam, background=images[0, v]).rgb.permute(2, 0, 1)
+        torch.testing.assert_close(out[0, v], alone, atol=1e-5, rtol=1e-5)

@@ -32,6 +32,7 @@ from particlesplat.model.particles import Particles
 from particlesplat.model.posterior import ParticlePosterior, Posterior
 from particlesplat.model.refiner import BOX_MARGIN, Refiner, box_glimpses, latent_vector
 from particlesplat.model.static_background import StaticBackground, WorkspaceBackground
+from particlesplat.model.support_map import CELLS as SUPPORT_CELLS
 from particlesplat.model.support_map import support_map_image, views_support_map
 from particlesplat.rendering.api import render_batch
 from particlesplat.rendering.layers import composite_over, pool_layer, render_layer
@@ -515,8 +516,9 @@ class ParticleSplat(nn.Module):
     ) -> tuple[Posterior, dict[str, Tensor], list[Gaussians]]:
         """Training pass for B scenes (shapes as in :meth:`posterior`): posterior, latents (with the background
         colour to render behind the Gaussians, ``bg_color`` (3,), computed here so that under DDP every weight
-        is used inside the forward pass, and with ``background.colour_from_views`` each scene's own,
-        ``backdrop`` (B, 3)), Gaussians per scene."""
+        is used inside the forward pass, with ``background.colour_from_views`` each scene's own, ``backdrop``
+        (B, 3), and with ``background.support_map`` each scene's map, ``support_map`` (B, 4, N, N), support share 0
+        for a scene without one), Gaussians per scene."""
         post = self.encode_posterior(rgb, depth, K, c2w, pose)
         z = self.latents(post, sample)
         z["bg_color"] = self.background_color()
@@ -525,6 +527,11 @@ class ParticleSplat(nn.Module):
                 self.views_backdrop(rgb[b], None if depth is None else depth[b], K[b], c2w[b]) for b in range(len(rgb))
             ]
             z["backdrop"] = torch.stack([z["bg_color"] if c is None else c.to(z["bg_color"]) for c in read])
+        if self.config.bg_support_map:
+            depths = [None if depth is None else depth[b] for b in range(len(rgb))]
+            maps = [self.views_support_map(rgb[b], depths[b], K[b], c2w[b]) for b in range(len(rgb))]
+            empty = z["bg_color"].new_zeros(4, SUPPORT_CELLS, SUPPORT_CELLS)
+            z["support_map"] = torch.stack([empty if m is None else m.to(empty) for m in maps])
         return post, z, self.decode_batch(z, post.view, K, c2w, background, pose=post.pose)
 
     # ------------------------------------------------------------------ scene-level API

@@ -13,6 +13,7 @@ from particlesplat.data.dataset import TrainingBatch
 from particlesplat.model import ModelConfig, ParticleSplat, TrainConfig
 from particlesplat.model.evidence import foreground_evidence
 from particlesplat.model.losses import elbo, scene_kl, view_error
+from particlesplat.model.support_map import support_map_image
 from particlesplat.rendering.api import render_batch
 
 
@@ -22,20 +23,38 @@ def render_views(
     """Render B scenes in their views in one rasterizer pass.
 
     gaussians: B sets; K: (B, V, 3, 3); c2w: (B, V, 4, 4); background: (3,) RGB behind the Gaussians of every
-    scene, or (B, 3) one per scene (differentiable) -> rgb (B, V, 3, H, W), depth (B, V, 1, H, W), and with
-    ``foreground`` the particles' weight (B, V, 1, H, W) (else None).
+    scene, (B, 3) one per scene (differentiable), or (B, V, H, W, 3) an image per view -> rgb (B, V, 3, H, W),
+    depth (B, V, 1, H, W), and with ``foreground`` the particles' weight (B, V, 1, H, W) (else None).
     """
     B, V = K.shape[:2]
     views = [(g, Camera(K[b, v], c2w[b, v], size, size)) for b, g in enumerate(gaussians) for v in range(V)]
-    per_scene = background.ndim == 2
+    per_scene = background.ndim > 1
     res = render_batch(views, background=background.new_zeros(3) if per_scene else background, foreground=foreground)
     rgb = torch.stack([r.rgb.permute(2, 0, 1) for r in res])
-    if per_scene:  # over black, then each scene's colour where the Gaussians leave it: C + (1 - alpha) bg
+    if per_scene:  # over black, then each scene's colour or each view's image where the Gaussians leave it
         alpha = torch.stack([r.alpha[None] for r in res])  # (B*V, 1, H, W)
-        rgb = rgb + (1.0 - alpha) * background.repeat_interleave(V, 0)[:, :, None, None]
+        behind = (
+            background.flatten(0, 1).permute(0, 3, 1, 2)
+            if background.ndim == 5
+            else background.repeat_interleave(V, 0)[:, :, None, None]
+        )
+        rgb = rgb + (1.0 - alpha) * behind
     depth = torch.stack([r.depth[None] for r in res])
     fg = torch.stack([r.require_foreground()[None] for r in res]).reshape(B, V, 1, size, size) if foreground else None
     return rgb.reshape(B, V, 3, size, size), depth.reshape(B, V, 1, size, size), fg
+
+
+def support_map_images(support_map: Tensor, colour: Tensor, K: Tensor, c2w: Tensor, size: int) -> Tensor:
+    """What B scenes' views see behind their Gaussians with ``background.support_map``: each scene's map over its
+    colour. support_map: (B, 4, N, N); colour: (3,) or (B, 3); K: (B, V, 3, 3); c2w: (B, V, 4, 4) ->
+    (B, V, size, size, 3) (:func:`particlesplat.model.support_map.support_map_image`)."""
+    B, V = K.shape[:2]
+    colours = colour.expand(B, 3) if colour.ndim == 1 else colour
+    images = [
+        [support_map_image(support_map[b], colours[b], Camera(K[b, v], c2w[b, v], size, size)) for v in range(V)]
+        for b in range(B)
+    ]
+    return torch.stack([torch.stack(row) for row in images])
 
 
 def foreground_error(fg: Tensor, bg_error: Tensor, threshold: float) -> Tensor:
@@ -80,7 +99,10 @@ def training_loss(
     K = torch.cat([batch.context_K, batch.target_K], 1)
     c2w = torch.cat([batch.context_c2w, batch.target_c2w], 1)
     net = model.module if isinstance(model, DistributedDataParallel) else model
-    rgb_hat, depth_hat, fg_hat = render_views(gaussians, K, c2w, size, z.get("backdrop", z["bg_color"]), beta_fg > 0)
+    behind = z.get("backdrop", z["bg_color"])
+    if "support_map" in z:
+        behind = support_map_images(z["support_map"], behind, K, c2w, size)
+    rgb_hat, depth_hat, fg_hat = render_views(gaussians, K, c2w, size, behind, beta_fg > 0)
     gt_rgb = torch.cat([batch.context_rgb, batch.target_rgb], 1)
     gt_depth = torch.cat([batch.context_depth, batch.target_depth], 1)
     B, V = gt_rgb.shape[:2]
