@@ -111,12 +111,13 @@ def test_info_describes_the_model_its_run_data_and_scores_from_the_checkpoint(tm
         (
             "robot/model.pt",
             [
-                "robot workspace family, 128x128 RGB-D, step 16,000",
-                "step 16,000 of a 25,000-step run",
+                "robot workspace family, 128x128 RGB-D, step 25,000",
+                "step 25,000 of a 25,000-step run",
                 "static layer: none",
                 "247 training scenes",
-                "on 12 validation scenes: PSNR 20.99 dB",
-                "background.colour_from_views False -> True, background.hidden_from_views False -> True",
+                "on 12 validation scenes: PSNR 21.01 dB",
+                "background.colour_from_views False -> True, background.hidden_from_views False -> True, "
+                "background.support_map False -> True",
                 "keypoints.min_separation 0.25 -> 0.2",
             ],
         ),

@@ -38,8 +38,9 @@ ON_SUPPORT = 0.01
 BELOW_SUPPORT = 0.02
 """Metres under the support surface below which a context pixel's surface point counts as past its edge."""
 FILL_LEVELS = 2
-"""Coarser levels that fill a hole in the support evidence: a hole up to 2**3 cells (25 cm) wide, such as the
-table under an object, takes its surroundings' share; a region farther from any evidence is not support."""
+"""Coarser levels that fill a hole in the support evidence: a hole up to 2**2 cells (12.5 cm) wide, such as the
+table under an object, takes its surroundings' share; a region farther from any evidence is not support (chosen
+on validation: docs/robot-workspaces.md)."""
 EDGE_SOFTNESS = 0.1
 """Width of the ramp of the support share around one half that blends the map's colour into the backdrop."""
 
