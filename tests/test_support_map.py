@@ -205,6 +205,9 @@ def test_the_viewer_s_cpu_backdrop_is_the_library_s(tmp_path):
     novel = Camera.orbit((0.0, 0.0, 0.0), 0.0, 30.0, 1.3, width=40, height=30)
     expect = support_map_image(m, torch.tensor([0.1, 0.2, 0.3]), novel).numpy()
     np.testing.assert_allclose(view.backdrop(state, novel), expect, atol=1e-6)
+    state.seg_mode = "colour by particle"  # a colour per particle: the plain background behind them
+    assert view.backdrop(state, novel) == (0.1, 0.2, 0.3)
+    state.seg_mode = "normal"
     state.support_map = False
     assert view.backdrop(state, novel) == (0.1, 0.2, 0.3)
 

@@ -88,7 +88,7 @@ class SceneView:
     def present(self, state: ViewState, viewport: tuple[int, int, int, int]) -> None:
         """Blit the last render into ``viewport`` of the bound framebuffer."""
         mask = MASK_COLOR if state.seg_mode is SegMode.MASK_SELECTED and state.selected is not None else None
-        support = self._camera if state.support_map and self._support_map is not None else None
+        support = self._camera if self._draws_support_map(state) else None
         self.renderer.blit(viewport, state.background, mask, support)
 
     def pick(self, session: Scene, camera: Camera, x: int, y: int) -> int:
@@ -110,10 +110,14 @@ class SceneView:
     def backdrop(self, state: ViewState, camera: Camera) -> tuple[float, float, float] | np.ndarray:
         """What is behind the Gaussians in ``camera``, as :meth:`present` draws it: the background colour, or
         with the support map on, (H, W, 3) float32 of the support map over it (its torch twin)."""
-        if not state.support_map or self._support_map is None:
+        if not self._draws_support_map(state) or self._support_map is None:
             return state.background
         colour = torch.tensor(state.background, dtype=torch.float32)
         return support_map_image(self._support_map, colour, camera.to("cpu", torch.float32)).numpy()
+
+    def _draws_support_map(self, state: ViewState) -> bool:
+        """The support map is drawn behind the scene's own colours (not behind a colour per particle or object)."""
+        return state.support_map and state.color_mode() == 0 and self._support_map is not None
 
     def visible_gaussians(self, session: Scene, state: ViewState) -> Gaussians:
         """The Gaussians as drawn: edited, filtered by visibility, segmentation mode and pruning."""

@@ -43,7 +43,8 @@ class ViewState:
             :data:`DEFAULT_PRUNE`.
         background: RGB behind the Gaussians.
         support_map: where the scene's particles carry a support map (``background.support_map``), draw it behind
-            the Gaussians where a ray meets the support surface (over ``background`` elsewhere).
+            the Gaussians where a ray meets the support surface (over ``background`` elsewhere), in the normal
+            colour mode.
         overlay: show the frame-time / count overlay.
         panel: show the ImGui panel.
         moving_scale: render scale while the camera or a particle is being dragged.
