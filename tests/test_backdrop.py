@@ -11,7 +11,8 @@ import torch
 from test_model import tiny_model
 
 from particlesplat.core.camera import Camera
-from particlesplat.model.backdrop import BELOW_SUPPORT, views_backdrop
+from particlesplat.core.world import BELOW_SUPPORT
+from particlesplat.model.backdrop import views_backdrop
 from particlesplat.model.geometry import stack_cameras
 from particlesplat.rendering.api import render
 

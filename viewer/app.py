@@ -48,7 +48,7 @@ from .particle_overlay import ParticleOverlay  # noqa: E402
 from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noqa: E402
 from .scene_view import SceneView  # noqa: E402
 from .screenshot import png_text, save_png, save_screenshot  # noqa: E402
-from .session import EditableScene, Scene  # noqa: E402
+from .session import EditableScene, Scene, session_particles  # noqa: E402
 from .settings import load_settings, save_settings  # noqa: E402
 from .signals import SignalStop, raise_on_stop_signals  # noqa: E402
 from .state import ViewState  # noqa: E402
@@ -121,8 +121,7 @@ def window_address(window) -> int:
 def session_background(session: Scene) -> tuple[float, float, float]:
     """The colour behind the session's scene (:func:`scene_background`): its particles' own where they read it
     from their views."""
-    editor = session.editor
-    return scene_background(session.model, editor.particles if editor is not None else None)
+    return scene_background(session.model, session_particles(session))
 
 
 def initial_view(session: Scene, look: str | None, fov: float | None) -> View:

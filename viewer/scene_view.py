@@ -10,7 +10,7 @@ from particlesplat.core.gaussians import Gaussians
 from particlesplat.model.support_map import support_map_image
 
 from .gl.renderer import FrameTimes, SplatRenderer, segmentation_from_weights
-from .session import Scene
+from .session import Scene, session_particles
 from .state import SegMode, ViewState
 
 MASK_COLOR = (1.0, 0.85, 0.1)
@@ -19,8 +19,8 @@ MASK_COLOR = (1.0, 0.85, 0.1)
 def session_support_map(session: Scene) -> torch.Tensor | None:
     """The support map (4, N, N) float32 on the CPU the session's particles read from their views, or None (a .ply,
     a model without ``background.support_map``, a scene without depth)."""
-    editor = session.editor
-    found = None if editor is None else editor.particles.support_map
+    particles = session_particles(session)
+    found = None if particles is None else particles.support_map
     return None if found is None else found.detach().to("cpu", torch.float32)
 
 

@@ -25,6 +25,7 @@ from particlesplat.editing.scene_id import resolved, scene_digest, scene_file_ke
 if TYPE_CHECKING:
     from particlesplat.core.camera import Camera
     from particlesplat.editing.open_scene import EncodedScene
+    from particlesplat.model.particles import Particles
     from particlesplat.model.particlesplat import ParticleSplat
 
 
@@ -103,6 +104,11 @@ class Scene(Protocol):
         ...
 
     def default_edits_path(self, folder: str | PathLike) -> Path: ...
+
+
+def session_particles(session: Scene) -> Particles | None:
+    """The particles of a session's scene as edited (None for a .ply: nothing encoded)."""
+    return None if session.editor is None else session.editor.particles
 
 
 class SceneFiles:

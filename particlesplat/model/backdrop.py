@@ -12,11 +12,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from particlesplat.core.world import SUPPORT_Z
+from particlesplat.core.world import BELOW_SUPPORT, SUPPORT_Z
 from particlesplat.model.evidence import world_points
 
-BELOW_SUPPORT = 0.02
-"""Metres under the support surface z = 0 below which a context pixel counts as floor or table side."""
 MIN_SHARE = 0.01
 """The least share of the context pixels that must lie below the support surface for their colour to be used."""
 

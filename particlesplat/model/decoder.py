@@ -7,7 +7,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from particlesplat.core.sh import SH_C0, num_sh_bases
-from particlesplat.core.world import SUPPORT_Z
+from particlesplat.core.world import ON_SUPPORT, SUPPORT_Z
 from particlesplat.model.config import ModelConfig
 from particlesplat.model.geometry import (
     camera_covariance_factor,
@@ -357,22 +357,21 @@ def _anchored_depth(
     return torch.where(usable, base * (1.0 + ANCHOR_DEPTH_RANGE * torch.tanh(dd)), zeta_free), on_support
 
 
-SUPPORT_BAND = 0.01
-"""Metres about the support surface z = 0 within which a background block's anchor point lies on it."""
 MIN_SUPPORT_BLOCKS = 20
 """The least number of a view's blocks on the support surface for their colour to stand for it."""
 
 
 def support_colours(anchor: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig) -> tuple[Tensor, Tensor]:
     """The colour of the support surface each view shows: the median anchor colour of its blocks whose anchor
-    point lies within :data:`SUPPORT_BAND` of z = 0 (blocks more than half seen, :func:`block_anchors`).
+    point lies within :data:`~particlesplat.core.world.ON_SUPPORT` of z = 0 (blocks more than half seen,
+    :func:`block_anchors`).
 
     anchor: (M, N, 5); K: (M, 3, 3); c2w: (M, 4, 4) -> colours (M, 3) in [0, 1], and (M,) bool: the view has at
     least :data:`MIN_SUPPORT_BLOCKS` such blocks (else its colour is 0.5 grey and unused)."""
     M = anchor.shape[0]
     pix = block_centres(cfg, anchor.device, anchor.dtype)[None].expand(M, -1, -1)
     height = c2w[:, None, 2, 3] + anchor[..., 3] * ray_dirs(pix, K, c2w)[..., 2]  # (M, N) world z, metres
-    on = (anchor[..., 4] > 0.5) & ((height - SUPPORT_Z).abs() < SUPPORT_BAND)
+    on = (anchor[..., 4] > 0.5) & ((height - SUPPORT_Z).abs() < ON_SUPPORT)
     colours = torch.full((M, 3), 0.5, dtype=anchor.dtype, device=anchor.device)
     found = on.sum(dim=1) >= MIN_SUPPORT_BLOCKS
     for m in torch.nonzero(found).flatten().tolist():

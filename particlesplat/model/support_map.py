@@ -26,17 +26,14 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from particlesplat.core.camera import Camera
-from particlesplat.core.world import SUPPORT_Z
+from particlesplat.core.world import BELOW_SUPPORT, ON_SUPPORT, SUPPORT_Z
+from particlesplat.model.decoder import clamp_to_support
 from particlesplat.model.evidence import world_points
 
 CELLS = 64
 """Cells along each side of the map (a power of two: push-pull halves it down to one cell)."""
 HALF_EXTENT = 1.0
 """Metres from the world origin to the map's edge along x and along y."""
-ON_SUPPORT = 0.01
-"""Metres within which a context pixel's surface point counts as on the support surface."""
-BELOW_SUPPORT = 0.02
-"""Metres under the support surface below which a context pixel's surface point counts as past its edge."""
 FILL_LEVELS = 2
 """Coarser levels that fill a hole in the support evidence: a hole up to 2**2 cells (12.5 cm) wide, such as the
 table under an object, takes its surroundings' share; a region farther from any evidence is not support (chosen
@@ -91,9 +88,9 @@ def views_support_map(rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor)
     if not bool(on.any()):
         return None
     below = valid & (points[:, 2] < SUPPORT_Z - BELOW_SUPPORT) & (origins[:, 2] > SUPPORT_Z)
-    o, p = origins[below], points[below]
-    s = ((o[:, 2] - SUPPORT_Z) / (o[:, 2] - p[:, 2])).unsqueeze(-1)  # where the ray crosses the plane
-    crossing = (o + s * (p - o))[:, :2]
+    o, step = origins[below], points[below] - origins[below]
+    s = clamp_to_support(torch.ones_like(o[:, 2]), o[:, 2], step[:, 2])  # where the ray crosses the plane, in (0, 1)
+    crossing = (o + s[:, None] * step)[:, :2]
     ones_on = torch.ones_like(points[on, :1])
     seen = _splat(points[on, :2], torch.cat([colours[on], ones_on], dim=-1))  # (4, N, N): colour sums, count
     past = _splat(crossing, torch.ones_like(crossing[:, :1]))[0]  # (N, N)
@@ -111,10 +108,9 @@ def support_map_image(support_map: Tensor, backdrop: Tensor, camera: Camera) -> 
     """
     cam = camera.to(device=support_map.device, dtype=support_map.dtype)
     origins, dirs = cam.rays()  # (H, W, 3)
-    dz = dirs[..., 2]
-    down = (dz < -1e-9) & (origins[..., 2] > SUPPORT_Z)  # rays that meet the plane in front of the camera
-    t = torch.where(down, (SUPPORT_Z - origins[..., 2]) / torch.where(down, dz, -torch.ones_like(dz)), 0)
-    xy = (origins + t[..., None] * dirs)[..., :2] / HALF_EXTENT  # [-1, 1] inside the map
+    t = clamp_to_support(torch.full_like(dirs[..., 2], float("inf")), origins[..., 2], dirs[..., 2])
+    down = torch.isfinite(t)  # rays that meet the plane in front of the camera
+    xy = (origins + torch.where(down, t, 0)[..., None] * dirs)[..., :2] / HALF_EXTENT  # [-1, 1] inside the map
     sample = F.grid_sample(support_map[None], xy[None], mode="bilinear", padding_mode="border", align_corners=False)
     rgb, share = sample[0, :3].permute(1, 2, 0), sample[0, 3]
     weight = ((share - 0.5) / EDGE_SOFTNESS + 0.5).clamp(0, 1) * down * (xy.abs() < 1).all(-1)

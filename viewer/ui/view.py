@@ -10,7 +10,7 @@ from imgui_bundle import imgui
 from particlesplat.core.vectors import float3
 
 from ..actions import BY_NAME
-from ..session import Scene
+from ..session import Scene, session_particles
 from ..state import SEG_MODES, SegMode, ViewState
 from ..tools.ruler import ruler_distance
 
@@ -61,7 +61,8 @@ def draw_view_section(session: Scene, state: ViewState, req: UiRequests, counts:
     changed, col = imgui.color_edit3("background", list(state.background))
     if changed:
         state.background = float3(col)
-    if session.editor is not None and session.editor.particles.support_map is not None:
+    particles = session_particles(session)
+    if particles is not None and particles.support_map is not None:
         changed, on = imgui.checkbox("support map", state.support_map)
         if changed:
             state.support_map = on
