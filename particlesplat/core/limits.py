@@ -2,7 +2,10 @@
 
 Memory: a command estimates what it will hold (frames x pixels of the scenes it reads, the weights a config
 builds, Gaussians x views, context views) **before** it allocates it, and :func:`check_memory` refuses an
-estimate above :func:`memory_limit` with one line naming the input and the estimate. The limit is
+estimate above :func:`memory_limit` with one line naming the input and the estimate. A reader sizes everything a
+file will make it hold from its headers (file size, zip directory, image headers, the sum of a manifest's parts)
+and holds that as one reservation while it reads (:func:`reserve_memory`): reservations of one job add up, and
+every check made while they are held counts them, so pieces that each fit cannot pass together. The limit is
 ``PARTICLESPLAT_MEMORY_LIMIT`` (bytes, or with a unit: ``512M``, ``16G``) when set; otherwise half the machine's
 memory, and never more than what this process may still map (its ``RLIMIT_AS``, e.g. ``ulimit -v``).
 
@@ -17,6 +20,9 @@ import math
 import os
 import re
 import resource
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 
 from particlesplat.core.errors import UserError
 
@@ -85,15 +91,39 @@ def format_bytes(n: float) -> str:
     return f"{int(n)} bytes"
 
 
+_RESERVED: ContextVar[float] = ContextVar("particlesplat_reserved_memory", default=0.0)
+
+
+def reserved_memory() -> float:
+    """Bytes the job holds reserved now (:func:`reserve_memory` blocks being run); 0 outside them."""
+    return _RESERVED.get()
+
+
 def check_memory(estimate: float, what: str) -> None:
-    """BudgetError unless ``estimate`` bytes fit in :func:`memory_limit`; ``what`` names the input and how the
-    estimate was made (e.g. ``"scene/transforms.json: 200 frames, 3.4e9 pixels"``)."""
+    """BudgetError unless ``estimate`` bytes, on top of what the job has reserved (:func:`reserved_memory`), fit in
+    :func:`memory_limit`; ``what`` names the input and how the estimate was made (e.g. ``"scene/transforms.json:
+    200 frames, 3.4e9 pixels"``)."""
     limit, source = memory_limit()
-    if estimate > limit:
+    held = reserved_memory()
+    if estimate + held > limit:
+        also = f" on top of the {format_bytes(held)} this job holds" if held > 0 else ""
         raise BudgetError(
-            f"{what}: needs about {format_bytes(estimate)}, more than the memory limit of {format_bytes(limit)} "
-            f"({source}; set {MEMORY_ENV}, e.g. {MEMORY_ENV}=32G, to raise it)"
+            f"{what}: needs about {format_bytes(estimate)}{also}, more than the memory limit of "
+            f"{format_bytes(limit)} ({source}; set {MEMORY_ENV}, e.g. {MEMORY_ENV}=32G, to raise it)"
         )
+
+
+@contextmanager
+def reserve_memory(estimate: float, what: str) -> Iterator[None]:
+    """Hold ``estimate`` bytes of the job's memory limit while the block runs: :func:`check_memory` first (what is
+    held already counts), then every check and reservation inside the block counts it too. A reader sizes all it
+    will hold from headers, reserves the sum once, then reads with bounds (never more than it reserved)."""
+    check_memory(estimate, what)
+    token = _RESERVED.set(reserved_memory() + float(estimate))
+    try:
+        yield
+    finally:
+        _RESERVED.reset(token)
 
 
 def check_option_range(value: float | None, flag: str, lo: float, hi: float, low_open: bool = False) -> None:
@@ -106,6 +136,40 @@ def check_option_range(value: float | None, flag: str, lo: float, hi: float, low
     ok = math.isfinite(value) and (value > lo if low_open else value >= lo) and value <= hi
     if not ok:
         raise OptionError(f"{flag} must be in {'(' if low_open else '['}{lo:g}, {hi:g}], got {value!r}")
+
+
+def rigid_problem(m: object, tol: float = 1e-3) -> str | None:
+    """What keeps ``m`` from being a rigid pose in the world (None when nothing does): a 4 x 4 array of finite
+    numbers within +-:data:`FLOAT32_MAX_ABS`, an orthonormal rotation with determinant +1 (no scale, skew or
+    mirror; within ``tol``), the last row 0 0 0 1 and a translation within :data:`WORLD_MAX_METRES`. Camera poses
+    and the robot's base are held to it."""
+    import numpy as np
+
+    try:
+        a = np.asarray(m, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        return "must be a 4x4 list of numbers"
+    if a.shape != (4, 4):
+        return f"must be 4x4, got shape {a.shape}"
+    if not np.isfinite(a).all():
+        return "has non-finite values"
+    if np.abs(a).max() > FLOAT32_MAX_ABS:
+        return f"has values beyond +-{FLOAT32_MAX_ABS:g} (float32 arithmetic on them overflows)"
+    R = a[:3, :3]
+    err = max(float(np.abs(R.T @ R - np.eye(3)).max()), float(np.abs(a[3] - [0, 0, 0, 1]).max()))
+    det = float(np.linalg.det(R))
+    if err > tol or det <= 0:
+        return (
+            "is not a rigid transform (rotation must be orthonormal with det +1 and the last row 0 0 0 1; "
+            f"error {err:.3g}, det {det:.3g})"
+        )
+    far = float(np.abs(a[:3, 3]).max())
+    if far > WORLD_MAX_METRES:
+        return (
+            f"is {far:.3g} m from the origin, beyond the {WORLD_MAX_METRES:g} m where float32 keeps millimetres; "
+            "translate the scene near the origin"
+        )
+    return None
 
 
 def float32_problem(value: float, positive: bool = False) -> str | None:

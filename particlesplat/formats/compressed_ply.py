@@ -33,7 +33,8 @@ from particlesplat.formats.splat_arrays import (
     SplatArrays,
     SplatFileError,
     background_owner,
-    check_decode_memory,
+    decode_bytes,
+    decoding,
     largest_component,
     others_of,
     splat_arrays,
@@ -143,7 +144,9 @@ def is_compressed(elements: list[tuple[str, int, list[tuple[str, str]]]]) -> boo
 
 
 def read_compressed_ply(path: str | PathLike) -> PlyFields:
-    """Read a compressed ``.ply`` into float32 tensors; PlyError/SplatFileError name the file and the field."""
+    """Read a compressed ``.ply`` into float32 tensors; PlyError/SplatFileError name the file and the field. Every
+    element's bytes are sized from the header and checked against the file's size, then reserved with the
+    decoding's arrays against the job's memory limit before anything is read."""
     path = Path(path)
     with open(path, "rb") as f:
         fmt, elements = read_header(f, path)
@@ -151,22 +154,23 @@ def read_compressed_ply(path: str | PathLike) -> PlyFields:
         size = os.fstat(f.fileno()).st_size
         if fmt != "binary_little_endian":
             raise PlyError(f"{path}: format '{fmt}': a compressed .ply is binary_little_endian")
-        counts = {name: count for name, count, _ in elements}
-        rest = sum(len(props) for name, _, props in elements if name == "sh")
-        check_decode_memory(counts.get("vertex", 0), rest // 3 + 1, path, f"{counts.get('vertex', 0)} vertices")
-        blocks: dict[str, np.ndarray] = {}
+        dtypes = [np.dtype([(p, "<" + t) for p, t in props]) for _, _, props in elements]
         offset = start
-        for name, count, props in elements:
-            dtype = np.dtype([(p, "<" + t) for p, t in props])
+        for (name, count, _), dtype in zip(elements, dtypes, strict=True):
             if count * dtype.itemsize > size - offset:
                 raise SplatFileError(
                     f"{path}: element '{one_line(name, 40)}' declares {count} rows ({count * dtype.itemsize} "
                     f"bytes), the file holds {max(size - offset, 0)} bytes from there: truncated, or a lying count"
                 )
-            f.seek(offset)
-            blocks[name] = np.frombuffer(f.read(count * dtype.itemsize), dtype=dtype, count=count)
             offset += count * dtype.itemsize
-    return to_fields(decode_compressed(blocks, path), path)
+        vertices = next((count for name, count, _ in elements if name == "vertex"), 0)
+        rest = sum(len(props) for name, _, props in elements if name == "sh")
+        estimate = decode_bytes(vertices, rest // 3 + 1) + (offset - start)
+        with decoding(estimate, f"{path}: {vertices} vertices"):
+            blocks: dict[str, np.ndarray] = {}
+            for (name, count, _), dtype in zip(elements, dtypes, strict=True):
+                blocks[name] = np.frombuffer(f.read(count * dtype.itemsize), dtype=dtype, count=count)
+            return to_fields(decode_compressed(blocks, path), path)
 
 
 def decode_compressed(blocks: dict[str, np.ndarray], path: str | PathLike) -> SplatArrays:

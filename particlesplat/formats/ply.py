@@ -22,6 +22,7 @@ import torch
 
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.errors import UserError, one_line
+from particlesplat.core.limits import FLOAT32_MAX_ABS, WORLD_MAX_METRES
 from particlesplat.core.sh import sh_degree_from_bases
 
 _PLY_TYPES = MappingProxyType(
@@ -56,6 +57,11 @@ class PlyError(UserError):
     """A .ply file that cannot be read; the message names the file and the property."""
 
 
+class GaussianWriteError(UserError):
+    """Gaussians a writer cannot store (a non-finite value, a position beyond a format's range); the message names
+    the output file, the field and the first Gaussian at fault. Nothing is written."""
+
+
 class PlyFields(NamedTuple):
     """What a 3DGS .ply holds, as float32 CPU tensors (N Gaussians, K SH bases), in ``Gaussians`` field order."""
 
@@ -88,7 +94,8 @@ class GaussianFields(Protocol):
 def read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]]]:
     """The format (``binary_little_endian`` or ``binary_big_endian``) and the elements, each (name, count,
     [(property, numpy type code)]), of the binary PLY open in ``f``, which is left at the first data byte.
-    PlyError names ``path`` and the header line for anything else."""
+    PlyError names ``path`` and the header line for anything else, and the property and element of a property
+    declared twice in one element."""
     first = f.readline(_MAX_HEADER)
     if first.strip() != b"ply":
         raise PlyError(f"{path}: not a PLY file (first line is {first[:20]!r})")
@@ -126,6 +133,11 @@ def read_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[str
                 raise PlyError(
                     f"{path}: property '{one_line(words[2], 40)}' has unknown type '{one_line(words[1], 40)}'"
                 )
+            if any(name == words[2] for name, _ in elements[-1][2]):
+                raise PlyError(
+                    f"{path}: property '{one_line(words[2], 40)}' is declared twice in element "
+                    f"'{one_line(elements[-1][0], 40)}'"
+                )
             elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
         else:
             raise PlyError(f"{path}: malformed header line {shown}")
@@ -150,10 +162,6 @@ def read_ply(path: str | PathLike) -> PlyFields:
         if not elements or elements[0][0] != "vertex":
             raise PlyError(f"{path}: the first element must be 'vertex'")
         _, n, props = elements[0]
-        listed = [name for name, _ in props]
-        if len(set(listed)) != len(listed):
-            dup = next(name for name in listed if listed.count(name) > 1)
-            raise PlyError(f"{path}: property '{one_line(dup, 40)}' is declared twice in element 'vertex'")
         if not props:
             raise PlyError(f"{path}: element 'vertex' has no properties")
         dtype = np.dtype([(name, order + t) for name, t in props])
@@ -207,14 +215,59 @@ def read_ply(path: str | PathLike) -> PlyFields:
         raise PlyError(
             f"{path}: property 'scale_{axis}' at vertex {vertex} is exp({log_scales[vertex, axis]:.4g}), beyond float32"
         )
-    scales = np.exp(log_scales)
     quats = stack("rot_", 4)
+    problem = range_problem(path, means, log_scales, {"quats": quats, "opacities": opacities, "sh": sh}, "vertex")
+    if problem:
+        raise PlyError(problem)
+    scales = np.exp(log_scales)
     if "owner" in names:
         owner = _owner_column(data["owner"], path)
     else:
         owner = np.full(n, BACKGROUND_OWNER, dtype=np.int64)
     f32 = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
     return PlyFields(f32(means), f32(quats), f32(scales), f32(opacities), f32(sh), torch.from_numpy(owner))
+
+
+def range_problem(
+    path: str | PathLike, means: np.ndarray, log_scales: np.ndarray, others: dict[str, np.ndarray], item: str
+) -> str | None:
+    """What keeps decoded Gaussians (float64 arrays, before their cast to float32) from being held, as one line
+    naming ``path``, the field and the first ``item`` (``Gaussian``, ``vertex``) at fault; None when nothing does.
+
+    ``means`` (N, 3) metres and ``log_scales`` (N, 3) natural logs of metres must lie within
+    :data:`~particlesplat.core.limits.WORLD_MAX_METRES` (where float32 keeps millimetres: 8.4e6 m or 1e30 would
+    render as a point or a degenerate camera); every field of ``others`` (name -> (N, ...) values) within
+    +-:data:`~particlesplat.core.limits.FLOAT32_MAX_ABS` (a value past float32 becomes inf in the cast). Every
+    value must be finite. Only comparisons: no numpy warning is raised."""
+    for name, col in {"means": means, "scales": log_scales, **others}.items():
+        flat = col.reshape(len(col), -1) if col.size else col.reshape(len(col), 0)
+        bad = ~np.isfinite(flat)
+        if bad.any():
+            return f"{path}: {name}: non-finite value at {item} {int(np.argwhere(bad.any(1))[0, 0])}"
+    bad = np.abs(means) > WORLD_MAX_METRES
+    if bad.any():
+        row, k = (int(i) for i in np.argwhere(bad)[0])
+        return (
+            f"{path}: means: {means[row, k]:.4g} m at {item} {row} is beyond the +-{WORLD_MAX_METRES:g} m a position "
+            "may hold (float32 keeps millimetres within it); translate the scene near the origin"
+        )
+    bad = log_scales > np.log(WORLD_MAX_METRES)
+    if bad.any():
+        row, k = (int(i) for i in np.argwhere(bad)[0])
+        return (
+            f"{path}: scales: exp({log_scales[row, k]:.4g}) m at {item} {row} is beyond the {WORLD_MAX_METRES:g} m "
+            "a Gaussian's size may hold"
+        )
+    for name, col in others.items():
+        flat = col.reshape(len(col), -1) if col.size else col.reshape(len(col), 0)
+        bad = np.abs(flat) > FLOAT32_MAX_ABS
+        if bad.any():
+            row, k = (int(i) for i in np.argwhere(bad)[0])
+            return (
+                f"{path}: {name}: {flat[row, k]:.4g} at {item} {row} is beyond +-{FLOAT32_MAX_ABS:g} (float32 "
+                "arithmetic on it overflows)"
+            )
+    return None
 
 
 def _owner_column(col: np.ndarray, path: Path) -> np.ndarray:
@@ -235,14 +288,14 @@ def _owner_column(col: np.ndarray, path: Path) -> np.ndarray:
 
 
 def finite_float64(gaussians: GaussianFields, path: str | PathLike) -> GaussianFields:
-    """``gaussians`` as float64 on the CPU, for writing to ``path``; ValueError naming the file, the field and the
-    first bad Gaussian for a non-finite value (nothing is written)."""
+    """``gaussians`` as float64 on the CPU, for writing to ``path``; GaussianWriteError naming the file, the field
+    and the first bad Gaussian for a non-finite value (nothing is written)."""
     g = gaussians.detach().to("cpu", torch.float64)
     for name in ("means", "quats", "scales", "opacities", "sh"):
         bad = ~torch.isfinite(getattr(g, name))
         if bool(bad.any()):
             row = int(bad.reshape(bad.shape[0], -1).any(1).nonzero()[0, 0])
-            raise ValueError(f"{path}: cannot write Gaussians.{name}: non-finite value at Gaussian {row}")
+            raise GaussianWriteError(f"{path}: cannot write Gaussians.{name}: non-finite value at Gaussian {row}")
     return g
 
 
@@ -250,7 +303,7 @@ def write_ply(gaussians: GaussianFields, path: str | PathLike) -> None:
     """Write ``gaussians`` as a binary little-endian 3DGS .ply, atomically (temp file + rename).
 
     Opacities are clamped to [1e-7, 1 - 1e-7] and scales to >= 1e-30 so that the logit and
-    the log stay finite. Non-finite values raise ValueError (the reader would reject the file)
+    the log stay finite. Non-finite values raise GaussianWriteError (the reader would reject the file)
     and leave an existing file untouched.
     """
     path = Path(path)

@@ -41,7 +41,7 @@ from particlesplat.formats.splat_arrays import (
     SplatArrays,
     SplatFileError,
     background_owner,
-    check_decode_memory,
+    decode_bytes,
     largest_component,
     others_of,
     splat_arrays,
@@ -289,7 +289,7 @@ def decode_sog(files: _Files) -> SplatArrays:
         raise SplatFileError(f"{path}: meta.json: 'count' must be a whole number >= 0")
     sh_n = meta.get("shN")
     bands = sh_n.get("bands") if isinstance(sh_n, dict) else 0
-    check_decode_memory(n, (bands + 1) ** 2 if bands in _SH_COEFFS else 1, path, f"meta.json: count {n}")
+    check_memory(decode_bytes(n, (bands + 1) ** 2 if bands in _SH_COEFFS else 1), f"{path}: meta.json: count {n}")
     mins = _numbers(meta, path, 3, "means", "mins")
     maxs = _numbers(meta, path, 3, "means", "maxs")
     lo, hi = _pixels(files, meta, "means", 0, n), _pixels(files, meta, "means", 1, n)

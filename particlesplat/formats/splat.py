@@ -28,7 +28,8 @@ from particlesplat.formats.splat_arrays import (
     SplatArrays,
     SplatFileError,
     background_owner,
-    check_decode_memory,
+    decode_bytes,
+    decoding,
     splat_arrays,
     to_fields,
     unit_quats,
@@ -51,7 +52,8 @@ def encode_splat(a: SplatArrays) -> bytes:
 
 
 def write_splat(gaussians: GaussianFields, path: str | PathLike) -> None:
-    """Write ``gaussians`` as a ``.splat`` file, atomically; ValueError (naming the file) for non-finite values."""
+    """Write ``gaussians`` as a ``.splat`` file, atomically; GaussianWriteError (naming the file) for non-finite
+    values."""
     data = encode_splat(splat_arrays(gaussians, path))
     with atomic_write(Path(path), "wb") as f:
         f.write(data)
@@ -90,9 +92,12 @@ def decode_splat(data: bytes, path: str | PathLike) -> SplatArrays:
 
 
 def read_splat(path: str | PathLike) -> PlyFields:
-    """Read a ``.splat`` file (see the module docstring) into float32 tensors."""
+    """Read a ``.splat`` file (see the module docstring) into float32 tensors: sized from the file's size (its
+    bytes and the decoding's arrays reserved of the job's memory first), then read to that size."""
     path = Path(path)
-    size = os.path.getsize(path)
-    _check_size(size, path)  # before reading the file
-    check_decode_memory(size // RECORD.itemsize, 1, path, f"{size // RECORD.itemsize} records", extra=size)
-    return to_fields(decode_splat(path.read_bytes(), path), path)
+    with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        _check_size(size, path)  # before reading the file
+        count = size // RECORD.itemsize
+        with decoding(decode_bytes(count, 1) + size, f"{path}: {count} records"):
+            return to_fields(decode_splat(f.read(size), path), path)

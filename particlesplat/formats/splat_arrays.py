@@ -9,6 +9,8 @@ scales, an opacity in [0, 1] (stored as a logit in a ``.ply``), SH coefficients 
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from os import PathLike
 
@@ -16,13 +18,12 @@ import numpy as np
 import torch
 
 from particlesplat.core.errors import UserError
-from particlesplat.core.limits import check_memory
+from particlesplat.core.limits import reserve_memory
 from particlesplat.core.sh import sh_degree_from_bases
-from particlesplat.formats.ply import BACKGROUND_OWNER, GaussianFields, PlyFields, finite_float64
+from particlesplat.formats.ply import BACKGROUND_OWNER, GaussianFields, PlyFields, finite_float64, range_problem
 
 MIN_SCALE = 1e-30  # a zero scale is written as this (as write_ply does), so that its log is finite
 LOG_SCALE_FLOOR = float(np.log(MIN_SCALE))
-MAX_LOG_SCALE = float(np.log(np.finfo(np.float32).max))
 
 
 class SplatFileError(UserError):
@@ -76,8 +77,8 @@ def unit_quats(q: np.ndarray) -> np.ndarray:
 
 
 def splat_arrays(gaussians: GaussianFields, path: str | PathLike) -> SplatArrays:
-    """The arrays of ``gaussians`` for writing to ``path``; ValueError naming ``path``, the field and the first
-    bad Gaussian for a non-finite value (nothing is written)."""
+    """The arrays of ``gaussians`` for writing to ``path``; GaussianWriteError naming ``path``, the field and the
+    first bad Gaussian for a non-finite value (nothing is written)."""
     g = finite_float64(gaussians, path)
     return SplatArrays(
         means=g.means.numpy(),
@@ -90,40 +91,52 @@ def splat_arrays(gaussians: GaussianFields, path: str | PathLike) -> SplatArrays
 
 
 def to_fields(arrays: SplatArrays, path: str | PathLike) -> PlyFields:
-    """Float32 tensors of decoded ``arrays`` (what ``Gaussians(*fields)`` takes); SplatFileError names ``path``
-    and the field for a non-finite value or a scale beyond float32."""
-    for name in _FIELDS[:5]:
-        col = getattr(arrays, name)
-        bad = ~np.isfinite(col)
-        if bad.any():
-            row = int(np.argwhere(bad.reshape(bad.shape[0], -1).any(1))[0, 0])
-            raise SplatFileError(f"{path}: {name.replace('log_', '')}: non-finite value at Gaussian {row}")
-    big = arrays.log_scales > MAX_LOG_SCALE
-    if big.any():
-        row = int(np.argwhere(big.any(1))[0, 0])
-        big_log = arrays.log_scales[row].max()
-        raise SplatFileError(f"{path}: scales: exp({big_log:.4g}) at Gaussian {row} is beyond float32")
+    """Float32 tensors of decoded ``arrays`` (what ``Gaussians(*fields)`` takes), the one conversion every compact
+    format's reader ends with. Before anything is cast, every field is held to what float32 and the world keep
+    (:func:`particlesplat.formats.ply.range_problem`: finite; positions and scales within the world limit; the
+    rest within +-1e18): SplatFileError names ``path`` (the input), the field and the Gaussian, and no numpy
+    warning is printed."""
+    problem = range_problem(
+        path,
+        arrays.means,
+        arrays.log_scales,
+        {"quats": arrays.quats, "opacities": arrays.opacities, "sh": arrays.sh},
+        "Gaussian",
+    )
+    if problem:
+        raise SplatFileError(problem)
 
     def f32(a: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))
 
     owner = np.asarray(arrays.owner, dtype=np.int64)
+    with np.errstate(under="ignore"):  # a scale of exp(-69) m is a flat Gaussian, not an error
+        scales = np.exp(arrays.log_scales)
     return PlyFields(
         f32(arrays.means),
         f32(arrays.quats),
-        f32(np.exp(arrays.log_scales)),
+        f32(scales),
         f32(np.clip(arrays.opacities, 0.0, 1.0)),
         f32(arrays.sh),
         torch.from_numpy(np.ascontiguousarray(owner)),
     )
 
 
-def check_decode_memory(count: int, bases: int, path: str | PathLike, what: str, extra: float = 0.0) -> None:
-    """BudgetError (naming ``path`` and ``what``) unless decoding ``count`` Gaussians of ``bases`` SH bases a
-    channel (float64 arrays, their float32 copies and temporaries: ~(300 + 80 bases) bytes each) plus ``extra``
-    bytes fits in the memory limit (:func:`particlesplat.core.limits.check_memory`). Called before a count a file
-    declares drives any allocation."""
-    check_memory(count * (300.0 + 80.0 * bases) + extra, f"{path}: {what}")
+def decode_bytes(count: int, bases: int) -> float:
+    """Bytes that decoding ``count`` Gaussians of ``bases`` SH bases a channel holds at its peak: float64 arrays,
+    their float32 copies and temporaries, ~(300 + 80 bases) bytes each."""
+    return count * (300.0 + 80.0 * bases)
+
+
+@contextmanager
+def decoding(estimate: float, what: str) -> Iterator[None]:
+    """The block a compact format's reader reads and decodes in: ``estimate`` bytes (everything the file makes it
+    hold, sized from its headers: :func:`decode_bytes` plus the bytes it reads) reserved of the job's memory
+    limit (:func:`particlesplat.core.limits.reserve_memory`; BudgetError names ``what``, which starts with the
+    file), and numpy's floating-point warnings off: a value that overflows in decoding is refused by name in
+    :func:`to_fields`, never printed as a RuntimeWarning."""
+    with reserve_memory(estimate, what), np.errstate(all="ignore"):
+        yield
 
 
 def background_owner(n: int) -> np.ndarray:

@@ -26,19 +26,23 @@ from __future__ import annotations
 import gzip
 import struct
 import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.sh import num_sh_bases
-from particlesplat.formats.ply import GaussianFields, PlyFields
+from particlesplat.formats.ply import GaussianFields, GaussianWriteError, PlyFields
 from particlesplat.formats.splat_arrays import (
     SplatArrays,
     SplatFileError,
     background_owner,
-    check_decode_memory,
+    decode_bytes,
+    decoding,
     largest_component,
     others_of,
     splat_arrays,
@@ -52,6 +56,7 @@ FRACTIONAL_BITS = 12
 COLOR_SCALE = 0.15
 FLAG_ANTIALIASED = 0x1
 MAX_POINTS = 1 << 26  # 67M points: a header asking for more is refused before anything is allocated
+READ_CHUNK = 1 << 20  # bytes of the gzip stream read at a time: the compressed file is never held whole
 _SQRT1_2 = np.sqrt(0.5)
 
 
@@ -60,8 +65,8 @@ def _sh_dim(degree: int) -> int:
 
 
 def encode_spz(a: SplatArrays, path: str | PathLike = "") -> bytes:
-    """The (uncompressed) SPZ v3 payload of ``a``; ValueError naming ``path`` for a position beyond the fixed
-    point's range."""
+    """The (uncompressed) SPZ v3 payload of ``a``; GaussianWriteError naming ``path`` for a position beyond the
+    fixed point's range."""
     n, degree = a.num, a.sh_degree
     peak = float(np.abs(a.means).max()) if n else 0.0
     frac = FRACTIONAL_BITS  # fewer fraction bits for a scene reaching beyond ±2 km: coarser steps, same range
@@ -70,7 +75,7 @@ def encode_spz(a: SplatArrays, path: str | PathLike = "") -> bytes:
     fixed = np.rint(a.means * float(1 << frac))
     if n and np.abs(fixed).max() >= (1 << 23) - 1:
         row = int(np.argwhere((np.abs(fixed) >= (1 << 23) - 1).any(1))[0, 0])
-        raise ValueError(
+        raise GaussianWriteError(
             f"{path}: cannot write SPZ: position {a.means[row].tolist()} of Gaussian {row} is beyond "
             f"±{(1 << 23) - 1} m (24-bit fixed point)"
         )
@@ -115,7 +120,7 @@ def _payload_size(n: int, degree: int, version: int) -> int:
     return HEADER.size + n * (9 + 1 + 3 + 3 + (3 if version == 2 else 4) + 3 * _sh_dim(degree))
 
 
-def decode_spz(raw: bytes, path: str | PathLike) -> SplatArrays:
+def decode_spz(raw: bytes | bytearray, path: str | PathLike) -> SplatArrays:
     """The Gaussians of an uncompressed SPZ payload (version 2 or 3); SplatFileError names ``path`` and the field."""
     if len(raw) < HEADER.size:
         raise SplatFileError(f"{path}: truncated SPZ header ({len(raw)} of {HEADER.size} bytes)")
@@ -176,34 +181,64 @@ def _unpack_rotations(b: np.ndarray) -> np.ndarray:
 
 
 def read_spz(path: str | PathLike) -> PlyFields:
-    """Read a gzip SPZ file (version 2 or 3) into float32 tensors; SplatFileError names the file and the field."""
+    """Read a gzip SPZ file (version 2 or 3) into float32 tensors; SplatFileError names the file and the field.
+
+    The file is streamed: its first bytes tell the format, the gzip stream's first 16 inflated bytes (the header)
+    size the payload, which is reserved with the decoding's arrays against the job's memory limit
+    (:func:`particlesplat.formats.splat_arrays.decoding`) before the rest is inflated, never beyond that size.
+    Neither the compressed file nor more than the header's payload is held."""
     path = Path(path)
-    data = path.read_bytes()
-    if data[:4] == struct.pack("<I", MAGIC):
-        version = struct.unpack_from("<I", data, 4)[0] if len(data) >= 8 else 0
-        raise SplatFileError(
-            f"{path}: SPZ version {version} with ZSTD streams is not supported: write version 3 "
-            "(splat-transform --spz-version 3)"
-        )
-    if data[:2] != b"\x1f\x8b":
-        raise SplatFileError(f"{path}: not an SPZ file (no gzip stream)")
-    return to_fields(decode_spz(_gunzip_bounded(data, path), path), path)
+    with open(path, "rb") as f:
+        magic = f.read(8)
+        if magic[:4] == struct.pack("<I", MAGIC):
+            version = struct.unpack_from("<I", magic, 4)[0] if len(magic) >= 8 else 0
+            raise SplatFileError(
+                f"{path}: SPZ version {version} with ZSTD streams is not supported: write version 3 "
+                "(splat-transform --spz-version 3)"
+            )
+        if magic[:2] != b"\x1f\x8b":
+            raise SplatFileError(f"{path}: not an SPZ file (no gzip stream)")
+        f.seek(0)
+        with _inflated(f, path) as raw:
+            return to_fields(decode_spz(raw, path), path)
 
 
-def _gunzip_bounded(data: bytes, path: Path) -> bytes:
+class _Inflater:
+    """The gzip stream of an open file, inflated on demand: :meth:`take` returns up to ``count`` more bytes,
+    reading the file :data:`READ_CHUNK` bytes at a time (fewer only at the stream's end)."""
+
+    def __init__(self, f: BinaryIO, path: Path) -> None:
+        self.f, self.path = f, path
+        self.z = zlib.decompressobj(wbits=31)
+        self.pending = b""
+
+    def take(self, count: int) -> bytearray:
+        out = bytearray()
+        try:
+            while len(out) < count and not self.z.eof:
+                data = self.pending or self.f.read(READ_CHUNK)
+                if not data:
+                    break
+                out += self.z.decompress(data, count - len(out))
+                self.pending = self.z.unconsumed_tail
+        except zlib.error as e:
+            raise SplatFileError(f"{self.path}: corrupt gzip stream ({e})") from None
+        return out
+
+
+@contextmanager
+def _inflated(f: BinaryIO, path: Path) -> Iterator[bytearray]:
     """The gzip stream's bytes, never more than its header's point count can need (a stream that would inflate
-    beyond that is refused as a lying size, not inflated)."""
-    inflater = zlib.decompressobj(wbits=31)
-    try:
-        head = inflater.decompress(data, HEADER.size)
-        if len(head) < HEADER.size:
-            raise SplatFileError(f"{path}: truncated SPZ header ({len(head)} of {HEADER.size} bytes)")
-        _magic, version, n, degree = HEADER.unpack_from(head)[:4]
-        if n > MAX_POINTS:
-            raise SplatFileError(f"{path}: num_points: {n} is beyond {MAX_POINTS}")
-        want = _payload_size(n, min(degree, 3), 2 if version == 2 else 3)
-        check_decode_memory(n, num_sh_bases(min(degree, 3)), path, f"num_points {n}", extra=want)
-        rest = inflater.decompress(inflater.unconsumed_tail, want - HEADER.size + 1)
-    except zlib.error as e:
-        raise SplatFileError(f"{path}: corrupt gzip stream ({e})") from None
-    return head + rest
+    beyond that is refused as a lying size, not inflated), inside the reservation of what they and their decoding
+    hold."""
+    inflater = _Inflater(f, path)
+    head = inflater.take(HEADER.size)
+    if len(head) < HEADER.size:
+        raise SplatFileError(f"{path}: truncated SPZ header ({len(head)} of {HEADER.size} bytes)")
+    _magic, version, n, degree = HEADER.unpack_from(head)[:4]
+    if n > MAX_POINTS:
+        raise SplatFileError(f"{path}: num_points: {n} is beyond {MAX_POINTS}")
+    want = _payload_size(n, min(degree, 3), 2 if version == 2 else 3)
+    with decoding(decode_bytes(n, num_sh_bases(min(degree, 3))) + 2.0 * want, f"{path}: num_points {n}"):
+        head += inflater.take(want - HEADER.size + 1)  # one byte more tells a stream longer than the header says
+        yield head
