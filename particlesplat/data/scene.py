@@ -25,6 +25,7 @@ from torch import Tensor
 from particlesplat.core.camera import Camera
 from particlesplat.core.errors import UserError, one_line, short_repr
 from particlesplat.core.jsonfile import read_json
+from particlesplat.core.viewpoints import View, default_view
 from particlesplat.data.folders import TRANSFORMS
 from particlesplat.data.scene_errors import SceneFormatError
 
@@ -67,6 +68,15 @@ class Scene:
 
         cfg = model.config
         return scene_pose(self.path, cfg.bg_static_pose, cfg.bg_static_pose_dims, model.input_ranges)
+
+    def default_view(self) -> View:
+        """The scene's default view (:func:`particlesplat.core.viewpoints.default_view`), as the viewer and
+        ``particlesplat render`` open it: about where its cameras look (``scene.json``'s ``look_at``), at their
+        distance (a tabletop's about 3.3 m, a robot table's about 1 m, backed off until the arm shows), from its
+        middle camera's direction. ``view.camera(width, height)`` is its :class:`Camera`."""
+        from particlesplat.data.scene_meta import read_framing
+
+        return default_view(self.cameras, framing=read_framing(self.path))
 
     @property
     def height(self) -> int:

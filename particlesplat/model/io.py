@@ -15,7 +15,7 @@ from torch.torch_version import TorchVersion
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.errors import UserError, one_line
 from particlesplat.core.limits import check_memory
-from particlesplat.data.families import DEFAULT_FAMILY, families, get_family
+from particlesplat.data.families import DEFAULT_FAMILY, families, get_family, shipped_model_named
 from particlesplat.model.config import ModelConfig, stored_model_config, stored_train_config
 from particlesplat.model.particlesplat import ParticleSplat
 
@@ -88,8 +88,9 @@ def config_digest(config: dict) -> str:
 
 
 def read_checkpoint(path: str | PathLike) -> dict:
-    """Load a checkpoint dict (weights_only) and check its keys; errors name the file and the field."""
-    path = Path(path)
+    """Load a checkpoint dict (weights_only) and check its keys; errors name the file and the field. A shipped
+    model's name (``assets/robot/model.pt``) opens it from any working directory (:func:`shipped_model_named`)."""
+    path = shipped_model_named(path) or Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
     try:
@@ -279,12 +280,28 @@ def shipped_model_name(path: str | PathLike) -> str:
     return str(path)
 
 
-def load_model(path: str | PathLike | None = None, device: str | torch.device = "cpu") -> ParticleSplat:
-    """Load a trained model (eval mode). ``path=None`` loads the default family's shipped model
-    (``assets/model.pt``)."""
+def load_model(
+    path: str | PathLike | None = None, device: str | torch.device = "cpu", *, scene: str | PathLike | None = None
+) -> ParticleSplat:
+    """Load a trained model (eval mode).
+
+    Args:
+        path: a checkpoint, or a shipped model's name (``assets/robot/model.pt``, opened from any working
+            directory). None: the shipped model of ``scene``'s family, as every command picks it without
+            ``--checkpoint`` (what its ``scene.json`` records; the default family's ``assets/model.pt`` when
+            ``scene`` is None or records none).
+        device: where the weights go.
+        scene: a scene folder (or a split or dataset folder of one family) whose family picks the model when
+            ``path`` is None.
+    """
     if path is None:
-        path = shipped_model_path()
-    if not Path(path).is_file() and any(Path(path) == f.shipped_model_path() for f in families()):
+        from particlesplat.data.scene_meta import default_checkpoint
+
+        if scene is not None and not Path(scene).is_dir():
+            raise FileNotFoundError(f"{scene}: scene folder not found")
+        path = default_checkpoint(scene)
+    path = shipped_model_named(path) or Path(path)
+    if not path.is_file() and any(path == f.shipped_model_path() for f in families()):
         raise FileNotFoundError(
             f"{path}: the shipped model is missing; train one with 'particlesplat train' or pass a checkpoint path"
         )

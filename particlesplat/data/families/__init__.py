@@ -129,6 +129,20 @@ def shipped_models_text() -> str:
 def checkpoint_help() -> str:
     """``--checkpoint``'s help where the scenes' family picks the model."""
     return f"model checkpoint (default: the shipped model of the scenes' family: {shipped_models_text()})"
+def shipped_model_named(path: str | Path) -> Path | None:
+    """The shipped model that ``path`` names the way ``model info``, the viewer and edit files name one
+    (``assets/robot/model.pt``, :attr:`Family.shipped_model` under ``assets/``), when no file exists at ``path`` as
+    given (a file of that name in the working directory wins); else None. So a shipped model's name opens it from
+    any working directory, installed or in a checkout."""
+    given = Path(path)
+    if given.is_absolute() or given.exists():
+        return None
+    for family in _REGISTRY.values():
+        if given.as_posix() == f"assets/{family.shipped_model}":
+            return family.shipped_model_path()
+    return None
+
+
 
 
 def family_of(meta: object, where: str = "scene.json") -> str | None:
