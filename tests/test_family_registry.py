@@ -204,3 +204,28 @@ def test_no_module_outside_the_families_folder_names_the_families():
     assert found == []
     # the check finds what it looks for
     assert _family_literals(ast.parse('x = family == "robot"\ny = ("tabletop", "robot")'), names) == [1, 2]
+
+
+def test_synth_writes_the_world_the_shipped_robot_model_was_trained_on(monkeypatch, tmp_path, capsys):
+    """Without ``--world``, ``synth --family robot`` writes the world its shipped model was trained on (the wide one:
+    the shipped robot demo scenes, test scenes of that model's dataset, record it), and its help says so; the
+    other world is one option away, and a family of one world gets the narrow default as before."""
+    import dataclasses
+
+    robot = get_family("robot")
+    demo_worlds = {
+        json.loads((p / "scene.json").read_text()).get("world")
+        for p in demo_scenes()
+        if p.parent == bundled_assets() / robot.demo_scenes
+    }
+    assert demo_worlds == {"wide"} == {robot.model_world}
+    text = " ".join(_help(["synth"], capsys).split())
+    assert "the wide, randomised world in robosuite's frame (robot at -x), which the shipped robot model was" in text
+    assert "default: the world of the family's shipped model (robot: wide), else narrow" in text
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    registry._REGISTRY["robot"] = dataclasses.replace(robot, generator=f"{__name__}:_fake_generate")
+    CALLS.clear()
+    out = tmp_path / "r"
+    assert main(["synth", "--family", "robot", str(out), "--train", "1", "--val", "0", "--test", "0"]) == 0
+    assert main(["synth", "--family", "robot", str(out), "--world", "narrow", "--train", "1"]) == 0
+    assert [c[3] for c in CALLS] == ["wide", "narrow"]

@@ -44,19 +44,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--cameras", choices=("arc", "rlbench"), default="arc", help="robot: 21 views on an arc, or 4 RLBench-style"
     )
+    models = [f"{f.name}: {f.model_world}" for f in families() if f.model_world]
     parser.add_argument(
         "--world",
         choices=("narrow", "wide"),
-        default="narrow",
-        help="robot: the narrow world the shipped robot model was trained on (robot at +y, Panda gripper, six "
-        "objects, fixed look), or the wide, randomised one in robosuite's frame (robot at -x; docs/dataset.md)",
+        default=None,
+        help="robot: the wide, randomised world in robosuite's frame (robot at -x), which the shipped robot model "
+        "was trained on, or the narrow one (robot at +y, Panda gripper, six objects, fixed look; docs/dataset.md); "
+        f"default: the world of the family's shipped model ({', '.join(models)}), else narrow",
     )
     parser.add_argument(
         "--arm",
         choices=("home", "still", "random"),
         default="home",
-        help="robot: arm pose: home with joint offsets of up to 0.12 rad, exactly home (still; otherwise the same "
-        "scenes as home), or a random collision-free pose (the wide world draws its own poses)",
+        help="robot, --world narrow: arm pose: home with joint offsets of up to 0.12 rad, exactly home (still; "
+        "otherwise the same scenes as home), or a random collision-free pose (the wide world draws its own poses)",
     )
 
 
@@ -65,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
     if args.split is not None:
         counts = {split: (n if split == args.split else 0) for split, n in counts.items()}
     family = get_family(args.family)
+    if args.world is None:  # the world the family's shipped model was trained on
+        args.world = family.model_world or "narrow"
     if counts["heldout"] and args.world not in family.heldout_worlds:
         worlds = [
             f"the {f.name} family's {w} world (--family {f.name} --world {w})"

@@ -47,6 +47,8 @@ class Family:
         robot: its scenes hold a robot, its base at -x of the table (robosuite's convention): ``scene check``
             measures the turn about z from ``scene.json``'s ``robot_base`` or the depth.
         heldout_worlds: the ``synth --world`` values that have a held-out split (``--heldout``).
+        model_world: the ``synth --world`` its shipped model was trained on: what ``synth`` writes for this family
+            when ``--world`` is not given (None: the family has one world).
     """
 
     name: str
@@ -60,6 +62,7 @@ class Family:
     camera_distances: tuple[float, float]
     robot: bool = False
     heldout_worlds: tuple[str, ...] = ()
+    model_world: str | None = None
 
     def generate(self, out: Path, counts: dict[str, int], seed: int, options: argparse.Namespace) -> list[float]:
         """Write ``counts[split]`` scenes per split under ``out`` with this family's generator (imported now);
@@ -126,9 +129,6 @@ def shipped_models_text() -> str:
     return ", ".join(f"assets/{f.shipped_model}" for f in _REGISTRY.values())
 
 
-def checkpoint_help() -> str:
-    """``--checkpoint``'s help where the scenes' family picks the model."""
-    return f"model checkpoint (default: the shipped model of the scenes' family: {shipped_models_text()})"
 def shipped_model_named(path: str | Path) -> Path | None:
     """The shipped model that ``path`` names the way ``model info``, the viewer and edit files name one
     (``assets/robot/model.pt``, :attr:`Family.shipped_model` under ``assets/``), when no file exists at ``path`` as
@@ -143,6 +143,9 @@ def shipped_model_named(path: str | Path) -> Path | None:
     return None
 
 
+def checkpoint_help() -> str:
+    """``--checkpoint``'s help where the scenes' family picks the model."""
+    return f"model checkpoint (default: the shipped model of the scenes' family: {shipped_models_text()})"
 
 
 def family_of(meta: object, where: str = "scene.json") -> str | None:
@@ -192,5 +195,6 @@ register(
         camera_distances=(0.8, 1.25),
         robot=True,
         heldout_worlds=("wide",),
+        model_world="wide",  # assets/robot/model.pt: the robot-wide run (docs/robot-workspaces.md)
     )
 )

@@ -116,7 +116,10 @@ def generate(
     if config.world not in WORLDS:
         raise OptionError(f"--world must be one of {', '.join(WORLDS)}, got {config.world!r}")
     if config.world == "wide" and config.arm != "home":
-        raise OptionError(f"--arm {config.arm}: the wide world draws its own arm poses; leave --arm out")
+        raise OptionError(
+            f"--arm {config.arm}: the wide world (the default) draws its own arm poses; leave --arm out, or add "
+            "--world narrow"
+        )
     if config.world == "narrow" and counts.get("heldout", 0):
         raise OptionError("--heldout: only the wide world (--world wide) has a held-out split")
     assets_dir()  # one line naming what to install, before any folder is made
