@@ -80,7 +80,9 @@ def test_a_dataset_folder_gets_a_row_and_an_entry_per_split_equal_to_each_split_
     for split, row in rows.items():
         m = res["splits"][split]["mean"]
         cells = row.split()
-        assert cells[1] == "1" and cells[2] == f"{m['psnr']:.2f}" and cells[3] == f"{m['ssim']:.3f}"
+        assert cells[1] == "1" and cells[2] == f"{m['psnr']:.2f}" and cells[6] == f"{m['ssim']:.3f}"
+        assert cells[3] == f"{m['psnr_seen']:.2f}" and cells[4] == f"{m['psnr_unseen']:.2f}"
+        assert cells[5] == f"{100 * m['object_held']:.1f}"
         assert f"{m['fg_ari']:.3f}" in cells and f"{m['objects']:.1f}" in cells
         loc = res["splits"][split]["localisation"]["resting"]
         assert f"{loc['within_0.05']:.0%}" == cells[-6] and cells[-1] == f"{loc['median_m']:.3f}"

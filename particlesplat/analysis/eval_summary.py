@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from particlesplat.analysis.metrics import FAR_HEIGHTS, OVERLAYS, PARTICLES_DRAW, REGIONS
+from particlesplat.analysis.metrics import FAR_HEIGHTS, OBJECT_HELD, OVERLAYS, PARTICLES_DRAW, REGIONS
 from particlesplat.core.choices import OBJECT_CENTRES
 
 
@@ -14,20 +14,34 @@ def summary_line(out: dict, context: int, fit: bool) -> str:
     """The mean metrics of one evaluated folder in one line (``fit``: with the latent fit's time)."""
     m = out["mean"]
     return (
-        f"{len(out['scenes'])} scenes, {context} context view(s): PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f}, "
+        f"{len(out['scenes'])} scenes, {context} context view(s), protocol {out.get('protocol', 'default')}: "
+        f"PSNR {m['psnr']:.2f} dB ({_db(m['psnr_seen'])} on the pixels a context view sees, "
+        f"{_db(m['psnr_unseen'])} on those none does), SSIM {m['ssim']:.3f}, "
         f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f} (objects; per "
         f"particle {m['fg_ari_particles']:.3f}, {m['miou_particles']:.3f}), active particles "
-        f"{m['active_particles']:.1f} in {m['objects']:.1f} objects, Gaussians {m['gaussians']:.0f} "
-        f"({100 * m['below_support']:.1f} % of the opaque object ones > 1 cm below z = 0), "
+        f"{m['active_particles']:.1f} in {m['objects']:.1f} objects, object pixels their particles hold "
+        f"(weight >= {OBJECT_HELD}) {_share(m['object_held'])}, Gaussians {m['gaussians']:.0f} "
+        f"({_share(m['below_support'], '.1%')} of the opaque object ones > 1 cm below z = 0), "
         f"encode {m['encode_ms']:.1f} ms, "
         + (f"fit {m['fit_ms']:.0f} ms, " if fit else "")
         + f"decode {m['decode_ms']:.1f} ms, render {m['render_ms']:.1f} ms/view"
     )
 
 
+def _db(value: float) -> str:
+    """A PSNR, or "no pixels" where the region had none (NaN)."""
+    return f"{value:.2f} dB" if math.isfinite(value) else "no pixels"
+
+
+def _share(value: float, fmt: str = ".0%") -> str:
+    """A share in per cent, or "-" where it is undefined (NaN: nothing to count)."""
+    return format(value, fmt) if math.isfinite(value) else "-"
+
+
 def _shares(items) -> str:
     return "; ".join(
-        f"{k} {v['pixel_share']:.1%} of pixels, {v['error_share']:.0%} of the error, {v['psnr']:.1f} dB"
+        f"{k} {v['pixel_share']:.1%} of pixels, {v['error_share']:.0%} of the error, "
+        + (f"{v['psnr']:.1f} dB" if math.isfinite(v["psnr"]) else "no pixels")
         for k, v in items
     )
 
@@ -74,6 +88,9 @@ def detail_lines(out: dict) -> list[str]:
 # the split table's columns: (header, key of "mean", format)
 SPLIT_COLUMNS = (
     ("PSNR dB", "psnr", ".2f"),
+    ("seen dB", "psnr_seen", ".2f"),
+    ("unseen dB", "psnr_unseen", ".2f"),
+    ("held %", "object_held", ".1%"),
     ("SSIM", "ssim", ".3f"),
     ("AbsRel", "depth_abs_rel", ".3f"),
     ("FG-ARI", "fg_ari", ".3f"),
@@ -95,7 +112,7 @@ LOCALISATION_HEADER = f"{OBJECT_CENTRES[0]} within 5/10/15 cm, median m"
 def _cell(value: float | None, fmt: str) -> str:
     if value is None or not math.isfinite(value):
         return "-"
-    return f"{100 * value:.1f}" if fmt == ".1%" else format(value, fmt)  # "below %" holds a share in per cent
+    return f"{100 * value:.1f}" if fmt == ".1%" else format(value, fmt)  # "%" columns hold a share in per cent
 
 
 def _localisation_cell(out: dict) -> str:

@@ -18,8 +18,10 @@ from particlesplat.analysis.metrics import (
     depth_abs_rel,
     fg_ari,
     matched_miou,
+    object_pixels_held,
     psnr,
     region_errors,
+    region_psnr,
     ssim,
     summarise_region_errors,
 )
@@ -32,7 +34,12 @@ from particlesplat.analysis.world_turn import turn_item, turn_points
 from particlesplat.core import palette
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.camera import Camera
-from particlesplat.core.choices import DEFAULT_FIT, OBJECT_CENTRES
+from particlesplat.core.choices import (
+    DEFAULT_FIT,
+    OBJECT_CENTRES,
+    EvalProtocol,
+    check_protocol,
+)
 from particlesplat.core.errors import OptionError, UserError
 from particlesplat.data.scene_meta import scene_pose
 from particlesplat.data.views import supervision_mask
@@ -143,7 +150,9 @@ def evaluate_item(
     views (then, with ``fit_steps`` > 0, fit the particles to them: :func:`particlesplat.model.fit.fit_particles`),
     decode all particles and the background, render its target views.
 
-    Returns scalars (psnr, ssim, depth_abs_rel, fg_ari, miou, fg_ari_particles, miou_particles,
+    Returns scalars (psnr; psnr_seen and psnr_unseen, on the target pixels a context view sees and those none
+    does (NaN without context depth, or where no pixel is in the region); object_held
+    (:func:`object_pixels_held`); ssim, depth_abs_rel, fg_ari, miou, fg_ari_particles, miou_particles,
     active_particles, objects, gaussians, encode_ms, fit_ms, decode_ms, render_ms), the renders under "renders",
     the target views' squared error per region (:func:`particlesplat.analysis.metrics.region_errors`) under
     "region_errors" when the item has masks, and "pruning" rows when ``prune`` (z_t and opacity thresholds, and
@@ -177,8 +186,17 @@ def evaluate_item(
     active = (particles.z_t[:, 0] >= model.config.bg_mask_threshold).cpu()  # the particles that draw (decode)
     sup = item.get("target_supervision")
     gt = item["target_rgb"]
+    ctx_depth = item["context_depth"]
+    seen = (
+        supervision_mask(item["target_depth"], tgt_cams, ctx_depth, ctx_cams)[:, 0] > 0
+        if bool((ctx_depth > 0).any())
+        else None
+    )
+    keep = torch.ones_like(gt[:, 0], dtype=torch.bool) if sup is None else sup[:, 0] > 0
     res: dict[str, Any] = {
         "psnr": view_psnr(out["rgb"], gt, sup),
+        "psnr_seen": float("nan") if seen is None else region_psnr(out["rgb"], gt, seen & keep),
+        "psnr_unseen": float("nan") if seen is None else region_psnr(out["rgb"], gt, ~seen & keep),
         "ssim": ssim(out["rgb"], gt),
         "depth_abs_rel": depth_abs_rel(out["depth"], item["target_depth"]),
         "active_particles": int(active.sum()),
@@ -191,6 +209,10 @@ def evaluate_item(
         "decode_ms": dec_ms,
         "render_ms": out["render_ms"],
     }
+    obj_masks = item.get("target_masks")
+    res["object_held"] = (
+        float("nan") if obj_masks is None else object_pixels_held(out["particle_weight"], obj_masks, sup)
+    )
     for seg, suffix in ((out["seg_objects"], ""), (out["seg"], "_particles")):
         if "target_masks" in item:
             masks = item["target_masks"]
@@ -200,12 +222,6 @@ def evaluate_item(
             res["fg_ari" + suffix] = res["miou" + suffix] = float("nan")
     if "target_masks" in item:
         world_z = surface_heights(tgt_cams, item["target_depth"])
-        ctx_depth = item["context_depth"]
-        seen = (
-            supervision_mask(item["target_depth"], tgt_cams, ctx_depth, ctx_cams)[:, 0] > 0
-            if bool((ctx_depth > 0).any())
-            else None
-        )
         res["region_errors"] = region_errors(
             out["rgb"], gt, item["target_masks"], sup, world_z, out["particle_weight"], seen
         )
@@ -240,6 +256,9 @@ def evaluate_item(
 
 SCALARS = (
     "psnr",
+    "psnr_seen",
+    "psnr_unseen",
+    "object_held",
     "ssim",
     "depth_abs_rel",
     "fg_ari",
@@ -328,8 +347,11 @@ def evaluate_dataset(
     fit_latents: tuple[str, ...] = DEFAULT_FIT,
     z_t_threshold: float | None = None,
     turn: float = 0.0,
+    protocol: EvalProtocol = "default",
 ) -> dict:
     """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}.
+    ``protocol``: which views are encoded and scored (:data:`particlesplat.core.choices.EVAL_PROTOCOLS`; "paper"
+    needs two context views and scenes of at least 15 frames).
     ``z_t_threshold``: particles drawn (None: the model's, :meth:`ParticleSplat.decode`; 0: every one).
     ``turn``: degrees by which every scene's world frame is turned about z first (:mod:`.world_turn`)."""
     from particlesplat.core.atomic import check_writable
@@ -339,6 +361,7 @@ def evaluate_dataset(
 
     if limit is not None and limit < 1:
         raise OptionError(f"--limit must be >= 1 (or absent for every scene), got {limit}")
+    check_protocol(protocol, context)
     if figures is not None and num_figures > 0:
         check_writable(Path(figures) / "figure.png")  # before the work, not after it
     ds = SceneDataset(
@@ -348,6 +371,7 @@ def evaluate_dataset(
         deterministic=True,
         seed=seed,
         progress=1.0,
+        protocol=protocol,
     )
     n = len(ds) if limit is None else min(limit, len(ds))
     scenes, prune_rows, regions = [], [], []
@@ -362,7 +386,7 @@ def evaluate_dataset(
         if turn:
             item = turn_item(item, turn, cfg.bg_static_pose)
             true_centres = turn_points(true_centres, turn)
-        if set(item["target_index"].tolist()) <= set(item["context_index"].tolist()):
+        if protocol == "default" and set(item["target_index"].tolist()) <= set(item["context_index"].tolist()):
             raise UserError(
                 f"{ds.scenes[i]}: {ds.raw(i).num_frames} frame(s): no target view apart from the "
                 f"{context} context view(s); evaluation needs at least {context + 1} frames"
@@ -392,7 +416,14 @@ def evaluate_dataset(
         if prune:
             prune_rows.append(res["pruning"])
     mean = {k: _nanmean([s[k] for s in scenes]) for k in SCALARS}
-    out = {"data": str(data_dir), "context": context, "depth": use_depth, "scenes": scenes, "mean": mean}
+    out = {
+        "data": str(data_dir),
+        "context": context,
+        "depth": use_depth,
+        "protocol": protocol,
+        "scenes": scenes,
+        "mean": mean,
+    }
     if turn:
         out["turn_deg"] = turn
     if located[OBJECT_CENTRES[0]]:  # scenes whose generator recorded the object centres

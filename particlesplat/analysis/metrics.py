@@ -30,6 +30,27 @@ def psnr(pred: Tensor, target: Tensor, mask: Tensor | None = None) -> float:
     return psnr_of_mse(float(mse))
 
 
+def region_psnr(pred: Tensor, gt: Tensor, region: Tensor) -> float:
+    """Mean over views of each view's PSNR (dB) on the pixels of ``region`` (T, H, W) bool; views with no such
+    pixel are left out, and NaN when no view has one. pred, gt: (T, 3, H, W)."""
+    scores = [psnr(pred[i], gt[i], region[i][None]) for i in range(len(gt)) if bool(region[i].any())]
+    return sum(scores) / len(scores) if scores else float("nan")
+
+
+OBJECT_HELD = 0.9  # an object pixel is held by its particles when their summed weight there is at least this
+
+
+def object_pixels_held(particle_weight: Tensor, masks: Tensor, valid: Tensor | None = None) -> float:
+    """Share of the true object pixels (masks (T, H, W) > 0, within ``valid`` (T, 1, H, W) when given) where the
+    particles' summed weight ``particle_weight`` (T, H, W) is at least :data:`OBJECT_HELD`: the part of the objects
+    their own particles draw opaquely, so that an edit carries it. NaN when the views show no object."""
+    obj = masks > 0
+    if valid is not None:
+        obj &= valid[:, 0] > 0
+    n = int(obj.sum())
+    return float((particle_weight[obj] >= OBJECT_HELD).sum()) / n if n else float("nan")
+
+
 def ssim(pred: Tensor, target: Tensor, window: int = 11) -> float:
     """Mean SSIM (kornia, Gaussian window). pred, target: (B, 3, H, W) in [0, 1]."""
     return float(kornia_ssim(pred.clamp(0, 1), target, window).mean())

@@ -7,7 +7,14 @@ import json
 from pathlib import Path
 
 from particlesplat.core.atomic import check_writable
-from particlesplat.core.choices import DEFAULT_FIT, FITTED
+from particlesplat.core.choices import (
+    DEFAULT_FIT,
+    EVAL_PROTOCOLS,
+    FITTED,
+    PAPER_CONTEXT_FRAMES,
+    PAPER_TARGET_FRAMES,
+    check_protocol,
+)
 from particlesplat.core.device import DEVICE_HELP
 from particlesplat.core.errors import OptionError
 from particlesplat.data.families import checkpoint_help
@@ -43,6 +50,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"those of {','.join(DEFAULT_EVAL_SPLITS)} it has)",
     )
     parser.add_argument("--context", type=int, choices=(1, 2), default=2, help="number of context views")
+    parser.add_argument(
+        "--protocol",
+        choices=EVAL_PROTOCOLS,
+        default="default",
+        help="which views are encoded and scored: default (the validation sampler's: two context views 5-20 frames "
+        "apart, four targets between them; with --context 1 the front frame and two targets), paper (the paper's: "
+        f"context frames {' and '.join(map(str, PAPER_CONTEXT_FRAMES))}, targets "
+        f"{', '.join(map(str, PAPER_TARGET_FRAMES))}; scenes need 15 frames), inputs (the context views redrawn at "
+        "their own cameras: how well the model redraws what it was given)",
+    )
     parser.add_argument("--no-depth", action="store_true", help="encode the context views without depth")
     parser.add_argument(
         "--json",
@@ -102,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
             f"--fit-steps must be >= 0, --fit-lr > 0 and --fit-latents some of {','.join(FITTED)}; got "
             f"{args.fit_steps}, {args.fit_lr:g}, {','.join(latents)[:80]}"
         )
+    check_protocol(args.protocol, args.context)
     from particlesplat.core.outputs import guard_outputs
 
     inputs = [("--checkpoint", args.checkpoint), ("--data", args.data)]
@@ -159,6 +177,7 @@ def run(args: argparse.Namespace) -> int:
                 fit_latents=latents,
                 z_t_threshold=args.z_t_threshold,
                 turn=args.turn,
+                protocol=args.protocol,
             )
 
     fit = bool(args.fit_steps)
@@ -169,7 +188,9 @@ def run(args: argparse.Namespace) -> int:
             print(line)
     else:  # a dataset folder: its splits one after the other, the same model and options
         outs = {s: evaluate(Path(args.data) / s, figure_dirs.get(s)) for s in splits}
-        print(f"{args.data}: {args.context} context view(s), the mean over each split's scenes")
+        print(
+            f"{args.data}: {args.context} context view(s), protocol {args.protocol}, the mean over each split's scenes"
+        )
         for line in split_table(outs, fit):
             print(line)
         for split, res in outs.items():
@@ -182,6 +203,7 @@ def run(args: argparse.Namespace) -> int:
             "data": str(args.data),
             "context": args.context,
             "depth": not args.no_depth,
+            "protocol": args.protocol,
             "splits": outs,
         }
     if args.json:

@@ -36,3 +36,27 @@ INFERENCE_KEYS: dict[str, str] = {
     "read from each scene's context views (with colour_from_views' colour around it) instead of one colour",
     "support.cut": "metres below the support surface under which a particle Gaussian does not draw (< 0: off)",
 }
+
+# ``eval --protocol``: which views an evaluation encodes and which it scores.
+# default: the validation sampler's views (two context views 5-20 frames apart on the trajectory, four targets
+#   between them; one context view: the front frame and two targets);
+# paper: the paper's RLBench protocol, context frames 6 and 14, targets 6, 8, 10, 12 and 14;
+# inputs: the context views rendered at their own cameras (how well a model redraws what it was given).
+EvalProtocol = Literal["default", "paper", "inputs"]
+EVAL_PROTOCOLS: tuple[EvalProtocol, ...] = ("default", "paper", "inputs")
+PAPER_CONTEXT_FRAMES = (6, 14)
+PAPER_TARGET_FRAMES = (6, 8, 10, 12, 14)
+
+
+def check_protocol(protocol: str, context: int) -> None:
+    """Refuse (:class:`OptionError`) an unknown ``protocol`` or the paper's protocol with other than two context
+    views."""
+    from particlesplat.core.errors import OptionError
+
+    if protocol not in EVAL_PROTOCOLS:
+        raise OptionError(f"--protocol must be one of {', '.join(EVAL_PROTOCOLS)}, got {protocol!r}")
+    if protocol == "paper" and context != 2:
+        raise OptionError(
+            f"--protocol paper encodes two context views (frames {PAPER_CONTEXT_FRAMES[0]} and "
+            f"{PAPER_CONTEXT_FRAMES[1]}); drop --context 1 or choose another protocol"
+        )

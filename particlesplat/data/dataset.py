@@ -19,7 +19,7 @@ from particlesplat.core.limits import memory_limit
 from particlesplat.data.folders import TRANSFORMS
 from particlesplat.data.scene import RawScene, SceneFormatError, read_scene
 from particlesplat.data.scene_meta import SCENE_META, read_pose
-from particlesplat.data.views import flip_horizontal, sample_views, supervision_mask
+from particlesplat.data.views import flip_horizontal, protocol_views, sample_views, supervision_mask
 
 # the share of the job's memory limit a dataset's scene cache may hold (training keeps one dataset per context-view
 # count: the trainer divides it among them); the rest is the model's, the batch's and the renderer's
@@ -102,6 +102,7 @@ class SceneDataset(Dataset):
         cache_bytes: int | None = None,
         pose_key: str = "",
         pose_dims: int = 0,
+        protocol: str = "default",
     ) -> None:
         """
         Args:
@@ -120,6 +121,9 @@ class SceneDataset(Dataset):
                 that a dataset of large images is read again rather than held past the limit.
             pose_key, pose_dims: each item's ``pose``, the ``pose_dims`` numbers its ``scene.json`` records under
                 ``pose_key`` (``model.background.static_pose``); every scene must record it ("": none read).
+            protocol: the evaluation protocol (:func:`particlesplat.data.views.protocol_views`) that replaces the
+                sampled views: "default" (the sampler's), "paper" (fixed frames; a scene with fewer than 15 frames
+                is a :class:`SceneFormatError`) or "inputs" (the context views are the targets).
         """
         root = Path(root_split_dir)
         if not root.is_dir():
@@ -142,6 +146,7 @@ class SceneDataset(Dataset):
         self.cache_bytes = int(memory_limit()[0] * CACHE_SHARE) if cache_bytes is None else cache_bytes
         self._cached_bytes = 0
         self.pose_key, self.pose_dims = pose_key, pose_dims
+        self.protocol = protocol
         self._progress = mp.get_context().Value("d", float(progress), lock=False)
         self._cache: OrderedDict[int, RawScene] = OrderedDict()
 
@@ -193,6 +198,7 @@ class SceneDataset(Dataset):
             ctx, tgt = sample_views(
                 raw.num_frames, self.progress, self.mode, gen, num_targets=self.num_targets, schedule=self.schedule
             )
+            ctx, tgt = protocol_views(self.protocol, raw.num_frames, ctx, tgt)
         except ValueError as e:  # too few frames for the sampling: name the scene
             raise SceneFormatError(f"{self.scenes[index] / TRANSFORMS}: frames: {one_line(e, 200)}") from None
         flipped = self.flip and bool(torch.rand((), generator=gen) < 0.5)

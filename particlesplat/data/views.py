@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from particlesplat.core.camera import Camera
+from particlesplat.core.choices import PAPER_CONTEXT_FRAMES, PAPER_TARGET_FRAMES
 
 GAP_SCHEDULES: Mapping[str, tuple[tuple[int, int], tuple[int, int]]] = MappingProxyType(
     {
@@ -100,6 +101,34 @@ def sample_views(
     if len(candidates) == 0:  # short trajectory: the farthest frames that exist
         candidates = torch.tensor([i for i in (0, num_frames - 1) if i != f])
     return torch.tensor([f]), _choose(candidates, count, generator)
+
+
+def protocol_views(protocol: str, num_frames: int, context: Tensor, targets: Tensor) -> tuple[Tensor, Tensor]:
+    """The context and target frame indices an evaluation ``protocol`` scores (:data:`core.choices.EVAL_PROTOCOLS`).
+
+    Args:
+        protocol: "default" keeps the sampler's ``context`` (C,) and ``targets`` (T,); "inputs" scores the context
+            views themselves (targets = context); "paper" takes the paper's fixed frames (context 6 and 14,
+            targets 6, 8, 10, 12, 14), whatever the sampler chose.
+        num_frames: frames of the scene in trajectory order.
+
+    Returns:
+        context (C,) int64, targets (T,) int64. Raises ValueError for a scene too short for "paper" (it needs
+        frames 0-14) or an unknown protocol.
+    """
+    if protocol == "default":
+        return context, targets
+    if protocol == "inputs":
+        return context, context.clone()
+    if protocol == "paper":
+        need = max(PAPER_CONTEXT_FRAMES + PAPER_TARGET_FRAMES) + 1
+        if num_frames < need:
+            raise ValueError(
+                f"{num_frames} frame(s): the paper's protocol (context frames {PAPER_CONTEXT_FRAMES[0]} and "
+                f"{PAPER_CONTEXT_FRAMES[1]}, targets {', '.join(map(str, PAPER_TARGET_FRAMES))}) needs at least {need}"
+            )
+        return torch.tensor(PAPER_CONTEXT_FRAMES), torch.tensor(PAPER_TARGET_FRAMES)
+    raise ValueError(f"unknown evaluation protocol {protocol!r}")
 
 
 def supervision_mask(
