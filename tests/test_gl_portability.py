@@ -75,7 +75,8 @@ def test_without_the_extension_auto_takes_blend_and_fetch_is_refused():
     proc = run_hidden("""
 import moderngl
 from viewer.gl.caps import UnsupportedGL, probe
-from viewer.gl.renderer import SplatRenderer, load_shader
+from viewer.gl.renderer import SplatRenderer
+from viewer.gl.shaders import load_shader
 ctx = moderngl.create_standalone_context(backend="egl")
 try:
     ctx.program(vertex_shader=load_shader("splat.vert", {"MAX_KEYED": 64}),

@@ -31,7 +31,8 @@ PASSES = ("sort", "upload", "projection", "choose", "clear", "splat", "geometry"
 
 def _flat_program(renderer):
     """The renderer's splat program for its current primitive with FLAT_FRAGMENT: geometry only."""
-    from ..gl.renderer import MAX_KEYED, load_shader
+    from ..gl.renderer import MAX_KEYED
+    from ..gl.shaders import load_shader
 
     kind = renderer.kind
     progs = renderer._progs[kind]
@@ -61,7 +62,7 @@ def _geometry_ms(renderer, uni) -> float:
 
 def profile_case(ctx, renderer, cameras, window: tuple[int, int], num_owners: int) -> dict[str, float]:
     """Median ms per pass over ``cameras`` (the first is a warm-up) for one renderer."""
-    from ..gl.renderer import camera_uniforms
+    from ..gl.packing import camera_uniforms
 
     win = ctx.simple_framebuffer(window, components=4)
     series: dict[str, list[float]] = {k: [] for k in PASSES}

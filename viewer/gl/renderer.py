@@ -5,8 +5,8 @@ Design (see shaders/):
 
 * The Gaussians live in one static RGBA32F texture (``row`` Gaussians per texture row, at most
   ``ROW`` and as many as the driver's texture size allows,
-  ``texels`` texels each: mean + opacity, rotation rows + scales, owner, SH). Only the rows of
-  a changed particle are re-uploaded.
+  ``texels`` texels each: mean + opacity, rotation rows + scales, owner, SH; packed by :mod:`viewer.gl.packing`).
+  Only the rows of a changed particle are re-uploaded.
 * When the view, the data or the filter changed: one global sort of the visible Gaussians by
   float32 camera z (:class:`~viewer.gl.depth_sort.DepthSorter`: numpy, or torch on a CUDA GPU), the sorted
   indices uploaded, then a projection pass
@@ -23,6 +23,8 @@ Design (see shaders/):
   colour clamped to [0, 1] as the display does; ``fetch`` then keeps T as 0.5 + 0.5 T, 0.5 T once stopped).
 * An id pass writes per-owner weights ``sum T alpha`` (24 owners per pass, 8 float
   attachments) for picking, masks and segmentation.
+* The blit (:mod:`viewer.gl.blit`) draws the last render over the background into the window, with a mask's
+  tint and the support map behind it. Shader sources come from :mod:`viewer.gl.shaders`.
 """
 
 from __future__ import annotations
@@ -35,18 +37,16 @@ from typing import Literal, TypeVar
 
 import moderngl
 import numpy as np
-import torch
 
-from particlesplat.core import palette
-from particlesplat.core.bundled import data_dir
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
-from particlesplat.core.world import SUPPORT_Z
-from particlesplat.model.support_map import EDGE_SOFTNESS, HALF_EXTENT
-from particlesplat.rendering.projection import DILATION, FOV_MARGIN
+from particlesplat.rendering.projection import DILATION
 
-from .caps import Compositing, GLCaps, probe, shader_constants
+from .blit import Blit
+from .caps import Compositing, GLCaps, probe
 from .depth_sort import DepthSorter, SortDevice, resolve_sort_device
+from .packing import camera_uniforms, pack_gaussians, row_for, texels_for
+from .shaders import load_shader
 
 T = TypeVar("T")
 
@@ -58,7 +58,6 @@ def _made(resource: T | None, what: str) -> T:
     return resource
 
 
-ROW = 512  # Gaussians per row of the data and projection textures (fewer if the texture size needs it)
 ID_ATTACHMENTS = 8  # float attachments of the id pass: 3 owners each (core GL 3.3 guarantees 8)
 OWNERS_PER_ID_PASS = 3 * ID_ATTACHMENTS
 PRIMITIVES = ("auto", "quads", "points")
@@ -75,31 +74,10 @@ POINT_COST = (1.35e-3, 7.7e-6)
 QUAD_COST = (2.07e-3, 11.0e-6)
 
 
-def load_shader(name: str, defines: dict[str, str | int] | None = None) -> str:
-    """Source of ``shaders/<name>`` with ``#define`` lines inserted after ``#version``: the library's
-    compositing constants (:func:`~viewer.gl.caps.shader_constants`) and palette
-    (:func:`particlesplat.core.palette.shader_defines`), then ``defines``."""
-    src = (data_dir("viewer.shaders", "shaders") / name).read_text()
-    first, rest = src.split("\n", 1)
-    constants = {**shader_constants(), **palette.shader_defines(), **(defines or {})}
-    lines = [f"#define {k} {v}" for k, v in constants.items()]
-    return "\n".join([first, *lines, rest])
-
-
-def blit_defines(mask: bool, support_map: bool) -> dict[str, str | int]:
-    """blit.frag's variant: with the mask tint, with the support map behind the render."""
-    return {**({"MASK": 1} if mask else {}), **({"SUPPORT_MAP": 1} if support_map else {})}
-
-
 def point_max_radius(caps: GLCaps) -> float:
     """Largest splat radius (pixels) drawn whole as a point sprite (side 2 r + 1): the driver's point
     size limit, and the guard band that keeps sprites with off-screen centres."""
     return min((caps.max_point_size - 1.0) / 2.0, POINT_GUARD - 1.0)
-
-
-def row_for(texels: int, max_texture_size: int) -> int:
-    """Gaussians per data texture row: ``ROW``, or fewer when ``ROW * texels`` exceeds the texture size."""
-    return max(1, min(ROW, max_texture_size // texels))
 
 
 @dataclass
@@ -119,53 +97,6 @@ class FrameTimes:
     sorted: bool = False
     drawn: int = 0
     primitive: str = ""
-
-
-def texels_for(sh_bases: int) -> int:
-    """Texels per Gaussian for ``sh_bases`` SH coefficients per channel (one texel each)."""
-    return 4 + sh_bases
-
-
-def pack_gaussians(g: Gaussians, texels: int | None = None) -> np.ndarray:
-    """Pack Gaussians into texels: (N, texels, 4) float32 (layout in ``shaders/project.frag``).
-
-    Rotations come from :meth:`Gaussians.rotations` (the torch renderer's quaternion rules).
-    """
-    g = g.detach().to("cpu", torch.float64)
-    n, k = g.num, g.sh.shape[1]
-    texels = max(texels or 0, texels_for(k))
-    out = np.zeros((n, texels, 4), dtype=np.float32)
-    rot = g.rotations().numpy() if n else np.zeros((0, 3, 3))
-    out[:, 0, :3] = g.means.numpy()
-    out[:, 0, 3] = g.opacities.numpy()
-    out[:, 1:4, :3] = rot
-    out[:, 1:4, 3] = g.scales.numpy()
-    out[:, 4 : 4 + k, :3] = g.sh.numpy()
-    out[:, 4, 3] = g.owner.numpy().astype(np.float32)
-    return out
-
-
-def camera_uniforms(camera: Camera) -> dict[str, tuple]:
-    """The projection uniforms of ``project.frag`` for ``camera`` (float64 maths, float32 out)."""
-    c2w = camera.c2w.detach().to("cpu", torch.float64).numpy()
-    w2c = np.linalg.inv(c2w)
-    K = camera.K.detach().to("cpu", torch.float64).numpy()
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    w, h = camera.width, camera.height
-    tan_x, tan_y = 0.5 * w / fx, 0.5 * h / fy
-    lim = (
-        -(cx / fx + FOV_MARGIN * tan_x),
-        (w - cx) / fx + FOV_MARGIN * tan_x,
-        -(cy / fy + FOV_MARGIN * tan_y),
-        (h - cy) / fy + FOV_MARGIN * tan_y,
-    )
-    return {
-        "w2c": tuple(w2c.T.reshape(-1)),  # GLSL matrices are column-major
-        "cam_center": tuple(c2w[:3, 3]),
-        "intr": (fx, fy, cx, cy),
-        "lim": lim,
-        "size": (float(w), float(h)),
-    }
 
 
 class SplatRenderer:
@@ -241,17 +172,8 @@ class SplatRenderer:
             self._progs[kind] = progs
         self.kind = "quads" if primitive == "auto" else primitive  # the primitive of the current sort
         coverage = {} if self.compositing == "fetch" else {"COVERAGE_ALPHA": 1}
-        self._blits = {  # (mask tint, support map): without and with each
-            (m, s): ctx.program(
-                vertex_shader=load_shader("fullscreen.vert"),
-                fragment_shader=load_shader("blit.frag", {**coverage, **encode, **blit_defines(m, s)}),
-            )
-            for m in (False, True)
-            for s in (False, True)
-        }
-        self._support_tex: moderngl.Texture | None = None  # set_support_map's
+        self._blit = Blit(ctx, {**coverage, **encode})  # the last pass: the render into the window
         self._project_vaos: dict[int, moderngl.VertexArray] = {}
-        self._blit_vaos = {m: ctx.vertex_array(p, []) for m, p in self._blits.items()}
         # data
         self._packed = np.zeros((0, texels_for(1), 4), np.float32)
         self.row = row_for(texels_for(1), self.caps.max_texture_size)  # Gaussians per texture row
@@ -721,36 +643,9 @@ class SplatRenderer:
         return rgba[..., :3] + (1.0 - rgba[..., 3:]) * np.asarray(background, np.float32)
 
     def set_support_map(self, support_map: np.ndarray | None) -> None:
-        """The scene's support map (:mod:`particlesplat.model.support_map`): (N, N, 4) RGB and support share, rows
-        along world y from -HALF_EXTENT; None: none (a blit draws the background colour alone)."""
-        if self._support_tex is not None:
-            self._support_tex.release()
-            self._support_tex = None
-        if support_map is None:
-            return
-        n = support_map.shape[0]
-        if support_map.shape != (n, n, 4):
-            raise ValueError(f"set_support_map: expected (N, N, 4), got {support_map.shape}")
-        # half floats filter linearly on every GL 3.3 driver (float32 textures need not)
-        tex = self.ctx.texture((n, n), 4, data=np.ascontiguousarray(support_map, np.float16).tobytes(), dtype="f2")
-        tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
-        tex.repeat_x = tex.repeat_y = False  # clamp to the edge texels, as the torch twin's border padding
-        self._support_tex = tex
-
-    def _bind_support_map(self, prog: moderngl.Program, camera: Camera) -> None:
-        """The uniforms of blit.frag's SUPPORT_MAP part for ``camera`` (the camera of the last render)."""
-        assert self._support_tex is not None
-        self._support_tex.use(2)
-        prog["support_map"] = 2
-        K = camera.K.detach().double().cpu().numpy()
-        c2w = camera.c2w.detach().double().cpu().numpy()
-        prog["cam_rot"] = tuple(float(v) for v in c2w[:3, :3].T.reshape(-1))  # column-major
-        prog["cam_eye"] = tuple(float(v) for v in c2w[:3, 3])
-        prog["intrinsics"] = (float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
-        prog["image_size"] = (float(camera.width), float(camera.height))
-        prog["support_z"] = float(SUPPORT_Z)
-        prog["support_half"] = float(HALF_EXTENT)
-        prog["edge_softness"] = float(EDGE_SOFTNESS)
+        """The scene's support map behind the Gaussians (:meth:`viewer.gl.blit.Blit.set_support_map`): (N, N, 4)
+        RGB and support share; None: none."""
+        self._blit.set_support_map(support_map)
 
     def blit(
         self,
@@ -762,31 +657,9 @@ class SplatRenderer:
         """Draw the last render over ``background`` into the bound framebuffer's ``viewport``
         (x, y, w, h in GL pixels); with ``mask_color``, tint the last :meth:`render_mask`. With ``support_camera``
         (the last render's camera) and a :meth:`set_support_map`, over the support map where a pixel's ray meets
-        it."""
-        self.ctx.viewport = viewport
-        self.ctx.disable(moderngl.BLEND)
-        # one texel a pixel: nearest (exact, and cheaper on llvmpipe); scaled (moving frames): linear
-        same = tuple(viewport[2:]) == tuple(self.size)
-        filt = (moderngl.NEAREST, moderngl.NEAREST) if same else (moderngl.LINEAR, moderngl.LINEAR)
-        color = _made(self._color_tex, "colour target")
-        if color.filter != filt:
-            color.filter = filt
-        color.use(0)
-        mask = mask_color is not None
-        support = support_camera is not None and self._support_tex is not None
-        prog = self._blits[mask, support]
-        prog["image"] = 0
-        prog["background"] = tuple(background)
-        if support_camera is not None and support:
-            self._bind_support_map(prog, support_camera)
-        if mask_color is not None:
-            mask_tex = _made(self._mask_tex, "mask target")
-            if mask_tex.filter != filt:
-                mask_tex.filter = filt
-            mask_tex.use(1)
-            prog["mask"] = 1
-            prog["mask_color"] = tuple(mask_color)
-        self._blit_vaos[mask, support].render(moderngl.TRIANGLE_STRIP, vertices=4)
+        it (:class:`viewer.gl.blit.Blit`)."""
+        mask = None if mask_color is None else (_made(self._mask_tex, "mask target"), mask_color)
+        self._blit.draw(viewport, background, _made(self._color_tex, "colour target"), mask, support_camera)
 
     def release(self) -> None:
         """Free the GL objects."""
@@ -801,18 +674,16 @@ class SplatRenderer:
             self._color_tex,
             self._mask_fbo,
             self._mask_tex,
-            self._support_tex,
             self._id_fbo,
             *self._id_tex,
             *self._project_vaos.values(),
-            *self._blit_vaos.values(),
             *self._projects.values(),
-            *self._blits.values(),
             *(p for progs in self._progs.values() for p in progs.values()),
         ]
         for obj in objs:
             if obj is not None:
                 obj.release()
+        self._blit.release()
 
 
 def segmentation_from_weights(weights: np.ndarray, alpha: np.ndarray) -> np.ndarray:
