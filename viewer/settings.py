@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from particlesplat.core.atomic import atomic_write
+from particlesplat.core.jsonfile import read_json
 from particlesplat.core.userdirs import config_dir
 
 PANEL_WIDTH = 340.0  # window points: the panel's default width (about a quarter of a 1280-point window)
@@ -38,7 +39,7 @@ def load_settings(path: Path | None = None) -> ViewerSettings:
     """The settings in ``path`` (default :func:`settings_path`); defaults for what it lacks or cannot give."""
     path = path or settings_path()
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = read_json(path)  # the checked reader: bounded, nesting
     except FileNotFoundError:
         return ViewerSettings()
     except (OSError, ValueError) as e:

@@ -42,6 +42,7 @@ from particlesplat.core.atomic import atomic_path
 from particlesplat.core.choices import OBJECT_CENTRES, ObjectCentre
 from particlesplat.core.errors import UserError, one_line
 from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.jsonfile import parse_json
 from particlesplat.core.sh import SH_C0
 from particlesplat.data.scene import SceneFormatError
 from particlesplat.data.scene_meta import read_scene_json
@@ -156,9 +157,7 @@ class ParticleArrays:
                 values = {n: data[n] for n in ARRAY_NAMES if n in data.files}
                 for name in LATER_ARRAYS:  # format 1 has no robot array: no particle was the robot's
                     values.setdefault(name, np.zeros(values["active"].shape, dtype=bool))
-                meta = json.loads(str(data["meta"]))
-        except json.JSONDecodeError as e:
-            raise ParticleArraysError(f"{path}: meta: not valid JSON ({e})") from e
+                meta = parse_json(str(data["meta"]), f"{path}: meta", ParticleArraysError)
         except ParticleArraysError:
             raise
         except (OSError, EOFError, ValueError, zipfile.BadZipFile) as e:  # truncated or not an .npz at all

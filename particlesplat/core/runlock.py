@@ -17,8 +17,10 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from particlesplat.core.errors import UserError, one_line
+from particlesplat.core.jsonfile import read_json
 
 LOCK_NAME = ".lock"
 
@@ -55,9 +57,9 @@ def _alive(pid: int) -> bool:
 def _read_owner(path: Path) -> LockOwner | None:
     """The owner a lock file records; None when it is unreadable or torn (a crash while writing it)."""
     try:
-        data = json.loads(path.read_text()[:4096])
+        data: Any = read_json(path, 4096)  # a lock file is ~80 bytes
         return LockOwner(int(data["pid"]), str(data["host"])[:255], float(data["started"]))
-    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+    except (OSError, ValueError, KeyError, TypeError):
         return None
 
 

@@ -28,7 +28,11 @@ import numpy as np
 import torch
 
 from particlesplat.core.errors import one_line
-from particlesplat.formats.ply import GaussianFields, PlyFields, read_ply, write_ply
+from particlesplat.core.jsonfile import read_json
+from particlesplat.core.limits import reserve_memory
+from particlesplat.core.outputs import OutputError
+from particlesplat.formats.header_fields import text, whole_number
+from particlesplat.formats.ply import GaussianFields, PlyFields, ply_size, read_ply, write_ply
 from particlesplat.formats.splat_arrays import SplatFileError
 
 FORMAT = "particlesplat-bundle"
@@ -43,7 +47,7 @@ def write_bundle(
     """Write the folder ``out``: ``<name>.ply`` for each (name, Gaussians, manifest fields) of ``parts`` (the last
     one, named ``rest``, holds what the others do not) and ``manifest.json``. The folder is written beside
     ``out`` and renamed into place; an ``out`` that exists must be an empty folder or an earlier bundle (it is
-    replaced), else OSError names it. Returns the manifest."""
+    replaced), else OutputError names it (:func:`check_bundle_target`). Returns the manifest."""
     out = check_bundle_target(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.parent / f".{out.name}.tmp-{uuid.uuid4().hex[:8]}"
@@ -76,40 +80,48 @@ def write_bundle(
 
 
 def check_bundle_target(out: str | PathLike) -> Path:
-    """``out`` as a Path; OSError naming it unless it is absent, an empty folder or an earlier bundle (what
-    :func:`write_bundle` may replace). Nothing is created."""
+    """``out`` as a Path; OutputError naming it unless it is absent, an empty folder or an earlier bundle holding
+    nothing but its ``manifest.json`` and the files it lists (what :func:`write_bundle` may replace: a file of the
+    user's in the folder is never swapped away with it). Nothing is created."""
     out = Path(out)
     if not out.exists() and not out.is_symlink():
         return out
     if not out.is_dir() or out.is_symlink():
-        raise OSError(f"{out}: exists and is not a folder: a bundle is written as a folder")
+        raise OutputError(f"{out}: exists and is not a folder: a bundle is written as a folder")
     if not any(out.iterdir()):
         return out
     try:
-        ok = json.loads((out / MANIFEST).read_text(encoding="utf-8")).get("format") == FORMAT
-    except (OSError, ValueError, AttributeError):
-        ok = False
-    if not ok:
-        raise OSError(f"{out}: a folder that is neither empty nor a bundle (no {MANIFEST}): not replaced")
+        _, manifest = read_manifest(out)
+    except (OSError, SplatFileError):
+        raise OutputError(
+            f"{out}: a folder that is neither empty nor a bundle (no readable {MANIFEST}): not replaced"
+        ) from None
+    listed = {MANIFEST} | {p.get("file") for p in manifest["parts"]}
+    other = sorted(p.name for p in out.iterdir() if p.name not in listed)
+    if other:
+        raise OutputError(
+            f"{out}: holds {one_line(other[0], 80)}{f' and {len(other) - 1} more' if len(other) > 1 else ''}, which "
+            f"its {MANIFEST} does not list: the bundle is not replaced (move it out first)"
+        )
     return out
 
 
 def read_manifest(path: str | PathLike) -> tuple[Path, dict[str, Any]]:
-    """(the bundle folder, its manifest) for a bundle folder or its ``manifest.json``; SplatFileError names the
-    file and the field."""
+    """(the bundle folder, its manifest) for a bundle folder or its ``manifest.json``, read by the checked JSON
+    reader (:mod:`particlesplat.core.jsonfile`: at most 16 MiB, nesting); SplatFileError names the file and the
+    field."""
     path = Path(path)
     folder = path if path.is_dir() else path.parent
     file = folder / MANIFEST
     try:
-        manifest = json.loads(file.read_text(encoding="utf-8"))
+        manifest = read_json(file, error=SplatFileError)
     except FileNotFoundError:
         raise FileNotFoundError(f"{file}: bundle manifest not found") from None
-    except (ValueError, UnicodeDecodeError) as e:
-        raise SplatFileError(f"{file}: not valid JSON ({one_line(e, 120)})") from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise SplatFileError(f"{file}: format: not a {FORMAT} manifest")
-    if manifest.get("version") != VERSION:
-        raise SplatFileError(f"{file}: version: {one_line(repr(manifest.get('version')), 40)} is not {VERSION}")
+    version = manifest.get("version")
+    if not (isinstance(version, int) and not isinstance(version, bool) and version == VERSION):
+        raise SplatFileError(f"{file}: version: {one_line(repr(version), 40)} is not {VERSION}")
     parts = manifest.get("parts")
     if not isinstance(parts, list) or not all(isinstance(p, dict) for p in parts):
         raise SplatFileError(f"{file}: parts: expected a list of objects")
@@ -117,34 +129,53 @@ def read_manifest(path: str | PathLike) -> tuple[Path, dict[str, Any]]:
 
 
 def read_bundle(path: str | PathLike) -> PlyFields:
-    """The whole scene of a bundle (its parts' Gaussians concatenated in manifest order, owners kept);
-    SplatFileError names the manifest and the part whose file is missing, outside the folder or of another
-    Gaussian count than the manifest says."""
+    """The whole scene of a bundle (its parts' Gaussians concatenated in manifest order, owners kept).
+
+    Every part is sized from its ``.ply`` header first, and the sum (the parts kept, their SH padded, the scene
+    they make) reserved of the job's memory limit before any part is read: a part listed many times cannot pass
+    where each alone would. SplatFileError names the manifest and the part whose file is missing, outside the
+    folder, listed twice or of another Gaussian count than the manifest says."""
     folder, manifest = read_manifest(path)
-    fields: list[PlyFields] = []
-    for i, part in enumerate(manifest["parts"]):
-        name = part.get("file")
-        if not isinstance(name, str) or Path(name).name != name or not name.endswith(".ply"):
-            raise SplatFileError(f"{folder / MANIFEST}: parts.{i}.file: expected a .ply file name in the folder")
-        got = read_ply(folder / name)
-        if part.get("gaussians") != got.means.shape[0]:
+    where = str(folder / MANIFEST)
+    files: list[Path] = []
+    first: dict[str, int] = {}
+    sizes = []
+    for i in range(len(manifest["parts"])):
+        name = text(manifest, where, "parts", i, "file")
+        if Path(name).name != name or not name.endswith(".ply"):
+            raise SplatFileError(f"{where}: parts.{i}.file: expected a .ply file name in the folder")
+        if name in first:
             raise SplatFileError(
-                f"{folder / MANIFEST}: parts.{i}.gaussians: {one_line(repr(part.get('gaussians')), 40)}, "
-                f"but {name} holds {got.means.shape[0]}"
+                f"{where}: parts.{i}.file: {one_line(name, 80)} is listed already as parts.{first[name]}.file (each "
+                "Gaussian is in one file)"
             )
-        fields.append(got)
-    if not fields:
-        raise SplatFileError(f"{folder / MANIFEST}: parts: the bundle lists no files")
-    k = max(f.sh.shape[1] for f in fields)
-    sh = [torch.nn.functional.pad(f.sh, (0, 0, 0, k - f.sh.shape[1])) for f in fields]
-    return PlyFields(
-        means=torch.cat([f.means for f in fields]),
-        quats=torch.cat([f.quats for f in fields]),
-        scales=torch.cat([f.scales for f in fields]),
-        opacities=torch.cat([f.opacities for f in fields]),
-        sh=torch.cat(sh),
-        owner=torch.cat([f.owner for f in fields]),
-    )
+        first[name] = i
+        declared = whole_number(manifest, where, "parts", i, "gaussians")
+        n, bases, _ = ply_size(folder / name)
+        if declared != n:
+            raise SplatFileError(f"{where}: parts.{i}.gaussians: {declared}, but {one_line(name, 80)} holds {n}")
+        files.append(folder / name)
+        sizes.append((n, bases))
+    if not files:
+        raise SplatFileError(f"{where}: parts: the bundle lists no files")
+    total, k = sum(n for n, _ in sizes), max(b for _, b in sizes)
+    kept = sum(n * _tensor_bytes(b) for n, b in sizes)
+    with reserve_memory(kept + 2 * total * _tensor_bytes(k), f"{where}: {len(files)} parts of {total:,} Gaussians"):
+        fields = [read_ply(file) for file in files]
+        sh = [torch.nn.functional.pad(f.sh, (0, 0, 0, k - f.sh.shape[1])) for f in fields]
+        return PlyFields(
+            means=torch.cat([f.means for f in fields]),
+            quats=torch.cat([f.quats for f in fields]),
+            scales=torch.cat([f.scales for f in fields]),
+            opacities=torch.cat([f.opacities for f in fields]),
+            sh=torch.cat(sh),
+            owner=torch.cat([f.owner for f in fields]),
+        )
+
+
+def _tensor_bytes(bases: int) -> int:
+    """Bytes of one Gaussian's float32 tensors with ``bases`` SH bases a channel, and its int64 owner."""
+    return 4 * (3 + 4 + 3 + 1 + 3 * bases) + 8
 
 
 def weighted_centre(g: GaussianFields) -> tuple[list[float], list[float]]:

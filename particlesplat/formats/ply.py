@@ -15,14 +15,14 @@ import os
 from os import PathLike
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, NamedTuple, Protocol
+from typing import Any, NamedTuple, NoReturn, Protocol
 
 import numpy as np
 import torch
 
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.errors import UserError, one_line
-from particlesplat.core.limits import FLOAT32_MAX_ABS, WORLD_MAX_METRES
+from particlesplat.core.limits import FLOAT32_MAX_ABS, WORLD_MAX_METRES, reserve_memory
 from particlesplat.core.sh import sh_degree_from_bases
 
 _PLY_TYPES = MappingProxyType(
@@ -157,26 +157,64 @@ def read_ply(path: str | PathLike) -> PlyFields:
     """
     path = Path(path)
     with open(path, "rb") as f:
-        fmt, elements = read_header(f, path)
-        order = "<" if fmt == "binary_little_endian" else ">"
-        if not elements or elements[0][0] != "vertex":
-            raise PlyError(f"{path}: the first element must be 'vertex'")
-        _, n, props = elements[0]
-        if not props:
-            raise PlyError(f"{path}: element 'vertex' has no properties")
-        dtype = np.dtype([(name, order + t) for name, t in props])
-        # the count is checked against the bytes the file holds before anything is allocated
+        n, props, dtype = _vertex_layout(f, path)
+        # the count is checked against the bytes the file holds before anything is allocated, and what reading
+        # holds (the records, their float64 columns, the tensors) is reserved of the job's memory limit
         available = max(os.fstat(f.fileno()).st_size - f.tell(), 0)
-        raw = f.read(n * dtype.itemsize) if n * dtype.itemsize <= available else None
-    if raw is None or len(raw) < n * dtype.itemsize:
-        size = available if raw is None else len(raw)
-        got, partial = divmod(size, dtype.itemsize)
-        fields: dict[str, Any] = dict(dtype.fields or {})  # a structured dtype: name -> (dtype, byte offset)
-        first_missing = next(name for name, _ in props if fields[name][1] + dtype[name].itemsize > partial)
-        raise PlyError(
-            f"{path}: truncated: header declares {n} vertices ({n * dtype.itemsize} bytes), "
-            f"file holds {size} bytes (vertex {got}, property '{first_missing}' onwards missing)"
-        )
+        if n * dtype.itemsize > available:
+            _truncated(path, n, props, dtype, available)
+        with reserve_memory(_read_bytes(n, props, dtype), f"{path}: {n} vertices"):
+            raw = f.read(n * dtype.itemsize)
+            if len(raw) < n * dtype.itemsize:
+                _truncated(path, n, props, dtype, len(raw))
+            return _decode_vertices(raw, n, props, dtype, path)
+
+
+def _vertex_layout(f, path: Path) -> tuple[int, list[tuple[str, str]], np.dtype]:
+    """(vertex count, properties, record dtype) of the 3DGS .ply open in ``f`` (left at its first data byte)."""
+    fmt, elements = read_header(f, path)
+    order = "<" if fmt == "binary_little_endian" else ">"
+    if not elements or elements[0][0] != "vertex":
+        raise PlyError(f"{path}: the first element must be 'vertex'")
+    _, n, props = elements[0]
+    if not props:
+        raise PlyError(f"{path}: element 'vertex' has no properties")
+    return n, props, np.dtype([(name, order + t) for name, t in props])
+
+
+def _read_bytes(n: int, props: list[tuple[str, str]], dtype: np.dtype) -> float:
+    """Bytes reading ``n`` vertices holds at its peak: the records, a float64 copy of each property and its
+    stacked copy, the float32 tensors."""
+    return n * (dtype.itemsize + 16.0 * len(props) + 64.0)
+
+
+def ply_size(path: str | PathLike) -> tuple[int, int, float]:
+    """(vertices, SH bases a channel, bytes reading it holds) of the 3DGS .ply at ``path``, from its header alone
+    and the file's size (nothing else is read); PlyError names the file for a header :func:`read_ply` would refuse
+    or a vertex count the file cannot hold."""
+    path = Path(path)
+    with open(path, "rb") as f:
+        n, props, dtype = _vertex_layout(f, path)
+        available = max(os.fstat(f.fileno()).st_size - f.tell(), 0)
+    if n * dtype.itemsize > available:
+        _truncated(path, n, props, dtype, available)
+    rest = sum(1 for name, _ in props if name.startswith("f_rest_"))
+    return n, rest // 3 + 1, _read_bytes(n, props, dtype)
+
+
+def _truncated(path: Path, n: int, props: list[tuple[str, str]], dtype: np.dtype, size: int) -> NoReturn:
+    """PlyError: the file holds ``size`` bytes of records where its header declares ``n`` vertices."""
+    got, partial = divmod(size, dtype.itemsize)
+    fields: dict[str, Any] = dict(dtype.fields or {})  # a structured dtype: name -> (dtype, byte offset)
+    first_missing = next(name for name, _ in props if fields[name][1] + dtype[name].itemsize > partial)
+    raise PlyError(
+        f"{path}: truncated: header declares {n} vertices ({n * dtype.itemsize} bytes), "
+        f"file holds {size} bytes (vertex {got}, property '{first_missing}' onwards missing)"
+    )
+
+
+def _decode_vertices(raw: bytes, n: int, props: list[tuple[str, str]], dtype: np.dtype, path: Path) -> PlyFields:
+    """The Gaussians of ``n`` records of ``dtype`` (the properties ``props``) read from ``path``."""
     data = np.frombuffer(raw, dtype=dtype, count=n)
     names = {name for name, _ in props}
 

@@ -15,6 +15,7 @@ from PIL.PngImagePlugin import PngInfo
 from particlesplat.core.atomic import atomic_path
 from particlesplat.core.camera import Camera, camera_problem
 from particlesplat.core.errors import UserError, one_line
+from particlesplat.core.jsonfile import parse_json
 
 
 class PngError(UserError):
@@ -107,8 +108,11 @@ def camera_from_png(path: str | PathLike) -> Camera:
         raise PngError(
             f"{path}: no 'camera' text chunk (only viewer screenshots and particlesplat render images carry one)"
         )
+    where = f"{path}: camera chunk: expected JSON with K, c2w_opencv, width, height"
+    data = parse_json(text["camera"], where, PngError)  # the checked JSON reader: "(nested too deeply)"
+    if not isinstance(data, dict):
+        raise PngError(f"{where} (got a JSON {type(data).__name__})")
     try:
-        data = json.loads(text["camera"])
         K = np.asarray(data["K"], dtype=np.float64)
         c2w = np.asarray(data["c2w_opencv"], dtype=np.float64)
         width, height = int(data["width"]), int(data["height"])

@@ -25,23 +25,28 @@ from __future__ import annotations
 import io
 import json
 import math
+import re
 import zipfile
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
-from PIL import Image
+from PIL import Image, UnidentifiedImageError
 
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.errors import one_line
+from particlesplat.core.jsonfile import read_json, read_json_stream
 from particlesplat.core.limits import check_memory
+from particlesplat.formats.header_fields import numbers, text_list, whole_number
+from particlesplat.formats.image_headers import HEAD_BYTES, image_header_size
 from particlesplat.formats.ply import GaussianFields, PlyFields
 from particlesplat.formats.splat_arrays import (
     SplatArrays,
     SplatFileError,
     background_owner,
     decode_bytes,
+    decoding,
     largest_component,
     others_of,
     splat_arrays,
@@ -51,7 +56,6 @@ from particlesplat.formats.splat_arrays import (
 VERSION = 2
 CODEBOOK = 256
 KMEANS_ITERATIONS = 12
-MAX_MEMBER_BYTES = 1 << 30  # a zip member that would inflate beyond 1 GiB is refused
 _SH_COEFFS = {1: 3, 2: 8, 3: 15}
 
 
@@ -188,7 +192,8 @@ def write_sog(gaussians: GaussianFields, path: str | PathLike) -> None:
 
 
 class _Files:
-    """The members of a bundled or unbundled SOG, read by name with a size bound."""
+    """The members of a bundled or unbundled SOG, sized and read by name: a member's size is what the zip directory
+    (or the file system, beside an unbundled ``meta.json``) declares, and no read goes past it."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -199,103 +204,155 @@ class _Files:
             except (zipfile.BadZipFile, OSError) as e:
                 raise SplatFileError(f"{path}: not a SOG zip ({one_line(e, 120)})") from None
 
-    def read(self, name: str) -> bytes:
-        shown = one_line(name, 80)
+    def meta(self) -> object:
+        """``meta.json``'s value, read by the checked JSON reader (:mod:`particlesplat.core.jsonfile`: at most
+        16 MiB, UTF-8, nesting), from the zip as from a file."""
         if self.zip is None:
-            member = self.path.parent / name
-            if Path(name).name != name or not member.is_file():
-                raise SplatFileError(f"{self.path}: file '{shown}' named in meta.json is not beside it")
-            return member.read_bytes()
+            return read_json(self.path, error=SplatFileError)
+        self.size("meta.json")
         try:
-            info = self.zip.getinfo(name)
-        except KeyError:
-            raise SplatFileError(f"{self.path}: member '{shown}' is not in the zip") from None
-        if info.file_size > MAX_MEMBER_BYTES:
-            raise SplatFileError(f"{self.path}: member '{shown}' is {info.file_size} bytes, beyond {MAX_MEMBER_BYTES}")
-        try:
-            return self.zip.read(info)
+            with self.zip.open("meta.json") as f:
+                return read_json_stream(f, f"{self.path}: meta.json", error=SplatFileError)
         except (zipfile.BadZipFile, OSError, EOFError) as e:
-            raise SplatFileError(f"{self.path}: member '{shown}': corrupt ({one_line(e, 120)})") from None
+            raise SplatFileError(f"{self.path}: member 'meta.json': corrupt ({one_line(e, 120)})") from None
+
+    def _member(self, name: str) -> Path:
+        member = self.path.parent / name
+        if Path(name).name != name or not member.is_file():
+            raise SplatFileError(f"{self.path}: file '{one_line(name, 80)}' named in meta.json is not beside it")
+        return member
+
+    def size(self, name: str) -> int:
+        """The bytes the member ``name`` holds (as declared: the zip directory's uncompressed size)."""
+        if self.zip is None:
+            return self._member(name).stat().st_size
+        try:
+            return self.zip.getinfo(name).file_size
+        except KeyError:
+            raise SplatFileError(f"{self.path}: member '{one_line(name, 80)}' is not in the zip") from None
+
+    def read(self, name: str, count: int | None = None) -> bytes:
+        """The member's first ``count`` bytes (None: all :meth:`size` says it holds, never more)."""
+        size = self.size(name)
+        count = size if count is None else min(count, size)
+        try:
+            if self.zip is None:
+                with open(self._member(name), "rb") as f:
+                    return f.read(count)
+            with self.zip.open(name) as f:
+                return f.read(count)
+        except (zipfile.BadZipFile, OSError, EOFError) as e:
+            raise SplatFileError(f"{self.path}: member '{one_line(name, 80)}': corrupt ({one_line(e, 120)})") from None
 
     def close(self) -> None:
         if self.zip is not None:
             self.zip.close()
 
 
-def _field(meta: dict, path: Path, *keys: str) -> Any:
-    node: Any = meta
-    for i, key in enumerate(keys):
-        if not isinstance(node, dict) or key not in node:
-            raise SplatFileError(f"{path}: meta.json: missing '{'.'.join(keys[: i + 1])}'")
-        node = node[key]
-    return node
+class _Sized(NamedTuple):
+    """An image a SOG names: its file name, its bytes and its pixels' size from its header."""
+
+    name: str
+    nbytes: int
+    width: int
+    height: int
 
 
-def _numbers(meta: dict, path: Path, length: int | None, *keys: str) -> np.ndarray:
-    value = _field(meta, path, *keys)
+def _images(files: _Files, meta: dict, count: int) -> dict[tuple[str, int], _Sized]:
+    """(key, index) -> the sized image ``meta[key].files[index]`` of every image the SOG's decoding reads, from the
+    zip directory and the images' first bytes; a per-Gaussian image with fewer than ``count`` pixels is refused."""
+    where = f"{files.path}: meta.json"
+    wanted = [("means", 0), ("means", 1), ("quats", 0), ("scales", 0), ("sh0", 0)]
+    if meta.get("shN"):
+        wanted += [("shN", 0), ("shN", 1)]
+    sized = {}
+    for key, index in wanted:
+        name = text_list(meta, where, key, "files", min_length=index + 1)[index]
+        shown = one_line(name, 80)
+        nbytes = files.size(name)
+        dims = image_header_size(files.read(name, HEAD_BYTES))
+        if dims is None:
+            raise SplatFileError(f"{files.path}: {shown}: not a WebP or PNG image")
+        if (key, index) != ("shN", 0) and dims[0] * dims[1] < count:
+            raise SplatFileError(f"{files.path}: {shown}: {dims[0]}x{dims[1]} pixels, fewer than count {count}")
+        sized[key, index] = _Sized(name, nbytes, *dims)
+    return sized
+
+
+_BYTES_A_PIXEL = 12  # a decoded image (RGBA or RGB), its RGBA conversion and the array made of it
+
+
+def _decode_image(files: _Files, image: _Sized) -> np.ndarray:
+    """(H, W, 4) uint8 pixels of ``image`` (sized before, its memory reserved); SplatFileError names the SOG and
+    the image, never Pillow's buffer."""
+    shown = one_line(image.name, 80)
     try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        arr = None
-    if arr is None or arr.ndim != 1 or (length is not None and len(arr) != length) or not np.isfinite(arr).all():
-        want = f"{length} finite numbers" if length is not None else "a list of finite numbers"
-        raise SplatFileError(f"{path}: meta.json: '{'.'.join(keys)}': expected {want}")
-    return arr
-
-
-def _image(files: _Files, meta: dict, key: str, index: int, count: int) -> np.ndarray:
-    """(H, W, 4) uint8 pixels of the image ``meta[key].files[index]``; SplatFileError when it holds < count."""
-    names = _field(meta, files.path, key, "files")
-    if not isinstance(names, list) or len(names) <= index or not isinstance(names[index], str):
-        raise SplatFileError(f"{files.path}: meta.json: '{key}.files' must list {index + 1} file name(s)")
-    data = files.read(names[index])
-    shown = one_line(names[index], 80)
-    try:
-        im = Image.open(io.BytesIO(data))  # the header alone: no pixel is decoded yet
+        with Image.open(io.BytesIO(files.read(image.name)), formats=("WEBP", "PNG")) as im:
+            if im.size != (image.width, image.height):
+                raise SplatFileError(
+                    f"{files.path}: {shown}: {im.width}x{im.height} pixels, its header said {image.width}x"
+                    f"{image.height}"
+                )
+            return np.asarray(im.convert("RGBA"))
     except (OSError, ValueError, Image.DecompressionBombError) as e:
-        raise SplatFileError(f"{files.path}: {shown}: not a readable image ({one_line(e, 120)})") from None
-    with im:
-        check_memory(8.0 * im.width * im.height, f"{files.path}: {shown}: {im.width}x{im.height} pixels")
-        try:
-            px = np.asarray(im.convert("RGBA"))
-        except (OSError, ValueError, Image.DecompressionBombError) as e:
-            raise SplatFileError(f"{files.path}: {shown}: not a readable image ({one_line(e, 120)})") from None
-    if px.shape[0] * px.shape[1] < count:
-        raise SplatFileError(f"{files.path}: {shown}: {px.shape[1]}x{px.shape[0]} pixels, fewer than count {count}")
-    return px
+        if isinstance(e, SplatFileError):
+            raise
+        detail = "not an image Pillow reads" if isinstance(e, UnidentifiedImageError) else one_line(e, 120)
+        detail = re.sub(r"<_io\.BytesIO object at 0x[0-9a-fA-F]+>", shown, detail)
+        raise SplatFileError(f"{files.path}: {shown}: not a readable image ({detail})") from None
 
 
-def _pixels(files: _Files, meta: dict, key: str, index: int, count: int) -> np.ndarray:
-    """(count, 4) uint8: the first ``count`` pixels of :func:`_image`, row-major."""
-    return _image(files, meta, key, index, count).reshape(-1, 4)[:count]
+class _Plan(NamedTuple):
+    """What reading a SOG will hold, sized before any pixel is decoded: its ``meta.json``, Gaussian count, SH
+    bands (0: none), images and bytes (:func:`decode_bytes` of the arrays plus each image's bytes and pixels)."""
+
+    meta: dict
+    gaussians: int
+    bands: int
+    images: dict[tuple[str, int], _Sized]
+    nbytes: float
+    what: str
 
 
-def decode_sog(files: _Files) -> SplatArrays:
-    """The Gaussians of an open SOG."""
+def plan_sog(files: _Files) -> _Plan:
+    """Read ``meta.json`` and type its fields, then size every image from the zip directory and its header."""
     path = files.path
-    try:
-        meta = json.loads(files.read("meta.json") if files.zip is not None else path.read_bytes())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SplatFileError(f"{path}: meta.json: not valid JSON ({one_line(e, 120)})") from None
+    where = f"{path}: meta.json"
+    meta = files.meta()
     if not isinstance(meta, dict):
-        raise SplatFileError(f"{path}: meta.json: expected a JSON object")
-    if meta.get("version") != VERSION:
+        raise SplatFileError(f"{where}: expected a JSON object")
+    version = meta.get("version")
+    if not (isinstance(version, int) and not isinstance(version, bool) and version == VERSION):
         raise SplatFileError(
-            f"{path}: meta.json: version {one_line(repr(meta.get('version')), 40)} is not supported (2; "
-            "re-save older SOG files with splat-transform)"
+            f"{where}: version {one_line(repr(version), 40)} is not supported (2; re-save older SOG files with "
+            "splat-transform)"
         )
-    n = _field(meta, path, "count")
-    if not isinstance(n, int) or isinstance(n, bool) or n < 0:
-        raise SplatFileError(f"{path}: meta.json: 'count' must be a whole number >= 0")
-    sh_n = meta.get("shN")
-    bands = sh_n.get("bands") if isinstance(sh_n, dict) else 0
-    check_memory(decode_bytes(n, (bands + 1) ** 2 if bands in _SH_COEFFS else 1), f"{path}: meta.json: count {n}")
-    mins = _numbers(meta, path, 3, "means", "mins")
-    maxs = _numbers(meta, path, 3, "means", "maxs")
-    lo, hi = _pixels(files, meta, "means", 0, n), _pixels(files, meta, "means", 1, n)
+    n = whole_number(meta, where, "count")
+    bands = whole_number(meta, where, "shN", "bands", lo=1, hi=3) if meta.get("shN") else 0
+    arrays = decode_bytes(n, (bands + 1) ** 2)
+    check_memory(arrays, f"{where}: count {n}")  # before a member is looked at
+    images = _images(files, meta, n)
+    pixels = sum(im.width * im.height for im in images.values())
+    nbytes = arrays + sum(im.nbytes + _BYTES_A_PIXEL * im.width * im.height for im in images.values())
+    return _Plan(meta, n, bands, images, nbytes, f"{where}: count {n} and {len(images)} images of {pixels:,} pixels")
+
+
+def decode_sog(files: _Files, plan: _Plan) -> SplatArrays:
+    """The Gaussians of an open SOG sized by :func:`plan_sog` (its memory reserved)."""
+    where = f"{files.path}: meta.json"
+    meta, n, bands, images = plan.meta, plan.gaussians, plan.bands, plan.images
+    mins = numbers(meta, where, "means", "mins", length=3)
+    maxs = numbers(meta, where, "means", "maxs", length=3)
+    scale_book = numbers(meta, where, "scales", "codebook", length=CODEBOOK)
+    dc_book = numbers(meta, where, "sh0", "codebook", length=CODEBOOK)
+
+    def pixels_of(key: str, index: int) -> np.ndarray:  # (n, 4): the first n pixels, row-major
+        return _decode_image(files, images[key, index]).reshape(-1, 4)[:n]
+
+    lo, hi = pixels_of("means", 0), pixels_of("means", 1)
     q16 = lo[:, :3].astype(np.float64) + 256.0 * hi[:, :3]
     means = inverse_log_transform(mins + (maxs - mins) * (q16 / 65535.0))
-    qpx = _pixels(files, meta, "quats", 0, n).astype(np.int64)
+    qpx = pixels_of("quats", 0).astype(np.int64)
     tag = qpx[:, 3]
     bad = (tag < 252) | (tag > 255)
     largest = np.clip(tag - 252, 0, 3)
@@ -306,37 +363,30 @@ def decode_sog(files: _Files) -> SplatArrays:
         quats[rows, others[:, s]] = (qpx[:, s] / 255.0 * 2.0 - 1.0) / math.sqrt(2)
     quats[rows, largest] = np.sqrt(np.maximum(0.0, 1.0 - (quats**2).sum(1)))
     quats[bad] = (1.0, 0.0, 0.0, 0.0)  # as PlayCanvas reads a pixel with no component tag
-    scale_book = _numbers(meta, path, CODEBOOK, "scales", "codebook")
-    log_scales = scale_book[_pixels(files, meta, "scales", 0, n)[:, :3]]
-    dc_book = _numbers(meta, path, CODEBOOK, "sh0", "codebook")
-    sh0 = _pixels(files, meta, "sh0", 0, n)
+    log_scales = scale_book[pixels_of("scales", 0)[:, :3]]
+    sh0 = pixels_of("sh0", 0)
     dc = dc_book[sh0[:, :3]]
     opacities = sh0[:, 3] / 255.0
-    rest = _read_sh_n(files, meta, n)
+    rest = np.zeros((n, 0, 3))
+    if bands:
+        rest = _read_sh_n(files, meta, images, n, bands)
     sh = np.concatenate([dc[:, None, :], rest], axis=1)
     return SplatArrays(means, quats, log_scales, opacities, sh, background_owner(n))
 
 
-def _read_sh_n(files: _Files, meta: dict, n: int) -> np.ndarray:
-    """(n, coeffs, 3) the higher SH bands of the optional ``shN`` palette (coeffs = 0 without one)."""
+def _read_sh_n(files: _Files, meta: dict, images: dict[tuple[str, int], _Sized], n: int, bands: int) -> np.ndarray:
+    """(n, coeffs, 3) the higher SH bands of the ``shN`` palette of ``bands`` bands."""
     path = files.path
-    sh_n = meta.get("shN")
-    if not sh_n:
-        return np.zeros((n, 0, 3))
-    bands = _field(meta, path, "shN", "bands")
-    if bands not in _SH_COEFFS:
-        raise SplatFileError(f"{path}: meta.json: 'shN.bands' must be 1, 2 or 3")
+    where = f"{path}: meta.json"
     coeffs = _SH_COEFFS[bands]
-    book = _numbers(meta, path, None, "shN", "codebook")
-    palette = _field(meta, path, "shN", "count")
-    if not isinstance(palette, int) or palette < 0:
-        raise SplatFileError(f"{path}: meta.json: 'shN.count' must be a whole number >= 0")
-    centroids = _image(files, meta, "shN", 0, 0)
+    book = numbers(meta, where, "shN", "codebook")
+    palette = whole_number(meta, where, "shN", "count")
+    centroids = _decode_image(files, images["shN", 0])
     cw = centroids.shape[1]
     if cw != 64 * coeffs:
         raise SplatFileError(f"{path}: shN centroids image: width {cw}, expected {64 * coeffs} for {bands} bands")
     centroids_px = centroids.reshape(-1, 4)
-    labels_px = _pixels(files, meta, "shN", 1, n).astype(np.int64)
+    labels_px = _decode_image(files, images["shN", 1]).reshape(-1, 4)[:n].astype(np.int64)
     label = labels_px[:, 0] | (labels_px[:, 1] << 8)
     ok = label < palette
     label = np.where(ok, label, 0)
@@ -344,7 +394,7 @@ def _read_sh_n(files: _Files, meta: dict, n: int) -> np.ndarray:
     inside = pixel < len(centroids_px)
     idx = centroids_px[np.where(inside, pixel, 0)][..., :3].astype(np.int64)  # (n, coeffs, 3)
     if idx.size and idx.max() >= len(book):
-        raise SplatFileError(f"{path}: meta.json: 'shN.codebook' has {len(book)} entries, the palette indexes more")
+        raise SplatFileError(f"{where}: 'shN.codebook' has {len(book)} entries, the palette indexes more")
     rest = book[idx] if len(book) else np.zeros(idx.shape)
     return np.where((ok[:, None] & inside)[..., None], rest, 0.0)
 
@@ -355,6 +405,8 @@ def read_sog(path: str | PathLike) -> PlyFields:
     path = Path(path)
     files = _Files(path)
     try:
-        return to_fields(decode_sog(files), path)
+        plan = plan_sog(files)
+        with decoding(plan.nbytes, plan.what):
+            return to_fields(decode_sog(files, plan), path)
     finally:
         files.close()

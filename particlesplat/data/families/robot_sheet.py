@@ -7,7 +7,6 @@ mask, as one small palette PNG (for the README's data section).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import numpy as np
 from PIL import Image
 
 from particlesplat.core.errors import run_command
+from particlesplat.core.jsonfile import read_json
 
 # instance-id colours for the mask column: background dark grey, then distinct hues
 MASK_COLOURS = np.array(
@@ -27,7 +27,7 @@ def contact_sheet(scene_dirs: list[Path], views: list[int], thumb: int = 96) -> 
     """Rows of ``views`` (RGB) plus the middle view's mask per scene, each ``thumb`` x ``thumb`` pixels."""
     rows = []
     for d in scene_dirs:
-        frames = json.loads((d / "transforms.json").read_text())["frames"]
+        frames = read_json(d / "transforms.json")["frames"]  # type: ignore[index]
         tiles = [Image.open(d / frames[v]["file_path"]).convert("RGB").resize((thumb, thumb)) for v in views]
         mid = views[len(views) // 2]
         mask = np.asarray(Image.open(d / frames[mid]["instance_mask_path"]))
