@@ -9,6 +9,9 @@ Each reader returns a dict of float64 arrays in the INRIA ``.ply``'s conventions
   uint8, quaternion uint8 ``(q * 128 + 128)``);
 - SPZ v3: nianticlabs/spz ``docs/SPZ.md`` (gzip; 16-byte header; positions int24 fixed point, alphas, colours
   ``dc * 0.15 * 255 + 127.5``, scales ``(log + 10) * 16``, smallest-three rotations, SH ``(c * 128 + 128)``);
+- SPZ v4: the same arrays in nianticlabs/spz's ``README.md`` "File layout (version 4)" (a 32-byte plaintext
+  header, extension records ``type, length, payload``, a table of contents of ``(compressed, inflated)`` uint64
+  pairs, one ZSTD frame per non-empty array), read and written here (:func:`write_spz4_spec`);
 - compressed ``.ply``: PlayCanvas's engine ``ply`` loader and splat-transform's writer documentation (chunk
   bounds, 11-10-11 / 2-10-10-10 / 8-8-8-8 packed words, SH bytes ``(c / 8 + 0.5) * 256``);
 - SOG v2: developer.playcanvas.com "The SOG Format" (meta.json, WebP images, codebooks, ``sign(x) log(|x| + 1)``
@@ -119,6 +122,94 @@ def read_spz_spec(path: Path) -> dict[str, np.ndarray]:
                 off += 1
     assert off == len(raw)
     return _out(means, quats, logs, ops, dcs, rest)
+
+
+SPZ4_SH_DIM = {0: 0, 1: 3, 2: 8, 3: 15, 4: 24}  # higher SH coefficients a channel, by degree
+
+
+def write_spz4_spec(
+    path: Path, g: dict[str, np.ndarray], frac: int = 12, extensions: tuple[tuple[int, bytes], ...] = ()
+) -> None:
+    """Write the Gaussians ``g`` (the spec readers' dict; ``rest`` (N, 0/3/8/15/24, 3)) as an SPZ version 4 file,
+    one value at a time from the spec: positions int24 with ``frac`` fraction bits, alpha ``opacity * 255``,
+    colour ``dc * 0.15 * 255 + 127.5``, scale ``(log + 10) * 16``, rotation the smallest three of (x, y, z, w) on
+    10 bits each below the largest's index, SH ``c * 128 + 128`` on 8 bits; ``extensions``: (type, payload)
+    records after the header."""
+    import zstandard
+
+    n, dim = len(g["means"]), g["rest"].shape[1]
+    degree = {v: k for k, v in SPZ4_SH_DIM.items()}[dim]
+    byte = lambda v: max(0, min(255, int(round(v))))  # noqa: E731
+    pos, alpha, colour, scale, rot, sh = bytearray(), bytearray(), bytearray(), bytearray(), bytearray(), bytearray()
+    for i in range(n):
+        for v in g["means"][i]:
+            pos += struct.pack("<i", int(round(v * (1 << frac))))[:3]
+        alpha.append(byte(g["opacities"][i] * 255))
+        colour += bytes(byte(c * 0.15 * 255 + 127.5) for c in g["dc"][i])
+        scale += bytes(byte((v + 10) * 16) for v in g["log_scales"][i])
+        w, x, y, z = g["quats"][i] / np.linalg.norm(g["quats"][i])
+        xyzw = [x, y, z, w]
+        largest = max(range(4), key=lambda j: abs(xyzw[j]))
+        if xyzw[largest] < 0:
+            xyzw = [-v for v in xyzw]
+        word = largest
+        for j in range(4):
+            if j != largest:
+                mag = min(511, int(round(abs(xyzw[j]) / math.sqrt(0.5) * 511)))
+                word = (word << 10) | ((1 << 9) * (xyzw[j] < 0)) | mag
+        rot += struct.pack("<I", word)
+        for k in range(dim):
+            sh += bytes(byte(c * 128 + 128) for c in g["rest"][i, k])
+    streams = [bytes(b) for b in (pos, alpha, colour, scale, rot, sh) if b]
+    packed = [zstandard.ZstdCompressor(level=3).compress(b) for b in streams]
+    ext = b"".join(struct.pack("<II", kind, len(payload)) + payload for kind, payload in extensions)
+    flags = 0x2 if extensions else 0
+    toc = 32 + len(ext)
+    head = struct.pack("<IIIBBBBI", 0x5053474E, 4, n, degree, frac, flags, len(streams), toc) + bytes(12)
+    table = b"".join(struct.pack("<QQ", len(c), len(u)) for c, u in zip(packed, streams, strict=True))
+    Path(path).write_bytes(head + ext + table + b"".join(packed))
+
+
+def read_spz4_spec(path: Path) -> dict[str, np.ndarray]:
+    """An SPZ version 4 file read from the spec (all SH degrees, 0..4), one record at a time."""
+    import zstandard
+
+    data = Path(path).read_bytes()
+    magic, version, n, degree, frac, _flags, count, toc = struct.unpack_from("<IIIBBBBI", data, 0)
+    assert magic == 0x5053474E and version == 4 and data[20:32] == bytes(12)
+    dim = SPZ4_SH_DIM[degree]
+    off, streams = toc + 16 * count, []
+    for i in range(count):
+        csize, usize = struct.unpack_from("<QQ", data, toc + 16 * i)
+        streams.append(zstandard.ZstdDecompressor().decompress(data[off : off + csize], max_output_size=usize))
+        assert len(streams[-1]) == usize
+        off += csize
+    assert off == len(data)
+    pos, alpha, colour, scale, rot = streams[:5]
+    sh = streams[5] if dim else b""
+    means = []
+    for i in range(3 * n):
+        v = pos[3 * i] | (pos[3 * i + 1] << 8) | (pos[3 * i + 2] << 16)
+        means.append((v - (1 << 24) if v & 0x800000 else v) / (1 << frac))
+    quats = []
+    for i in range(n):
+        (word,) = struct.unpack_from("<I", rot, 4 * i)
+        largest, xyzw = word >> 30, [0.0] * 4
+        for j in (3, 2, 1, 0):  # the last stored component sits in the lowest bits
+            if j != largest:
+                xyzw[j] = (-1 if word & 0x200 else 1) * math.sqrt(0.5) * (word & 0x1FF) / 511
+                word >>= 10
+        xyzw[largest] = math.sqrt(max(0.0, 1 - sum(v * v for v in xyzw)))
+        quats.append([xyzw[3], xyzw[0], xyzw[1], xyzw[2]])
+    rest = np.array([(b - 128) / 128 for b in sh], dtype=np.float64).reshape(n, dim, 3)
+    return _out(
+        means,
+        quats,
+        [b / 16 - 10 for b in scale],
+        [b / 255 for b in alpha],
+        [(b / 255 - 0.5) / 0.15 for b in colour],
+        rest,
+    )
 
 
 def _ply_elements(data: bytes) -> tuple[list[tuple[str, int, list[tuple[str, str]]]], int]:

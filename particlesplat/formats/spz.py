@@ -1,4 +1,5 @@
-"""Niantic's SPZ (version 3, MIT): a gzip stream of a 16-byte header and one array per attribute.
+"""Niantic's SPZ (MIT; versions 2-4 read, 3 written): version 3 is a gzip stream of a 16-byte header and one array
+per attribute.
 
 Header (little endian): ``magic`` uint32 0x5053474e ("NGSP"), ``version`` uint32 (3; 2 is read too),
 ``num_points`` uint32, ``sh_degree`` uint8 (0..3), ``fractional_bits`` uint8, ``flags`` uint8 (bit 0:
@@ -17,13 +18,21 @@ antialiased), ``reserved`` uint8 (0). Then, for N points, in this order:
 
 Axes: the positions and rotations are stored in the ``.ply``'s own axes, as PlayCanvas's splat-transform,
 SuperSplat and Spark write and read them (the spec names RUB as SPZ's internal frame; Niantic's own ``.ply``
-converter flips y and z, which this one does not). Version 4 (ZSTD streams) is not read: it needs a ZSTD
-decoder the standard library lacks (``splat-transform --spz-version 3`` writes version 3).
+converter flips y and z, which this one does not).
+
+Version 4 (read, not written): no gzip; a plaintext 32-byte header (``magic``, ``version`` 4, ``num_points``,
+``sh_degree`` 0..4, ``fractional_bits``, ``flags`` (bit 1: extension records follow the header), ``num_streams``
+uint8, ``toc_offset`` uint32, 12 reserved bytes), the extension records (``type`` uint32, ``length`` uint32, then
+``length`` bytes each) up to ``toc_offset``, a table of contents of ``num_streams`` pairs (compressed bytes,
+inflated bytes; uint64), and the streams back to back to the file's end: one ZSTD frame per array above, in the
+same order and encoding, an empty array's stream left out (a degree-0 file has 5). SH degree 4 stores 24
+coefficients a channel, of which the first 15 (degrees 1-3) are kept.
 """
 
 from __future__ import annotations
 
 import gzip
+import os
 import struct
 import zlib
 from collections.abc import Iterator
@@ -35,6 +44,7 @@ from typing import BinaryIO
 import numpy as np
 
 from particlesplat.core.atomic import atomic_write
+from particlesplat.core.errors import warn_input
 from particlesplat.core.sh import num_sh_bases
 from particlesplat.formats.ply import GaussianFields, GaussianWriteError, PlyFields
 from particlesplat.formats.splat_arrays import (
@@ -181,21 +191,21 @@ def _unpack_rotations(b: np.ndarray) -> np.ndarray:
 
 
 def read_spz(path: str | PathLike) -> PlyFields:
-    """Read a gzip SPZ file (version 2 or 3) into float32 tensors; SplatFileError names the file and the field.
+    """Read an SPZ file (version 2 or 3: gzip; 4: ZSTD streams) into float32 tensors; SplatFileError names the file
+    and the field.
 
     The file is streamed: its first bytes tell the format, the gzip stream's first 16 inflated bytes (the header)
     size the payload, which is reserved with the decoding's arrays against the job's memory limit
     (:func:`particlesplat.formats.splat_arrays.decoding`) before the rest is inflated, never beyond that size.
-    Neither the compressed file nor more than the header's payload is held."""
+    Neither the compressed file nor more than the header's payload is held. Version 4 is read the same way, stream
+    by stream, into the version 3 layout (:func:`_inflated_v4`)."""
     path = Path(path)
     with open(path, "rb") as f:
-        magic = f.read(8)
-        if magic[:4] == struct.pack("<I", MAGIC):
-            version = struct.unpack_from("<I", magic, 4)[0] if len(magic) >= 8 else 0
-            raise SplatFileError(
-                f"{path}: SPZ version {version} with ZSTD streams is not supported: write version 3 "
-                "(splat-transform --spz-version 3)"
-            )
+        magic = f.read(4)
+        f.seek(0)
+        if magic == struct.pack("<I", MAGIC):  # version 4: a plaintext header, then ZSTD streams
+            with _inflated_v4(f, path) as raw:
+                return to_fields(decode_spz(raw, path), path)
         if magic[:2] != b"\x1f\x8b":
             raise SplatFileError(f"{path}: not an SPZ file (no gzip stream)")
         f.seek(0)
@@ -242,3 +252,151 @@ def _inflated(f: BinaryIO, path: Path) -> Iterator[bytearray]:
     with decoding(decode_bytes(n, num_sh_bases(min(degree, 3))) + 2.0 * want, f"{path}: num_points {n}"):
         head += inflater.take(want - HEADER.size + 1)  # one byte more tells a stream longer than the header says
         yield head
+
+
+HEADER_V4 = struct.Struct("<IIIBBBBI12s")  # magic, version, num_points, sh_degree, fractional_bits, flags,
+# num_streams, toc_offset, reserved
+TOC_ENTRY = struct.Struct("<QQ")  # compressed bytes, inflated bytes
+EXTENSION = struct.Struct("<II")  # type, payload bytes
+FLAG_EXTENSIONS = 0x2
+MAX_EXTENSION_BYTES = 1 << 20  # the plaintext extension records (camera limits, a coordinate-system label)
+STREAMS = ("positions", "alphas", "colors", "scales", "rotations", "sh")
+MIN_WINDOW = 1 << 20  # a ZSTD frame's window is allowed its stream's inflated size, and at least this
+
+
+def _stream_sizes(n: int, degree: int) -> list[tuple[str, int]]:
+    """(name, inflated bytes) of the streams a version 4 file of ``n`` points and SH ``degree`` (0..4) stores: the
+    version 3 arrays in order, empty ones left out."""
+    sizes = (9 * n, n, 3 * n, 3 * n, 4 * n, 3 * n * ((degree + 1) ** 2 - 1))  # degree 4: 24 coefficients a channel
+    return [(name, size) for name, size in zip(STREAMS, sizes, strict=True) if size]
+
+
+class _Slice:
+    """The next ``size`` bytes of an open file, read as a file (a ZSTD stream reader never reads past them)."""
+
+    def __init__(self, f: BinaryIO, size: int) -> None:
+        self.f, self.left = f, size
+
+    def read(self, count: int = -1) -> bytes:
+        data = self.f.read(self.left if count < 0 else min(count, self.left))
+        self.left -= len(data)
+        return data
+
+
+def _extension_types(raw: bytes, path: Path) -> list[int]:
+    """The types of the extension records in ``raw`` (the bytes between the header and the table of contents);
+    SplatFileError when a record runs past them."""
+    types, off = [], 0
+    while off < len(raw):
+        if off + EXTENSION.size > len(raw):
+            raise SplatFileError(f"{path}: extension record at byte {HEADER_V4.size + off}: truncated")
+        kind, length = EXTENSION.unpack_from(raw, off)
+        off += EXTENSION.size + length
+        if off > len(raw):
+            raise SplatFileError(
+                f"{path}: extension record 0x{kind:08x}: {length} bytes run past the table of contents"
+            )
+        types.append(kind)
+    return types
+
+
+@contextmanager
+def _inflated_v4(f: BinaryIO, path: Path) -> Iterator[bytearray]:
+    """A version 4 file's arrays in the version 3 payload layout (:func:`decode_spz` decodes it), inside the
+    reservation of what they and their decoding hold, sized from the header before any stream is inflated: each
+    stream is inflated from the file a chunk at a time and never beyond the size its table of contents gives
+    (which must be what the header's point count needs), within a window of at most that size (at least
+    :data:`MIN_WINDOW`). SH degree 4 keeps its degree 1-3 coefficients (a warning says so)."""
+    try:
+        import zstandard
+    except ImportError:
+        raise SplatFileError(
+            f"{path}: SPZ version 4 (ZSTD streams) needs the zstandard package: pip install zstandard"
+        ) from None
+    head = f.read(HEADER_V4.size)
+    if len(head) < HEADER_V4.size:
+        raise SplatFileError(f"{path}: truncated SPZ version 4 header ({len(head)} of {HEADER_V4.size} bytes)")
+    _magic, version, n, degree, frac, flags, count, toc, _reserved = HEADER_V4.unpack(head)
+    if version != 4:
+        raise SplatFileError(
+            f"{path}: version: {version} in a plaintext header is not supported (4; versions 2 and 3 are gzip streams)"
+        )
+    if n > MAX_POINTS:
+        raise SplatFileError(f"{path}: num_points: {n} is beyond {MAX_POINTS}")
+    if degree > 4:
+        raise SplatFileError(f"{path}: sh_degree: {degree} is not supported (0..4)")
+    streams = _stream_sizes(n, degree)
+    if count != len(streams):
+        raise SplatFileError(
+            f"{path}: num_streams: {count}, but {n} points of SH degree {degree} store {len(streams)} "
+            f"({', '.join(name for name, _ in streams) or 'none'})"
+        )
+    size = os.fstat(f.fileno()).st_size
+    toc_end = toc + TOC_ENTRY.size * count
+    if not HEADER_V4.size <= toc <= size or toc_end > size:
+        raise SplatFileError(f"{path}: toc_offset: {toc} leaves no table of contents in the file's {size} bytes")
+    if toc - HEADER_V4.size > MAX_EXTENSION_BYTES:
+        raise SplatFileError(
+            f"{path}: toc_offset: {toc} leaves {toc - HEADER_V4.size} bytes of extension records, beyond "
+            f"{MAX_EXTENSION_BYTES}"
+        )
+    zone = f.read(toc - HEADER_V4.size)
+    if flags & FLAG_EXTENSIONS:
+        types = _extension_types(zone, path)
+        if types:
+            warn_input(
+                f"{path}: extension records {', '.join(f'0x{t:08x}' for t in types)} ignored (the Gaussians are read "
+                "as stored)"
+            )
+    entries = [TOC_ENTRY.unpack(f.read(TOC_ENTRY.size)) for _ in range(count)]
+    offset = toc_end
+    for (name, want), (packed, inflated) in zip(streams, entries, strict=True):
+        if inflated != want:
+            raise SplatFileError(
+                f"{path}: {name} stream: {inflated} bytes inflated, but {n} points of SH degree {degree} need {want}"
+            )
+        if packed > size - offset:
+            raise SplatFileError(f"{path}: {name} stream: {packed} compressed bytes run past the file's end")
+        offset += packed
+    if offset != size:
+        raise SplatFileError(f"{path}: the streams end at byte {offset}, the file at {size}")
+    kept = min(degree, 3)
+    payload = _payload_size(n, kept, 3)
+    window = max(MIN_WINDOW, *(want for _, want in streams)) if streams else MIN_WINDOW
+    with decoding(decode_bytes(n, num_sh_bases(kept)) + 2.0 * payload + 2.0 * window, f"{path}: num_points {n}"):
+        out = bytearray(HEADER.pack(MAGIC, 3, n, kept, frac, flags & FLAG_ANTIALIASED, 0))
+        reader = zstandard.ZstdDecompressor(max_window_size=1 << (window - 1).bit_length())
+        offset = toc_end
+        for (name, want), (packed, _) in zip(streams, entries, strict=True):
+            f.seek(offset)
+            data = _inflate_stream(reader, _Slice(f, packed), want, f"{path}: {name} stream")
+            if name == "sh" and degree > kept:
+                keep = 3 * (num_sh_bases(kept) - 1)
+                data = bytearray(np.frombuffer(data, np.uint8).reshape(n, -1)[:, :keep].tobytes())
+            out += data
+            offset += packed
+        if degree > kept:
+            warn_input(f"{path}: sh_degree: 4; its degree-4 coefficients are left out (read to degree 3)")
+        yield out
+
+
+def _inflate_stream(reader, source: _Slice, want: int, where: str) -> bytearray:
+    """The ``want`` bytes one ZSTD frame of ``source`` inflates to; SplatFileError naming ``where`` for a corrupt
+    frame or one that inflates to another size (never inflated beyond ``want`` + 1 bytes)."""
+    import zstandard
+
+    out = bytearray()
+    try:
+        stream = reader.stream_reader(source, read_size=READ_CHUNK, read_across_frames=False, closefd=False)
+        while len(out) < want:
+            chunk = stream.read(want - len(out))
+            if not chunk:
+                break
+            out += chunk
+        extra = stream.read(1)
+    except zstandard.ZstdError as e:
+        raise SplatFileError(f"{where}: corrupt ZSTD data ({e})") from None
+    if len(out) != want or extra:
+        got = f"more than {want}" if extra else str(len(out))
+        raise SplatFileError(f"{where}: inflates to {got} bytes, its table of contents says {want}")
+    return out
