@@ -110,3 +110,12 @@ def _assert_same(ours: Gaussians, its: Gaussians) -> None:
     np.testing.assert_allclose(ours.opacities.numpy(), its.opacities.numpy(), atol=2e-6)  # its logit clamp
     q = lambda g: (g.quats / g.quats.norm(dim=1, keepdim=True)).numpy()  # noqa: E731
     assert np.abs((q(ours) * q(its)).sum(1)).min() > 1 - 1e-6
+
+
+def test_its_default_spz_version_4_reads_as_it_decodes_it(tmp_path):
+    """Its default ``.spz`` (version 4: ZSTD streams) reads here as it decodes it (SH degree 2)."""
+    random_gaussians(2000, 2, seed=9).save_ply(tmp_path / "sh.ply")
+    _convert(tmp_path / "sh.ply", tmp_path / "sh.spz")
+    assert (tmp_path / "sh.spz").read_bytes()[:8] == b"NGSP\x04\x00\x00\x00"
+    _convert(tmp_path / "sh.spz", tmp_path / "back.ply")
+    _assert_same(Gaussians(*read_gaussians(tmp_path / "sh.spz")), Gaussians.load_ply(tmp_path / "back.ply"))
