@@ -52,9 +52,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _guard(args: argparse.Namespace) -> None:
+    """The output guard every command calls before its work (:func:`particlesplat.core.outputs.guard_outputs`):
+    ``--out`` is none of the inputs (``--ply``, ``--scene``, ``--checkpoint`` or the shipped models it stands for,
+    ``--edits``, ``--edits-from``), no existing file inside an input folder, and not in a run folder a live
+    ``train`` holds; with ``--by`` it is a folder whose contents are replaced, so it must hold no input."""
+    from particlesplat.core.outputs import guard_outputs
+
+    inputs = [(f"--{k.replace('_', '-')}", getattr(args, k)) for k in ("ply", "scene", "checkpoint", "edits")]
+    inputs.append(("--edits-from", args.edits_from))
+    if not args.ply and not args.checkpoint:  # the scene's family chooses one of the shipped models
+        from particlesplat.data.families import families
+
+        inputs += [("the shipped model", str(f.shipped_model_path())) for f in families()]
+    guard_outputs([("--out", args.out)], inputs, [("--out", args.out)] if args.by else [])
+
+
 def run(args: argparse.Namespace) -> int:
     from particlesplat.core.atomic import check_writable
-    from particlesplat.core.errors import EXIT_USER, one_line
+    from particlesplat.core.errors import EXIT_USER, UserError, one_line
 
     prog = "particlesplat export"
     scene = None
@@ -62,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
         check_source_arguments(args)
         if args.ply and args.edits_from:
             raise OptionError("--edits-from needs a model scene, not --ply")
+        if args.edits and args.edits_from:
+            raise OptionError("--edits and --edits-from: give one edit file")
         if args.ply and args.by == "object":
             raise OptionError("--by object needs a model scene (its particles' objects), not --ply: use --by particle")
         if not 0.0 <= args.prune <= 1.0:
@@ -69,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
         check_existing(args.scene, "--scene")  # before torch loads: a typo is one quick line
         for name in ("ply", "checkpoint", "edits", "edits_from"):
             check_file(getattr(args, name), f"--{name.replace('_', '-')}")
+        _guard(args)  # before any work, as every command
         from particlesplat.formats.splat_files import SUFFIXES, format_for
 
         if args.by is None:
@@ -96,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"{prog}: warning: {warning}", file=sys.stderr)
             g = scene.model.decode(scene.particles).detach().to("cpu")
             source = str(scene.encoded.path)
-    except (OSError, ValueError, KeyError) as e:
+    except (UserError, OSError) as e:  # the project's user errors; anything else is a bug and keeps its traceback
         print(f"{prog}: {one_line(e)}", file=sys.stderr)
         return EXIT_USER
     total = g.num
@@ -139,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
         if fmt.suffix == ".splat" and g.sh.shape[1] > 1:
             print(f"{prog}: warning: .splat holds no SH: higher bands dropped", file=sys.stderr)
         fmt.write(g, args.out)
-    except (OSError, ValueError) as e:
+    except (UserError, OSError) as e:
         message = one_line(e)
         named = message if str(args.out) in message else f"--out {args.out}: {message}"
         print(f"{prog}: {named}", file=sys.stderr)

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from particlesplat.core.errors import OptionError
 from particlesplat.editing.open_scene import EncodedScene, load_model_scene
 from particlesplat.editing.scene_objects import SceneObjects
 from particlesplat.model import Particles, ParticleSplat
@@ -49,13 +50,13 @@ def open_edited_scene(
 ) -> EditedScene:
     """Load the model, encode ``scene`` (None = the edit file's scene, else the first demo scene) from ``context``
     (None = the edit file's frames, else the default) and replay the edit file of ``edits`` (a YAML path) or
-    ``edits_from`` (a PNG's ``edits`` chunk). ValueError when both are given."""
+    ``edits_from`` (a PNG's ``edits`` chunk). OptionError when both are given."""
     from particlesplat.editing.editor import SceneEditor, load_edit_file, scene_mismatch
 
     file, where = None, "edits"  # where: the edit file's name in messages
     if edits_from:
         if edits:
-            raise ValueError("--edits and --edits-from: give one edit file")
+            raise OptionError("--edits and --edits-from: give one edit file")
         from particlesplat.core.yamlsafe import load_yaml
         from particlesplat.editing.editor import parse_edit_file
         from particlesplat.formats.png import edits_text_from_png
