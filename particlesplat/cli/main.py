@@ -112,10 +112,12 @@ def main(argv: list[str] | None = None) -> int:
 def console_main() -> int:
     """The console script under the error policy (:func:`particlesplat.core.errors.run_command`): bad input
     (ValueError, OSError) ends with one line naming the file and the field and exit code 2, Ctrl-C with one
-    line and 130; a bug keeps its traceback. :func:`main` itself lets the exceptions through for programmatic
+    line and 130, SIGTERM as Ctrl-C with 143 (:func:`particlesplat.core.errors.stop_on_sigterm`); a bug keeps its
+    traceback. :func:`main` itself lets the exceptions through for programmatic
     use and tests.
     """
-    from particlesplat.core.errors import end_at_once_if_interrupted, one_line, run_command
+    from particlesplat.core.errors import end_at_once_if_interrupted, one_line, run_command, stop_on_sigterm
 
+    stop_on_sigterm()  # SIGTERM is Ctrl-C for every command: temporary files removed, one line, exit 143
     command = one_line(sys.argv[1], 40) if len(sys.argv) > 1 else ""
     return end_at_once_if_interrupted(run_command(f"particlesplat {command}".strip(), main))

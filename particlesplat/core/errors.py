@@ -138,6 +138,29 @@ def run_command(prog: str, fn: Callable[[], int]) -> int:
         warnings.showwarning = show
 
 
+def stop_signal_handler(message: str = "") -> Callable[[int, object], None]:
+    """A signal handler that stops a command as Ctrl-C does: it raises :class:`Interrupted` (``message``, the
+    signal), so every ``finally`` block and atomic write unwinds (temporary files removed, locks released), then
+    :func:`run_command` prints one line and returns 128 + the signal (143 for SIGTERM)."""
+
+    def handler(signum: int, _frame: object) -> None:
+        raise Interrupted(message, signum)
+
+    return handler
+
+
+def stop_on_sigterm() -> None:
+    """Make SIGTERM (``kill PID``, a service manager, a job scheduler's time limit) stop the process as Ctrl-C does
+    (:func:`stop_signal_handler`); the console script calls it for every command before the command runs. A
+    command that stops more gracefully (``train``: finish the step, save) installs its own while it runs and puts
+    this one back. Only the main thread may install handlers: elsewhere nothing changes."""
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, stop_signal_handler("SIGTERM"))
+
+
 def end_at_once_if_interrupted(code: int) -> int:
     """A console script's last step: after Ctrl-C or a stop signal (``code`` > 128, the one line already printed)
     flush the output and end the process now, skipping the interpreter's teardown of torch and the model (0.7-1.2 s
