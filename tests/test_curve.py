@@ -74,7 +74,7 @@ def test_training_loss_is_plotted_below_and_a_run_without_validation_says_so(tmp
     out = tmp_path / "c.png"
     assert main(["curve", str(run), "--out", str(out)]) == 0
     said = capsys.readouterr().out
-    assert "no validation yet" in said and "training loss of 4 logged step(s) to step 80" in said
+    assert "no validation yet" in said and "training loss to step 80: 4 records of the running mean" in said
     img = Image.open(out).convert("RGB")
     assert img.size == (WIDTH, HEIGHT + LOSS_HEIGHT)
     x0, x1, y0, y1 = MARGIN, WIDTH - MARGIN, HEIGHT + LOSS_HEIGHT - MARGIN, HEIGHT + 8
@@ -108,3 +108,21 @@ def test_a_long_log_keeps_evenly_spaced_loss_rows_and_the_last(tmp_path):
     assert steps[0] == 0 and steps[-1] == 9_999 and all(v == float(s) for s, v in losses)
     gaps = {b - a for a, b in zip(steps[:-2], steps[1:-1], strict=True)}
     assert len(gaps) == 1  # evenly thinned (the last row is added whatever its gap)
+
+
+def test_a_ten_step_run_is_told_as_what_its_log_holds(tmp_path_factory, tmp_path, capsys):
+    """A 10-step run at the recipe's log_every (10) logs one training record, the running mean at step 10: the
+    command says so, not that one step was logged."""
+    from model_data import tiny_config, tiny_dataset
+
+    from particlesplat.cli.main import main
+
+    data = tiny_dataset(tmp_path_factory)
+    cfg = tiny_config(tmp_path / "tiny.yaml", steps=10, log_every=10, val_every=10, ckpt_every=10)
+    assert main(["train", "--config", str(cfg), "--data", str(data), "--out", str(tmp_path / "run")]) == 0
+    records = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records if "loss" in r] == [10]  # what the log holds
+    capsys.readouterr()
+    assert main(["curve", str(tmp_path / "run"), "--out", str(tmp_path / "c.png")]) == 0
+    said = capsys.readouterr().out
+    assert "training loss to step 10: 1 record, the running mean logged every 10 steps" in said, said

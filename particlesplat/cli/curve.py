@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     with atomic_path(args.out) as tmp:
         plot_curves(runs, args.title, training).save(tmp, format="PNG")
     for folder, (_, rows), losses, logged in zip(args.run, runs, training, counts, strict=True):
-        loss = f"; training loss of {logged} logged step(s) to step {losses[-1][0]}" if losses else ""
+        loss = f"; training loss to step {losses[-1][0]}: {_records(logged, Path(folder))}" if losses else ""
         if rows:
             last = f"; last: step {rows[-1][0]}, PSNR {rows[-1][1]:.2f} dB, FG-ARI {rows[-1][2]:.3f}"
             print(f"{folder}: {len(rows)} validation point(s){last}{loss}")
@@ -46,6 +46,19 @@ def run(args: argparse.Namespace) -> int:
             print(f"{folder}: no validation yet ({_first_validation(Path(folder))}){loss}")
     print(f"wrote {args.out}")
     return 0
+
+
+def _records(logged: int, run: Path) -> str:
+    """What the log's ``logged`` training records are: a running mean every ``train.log_every`` steps (from the run's
+    config.yaml, where readable), not one a step."""
+    count = f"{logged} record{'s' if logged != 1 else ''}"
+    from particlesplat.model.config import load_config
+
+    try:
+        every = load_config(run / "config.yaml")[1].log_every
+    except (OSError, ValueError):
+        return f"{count} of the running mean"
+    return f"{count}, the running mean logged every {every} step{'s' if every != 1 else ''}"
 
 
 def _first_validation(run: Path) -> str:
