@@ -156,7 +156,15 @@ def test_bad_requests_are_one_line_errors(tmp_path, capsys):
             ["--ply", str(tmp_path / "nope.spz"), "--out", str(tmp_path / "x.ply")],
             "--ply " + str(tmp_path / "nope.spz") + ": no such file",
         ),
-        (["--ply", str(tmp_path / "g.ply"), "--by", "particle", "--out", str(tmp_path / "b.spz")], "writes a folder"),
+        (
+            ["--ply", str(tmp_path / "g.ply"), "--by", "particle", "--out", str(tmp_path / "b.spz")],
+            f"--by writes a folder of .ply parts and a manifest, not a .spz file: give a folder, e.g. --out "
+            f"{tmp_path / 'b_particles'}/",
+        ),
+        (
+            ["--ply", str(tmp_path / "g.ply"), "--by", "particle", "--out", str(tmp_path / "c.compressed.ply")],
+            f"not a .compressed.ply file: give a folder, e.g. --out {tmp_path / 'c_particles'}/",
+        ),
         (["--ply", str(tmp_path / "g.ply"), "--prune", "2", "--out", str(tmp_path / "x.ply")], "--prune must be"),
         (["--ply", str(tmp_path / "g.ply"), "--context", "1,2", "--out", str(tmp_path / "x.ply")], "--context needs"),
     ]
@@ -165,6 +173,12 @@ def test_bad_requests_are_one_line_errors(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert message in err and "\n" not in err, err
     assert (tmp_path / "keep" / "precious.txt").read_text() == "mine"
+    # the folder the refusal suggests is one --by writes
+    assert (
+        main(["export", "--ply", str(tmp_path / "g.ply"), "--by", "particle", "--out", str(tmp_path / "b_particles")])
+        == 0
+    )
+    assert (tmp_path / "b_particles" / "manifest.json").is_file()
 
 
 def test_the_formats_benchmark_reports_every_format_and_the_bundle(tmp_path, capsys):

@@ -99,8 +99,13 @@ def run(args: argparse.Namespace) -> int:
         else:
             from particlesplat.formats.bundle import check_bundle_target
 
-            if args.out.lower().endswith(SUFFIXES):
-                raise OptionError(f"--out {args.out}: --by writes a folder (e.g. {Path(args.out).stem}_parts/)")
+            suffix = next((x for x in sorted(SUFFIXES, key=len, reverse=True) if args.out.lower().endswith(x)), None)
+            if suffix is not None:  # x.spz -> x_particles/, next to it
+                folder = Path(args.out).with_name(f"{Path(args.out).name[: -len(suffix)]}_{args.by}s")
+                raise OptionError(
+                    f"--out {args.out}: --by writes a folder of .ply parts and a manifest, not a {suffix} file: "
+                    f"give a folder, e.g. --out {folder}/"
+                )
             check_bundle_target(args.out)
         if args.ply:
             from particlesplat.editing.open_scene import load_ply_checked
