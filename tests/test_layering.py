@@ -1,6 +1,6 @@
 """Imports go one way, folder by folder: core, formats -> rendering -> model, data -> editing -> analysis ->
-training, bench -> cli; the viewer on top: viewer/gl (what talks to OpenGL) -> the viewer's app, ui and tools ->
-viewer/bench.
+training, bench -> policy -> cli; the viewer on top: viewer/gl (what talks to OpenGL) -> the viewer's app, ui and
+tools -> viewer/bench.
 
 A module's layer is its folder (``LAYERS`` below). A module may import its own layer and the layers under it,
 never one above; a module outside every listed folder fails; and the import graph between modules has no cycle,
@@ -24,6 +24,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("editing", ("particlesplat.editing",)),
     ("analysis", ("particlesplat.analysis",)),
     ("training, bench", ("particlesplat.training", "particlesplat.bench")),
+    ("policy", ("particlesplat.policy",)),
     ("cli", ("particlesplat.cli",)),
     # the viewer: its root modules (app, session, state...), ui/ and tools/ import each other, so they are one layer
     ("viewer gl", ("viewer.gl",)),

@@ -27,6 +27,8 @@ QUICK = [
     (["export", "--help"], 0),
     (["scene", "check", "--help"], 0),
     (["curve", "--help"], 0),
+    (["policy", "collect", "--help"], 0),
+    (["policy", "collect", "--out", "OUT", "--episodes", "0"], "error"),
     (["eval", "--data", "MISSING"], "error"),
     (["eval", "--data", "assets/scenes", "--checkpoint", "MISSING.pt"], "error"),
     (["encode", "--data", "MISSING", "--out", "OUT"], "error"),

@@ -117,16 +117,17 @@ def _init_worker() -> None:
 
 
 @contextmanager
-def owned_dataset(out: Path) -> Iterator[None]:
+def owned_dataset(out: Path, items: str = "scenes") -> Iterator[None]:
     """Hold ``out`` for one generator run: its lock (:class:`particlesplat.core.runlock.RunLock`, so a second
     ``synth`` into the folder ends in one line instead of deleting this one's scene in progress), and SIGTERM
-    handled as Ctrl-C is (finished scenes kept, the worker pool stopped with the command: :func:`run_tasks`)."""
+    handled as Ctrl-C is (finished scenes kept, the worker pool stopped with the command: :func:`run_tasks`).
+    ``items`` names what the folder holds in the line an interruption prints."""
     lock = RunLock(out).acquire()
     previous = None
     if threading.current_thread() is threading.main_thread():
 
         def on_term(signum, frame):
-            raise Interrupted(f"finished scenes are kept in {out}; run the same command again to resume", signum)
+            raise Interrupted(f"finished {items} are kept in {out}; run the same command again to resume", signum)
 
         previous = signal.signal(signal.SIGTERM, on_term)
     try:
@@ -134,7 +135,7 @@ def owned_dataset(out: Path) -> Iterator[None]:
     except KeyboardInterrupt as e:
         if isinstance(e, Interrupted):
             raise
-        raise Interrupted(f"finished scenes are kept in {out}; run the same command again to resume") from None
+        raise Interrupted(f"finished {items} are kept in {out}; run the same command again to resume") from None
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

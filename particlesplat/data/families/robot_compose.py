@@ -130,6 +130,20 @@ class WorldSetup:
 
 
 @dataclass(frozen=True)
+class Marker:
+    """A flat disc drawn on the table that nothing touches (a task's goal): centre ``x``, ``y`` and ``radius``
+    (metres), ``height`` (metres; it lies on z = 0 up to this height, under the foreground evidence's 1.2 cm)
+    and ``rgba``."""
+
+    name: str
+    x: float
+    y: float
+    radius: float
+    rgba: tuple[float, float, float, float]
+    height: float = 0.002
+
+
+@dataclass(frozen=True)
 class CameraPose:
     """A MuJoCo camera: ``pos`` (3,) world metres, ``quat`` (4,) w x y z of the camera frame (x right, y up,
     looking down -z: the OpenGL convention), ``fovy`` vertical field of view in degrees."""
@@ -292,9 +306,11 @@ def compose(
     cameras: Sequence[CameraPose],
     res: tuple[int, int],
     setup: WorldSetup | None = None,
+    markers: Sequence[Marker] = (),
 ) -> Composition:
     """Build and compile the workspace: arena, Panda (gripper, mount), ``objects`` as free bodies at their drop
-    poses (z = 0.3 m, lifted to rest later) and ``cameras``; ``res`` (width, height) sizes the offscreen buffer.
+    poses (z = 0.3 m, lifted to rest later), ``markers`` (drawn discs on the table, no collisions, instance 0 in
+    masks) and ``cameras``; ``res`` (width, height) sizes the offscreen buffer.
     ``setup`` (default: the narrow world's: turned frame, Panda gripper, the arena's look) picks the frame, the
     gripper, the lights and the surfaces. The arm is at ``PANDA_HOME``."""
     setup = setup or WorldSetup()
@@ -378,6 +394,17 @@ def compose(
         else:
             raise ValueError(f"object {k}: unknown kind {obj.kind!r}")
 
+    for marker in markers:
+        world.worldbody.add_geom(
+            name=f"marker_{marker.name}",
+            type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+            size=[marker.radius, marker.height / 2.0, 0.0],
+            pos=[marker.x, marker.y, marker.height / 2.0],
+            rgba=list(marker.rgba),
+            contype=0,
+            conaffinity=0,
+            group=1,
+        )
     # a key light from above the front-left that casts shadows on the table; the arena keeps its own light
     lights = setup.lights
     key_diffuse = 0.4 if lights is None else lights.key_diffuse
