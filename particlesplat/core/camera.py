@@ -247,7 +247,7 @@ def camera_problem(K, c2w, width: int, height: int) -> str | None:
     with margin (:func:`particlesplat.core.limits.float32_problem`); width and height positive."""
     import numpy as np
 
-    from particlesplat.core.limits import FLOAT32_MAX_ABS, float32_problem
+    from particlesplat.core.limits import FLOAT32_MAX_ABS, float32_problem, rigid_problem
 
     K, c2w = np.asarray(K, dtype=np.float64), np.asarray(c2w, dtype=np.float64)
     if K.shape != (3, 3) or c2w.shape != (4, 4):
@@ -262,10 +262,9 @@ def camera_problem(K, c2w, width: int, height: int) -> str | None:
             return f"focal length {name} is {problem} (got {v:g})"
     if K[0, 1] != 0 or K[1, 0] != 0 or list(K[2]) != [0.0, 0.0, 1.0]:
         return "K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]"
-    R = c2w[:3, :3]
-    err = max(np.abs(R.T @ R - np.eye(3)).max(), np.abs(c2w[3] - [0, 0, 0, 1]).max())
-    if err > 1e-3 or np.linalg.det(R) <= 0:
-        return f"c2w is not a rigid transform (orthonormal rotation with det +1, last row 0 0 0 1; error {err:.3g})"
+    problem = rigid_problem(c2w, max_metres=None)  # the rigid-pose check every pose gets (the robot's base too)
+    if problem:
+        return f"c2w {problem}"
     if int(width) < 1 or int(height) < 1:
         return f"width and height must be positive, got {width}x{height}"
     return None

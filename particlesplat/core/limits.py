@@ -138,11 +138,11 @@ def check_option_range(value: float | None, flag: str, lo: float, hi: float, low
         raise OptionError(f"{flag} must be in {'(' if low_open else '['}{lo:g}, {hi:g}], got {value!r}")
 
 
-def rigid_problem(m: object, tol: float = 1e-3) -> str | None:
+def rigid_problem(m: object, tol: float = 1e-3, max_metres: float | None = WORLD_MAX_METRES) -> str | None:
     """What keeps ``m`` from being a rigid pose in the world (None when nothing does): a 4 x 4 array of finite
     numbers within +-:data:`FLOAT32_MAX_ABS`, an orthonormal rotation with determinant +1 (no scale, skew or
-    mirror; within ``tol``), the last row 0 0 0 1 and a translation within :data:`WORLD_MAX_METRES`. Camera poses
-    and the robot's base are held to it."""
+    mirror; within ``tol``), the last row 0 0 0 1 and a translation within ``max_metres`` (None: any; default
+    :data:`WORLD_MAX_METRES`). Camera poses and the robot's base are held to it."""
     import numpy as np
 
     try:
@@ -164,9 +164,9 @@ def rigid_problem(m: object, tol: float = 1e-3) -> str | None:
             f"error {err:.3g}, det {det:.3g})"
         )
     far = float(np.abs(a[:3, 3]).max())
-    if far > WORLD_MAX_METRES:
+    if max_metres is not None and far > max_metres:
         return (
-            f"is {far:.3g} m from the origin, beyond the {WORLD_MAX_METRES:g} m where float32 keeps millimetres; "
+            f"is {far:.3g} m from the origin, beyond the {max_metres:g} m where float32 keeps millimetres; "
             "translate the scene near the origin"
         )
     return None

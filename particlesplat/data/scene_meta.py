@@ -15,8 +15,8 @@ from torch import Tensor
 
 from particlesplat.core.errors import short_repr, warn_input
 from particlesplat.core.jsonfile import MAX_JSON_BYTES, read_json
-from particlesplat.core.limits import MIN_DISTANCE_METRES, WORLD_MAX_METRES
-from particlesplat.core.panda_arm import ARM_STATE_KEY, NARROW_WORLD_BASE, arm_points, pack_arm_state
+from particlesplat.core.limits import MIN_DISTANCE_METRES, WORLD_MAX_METRES, rigid_problem
+from particlesplat.core.panda_arm import ARM_STATE_KEY, GRIPPER_REACH, NARROW_WORLD_BASE, arm_points, pack_arm_state
 from particlesplat.core.viewpoints import Framing
 from particlesplat.data.families import DEFAULT_FAMILY, family_of, get_family
 from particlesplat.data.folders import TRANSFORMS
@@ -200,8 +200,9 @@ def scene_pose(
 def read_arm_state(folder: str | PathLike) -> list[float] | None:
     """What ``folder/scene.json`` says of the robot, packed (:func:`~particlesplat.core.panda_arm.pack_arm_state`):
     ``arm_joints_rad`` (required: None without it), ``robot_base`` (default robosuite's, or the narrow world's for
-    its scenes that predate the key) and ``gripper`` (default: the largest). SceneFormatError names the file and
-    the key of a bad value."""
+    its scenes that predate the key) and ``gripper`` (one of :data:`~particlesplat.core.panda_arm.GRIPPER_REACH`;
+    absent: the largest). SceneFormatError names the file and the key of a bad value (a gripper it does not know
+    is named, never taken for the largest in silence)."""
     joints = read_pose(folder, "arm_joints_rad", 7)
     if joints is None:
         return None
@@ -214,8 +215,11 @@ def read_arm_state(folder: str | PathLike) -> list[float] | None:
     gripper = None
     if found is not None:
         path, value = found
-        if not isinstance(value, str) or len(value) > 64:
-            raise SceneFormatError(f"{path}: key 'gripper' must be a gripper's name, got {short_repr(value)}")
+        if not isinstance(value, str) or value.lower() not in GRIPPER_REACH:
+            raise SceneFormatError(
+                f"{path}: key 'gripper' is {short_repr(value)}, not a gripper this program knows "
+                f"({', '.join(GRIPPER_REACH)})"
+            )
         gripper = value
     return pack_arm_state(joints, base, gripper)
 
@@ -223,7 +227,9 @@ def read_arm_state(folder: str | PathLike) -> list[float] | None:
 def read_robot_base(folder: str | PathLike) -> list[list[float]] | None:
     """The robot base's pose ``folder/scene.json`` records under ``robot_base`` (4 x 4, base to world, metres),
     or None when the folder has no scene.json or it lacks the key. SceneFormatError names the file and the key
-    of a value that is not 4 rows of 4 finite numbers."""
+    of a value that is not 4 rows of 4 finite numbers or not a rigid pose within the world
+    (:func:`particlesplat.core.limits.rigid_problem`: an orthonormal rotation with det +1, the last row 0 0 0 1, a
+    translation within 1e5 m)."""
     found = _scene_value(folder, "robot_base")
     if found is None:
         return None
@@ -234,6 +240,9 @@ def read_robot_base(folder: str | PathLike) -> list[list[float]] | None:
         and all(isinstance(row, list) and len(row) == 4 and all(_finite(v) for v in row) for row in value)
     ):
         raise SceneFormatError(f"{path}: key 'robot_base' must be 4 rows of 4 finite numbers, got {short_repr(value)}")
+    problem = rigid_problem(value)  # the check camera poses get: no scale, skew or mirror; within the world
+    if problem:
+        raise SceneFormatError(f"{path}: key 'robot_base' {problem}")
     return [[float(v) for v in row] for row in value]
 
 
