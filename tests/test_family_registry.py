@@ -229,3 +229,15 @@ def test_synth_writes_the_world_the_shipped_robot_model_was_trained_on(monkeypat
     assert main(["synth", "--family", "robot", str(out), "--train", "1", "--val", "0", "--test", "0"]) == 0
     assert main(["synth", "--family", "robot", str(out), "--world", "narrow", "--train", "1"]) == 0
     assert [c[3] for c in CALLS] == ["wide", "narrow"]
+
+
+def test_the_readme_states_each_family_s_camera_distances_as_scene_check_judges_them():
+    """The README's data section gives each generator's camera distances as the registry's ranges, which
+    ``scene check`` judges a capture against (a shipped wide robot scene: 1.15 m, within 0.8-1.25 m)."""
+    text = " ".join((ROOT / "README.md").read_text().split())
+    for name, phrase in (("tabletop", "21 cameras {}–{} m away"), ("robot", "21 cameras {}–{} m away (or 4")):
+        low, high = get_family(name).camera_distances
+        assert phrase.format(f"{low:g}", f"{high:g}") in text, (name, low, high)
+    robot_demo = next(p for p in demo_scenes() if p.parent == bundled_assets() / get_family("robot").demo_scenes)
+    distance = json.loads((robot_demo / "scene.json").read_text())["distance"]
+    assert get_family("robot").camera_distances[0] <= distance <= get_family("robot").camera_distances[1]
