@@ -6,6 +6,10 @@ rendering test modules use it for every test: ``pytestmark = pytest.mark.usefixt
 
 from __future__ import annotations
 
+import contextlib
+import io
+import os
+
 import pytest
 
 PATHS = ("auto", "fetch", "blend")
@@ -35,6 +39,18 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
         if bad or not paths:
             raise pytest.UsageError(f"--compositing: expected paths from {PATHS}, got {bad or paths}")
         metafunc.parametrize("compositing", paths, scope="module")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _measured_rasterizer(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """``rasterizer: auto`` measured once for the whole run (a few seconds), in a cache folder of the run's own that
+    every test and the commands they start read (``$XDG_CACHE_HOME`` is inherited): no test measures again or
+    prints the measurement's line, and the user's own cache is never touched."""
+    os.environ["XDG_CACHE_HOME"] = str(tmp_path_factory.mktemp("xdg_cache"))
+    from particlesplat.rendering.measured import measured_choice
+
+    with contextlib.redirect_stderr(io.StringIO()):
+        measured_choice(False)
 
 
 @pytest.fixture(autouse=True)

@@ -22,25 +22,14 @@ import torch
 
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.machine import cpu_model
 from particlesplat.rendering.api import render
 from particlesplat.rendering.choice import rasterizer_list
 from particlesplat.rendering.dense import render_dense
+from particlesplat.rendering.measured import timing_scene as bench_scene
 
 DENSE_MAX_PAIRS = 5e7  # pixels × Gaussians above which the dense fwd+bwd does not fit (~1 KB per pair)
 REFERENCE_MAX_PAIRS = 1e9  # the float64 brute force runs in pixel chunks; above this it takes minutes
-
-
-def bench_scene(n: int, size: int, seed: int = 0) -> tuple[Gaussians, Camera]:
-    """N random Gaussians (SH degree 1) filling a 2×2×1 m box seen from 3 m; a few px each at 128²."""
-    gen = torch.Generator().manual_seed(seed)
-    means = (torch.rand(n, 3, generator=gen) - 0.5) * torch.tensor([2.0, 2.0, 1.0])
-    quats = torch.randn(n, 4, generator=gen)
-    scales = torch.exp(torch.randn(n, 3, generator=gen) * 0.5) * 0.012
-    opacities = torch.rand(n, generator=gen) * 0.9 + 0.05
-    sh = torch.randn(n, 4, 3, generator=gen) * 0.3
-    owner = torch.randint(-1, 8, (n,), generator=gen)
-    cam = Camera.orbit((0.0, 0.0, 0.0), 20.0, 30.0, 3.0, width=size, height=size)
-    return Gaussians(means, quats, scales, opacities, sh, owner), cam
 
 
 def _time(fn, repeats: int) -> float:
@@ -112,17 +101,10 @@ def run_case(n: int, size: int, repeats: int, rasterizer: str = "auto") -> dict:
 
 
 def machine_line() -> str:
-    model = platform.processor() or "unknown CPU"
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    model = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
+    """The machine a benchmark ran on: cores, the CPU's model (:func:`particlesplat.core.machine.cpu_model`), torch,
+    threads and Python."""
     return (
-        f"machine: {os.cpu_count()} cores ({model}), torch {torch.__version__}, "
+        f"machine: {os.cpu_count()} cores ({cpu_model()}), torch {torch.__version__}, "
         f"{torch.get_num_threads()} threads, python {platform.python_version()}"
     )
 

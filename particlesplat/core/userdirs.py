@@ -1,6 +1,6 @@
-"""Where the app keeps what is the user's and not the project's (XDG base directories): autosaves in the state
-folder, settings in the config folder, screenshots, exports and edit files in the output folder. Nothing goes to
-the current directory unless the user names it.
+"""Where the app keeps what is the user's and not the project's (XDG base directories): autosaves in the state folder,
+settings in the config folder, screenshots, exports and edit files in the output folder, what was measured about the
+machine in the cache folder. Nothing goes to the current directory unless the user names it.
 
 Each folder is ``$XDG_*_HOME/particlesplat``, else the XDG default under the home folder; a relative or empty
 ``$XDG_*_HOME`` is ignored, as the specification says.
@@ -33,6 +33,12 @@ def output_dir() -> Path:
     """``$XDG_DATA_HOME/particlesplat`` (default ``~/.local/share/particlesplat``): the viewer's screenshots, ``.ply``
     exports and edit files when no ``--output-dir`` is given."""
     return _base("XDG_DATA_HOME", ".local/share") / APP
+
+
+def cache_dir() -> Path:
+    """``$XDG_CACHE_HOME/particlesplat`` (default ``~/.cache/particlesplat``): what the program measured about this
+    machine (the rasterizer it chose), safe to delete."""
+    return _base("XDG_CACHE_HOME", ".cache") / APP
 
 
 def autosave_dir() -> Path:

@@ -197,7 +197,8 @@ def render_batch(
     view = torch.cat([torch.full((len(gs),), v, dtype=torch.int64, device=device) for v, (gs, _) in enumerate(views)])
     cams = [camera.to(device=device, dtype=dtype) for _, camera in views]
     sizes = [(cam.width, cam.height) for cam in cams]
-    fused = resolve_rasterizer(rasterizer, device) == "fused"
+    grad = torch.is_grad_enabled() and any(t.requires_grad for t in (g.means, g.quats, g.scales, g.opacities, g.sh))
+    fused = resolve_rasterizer(rasterizer, device, grad) == "fused"
     project = project_views_fused if fused else project_views
     proj = project(g.means, quats_to_rotations(g.quats), g.scales, rows, view, cams, near, far)
     rows = rows.index_select(0, proj.index)
@@ -207,7 +208,6 @@ def render_batch(
     P = 0
     if owner_weights:
         P = int(num_owners) if num_owners is not None else (int(g.owner.max()) + 1 if len(g) else 0)
-    grad = torch.is_grad_enabled() and any(t.requires_grad for t in (g.means, g.quats, g.scales, g.opacities, g.sh))
     # inside a job's render_budget: refused here, before the pairs are built, when they would not fit
     check_pass(proj.means2d, radius, view, sizes, P + 1 if owner_weights else 0, grad)
     centres = torch.stack([cam.center for cam in cams])

@@ -1,9 +1,11 @@
 """Which rasterizer a render uses: the fused CPU kernels or their pure-torch twin.
 
-``auto`` (the default) takes the fused kernels for CPU tensors and the torch twin elsewhere (CUDA): the twin is the
-reference and the GPU path. The process default can be set once (the CLI's ``--rasterizer``), for a block of code
-(:func:`use_rasterizer`), or by the environment (``PARTICLESPLAT_RASTERIZER=torch|fused|auto``); a render's own
-``rasterizer=`` argument wins over all of them.
+``auto`` (the default) takes the torch twin off the CPU (CUDA: the twin is the reference and the GPU path) and, on
+the CPU, the one measured faster on this machine, for renders with gradients and without
+(:mod:`particlesplat.rendering.measured`: timed once, then cached per CPU, threads, torch and numba). The process
+default can be set once (the CLI's ``--rasterizer``), for a block of code (:func:`use_rasterizer`), or by the
+environment (``PARTICLESPLAT_RASTERIZER=torch|fused|auto``); a render's own ``rasterizer=`` argument wins over all of
+them.
 """
 
 from __future__ import annotations
@@ -23,8 +25,9 @@ RASTERIZERS = ("torch", "fused")
 CHOICES = ("auto", *RASTERIZERS)
 ENV = "PARTICLESPLAT_RASTERIZER"
 RASTERIZER_HELP = (
-    "fused (numba kernels) or torch (the pure-torch twin, the CUDA path); auto takes fused on the CPU and torch "
-    f"elsewhere (default: auto, or what {ENV} says)"
+    "fused (numba kernels) or torch (the pure-torch twin, the CUDA path); auto takes torch off the CPU and, on the "
+    "CPU, the one measured faster on this machine (timed once, a few seconds, then cached in the user's cache "
+    f"folder) (default: auto, or what {ENV} says)"
 )
 
 _default: str | None = None
@@ -72,13 +75,29 @@ def use_rasterizer(name: str | None) -> Iterator[None]:
         _default = before
 
 
-def resolve_rasterizer(name: str | None, device: torch.device) -> str:
-    """'fused' or 'torch' for a render on ``device``: ``name``, else the process default, else
-    ``$PARTICLESPLAT_RASTERIZER``, else auto. Asking for the fused kernels on a non-CPU device is a ValueError."""
+def resolve_rasterizer(name: str | None, device: torch.device, grad: bool = False) -> str:
+    """'fused' or 'torch' for a render on ``device`` (``grad``: one that carries gradients): ``name``, else the
+    process default, else ``$PARTICLESPLAT_RASTERIZER``, else auto (on the CPU:
+    :func:`particlesplat.rendering.measured.measured_choice`). Asking for the fused kernels on a non-CPU device is
+    a ValueError."""
     chosen = name or _default or _check(os.environ.get(ENV) or "auto", ENV)
     chosen = _check(chosen, "rasterizer")
     if chosen == "auto":
-        return "fused" if device.type == "cpu" else "torch"
+        if device.type != "cpu":
+            return "torch"
+        from particlesplat.rendering.measured import measured_choice
+
+        return measured_choice(grad)
     if chosen == "fused" and device.type != "cpu":
         raise ValueError(f"the fused rasterizer runs on the CPU, not on {device.type}; use --rasterizer torch")
+    return chosen
+
+
+def rasterizer_note(device: torch.device, grad: bool) -> str:
+    """What a command says of the rasterizer its renders on ``device`` use (``grad``: training's): the name, and
+    whether ``auto`` chose it by measurement."""
+    chosen = resolve_rasterizer(None, device, grad)
+    how = _default or os.environ.get(ENV) or "auto"
+    if how == "auto" and device.type == "cpu":
+        return f"{chosen} (auto: measured the faster {'for training' if grad else 'for renders'} on this CPU)"
     return chosen

@@ -632,6 +632,9 @@ class Trainer:
             if self.lock.owner is None and int(os.environ.get("RANK", "0")) == 0:
                 self.lock.acquire()  # a new folder: owned from its creation
             self._clean_temporaries()
+            from particlesplat.rendering.choice import rasterizer_note
+
+            print(f"rasterizer: {rasterizer_note(self.device, grad=True)}", file=sys.stderr)
         stop = {"signum": 0}
 
         def on_signal(signum, frame):  # finish the step, save, exit; a second signal stops at once
