@@ -97,8 +97,12 @@ def test_renders_follow_the_choice_of_their_kind(fresh_cache, monkeypatch):
     assert used == ["fused", "torch"]
 
 
-def test_time_rasterizers_times_both_kinds_of_both():
-    ms = measured.time_rasterizers(n=300, size=32, views=2, repeats=1)
+@pytest.mark.parametrize("mode", ["grad", "no_grad", "inference_mode"])
+def test_time_rasterizers_times_both_kinds_of_both(mode):
+    """Measured from wherever the first render happens: eval renders under no_grad, encoders under inference_mode."""
+    block = {"grad": torch.enable_grad, "no_grad": torch.no_grad, "inference_mode": torch.inference_mode}[mode]
+    with block():
+        ms = measured.time_rasterizers(n=300, size=32, views=2, repeats=1)
     assert set(ms) == set(measured.CANDIDATES)
     assert all(ms[r][k] > 0 for r in ms for k in ("forward", "training"))
 

@@ -101,9 +101,11 @@ def time_rasterizers(
     from particlesplat.core.gaussians import Gaussians
     from particlesplat.rendering.api import render_batch
 
-    g, _ = timing_scene(n, size)
+    with torch.inference_mode(False):
+        g, _ = timing_scene(n, size)
     cams = [Camera.orbit((0.0, 0.0, 0.0), 20.0 + 40.0 * i, 30.0, 3.0, width=size, height=size) for i in range(views)]
-    leaves = [t.detach().requires_grad_() for t in (g.means, g.quats, g.scales, g.opacities, g.sh)]
+    with torch.inference_mode(False), torch.enable_grad():
+        leaves = [t.detach().requires_grad_() for t in (g.means, g.quats, g.scales, g.opacities, g.sh)]
     trained = Gaussians(*leaves, g.owner)
 
     def forward(name: str) -> None:
@@ -115,15 +117,17 @@ def time_rasterizers(
         sum(r.rgb.sum() + r.alpha.sum() + r.depth.sum() + r.foreground.sum() for r in out).backward()  # type: ignore[union-attr]
 
     times: dict[str, dict[str, list[float]]] = {r: {"forward": [], "training": []} for r in CANDIDATES}
-    for name in CANDIDATES:  # warm-up: numba loads its cached kernels, torch its lazy state
-        forward(name)
-        training(name)
-    for i in range(repeats):
-        for name in CANDIDATES if i % 2 == 0 else CANDIDATES[::-1]:
-            for kind, fn in (("forward", forward), ("training", training)):
-                t0 = time.perf_counter()
-                fn(name)
-                times[name][kind].append(1000.0 * (time.perf_counter() - t0))
+    # the first render of a no_grad or inference_mode block (eval) measures too: gradients on for the measurement
+    with torch.inference_mode(False), torch.enable_grad():
+        for name in CANDIDATES:  # warm-up: numba loads its cached kernels, torch its lazy state
+            forward(name)
+            training(name)
+        for i in range(repeats):
+            for name in CANDIDATES if i % 2 == 0 else CANDIDATES[::-1]:
+                for kind, fn in (("forward", forward), ("training", training)):
+                    t0 = time.perf_counter()
+                    fn(name)
+                    times[name][kind].append(1000.0 * (time.perf_counter() - t0))
     return {r: {k: statistics.median(v) for k, v in d.items()} for r, d in times.items()}
 
 
