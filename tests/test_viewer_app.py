@@ -813,3 +813,35 @@ def test_panel_width_follows_a_drag_of_its_edge_and_is_remembered(app):
         app.fields.panel_width = app.settings.panel_width = w0
         glfw.set_cursor_pos(app.window, *start)
         app.run(2)
+
+
+def test_a_drag_inside_the_panel_does_not_move_it(app):
+    """A left drag that starts on the panel's empty space (not on a widget, not on its edge) leaves the panel where
+    it is docked, and does not turn the view."""
+    import glfw
+
+    app.state.panel = True
+    glfw.set_window_size(app.window, 900, 400)
+    app.run(3)
+    panel = imgui.internal.find_window_by_name("ParticleSplat")
+    pos = (panel.pos.x, panel.pos.y)
+    view = app.orbit.view
+    io = imgui.get_io()
+    start = glfw.get_cursor_pos(app.window)
+    x, y = int(round(panel.pos.x + 0.5 * panel.size.x)), int(round(panel.pos.y + panel.size.y - 30.0))
+    _point_at(app, x, y)  # near its bottom, away from its edges: no widget there
+    try:
+        io.add_mouse_button_event(0, True)
+        app.run(1)
+        for step in range(1, 9):
+            io.add_mouse_pos_event(x - 20.0 * step, y - 10.0 * step)
+            app.run(1)
+        io.add_mouse_button_event(0, False)
+        app.run(2)
+        panel = imgui.internal.find_window_by_name("ParticleSplat")
+        assert (panel.pos.x, panel.pos.y) == pos and app.orbit.view == view
+    finally:
+        io.add_mouse_button_event(0, False)
+        glfw.set_window_size(app.window, 160, 120)
+        glfw.set_cursor_pos(app.window, *start)
+        app.run(2)

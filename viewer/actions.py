@@ -32,6 +32,7 @@ class Requests(Protocol):
     export_ply: bool
     export_object: bool
     snap_camera: int | None
+    step_camera: int
 
 
 class ActionContext(Protocol):
@@ -64,7 +65,14 @@ class Chord:
 
     def label(self) -> str:
         names = {"delete": "Del", "escape": "Esc", "equal": "=", "minus": "-", "keypad_add": "Keypad +"}
-        name = {**names, "keypad_subtract": "Keypad -"}.get(self.key, self.key.lstrip("_").upper())
+        names |= {
+            "keypad_subtract": "Keypad -",
+            "page_up": "PageUp",
+            "page_down": "PageDown",
+            "comma": ",",
+            "period": ".",
+        }
+        name = names.get(self.key, self.key.lstrip("_").upper())
         return "Ctrl+" * self.ctrl + "Shift+" * self.shift + name
 
 
@@ -171,13 +179,17 @@ def _selected(ctx: ActionContext) -> bool:
 
 
 def _undo(ctx: ActionContext) -> None:
+    """Undo the last edit and name it on the status line ("undid: scale object of particles 3, 7 x1.1")."""
     if ctx.session.editor is not None:
-        ctx.session.editor.undo()
+        op = ctx.session.editor.undo()
+        ctx.status(f"undid: {op.label}" if op is not None else "nothing to undo")
 
 
 def _redo(ctx: ActionContext) -> None:
+    """Redo the last undone edit and name it on the status line."""
     if ctx.session.editor is not None:
-        ctx.session.editor.redo()
+        op = ctx.session.editor.redo()
+        ctx.status(f"redid: {op.label}" if op is not None else "nothing to redo")
 
 
 def _on_selection(do: Callable[[SceneEditor, int | None], tuple[int | None, str]]) -> Callable[[ActionContext], None]:
@@ -218,6 +230,15 @@ def _snap(i: int) -> Callable[[ActionContext], None]:
     return lambda ctx: setattr(ctx.requests, "snap_camera", i)
 
 
+def _step(by: int) -> Callable[[ActionContext], None]:
+    """Ask for the input camera ``by`` after the current one (or the last one snapped to), wrapping around."""
+    return lambda ctx: setattr(ctx.requests, "step_camera", by)
+
+
+def _has_cameras(ctx: ActionContext) -> bool:
+    return bool(ctx.session.cameras)
+
+
 def _toggle(name: str) -> Callable[[ActionContext], None]:
     return lambda ctx: setattr(ctx.state, name, not getattr(ctx.state, name))
 
@@ -230,6 +251,7 @@ def _ruler(ctx: ActionContext) -> None:
 
 def _next_mode(ctx: ActionContext) -> None:
     ctx.state.seg_mode = SEG_MODES[(SEG_MODES.index(ctx.state.seg_mode) + 1) % len(SEG_MODES)]
+    ctx.status(ctx.state.mode_note() or f"mode: {ctx.state.seg_mode.value}")
 
 
 def _deselect(ctx: ActionContext) -> None:
@@ -317,6 +339,22 @@ ACTIONS: tuple[Action, ...] = (
     Action("panel", "Panel", "hide / show the panel", (Chord("h"),), _toggle("panel")),
     Action("overlay", "Overlay", "hide / show the overlay", (Chord("o"),), _toggle("overlay")),
     Action("deselect", "Deselect", "deselect", (Chord("escape"),), _deselect),
+    Action(
+        "next_camera",
+        "Next camera",
+        "snap to the next input camera (every camera of the scene, past 9 too)",
+        (Chord("page_down"), Chord("period")),
+        _step(1),
+        _has_cameras,
+    ),
+    Action(
+        "previous_camera",
+        "Previous camera",
+        "snap to the previous input camera",
+        (Chord("page_up"), Chord("comma")),
+        _step(-1),
+        _has_cameras,
+    ),
     *(
         Action(
             f"snap_{i}",

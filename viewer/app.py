@@ -159,6 +159,7 @@ class App:
         self.chords = ChordQueue()  # Ctrl chords with the modifiers of their key events
         self._frame_chords: list[tuple[str, bool]] = []
         self._shown_status = ""  # the status line last mirrored on the terminal
+        self._mode_note: str | None = None  # what note_mode last said
         self.controls = ViewportControls()
         self.gizmo = ObjectGizmo()  # world-space handles and outline of the selected object
         self.particle_overlay = ParticleOverlay()  # keypoints / boxes segmentation modes
@@ -234,8 +235,10 @@ class App:
                     self.fields,
                     self.swatches,
                     (drawn, self.scene_view.renderer.num),
+                    self.orbit.current_camera,
                 )
                 self.remember_panel_width()
+            self.note_mode()
             if self.state.overlay:
                 draw_overlay(self.overlay_lines())
             draw_status_line(self.fields, self.fields.panel_width if self.state.panel else 0.0)
@@ -259,6 +262,14 @@ class App:
         queued = len(imgui.get_current_context().input_events_queue) > 0
         self.redraw.drawn(changed or queued, self.next_wake(scale))
         return changed
+
+    def note_mode(self) -> None:
+        """Say on the status line what the mode shows when it changes to something to say (a mask with nothing
+        selected: :meth:`ViewState.mode_note`), once, not every frame."""
+        note = self.state.mode_note()
+        if note is not None and note != self._mode_note:
+            self.fields.status = note
+        self._mode_note = note
 
     def mirror_status(self) -> None:
         """Print a new status line on the terminal too (saved, exported, errors), where a user who looks away from

@@ -42,8 +42,18 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
     try:
         if req.reset_view:
             host.orbit.reset()
-        if req.snap_camera is not None and req.snap_camera < len(host.session.cameras):
-            host.orbit.snap(host.session.cameras[req.snap_camera])
+        cams = host.session.cameras
+        if req.snap_camera is not None:
+            if 0 <= req.snap_camera < len(cams):
+                host.orbit.snap(cams[req.snap_camera], req.snap_camera)
+                fields.status = f"input camera {req.snap_camera} of {len(cams)} (0 .. {len(cams) - 1})"
+            else:
+                fields.status = f"error: no input camera {req.snap_camera}: this scene has " + (
+                    f"{len(cams)}, numbered 0 .. {len(cams) - 1}" if cams else "none (a Gaussian file)"
+                )
+        if req.step_camera and cams:
+            index = host.orbit.step_camera(cams, req.step_camera)
+            fields.status = f"input camera {index} of {len(cams)} (0 .. {len(cams) - 1})"
         if req.open_path:
             host.open(req.open_path)
         editable = host.session if isinstance(host.session, EditableScene) else None

@@ -20,6 +20,8 @@ from .tools.object_tools import FloorDrag
 from .tools.ruler import ruler_click
 
 if TYPE_CHECKING:
+    from torch import Tensor
+
     from particlesplat.core.camera import Camera
     from particlesplat.editing.editor import SceneEditor
 
@@ -72,6 +74,31 @@ def inside_hull(hull, x: float, y: float) -> bool:
         if (bx - ax) * (y - ay) - (by - ay) * (x - ax) < 0:
             return False
     return True
+
+
+ROBOT_CLICK = "that is the robot arm: part of the scene, not an object (it cannot be selected, moved or removed)"
+
+
+def click_selection(session: Scene, owner: int, surface: Callable[[], Tensor | None]) -> tuple[int | None, str]:
+    """What a click selects: the particle ``owner`` under it (-1: none) when it is in an object of an editable
+    scene, else nothing. Returns (the selection, a status message: on the robot arm, that the arm is no object;
+    else ""). ``surface``: the world point (3,) under the click, or None (asked only where nothing is selected)."""
+    editor = session.editor
+    if editor is None:
+        return None, ""
+    if owner >= 0 and int(session.objects()[owner]) >= 0:
+        return owner, ""
+    point = surface()
+    return None, ROBOT_CLICK if point is not None and editor.on_robot(point) else ""
+
+
+def _surface_at(vp: Viewport, x: float, y: float) -> Tensor | None:
+    """The surface point under framebuffer pixel (x, y) of the viewing camera
+    (:func:`viewer.tools.ruler.surface_point`)."""
+    from .tools.ruler import surface_point
+
+    g = vp.session.gaussians()
+    return surface_point(g.subset(g.opacities >= vp.state.prune), vp.camera(), x, y)
 
 
 class ViewportControls:
@@ -183,7 +210,10 @@ class ViewportControls:
             vp.status(ruler_click(vp.state, g.subset(g.opacities >= vp.state.prune), vp.camera(), x, y))
             return
         owner = vp.pick(int(x), int(y))
-        vp.state.selected = owner if owner >= 0 and vp.session.editor is not None else None
+        selected, message = click_selection(vp.session, owner, lambda: _surface_at(vp, x, y))
+        vp.state.selected = selected
+        if message:
+            vp.status(message)
 
     @staticmethod
     def _keys(vp: Viewport, io) -> None:

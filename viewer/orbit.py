@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import torch
 
@@ -16,10 +16,17 @@ ZOOM_RANGE = (0.02, 50.0)  # the nearest and farthest zoom, as factors of the ho
 
 @dataclass
 class OrbitCamera:
-    """The viewer's camera state; ``view`` is immutable, every change replaces it."""
+    """The viewer's camera state; ``view`` is immutable, every change replaces it.
+
+    Attributes:
+        view: the current view; home: the view :meth:`reset` returns to.
+        snapped: (input camera index, the view snapping to it gave) of the last :meth:`snap` that named its camera,
+            or None: :attr:`current_camera` is that camera while the view is still the one it gave.
+    """
 
     view: View
     home: View
+    snapped: tuple[int, View] | None = field(default=None, compare=False)
 
     @staticmethod
     def from_view(view: View) -> OrbitCamera:
@@ -62,11 +69,33 @@ class OrbitCamera:
     def reset(self) -> None:
         self.view = self.home
 
-    def snap(self, camera: Camera) -> None:
+    def snap(self, camera: Camera, index: int | None = None) -> None:
         """Look from ``camera``'s centre along its axis (target moved onto the axis, at the point
-        closest to the current target) with its vertical field of view."""
+        closest to the current target) with its vertical field of view; ``index``: which input camera it is (the
+        panel marks it while the view stays there: :attr:`current_camera`)."""
         c2w = camera.c2w.detach().double().cpu()
         eye, axis = c2w[:3, 3], c2w[:3, 2] / c2w[:3, 2].norm()
         t = float(torch.dot(torch.tensor(self.home.target, dtype=torch.float64) - eye, axis))
         target = eye + max(t, 0.1) * axis
         self.view = View(float3(target), look_from_eye(target, eye), camera.fov_y)
+        if index is not None:
+            self.snapped = (index, self.view)
+
+    @property
+    def current_camera(self) -> int | None:
+        """The input camera the view is at: the last one snapped to, until the view moves (orbit, pan, zoom,
+        reset); None when it is at none."""
+        if self.snapped is None or self.snapped[1] != self.view:
+            return None
+        return self.snapped[0]
+
+    def step_camera(self, cameras: list[Camera], by: int) -> int | None:
+        """Snap to the input camera ``by`` places after the current one (the last one snapped to when the view
+        has moved since; before camera 0 when there was none), wrapping around ``cameras``; returns its index (None
+        without cameras)."""
+        if not cameras:
+            return None
+        last = self.snapped[0] if self.snapped is not None else (-1 if by > 0 else 0)
+        index = (last + by) % len(cameras)
+        self.snap(cameras[index], index)
+        return index

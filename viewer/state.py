@@ -27,6 +27,7 @@ class SegMode(StrEnum):
 
 
 SEG_MODES: tuple[SegMode, ...] = tuple(SegMode)  # in the panel's and the M key's order
+EMPTY_MASK = "mask of selected: nothing is selected, so nothing is masked (click an object)"
 
 
 @dataclass
@@ -87,6 +88,11 @@ class ViewState:
         if self.seg_mode is not SegMode.BACKGROUND_HIDDEN:
             owners.append(-1)
         return owners
+
+    def mode_note(self) -> str | None:
+        """What the status line should say of the mode as it is: :data:`EMPTY_MASK` in "mask of selected" with
+        nothing selected (the image is the normal one), else None."""
+        return EMPTY_MASK if self.seg_mode is SegMode.MASK_SELECTED and self.selected is None else None
 
     def color_mode(self) -> int:
         """Colour mode of the splat pass: 1 = a colour per particle, 2 = a colour per object."""

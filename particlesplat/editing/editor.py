@@ -23,10 +23,12 @@ from os import PathLike
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import torch
 from torch import Tensor
 
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.panda_arm import capsule_distance
 from particlesplat.core.world import SUPPORT_Z
 from particlesplat.editing.decoded import DecodedParticles
 from particlesplat.editing.edit_fields import Insert, Pick, PickError
@@ -40,7 +42,7 @@ from particlesplat.editing.edit_file import (
     scene_mismatch,
 )
 from particlesplat.editing.edited import MAX_EDIT_PARTICLES, EditedParticles, SetAttribute
-from particlesplat.editing.grouping import members_centre
+from particlesplat.editing.grouping import arm_state, members_centre
 from particlesplat.editing.history import Gesture, History
 from particlesplat.editing.operations import (
     Duplicate,
@@ -56,10 +58,14 @@ from particlesplat.editing.operations import (
 )
 from particlesplat.editing.particle_edits import Edits, EditsError, apply_edits, check_indices, diff_edits
 from particlesplat.editing.picking import Picker
+from particlesplat.model.evidence import arm_capsules_of
 from particlesplat.model.particles import EDITABLE, Particles
 
 if TYPE_CHECKING:
     from particlesplat.model.particlesplat import ParticleSplat
+
+ROBOT_MARGIN = 0.03  # metres: a point this near the room the robot's arm takes is on the robot (its surface lies
+# within a few centimetres of its capsules)
 
 __all__ = [  # the names edit-file users import from here
     "MAX_EDIT_PARTICLES", "EditFile", "EditsError", "Insert", "Pick", "PickError", "SceneEditor",
@@ -172,6 +178,26 @@ class SceneEditor:
         objects), or None if it draws nothing."""
         scene = self.scene
         return members_centre(scene.model, scene.particles, self.object_members(index), self.support_height())
+
+    def object_scale(self, index: int) -> float:
+        """How many times its encoded size particle ``index``'s object is now (what scaling it multiplied): the
+        geometric mean over its particles of their depth extent in metres now over as encoded (``z_e``, which a
+        scale multiplies and a move keeps); 1 for an object as encoded."""
+        members = self.object_members(index)
+        now = torch.sigmoid(self.scene.particles.z_e[members, 0].double())
+        origin = self.scene.origin()
+        was = torch.sigmoid(origin.z_e[[self.scene.source[i] for i in members], 0].double())
+        return float(torch.exp(torch.log(now / was).mean()))
+
+    def on_robot(self, point: Tensor, margin: float = ROBOT_MARGIN) -> bool:
+        """Whether world ``point`` (3,) metres lies on the scene's robot: within ``margin`` metres of the room its
+        arm takes (:func:`particlesplat.core.panda_arm.capsule_distance`) in the robot state the particles were
+        encoded with. False for a scene without a robot, or a model that reads none."""
+        arm = arm_state(self.model, self.original)
+        if arm is None:
+            return False
+        starts, ends, radii = (t.double() for t in arm_capsules_of(arm.detach().cpu()))
+        return float(capsule_distance(point.double().reshape(1, 3), starts, ends, radii)[0]) < margin
 
     def object_bottom(self, index: int) -> float | None:
         """World height (metres) of the lowest part of particle ``index``'s object as drawn now
@@ -315,23 +341,23 @@ class SceneEditor:
         if changes:
             self._commit(SetAttributes(label=label, changes=changes))
 
-    def undo(self) -> bool:
-        """Undo the last operation; False if there is none."""
+    def undo(self) -> Operation | None:
+        """Undo the last operation: returns it (its ``label`` says what it was), or None if there is none."""
         self.end_gesture()
         op = self.history.back()
         if op is None:
-            return False
+            return None
         op.undo(self.scene)
-        return True
+        return op
 
-    def redo(self) -> bool:
-        """Redo the last undone operation; False if there is none."""
+    def redo(self) -> Operation | None:
+        """Redo the last undone operation: returns it, or None if there is none."""
         self.end_gesture()
         op = self.history.forward()
         if op is None:
-            return False
+            return None
         op.do(self.scene)
-        return True
+        return op
 
     # ------------------------------------------------------------------ edit files
     def apply_op(self, op: Operation, where: str = "operation") -> None:

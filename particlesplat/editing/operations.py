@@ -426,6 +426,7 @@ class Scale(ObjectOperation):
         super().extend(later)
         if isinstance(later, Scale):
             self.factor *= later.factor
+            self.label = f"scale object of {members_label(self.members)} x{self.factor:.3g}"
 
 
 @dataclass(eq=False, kw_only=True)

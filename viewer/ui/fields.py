@@ -21,6 +21,7 @@ class UiRequests:
     save_edits: bool = False
     load_edits: bool = False
     snap_camera: int | None = None
+    step_camera: int = 0  # snap to the input camera this many after the current one (next / previous camera)
     reset_view: bool = False
     insert: bool = False  # an object of another scene (UiFields.insert)
 

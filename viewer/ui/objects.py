@@ -35,11 +35,10 @@ def segmentation_colour(key: int) -> tuple[float, float, float]:
 
 @dataclass
 class ObjectFields:
-    """Persistent inputs of the object section: the copy's offset (metres), the scale field's value during a drag
-    (1 between drags), the last measure (its key: editor, version, particle)."""
+    """Persistent inputs of the object section: the copy's offset (metres) and the last measure (its key: editor,
+    version, particle). The scale field shows the object's scale as it is (:meth:`SceneEditor.object_scale`)."""
 
     copy_offset: list[float] = field(default_factory=lambda: [0.3, 0.0, 0.0])
-    scale: float = 1.0
     measured: tuple[tuple, list[float], list[float]] | None = None
 
 
@@ -107,16 +106,15 @@ def draw_object_section(editor: SceneEditor, selected: int, ctx: ActionContext, 
     if imgui.is_item_deactivated():
         editor.end_gesture()
     hint("world X / Y on the floor, Z up; double-click a box to type metres")
-    changed, value = imgui.drag_float("scale (x)", fields.scale, 0.005, 0.1, 10.0, "%.3f")
-    if changed and value > 0.0 and fields.scale > 0.0:
+    current = editor.object_scale(selected)  # follows every scale: keys, gizmo, this field, undo
+    changed, value = imgui.drag_float("scale (x)", current, 0.005, 0.1, 10.0, "%.3f")
+    if changed and value > 0.0 and abs(value / current - 1.0) > 1e-6:
         try:
-            editor.scale_object(selected, value / fields.scale, gesture="panel-scale")
-            fields.scale = value
+            editor.scale_object(selected, value / current, gesture="panel-scale")
         except MoveError as e:
             ctx.status(f"error: {e}")
     if imgui.is_item_deactivated():
         editor.end_gesture()
-        fields.scale = 1.0
     for i, name in enumerate(("grow", "shrink", "merge", "split")):
         if i % 2:
             imgui.same_line()

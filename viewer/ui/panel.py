@@ -53,10 +53,13 @@ def draw_panel(
     fields: UiFields,
     swatches: dict[int, tuple[float, float, float]],
     counts: tuple[int, int],
+    camera: int | None = None,
 ) -> None:
     """The side panel, docked at the right edge above the status line; its width is the user's (drag its left
     edge: ``fields.panel_width``, remembered by the app). Messages go to the status line, so the panel's layout
-    never shifts under the mouse. ``swatches``: particle colours; ``counts``: (drawn, total) Gaussians."""
+    never shifts under the mouse (nor does a drag inside it move it). ``swatches``: particle colours; ``counts``:
+    (drawn, total) Gaussians; ``camera``: the input camera the view is at (marked among the camera buttons), or
+    None."""
     vp = imgui.get_main_viewport()
     size = (float(vp.work_size.x), float(vp.work_size.y))
     cond = imgui.Cond_.always if size != fields.layout_size else imgui.Cond_.first_use_ever
@@ -68,13 +71,13 @@ def draw_panel(
     imgui.set_next_window_size(imgui.ImVec2(width, vp.work_size.y - 16.0 - status_line_height()), cond)
     if cond == imgui.Cond_.always or fields.panel_placed == 0.0:
         fields.panel_placed = width
-    imgui.begin("ParticleSplat")
+    imgui.begin("ParticleSplat", None, imgui.WindowFlags_.no_move)  # docked: a drag inside it moves nothing
     if abs(imgui.get_window_width() - fields.panel_placed) > 0.5:  # the user dragged its edge
         fields.panel_placed = imgui.get_window_width()
         fields.panel_width = clamp_width(fields.panel_placed)
     imgui.push_item_width(-min(150.0, 0.45 * imgui.get_window_width()))
     draw_scene_section(session, req, fields)
-    draw_view_section(session, state, req, counts)
+    draw_view_section(session, state, req, counts, camera)
 
     def status(message: str) -> None:
         fields.status = message

@@ -18,7 +18,19 @@ if TYPE_CHECKING:
     from .fields import UiRequests
 
 
-def draw_view_section(session: Scene, state: ViewState, req: UiRequests, counts: tuple[int, int]) -> None:
+CURRENT_CAMERA = (0.85, 0.55, 0.1, 1.0)  # the button of the input camera the view is at
+CONTEXT_CAMERA = (0.2, 0.5, 0.3, 1.0)  # the buttons of the context frames
+
+
+def camera_button_label(i: int, current: int | None) -> str:
+    """The snap button of input camera ``i``: its number, bracketed when the view is at it (``current``)."""
+    return f"[{i}]##cam{i}" if i == current else f"{i:2d}##cam{i}"
+
+
+def draw_view_section(
+    session: Scene, state: ViewState, req: UiRequests, counts: tuple[int, int], current: int | None = None
+) -> None:
+    """The View section; ``current``: the input camera the view is at (its button is marked), or None."""
     if not imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
         return
     if imgui.button(BY_NAME["reset_view"].button_label()):
@@ -32,13 +44,20 @@ def draw_view_section(session: Scene, state: ViewState, req: UiRequests, counts:
         for i in range(len(cams)):
             if i % 7:
                 imgui.same_line()
-            in_context = i in (session.context or [])
-            if in_context:
-                imgui.push_style_color(imgui.Col_.button, imgui.ImVec4(0.2, 0.5, 0.3, 1.0))
-            if imgui.small_button(f"{i:2d}##cam{i}"):
+            colour = CURRENT_CAMERA if i == current else CONTEXT_CAMERA if i in (session.context or []) else None
+            if colour is not None:
+                imgui.push_style_color(imgui.Col_.button, imgui.ImVec4(*colour))
+            if imgui.small_button(camera_button_label(i, current)):
                 req.snap_camera = i
-            if in_context:
+            if colour is not None:
                 imgui.pop_style_color()
+        imgui.text("at input camera " + (f"{current} of {len(cams)}" if current is not None else "- (a free view)"))
+        shown = current if current is not None else 0
+        typed, number = imgui.input_int("camera", shown, 1, 5, imgui.InputTextFlags_.enter_returns_true)
+        if typed:
+            req.snap_camera = max(0, min(len(cams) - 1, int(number)))
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("type a camera number and press Enter; PageUp / PageDown (or , and .) step through them")
     changed, idx = imgui.combo("segmentation", SEG_MODES.index(state.seg_mode), [m.value for m in SEG_MODES])
     if changed:
         state.seg_mode = SEG_MODES[idx]
