@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from particlesplat.core.errors import short_repr
+from particlesplat.core.limits import FLOAT32_MAX_ABS, FLOAT32_MIN_POSITIVE, float32_problem
 from particlesplat.editing.particle_edits import EditsError, finite_float32
 
 DECIMALS = 6  # offsets and places are written rounded to micrometres
@@ -35,6 +36,20 @@ def read_numbers(value: Any, n: int, where: str) -> tuple[float, ...]:
             f"{where}: expected {n} finite number(s) (float32: |value| <= 3.4e38), got {short_repr(value)}"
         )
     return tuple(float(v) for v in seq)
+
+
+def read_positive(value: Any, where: str) -> float:
+    """A positive number usable in float32 arithmetic: in [1e-18, 1e18], the bounds every positive number read from
+    a file is held to (:func:`particlesplat.core.limits.float32_problem`); 1e-30 is refused, not turned into a
+    Gaussian that vanishes in float32."""
+    (x,) = read_numbers(value, 1, where)
+    problem = float32_problem(x, positive=True)
+    if problem:
+        raise EditsError(
+            f"{where}: expected a positive number in [{FLOAT32_MIN_POSITIVE:g}, {FLOAT32_MAX_ABS:g}], "
+            f"got {short_repr(value)} ({problem})"
+        )
+    return x
 
 
 def read_index(value: Any, where: str) -> int:

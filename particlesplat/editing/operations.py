@@ -36,6 +36,7 @@ from particlesplat.editing.edit_fields import (
     read_insert,
     read_numbers,
     read_pick,
+    read_positive,
     rounded,
 )
 from particlesplat.editing.edited import EditedParticles, Rows, SetAttribute, check_room
@@ -393,10 +394,7 @@ class Scale(ObjectOperation):
 
     @classmethod
     def read_value(cls, value: Any, pick: Pick, where: str) -> ObjectOperation:
-        (factor,) = read_numbers(value, 1, where)
-        if not factor > 0.0:
-            raise EditsError(f"{where}: expected a factor in (0, inf), got {short_repr(value)}")
-        return cls(pick=pick, factor=factor)
+        return cls(pick=pick, factor=read_positive(value, where))
 
     def value_yaml(self) -> Any:
         return round(float(self.factor), DECIMALS)
