@@ -4,7 +4,6 @@ split, equal to evaluating each split folder on its own; the splits chosen or re
 from __future__ import annotations
 
 import json
-import re
 import shutil
 import subprocess
 import sys
@@ -65,6 +64,11 @@ def test_a_dataset_folder_gets_a_row_and_an_entry_per_split_equal_to_each_split_
     printed = capsys.readouterr().out.splitlines()
     # test and heldout by default (val is there too, but not read), in that order; the record of the options
     assert list(res["splits"]) == ["test", "heldout"]
+    said = (
+        f"{two_splits}: not evaluated: val (val: the scenes its checkpoint is chosen on); --splits val,test,heldout "
+        "evaluates every split"
+    )
+    assert said in printed  # what it leaves out, why, and how to read it
     assert (res["data"], res["context"], res["depth"]) == (str(two_splits), 2, True)
     alone = {s: _eval(tiny_ckpt, two_splits / s, tmp_path / f"{s}.json") for s in ("test", "heldout")}
     capsys.readouterr()
@@ -108,6 +112,17 @@ def test_splits_chooses_which_and_in_what_order(tiny_ckpt, two_splits, tmp_path,
     assert dataset_splits(tmp_path / "absent") == ()
 
 
+def test_splits_reads_the_training_and_validation_splits_too(tiny_ckpt, tmp_path_factory, tmp_path, capsys):
+    """``--splits train,val``: a row each, as each split folder alone; no line about left-out splits."""
+    data = tiny_dataset(tmp_path_factory)
+    res = _eval(tiny_ckpt, data, tmp_path / "tv.json", "--splits", "train,val")
+    printed = capsys.readouterr().out
+    assert list(res["splits"]) == ["train", "val"] and "not evaluated" not in printed
+    assert len(res["splits"]["train"]["scenes"]) == 2
+    alone = _eval(tiny_ckpt, data / "train", tmp_path / "t.json")
+    assert _untimed(res["splits"]["train"]) == _untimed(alone)
+
+
 def _refusal(argv, capsys) -> str:
     """The one line (exit 2) a refused command prints; nothing on stdout."""
     assert run_command("particlesplat eval", lambda: main(["eval", *argv])) == EXIT_USER
@@ -120,16 +135,13 @@ def test_refusals_name_the_folder_and_its_splits(tiny_ckpt, two_splits, tmp_path
     only_train_val = tiny_dataset(tmp_path_factory)
     err = _refusal(["--data", str(only_train_val)], capsys)
     assert str(only_train_val) in err and "without test or heldout" in err and "its splits: train, val" in err
-    assert err.rstrip().endswith("choose with --splits val")
-    hint = re.escape(f"its splits: train); name one, e.g. --data {tmp_path / 'train'}")
-    with pytest.raises(FileNotFoundError, match=hint + "$"):
-        choose_splits(tmp_path, ("train",), None, "--splits")
+    assert err.rstrip().endswith("choose with --splits train,val")
     err = _refusal(["--data", str(only_train_val), "--splits", "val,heldout"], capsys)
     assert str(only_train_val) in err and "no heldout split" in err and "its splits: train, val" in err
     err = _refusal(["--data", str(two_splits / "test"), "--splits", "test"], capsys)
     assert "--splits" in err and "is a split folder" in err
-    for bad in ("train", "test,typo", ","):
-        with pytest.raises(OptionError, match="--splits must name some of val,test,heldout"):
+    for bad in ("typo", "test,typo", ","):
+        with pytest.raises(OptionError, match="--splits must name some of train,val,test,heldout"):
             main(["eval", "--data", str(two_splits), "--splits", bad])
     # the output guard: the dataset itself, and a split's figure folder that is the dataset
     err = _refusal(["--data", str(two_splits), "--figures", str(two_splits)], capsys)
@@ -156,7 +168,7 @@ def test_a_refused_split_is_answered_before_torch_loads(two_splits):
     )
     proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert proc.stdout.splitlines() == ["--splits must name some of val,test,heldout, got 'test,heldot'", "False"]
+    assert proc.stdout.splitlines() == ["--splits must name some of train,val,test,heldout, got 'test,heldot'", "False"]
 
 
 def test_the_shipped_model_eval_chose_is_an_input_its_outputs_may_not_replace(

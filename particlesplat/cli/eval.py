@@ -25,6 +25,7 @@ from particlesplat.data.folders import (
     check_split_folder,
     choose_splits,
     dataset_splits,
+    skipped_splits_note,
 )
 from particlesplat.rendering.choice import add_rasterizer_option, apply_rasterizer_option
 
@@ -47,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--splits",
         default=None,
         help=f"with a dataset folder: the comma-separated splits to evaluate, of {','.join(EVAL_SPLITS)} (default: "
-        f"those of {','.join(DEFAULT_EVAL_SPLITS)} it has)",
+        f"those of {','.join(DEFAULT_EVAL_SPLITS)} it has; a line names the others and why they are left out)",
     )
     parser.add_argument("--context", type=int, choices=(1, 2), default=2, help="number of context views")
     parser.add_argument(
@@ -191,6 +192,9 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"{args.data}: {args.context} context view(s), protocol {args.protocol}, the mean over each split's scenes"
         )
+        note = None if args.splits else skipped_splits_note(args.data, dataset_splits(args.data), splits)
+        if note:
+            print(note)
         for line in split_table(outs, fit):
             print(line)
         for split, res in outs.items():

@@ -8,8 +8,10 @@ from pathlib import Path
 
 TRANSFORMS = "transforms.json"  # the file that makes a folder a scene folder (docs/dataset.md)
 SPLITS = ("train", "val", "test", "heldout")  # heldout: the wide robot world's split outside the training ranges
-EVAL_SPLITS = ("val", "test", "heldout")  # what eval --splits may name of a dataset folder
+EVAL_SPLITS = SPLITS  # what eval --splits may name of a dataset folder
 DEFAULT_EVAL_SPLITS = ("test", "heldout")  # what eval reads of a dataset folder without --splits
+# why eval leaves the other splits out unless --splits names them (it says so)
+SKIPPED_SPLIT_REASONS = {"train": "the scenes a model is trained on", "val": "the scenes its checkpoint is chosen on"}
 
 
 def is_scene_folder(path: Path) -> bool:
@@ -68,14 +70,9 @@ def choose_splits(path: str | PathLike, have: tuple[str, ...], requested: str | 
     if requested is None:
         chosen = [s for s in DEFAULT_EVAL_SPLITS if s in have]
         if not chosen:
-            others = [s for s in EVAL_SPLITS if s in have]
-            hint = (
-                f"choose with {option} {','.join(others)}"
-                if others
-                else f"name one, e.g. --data {Path(path) / have[0]}"
-            )
             raise FileNotFoundError(
-                f"--data {path}: a dataset folder without {' or '.join(DEFAULT_EVAL_SPLITS)} ({listed}); {hint}"
+                f"--data {path}: a dataset folder without {' or '.join(DEFAULT_EVAL_SPLITS)} ({listed}); choose with "
+                f"{option} {','.join(have)}"
             )
         return chosen
     chosen = list(dict.fromkeys(s.strip() for s in requested.split(",")))  # in order, once each
@@ -88,6 +85,17 @@ def choose_splits(path: str | PathLike, have: tuple[str, ...], requested: str | 
             f"{option} {','.join(chosen)}: --data {path} has no {' or '.join(missing)} split ({listed})"
         )
     return chosen
+
+
+def skipped_splits_note(path: str | PathLike, have: tuple[str, ...], chosen: list[str]) -> str | None:
+    """The line ``eval`` prints about the splits of the dataset folder ``path`` (its splits ``have``) it leaves
+    out by default (``chosen`` are the ones it reads): which, why (:data:`SKIPPED_SPLIT_REASONS`) and the
+    ``--splits`` that reads every split; None when it reads them all."""
+    skipped = [s for s in have if s not in chosen]
+    if not skipped:
+        return None
+    why = "; ".join(f"{s}: {SKIPPED_SPLIT_REASONS.get(s, 'not asked for')}" for s in skipped)
+    return f"{path}: not evaluated: {', '.join(skipped)} ({why}); --splits {','.join(have)} evaluates every split"
 
 
 def check_file(path: str | PathLike | None, option: str) -> None:
