@@ -17,6 +17,7 @@ import argparse
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from os import PathLike
 from pathlib import Path
 from typing import Literal
 
@@ -49,6 +50,9 @@ class Family:
         heldout_worlds: the ``synth --world`` values that have a held-out split (``--heldout``).
         model_world: the ``synth --world`` its shipped model was trained on: what ``synth`` writes for this family
             when ``--world`` is not given (None: the family has one world).
+        table_height: metres from the floor up to the table top of its scenes whose ``scene.json`` records a table
+            (``table_half_extent``); edits put an object slid past the table's edge on the floor this far below
+            (:func:`particlesplat.data.scene_meta.read_support`). None: its scenes have no table.
     """
 
     name: str
@@ -63,6 +67,7 @@ class Family:
     robot: bool = False
     heldout_worlds: tuple[str, ...] = ()
     model_world: str | None = None
+    table_height: float | None = None
 
     def generate(self, out: Path, counts: dict[str, int], seed: int, options: argparse.Namespace) -> list[float]:
         """Write ``counts[split]`` scenes per split under ``out`` with this family's generator (imported now);
@@ -129,7 +134,7 @@ def shipped_models_text() -> str:
     return ", ".join(f"assets/{f.shipped_model}" for f in _REGISTRY.values())
 
 
-def shipped_model_named(path: str | Path) -> Path | None:
+def shipped_model_named(path: str | PathLike) -> Path | None:
     """The shipped model that ``path`` names the way ``model info``, the viewer and edit files name one
     (``assets/robot/model.pt``, :attr:`Family.shipped_model` under ``assets/``), when no file exists at ``path`` as
     given (a file of that name in the working directory wins); else None. So a shipped model's name opens it from
@@ -195,6 +200,7 @@ register(
         camera_distances=(0.8, 1.25),
         robot=True,
         heldout_worlds=("wide",),
+        table_height=0.8,  # robosuite's table arena: a 0.8 m box on the floor (robot_compose reads its top there)
         model_world="wide",  # assets/robot/model.pt: the robot-wide run (docs/robot-workspaces.md)
     )
 )
