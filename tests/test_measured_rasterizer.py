@@ -92,8 +92,10 @@ def test_renders_follow_the_choice_of_their_kind(fresh_cache, monkeypatch):
     with use_rasterizer("auto"):
         with torch.no_grad():
             render(g, cam)
-        leaves = [t.detach().requires_grad_() for t in (g.means, g.quats, g.scales, g.opacities, g.sh)]
-        render(Gaussians(*leaves, g.owner), cam).rgb.sum().backward()
+        means, quats, scales, opacities, sh = (
+            t.detach().requires_grad_() for t in (g.means, g.quats, g.scales, g.opacities, g.sh)
+        )
+        render(Gaussians(means, quats, scales, opacities, sh, g.owner), cam).rgb.sum().backward()
     assert used == ["fused", "torch"]
 
 

@@ -105,8 +105,10 @@ def time_rasterizers(
         g, _ = timing_scene(n, size)
     cams = [Camera.orbit((0.0, 0.0, 0.0), 20.0 + 40.0 * i, 30.0, 3.0, width=size, height=size) for i in range(views)]
     with torch.inference_mode(False), torch.enable_grad():
-        leaves = [t.detach().requires_grad_() for t in (g.means, g.quats, g.scales, g.opacities, g.sh)]
-    trained = Gaussians(*leaves, g.owner)
+        means, quats, scales, opacities, sh = (
+            t.detach().requires_grad_() for t in (g.means, g.quats, g.scales, g.opacities, g.sh)
+        )
+    trained = Gaussians(means, quats, scales, opacities, sh, g.owner)
 
     def forward(name: str) -> None:
         with torch.no_grad():
@@ -114,7 +116,11 @@ def time_rasterizers(
 
     def training(name: str) -> None:
         out = render_batch([(trained, c) for c in cams], foreground=True, rasterizer=name)
-        sum(r.rgb.sum() + r.alpha.sum() + r.depth.sum() + r.foreground.sum() for r in out).backward()  # type: ignore[union-attr]
+        loss = torch.zeros(())
+        for r in out:
+            assert r.foreground is not None  # asked for
+            loss = loss + r.rgb.sum() + r.alpha.sum() + r.depth.sum() + r.foreground.sum()
+        loss.backward()
 
     times: dict[str, dict[str, list[float]]] = {r: {"forward": [], "training": []} for r in CANDIDATES}
     # the first render of a no_grad or inference_mode block (eval) measures too: gradients on for the measurement
