@@ -45,11 +45,13 @@ def test_place_success_by_hand():
     world = _world("place")
     k = world.index("target")
     assert not placed(world)  # where it starts, MIN_TRAVEL away from the goal
-    _put(world, k, world.goal[:2] + [0.01, -0.01], 0.0)
+    top = float(world.goal[2])
+    _put(world, k, world.goal[:2] + [0.01, -0.01], top)
     assert placed(world)
-    _put(world, k, world.goal[:2] + [world.goal_radius + 0.01, 0.0], 0.0)  # its centre just off the disc
+    assert abs(world.box(k)[0][2] - top) < 0.003  # it rests on the pad
+    _put(world, k, world.goal[:2] + [world.goal_radius + 0.04, 0.0], 0.0)  # on the table beside the pad
     assert not placed(world)
-    _put(world, k, world.goal[:2], 0.05, steps=0)  # over the goal, held in the air: not resting on the table
+    _put(world, k, world.goal[:2], top + 0.05, steps=0)  # over the pad, held in the air
     assert not placed(world)
 
 
@@ -120,16 +122,35 @@ def test_expert_solves(task, index):
 
 
 def test_heldout_split_draws_outside_training_colours():
-    import colorsys
-
     from particlesplat.data.families.robot_wide import HELDOUT_HUES
+    from particlesplat.policy.tasks import hue_of
 
     world = _world("place", 0, "heldout")
     assert world.roles.count("distractor") >= 2  # one more than the task's least
     for spec in world.specs:
         if spec.rgba is not None:
-            h = colorsys.rgb_to_hsv(*spec.rgba[:3])[0] * 360.0
+            h = hue_of(spec.rgba)
             assert any(lo - 1e-6 <= h <= hi + 1e-6 for lo, hi in HELDOUT_HUES), h
+
+
+@pytest.mark.parametrize("split", ["train", "heldout"])
+def test_what_to_pick_is_seen(split):
+    """place: the goal pad has the target's colour, and every distractor primitive's hue is MIN_HUE_GAP away from
+    it (read back from the compiled model's materials and geoms); stack: no distractor is a box."""
+    from particlesplat.policy.tasks import MIN_HUE_GAP, hue_gap, hue_of
+
+    for index in range(4):
+        world = _world("place", index, split)
+        m = world.comp.model
+        pad = m.geom_rgba[m.geom("marker_goal").id]
+        target = world.specs[world.index("target")]
+        np.testing.assert_allclose(pad, target.rgba, atol=1e-6)
+        for spec, role in zip(world.specs, world.roles, strict=True):
+            if role == "distractor" and spec.rgba is not None:
+                assert hue_gap(hue_of(spec.rgba), hue_of(target.rgba)) >= MIN_HUE_GAP
+        stack = _world("stack", index, split)
+        assert [s.kind for s, r in zip(stack.specs, stack.roles, strict=True) if r != "distractor"] == ["box", "box"]
+        assert all(s.kind != "box" for s, r in zip(stack.specs, stack.roles, strict=True) if r == "distractor")
 
 
 def test_grasp_yaw_spans_the_narrow_side():

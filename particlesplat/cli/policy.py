@@ -28,7 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--task",
         choices=TASK_NAMES,
         default=DEFAULT_TASK,
-        help="place: pick an object and place it on the goal disc; stack: stack the small box on the wide one",
+        help="place: pick the object in the goal pad's colour and place it on the pad; stack: stack the small box "
+        "on the wide one",
     )
     collect.add_argument("--episodes", type=int, default=100, help="episodes 0..N-1 (those in OUT are kept)")
     collect.add_argument("--seed", type=int, default=0, help="seed (>= 0): episode i is the same for a seed")

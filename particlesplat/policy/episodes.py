@@ -13,7 +13,7 @@ name                       shape            what
 =========================  ===============  =====================================================================
 ``rgb``                    (T, V, H, W, 3)  uint8, each view at each decision
 ``depth``                  (T, V, H, W)     float32 planar depth, metres (0: nothing)
-``masks``                  (T, V, H, W)     uint8 instance ids (object k + 1; 0: table, arm, goal, walls)
+``masks``                  (T, V, H, W)     uint8 instance ids (object k + 1; 0: table, goal pad, arm, walls)
 ``intrinsics``             (V, 3, 3)        pixels (the cameras do not move)
 ``c2w``                    (V, 4, 4)        camera to world, OpenCV axes (x right, y down, z forward)
 ``joints``                 (T, 7)           the arm's joint angles when deciding
@@ -27,7 +27,7 @@ name                       shape            what
 ``final_joints``           (7,)             after the last keypose (likewise ``final_fingers`` (2,),
                                             ``final_eef`` (7,), ``final_object_positions`` (K, 3),
                                             ``final_object_quaternions`` (K, 4))
-``goal``                   (3,)             the goal disc's centre (NaN without a goal)
+``goal``                   (3,)             the centre of the goal pad's top (NaN without a goal)
 ``meta``                   ()               a JSON object: task, split, seed, index, success, reached, steps,
                                             wall and simulated seconds, goal_radius, robot_base (4 x 4), the
                                             gripper, lights and surfaces, and per object its kind, role,

@@ -5,7 +5,7 @@ At each decision the expert reads the objects' poses and boxes, the gripper's co
 returns the next :class:`~particlesplat.policy.control.Keypose` (six a clean episode):
 
 1. above the target, gripper open: at the height that clears every other object (straight-down approach);
-2. at the grasp point, then closed: the target's middle height (at least 2 cm under its top and 1.4 cm above the
+2. at the grasp point, then closed: the target's middle height (2-3.5 cm under its top, at least 1.4 cm above the
    table), the fingers closing across a box's narrower side (any side of a cylinder), the hand turned within a
    quarter turn of its home yaw so the wrist never winds past its limit;
 3. straight up to the carrying height (clears every other object's top with the target hanging below);
@@ -32,6 +32,7 @@ APPROACH = 0.10  # metres above the grasp point, at least, before descending
 CLEAR_MARGIN = 0.06  # metres over the tallest other object's top (of the hanging target's bottom)
 MIN_CARRY = 0.18  # metres: the grasp point's lowest carrying height
 GRASP_BELOW_TOP = 0.02  # metres: the grasp point is at least this far under the target's top
+GRASP_DEPTH = 0.035  # metres: and at most this far (the fingers are ~5 cm long: the palm stays over the top)
 GRASP_FLOOR = 0.014  # metres: and at least this far above the table (the fingertips reach ~5 mm below it)
 RELEASE_GAP = 0.004  # metres: the target's bottom over the place point when the fingers open
 RETREAT = 0.10  # metres up after releasing
@@ -86,7 +87,7 @@ class Expert:
         if self.phase == "above":
             self.rotation = hand_down(grasp_yaw(world, k))
             centre = (lo + hi) / 2.0
-            z = max(min(centre[2], hi[2] - GRASP_BELOW_TOP), GRASP_FLOOR)
+            z = max(min(centre[2], hi[2] - GRASP_BELOW_TOP), hi[2] - GRASP_DEPTH, GRASP_FLOOR)
             self.grasp_point = np.array([centre[0], centre[1], z])
             self.phase = "grasp"
             height = max(z + APPROACH, self._clear_height(world, k, 0.0))

@@ -1,13 +1,16 @@
 """The policy tasks: what objects a task's episode holds, where they start, and when it has succeeded.
 
 Two tasks, each with 1-3 distractors drawn as the wide robot world draws its objects (robosuite's objects and
-MuJoCo primitives in the split's colours):
+MuJoCo primitives in the split's colours). What to pick is seen, never told:
 
-- ``place``: pick the target (a box or an upright cylinder the Panda's fingers span) and place it on the goal, a
-  dark disc on the table (:data:`GOAL_RADIUS`). Success: the target rests on the table with its centre over the
-  disc, out of the gripper.
-- ``stack``: pick the target (a small box) and stack it on the base (a wider, flat box). Success: the target rests
-  on the base's top face with its centre over it, the base on the table, the target out of the gripper.
+- ``place``: pick the target (a box or an upright cylinder the Panda's fingers span, in one plain colour) and
+  place it on the goal, a low pad fixed on the table in the target's colour (:data:`GOAL_RADIUS`,
+  :data:`GOAL_HEIGHT`: tall enough for the robot model's foreground evidence, 1.2 cm, to count it); the
+  distractors' colours are at least :data:`MIN_HUE_GAP` away from it. Success: the target rests on the pad with
+  its centre over it, out of the gripper.
+- ``stack``: pick the target (a small box) and stack it on the base (a wider, flat box); no distractor is a box.
+  Success: the target rests on the base's top face with its centre over it, the base on the table, the target
+  out of the gripper.
 
 Success is read from the simulator's state (:func:`placed`, :func:`stacked`): the objects' boxes (from their
 geoms at the current state), their velocities and the gripper's contacts. An episode draws from its own RNG
@@ -16,6 +19,7 @@ geoms at the current state), their velocities and the gripper's contacts. An epi
 
 from __future__ import annotations
 
+import colorsys
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -23,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from particlesplat.data.families.robot_compose import Marker, ObjectSpec
-from particlesplat.data.families.robot_wide import Ranges, draw_primitive, object_drawer
+from particlesplat.data.families.robot_wide import Ranges, draw_colour, draw_primitive, object_drawer
 
 from .options import SPLITS, TASK_NAMES
 from .world import (
@@ -37,11 +41,14 @@ from .world import (
     split_ranges,
 )
 
-GOAL_RADIUS = 0.05  # metres: the goal disc, and how far from its centre the target's centre may rest
-GOAL_RGBA = (0.04, 0.04, 0.04, 1.0)  # darker than any object (values >= 0.35) or surface (>= 0.5) is drawn
+GOAL_RADIUS = 0.05  # metres: the goal pad, and how far from its centre the target's centre may rest
+GOAL_HEIGHT = 0.02  # metres: the pad's top
+MIN_HUE_GAP = 60.0  # degrees of hue between the target (and its pad) and any distractor primitive
+TARGET_SATURATION, TARGET_VALUE = (0.6, 1.0), (0.5, 1.0)  # the target's plain colour (HSV)
 MIN_TRAVEL = 0.08  # metres: the target starts at least this much farther from the goal than touching it
 ON_TABLE = 0.01  # metres: a box's bottom within this of z = 0 rests on the table
-ON_TOP = 0.01  # metres: the target's bottom within this of the base's top rests on it
+ON_TOP = 0.01  # metres: the target's bottom within this of the top it is put on (the pad's, the base's)
+MAX_DRAWS = 100  # draws of a distractor that must differ from the target
 AT_REST = 0.05  # m/s and rad/s: an object slower than this has come to rest
 # graspable targets (the Panda's fingers open 0.08 m): half sizes, metres
 PLACE_BOX_NARROW, PLACE_BOX_WIDE, PLACE_BOX_HEIGHT = (0.018, 0.03), (0.018, 0.045), (0.02, 0.04)
@@ -61,7 +68,7 @@ class Task:
         summary: one line for ``--help`` and the docs.
         draw_objects: (rng, the split's ranges, distractors) -> the objects at the origin and their roles, in
             the order MuJoCo numbers them: "target", then "base" (stack), then "distractor"s.
-        goal: the task has a goal disc on the table.
+        goal: the task has a goal pad on the table.
         success: the episode's success, from the simulator's state of a world.
         place_point: (3,) where the target's bottom centre is to go, world metres, from the state of a world.
     """
@@ -83,21 +90,49 @@ def _box(rng: np.random.Generator, ranges: Ranges, half: tuple[float, float, flo
     return replace(draw_primitive(rng, "box", ranges), half_size=half)
 
 
+def hue_of(rgba) -> float:
+    """The hue of an (r, g, b, a) colour, degrees."""
+    return colorsys.rgb_to_hsv(float(rgba[0]), float(rgba[1]), float(rgba[2]))[0] * 360.0
+
+
+def hue_gap(a: float, b: float) -> float:
+    """Degrees between two hues around the circle."""
+    d = abs(a - b) % 360.0
+    return min(d, 360.0 - d)
+
+
 def graspable_target(rng: np.random.Generator, ranges: Ranges) -> ObjectSpec:
-    """A box narrow enough across one side, or an upright cylinder, for the Panda's fingers."""
+    """A box narrow enough across one side, or an upright cylinder, for the Panda's fingers, in one plain colour
+    of the split's hues (no texture: its colour is what marks it)."""
     if rng.uniform() < 0.5:
         narrow, wide, height = (_uniform(rng, r) for r in (PLACE_BOX_NARROW, PLACE_BOX_WIDE, PLACE_BOX_HEIGHT))
-        return _box(rng, ranges, (narrow, wide, height) if rng.uniform() < 0.5 else (wide, narrow, height))
-    r = _uniform(rng, PLACE_CYLINDER_RADIUS)
-    return replace(draw_primitive(rng, "cylinder", ranges), half_size=(r, r, _uniform(rng, PLACE_CYLINDER_HEIGHT)))
+        half = (narrow, wide, height) if rng.uniform() < 0.5 else (wide, narrow, height)
+        kind = "box"
+    else:
+        r = _uniform(rng, PLACE_CYLINDER_RADIUS)
+        half, kind = (r, r, _uniform(rng, PLACE_CYLINDER_HEIGHT)), "cylinder"
+    rgba = draw_colour(rng, ranges.hues, TARGET_SATURATION, TARGET_VALUE)
+    return ObjectSpec(kind, 0.0, 0.0, 0.0, half, None, rgba)
 
 
-def distractors(rng: np.random.Generator, ranges: Ranges, count: int, used: set[str]) -> list[ObjectSpec]:
-    """``count`` objects drawn as the wide world draws its objects (no robosuite object twice)."""
+def distractors(
+    rng: np.random.Generator,
+    ranges: Ranges,
+    count: int,
+    used: set[str],
+    keep: Callable[[ObjectSpec], bool] = lambda spec: True,
+) -> list[ObjectSpec]:
+    """``count`` objects drawn as the wide world draws its objects (no robosuite object twice), each drawn again
+    until ``keep`` accepts it (at most :data:`MAX_DRAWS` times)."""
     draw = object_drawer(ranges)
     out = []
     for _ in range(count):
-        spec = draw(rng, used)
+        for _ in range(MAX_DRAWS):
+            spec = draw(rng, used)
+            if keep(spec):
+                break
+        else:
+            raise RuntimeError("no distractor the task accepts")
         used.add(spec.kind)
         out.append(spec)
     return out
@@ -105,8 +140,13 @@ def distractors(rng: np.random.Generator, ranges: Ranges, count: int, used: set[
 
 def _place_objects(rng: np.random.Generator, ranges: Ranges, extra: int) -> tuple[list[ObjectSpec], list[str]]:
     target = graspable_target(rng, ranges)
+    hue = hue_of(target.rgba)
     lo, hi = DISTRACTORS["place"]
-    others = distractors(rng, ranges, int(rng.integers(lo, hi + 1)) + extra, {target.kind})
+
+    def unlike(spec: ObjectSpec) -> bool:
+        return spec.rgba is None or hue_gap(hue_of(spec.rgba), hue) >= MIN_HUE_GAP
+
+    others = distractors(rng, ranges, int(rng.integers(lo, hi + 1)) + extra, set(), unlike)
     return [target, *others], ["target"] + ["distractor"] * len(others)
 
 
@@ -118,7 +158,7 @@ def _stack_objects(rng: np.random.Generator, ranges: Ranges, extra: int) -> tupl
         rng, ranges, (_uniform(rng, STACK_BASE_HALF), _uniform(rng, STACK_BASE_HALF), _uniform(rng, STACK_BASE_HEIGHT))
     )
     lo, hi = DISTRACTORS["stack"]
-    others = distractors(rng, ranges, int(rng.integers(lo, hi + 1)) + extra, {"box"})
+    others = distractors(rng, ranges, int(rng.integers(lo, hi + 1)) + extra, set(), lambda s: s.kind != "box")
     return [top, base, *others], ["target", "base"] + ["distractor"] * len(others)
 
 
@@ -127,15 +167,15 @@ def _released_at_rest(world: TaskWorld, k: int) -> bool:
 
 
 def placed(world: TaskWorld) -> bool:
-    """``place``'s success: the target's bottom within :data:`ON_TABLE` of the table, its centre within the goal
-    disc's radius of the goal's centre (in x, y), out of the gripper and at rest."""
+    """``place``'s success: the target's bottom within :data:`ON_TOP` of the goal pad's top, its centre within the
+    pad's radius of the pad's centre (in x, y), out of the gripper and at rest."""
     if world.goal is None:
         raise ValueError("the place task's world has no goal")
     k = world.index("target")
     lo, hi = world.box(k)
     centre = (lo + hi) / 2.0
     on_goal = float(np.hypot(*(centre[:2] - world.goal[:2]))) <= world.goal_radius
-    return bool(abs(lo[2]) <= ON_TABLE and on_goal and _released_at_rest(world, k))
+    return bool(abs(float(lo[2] - world.goal[2])) <= ON_TOP and on_goal and _released_at_rest(world, k))
 
 
 def stacked(world: TaskWorld) -> bool:
@@ -154,7 +194,7 @@ def stacked(world: TaskWorld) -> bool:
 def _goal_point(world: TaskWorld) -> np.ndarray:
     if world.goal is None:
         raise ValueError("the place task's world has no goal")
-    return np.array([world.goal[0], world.goal[1], 0.0])
+    return np.array([world.goal[0], world.goal[1], world.goal[2]])
 
 
 def _base_top(world: TaskWorld) -> np.ndarray:
@@ -167,7 +207,7 @@ TASKS: dict[str, Task] = {
     for t in (
         Task(
             "place",
-            "pick the target object and place it on the dark goal disc, among 1-3 distractors",
+            "pick the object in the goal pad's colour and place it on the pad, among 1-3 distractors",
             _place_objects,
             True,
             placed,
@@ -192,8 +232,9 @@ def episode_rng(seed: int, task: str, split: str, index: int) -> np.random.Gener
 
 def build_task_world(rng: np.random.Generator, task: Task, split: str = "train", assets=None) -> TaskWorld:
     """Draw and settle one episode's world: the look (lights, surfaces), the task's objects (the held-out split:
-    held-out colours and one more distractor) and, for a task with a goal, the goal disc, all within the arm's
-    reach and apart; drawn again until the objects settle clear of each other."""
+    held-out colours and one more distractor) and, for a task with a goal, the goal pad, all within the arm's
+    reach and apart (the goal pad in the target's colour); drawn again until the objects settle clear of each
+    other."""
     ranges = split_ranges(split)
     extra = HELDOUT_EXTRA_DISTRACTORS if split == "heldout" else 0
     setup = draw_setup(rng)
@@ -214,7 +255,9 @@ def build_task_world(rng: np.random.Generator, task: Task, split: str = "train",
         goal, marker = None, None
         if task.goal:
             gx, gy = (float(v) for v in centres[0])
-            goal, marker = np.array([gx, gy, 0.0]), Marker("goal", gx, gy, GOAL_RADIUS, GOAL_RGBA)
+            goal = np.array([gx, gy, GOAL_HEIGHT])
+            rgba = specs[roles.index("target")].rgba or (1.0, 1.0, 1.0, 1.0)
+            marker = Marker("goal", gx, gy, GOAL_RADIUS, rgba, GOAL_HEIGHT, collides=True)
             centres = centres[1:]
         placed_specs = [
             replace(s, x=float(c[0]), y=float(c[1]), yaw=float(rng.uniform(-math.pi, math.pi)))

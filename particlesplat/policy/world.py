@@ -2,7 +2,7 @@
 gripper, the wide world's randomised lights, surfaces and object colours), seen by two fixed RGB-D cameras.
 
 Everything here is the robot family's own code (:mod:`particlesplat.data.families`): the composition from
-robosuite's asset files (``compose``, with a task's goal as a drawn :class:`Marker`), the wide world's draws of
+robosuite's asset files (``compose``, with a task's goal as a :class:`Marker` pad), the wide world's draws of
 lights, surfaces and objects (``robot_wide``), dropping and settling the objects (``robot``) and the renderer
 (``robot_render``). This module adds what a task needs beyond a scene: the fixed camera rig, a layout kept within
 the arm's reach, and readouts of the simulator's state (objects' poses and boxes, what touches the gripper).
@@ -86,7 +86,7 @@ class TaskWorld:
         comp: the MuJoCo composition (its ``data`` is the simulation's state).
         specs: (K,) the objects as drawn (object k + 1 in MuJoCo and in masks).
         roles: (K,) each object's role in the task ("target", "base", "distractor").
-        goal: (3,) the goal marker's centre on the table (world metres), or None.
+        goal: (3,) the centre of the goal pad's top (world metres), or None.
         goal_radius: metres (0 without a goal).
         setup: the gripper, lights and surfaces.
         cameras: the rig's two cameras; camera_ids: their MuJoCo ids.

@@ -131,9 +131,9 @@ class WorldSetup:
 
 @dataclass(frozen=True)
 class Marker:
-    """A flat disc drawn on the table that nothing touches (a task's goal): centre ``x``, ``y`` and ``radius``
-    (metres), ``height`` (metres; it lies on z = 0 up to this height, under the foreground evidence's 1.2 cm)
-    and ``rgba``."""
+    """A disc fixed on the table (a task's goal): centre ``x``, ``y`` and ``radius`` (metres), ``height`` (metres;
+    it stands on z = 0 up to this height) and ``rgba``; with ``collides`` objects and the arm rest on it as on the
+    table, else nothing touches it. It is part of the background (instance 0 in masks)."""
 
     name: str
     x: float
@@ -141,6 +141,7 @@ class Marker:
     radius: float
     rgba: tuple[float, float, float, float]
     height: float = 0.002
+    collides: bool = False
 
 
 @dataclass(frozen=True)
@@ -309,8 +310,8 @@ def compose(
     markers: Sequence[Marker] = (),
 ) -> Composition:
     """Build and compile the workspace: arena, Panda (gripper, mount), ``objects`` as free bodies at their drop
-    poses (z = 0.3 m, lifted to rest later), ``markers`` (drawn discs on the table, no collisions, instance 0 in
-    masks) and ``cameras``; ``res`` (width, height) sizes the offscreen buffer.
+    poses (z = 0.3 m, lifted to rest later), ``markers`` (discs fixed on the table, instance 0 in masks) and
+    ``cameras``; ``res`` (width, height) sizes the offscreen buffer.
     ``setup`` (default: the narrow world's: turned frame, Panda gripper, the arena's look) picks the frame, the
     gripper, the lights and the surfaces. The arm is at ``PANDA_HOME``."""
     setup = setup or WorldSetup()
@@ -401,8 +402,9 @@ def compose(
             size=[marker.radius, marker.height / 2.0, 0.0],
             pos=[marker.x, marker.y, marker.height / 2.0],
             rgba=list(marker.rgba),
-            contype=0,
-            conaffinity=0,
+            contype=TABLE_CONTYPE if marker.collides else 0,
+            conaffinity=TABLE_CONAFFINITY if marker.collides else 0,
+            condim=4 if marker.collides else 3,
             group=1,
         )
     # a key light from above the front-left that casts shadows on the table; the arena keeps its own light
