@@ -137,6 +137,7 @@ def test_collect_records_what_the_simulator_holds(tmp_path, capsys):
             inside = np.all((points >= lo - 0.004) & (points <= hi + 0.004), axis=1)
             assert inside.mean() > 0.97, (view, k, inside.mean())
     np.testing.assert_allclose(ep["object_positions"][0], world.poses()[0], atol=1e-9)
+    np.testing.assert_allclose(ep["object_boxes"][0], [np.stack(world.box(k)) for k in range(len(world.specs))])
     # the same keyposes and outcome as a run of the same episode that renders nothing
     result = run_episode(world, TASKS["stack"], expert_decider(TASKS["stack"]), render=False)
     np.testing.assert_array_equal(ep["keypose"], np.stack([k.as_array() for _, k in result.steps]))

@@ -137,12 +137,14 @@ def record_episode(task: Task, seed: int, split: str, index: int) -> tuple[dict[
         "keypose": np.stack([k.as_array() for _, k in result.steps]),
         "object_positions": np.stack([o.object_positions for o in obs]),
         "object_quaternions": np.stack([o.object_quaternions for o in obs]),
+        "object_boxes": np.stack([o.object_boxes for o in obs]),
         "sim_time": np.array([o.sim_time for o in obs]),
         "final_joints": final.joints,
         "final_fingers": final.fingers,
         "final_eef": final.eef,
         "final_object_positions": final.object_positions,
         "final_object_quaternions": final.object_quaternions,
+        "final_object_boxes": final.object_boxes,
         "goal": np.full(3, np.nan) if world.goal is None else np.asarray(world.goal, dtype=np.float64),
     }
     meta = {

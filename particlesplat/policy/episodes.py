@@ -23,10 +23,12 @@ name                       shape            what
 ``keypose``                (T, 8)           the keypose taken: position (3), quaternion (4), gripper (1 / 0)
 ``object_positions``       (T, K, 3)        the objects' body origins
 ``object_quaternions``     (T, K, 4)        their orientations
+``object_boxes``           (T, K, 2, 3)     their axis-aligned boxes' min and max corners (from their geoms)
 ``sim_time``               (T,)             the simulator's clock, seconds
 ``final_joints``           (7,)             after the last keypose (likewise ``final_fingers`` (2,),
                                             ``final_eef`` (7,), ``final_object_positions`` (K, 3),
-                                            ``final_object_quaternions`` (K, 4))
+                                            ``final_object_quaternions`` (K, 4), ``final_object_boxes``
+                                            (K, 2, 3))
 ``goal``                   (3,)             the centre of the goal pad's top (NaN without a goal)
 ``meta``                   ()               a JSON object: task, split, seed, index, success, reached, steps,
                                             wall and simulated seconds, goal_radius, robot_base (4 x 4), the
@@ -70,12 +72,14 @@ ARRAYS: dict[str, tuple[str, tuple[str | int, ...]]] = {
     "keypose": ("f8", ("T", 8)),
     "object_positions": ("f8", ("T", "K", 3)),
     "object_quaternions": ("f8", ("T", "K", 4)),
+    "object_boxes": ("f8", ("T", "K", 2, 3)),
     "sim_time": ("f8", ("T",)),
     "final_joints": ("f8", (7,)),
     "final_fingers": ("f8", (2,)),
     "final_eef": ("f8", (7,)),
     "final_object_positions": ("f8", ("K", 3)),
     "final_object_quaternions": ("f8", ("K", 4)),
+    "final_object_boxes": ("f8", ("K", 2, 3)),
     "goal": ("f8", (3,)),
 }
 META_KEYS = ("task", "split", "seed", "index", "success", "steps", "objects")

@@ -33,7 +33,8 @@ class Observation:
         joints: (7,) arm joint angles, radians; fingers: (2,) finger joints, metres; gripper: the gripper's
             command (1 open, 0 closed).
         eef: (7,) the grasp point (3, metres) and the hand's quaternion (4, w x y z), world.
-        object_positions: (K, 3) body origins, metres; object_quaternions: (K, 4) w x y z.
+        object_positions: (K, 3) body origins, metres; object_quaternions: (K, 4) w x y z; object_boxes: (K, 2, 3)
+            their axis-aligned boxes' min and max corners, metres.
         sim_time: the simulator's clock, seconds.
     """
 
@@ -43,6 +44,7 @@ class Observation:
     eef: np.ndarray
     object_positions: np.ndarray
     object_quaternions: np.ndarray
+    object_boxes: np.ndarray
     sim_time: float
     rgb: np.ndarray | None = None
     depth: np.ndarray | None = None
@@ -77,6 +79,7 @@ def observe(world: TaskWorld, controller: ArmController, renderer: RigRenderer |
         np.concatenate([pos, matrix_to_quat(rot)]),
         positions,
         quats,
+        np.array([np.stack(world.box(k)) for k in range(len(world.specs))]).reshape(-1, 2, 3),
         float(world.comp.data.time),
     )
     if renderer is not None:
