@@ -3,7 +3,9 @@ splat tools open; or write it as an object bundle (a ``.ply`` per particle or ob
 
 The format comes from ``--out``'s extension (:mod:`particlesplat.formats.splat_files`). The scene is what
 ``particlesplat render`` draws for the same ``--scene`` / ``--edits`` / ``--edits-from`` / ``--context`` /
-``--checkpoint``, decoded with its background.
+``--checkpoint``, decoded with its background, inside a crop box: the one the edits set, else a robot scene's
+workspace (its table and arm, :func:`particlesplat.editing.crop_box.workspace_box`), so that another viewer frames
+the workspace rather than the walls of its room; ``--no-crop`` writes every Gaussian.
 """
 
 from __future__ import annotations
@@ -12,11 +14,16 @@ import argparse
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from particlesplat.core.errors import OptionError
 from particlesplat.data.folders import check_existing, check_file
 from particlesplat.editing.source_options import add_source_arguments, check_source_arguments
 from particlesplat.formats.splat_files import SUFFIX_HELP
+
+if TYPE_CHECKING:
+    from particlesplat.core.gaussians import Gaussians
+    from particlesplat.editing.edited_scene import EditedScene
 
 PRUNE_DEFAULT = 1.0 / 255.0  # below half an 8-bit opacity step every compact format stores 0
 
@@ -39,6 +46,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=("particle", "object"),
         help="write an object bundle to the folder --out: particle_<i>.ply or object_<k>.ply, rest.ply and "
         "manifest.json (centres, extents, presence, objects, members, context cameras)",
+    )
+    parser.add_argument(
+        "--no-crop",
+        action="store_true",
+        help="write every Gaussian: no crop box (without it, the box the edits set, else a robot scene's workspace "
+        "box about its table and arm)",
     )
     parser.add_argument(
         "--prune",
@@ -68,12 +81,30 @@ def _guard(args: argparse.Namespace) -> None:
     guard_outputs([("--out", args.out)], inputs, [("--out", args.out)] if args.by else [])
 
 
+def _cropped(scene: EditedScene, no_crop: bool) -> tuple[Gaussians, str]:
+    """(the scene's Gaussians to write, a line saying what a crop box left out or ""): the box the edits set, else
+    the scene's workspace box (:func:`particlesplat.editing.crop_box.workspace_box`: a robot scene's table and
+    arm); none with ``no_crop``."""
+    from particlesplat.editing.crop_box import workspace_box
+
+    g = scene.model.decode(scene.particles).detach().to("cpu")
+    box, whose = scene.crop, "the edits' crop box"
+    if box is None:
+        box, whose = workspace_box(scene.encoded.path), "the workspace box (the table and the arm)"
+    if no_crop or box is None or not box.bounded:
+        return g, ""
+    kept = box.crop(g)
+    return kept, f"cropped to {whose}, {box.text()}: {g.num - kept.num} of {g.num} Gaussians outside left out " + (
+        "(--no-crop keeps them)"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     from particlesplat.core.atomic import check_writable
     from particlesplat.core.errors import EXIT_USER, UserError, one_line
 
     prog = "particlesplat export"
-    scene = None
+    scene, cropped = None, ""
     try:
         check_source_arguments(args)
         if args.ply and args.edits_from:
@@ -118,11 +149,13 @@ def run(args: argparse.Namespace) -> int:
             scene = open_edited_scene(args.checkpoint, args.scene, args.context, args.edits, args.edits_from)
             for warning in scene.warnings:
                 print(f"{prog}: warning: {warning}", file=sys.stderr)
-            g = scene.model.decode(scene.particles).detach().to("cpu")
+            g, cropped = _cropped(scene, args.no_crop)
             source = str(scene.encoded.path)
     except (UserError, OSError) as e:  # the project's user errors; anything else is a bug and keeps its traceback
         print(f"{prog}: {one_line(e)}", file=sys.stderr)
         return EXIT_USER
+    if cropped:
+        print(cropped)
     total = g.num
     if args.prune > 0:
         g = g.subset(g.opacities >= args.prune)

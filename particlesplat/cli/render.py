@@ -163,7 +163,7 @@ def _scene_and_gaussians(args: argparse.Namespace):
     for warning in scene.warnings:
         print(f"particlesplat render: warning: {warning}", file=sys.stderr)
     model, enc, particles, edits, name = scene.model, scene.encoded, scene.particles, scene.edits, scene.model_name
-    g = model.decode(particles).detach().to("cpu")
+    g = scene.gaussians()  # the crop box the edits set hides what lies outside it
     arrays = None
     if set(getattr(args, "mode", ("rgb",))) & set(NEEDS_PARTICLES):
         from particlesplat.analysis.particle_arrays import particle_arrays

@@ -19,6 +19,8 @@ Version 2 (version 1, particle index -> attribute values, still loads; see
       - insert: {scene: assets/scenes/scene_00001, context: [4, 16], object: 0, at: [0.8, 0.5]}
                                             # object 0 of another scene (numbered as particlesplat encode's
                                             # `object`), its centre placed at (x, y) on this scene's floor
+      - crop: {min: [-0.7, -0.5, -0.05], max: [0.5, 0.5, 1.0]}
+                                            # hide the Gaussians outside this world box (false: show all again)
 
 Operations apply in order; each pick is resolved on the scene as the operations before it left it
 (:mod:`particlesplat.editing.picking`). Each operation's record is read and written by its class
@@ -36,7 +38,7 @@ import yaml
 
 from particlesplat.core.atomic import atomic_write
 from particlesplat.core.errors import short_repr
-from particlesplat.editing.operations import PICKED, InsertObject, Operation, SetAttributes, Split
+from particlesplat.editing.operations import PICKED, Crop, InsertObject, Operation, SetAttributes, Split
 from particlesplat.editing.particle_edits import Edits, EditsError, read_edit_document, validate_edits
 
 FORMAT_VERSION = 2
@@ -60,9 +62,11 @@ def read_operation(item: Any, where: str) -> Operation:
     """One operation of a version 2 file, by its keys."""
     kinds = "/".join(PICKED)
     if not isinstance(item, dict):
-        raise EditsError(f"{where}: expected a mapping (pick + {kinds}, particle + set/split, or insert)")
+        raise EditsError(f"{where}: expected a mapping (pick + {kinds}, particle + set/split, insert or crop)")
     if "insert" in item:
         return InsertObject.read(item, where)
+    if "crop" in item:
+        return Crop.read(item, where)
     if "particle" in item:
         return Split.read(item, where) if "split" in item else SetAttributes.read(item, where)
     found = [k for k in PICKED if k in item]

@@ -17,6 +17,7 @@ from torch import Tensor
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.vectors import float3
 from particlesplat.core.world import SUPPORT_Z
+from particlesplat.editing.crop_box import CropBox
 from particlesplat.editing.decoded import DecodedParticles
 from particlesplat.editing.grouping import OPAQUE, arm_state
 from particlesplat.editing.move import MoveError, anchor_points
@@ -77,6 +78,7 @@ class EditedParticles:
         self._changed: set[int] = set()
         self._all_changed = True
         self.version = 0  # bumps on every change of the Gaussians
+        self.crop: CropBox | None = None  # the crop box an edit set (None: none set; render and export apply it)
 
     # ------------------------------------------------------------------ values
     @property
@@ -206,6 +208,12 @@ class EditedParticles:
             self._labels = self.objects().labels[: particles.num]
             self._all_changed = True
         self.particles = particles
+        self.version += 1
+
+    def set_crop(self, box: CropBox | None) -> None:
+        """Set the crop box (None: as if none was ever set); what is drawn changes, the particles do not."""
+        self.crop = box
+        self._all_changed = True
         self.version += 1
 
     def relabel(self, indices: Sequence[int], labels: Sequence[int]) -> None:

@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from particlesplat.core.errors import OptionError
+from particlesplat.core.gaussians import Gaussians
+from particlesplat.editing.crop_box import CropBox
 from particlesplat.editing.open_scene import EncodedScene, load_model_scene
 from particlesplat.editing.scene_objects import SceneObjects
 from particlesplat.model import Particles, ParticleSplat
@@ -30,6 +32,7 @@ class EditedScene:
             object it left below its support).
         objects: the particles' objects as the edits left them (merges and splits win over the grouping), or
             None without edits (then grouped as encoded).
+        crop: the crop box the edits set (None: none), applied by :meth:`gaussians`.
     """
 
     model: ParticleSplat
@@ -39,6 +42,13 @@ class EditedScene:
     model_name: str
     warnings: list[str] = field(default_factory=list)
     objects: SceneObjects | None = None
+    crop: CropBox | None = None
+
+    def gaussians(self) -> Gaussians:
+        """What the scene draws: its particles' Gaussians and the background's, on the CPU, those outside the
+        crop box left out."""
+        g = self.model.decode(self.particles).detach().to("cpu")
+        return g if self.crop is None else self.crop.crop(g)
 
 
 def open_edited_scene(
@@ -71,7 +81,7 @@ def open_edited_scene(
             context = ",".join(str(int(c)) for c in file.context)
     model, enc, name = load_model_scene(checkpoint, scene, context)
     warnings = list(enc.warnings)
-    particles, objects = enc.particles, None
+    particles, objects, crop = enc.particles, None, None
     text: str | dict = {}  # for png_text: the edit file's text, {} (no edits) without one
     if file is not None:
         mismatch = scene_mismatch(file, enc.path, enc.context)
@@ -82,6 +92,6 @@ def open_edited_scene(
         editor = SceneEditor(model, particles, enc.all_cameras, enc.context)
         editor.apply_file(file, where)
         warnings += [f"{where}: {line}" for line in editor.sunk_objects()]  # allowed, but never silently
-        particles, objects = editor.particles, SceneObjects(editor.objects())
+        particles, objects, crop = editor.particles, SceneObjects(editor.objects()), editor.crop_box
         text = editor.edit_text(scene=resolved(enc.path), model=name, scene_sha256=scene_digest(enc.path))
-    return EditedScene(model, enc, particles, text, name, warnings, objects)
+    return EditedScene(model, enc, particles, text, name, warnings, objects, crop)

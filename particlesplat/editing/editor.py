@@ -30,6 +30,7 @@ from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.panda_arm import capsule_distance
 from particlesplat.core.world import SUPPORT_Z
+from particlesplat.editing.crop_box import CropBox
 from particlesplat.editing.decoded import DecodedParticles
 from particlesplat.editing.edit_fields import Insert, Pick, PickError
 from particlesplat.editing.edit_file import (
@@ -45,6 +46,7 @@ from particlesplat.editing.edited import MAX_EDIT_PARTICLES, EditedParticles, Se
 from particlesplat.editing.grouping import arm_state, members_centre
 from particlesplat.editing.history import Gesture, History
 from particlesplat.editing.operations import (
+    Crop,
     Duplicate,
     InsertObject,
     Merge,
@@ -320,6 +322,17 @@ class SceneEditor:
         n = self.num_particles
         self._commit(InsertObject.of(self.scene, source, insert))
         return n
+
+    @property
+    def crop_box(self) -> CropBox | None:
+        """The crop box the edits set (None: none), which render and export apply to the Gaussians they draw
+        (:meth:`CropBox.crop`)."""
+        return self.scene.crop
+
+    def set_crop(self, box: CropBox, gesture: str | None = None) -> None:
+        """Hide the Gaussians outside ``box`` (:meth:`CropBox.everything`: show all again); consecutive calls with
+        the same ``gesture`` (a handle's drag) are one operation until :meth:`end_gesture`."""
+        self._commit(Crop.of(self.scene, box), gesture)
 
     def reset_particle(self, index: int) -> None:
         """Restore all editable attributes of particle ``index`` to the encoded values."""

@@ -26,6 +26,7 @@ from torch import Tensor
 
 from particlesplat.core.errors import short_repr
 from particlesplat.core.vectors import float3
+from particlesplat.editing.crop_box import CropBox, crop_yaml, read_crop
 from particlesplat.editing.edit_fields import (
     DECIMALS,
     Insert,
@@ -380,6 +381,57 @@ class InsertObject(Operation):
             return InsertObject.of(scene, source, insert)
         except (MoveError, ValueError, OSError) as e:
             raise EditsError(f"{where}: insert: {e}") from None
+
+
+@dataclass(eq=False, kw_only=True)
+class Crop(Operation):
+    """Hide the Gaussians outside a world-aligned box (:class:`particlesplat.editing.crop_box.CropBox`; the
+    particles do not change): ``crop: {min: [x, y, z], max: [x, y, z]}`` world metres, or ``crop: false`` to show
+    everything again. ``old``: the box before it (done step). A drag of the box's handles is one step."""
+
+    kind: ClassVar[str] = "crop"
+    box: CropBox | None = None
+    old: CropBox | None = None
+
+    @classmethod
+    def read(cls, item: dict, where: str) -> Crop:
+        if set(item) != {"crop"}:
+            raise EditsError(f"{where}: a crop operation has the one key crop, got {sorted(item)}")
+        return cls(box=read_crop(item["crop"], f"{where}.crop"))
+
+    @classmethod
+    def of(cls, scene: EditedParticles, box: CropBox) -> Crop | None:
+        """The crop of ``scene`` set to ``box``; None when it is that already."""
+        if scene.crop == box:
+            return None
+        return cls(label=f"crop to {box.text()}" if box.bounded else "crop box off", box=box, old=scene.crop)
+
+    def _box(self) -> CropBox:
+        if self.box is None:
+            raise ValueError("a crop operation needs its box")
+        return self.box
+
+    def do(self, scene: EditedParticles) -> None:
+        scene.set_crop(self._box())
+
+    def undo(self, scene: EditedParticles) -> None:
+        scene.set_crop(self.old)
+
+    def gesture_key(self) -> tuple:
+        return (self.kind,)
+
+    def extend(self, later: Operation) -> None:
+        if isinstance(later, Crop):  # the drag's last box; the box before the drag stays what undo restores
+            self.box, self.label = later.box, later.label
+
+    def file_operations(self, find_pick: FindPick) -> list[Operation]:
+        return [Crop(box=self._box())]
+
+    def record(self) -> dict[str, Any]:
+        return {"crop": crop_yaml(self._box())}
+
+    def replay(self, scene: EditedParticles, find: Callable[[Pick, str], int], where: str) -> Operation | None:
+        return Crop.of(scene, self._box())
 
 
 @dataclass(eq=False, kw_only=True)
