@@ -117,12 +117,19 @@ def test_a_shipped_model_s_name_opens_it_from_any_directory(tmp_path, monkeypatc
     assert load_model("assets/robot/model.pt").config == load_model(robot).config
     assert main(["model", "info", "assets/robot/model.pt"]) == 0
     assert "robot workspace" in capsys.readouterr().out
+    from particlesplat.data.folders import check_file
+
+    check_file("assets/robot/model.pt", "--checkpoint", shipped=True)  # what commands check before torch loads
+    with pytest.raises(FileNotFoundError, match="--ply assets/robot/model.pt: no such file"):
+        check_file("assets/robot/model.pt", "--ply")
+    robot_scene = str(demo_scenes()[3])
+    argv = ["render", "--checkpoint", "assets/robot/model.pt", "--scene", robot_scene, "--width", "64"]
+    assert main([*argv, "--height", "48", "--out", str(tmp_path / "r.png")]) == 0 and (tmp_path / "r.png").is_file()
     (tmp_path / "assets" / "robot").mkdir(parents=True)
     (tmp_path / "assets" / "robot" / "model.pt").write_bytes(b"not a checkpoint")
     assert shipped_model_named("assets/robot/model.pt") is None  # the working directory's own file
     with pytest.raises(UserError, match=r"^assets/robot/model.pt: "):  # this file, not the shipped one
         load_model("assets/robot/model.pt")
-    robot_scene = demo_scenes()[3]
     assert load_model(scene=robot_scene).config == load_model(robot).config
     assert load_model(scene=demo_scenes()[0]).config == load_model().config
     with pytest.raises(FileNotFoundError, match="missing_scene: scene folder not found"):

@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError("--data: a scene folder or a folder of scenes is needed (or --edits E.yaml for one scene)")
     if args.data is not None:
         check_existing(args.data, "--data")  # before torch loads: a typo is one quick line
-    check_file(args.checkpoint, "--checkpoint")
+    check_file(args.checkpoint, "--checkpoint", shipped=True)
     check_file(args.edits, "--edits")
     apply_rasterizer_option(args)
     from particlesplat.core.outputs import guard_outputs

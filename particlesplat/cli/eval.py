@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
     if args.num_figures > 0:
         for folder in figure_dirs.values():
             check_writable(folder / "figure.png")
-    check_file(args.checkpoint, "--checkpoint")
+    check_file(args.checkpoint, "--checkpoint", shipped=True)
     apply_rasterizer_option(args)
     from particlesplat.analysis.eval_summary import detail_lines, split_table, summary_line
     from particlesplat.analysis.evaluate import evaluate_dataset, json_safe

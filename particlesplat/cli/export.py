@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
             raise OptionError(f"--prune must be an opacity in [0, 1], got {args.prune:g}")
         check_existing(args.scene, "--scene")  # before torch loads: a typo is one quick line
         for name in ("ply", "checkpoint", "edits", "edits_from"):
-            check_file(getattr(args, name), f"--{name.replace('_', '-')}")
+            check_file(getattr(args, name), f"--{name.replace('_', '-')}", shipped=name == "checkpoint")
         _guard(args)  # before any work, as every command
         from particlesplat.formats.splat_files import SUFFIXES, format_for
 

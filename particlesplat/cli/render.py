@@ -228,7 +228,7 @@ def _check_inputs(args: argparse.Namespace) -> None:
     """What the user named exists, and the options agree: checked before torch loads (a typo is one quick line)."""
     check_existing(args.scene, "--scene")
     for name in ("ply", "checkpoint", "edits", "camera_from", "edits_from"):
-        check_file(getattr(args, name, None), f"--{name.replace('_', '-')}")
+        check_file(getattr(args, name, None), f"--{name.replace('_', '-')}", shipped=name == "checkpoint")
     check_source_arguments(args)
     check_option_range(args.prune, "--prune", 0.0, 1.0)  # an opacity
     several = len(args.mode) > 1 or (args.view is not None and len(args.view) > 1)

@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     if not (data / "train").is_dir():
         raise FileNotFoundError(f"--data {data}: no training split ({data / 'train'})")
     check_file(args.config, "--config")
-    check_file(args.init, "--init")
+    check_file(args.init, "--init", shipped=True)
     apply_rasterizer_option(args)
     from particlesplat.core.outputs import guard_outputs
 

@@ -98,12 +98,17 @@ def skipped_splits_note(path: str | PathLike, have: tuple[str, ...], chosen: lis
     return f"{path}: not evaluated: {', '.join(skipped)} ({why}); --splits {','.join(have)} evaluates every split"
 
 
-def check_file(path: str | PathLike | None, option: str) -> None:
+def check_file(path: str | PathLike | None, option: str, shipped: bool = False) -> None:
     """FileNotFoundError naming ``option`` when ``path`` is given and is no file (None: not given, nothing to
-    check)."""
+    check). ``shipped``: a checkpoint option, where a shipped model's name (``assets/robot/model.pt``) opens it from
+    any directory (:func:`particlesplat.data.families.shipped_model_named`)."""
     if path is None:
         return
     p = Path(path)
+    if shipped:
+        from particlesplat.data.families import shipped_model_named
+
+        p = shipped_model_named(p) or p
     if not p.exists():
         raise FileNotFoundError(f"{option} {p}: no such file")
     if not p.is_file():
