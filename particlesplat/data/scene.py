@@ -392,29 +392,15 @@ def _rigid_matrix(value: Any, where: str) -> np.ndarray:
         raise SceneFormatError(f"{where}: key '{key}' must be a 4x4 list of numbers") from None
     if m.shape == (3, 4):
         m = np.concatenate([m, [[0.0, 0.0, 0.0, 1.0]]])
-    if m.shape != (4, 4):
-        raise SceneFormatError(f"{where}: key '{key}' must be 4x4, got shape {m.shape}")
-    if not np.isfinite(m).all():
-        raise SceneFormatError(f"{where}: key '{key}' has non-finite values")
-    from particlesplat.core.limits import FLOAT32_MAX_ABS
+    from particlesplat.core.limits import WORLD_MAX_METRES, rigid_problem
 
-    if np.abs(m).max() > FLOAT32_MAX_ABS:
-        raise SceneFormatError(
-            f"{where}: key '{key}' has values beyond +-{FLOAT32_MAX_ABS:g} (float32 arithmetic on them overflows)"
-        )
-    from particlesplat.core.limits import WORLD_MAX_METRES
-
+    problem = rigid_problem(m, _RIGID_TOL, max_metres=None)  # the check every pose gets (the robot's base too)
+    if problem:
+        raise SceneFormatError(f"{where}: key '{key}' {problem}")
     if np.abs(m[:3, 3]).max() > WORLD_MAX_METRES:
         raise SceneFormatError(
             f"{where}: key '{key}' puts the camera {np.abs(m[:3, 3]).max():.3g} m from the origin, beyond the "
             f"{WORLD_MAX_METRES:g} m where float32 keeps millimetres; translate the scene near the origin"
-        )
-    R = m[:3, :3]
-    err = max(np.abs(R.T @ R - np.eye(3)).max(), np.abs(m[3] - [0, 0, 0, 1]).max())
-    if err > _RIGID_TOL or np.linalg.det(R) <= 0:
-        raise SceneFormatError(
-            f"{where}: key '{key}' is not a rigid transform (rotation must be orthonormal "
-            f"with det +1 and the last row 0 0 0 1; error {err:.3g}, det {np.linalg.det(R):.3g})"
         )
     return m
 
