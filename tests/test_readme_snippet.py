@@ -122,6 +122,10 @@ def test_a_shipped_model_s_name_opens_it_from_any_directory(tmp_path, monkeypatc
     check_file("assets/robot/model.pt", "--checkpoint", shipped=True)  # what commands check before torch loads
     with pytest.raises(FileNotFoundError, match="--ply assets/robot/model.pt: no such file"):
         check_file("assets/robot/model.pt", "--ply")
+    from particlesplat.core.outputs import OutputError, guard_outputs
+
+    with pytest.raises(OutputError, match="is --checkpoint assets/robot/model.pt, which this command reads"):
+        guard_outputs([("--out", robot)], [("--checkpoint", "assets/robot/model.pt")])  # the file that name opens
     robot_scene = str(demo_scenes()[3])
     argv = ["render", "--checkpoint", "assets/robot/model.pt", "--scene", robot_scene, "--width", "64"]
     assert main([*argv, "--height", "48", "--out", str(tmp_path / "r.png")]) == 0 and (tmp_path / "r.png").is_file()

@@ -33,6 +33,22 @@ def _resolved(path: str | PathLike) -> Path:
     return Path(os.path.abspath(Path(path).expanduser())).resolve()
 
 
+def _input_paths(path: str | PathLike) -> list[Path]:
+    """An input's resolved path; for a relative name under ``assets/`` that does not exist here, also the bundled
+    file of that name, which a shipped model's name opens from any directory
+    (:func:`particlesplat.data.families.shipped_model_named`)."""
+    given = Path(path).expanduser()
+    paths = [_resolved(given)]
+    if not given.is_absolute() and not given.exists() and given.parts[:1] == ("assets",):
+        from particlesplat.core.bundled import BundledDataMissing, bundled_assets
+
+        try:
+            paths.append(_resolved(bundled_assets().joinpath(*given.parts[1:])))
+        except BundledDataMissing:
+            pass
+    return paths
+
+
 def _inside(path: Path, folder: Path) -> bool:
     return path != folder and folder in path.parents
 
@@ -47,7 +63,7 @@ def guard_outputs(
     ``outputs``: (flag, path) of the files and folders the command writes; ``inputs``: (flag, path) of the files
     and folders it reads; ``replaced_folders``: (flag, folder) whose existing contents the command deletes or
     replaces. None paths are skipped; flags name the options in the message (``--out``, ``RUN``)."""
-    ins = [(flag, Path(p), _resolved(p)) for flag, p in inputs if p is not None and str(p) != ""]
+    ins = [(flag, Path(p), r) for flag, p in inputs if p is not None and str(p) != "" for r in _input_paths(p)]
     outs = [(flag, Path(p), _resolved(p)) for flag, p in outputs if p is not None and str(p) != ""]
     for flag, given, out in outs:
         for in_flag, in_given, inp in ins:
