@@ -28,15 +28,32 @@ def particles(n: int, seed: int, views: int = 2) -> Particles:
 
 
 def rows(p: Particles) -> list[tuple]:
-    """Each particle as a tuple of its per-particle fields' rows, in the dataclass's order."""
+    """Each particle as a tuple of its per-particle fields' rows, in the dataclass's order (the support height as
+    :meth:`Particles.support_heights` gives it, set or not)."""
     names = [f.name for f in fields(Particles) if f.name in Particles.row_fields()]
-    return [tuple(getattr(p, name)[i].tolist() for name in names) for i in range(p.num)]
+    values = {name: p.support_heights() if name == "support" else getattr(p, name) for name in names}
+    return [tuple(values[name][i].tolist() for name in names) for i in range(p.num)]
 
 
 def test_row_fields_are_every_field_with_one_row_per_particle():
     p = particles(5, 0)
-    assert set(Particles.row_fields()) == {"z_p", "z_s", "z_d", "z_e", "z_t", "z_f", "view"}
-    assert all(getattr(p, name).shape[0] == 5 for name in Particles.row_fields())
+    assert set(Particles.row_fields()) == {"z_p", "z_s", "z_d", "z_e", "z_t", "z_f", "view", "support"}
+    assert p.support is None and p.support_heights().shape == (5, 1)  # unset: every one on the shared surface
+    assert all(getattr(p, name).shape[0] == 5 for name in Particles.row_fields() if name != "support")
+
+
+def test_support_heights_follow_the_rows_set_or_not():
+    """An unset support height is the shared support surface's; setting one particle's sets the field; ``cat`` of
+    set and unset particles keeps every row's height; ``take`` and ``truncate`` keep them."""
+    a, b = particles(3, 1), particles(2, 2)
+    placed = a.with_attribute(1, "support", [-0.5])
+    assert placed.support is not None and placed.support[:, 0].tolist() == [0.0, -0.5, 0.0] and a.support is None
+    assert placed.attribute(1, "support").tolist() == [-0.5] and a.attribute(1, "support").tolist() == [0.0]
+    for ab, heights in ((placed.cat(b), [0.0, -0.5, 0.0, 0.0, 0.0]), (b.cat(placed), [0.0, 0.0, 0.0, -0.5, 0.0])):
+        assert ab.support is not None and ab.support[:, 0].tolist() == heights
+    assert a.cat(b).support is None
+    assert placed.take([1, 1]).support[:, 0].tolist() == [-0.5, -0.5] and placed.truncate(1).support.shape == (1, 1)
+    assert placed.clone().support is not placed.support and torch.equal(placed.detach().support, placed.support)
 
 
 def test_cat_take_truncate_move_whole_rows():

@@ -127,6 +127,41 @@ def test_decoded_particles_stay_above_the_support_with_the_clamp(clamp):
         assert low < -0.5
 
 
+def test_each_particle_is_clamped_to_the_surface_under_it():
+    """With per-particle support heights (an object placed on the floor below a table), the clamp holds each
+    particle's Gaussians at its own surface: those at -1 m reach below z = 0 but not below -1 m, each where its
+    unclamped twin's ray crosses that height (float64); heights all at z = 0 decode exactly
+    as no heights at all (the particles as encoded)."""
+    torch.manual_seed(0)
+    cfg = ModelConfig(**{**TINY_MODEL, "support_clamp": True, "d_min": 1.0, "d_max": 12.0})
+    model = ParticleSplat(cfg).eval()
+    cams = [Camera.orbit((0, 0, 0.15), az, 35, 3.3, width=32, height=32) for az in (-30, 30)]
+    with torch.no_grad():
+        p = model.encode(torch.rand(2, 3, 32, 32), None, cams)
+        p = dataclasses.replace(p, z_d=torch.full_like(p.z_d, 2.0), z_t=torch.ones_like(p.z_t))
+        low = torch.arange(p.num) % 2 == 1
+        heights = torch.where(low, -1.0, 0.0)[:, None].to(p.z_t)
+        g = model.decode(dataclasses.replace(p, support=heights), background=False)
+        same = model.decode(dataclasses.replace(p, support=torch.zeros_like(heights)), background=False)
+        plain = model.decode(p, background=False)
+    assert torch.equal(same.means, plain.means) and torch.equal(same.opacities, plain.opacities)
+    on_floor = low[g.owner]
+    assert float(g.means[~on_floor, 2].min()) > -1e-4  # the shared surface, as before
+    assert float(g.means[on_floor, 2].min()) > -1.0 - 1e-4 and float(g.means[on_floor, 2].min()) < -0.5
+    # each floor particle's Gaussian is where the unclamped one's ray from its view crosses z = -1 when that one lies
+    # deeper, else where the unclamped one is (float64, from a model without the clamp)
+    free = ParticleSplat(ModelConfig(**{**TINY_MODEL, "d_min": 1.0, "d_max": 12.0})).eval()
+    free.load_state_dict(model.state_dict())
+    with torch.no_grad():
+        raw = free.decode(p, background=False)
+    assert torch.equal(raw.owner, g.owner) and float(raw.means[on_floor, 2].min()) < -1.0  # some are held
+    for i in torch.nonzero(on_floor).flatten().tolist():
+        eye = cams[int(p.view[int(g.owner[i])])].c2w[:3, 3].double()
+        m = raw.means[i].double()
+        want = eye + (-1.0 - float(eye[2])) / float(m[2] - eye[2]) * (m - eye) if float(m[2]) < -1.0 else m
+        assert torch.allclose(g.means[i].double(), want, atol=1e-4), i
+
+
 def test_the_support_cut_hides_what_hangs_under_the_surface_and_nothing_else():
     """Particles placed deep from views looking down: with ``support_cut`` 0.01 every Gaussian more than 1 cm
     under z = 0 has opacity 0, and every other Gaussian is exactly as without the cut."""

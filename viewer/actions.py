@@ -121,16 +121,22 @@ def remove_selected(editor: SceneEditor, selected: int | None) -> tuple[int | No
 
 
 def duplicate_selected(editor: SceneEditor, selected: int | None, offset: Sequence[float]) -> tuple[int | None, str]:
-    """Copy the selected particle's object, moved by ``offset`` (3,) metres (one operation); the copy becomes
-    the selection. Returns (new selection, status message)."""
+    """Copy the selected particle's object about ``offset`` (3,) metres away, on the surface there and clear of the
+    other objects (:meth:`SceneEditor.copy_object`; one operation); the copy becomes the selection. Returns (new
+    selection, status message: the offset it took, and why it differs from ``offset``)."""
     if selected is None:
         return selected, "select an object first (click it)"
     try:
-        copy = editor.duplicate_object(selected, [float(v) for v in offset])
+        copy, note = editor.copy_object(selected, [float(v) for v in offset])
     except (MoveError, PickError) as e:
         return selected, f"error: {e}"
     members = editor.object_members(copy)
-    return copy, f"copied the object: new particles {', '.join(map(str, members))}, offset {_metres(offset)}"
+    done = editor.history.undo[-1]
+    taken = getattr(done, "offset", offset)
+    return copy, (
+        f"copied the object: new particles {', '.join(map(str, members))}, offset {_metres(taken)}"
+        + (f"; {note}" if note else "")
+    )
 
 
 SCALE_STEP = 1.1  # one press of the grow key; the shrink key divides by it

@@ -150,7 +150,9 @@ class ViewportControls:
         if imgui.is_mouse_released(imgui.MouseButton_.left) and self.press_pos is not None:
             if not self.dragged:
                 self.pick(vp, io.mouse_pos.x * sx, io.mouse_pos.y * sy)
-            self.floor.stop()
+            landed = self.floor.stop(vp.session.editor)
+            if landed:
+                vp.status(landed)
             if vp.session.editor is not None:
                 vp.session.editor.end_gesture()
             self.press_pos = None
@@ -191,7 +193,7 @@ class ViewportControls:
         dz = -dy * depth / float(cam.fy)
         bottom = editor.object_bottom(index)
         if bottom is not None:
-            dz = stop_at_support(dz, bottom, editor.support_height())
+            dz = stop_at_support(dz, bottom, editor.support_height(index))
         if dz == 0.0:
             if dy > 0:
                 vp.status("the object rests on the surface: it goes no lower")

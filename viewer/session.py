@@ -251,7 +251,7 @@ class EditableScene(SceneFiles):
     ) -> None:
         super().__init__(source, model_name)
         self.checkpoint = checkpoint  # the model's file ("" when it was built in memory)
-        self.editor = SceneEditor(model, encoded.particles, encoded.all_cameras, encoded.context)
+        self.editor = SceneEditor(model, encoded.particles, encoded.all_cameras, encoded.context, world=encoded.support)
         self.encoded = encoded
         self._saved_token = self._history_token()
 

@@ -321,7 +321,7 @@ def score_scene(
             "vacated": _dilate(old, dilate) & ~new,
             "view": torch.ones_like(old),
         }
-        editor = SceneEditor(model, enc.particles, enc.all_cameras, context, z_t_threshold)
+        editor = SceneEditor(model, enc.particles, enc.all_cameras, context, z_t_threshold, enc.support)
         status = "ok"
         try:
             label = editor.pick(truth.pick)

@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     exp.add_argument("--out", required=True, help="output .ply")
     ins = sub.add_parser(
         "insert",
-        help="insert an object of --from into --scene at a floor position; writes the "
+        help="insert an object of --from into --scene at a free spot on its table or floor; writes the "
         "composed scene as a .ply (and a PNG)",
         formatter_class=HelpFormatter,
     )
@@ -48,7 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ins.add_argument(
         "--at",
         type=_xy,
-        help="X,Y world metres on B's floor for the object's centre; none = the free spot nearest B's objects",
+        help="X,Y world metres for the object's centre on B's surface there (the table, or the floor past its edge); "
+        "a spot another object takes moves to the nearest free one (said on stderr); none = the free spot nearest "
+        "B's objects",
     )
     ins.add_argument("--centre", choices=OBJECT_CENTRES, default="resting", help="which object centre goes there")
     ins.add_argument("--out", required=True, help="output .ply of the composed scene (B with the object)")
@@ -105,21 +107,16 @@ def run(args: argparse.Namespace) -> int:
         return 0
     src = encode_scene(model, args.source, parse_context(args.from_context))
     from particlesplat.editing.compose import object_members
-    from particlesplat.editing.placement import footprints, free_spot, overlapping
+    from particlesplat.editing.placement import footprints, insert_spot
 
     radius = footprints(model, src.particles, object_members(model, src.particles, args.object))[0].radius
-    feet = footprints(model, enc.particles)
-    if args.at is None:
-        args.at = free_spot(feet, radius)
-        if args.at is None:
-            raise ValueError(f"--at: no free spot on the floor of {enc.path} for object {args.object}: give --at X,Y")
-    elif (hit := overlapping(feet, args.at, radius)) is not None:
-        print(
-            f"particlesplat object insert: warning: --at {args.at[0]:g},{args.at[1]:g} puts object {args.object} "
-            f"inside object {hit} of {enc.path} (leave --at out for a free spot)",
-            file=sys.stderr,
-        )
-    particles, new = insert_object(model, enc.particles, src.particles, args.object, args.at, method=args.centre)
+    args.at, note = insert_spot(enc.support, footprints(model, enc.particles), radius, args.at)
+    if note:  # where it went instead of --at: a spot taken, or past the table's edge
+        print(f"particlesplat object insert: {note}", file=sys.stderr)
+    support = enc.support.height_at(*args.at)
+    particles, new = insert_object(
+        model, enc.particles, src.particles, args.object, args.at, method=args.centre, support=support
+    )
     g = model.decode(particles).detach().to("cpu")
     write_ply(g, Path(args.out))
     print(

@@ -18,6 +18,7 @@ from particlesplat.core.jsonfile import MAX_JSON_BYTES, read_json
 from particlesplat.core.limits import MIN_DISTANCE_METRES, WORLD_MAX_METRES, rigid_problem
 from particlesplat.core.panda_arm import ARM_STATE_KEY, GRIPPER_REACH, NARROW_WORLD_BASE, arm_points, pack_arm_state
 from particlesplat.core.viewpoints import Framing
+from particlesplat.core.world import SUPPORT_Z, Support
 from particlesplat.data.families import DEFAULT_FAMILY, family_of, get_family
 from particlesplat.data.folders import TRANSFORMS
 from particlesplat.data.pose_ranges import check_limits, generator_range, warn_outside
@@ -127,14 +128,42 @@ def read_framing(folder: str | PathLike) -> Framing | None:
     )
 
 
-def _table_corners(meta: dict) -> list[tuple[float, float, float]]:
-    """The corners of a table top centred on the origin at z = 0, from scene.json's ``table_half_extent`` (x, y
-    metres; none when the key is absent or not two positive numbers below 10 m)."""
+def _table_half(meta: dict) -> tuple[float, float] | None:
+    """scene.json's ``table_half_extent``: the table top's half extents (x, y metres) about the origin; None when
+    the key is absent or not two positive numbers below 10 m."""
     half = meta.get("table_half_extent")
     if not (isinstance(half, list) and len(half) == 2 and all(_finite(v) and 0 < v < 10 for v in half)):
+        return None
+    return float(half[0]), float(half[1])
+
+
+def _table_corners(meta: dict) -> list[tuple[float, float, float]]:
+    """The corners of a table top centred on the origin at z = 0, from scene.json's ``table_half_extent`` (none
+    when it records no table)."""
+    half = _table_half(meta)
+    if half is None:
         return []
-    hx, hy = float(half[0]), float(half[1])
+    hx, hy = half
     return [(sx * hx, sy * hy, 0.0) for sx in (-1.0, 1.0) for sy in (-1.0, 1.0)]
+
+
+def read_support(folder: str | PathLike | None) -> Support:
+    """What objects rest on in the scene at ``folder`` (:class:`particlesplat.core.world.Support`): the table top its
+    ``scene.json`` records (``table_half_extent``) with the floor its family's
+    :attr:`~particlesplat.data.families.Family.table_height` below it; a plain floor at the support surface's height
+    when it records no table (or its family none), or there is no scene.json."""
+    path = None if folder is None else Path(folder) / SCENE_META
+    if path is None or not path.is_file():
+        return Support()
+    meta = read_scene_json(path)
+    if not isinstance(meta, dict):
+        return Support()
+    half = _table_half(meta)
+    family = family_of(meta, str(path))
+    height = get_family(family or DEFAULT_FAMILY).table_height
+    if half is None or height is None:
+        return Support()
+    return Support(half, SUPPORT_Z - height)
 
 
 def _scene_value(folder: str | PathLike, key: str) -> tuple[Path, object] | None:

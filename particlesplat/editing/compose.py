@@ -104,7 +104,7 @@ def reexpress(
     its new view."""
     cfg = model.config
     delta = torch.as_tensor(delta, dtype=torch.float64).reshape(3)
-    rows: dict[str, list[Tensor]] = {k: [] for k in Particles.row_fields()}
+    rows: dict[str, list[Tensor]] = {k: [] for k in Particles.row_fields() if k != "support"}
     for i in members:
         ca = src.cameras[int(src.view[i])].to("cpu", torch.float64)
         vb = views[int(src.view[i])]
@@ -143,6 +143,7 @@ def reexpress(
         z_t=new["z_t"],
         z_f=new["z_f"],
         view=new["view"],
+        support=None,  # on the shared support surface until placed
     )
 
 
@@ -155,23 +156,30 @@ def insert_object(
     *,
     method: ObjectCentre = "resting",
     iterations: int = 3,
+    support: float = SUPPORT_Z,
 ) -> tuple[Particles, list[int]]:
     """Insert object ``index`` of ``src`` (scene A) into ``dst`` (scene B) so that its centre lands at
-    ``at`` = (x, y) world metres on B's floor.
+    ``at`` = (x, y) world metres on B's surface there, at height ``support`` (the shared support surface z = 0, or
+    the floor below a table: :meth:`particlesplat.core.world.Support.height_at`).
 
     The centre (``method``, see :func:`particlesplat.editing.grouping.object_centres`) goes to (x, y, z) with z at
-    the object's height in A: both scenes' objects rest on the support surface z = 0 of the shared world frame.
+    the object's height above its support in A (A's objects rest on the support surface z = 0 of the shared world
+    frame) above ``support``; the new particles take ``support`` as the height of the surface under them.
     Returns (B's particles with the object's appended, the new particle indices).
     """
     members = object_members(model, src, index)
     centre_a = _centre(model, src, members, method, SUPPORT_Z)
-    target = torch.tensor([float(at[0]), float(at[1]), float(centre_a[2])], dtype=torch.float64)
+    target = torch.tensor([float(at[0]), float(at[1]), float(centre_a[2]) + support - SUPPORT_Z], dtype=torch.float64)
     views = match_views(src, centre_a, dst, target)
     n = dst.num
     out = dst.cat(reexpress(src, members, dst, views, target - centre_a, model))
     new = list(range(n, out.num))
+    if support != SUPPORT_Z or out.support is not None:
+        heights = out.support_heights().clone()
+        heights[n:] = support
+        out = replace(out, support=heights)
     for _ in range(iterations):
-        err = target - _centre(model, out, new, method, SUPPORT_Z)
+        err = target - _centre(model, out, new, method, support)
         if float(err.norm()) < PLACE_TOLERANCE:
             break
         for i, attrs in translate(out, new, err, model.config).items():

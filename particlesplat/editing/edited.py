@@ -16,10 +16,10 @@ from torch import Tensor
 
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.vectors import float3
-from particlesplat.core.world import SUPPORT_Z
+from particlesplat.core.world import SUPPORT_Z, Support
 from particlesplat.editing.crop_box import CropBox
 from particlesplat.editing.decoded import DecodedParticles
-from particlesplat.editing.grouping import OPAQUE, arm_state
+from particlesplat.editing.grouping import OPAQUE, arm_state, members_centre
 from particlesplat.editing.move import MoveError, anchor_points
 from particlesplat.editing.scene_objects import SceneObjects
 from particlesplat.model.config import ModelConfig
@@ -35,6 +35,8 @@ MAX_EDIT_PARTICLES = 1024
 BOTTOM_QUANTILE = 0.02  # an object's bottom: this quantile of its opaque Gaussians' heights
 SUNK_TOLERANCE = 0.02  # metres an object's bottom may sit below its support before it is flagged (encoded objects
 # rest within about 1 cm of it)
+RESTING_TOLERANCE = 0.03  # metres: an object whose bottom is this near its surface rests on it (a placement keeps it
+# there); one lifted higher stays lifted
 
 
 @dataclass(frozen=True)
@@ -64,10 +66,19 @@ class EditedParticles:
         model: the model that decodes them.
         particles: the encoded particles (kept on the CPU as the original).
         z_t_threshold: the particles that draw (None: the model's, :meth:`ParticleSplat.decode`).
+        world: what the scene's objects rest on (:class:`particlesplat.core.world.Support`; default a floor at the
+            shared support height everywhere).
     """
 
-    def __init__(self, model: ParticleSplat, particles: Particles, z_t_threshold: float | None = None) -> None:
+    def __init__(
+        self,
+        model: ParticleSplat,
+        particles: Particles,
+        z_t_threshold: float | None = None,
+        world: Support | None = None,
+    ) -> None:
         self.model = model
+        self.world = world or Support()  # what objects rest on: the table and the floor around it, or a floor
         self.z_t_threshold = z_t_threshold
         self.original = particles.detach().to("cpu")
         self.particles = self.original.clone()
@@ -168,12 +179,13 @@ class EditedParticles:
 
     def sunk_objects(self, tolerance: float = SUNK_TOLERANCE) -> list[str]:
         """One line for each object whose bottom (:meth:`bottom`) is more than ``tolerance`` metres below the
-        support surface: an edit file or a hand-set latent that sank it."""
-        labels, support = self.objects().labels, self.support_height()
+        surface it rests on (:meth:`support_height`): an edit file or a hand-set latent that sank it."""
+        labels = self.objects().labels
         out = []
         for k in sorted({int(v) for v in labels.tolist() if v >= 0}):
             members = torch.nonzero(labels == k).flatten()
             bottom = self.bottom(members.tolist())
+            support = self.support_height(members.tolist())
             if bottom is not None and bottom < support - tolerance:
                 names = ", ".join(str(int(i)) for i in members)
                 out.append(
@@ -182,9 +194,39 @@ class EditedParticles:
                 )
         return out
 
-    def support_height(self) -> float:
-        """The height (world z, metres) objects rest on (:data:`particlesplat.core.world.SUPPORT_Z`)."""
-        return SUPPORT_Z
+    def support_height(self, members: Sequence[int] | None = None) -> float:
+        """The height (world z, metres) of the surface the object of particles ``members`` rests on (the highest
+        of theirs, :attr:`Particles.support`: the table top, or the floor it was placed on); without ``members``,
+        the shared support surface (:data:`particlesplat.core.world.SUPPORT_Z`), where every object rests as
+        encoded."""
+        if not members:
+            return SUPPORT_Z
+        return float(self.particles.support_heights()[list(members), 0].max())
+
+    def resting(self, members: Sequence[int]) -> bool:
+        """Whether the object of particles ``members`` rests on its surface (its bottom within
+        :data:`RESTING_TOLERANCE` of it), not lifted off it."""
+        bottom = self.bottom(list(members))
+        return bottom is not None and abs(bottom - self.support_height(members)) <= RESTING_TOLERANCE
+
+    def support_changes(
+        self, particles: Particles, members: Sequence[int], offset: Sequence[float]
+    ) -> list[SetAttribute]:
+        """The changes that give particles ``members`` of ``particles``, moved by ``offset`` (3,) metres, the height
+        of the surface under the moved object's resting centre (:meth:`Support.height_at`): the table top, or the
+        floor past its edge. None needed in a world without a table, nor when the object draws nothing."""
+        if self.world.table_half is None or not members:
+            return []
+        now = particles.support_heights()
+        centre = members_centre(self.model, particles, list(members), float(now[list(members), 0].max()))
+        if centre is None:
+            return []
+        height = self.world.height_at(float(centre[0]) + float(offset[0]), float(centre[1]) + float(offset[1]))
+        return [
+            SetAttribute(i, "support", (float(now[i, 0]),), (height,))
+            for i in members
+            if abs(float(now[i, 0]) - height) > 1e-9
+        ]
 
     # ------------------------------------------------------------------ changes
     def apply(self, changes: Sequence[SetAttribute], forward: bool, rows: Rows | None = None) -> None:

@@ -89,7 +89,7 @@ def open_edited_scene(
             warnings.append(f"{where}: {mismatch}")
         from particlesplat.editing.scene_id import resolved, scene_digest
 
-        editor = SceneEditor(model, particles, enc.all_cameras, enc.context)
+        editor = SceneEditor(model, particles, enc.all_cameras, enc.context, world=enc.support)
         editor.apply_file(file, where)
         warnings += [f"{where}: {line}" for line in editor.sunk_objects()]  # allowed, but never silently
         particles, objects, crop = editor.particles, SceneObjects(editor.objects()), editor.crop_box

@@ -29,7 +29,7 @@ from torch import Tensor
 from particlesplat.core.camera import Camera
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.panda_arm import capsule_distance
-from particlesplat.core.world import SUPPORT_Z
+from particlesplat.core.world import Support
 from particlesplat.editing.crop_box import CropBox
 from particlesplat.editing.decoded import DecodedParticles
 from particlesplat.editing.edit_fields import Insert, Pick, PickError
@@ -60,6 +60,7 @@ from particlesplat.editing.operations import (
 )
 from particlesplat.editing.particle_edits import Edits, EditsError, apply_edits, check_indices, diff_edits
 from particlesplat.editing.picking import Picker
+from particlesplat.editing.placement import place
 from particlesplat.model.evidence import arm_capsules_of
 from particlesplat.model.particles import EDITABLE, Particles
 
@@ -85,6 +86,9 @@ class SceneEditor:
         context: the context frame indices (saved in edit files; picks try them first).
         z_t_threshold: the particles that draw (None: the model's, :meth:`ParticleSplat.decode`; 0 draws the
             inactive ones too, as before they were dropped: for measuring that).
+        world: what the scene's objects rest on (:class:`particlesplat.core.world.Support`: its table and the floor
+            around it; default a floor everywhere); an :class:`~particlesplat.editing.open_scene.EncodedScene`'s
+            ``support``.
     """
 
     def __init__(
@@ -94,13 +98,14 @@ class SceneEditor:
         frame_cameras: list[Camera] | None = None,
         context: list[int] | None = None,
         z_t_threshold: float | None = None,
+        world: Support | None = None,
     ) -> None:
         self.model = model
         self.z_t_threshold = z_t_threshold
         self.frame_cameras = list(frame_cameras or [])
         self.context = list(context) if context is not None else None
         self.history = History()
-        self.scene = EditedParticles(model, particles, z_t_threshold)
+        self.scene = EditedParticles(model, particles, z_t_threshold, world)
         self.picker = Picker(self.frame_cameras, self.context)
 
     # ------------------------------------------------------------------ queries
@@ -169,17 +174,23 @@ class SceneEditor:
         nothing is alone."""
         return self.scene.objects().members(index)
 
-    def support_height(self) -> float:
-        """The height (world z, metres) objects rest on: the support surface of the shared world frame
-        (:data:`particlesplat.core.world.SUPPORT_Z`; the tabletop's floor, the robot's table top)."""
-        return SUPPORT_Z
+    @property
+    def world(self) -> Support:
+        """What the scene's objects rest on: its table and the floor around it, or a floor."""
+        return self.scene.world
+
+    def support_height(self, index: int | None = None) -> float:
+        """The height (world z, metres) of the surface particle ``index``'s object rests on (the table top or the
+        shared support surface as encoded, the floor once placed past a table's edge); without ``index``, the shared
+        support surface (:data:`particlesplat.core.world.SUPPORT_Z`; the tabletop's floor, the robot's table top)."""
+        return self.scene.support_height(None if index is None else self.object_members(index))
 
     def object_centre(self, index: int) -> Tensor | None:
         """(3,) float64 world metres: the resting centre of particle ``index``'s object as drawn now
         (:func:`particlesplat.editing.grouping.members_centre`, as ``particlesplat encode`` and ``eval`` place
         objects), or None if it draws nothing."""
         scene = self.scene
-        return members_centre(scene.model, scene.particles, self.object_members(index), self.support_height())
+        return members_centre(scene.model, scene.particles, self.object_members(index), self.support_height(index))
 
     def object_scale(self, index: int) -> float:
         """How many times its encoded size particle ``index``'s object is now (what scaling it multiplied): the
@@ -293,6 +304,34 @@ class SceneEditor:
         n = self.num_particles
         self._commit(Duplicate(offset=offset).on(self.scene, index))
         return n
+
+    def copy_object(self, index: int, offset: Any) -> tuple[int, str]:
+        """Copy particle ``index``'s object to a place that respects the world: ``offset`` (3,) metres from it, on the
+        surface there (the table, or the floor past its edge), at the free spot nearest to that
+        (:func:`particlesplat.editing.placement.place`; a copy of a resting object rests, ``offset``'s z lifts it).
+        One ``duplicate`` operation with the offset it took. Returns (the copy's first particle, a note for the
+        user: "" when it went where ``offset`` put it). Raises MoveError."""
+        self._check_editable(index)
+        members = self.object_members(index)
+        placed = place(self.scene, members, [float(v) for v in offset], self.scene.resting(members), copy=True)
+        if placed is None:
+            return self.duplicate_object(index, offset), ""
+        return self.duplicate_object(index, placed.offset), placed.note
+
+    def place_object(self, index: int, resting: bool, gesture: str | None = None) -> str:
+        """Put particle ``index``'s object, where a drag left it, on the surface under it (the table, or the floor
+        past its edge) at the free spot nearest, clear of the other objects
+        (:func:`particlesplat.editing.placement.place`): a move, a step of ``gesture`` when given (so the drag and
+        its landing are one operation). ``resting``: it rested on its surface when the drag began (it is set down on
+        the new one; else it keeps its height, never below it). Returns a note for the user ("" when it stays where
+        it was put). Raises MoveError."""
+        self._check_editable(index)
+        placed = place(self.scene, self.object_members(index), (0.0, 0.0, 0.0), resting)
+        if placed is None:
+            return ""
+        if any(abs(v) > 1e-9 for v in placed.offset):
+            self._commit(Translate(offset=placed.offset).on(self.scene, index), gesture)
+        return placed.note
 
     def scale_object(self, index: int, factor: float, gesture: str | None = None) -> None:
         """Scale particle ``index``'s object ``factor`` times about its resting centre, on its support

@@ -11,9 +11,10 @@ from particlesplat.core.bundled import bundled_assets
 from particlesplat.core.errors import InputWarning, OptionError
 from particlesplat.core.limits import check_memory
 from particlesplat.core.viewpoints import default_context_views
+from particlesplat.core.world import Support
 from particlesplat.data import Scene, read_scene
 from particlesplat.data.families import DEFAULT_FAMILY, Family, families, get_family
-from particlesplat.data.scene_meta import scene_pose
+from particlesplat.data.scene_meta import read_support, scene_pose
 from particlesplat.editing.source_options import parse_context
 from particlesplat.model import Particles, ParticleSplat
 
@@ -33,6 +34,8 @@ class EncodedScene:
         context: the context frame indices in the folder.
         path: the scene folder.
         warnings: what the user should know about the result (e.g. the scene has no depth).
+        support: what the scene's objects rest on (its table and the floor around it, or a floor:
+            :func:`particlesplat.data.scene_meta.read_support`).
     """
 
     particles: Particles
@@ -41,6 +44,7 @@ class EncodedScene:
     context: list[int]
     path: Path
     warnings: list[str] = field(default_factory=list)
+    support: Support = field(default_factory=Support)
 
 
 def _demo_families() -> list[Family]:
@@ -102,7 +106,7 @@ def encode_scene(
             f"{raw.path}: no depth in the context frames {ctx}: the model was trained with depth, and "
             f"from RGB alone it reconstructs far worse ({NO_DEPTH_NOTE})"
         )
-    return EncodedScene(particles, scene, list(raw.cameras), ctx, Path(raw.path), notes)
+    return EncodedScene(particles, scene, list(raw.cameras), ctx, Path(raw.path), notes, read_support(raw.path))
 
 
 def load_model_scene(checkpoint: str | None, scene: str | PathLike | None, context: str | None = None):

@@ -230,13 +230,14 @@ def _offset(value: Any) -> tuple[float, float, float]:
 
 
 def _moved(scene: EditedParticles, particles: Particles, members: list[int], offset) -> list[SetAttribute]:
-    """The changes that move particles ``members`` of ``particles`` by ``offset`` (3,) world metres."""
+    """The changes that move particles ``members`` of ``particles`` by ``offset`` (3,) world metres, and give them
+    the height of the surface under where the object goes (:meth:`EditedParticles.support_changes`)."""
     target = translate(particles, members, offset, scene.model.config)
     return [
         SetAttribute(i, name, tuple(float(v) for v in particles.attribute(i, name).tolist()), value)
         for i, attrs in target.items()
         for name, value in attrs.items()
-    ]
+    ] + scene.support_changes(particles, members, offset)
 
 
 @dataclass(eq=False, kw_only=True)
@@ -348,13 +349,15 @@ class InsertObject(Operation):
     @classmethod
     def of(cls, scene: EditedParticles, source: Particles, insert: Insert) -> InsertObject:
         """Object ``insert.object`` of another scene's particles ``source`` (encoded with this model) with its
-        centre at ``insert.at`` on this scene's floor (:func:`particlesplat.editing.compose.insert_object`).
+        centre at ``insert.at`` on the surface there (the table, or the floor past its edge:
+        :func:`particlesplat.editing.compose.insert_object`).
         Raises ValueError (no such object) or MoveError."""
         from particlesplat.editing.compose import insert_object
 
         n = scene.num
         check_room(n, 1, "insert")
-        grown, new = insert_object(scene.model, scene.particles, source, insert.object, insert.at)
+        support = scene.world.height_at(*insert.at)  # the table under it, or the floor past its edge
+        grown, new = insert_object(scene.model, scene.particles, source, insert.object, insert.at, support=support)
         check_room(n, grown.num - n, "insert")
         added = grown.take(slice(n, None)).detach().to("cpu")
         sources = scene.add_inserted(added)
@@ -458,10 +461,11 @@ class Scale(ObjectOperation):
             raise MoveError(f"scale: expected a factor in (0, inf), got {factor!r}")
         if factor == 1.0:
             return None
-        centre = members_centre(scene.model, scene.particles, members, scene.support_height())
+        support = scene.support_height(members)
+        centre = members_centre(scene.model, scene.particles, members, support)
         if centre is None:
             raise MoveError(f"scale: the object of {members_label(members)} draws nothing")
-        pivot = (float(centre[0]), float(centre[1]), scene.support_height())
+        pivot = (float(centre[0]), float(centre[1]), support)
         target = scale(scene.particles, members, factor, pivot, scene.model.config)
         changes = [
             SetAttribute(i, name, scene.value(i, name), value)

@@ -141,21 +141,30 @@ def masked_block_mean(x: Tensor, weight: Tensor, k: int) -> tuple[Tensor, Tensor
 
 
 def _place(
-    pix: Tensor, zeta: Tensor, K: Tensor, c2w: Tensor, opacity: Tensor, support: bool = False, cut: float = -1.0
+    pix: Tensor,
+    zeta: Tensor,
+    K: Tensor,
+    c2w: Tensor,
+    opacity: Tensor,
+    support: bool = False,
+    cut: float = -1.0,
+    height: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Where image-plane Gaussians lie in the world, and whether they draw.
 
     pix: (..., 2) pixel centres; zeta: (...) planar depth; K: (..., 3, 3), c2w: (..., 4, 4) broadcast per
-    Gaussian; opacity: (...) α. support: no mean below the support surface z = 0 (:func:`clamp_to_support`);
-    cut: a Gaussian whose mean lies more than ``cut`` metres below it does not draw (opacity 0; < 0 = off).
+    Gaussian; opacity: (...) α. support: no mean below the support surface (:func:`clamp_to_support`); cut: a
+    Gaussian whose mean lies more than ``cut`` metres below it does not draw (opacity 0; < 0 = off). height:
+    the support surface's world z under each Gaussian (broadcast with zeta; None: SUPPORT_Z, the shared one).
     Returns the planar depth (clamped with ``support``), means (..., 3) and opacity.
     """
     dirs = ray_dirs(pix[..., None, :], K, c2w)[..., 0, :]
+    surface: Tensor | float = SUPPORT_Z if height is None else height
     if support:
-        zeta = clamp_to_support(zeta, c2w[..., 2, 3], dirs[..., 2])
+        zeta = clamp_to_support(zeta, c2w[..., 2, 3], dirs[..., 2], surface)
     means = c2w[..., :3, 3] + zeta[..., None] * dirs
     if cut >= 0.0:
-        opacity = torch.where(means[..., 2] < SUPPORT_Z - cut, torch.zeros_like(opacity), opacity)
+        opacity = torch.where(means[..., 2] < surface - cut, torch.zeros_like(opacity), opacity)
     return zeta, means, opacity
 
 
@@ -185,14 +194,15 @@ def _finish(
     return {"means": means, "quats": quats, "scales": scales, "opacities": opacity, "sh": sh}
 
 
-def clamp_to_support(zeta: Tensor, origin_z: Tensor, dir_z: Tensor) -> Tensor:
+def clamp_to_support(zeta: Tensor, origin_z: Tensor, dir_z: Tensor, surface: Tensor | float = SUPPORT_Z) -> Tensor:
     """Planar depths (...) of points on camera rays moved, where they would lie below the support surface
-    z = 0 (the floor or table top objects rest on, world metres, +z up), to where the ray meets it.
+    z = ``surface`` (default the shared one, :data:`~particlesplat.core.world.SUPPORT_Z`: the floor or table top
+    objects rest on, world metres, +z up; a tensor broadcast with zeta: each point's own), to where the ray meets it.
 
     origin_z: (...) camera height; dir_z: (...) world z of the ray direction per unit planar depth. Rays from
     below the surface or not going down are left alone. Differentiable (a minimum).
     """
-    height = origin_z - SUPPORT_Z
+    height = origin_z - surface
     down = (dir_z < 0) & (height > 0)
     hit = torch.where(down, height / (-dir_z).clamp_min(1e-12), torch.full_like(zeta, float("inf")))
     return torch.minimum(zeta, hit)
@@ -217,6 +227,7 @@ def foreground_gaussians(
     cfg: ModelConfig,
     keep: int = 0,
     colour_anchor: Tensor | None = None,
+    support: Tensor | None = None,
 ) -> dict[str, Tensor]:
     """Steps 2-3 for M particles.
 
@@ -232,7 +243,9 @@ def foreground_gaussians(
     which the view cannot see. Its offset channels are unused; the rest are its own.
 
     ``colour_anchor`` (M, N, 3) in [0, 1] (``patch.colour_anchor``): each cell's colour is a residual about it (the
-    context view's colour under the cell, :meth:`ParticleSplat.with_colour_anchors`).
+    context view's colour under the cell, :meth:`ParticleSplat.with_colour_anchors`). ``support`` (M,): the world
+    height of the surface under each particle (:attr:`Particles.support`; None: the shared SUPPORT_Z), where
+    ``support.clamp`` and ``support.cut`` put it.
     """
     S = cfg.patch_gaussians
     H = W = cfg.resolution
@@ -258,7 +271,7 @@ def foreground_gaussians(
     if colour_anchor is not None:
         dc = p["sh"][..., 0, :] + (colour_anchor - 0.5) / SH_C0
         p = {**p, "sh": torch.cat([dc[..., None, :], p["sh"][..., 1:, :]], dim=-2)}
-    return _lift_cells(p, pix, zeta, jac_px, opacity, K, c2w, cfg, keep)
+    return _lift_cells(p, pix, zeta, jac_px, opacity, K, c2w, cfg, keep, support)
 
 
 def cell_pixels(z_p: Tensor, z_s: Tensor, S: int, size: tuple[int, int]) -> Tensor:
@@ -279,15 +292,20 @@ def _lift_cells(
     c2w: Tensor,
     cfg: ModelConfig,
     keep: int = 0,
+    support: Tensor | None = None,
 ) -> dict[str, Tensor]:
     """Lift N cells of M particles: p split head output, pix (M, N, 2) pixels, zeta (M, N) planar metres,
     jac_px (M, 1, 2) pixels per canonical cell, opacity (M, N); K (M, 3, 3), c2w (M, 4, 4). ``keep`` = k in
-    (0, N): only each particle's k most opaque cells (as they draw, after ``support_cut``), in their order."""
+    (0, N): only each particle's k most opaque cells (as they draw, after ``support_cut``), in their order.
+    ``support`` (M,): the height of the surface under each particle (None: SUPPORT_Z)."""
     N = pix.shape[1]
     # canonical cells are cubes (as deep as they are wide), so a particle's Gaussians have volume and do not
     # turn into slivers seen from the side
     depth_cell = jac_px.mean(-1) * zeta / K[:, 0, 0, None]
-    zeta, means, opacity = _place(pix, zeta, K[:, None], c2w[:, None], opacity, cfg.support_clamp, cfg.support_cut)
+    height = None if support is None else support.to(zeta)[:, None]  # (M, 1) with zeta (M, N)
+    zeta, means, opacity = _place(
+        pix, zeta, K[:, None], c2w[:, None], opacity, cfg.support_clamp, cfg.support_cut, height
+    )
     if 0 < keep < N:
         rows = opacity.topk(keep, dim=1).indices.sort(dim=1).values  # (M, k)
 

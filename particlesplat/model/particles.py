@@ -5,17 +5,21 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
+from typing import Any
 
 import torch
 from torch import Tensor
 
 from particlesplat.core.camera import Camera
+from particlesplat.core.world import SUPPORT_Z
 
 SCENE_FIELDS = ("background", "cameras", "pose", "backdrop", "support_map")  # one per scene, not one per particle
-OPTIONAL_FIELDS = ("cameras", "pose", "backdrop", "support_map")  # not tensors, or tensors that may be None
+OPTIONAL_FIELDS = ("cameras", "pose", "backdrop", "support_map", "support")  # not tensors, or may be None
 
 # The attributes a user may edit, in the paper's order, with their widths.
 EDITABLE = MappingProxyType({"z_p": 2, "z_s": 2, "z_d": 1, "z_e": 1, "z_t": 1})
+# What edits set besides them: the height of the surface under each particle's object (a placement sets it).
+PLACED = MappingProxyType({"support": 1})
 
 
 @dataclass
@@ -42,6 +46,10 @@ class Particles:
             (``background.colour_from_views``), or None (the model's learned colour).
         support_map: (4, N, N) top-down RGB and support share of the support surface, read from the context views
             (``background.support_map``: :mod:`particlesplat.model.support_map`), or None.
+        support: (L, 1) world height (metres) of the surface each particle's object rests on, where the decoder's
+            ``support.clamp`` and ``support.cut`` put that surface for its Gaussians; None: every particle's is the
+            shared world's :data:`~particlesplat.core.world.SUPPORT_Z` (as encoded: an object placed on a lower
+            surface, such as the floor past a table's edge, gets that surface's height).
     """
 
     z_p: Tensor
@@ -56,10 +64,17 @@ class Particles:
     pose: Tensor | None = None
     backdrop: Tensor | None = None
     support_map: Tensor | None = None
+    support: Tensor | None = None
 
     @property
     def num(self) -> int:
         return self.z_p.shape[0]
+
+    def support_heights(self) -> Tensor:
+        """(L, 1) the height of the surface under each particle (:attr:`support`; SUPPORT_Z where none is set)."""
+        if self.support is not None:
+            return self.support
+        return torch.full((self.num, 1), SUPPORT_Z, dtype=self.z_t.dtype, device=self.z_t.device)
 
     @classmethod
     def row_fields(cls) -> tuple[str, ...]:
@@ -67,12 +82,19 @@ class Particles:
         return tuple(f.name for f in fields(cls) if f.name not in SCENE_FIELDS)
 
     def _rows(self, fn) -> Particles:
-        return replace(self, **{name: fn(name, getattr(self, name)) for name in self.row_fields()})
+        """The particles with ``fn(name, rows)`` of each row field (an unset :attr:`support` stays unset)."""
+        return replace(
+            self,
+            **{name: fn(name, getattr(self, name)) for name in self.row_fields() if getattr(self, name) is not None},
+        )
 
     def cat(self, other: Particles) -> Particles:
         """These particles followed by ``other``'s (moved to this device; the background, cameras and pose stay
-        these)."""
-        return self._rows(lambda name, t: torch.cat([t, getattr(other, name).to(t.device)]))
+        these). The support heights are set on both when either has them."""
+        a, b = self, other
+        if (a.support is None) != (b.support is None):
+            a, b = replace(a, support=a.support_heights()), replace(b, support=b.support_heights())
+        return a._rows(lambda name, t: torch.cat([t, getattr(b, name).to(t.device)]))
 
     def take(self, rows: Tensor | Sequence[int] | slice) -> Particles:
         """The particles ``rows`` (int64 indices, in that order, repeats allowed, or a slice) on the same
@@ -93,6 +115,7 @@ class Particles:
             pose=None if self.pose is None else fn(self.pose),
             backdrop=None if self.backdrop is None else fn(self.backdrop),
             support_map=None if self.support_map is None else fn(self.support_map),
+            support=None if self.support is None else fn(self.support),
         )
 
     def detach(self) -> Particles:
@@ -106,7 +129,10 @@ class Particles:
         return replace(p, cameras=[c.to(device) for c in self.cameras])
 
     def attribute(self, index: int, name: str) -> Tensor:
-        """Current value of an editable attribute of particle ``index``: (width,)."""
+        """Current value of an editable attribute (:data:`EDITABLE`) or of the support height (:data:`PLACED`) of
+        particle ``index``: (width,)."""
+        if name in PLACED:
+            return self.support_heights()[index]
         if name not in EDITABLE:
             raise KeyError(f"'{name}' is not an editable particle attribute ({', '.join(EDITABLE)})")
         return getattr(self, name)[index]
@@ -115,6 +141,7 @@ class Particles:
         """A copy with attribute ``name`` of particle ``index`` set to ``value`` (width,)."""
         current = self.attribute(index, name)
         value_t = torch.as_tensor(value, dtype=current.dtype, device=current.device).reshape(current.shape)
-        new = getattr(self, name).clone()
+        new = (self.support_heights() if name in PLACED else getattr(self, name)).clone()
         new[index] = value_t
-        return replace(self, **{name: new})
+        values: dict[str, Any] = {name: new}
+        return replace(self, **values)

@@ -404,13 +404,15 @@ class ParticleSplat(nn.Module):
         K: Tensor,
         c2w: Tensor,
         keep: int = 0,
+        support: Tensor | None = None,
     ) -> dict[str, Tensor]:
         """M particles -> Gaussian fields (M, 2*S*S, ·): the front Gaussians, then the back layer. Latents (M, ·);
-        K (M, 3, 3), c2w (M, 4, 4) of their views. ``keep`` = k > 0: each particle's k most opaque (M, k, ·)."""
+        K (M, 3, 3), c2w (M, 4, 4) of their views. ``keep`` = k > 0: each particle's k most opaque (M, k, ·).
+        ``support`` (M,): the height of the surface under each particle (None: the shared SUPPORT_Z)."""
         d = self.config.d_obj
         anchor = z_f[:, d:].reshape(z_f.shape[0], -1, 3) if z_f.shape[-1] > d else None
         raw = self.fg_decoder(z_f[:, :d])
-        return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config, keep, anchor)
+        return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config, keep, anchor, support)
 
     def background(self, bg: Tensor, K: Tensor, c2w: Tensor, c2w_net: Tensor | None = None) -> dict[str, Tensor]:
         """bg: (M, d_bg, h, w) latents of M views (with ``fg_evidence``, (M, d_bg + 5, h, w): the latents, then the
@@ -627,6 +629,7 @@ class ParticleSplat(nn.Module):
                 K[v],
                 c2w[v],
                 max_per_particle or 0,
+                None if p.support is None else p.support[idx, 0],
             )
             parts.append(_gaussians(fg, idx.repeat_interleave(fg["opacities"].shape[1])))
         if background:

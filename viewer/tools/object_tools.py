@@ -51,15 +51,19 @@ def floor_point(camera: Camera, x: float, y: float, height: float) -> Tensor | N
 
 
 class FloorDrag:
-    """Slides the selected object on the horizontal plane through its centre, following the mouse.
+    """Slides the selected object on the horizontal plane through its centre, following the mouse; where it is let
+    go, it lands on the surface under it (the table, or the floor past its edge) at the free spot nearest, clear of
+    the other objects (:meth:`SceneEditor.place_object`).
 
-    :meth:`start` at the press, :meth:`update` per mouse event, the editor's ``end_gesture`` at release
-    (one undo step per drag)."""
+    :meth:`start` at the press, :meth:`update` per mouse event, :meth:`stop` and the editor's ``end_gesture`` at
+    release (one undo step per drag, its landing included)."""
 
     def __init__(self) -> None:
         self.index: int | None = None
         self.height = 0.0
         self.last: Tensor | None = None
+        self.resting = True  # the object rested on its surface when the drag began
+        self.moved = False
 
     @property
     def active(self) -> bool:
@@ -74,6 +78,8 @@ class FloorDrag:
         self.height = float(centre[2])
         self.last = floor_point(camera, x, y, self.height)
         self.index = index if self.last is not None else None
+        self.resting = editor.scene.resting(editor.object_members(index))
+        self.moved = False
         return self.active
 
     def update(self, editor: SceneEditor, camera: Camera, x: float, y: float) -> str | None:
@@ -94,10 +100,19 @@ class FloorDrag:
         except MoveError as e:
             return f"error: {e}"
         self.last = self.last + delta
+        self.moved = self.moved or step > 0.0
         return None
 
-    def stop(self) -> None:
-        self.index, self.last = None, None
+    def stop(self, editor: SceneEditor | None = None) -> str | None:
+        """The drag ends: with ``editor``, a moved object lands where it was let go (a step of the drag's gesture,
+        :meth:`SceneEditor.place_object`). Returns what the landing says ("" or None: nothing to say)."""
+        index, moved, self.index, self.last, self.moved = self.index, self.moved, None, None, False
+        if editor is None or index is None or not moved:
+            return None
+        try:
+            return editor.place_object(index, self.resting, gesture=FLOOR_GESTURE) or None
+        except MoveError as e:
+            return f"error: {e}"
 
 
 class GizmoDrag:
@@ -114,6 +129,9 @@ class GizmoDrag:
         self.mode: str | None = None  # None before the first step, then "axes" or "floor"
         self.floor = FloorDrag()
         self.scaled = 1.0  # the scale handles' factor so far in this drag
+        self.index: int | None = None  # the object an axes drag moved
+        self.resting = True  # it rested on its surface when the drag began
+        self.slid = False  # an axes drag moved it along x or y
 
     def scale(self, editor: SceneEditor, index: int, total: float) -> str | None:
         """The scale handles show ``total`` (the factor since the drag began): scale the object by what it adds
@@ -143,13 +161,16 @@ class GizmoDrag:
             self.mode = "floor" if int(np.count_nonzero(np.abs(step) > 1e-9)) == 3 else "axes"
             if self.mode == "floor" and not self.floor.start(editor, index, camera, *previous):
                 self.mode = "axes"
+            self.index, self.slid = index, False
+            self.resting = editor.scene.resting(editor.object_members(index))
         if self.mode == "floor":
             return self.floor.update(editor, camera, *mouse)
         step = np.asarray(step, dtype=np.float64).copy()
+        self.slid = self.slid or bool(np.any(np.abs(step[:2]) > 1e-9))
         if step[2] < 0.0:
             bottom = editor.object_bottom(index)
             if bottom is not None:
-                step[2] = stop_at_support(float(step[2]), bottom, editor.support_height())
+                step[2] = stop_at_support(float(step[2]), bottom, editor.support_height(index))
         if not np.any(step):
             return None
         try:
@@ -158,11 +179,19 @@ class GizmoDrag:
             return f"error: {e}"
         return None
 
-    def stop(self, editor: SceneEditor) -> None:
-        """The drag ends: one operation in the history."""
+    def stop(self, editor: SceneEditor) -> str | None:
+        """The drag ends: an object slid (the centre handle, or an arrow or plane along x or y) lands on the surface
+        under it, clear of the others (:meth:`SceneEditor.place_object`; a lift along z alone stays where it was
+        lifted); one operation in the history. Returns what the landing says, or None."""
+        note = self.floor.stop(editor) if self.mode == "floor" else None
+        if self.mode == "axes" and self.slid and self.index is not None:
+            try:
+                note = editor.place_object(self.index, self.resting, gesture=GIZMO_GESTURE) or None
+            except MoveError as e:
+                note = f"error: {e}"
         editor.end_gesture()
-        self.mode, self.scaled = None, 1.0
-        self.floor.stop()
+        self.mode, self.scaled, self.index, self.slid = None, 1.0, None, False
+        return note
 
 
 def gl_view(camera: Camera) -> np.ndarray:
@@ -259,7 +288,7 @@ class ObjectGizmo:
         editor = session.editor
         if editor is None or index is None or not 0 <= index < editor.num_particles:
             if self.using and editor is not None:
-                self.drag.stop(editor)
+                self.drag.stop(editor)  # (deselected mid-drag: nothing to show it on)
             self.using = False
             return None
         self._refresh(editor, index, camera)
@@ -302,6 +331,6 @@ class ObjectGizmo:
                 previous = (mouse[0] - io.mouse_delta.x * sx, mouse[1] - io.mouse_delta.y * sy)
                 message = self.drag.step(editor, index, step, camera, mouse, previous)
         if self.using and not using:
-            self.drag.stop(editor)
+            message = self.drag.stop(editor) or message
         self.using = bool(using)
         return message

@@ -17,8 +17,8 @@ if TYPE_CHECKING:
 @dataclass
 class InsertFields:
     """What the section holds between frames: the source scene folder, the object index (as ``particlesplat
-    encode`` numbers objects) and the floor position (x, y) in metres, or ``free_spot``: a place no object of this
-    scene takes (:func:`particlesplat.editing.placement.free_spot`)."""
+    encode`` numbers objects) and the position (x, y) in metres on the surface there, or ``free_spot``: a place no
+    object of this scene takes (:func:`particlesplat.editing.placement.free_spot`)."""
 
     scene: str = ""
     object: int = 0
@@ -49,39 +49,34 @@ def draw_insert_section(fields: InsertFields) -> bool:
         if changed:
             fields.at = [float(v) for v in at]
     imgui.text_wrapped(
-        "Objects are numbered as particlesplat encode's 'object'. The object's centre goes to (x, y) on the floor, "
-        "or to the free spot nearest the scene's objects."
+        "Objects are numbered as particlesplat encode's 'object'. The object's centre goes to (x, y) on the surface "
+        "there (the table, or the floor past its edge), or the free spot nearest to it; or to the free spot nearest "
+        "the scene's objects."
     )
     return bool(imgui.button("Insert")) and bool(fields.scene.strip())
 
 
 def insert_from_fields(editor: SceneEditor, fields: InsertFields) -> tuple[int, str]:
     """Encode ``fields.scene`` with the editor's model (its default context frames) and insert the object at
-    (x, y) or at a free spot: returns (the new object's first particle, a status line, which warns when the
-    object lands on another one). Errors (no such scene or object, no free spot, a move out of range) propagate
-    for the app to show."""
+    (x, y) on the surface there (the table, or the floor past its edge), or the free spot nearest to it, or (with
+    ``free_spot``) the free spot nearest the scene's objects (:func:`particlesplat.editing.placement.insert_spot`):
+    returns (the new object's first particle, a status line, which says where it went when that is not (x, y)).
+    Errors (no such scene or object, no free spot, a move out of range) propagate for the app to show."""
     from particlesplat.editing.compose import object_members
-    from particlesplat.editing.placement import footprints, free_spot, overlapping
+    from particlesplat.editing.placement import footprints, insert_spot, scene_footprints
 
     scene = fields.scene.strip()
     source = encode_scene(editor.model, scene)
     members = object_members(editor.model, source.particles, int(fields.object))
     radius = footprints(editor.model, source.particles, members)[0].radius
-    feet = footprints(editor.model, editor.particles)
-    note = ""
-    if fields.free_spot:
-        at = free_spot(feet, radius)
-        if at is None:
-            raise ValueError(f"no free spot on this scene's floor for object {fields.object} of {Path(scene).name}")
-        fields.at = [at[0], at[1]]
-    else:
-        at = (float(fields.at[0]), float(fields.at[1]))
-        hit = overlapping(feet, at, radius)
-        if hit is not None:
-            note = f"; warning: it overlaps object {hit} of this scene (tick 'at a free spot' to avoid that)"
+    edited = editor.scene
+    feet = scene_footprints(edited.decode(), edited.objects().labels, edited.particles.support_heights()[:, 0])
+    wanted = None if fields.free_spot else (float(fields.at[0]), float(fields.at[1]))
+    at, note = insert_spot(editor.world, list(feet.values()), radius, wanted, "at x, y")
+    fields.at = [at[0], at[1]]
     ins = Insert(scene, int(fields.object), at, tuple(source.context))
     first = editor.insert_object(source.particles, ins)
     return first, (
         f"inserted object {ins.object} of {Path(ins.scene).name} as particles "
-        f"{first}..{editor.num_particles - 1} at ({ins.at[0]:g}, {ins.at[1]:g}){note}"
+        f"{first}..{editor.num_particles - 1} at ({ins.at[0]:g}, {ins.at[1]:g})" + (f"; {note}" if note else "")
     )

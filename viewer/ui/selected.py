@@ -26,7 +26,7 @@ DRAG_SPEED = MappingProxyType(
 def warn_if_sunk(editor: SceneEditor, index: int, ctx: ActionContext) -> None:
     """Say so on the status line when a hand-set latent put particle ``index``'s object below its support (it
     stays: the user may want it)."""
-    bottom, support = editor.object_bottom(index), editor.support_height()
+    bottom, support = editor.object_bottom(index), editor.support_height(index)
     if bottom is not None and bottom < support - SUNK_TOLERANCE:
         ctx.status(f"warning: the object's bottom is at z = {bottom:.2f} m, below its support at {support:.2f} m")
 
