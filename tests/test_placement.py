@@ -245,3 +245,15 @@ def test_object_insert_at_a_taken_spot_moves_to_a_free_one(tmp_path, capsys):
     opaque = g.opacities >= OPAQUE
     new = g.means[opaque & (g.owner >= n), :2].double()
     assert new.shape[0] > 0 and share_inside(new, true_feet(scene_b)) < 0.05
+
+
+def test_the_copy_offset_follows_the_scene_scale(family):
+    """The panel's default copy offset is a tenth of the distance the scene's default view looks from: about 0.3 m
+    on a tabletop scene, about 0.1 m on a robot table (where 0.3 m would often take a copy off the table)."""
+    from viewer.app import initial_view
+    from viewer.ui.objects import copy_step
+
+    model, enc, scene = family
+    step = copy_step(initial_view(EditableScene(model, enc, source=str(scene)), None, None).look.distance)[0]
+    assert (0.08 <= step <= 0.16) if "robot" in str(scene) else (0.25 <= step <= 0.4)
+    assert copy_step(3.14) == [0.31, 0.0, 0.0]

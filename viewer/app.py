@@ -54,6 +54,7 @@ from .signals import SignalStop, raise_on_stop_signals  # noqa: E402
 from .state import ViewState  # noqa: E402
 from .tools.object_tools import ObjectGizmo  # noqa: E402
 from .tools.ruler import draw_ruler  # noqa: E402
+from .ui.objects import copy_step  # noqa: E402
 from .ui.panel import UiFields, UiRequests, clear_of_panel, draw_overlay, draw_panel, draw_status_line  # noqa: E402
 
 STILL_AFTER = 0.2  # seconds without interaction before rendering at full scale
@@ -155,6 +156,7 @@ class App:
         self.settings = load_settings()
         out = str(args.output_dir or output_dir())
         self.fields = UiFields(output_dir=out, panel_width=self.settings.panel_width)
+        self.fields.objects.copy_offset = copy_step(view.look.distance)  # at the scene's scale
         self.fields.edits_path = str(session.default_edits_path(out))
         self.chords = ChordQueue()  # Ctrl chords with the modifiers of their key events
         self._frame_chords: list[tuple[str, bool]] = []
@@ -396,6 +398,7 @@ class App:
             panel=self.state.panel, overlay=self.state.overlay, background=session_background(self.session)
         )
         self.orbit = OrbitCamera.from_view(view)
+        self.fields.objects.copy_offset = copy_step(view.look.distance)
         self.fields.status = f"opened {p}" + (
             f"; unsaved edits of the previous scene kept in {kept.resolve()}" if kept else ""
         )
