@@ -24,7 +24,7 @@ from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
 
 def test_protocol_views_choose_the_papers_frames_or_the_context_itself():
     ctx, tgt = torch.tensor([3, 11]), torch.tensor([4, 5, 8, 10])
-    assert protocol_views("default", 21, ctx, tgt) == (ctx, tgt)
+    assert protocol_views("sampled", 21, ctx, tgt) == (ctx, tgt)
     c, t = protocol_views("inputs", 21, ctx, tgt)
     assert c.tolist() == [3, 11] and t.tolist() == [3, 11]
     c, t = protocol_views("paper", 21, ctx, tgt)
@@ -99,9 +99,9 @@ def test_eval_inputs_protocol_scores_pixels_the_context_sees(tmp_path_factory, t
         and not re.search(r"\bnan\b", printed)
     )
     # the default protocol scores novel views: some of their pixels are unseen by both context views
-    assert main([*args, "--protocol", "default"]) == 0
+    assert main([*args, "--protocol", "sampled"]) == 0
     res = json.loads(out.read_text())
-    assert res["protocol"] == "default" and 0.0 < res["error_regions"]["unseen_by_context"]["pixel_share"] < 1.0
+    assert res["protocol"] == "sampled" and 0.0 < res["error_regions"]["unseen_by_context"]["pixel_share"] < 1.0
     assert res["mean"]["psnr_seen"] is not None and res["mean"]["psnr_unseen"] is not None
 
 

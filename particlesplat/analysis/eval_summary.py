@@ -14,7 +14,7 @@ def summary_line(out: dict, context: int, fit: bool) -> str:
     """The mean metrics of one evaluated folder in one line (``fit``: with the latent fit's time)."""
     m = out["mean"]
     return (
-        f"{len(out['scenes'])} scenes, {context} context view(s), protocol {out.get('protocol', 'default')}: "
+        f"{len(out['scenes'])} scenes, {context} context view(s), protocol {out.get('protocol', 'sampled')}: "
         f"PSNR {m['psnr']:.2f} dB ({_db(m['psnr_seen'])} on the pixels a context view sees, "
         f"{_db(m['psnr_unseen'])} on those none does), SSIM {m['ssim']:.3f}, "
         f"depth AbsRel {m['depth_abs_rel']:.3f}, FG-ARI {m['fg_ari']:.3f}, mIoU {m['miou']:.3f} (objects; per "

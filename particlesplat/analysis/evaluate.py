@@ -347,7 +347,7 @@ def evaluate_dataset(
     fit_latents: tuple[str, ...] = DEFAULT_FIT,
     z_t_threshold: float | None = None,
     turn: float = 0.0,
-    protocol: EvalProtocol = "default",
+    protocol: EvalProtocol = "sampled",
 ) -> dict:
     """Evaluate on every scene of ``data_dir`` (a split folder). Returns {"scenes": [...], "mean": {...}}.
     ``protocol``: which views are encoded and scored (:data:`particlesplat.core.choices.EVAL_PROTOCOLS`; "paper"
@@ -386,7 +386,7 @@ def evaluate_dataset(
         if turn:
             item = turn_item(item, turn, cfg.bg_static_pose)
             true_centres = turn_points(true_centres, turn)
-        if protocol == "default" and set(item["target_index"].tolist()) <= set(item["context_index"].tolist()):
+        if protocol == "sampled" and set(item["target_index"].tolist()) <= set(item["context_index"].tolist()):
             raise UserError(
                 f"{ds.scenes[i]}: {ds.raw(i).num_frames} frame(s): no target view apart from the "
                 f"{context} context view(s); evaluation needs at least {context + 1} frames"

@@ -54,8 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--protocol",
         choices=EVAL_PROTOCOLS,
-        default="default",
-        help="which views are encoded and scored: default (the validation sampler's: two context views 5-20 frames "
+        default="sampled",
+        help="which views are encoded and scored: sampled (the validation sampler's: two context views 5-20 frames "
         "apart, four targets between them; with --context 1 the front frame and two targets), paper (the paper's: "
         f"context frames {' and '.join(map(str, PAPER_CONTEXT_FRAMES))}, targets "
         f"{', '.join(map(str, PAPER_TARGET_FRAMES))}; scenes need 15 frames), inputs (the context views redrawn at "

@@ -38,12 +38,12 @@ INFERENCE_KEYS: dict[str, str] = {
 }
 
 # ``eval --protocol``: which views an evaluation encodes and which it scores.
-# default: the validation sampler's views (two context views 5-20 frames apart on the trajectory, four targets
-#   between them; one context view: the front frame and two targets);
+# sampled (the default): the validation sampler's views (two context views 5-20 frames apart on the trajectory,
+#   four targets between them; one context view: the front frame and two targets);
 # paper: the paper's RLBench protocol, context frames 6 and 14, targets 6, 8, 10, 12 and 14;
 # inputs: the context views rendered at their own cameras (how well a model redraws what it was given).
-EvalProtocol = Literal["default", "paper", "inputs"]
-EVAL_PROTOCOLS: tuple[EvalProtocol, ...] = ("default", "paper", "inputs")
+EvalProtocol = Literal["sampled", "paper", "inputs"]
+EVAL_PROTOCOLS: tuple[EvalProtocol, ...] = ("sampled", "paper", "inputs")
 PAPER_CONTEXT_FRAMES = (6, 14)
 PAPER_TARGET_FRAMES = (6, 8, 10, 12, 14)
 

@@ -102,7 +102,7 @@ class SceneDataset(Dataset):
         cache_bytes: int | None = None,
         pose_key: str = "",
         pose_dims: int = 0,
-        protocol: str = "default",
+        protocol: str = "sampled",
     ) -> None:
         """
         Args:
@@ -122,7 +122,7 @@ class SceneDataset(Dataset):
             pose_key, pose_dims: each item's ``pose``, the ``pose_dims`` numbers its ``scene.json`` records under
                 ``pose_key`` (``model.background.static_pose``); every scene must record it ("": none read).
             protocol: the evaluation protocol (:func:`particlesplat.data.views.protocol_views`) that replaces the
-                sampled views: "default" (the sampler's), "paper" (fixed frames; a scene with fewer than 15 frames
+                sampled views: "sampled" (the sampler's), "paper" (fixed frames; a scene with fewer than 15 frames
                 is a :class:`SceneFormatError`) or "inputs" (the context views are the targets).
         """
         root = Path(root_split_dir)

@@ -107,7 +107,7 @@ def protocol_views(protocol: str, num_frames: int, context: Tensor, targets: Ten
     """The context and target frame indices an evaluation ``protocol`` scores (:data:`core.choices.EVAL_PROTOCOLS`).
 
     Args:
-        protocol: "default" keeps the sampler's ``context`` (C,) and ``targets`` (T,); "inputs" scores the context
+        protocol: "sampled" keeps the sampler's ``context`` (C,) and ``targets`` (T,); "inputs" scores the context
             views themselves (targets = context); "paper" takes the paper's fixed frames (context 6 and 14,
             targets 6, 8, 10, 12, 14), whatever the sampler chose.
         num_frames: frames of the scene in trajectory order.
@@ -116,7 +116,7 @@ def protocol_views(protocol: str, num_frames: int, context: Tensor, targets: Ten
         context (C,) int64, targets (T,) int64. Raises ValueError for a scene too short for "paper" (it needs
         frames 0-14) or an unknown protocol.
     """
-    if protocol == "default":
+    if protocol == "sampled":
         return context, targets
     if protocol == "inputs":
         return context, context.clone()
