@@ -28,7 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "curve": ("particlesplat.cli.curve", "plot the validation curves of training runs to PNG"),
     "model": ("particlesplat.cli.model", "show a checkpoint, or copy it with inference keys changed"),
     "scene": ("particlesplat.cli.scene", "check a scene folder's world frame (+z up, support at z = 0, metres)"),
-    "policy": ("particlesplat.cli.policy", "record a scripted expert's demonstrations of a robot task (collect)"),
+    "policy": ("particlesplat.cli.policy", "robot tasks: record demonstrations, train and evaluate policies"),
     "bench": ("", "run a benchmark: " + ", ".join(sorted(e.name for e in entry_points(group="particlesplat.bench")))),
 }
 

@@ -1,12 +1,25 @@
-"""``particlesplat policy collect``: record a scripted expert's demonstrations of a robot task
-(docs/policy-benchmark.md)."""
+"""``particlesplat policy collect|train|eval``: record a scripted expert's demonstrations of a robot task, train a
+keypose policy on them with one of four inputs, and evaluate it in closed loop (docs/policy-benchmark.md)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from particlesplat.policy.options import DEFAULT_TASK, SPLITS, TASK_NAMES, check_collect_options
+from particlesplat.policy.options import (
+    DEFAULT_TASK,
+    INPUT_NAMES,
+    SPLITS,
+    TASK_NAMES,
+    check_collect_options,
+    check_eval_options,
+    check_train_options,
+)
+
+INPUT_HELP = (
+    "particles: the shipped robot model's particles of the two views; images: the RGB-D views through a small "
+    "CNN; state: the true objects' boxes, colours and shapes; robot: the robot's state alone (every input has it)"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,8 +55,56 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     collect.add_argument("--out", type=Path, required=True, help="output folder (created; resumed when it exists)")
     collect.add_argument("--quiet", action="store_true", help="no progress bar")
 
+    tr = sub.add_parser(
+        "train",
+        help="train a keypose policy on demonstrations (behaviour cloning)",
+        description="Train a keypose policy (one small transformer over tokens) on the successful demonstrations "
+        "in DEMOS, with one of four inputs; the same sizes and training budget for every input.",
+    )
+    tr.add_argument("--task", choices=TASK_NAMES, default=DEFAULT_TASK, help="the demonstrations' task")
+    tr.add_argument("--input", choices=INPUT_NAMES, required=True, help=INPUT_HELP)
+    tr.add_argument("--demos", type=Path, required=True, help="a folder written by 'policy collect'")
+    tr.add_argument("--out", type=Path, required=True, help="the policy file to write (.pt)")
+    tr.add_argument("--episodes", type=int, help="learn from the first N successful demonstrations (default: all)")
+    tr.add_argument("--steps", type=int, default=2000, help="training steps")
+    tr.add_argument("--batch", type=int, default=32, help="decisions a step")
+    tr.add_argument("--lr", type=float, default=3e-4, help="AdamW's learning rate (cosine to zero)")
+    tr.add_argument("--seed", type=int, default=0, help="training seed (>= 0)")
+    tr.add_argument(
+        "--checkpoint",
+        help="particles: the ParticleSplat model that encodes the views (default: the shipped robot model)",
+    )
+    tr.add_argument(
+        "--particles",
+        type=Path,
+        help="particles: a folder to keep each decision's particle arrays "
+        "in (the .npz 'particlesplat encode' writes), read back on the next run",
+    )
+    tr.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    ev = sub.add_parser(
+        "eval",
+        help="evaluate a policy in closed loop",
+        description="Run a policy in freshly drawn episodes of its task (rollout i is episode i of --seed: the "
+        "same episodes for every input) and report its success, from the simulator's state.",
+    )
+    ev.add_argument("--policy", type=Path, required=True, help="a policy file written by 'policy train'")
+    ev.add_argument("--task", choices=TASK_NAMES, help="the task (default: the policy's)")
+    ev.add_argument("--rollouts", type=int, default=50, help="rollouts")
+    ev.add_argument("--seed", type=int, default=1000, help="evaluation seed; use one the demonstrations did not")
+    ev.add_argument(
+        "--split", choices=SPLITS, default="train", help="train, or heldout (held-out colours, one more distractor)"
+    )
+    ev.add_argument("--checkpoint", help="particles: the encoding model (default: the one it was trained with)")
+    ev.add_argument("--json", type=Path, help="also write the results (per rollout) as JSON here")
+    ev.add_argument("--quiet", action="store_true", help="no progress bar")
+
 
 def run(args: argparse.Namespace) -> int:
+    if args.action == "train":
+        return _train(args)
+    if args.action == "eval":
+        return _eval(args)
     check_collect_options(args.task, args.episodes, args.seed, args.split)  # before torch and MuJoCo load
     from particlesplat.policy.collect import collect
 
@@ -53,4 +114,85 @@ def run(args: argparse.Namespace) -> int:
     if summary.seconds:
         line += f"; recorded {summary.new} now, {sum(summary.seconds) / len(summary.seconds):.2f} s each"
     print(line)
+    return 0
+
+
+def _train(args: argparse.Namespace) -> int:
+    check_train_options(args.episodes, args.steps, args.batch, args.seed, args.lr)
+    if not args.demos.is_dir():
+        raise FileNotFoundError(f"--demos {args.demos}: no such folder")
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs([("--out", args.out)], [("--demos", args.demos), ("--checkpoint", args.checkpoint)])
+    from tqdm import tqdm
+
+    from particlesplat.policy.learn import TrainSettings
+    from particlesplat.policy.runs import train_run
+
+    bars: dict = {}
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if args.quiet:
+            return
+        bar = bars.get(stage)
+        if bar is None:
+            bar = bars[stage] = tqdm(
+                total=total, desc=f"{stage} {args.input}", unit="step" if stage == "train" else "decision"
+            )
+        bar.update(done - bar.n)
+
+    settings = TrainSettings(steps=args.steps, batch=args.batch, lr=args.lr, seed=args.seed)
+    try:
+        log = train_run(
+            args.task,
+            args.input,
+            args.demos,
+            args.out,
+            settings,
+            args.episodes,
+            args.checkpoint,
+            args.particles,
+            progress,
+        )
+    finally:
+        for bar in bars.values():
+            bar.close()
+    print(
+        f"{args.out}: a {args.input} policy of {args.task}, {args.steps} steps, final loss {log.losses[-1]:.4f}, "
+        f"{log.seconds[-1]:.0f} s"
+    )
+    return 0
+
+
+def _eval(args: argparse.Namespace) -> int:
+    check_eval_options(args.rollouts, args.seed)
+    if not args.policy.is_file():
+        raise FileNotFoundError(f"--policy {args.policy}: no such file")
+    from particlesplat.core.outputs import guard_outputs
+
+    guard_outputs([("--json", args.json)], [("--policy", args.policy), ("--checkpoint", args.checkpoint)])
+    from tqdm import tqdm
+
+    from particlesplat.policy.runs import eval_run, write_json
+
+    bar = tqdm(total=args.rollouts, desc="eval", unit="rollout", disable=args.quiet)
+    wins = 0
+
+    def progress(i: int, success: bool) -> None:
+        nonlocal wins
+        wins += success
+        bar.set_postfix(success=f"{wins}/{i + 1}")
+        bar.update(1)
+
+    try:
+        result = eval_run(args.policy, args.task, args.rollouts, args.seed, args.split, args.checkpoint, progress)
+    finally:
+        bar.close()
+    seconds = sum(result.wall_seconds) / len(result.wall_seconds)
+    print(
+        f"{args.policy}: {result.input} on {result.task} ({result.split}, seed {result.seed}): success "
+        f"{100 * result.success_rate:.1f} % of {len(result.success)} rollouts, {seconds:.1f} s a rollout"
+    )
+    if args.json is not None:
+        write_json(args.json, result.to_json())
     return 0

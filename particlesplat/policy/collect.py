@@ -88,7 +88,7 @@ def _check_manifest(out: Path, want: dict) -> None:
 
 def world_meta(world: TaskWorld) -> dict:
     """What an episode's ``meta`` records of its world: objects (kind, role, half size, colour, texture), the
-    goal's radius, the robot's base, the gripper, lights and surfaces."""
+    goal pad's radius and colour, the robot's base, the gripper, lights and surfaces."""
     setup = world.setup
     objects = [
         {
@@ -104,9 +104,14 @@ def world_meta(world: TaskWorld) -> dict:
         name: None if s is None else {"texture": s.texture, "rgba": list(s.rgba)}
         for name, s in (("table", setup.table), ("floor", setup.floor), ("walls", setup.walls))
     }
+    goal_rgba = None
+    if world.goal is not None:
+        m = world.comp.model
+        goal_rgba = [float(v) for v in m.geom_rgba[m.geom("marker_goal").id]]
     return {
         "objects": objects,
         "goal_radius": world.goal_radius,
+        "goal_rgba": goal_rgba,
         "robot_base": world.comp.robot_base.tolist(),
         "gripper_name": setup.gripper,
         "lights": None if setup.lights is None else dict(vars(setup.lights)),

@@ -31,7 +31,7 @@ name                       shape            what
                                             (K, 2, 3))
 ``goal``                   (3,)             the centre of the goal pad's top (NaN without a goal)
 ``meta``                   ()               a JSON object: task, split, seed, index, success, reached, steps,
-                                            wall and simulated seconds, goal_radius, robot_base (4 x 4), the
+                                            wall and simulated seconds, goal_radius, goal_rgba, robot_base (4 x 4), the
                                             gripper, lights and surfaces, and per object its kind, role,
                                             half size (primitives), colour and texture
 =========================  ===============  =====================================================================

@@ -9,6 +9,8 @@ TASK_NAMES = ("place", "stack")
 DEFAULT_TASK = "place"
 SPLITS = ("train", "heldout")  # the held-out split: held-out object colours and one more distractor
 MAX_EPISODES = 100_000
+INPUT_NAMES = ("particles", "images", "state", "robot")  # what --input takes (the head's token sources)
+MAX_STEPS, MAX_BATCH, MAX_ROLLOUTS = 10_000_000, 4096, 100_000
 
 
 def check_collect_options(task: str, episodes: int, seed: int, split: str) -> None:
@@ -21,3 +23,25 @@ def check_collect_options(task: str, episodes: int, seed: int, split: str) -> No
         raise OptionError(f"--seed must be >= 0, got {seed}")
     if split not in SPLITS:
         raise OptionError(f"--split must be one of {', '.join(SPLITS)}, got {split[:80]!r}")
+
+
+def check_train_options(episodes: int | None, steps: int, batch: int, seed: int, lr: float) -> None:
+    """OptionError naming the option of ``policy train`` that no run can use."""
+    if episodes is not None and not 1 <= episodes <= MAX_EPISODES:
+        raise OptionError(f"--episodes must be in [1, {MAX_EPISODES}], got {episodes}")
+    if not 1 <= steps <= MAX_STEPS:
+        raise OptionError(f"--steps must be in [1, {MAX_STEPS}], got {steps}")
+    if not 1 <= batch <= MAX_BATCH:
+        raise OptionError(f"--batch must be in [1, {MAX_BATCH}], got {batch}")
+    if seed < 0:
+        raise OptionError(f"--seed must be >= 0, got {seed}")
+    if not 0.0 < lr <= 1.0:
+        raise OptionError(f"--lr must be in (0, 1], got {lr}")
+
+
+def check_eval_options(rollouts: int, seed: int) -> None:
+    """OptionError naming the option of ``policy eval`` that no run can use."""
+    if not 1 <= rollouts <= MAX_ROLLOUTS:
+        raise OptionError(f"--rollouts must be in [1, {MAX_ROLLOUTS}], got {rollouts}")
+    if seed < 0:
+        raise OptionError(f"--seed must be >= 0, got {seed}")

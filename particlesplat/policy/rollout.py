@@ -104,9 +104,11 @@ def run_episode(
     decide: Decider,
     render: bool = True,
     max_decisions: int = MAX_DECISIONS,
+    stop_on_success: bool = False,
 ) -> EpisodeResult:
     """Run one episode in ``world`` (built by :func:`.tasks.build_task_world`) with ``decide`` choosing the
-    keyposes; the views are rendered at each decision when ``render``."""
+    keyposes; the views are rendered at each decision when ``render``. It ends when ``decide`` returns None,
+    after ``max_decisions``, or (``stop_on_success``, as RLBench ends an episode) once the task has succeeded."""
     import_start = time.perf_counter()
     from particlesplat.data.families.robot_assets import import_mujoco
 
@@ -122,6 +124,8 @@ def run_episode(
                 break
             result.steps.append((obs, keypose))
             result.reached &= controller.execute(keypose).reached
+            if stop_on_success and task.success(world):
+                break
         result.final = observe(world, controller, None)
         result.success = bool(task.success(world))
     finally:

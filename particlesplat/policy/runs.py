@@ -1,0 +1,90 @@
+"""What ``policy train`` and ``policy eval`` do, over library calls: train a policy of one input on a folder of
+demonstrations and write it; evaluate a policy file in closed loop and summarise it."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+from particlesplat.core.errors import UserError
+
+from .evaluate import EvalResult, evaluate
+from .learn import TrainLog, TrainSettings, demo_samples, load_policy, save_policy, train
+
+
+def particle_cache(folder: Path | None, index: int, decision: int) -> Path | None:
+    """Where decision ``decision`` of episode ``index`` keeps its particle arrays under ``folder`` (None: none)."""
+    return None if folder is None else folder / f"episode_{index:05d}" / f"decision_{decision:02d}.npz"
+
+
+def train_run(
+    task: str,
+    kind: str,
+    demos: Path,
+    out: Path,
+    settings: TrainSettings,
+    episodes: int | None = None,
+    model: str | None = None,
+    particles: Path | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> TrainLog:
+    """Train a ``kind`` policy on the successful demonstrations of ``task`` in ``demos`` (the first ``episodes``)
+    and write it to ``out``. The particles input encodes every decision with ``model`` (None: the shipped robot
+    model), keeping the arrays under ``particles`` when given (read back on the next run)."""
+    samples, keys = demo_samples(demos, task, episodes)
+    rows, dims = None, 0
+    info: dict = {"demos": str(demos), "episodes": len({k[0] for k in keys}), "decisions": len(samples)}
+    if kind == "particles":
+        from .particles import DecisionEncoder
+
+        encoder = DecisionEncoder(model)
+        rows = []
+        for n, ((step, _), (index, decision)) in enumerate(zip(samples, keys, strict=True)):
+            rows.append(encoder.rows(step, particle_cache(particles, index, decision)))
+            if progress is not None:
+                progress("encode", n + 1, len(samples))
+        dims = encoder.dims
+        info["encoder"] = {"checkpoint": encoder.checkpoint, "sha256": encoder.sha256}
+
+    def report(step: int, loss: float) -> None:
+        if progress is not None:
+            progress("train", step + 1, settings.steps)
+
+    policy, log = train(kind, samples, settings, rows, dims, report)
+    info["final_loss"] = log.losses[-1]
+    info["train_seconds"] = log.seconds[-1]
+    save_policy(out, policy, kind, task, settings, info)
+    return log
+
+
+def eval_run(
+    path: Path,
+    task: str | None,
+    rollouts: int,
+    seed: int,
+    split: str,
+    model: str | None = None,
+    progress: Callable[[int, bool], None] | None = None,
+) -> EvalResult:
+    """Evaluate the policy in ``path`` on ``rollouts`` episodes of ``task`` (None: the policy's own) drawn from
+    ``seed`` and ``split``; the particles input encodes with ``model`` (None: the encoder it was trained with)."""
+    policy, meta = load_policy(path)
+    kind = str(meta["input"])
+    task = task or str(meta["task"])
+    if task != meta["task"]:
+        raise UserError(f"{path}: a policy of task {meta['task']!r}, asked to run task {task!r} (--task)")
+    rows = None
+    if kind == "particles":
+        from .particles import DecisionEncoder
+
+        encoder = DecisionEncoder(model or meta.get("info", {}).get("encoder", {}).get("checkpoint"))
+        rows = encoder.rows
+    return evaluate(task, kind, policy, rollouts, seed, split, rows, progress)
+
+
+def write_json(path: Path, data: dict) -> None:
+    from particlesplat.core.atomic import atomic_write
+
+    with atomic_write(path, "w") as f:
+        json.dump(data, f, indent=1)
