@@ -8,7 +8,12 @@ import pytest
 
 from particlesplat.cli.main import COMMANDS, main
 
-SUBCOMMANDS = {"object": ("export", "insert"), "scene": ("check",), "model": ("set",)}  # model info: no options
+SUBCOMMANDS = {
+    "object": ("export", "insert"),
+    "scene": ("check",),
+    "model": ("set",),  # model info: no options
+    "policy": ("collect", "train", "eval"),
+}
 
 
 @pytest.mark.parametrize(
