@@ -96,3 +96,72 @@ def test_fast_ctrl_chords_are_taken(xdisplay, tmp_path):
     finally:
         proc.terminate()
         proc.wait(timeout=30)
+
+
+def test_a_ctrl_a_moment_late_still_counts(xdisplay, tmp_path):
+    """Ctrl pressed a few ms after the key or the mouse button (within a frame), as a remote desktop or a quick hand
+    sends it: S then Ctrl saves (Ctrl+S, not the S key's gizmo switch); a press on the selected object, a 20-pixel
+    move up and then Ctrl lifts the object (a translate straight up) instead of sliding it on the floor."""
+    import yaml
+
+    from particlesplat.data.scene_meta import default_checkpoint
+    from particlesplat.editing.open_scene import encode_scene
+    from particlesplat.model import load_model
+    from viewer.app import initial_view
+    from viewer.orbit import OrbitCamera
+    from viewer.session import EditableScene
+
+    scene = demo_scenes()[0]
+    model = load_model(default_checkpoint(scene))
+    session = EditableScene(model, encode_scene(model, scene, [4, 16]), source=str(scene))
+    ed = session.editor
+    g = ed.decode()
+    index = int(g.owner[g.owner >= 0][g.opacities[g.owner >= 0].argmax()])
+    camera = OrbitCamera.from_view(initial_view(session, None, None)).camera(400, 300)
+    (u, v), _ = (t[0] for t in camera.project(ed.object_centre(index)[None].to(camera.K.dtype)))
+    env = {**os.environ, "DISPLAY": xdisplay}
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "viewer.app", "--scene", str(scene), "--context", "4,16", "--no-ui"]
+        + ["--size", "400x300", "--output-dir", str(out)],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    lines: queue.Queue = queue.Queue()
+    threading.Thread(target=_lines, args=(proc.stdout, lines), daemon=True).start()
+    try:
+        _wait_for(lines, "close the window or press Ctrl-C")
+        wid = subprocess.run(
+            ["xdotool", "search", "--sync", "--name", "ParticleSplat Studio"], env=env, capture_output=True, text=True
+        ).stdout.split()[0]
+        subprocess.run(["xdotool", "windowfocus", "--sync", wid], env=env, check=True)
+        time.sleep(0.5)
+
+        def xdo(*args: str) -> None:
+            subprocess.run(["xdotool", *args], env=env, check=True)
+
+        xdo("keydown", "s", "keydown", "ctrl", "keyup", "s", "keyup", "ctrl")  # Ctrl a moment after S
+        assert "saved 0 edit operation(s)" in _wait_for(lines, "saved ")
+        x, y = round(float(u)), round(float(v))
+        xdo("mousemove", "--window", wid, str(x), str(y), "click", "1")  # select the object
+        time.sleep(1.0)
+        xdo("mousedown", "1", "mousemove", "--window", wid, str(x), str(y - 20), "keydown", "ctrl")
+        for k in range(1, 5):
+            time.sleep(0.1)
+            xdo("mousemove", "--window", wid, str(x), str(y - 20 - 10 * k))
+        time.sleep(0.3)
+        xdo("mouseup", "1", "keyup", "ctrl")
+        time.sleep(0.5)
+        xdo("key", "ctrl+s")
+        line = _wait_for(lines, "saved ")
+        assert "saved 1 edit operation(s)" in line, line
+        saved = yaml.safe_load(next(out.glob("*.edits.yaml")).read_text())
+        (op,) = saved["operations"]
+        dx, dy, dz = op["translate"]
+        assert dz > 0.01 and abs(dx) < 1e-6 and abs(dy) < 1e-6, op
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)

@@ -37,7 +37,7 @@ from particlesplat.core.viewpoints import (
 from particlesplat.editing.source_options import add_source_arguments, check_source_arguments  # noqa: E402
 from particlesplat.formats.splat_files import SUFFIX_HELP, SUFFIXES  # noqa: E402
 
-from .chords import ChordQueue  # noqa: E402
+from .chords import ChordQueue, install_ctrl_grace  # noqa: E402
 from .commands import carry_out, save_edits  # noqa: E402
 from .controls import Viewport, ViewportControls  # noqa: E402
 from .gl.caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
@@ -179,14 +179,11 @@ class App:
 
         addr = window_address(self.window)
         backends.glfw_restore_callbacks(addr)
-        install_event_callbacks(self.window, self.redraw.notify)
-
-        def on_key(window, key, scancode, action, mods) -> None:  # modifiers as the event carried them
-            self.redraw.notify()
-            self.chords.on_key(window, key, scancode, action, mods)
-
-        glfw.set_key_callback(self.window, on_key)
+        install_event_callbacks(self.window, self.redraw.notify, routed=True)
         backends.glfw_install_callbacks(addr)
+        # the pointer, buttons, keys and characters reach imgui through the Ctrl grace (a Ctrl a moment late counts),
+        # and the chords with the modifiers their key events carried
+        self.grace = install_ctrl_grace(self.window, addr, self.redraw.notify, self.chords.on_key)
 
     # ------------------------------------------------------------------ frame
     def framebuffer_size(self) -> tuple[int, int]:
@@ -212,6 +209,7 @@ class App:
         redraw (:attr:`redraw`)."""
         from imgui_bundle.imgui import backends
 
+        self.grace.flush()  # presses held for a Ctrl that did not come within their time go on now
         backends.opengl3_new_frame()
         backends.glfw_new_frame()
         imgui.new_frame()
@@ -462,6 +460,9 @@ class App:
                 if end is not None and now >= end:
                     break
                 wait = self.redraw.timeout(now)
+                held = self.grace.due_in()  # a press held for a late Ctrl goes on in time, input or not
+                if held is not None:
+                    wait = held if wait is None else min(wait, held)
                 if end is not None:
                     wait = end - now if wait is None else min(wait, end - now)
                 if wait is None:
@@ -470,7 +471,7 @@ class App:
                     glfw.wait_events_timeout(wait)
                 else:
                     glfw.poll_events()
-                if not self.redraw.due(time.perf_counter()):
+                if not self.redraw.due(time.perf_counter()) and self.grace.due_in() != 0.0:
                     continue
             t0 = time.perf_counter()
             if orbit:  # as a drag: the camera moves, the frame renders at the moving scale

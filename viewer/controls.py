@@ -101,6 +101,14 @@ def _surface_at(vp: Viewport, x: float, y: float) -> Tensor | None:
     return surface_point(g.subset(g.opacities >= vp.state.prune), vp.camera(), x, y)
 
 
+def ui_takes_mouse(io) -> bool:
+    """Whether the mouse is the panel's this frame: imgui wants it and a window is under it or a widget is held
+    (not only because the gizmo, hovered the frame before, asked imgui for it: a Ctrl that came with the press
+    greyed the gizmo out, and the press is the viewport's Ctrl + drag)."""
+    ctx = imgui.get_current_context()
+    return bool(io.want_capture_mouse) and (ctx.hovered_window is not None or ctx.active_id != 0)
+
+
 class ViewportControls:
     """Gesture state of the viewport (press position, drag, the dragged particle's centre)."""
 
@@ -116,7 +124,7 @@ class ViewportControls:
         sx, sy = vp.pixel_ratio
         if vp.state.selected is not None and vp.state.selected >= vp.session.num_owners():
             vp.state.selected = None  # an undone copy
-        if not io.want_capture_mouse and not vp.gizmo_capturing:
+        if not ui_takes_mouse(io) and not vp.gizmo_capturing:
             self._mouse(vp, io, sx, sy)
         if not io.want_capture_keyboard:
             self._keys(vp, io)

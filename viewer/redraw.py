@@ -52,19 +52,27 @@ class RedrawSchedule:
         self.wake_at = wake_at
 
 
-def install_event_callbacks(window, on_event) -> None:
-    """Call ``on_event`` on every glfw event of ``window`` (input, resize, expose, focus, drop).
+def install_event_callbacks(window, on_event, routed: bool = False) -> None:
+    """Call ``on_event`` on every glfw event of ``window`` (input, resize, expose, focus, drop); with ``routed``, on
+    all but the pointer, buttons, keys and characters (which :func:`viewer.chords.install_ctrl_grace` routes).
 
     Must run before imgui's glfw backend installs its callbacks, which then chain to these.
     """
     import glfw
 
+    inputs = (
+        ()
+        if routed
+        else (
+            glfw.set_cursor_pos_callback,
+            glfw.set_mouse_button_callback,
+            glfw.set_key_callback,
+            glfw.set_char_callback,
+        )
+    )
     for setter in (
-        glfw.set_cursor_pos_callback,
-        glfw.set_mouse_button_callback,
+        *inputs,
         glfw.set_scroll_callback,
-        glfw.set_key_callback,
-        glfw.set_char_callback,
         glfw.set_cursor_enter_callback,
         glfw.set_window_focus_callback,
         glfw.set_window_size_callback,

@@ -279,8 +279,9 @@ class ObjectGizmo:
     ) -> str | None:
         """Draw the outline and the handles of particle ``index``'s object (nothing when None) seen by
         ``camera`` (framebuffer pixels; ``pixel_ratio`` = framebuffer pixels per window point) and apply a
-        handle drag as a move, or with ``scale_handles`` the uniform scale handles' drag as a scale. Returns an
-        error message when an edit was refused."""
+        handle drag as a move, or with ``scale_handles`` the uniform scale handles' drag as a scale; with Ctrl held
+        (and no handle dragged) the handles are greyed and take no press, so Ctrl + drag lifts the object. Returns
+        a message: an edit refused, or where a slid object landed."""
         from imgui_bundle import imgui, imguizmo
 
         gz = imguizmo.im_guizmo
@@ -304,6 +305,9 @@ class ObjectGizmo:
         gz.set_drawlist(draw)
         gz.set_rect(0.0, 0.0, io.display_size.x, io.display_size.y)
         gz.set_orthographic(False)
+        # Ctrl held: a drag lifts the object (the viewport's Ctrl + drag), so the handles grey out and take no press
+        enabled = self.using or not io.key_ctrl
+        gz.enable(enabled)
         model = np.eye(4)
         model[:3, 3] = self._centre.numpy()
         obj = gz.Matrix16(model.T.flatten().tolist())
@@ -317,7 +321,7 @@ class ObjectGizmo:
             delta,
         )
         using = gz.is_using()
-        self.hovered = bool(gz.is_over())
+        self.hovered = enabled and bool(gz.is_over())
         message = None
         matrix = np.array(obj.values, dtype=np.float64).reshape(4, 4).T
         scales = np.linalg.norm(matrix[:3, :3], axis=0)  # ImGuizmo returns the drag's whole scale on a unit matrix
