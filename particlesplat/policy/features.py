@@ -2,7 +2,8 @@
 (:func:`episode_steps`) or from a live rollout (:func:`live_step`), turned into each input's numbers.
 
 - the robot's state (every input has it): joint angles (7, radians), finger joints (2, metres), the gripper's
-  command (1) and the grasp point's pose (3 metres + 4 quaternion): :data:`ROBOT_DIMS` numbers;
+  command (1) and the grasp point's pose (3 metres, and the hand's rotation as its first two columns: a
+  quaternion's sign is arbitrary, and a hand pointing down sits where it flips): :data:`ROBOT_DIMS` numbers;
 - the true object state: one row per object and one for the goal pad (place): its box's centre and half extent
   (metres), its colour (RGB in [0, 1]; robosuite's printed objects: 0 with a flag), a goal flag and its shape
   (box, cylinder, sphere, capsule, other): :data:`OBJECT_DIMS` numbers, no role;
@@ -20,7 +21,7 @@ import numpy as np
 
 from .control import Keypose, matrix_to_quat, quat_to_matrix
 
-ROBOT_DIMS = 17
+ROBOT_DIMS = 19
 SHAPES = ("box", "cylinder", "sphere", "capsule")  # one-hot; anything else is "other"
 OBJECT_DIMS = 3 + 3 + 3 + 1 + 1 + len(SHAPES) + 1
 ACTION_DIMS = 10
@@ -59,7 +60,10 @@ class Step:
 
 def robot_features(step: Step) -> np.ndarray:
     """(ROBOT_DIMS,) float32."""
-    return np.concatenate([step.joints, step.fingers, [step.gripper], step.eef]).astype(np.float32)
+    R = quat_to_matrix(step.eef[3:7])
+    return np.concatenate([step.joints, step.fingers, [step.gripper], step.eef[:3], R[:, 0], R[:, 1]]).astype(
+        np.float32
+    )
 
 
 def _object_row(box: np.ndarray, colour: np.ndarray, shape: str, goal: bool) -> np.ndarray:
