@@ -59,6 +59,20 @@ def test_keypose_round_trips_through_an_action():
         assert back.gripper == grip
 
 
+def test_robot_features_ignore_the_quaternions_sign():
+    """q and -q are one hand pose (a hand pointing down sits where the sign flips): the same features."""
+    from particlesplat.policy.features import robot_features
+
+    rng = np.random.default_rng(4)
+    step = _step(rng)
+    q = matrix_to_quat(hand_down(1.0))
+    step.eef = np.concatenate([[0.1, 0.2, 0.3], q])
+    flipped = _step(np.random.default_rng(4))
+    flipped.eef = np.concatenate([[0.1, 0.2, 0.3], -q])
+    np.testing.assert_allclose(robot_features(step), robot_features(flipped), atol=1e-7)
+    assert robot_features(step).shape == (ROBOT_DIMS,)
+
+
 @pytest.mark.parametrize("kind", ["state", "robot", "particles"])
 def test_padding_is_ignored(kind):
     """A step's action does not change when its set is padded with masked rows (a batch with a larger step)."""
