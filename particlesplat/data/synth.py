@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from particlesplat.core.atomic import atomic_write, temp_sibling
 from particlesplat.core.camera import Camera
-from particlesplat.core.errors import Interrupted, OptionError, UserError
+from particlesplat.core.errors import Interrupted, OptionError, UserError, stop_signal_handler
 from particlesplat.core.limits import check_memory
 from particlesplat.core.runlock import RunLock
 from particlesplat.data.families import tabletop
@@ -124,18 +124,15 @@ def owned_dataset(out: Path, items: str = "scenes") -> Iterator[None]:
     ``items`` names what the folder holds in the line an interruption prints."""
     lock = RunLock(out).acquire()
     previous = None
-    if threading.current_thread() is threading.main_thread():
-
-        def on_term(signum, frame):
-            raise Interrupted(f"finished {items} are kept in {out}; run the same command again to resume", signum)
-
-        previous = signal.signal(signal.SIGTERM, on_term)
+    kept = f"finished {items} are kept in {out}; run the same command again to resume"
+    if threading.current_thread() is threading.main_thread():  # the CLI's stop handler, saying what was kept
+        previous = signal.signal(signal.SIGTERM, stop_signal_handler(kept))
     try:
         yield
     except KeyboardInterrupt as e:
         if isinstance(e, Interrupted):
             raise
-        raise Interrupted(f"finished {items} are kept in {out}; run the same command again to resume") from None
+        raise Interrupted(kept) from None
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
