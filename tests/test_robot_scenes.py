@@ -191,6 +191,97 @@ def test_ground_truth_edits(scene_dir):
             assert math.hypot(xs.mean() - float(uv[0, 0]), ys.mean() - float(uv[0, 1])) < 0.25 * RES
 
 
+def test_ground_truth_lift(scene_dir):
+    """The lift: the moved object raised straight up by the recorded height (0.15 m where nothing is in the way),
+    the rest of the scene exactly as it was; its depth puts the object's pixels at the lifted box's heights, and
+    its mask shows it where its lifted centre projects, higher in every image than where it stood."""
+    edits = json.loads((scene_dir / "edits.json").read_text())
+    k, h = edits["object"], edits["lift_height"]
+    assert edits["lift"] == "edits/lift" and h == 0.15  # this scene's object has room above it
+    orig = json.loads((scene_dir / "scene.json").read_text())["objects"]
+    lifted_json = json.loads((scene_dir / edits["lift"] / "scene.json").read_text())
+    assert lifted_json["edit"] == "lift" and lifted_json["lift_height"] == h
+    lifted = lifted_json["objects"]
+    for a, b in zip(orig, lifted, strict=True):
+        shift = np.array([0.0, 0.0, h]) if a["id"] == k else np.zeros(3)
+        for key in ("center", "aabb_min", "aabb_max"):
+            assert np.allclose(np.asarray(b[key]), np.asarray(a[key]) + shift, rtol=0.0, atol=1e-12), (a["name"], key)
+        assert b["pose"]["quaternion_wxyz"] == a["pose"]["quaternion_wxyz"]
+    lo, hi = np.asarray(lifted[k - 1]["aabb_min"]), np.asarray(lifted[k - 1]["aabb_max"])
+    tr, c2ws = _frames(scene_dir)
+    K = _K(tr)
+    rose = 0
+    for i in range(VIEWS):
+        _, _, m0 = _load(scene_dir, i)
+        _, depth, ml = _load(scene_dir / edits["lift"], i)
+        others = (m0 > 0) & (m0 != k) & (ml != k)  # not hidden behind the lifted object
+        assert float((ml[others] == m0[others]).mean()) > 0.95
+        sel = ml == k
+        if sel.sum() < 4:
+            continue
+        pts = kornia.geometry.depth.depth_to_3d_v2(torch.from_numpy(depth)[None], K[None])[0][torch.from_numpy(sel)]
+        world = kornia.geometry.linalg.transform_points(torch.from_numpy(c2ws[i])[None], pts[None])[0].numpy()
+        # in the air at the lifted box's heights, not on the table
+        assert (world[:, 2] > lo[2] - 0.005).all() and (world[:, 2] < hi[2] + 0.005).all()
+        w2c = torch.from_numpy(np.linalg.inv(c2ws[i]))
+        uv = kornia.geometry.camera.perspective.project_points(
+            kornia.geometry.linalg.transform_points(w2c[None], torch.from_numpy(((lo + hi) / 2)[None, None]))[0], K
+        )
+        ys, xs = np.nonzero(sel)
+        assert math.hypot(xs.mean() - float(uv[0, 0]), ys.mean() - float(uv[0, 1])) < 0.25 * RES
+        if (m0 == k).sum() >= 4:
+            assert ys.mean() < np.nonzero(m0 == k)[0].mean()  # the object's pixels moved up in the image
+            rose += 1
+    assert rose >= 2
+
+
+def _stacked_boxes(gap: float | None):
+    """A settled-scene stand-in: the arm at home and two 6 cm boxes at rest on the table, the second (when ``gap``
+    is given) hanging ``gap`` metres straight above the first instead."""
+    from particlesplat.data.families.robot import (
+        PANDA_HOME,
+        RobotSceneConfig,
+        SettledScene,
+        camera_poses,
+        draw_cameras,
+        object_states,
+    )
+    from particlesplat.data.families.robot_assets import import_mujoco
+    from particlesplat.data.families.robot_compose import ObjectSpec, compose
+
+    mujoco = import_mujoco()
+    cfg = RobotSceneConfig(RES, RES, views=2)
+    arc = draw_cameras(np.random.default_rng(0), "arc", 2)
+    half = (0.03, 0.03, 0.03)
+    specs = [ObjectSpec("box", x, -0.2, 0.0, half, tex) for x, tex in ((-0.25, "red-wood"), (0.1, "blue-wood"))]
+    comp = compose(mujoco, assets_dir(), specs, camera_poses(arc.cameras(RES, RES), mujoco), (RES, RES))
+    for adr, spec in zip(comp.object_qpos, specs, strict=True):
+        comp.data.qpos[adr : adr + 7] = (spec.x, spec.y, half[2], 1.0, 0.0, 0.0, 0.0)
+    if gap is not None:
+        comp.data.qpos[comp.object_qpos[1] : comp.object_qpos[1] + 3] = (-0.25, -0.2, 3 * half[2] + gap)
+    comp.data.qpos[comp.arm_qpos] = PANDA_HOME
+    mujoco.mj_forward(comp.model, comp.data)
+    return mujoco, SettledScene(comp, object_states(comp, specs), specs, np.asarray(PANDA_HOME), arc, cfg)
+
+
+def test_lift_is_lowered_under_an_obstacle_and_skipped_without_room():
+    """0.15 m with nothing above; under a box hanging 0.125 m above its top, the highest 1 cm step below it
+    (0.12 m); under one 0.05 m above, no lift (and the edit then has none to render). The scene is left as it was."""
+    from particlesplat.data.families.robot import GroundTruthEdit, apply_edit, lift_height
+
+    for gap, want in ((None, 0.15), (0.125, 0.12), (0.05, None)):
+        mujoco, scene = _stacked_boxes(gap)
+        before = scene.comp.data.qpos.copy()
+        assert lift_height(mujoco, scene, 1) == want, gap
+        assert np.array_equal(scene.comp.data.qpos, before)
+    edit = GroundTruthEdit(1, "box", (0.1, 0.0, 0.0), None)
+    assert edit.kinds == ("move", "remove")
+    assert edit.to_json()["lift"] is None and edit.to_json()["lift_height"] is None
+    assert "lift" not in edit.to_json("move") and "lift_height" not in edit.to_json("remove")
+    with pytest.raises(ValueError, match="no room to be lifted"):
+        apply_edit(mujoco, scene, edit, "lift")
+
+
 def test_resume_skips_and_deterministic(dataset, tmp_path):
     from particlesplat.data.families.robot import RobotSceneConfig
     from particlesplat.data.families.robot_synth import generate

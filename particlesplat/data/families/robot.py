@@ -5,8 +5,9 @@ A scene: 2-5 objects (robosuite's can, bread, cereal, milk, lemon, bottle, or a 
 cylinder) dropped at random positions and yaws on the table and settled by physics; a layout whose objects
 touch each other or the arm, or leave the table, is drawn again. The arm stands at its home pose with small
 joint offsets (or exactly at home, or a random collision-free pose). Cameras: 21 on an arc about the table (or four
-RLBench-style fixed ones). Test scenes also carry ground-truth edits: one object moved on the table and the
-same object removed, rendered from the same cameras (``edits.json`` and ``edits/{move,remove}/``).
+RLBench-style fixed ones). Test scenes also carry ground-truth edits: one object moved on the table, the same
+object lifted straight up and removed, rendered from the same cameras (``edits.json`` and
+``edits/{move,lift,remove}/``).
 
 World: metres, +z up, z = 0 the table top, origin the table centre; the robot on the +y side.
 """
@@ -45,12 +46,12 @@ from .robot_render import SceneRenderer, Views
 
 CameraRig = Literal["arc", "rlbench"]
 ArmPose = Literal["home", "still", "random"]
-EditKind = Literal["move", "remove"]
+EditKind = Literal["move", "lift", "remove"]
 World = Literal["narrow", "wide"]
 WORLDS: tuple[World, ...] = ("narrow", "wide")
 CAMERA_RIGS: tuple[CameraRig, ...] = ("arc", "rlbench")
 ARM_POSES: tuple[ArmPose, ...] = ("home", "still", "random")
-EDIT_KINDS: tuple[EditKind, ...] = ("move", "remove")
+EDIT_KINDS: tuple[EditKind, ...] = ("move", "lift", "remove")
 
 NUM_OBJECTS = (2, 5)
 PRIMITIVE_PROB = 0.3  # chance that an object is a textured primitive rather than a robosuite object
@@ -77,6 +78,8 @@ RLBENCH_CAMERAS = {
     "overhead": ((0.0, -0.05, 1.25), (0.0, 0.0, 0.0)),
 }
 MOVE_RANGE = (0.10, 0.20)  # metres on the table
+# metres the moved object is lifted by, straight up from where it stood: the first that touches nothing
+LIFT_HEIGHTS = (0.15, 0.14, 0.13, 0.12, 0.11, 0.10)
 FORMAT_VERSION = 1
 GENERATOR = "particlesplat.data.families.robot"
 
@@ -531,20 +534,33 @@ def write_views(folder: Path, views: Views, cams: Sequence[Camera], meta: dict) 
 @dataclass(frozen=True)
 class GroundTruthEdit:
     """The edits of one scene: object ``object_id`` (1-based instance id) moved by ``offset`` (3,) metres (z = 0),
-    and the same object removed."""
+    the same object lifted ``lift`` metres straight up from where it stood (None: it touches the arm or another
+    object at every height of :data:`LIFT_HEIGHTS`, and the scene has no lift), and the same object removed."""
 
     object_id: int
     name: str
     offset: tuple[float, float, float]
+    lift: float | None = None
 
-    def to_json(self) -> dict:
-        return {
+    def to_json(self, kind: EditKind | None = None) -> dict:
+        """``edits.json`` (``kind`` None): the object, the move's offset, each edit's folder (the lift's null where
+        it has none) and ``lift_height`` metres (null likewise). An edit folder's ``scene.json`` (``kind``) records
+        the object, the offset and the move's and removal's folders; the lift's folder also the lift's two keys."""
+        out: dict = {
             "object": self.object_id,
             "name": self.name,
             "offset": list(self.offset),
             "move": "edits/move",
             "remove": "edits/remove",
         }
+        if kind in (None, "lift"):
+            out |= {"lift": None if self.lift is None else "edits/lift", "lift_height": self.lift}
+        return out
+
+    @property
+    def kinds(self) -> tuple[EditKind, ...]:
+        """The edits the scene has, in the order they are rendered."""
+        return tuple(k for k in EDIT_KINDS if k != "lift" or self.lift is not None)
 
 
 def draw_edit(rng: np.random.Generator, scene: SettledScene, mujoco) -> GroundTruthEdit | None:
@@ -567,7 +583,27 @@ def draw_edit(rng: np.random.Generator, scene: SettledScene, mujoco) -> GroundTr
                 touching = any(_contacts(comp))
                 d.qpos[:] = saved
                 if not touching:
-                    return GroundTruthEdit(k, scene.objects[k - 1].name, float3(off))
+                    return GroundTruthEdit(k, scene.objects[k - 1].name, float3(off), lift_height(mujoco, scene, k))
+        return None
+    finally:
+        d.qpos[:] = saved
+        mujoco.mj_forward(comp.model, d)
+
+
+def lift_height(mujoco, scene: SettledScene, k: int) -> float | None:
+    """Metres object ``k`` (1-based) is lifted by, straight up from where it stood: the first of
+    :data:`LIFT_HEIGHTS` (0.15 m down to 0.10 m) at which it touches neither the arm nor another object (the
+    contact check of the move); None if it touches one at every height. Draws no random numbers, and leaves
+    ``scene`` as it found it."""
+    comp, d = scene.comp, scene.comp.data
+    saved = d.qpos.copy()
+    z = comp.object_qpos[k - 1] + 2
+    try:
+        for h in LIFT_HEIGHTS:
+            d.qpos[z] = saved[z] + h
+            mujoco.mj_forward(comp.model, d)
+            if not any(_contacts(comp)):
+                return h
         return None
     finally:
         d.qpos[:] = saved
@@ -576,12 +612,18 @@ def draw_edit(rng: np.random.Generator, scene: SettledScene, mujoco) -> GroundTr
 
 def apply_edit(mujoco, scene: SettledScene, edit: GroundTruthEdit, kind: EditKind) -> list[ObjectState]:
     """Put ``scene`` in the edited state (no physics: the rest of the scene stays exactly as it was); returns
-    the objects' states after it (the removed object is left out). Undo with :func:`restore`."""
+    the objects' states after it (the removed object is left out). A move or a lift is undone by restoring
+    ``qpos``; the removal is the last edit rendered and is not undone."""
     comp = scene.comp
     k = edit.object_id
-    if kind == "move":
+    if kind in ("move", "lift"):
         adr = comp.object_qpos[k - 1]
-        comp.data.qpos[adr : adr + 3] += np.asarray(edit.offset)
+        if kind == "move":
+            comp.data.qpos[adr : adr + 3] += np.asarray(edit.offset)
+        elif edit.lift is not None:
+            comp.data.qpos[adr + 2] += edit.lift
+        else:
+            raise ValueError(f"object {k} ({edit.name}) has no room to be lifted: the scene has no lift edit")
         mujoco.mj_forward(comp.model, comp.data)
         return object_states(comp, scene.specs)
     states = [o for o in object_states(comp, scene.specs) if o.id != k]
@@ -632,16 +674,15 @@ def write_robot_scene(
             edit = draw_edit(edits_rng, scene, mujoco)
             if edit is not None:
                 (tmp / "edits").mkdir()
-                for kind in EDIT_KINDS:
+                settled = scene.comp.data.qpos.copy()
+                for kind in edit.kinds:
                     objects = apply_edit(mujoco, scene, edit, kind)
                     edited = renderer.render(scene.comp.camera_ids)
                     (tmp / "edits" / kind).mkdir()
-                    info = {**base, "objects": scene.objects_json(objects), "edit": kind, **edit.to_json()}
+                    info = {**base, "objects": scene.objects_json(objects), "edit": kind, **edit.to_json(kind)}
                     write_views(tmp / "edits" / kind, edited, cams, info)
-                    if kind == "move":  # back to the original before the next edit
-                        adr = scene.comp.object_qpos[edit.object_id - 1]
-                        scene.comp.data.qpos[adr : adr + 3] -= np.asarray(edit.offset)
-                        mujoco.mj_forward(scene.comp.model, scene.comp.data)
+                    scene.comp.data.qpos[:] = settled  # back to the original before the next edit
+                    mujoco.mj_forward(scene.comp.model, scene.comp.data)
             (tmp / "edits.json").write_text(json.dumps(edit.to_json() if edit else {"object": None}, indent=1))
             times["edits"] = time.perf_counter() - t0
         os.replace(tmp, folder)
