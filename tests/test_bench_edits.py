@@ -213,9 +213,10 @@ def robot_split(tmp_path_factory) -> Path:
     return out / "test"
 
 
-def test_bench_edits_on_robot_ground_truth(robot_split, tmp_path):
-    """``bench edits --data`` on a tiny generated robot scene: the simulator's move and removal are scored (no
-    copy), over regions that follow the ground-truth masks, with the edit's true offset and a pick on the object."""
+def test_bench_edits_on_robot_ground_truth(robot_split, tmp_path, capsys):
+    """``bench edits --data`` on a tiny generated robot scene: the simulator's move, lift and removal are scored
+    (no copy), over regions that follow the ground-truth masks, with the edit's true offset and lift height and a
+    pick on the object; the table has a lift row beside the move's and the removal's."""
     scene = robot_split / "scene_00000"
     edits = json.loads((scene / "edits.json").read_text())
     k = edits["object"]
@@ -224,19 +225,23 @@ def test_bench_edits_on_robot_ground_truth(robot_split, tmp_path):
     tabletop = str(shipped_model_path("tabletop"))
     argv = ["--data", str(robot_split), "--context", "1,3", "--json", str(out_json), "--checkpoint", tabletop]
     assert bench_main(argv) == 0
+    printed = capsys.readouterr().out
     out = json.loads(out_json.read_text())
     assert out["data"] == str(robot_split) and "seed" not in out and out["skipped"] == []
-    assert set(out["mean"]) == {"move", "remove"}
+    assert set(out["mean"]) == {"move", "lift", "remove"}
+    for region in ("changed", "vacated", "view"):
+        assert any(line.split()[:2] == ["lift", region] for line in printed.splitlines()), printed
     (row,) = out["scenes"]
     assert row["scene"] == "test/scene_00000" and row["object"] == k - 1 and "duplicate" not in row
     assert row["offsets"]["move"] == pytest.approx(edits["offset"][:2])
+    assert row["lift_height"] == edits["lift_height"] == 0.15
     x, y = row["pick"]
     assert row["pick_frame"] in (1, 3) and _mask(scene, row["pick_frame"])[y, x] == k
     others = [0, 2, 4]
     old = np.stack([_mask(scene, f) == k for f in others])
-    for kind in ("move", "remove"):
+    for kind in ("move", "lift", "remove"):
         new = np.stack([_mask(scene / edits[kind], f) == k for f in others])
-        assert kind == "move" or not new.any()
+        assert kind != "remove" or not new.any()
         want = {
             "changed": sum(int(_grow(o | n).sum()) for o, n in zip(old, new, strict=True)),
             "vacated": sum(int((_grow(o) & ~n).sum()) for o, n in zip(old, new, strict=True)),
@@ -251,3 +256,46 @@ def test_bench_edits_on_robot_ground_truth(robot_split, tmp_path):
                     assert cell["psnr"] == pytest.approx(10 * math.log10(cell["n"] / cell["sse"]), abs=1e-6)
         if row[kind]["status"] != "ok":  # a refused pick is scored unedited
             assert all(row[kind]["edit"][r]["sse"] == row[kind]["noop"][r]["sse"] for r in want)
+
+
+def test_read_edits_lift_and_scenes_written_before_it(tmp_path):
+    """A lift is read where ``edits.json`` names its folder and height; absent (scenes written before the lift) or
+    null (no room for it), the scene has the move and the removal only; a bad height is one line naming it."""
+    base = {"object": 2, "offset": [0.1, -0.05, 0.0], "move": "edits/move", "remove": "edits/remove"}
+    scene = _demo_copy(tmp_path, base | {"lift": "edits/lift", "lift_height": 0.12})
+    truth = read_edits(scene, [4, 16])
+    assert truth.kinds == ("move", "lift", "remove") and truth.lift == 0.12
+    assert truth.folders["lift"] == scene / "edits/lift"
+    for old in (base, base | {"lift": None, "lift_height": None}):
+        (scene / "edits.json").write_text(json.dumps(old))
+        truth = read_edits(scene, [4, 16])
+        assert truth.kinds == ("move", "remove") and truth.lift == 0.0 and "lift" not in truth.folders
+    for bad, key in (
+        ({"lift": "edits/lift"}, "lift_height"),
+        ({"lift": "edits/lift", "lift_height": -0.1}, "lift_height"),
+        ({"lift": "edits/lift", "lift_height": True}, "lift_height"),
+        ({"lift": "../x", "lift_height": 0.15}, "lift"),
+    ):
+        (scene / "edits.json").write_text(json.dumps(base | bad))
+        with pytest.raises(SceneFormatError) as e:
+            read_edits(scene, [4, 16])
+        assert f"'{key}'" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_bench_edits_scores_a_robot_scene_written_before_the_lift(robot_split, tmp_path):
+    """The same scene with ``edits.json`` as the generator wrote it before the lift (no lift keys, no folder):
+    the move and the removal are scored, and nothing else."""
+    split = tmp_path / "old" / "test"
+    shutil.copytree(robot_split / "scene_00000", split / "scene_00000")
+    scene = split / "scene_00000"
+    edits = json.loads((scene / "edits.json").read_text())
+    shutil.rmtree(scene / edits.pop("lift"))
+    del edits["lift_height"]
+    (scene / "edits.json").write_text(json.dumps(edits))
+    out_json = tmp_path / "bench.json"
+    tabletop = str(shipped_model_path("tabletop"))
+    argv = ["--data", str(split), "--context", "1,3", "--json", str(out_json), "--checkpoint", tabletop]
+    assert bench_main(argv) == 0
+    out = json.loads(out_json.read_text())
+    (row,) = out["scenes"]
+    assert set(out["mean"]) == {"move", "remove"} and "lift" not in row and "lift_height" not in row

@@ -4,13 +4,15 @@ For each held-out tabletop scene the generator draws ground-truth pairs from one
 translated on the floor by 0.2-0.45 m, the same object removed, a copy of it placed elsewhere on the
 floor, and (where it stays clear of the others) the object at 1.5 times its size, resting on the floor.
 With ``--data`` the ground truth is instead read from disk, where a generator wrote it beside each test scene
-(``edits.json`` and ``edits/{move,remove}/``: the robot family's test split, one object moved by 0.10-0.20 m
-on the table and the same object removed, simulated and rendered from the scene's cameras).
+(``edits.json`` and ``edits/{move,lift,remove}/``: the robot family's test split, one object moved by
+0.10-0.20 m on the table, the same object lifted 0.15 m straight up (less, down to 0.10 m, where it would touch
+the arm or another object; scenes written before the lift, or with no room for it, have none) and removed,
+simulated and rendered from the scene's cameras).
 
 The original's context views are encoded; the edit is applied as the viewer applies it (pick the object by
 the most interior pixel of its ground-truth mask in the context frame where it is largest, take its object
-group, translate by the true displacement in world metres; remove; duplicate by the true offset; scale 1.5
-times about its resting centre); every
+group, translate by the true displacement in world metres; lift by the true height along world z, as the
+viewer's Ctrl + drag does; remove; duplicate by the true offset; scale 1.5 times about its resting centre); every
 other input view is rendered and compared with the simulator's image of the edited scene. PSNR is taken over
 
 - ``changed``: the object's old and new ground-truth masks, dilated by ``--dilate`` pixels;
@@ -60,13 +62,14 @@ if TYPE_CHECKING:
     from particlesplat.model.particles import Particles
     from particlesplat.model.particlesplat import ParticleSplat
 
-KINDS = ("move", "remove", "duplicate", "scale")
+KINDS = ("move", "lift", "remove", "duplicate", "scale")
 SCALE = 1.5  # the scale edit: the object at 1.5 times its size, resting on the floor
 REGIONS = ("changed", "vacated", "view")
 VARIANTS = ("edit", "noop", "ceiling")
 MOVE_RANGE = (0.2, 0.45)  # metres on the floor
 MAX_DILATE = 64  # pixels --dilate may grow a mask by (the model's images are at most 1024 pixels a side)
 MIN_PICK_PIXELS = 20  # the object must cover this many pixels of a context frame (stored size) to be picked
+MAX_LIFT = 1.0  # metres: the largest lift_height an edits.json may give
 
 
 def _fits(obj: tabletop.TabletopObject, others: list[tabletop.TabletopObject]) -> bool:
@@ -185,7 +188,8 @@ class GroundTruth:
     """One scene's ground-truth edits as scene folders: ``folders`` maps "original" and each edit kind the scene
     has (:data:`KINDS`) to its folder; ``object`` is the edited object's instance id (1..K, its value in the masks),
     ``copy`` the copy's id in the duplicate scene (0 without one), ``pick`` selects the object in a context
-    frame, ``offsets`` {kind: (dx, dy) world metres on the support}."""
+    frame, ``offsets`` {kind: (dx, dy) world metres on the support}, ``lift`` the metres the lift raises the
+    object by along world z (0 without a lift)."""
 
     label: str
     folders: dict[str, Path]
@@ -193,6 +197,7 @@ class GroundTruth:
     pick: Pick
     offsets: dict[str, tuple[float, float]]
     copy: int = 0
+    lift: float = 0.0
 
     @property
     def kinds(self) -> tuple[str, ...]:
@@ -235,9 +240,10 @@ def bench_scene(
 
 def read_edits(scene_dir: Path, context: list[int]) -> GroundTruth | None:
     """The ground-truth edits written beside a scene folder (``edits.json``: ``object`` instance id, ``offset``
-    (dx, dy, dz) metres, ``move`` and ``remove`` scene folders relative to the scene's; the robot family's test
-    scenes). None if the scene has no edit (``object`` null) or the object covers fewer than
-    :data:`MIN_PICK_PIXELS` pixels of every context frame."""
+    (dx, dy, dz) metres, ``move`` and ``remove`` scene folders relative to the scene's, and where the scene has
+    a lift its ``lift`` folder and ``lift_height`` metres; the robot family's test scenes). A ``lift`` that is
+    absent (scenes written before it) or null (no room for it) means no lift. None if the scene has no edit
+    (``object`` null) or the object covers fewer than :data:`MIN_PICK_PIXELS` pixels of every context frame."""
     where = scene_dir / "edits.json"
     info = read_scene_json(where)
     if not isinstance(info, dict) or "object" not in info:
@@ -255,7 +261,16 @@ def read_edits(scene_dir: Path, context: list[int]) -> GroundTruth | None:
     ):
         raise SceneFormatError(f"{where}: key 'offset' must be 3 finite numbers (metres), got {short_repr(offset)}")
     folders = {"original": scene_dir}
-    for kind in ("move", "remove"):
+    lift = 0.0
+    if info.get("lift") is not None:
+        height = info.get("lift_height")
+        if not isinstance(height, (int, float)) or isinstance(height, bool) or not 0.0 < height <= MAX_LIFT:
+            raise SceneFormatError(
+                f"{where}: key 'lift_height' must be metres in (0, {MAX_LIFT}] beside a 'lift' folder, "
+                f"got {short_repr(height)}"
+            )
+        lift = float(height)
+    for kind in ("move", "lift", "remove") if lift else ("move", "remove"):
         rel = info.get(kind)
         norm = os.path.normpath(rel) if isinstance(rel, str) and rel else ""
         if not norm or os.path.isabs(norm) or norm == ".." or norm.startswith(".." + os.sep):
@@ -277,7 +292,12 @@ def read_edits(scene_dir: Path, context: list[int]) -> GroundTruth | None:
     if pick is None:
         return None
     return GroundTruth(
-        f"{scene_dir.parent.name}/{scene_dir.name}", folders, k, pick, {"move": (float(offset[0]), float(offset[1]))}
+        f"{scene_dir.parent.name}/{scene_dir.name}",
+        folders,
+        k,
+        pick,
+        {"move": (float(offset[0]), float(offset[1]))},
+        lift=lift,
     )
 
 
@@ -304,6 +324,8 @@ def score_scene(
         "pick_frame": truth.pick.frame,
         "offsets": truth.offsets,
     }
+    if truth.lift:
+        out["lift_height"] = truth.lift
     k = truth.object
     orig_raw = read_scene(truth.folders["original"]).select(others, size)
     orig_masks = _scored_masks(orig_raw, truth.folders["original"])
@@ -313,7 +335,7 @@ def score_scene(
         gt = gt_scene.rgb
         gt_masks = _scored_masks(gt_scene, truth.folders[kind])
         old = orig_masks == k
-        new = gt_masks == {"move": k, "remove": -1, "duplicate": truth.copy, "scale": k}[kind]
+        new = gt_masks == {"move": k, "lift": k, "remove": -1, "duplicate": truth.copy, "scale": k}[kind]
         if kind == "duplicate":
             old = torch.zeros_like(old)  # the original stays: only the copy's place changes
         regions = {
@@ -328,6 +350,8 @@ def score_scene(
             dx, dy = truth.offsets.get(kind, (0.0, 0.0))
             if kind == "move":
                 editor.move_object(label, [dx, dy, 0.0])
+            elif kind == "lift":  # the viewer's Ctrl + drag: along world z
+                editor.move_object(label, [0.0, 0.0, truth.lift])
             elif kind == "remove":
                 editor.remove_object(label)
             elif kind == "scale":
@@ -386,7 +410,8 @@ def format_table(table: dict, n: int) -> str:
             e, o, c = (table[kind][v][region] for v in VARIANTS)
             lines.append(f"{kind:<10} {region:<8} {e:6.2f} {o:6.2f} {c:7.2f} {c - e:6.2f}")
         if table[kind]["scenes"] < n:
-            lines.append(f"{kind:<10} on {table[kind]['scenes']} of the {n} scenes (the others have no room for it)")
+            why = "no room for it, or written before the lift" if kind == "lift" else "no room for it"
+            lines.append(f"{kind:<10} on {table[kind]['scenes']} of the {n} scenes (the others: {why})")
         if table[kind]["failed"]:
             lines.append(f"{kind:<10} {table[kind]['failed']} edit(s) failed (pick or move refused; scored unedited)")
     return "\n".join(lines)
@@ -490,11 +515,12 @@ def main(argv: list[str] | None = None) -> int:
                 skipped.append(name)
             else:
                 rows.append(row)
-                print(
-                    f"{name}: move {row['move']['edit']['changed']['psnr']:.2f} / ceiling "
-                    f"{row['move']['ceiling']['changed']['psnr']:.2f} dB (changed), {row['move']['status']}",
-                    file=sys.stderr,
-                )
+                for kind in (k for k in ("move", "lift") if k in row):
+                    print(
+                        f"{name}: {kind} {row[kind]['edit']['changed']['psnr']:.2f} / ceiling "
+                        f"{row[kind]['ceiling']['changed']['psnr']:.2f} dB (changed), {row[kind]['status']}",
+                        file=sys.stderr,
+                    )
             index += 1
     if not rows:
         raise OptionError(
