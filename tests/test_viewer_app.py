@@ -21,6 +21,7 @@ from particlesplat.core.userdirs import autosave_dir
 from particlesplat.model import save_checkpoint
 from viewer import app as A
 from viewer.bench.random_gaussians import random_gaussians
+from viewer.launch import build_parser
 
 pytestmark = pytest.mark.window
 
@@ -46,7 +47,7 @@ def app(tmp_path_factory, window, compositing):
     tmp = tmp_path_factory.mktemp("app")
     ckpt = tmp / "small.pt"
     save_checkpoint(ckpt, small_model(), 0)
-    args = A.build_parser().parse_args(
+    args = build_parser().parse_args(
         ["--checkpoint", str(ckpt), "--size", "160x120", "--output-dir", str(tmp), "--compositing", compositing]
     )
     session = A.load_session(args)
@@ -322,7 +323,7 @@ def test_object_gizmo_delete_and_duplicate_keys(window, tmp_path):
     from particlesplat.editing.open_scene import demo_scenes
 
     win, ctx = window
-    args = A.build_parser().parse_args(
+    args = build_parser().parse_args(
         ["--scene", str(demo_scenes()[0]), "--context", "4,16", "--size", "160x120", "--output-dir", str(tmp_path)]
     )
     session = A.load_session(args)
@@ -395,7 +396,7 @@ def test_a_signal_wakes_the_idle_loop_and_the_edits_are_autosaved(window, tmp_pa
     win, ctx = window
     ckpt = tmp_path / "small.pt"
     save_checkpoint(ckpt, small_model(), 0)
-    args = A.build_parser().parse_args(["--checkpoint", str(ckpt), "--size", "160x120", "--output-dir", str(tmp_path)])
+    args = build_parser().parse_args(["--checkpoint", str(ckpt), "--size", "160x120", "--output-dir", str(tmp_path)])
     session = A.load_session(args)
     app = A.App(win, session, A.initial_view(session, None, None), args, ctx=ctx)
     try:
@@ -422,7 +423,7 @@ def _demo_app(window, tmp_path, scene, size=(160, 120)):
     import glfw
 
     win, ctx = window
-    args = A.build_parser().parse_args(
+    args = build_parser().parse_args(
         ["--scene", str(scene), "--context", "4,16", "--size", "x".join(map(str, size)), "--output-dir", str(tmp_path)]
     )
     session = A.load_session(args)
@@ -845,3 +846,25 @@ def test_a_drag_inside_the_panel_does_not_move_it(app):
         glfw.set_window_size(app.window, 160, 120)
         glfw.set_cursor_pos(app.window, *start)
         app.run(2)
+
+
+def test_switching_scenes_shows_its_progress_while_the_window_draws(app):
+    """A scene picked in the panel opens on a thread: the loop goes on drawing, the status line says what is being
+    done ("opening scene_00019: encoding ..."), then the scene is in place and the line says how long it took."""
+    from particlesplat.editing.open_scene import demo_scenes
+
+    scene = next(p for p in demo_scenes() if "robot" in str(p))
+    app.req.open_path = str(scene)
+    app.redraw.notify()
+    lines, frames = set(), 0
+    deadline = time.perf_counter() + 180.0
+    while (app.opening is not None or not frames) and time.perf_counter() < deadline:
+        n = len(app.frame_times)
+        app.run(seconds=0.02)  # the interactive loop (the first frame's request starts the thread)
+        frames += len(app.frame_times) - n
+        lines.add(app.fields.status)
+    assert app.opening is None and Path(app.session.source) == scene, app.fields.status
+    progress = [line for line in lines if line.startswith(f"opening {scene.name}: ")]
+    assert progress and all(line.endswith(" s)") for line in progress), lines
+    assert frames > 1  # the window kept drawing while it loaded
+    assert app.fields.status.startswith(f"opened {scene}") and app.fields.status.endswith(" s)")

@@ -66,7 +66,7 @@ def test_fast_ctrl_chords_are_taken(xdisplay, tmp_path):
     edits = tmp_path / "e.yaml"  # one operation to undo: a version 1 file sets particle 0's depth
     edits.write_text("version: 1\nparticles:\n  0:\n    z_d: [0.5]\n")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "viewer.app", "--scene", str(demo_scenes()[0]), "--edits", str(edits)]
+        [sys.executable, "-m", "viewer", "--scene", str(demo_scenes()[0]), "--edits", str(edits)]
         + ["--size", "400x300", "--output-dir", str(tmp_path / "out")],
         cwd=ROOT,
         env=env,
@@ -122,7 +122,7 @@ def test_a_ctrl_a_moment_late_still_counts(xdisplay, tmp_path):
     env = {**os.environ, "DISPLAY": xdisplay}
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "viewer.app", "--scene", str(scene), "--context", "4,16", "--no-ui"]
+        [sys.executable, "-m", "viewer", "--scene", str(scene), "--context", "4,16", "--no-ui"]
         + ["--size", "400x300", "--output-dir", str(out)],
         cwd=ROOT,
         env=env,

@@ -22,27 +22,24 @@ import torch  # noqa: E402
 from imgui_bundle import imgui  # import before glfw so both use the same GLFW library
 
 from particlesplat.core.camera import Camera  # noqa: E402
-from particlesplat.core.errors import UserError  # noqa: E402
-from particlesplat.core.options import attach_option_values  # noqa: E402
 from particlesplat.core.outputs import OutputError, guard_outputs  # noqa: E402
 from particlesplat.core.userdirs import autosave_dir, output_dir  # noqa: E402
 from particlesplat.core.viewpoints import (
-    DEFAULT_FOV,
     View,
     check_fov,
     default_view,  # noqa: E402
     parse_look,
     scene_background,
 )
-from particlesplat.editing.source_options import add_source_arguments, check_source_arguments  # noqa: E402
-from particlesplat.formats.splat_files import SUFFIX_HELP, SUFFIXES  # noqa: E402
 
 from .chords import ChordQueue, install_ctrl_grace  # noqa: E402
 from .commands import carry_out, save_edits  # noqa: E402
 from .controls import Viewport, ViewportControls  # noqa: E402
-from .gl.caps import COMPOSITING, COMPOSITING_HELP, UnsupportedGL  # noqa: E402
+from .display import NoDisplay, check_display  # noqa: E402
+from .gl.caps import UnsupportedGL  # noqa: E402
 from .gl.renderer import SplatRenderer  # noqa: E402
 from .loading import load_session, particle_swatches, source_inputs  # noqa: E402
+from .opening import PROGRESS_EVERY, Opening, load_opened, open_arguments, start_opening  # noqa: E402
 from .orbit import OrbitCamera  # noqa: E402
 from .particle_overlay import ParticleOverlay  # noqa: E402
 from .redraw import CURSOR_BLINK, RedrawSchedule, install_event_callbacks  # noqa: E402
@@ -50,7 +47,7 @@ from .scene_view import SceneView  # noqa: E402
 from .screenshot import png_text, save_png, save_screenshot  # noqa: E402
 from .session import EditableScene, Scene, session_particles  # noqa: E402
 from .settings import load_settings, save_settings  # noqa: E402
-from .signals import SignalStop, raise_on_stop_signals  # noqa: E402
+from .signals import SignalStop  # noqa: E402
 from .state import ViewState  # noqa: E402
 from .tools.object_tools import ObjectGizmo  # noqa: E402
 from .tools.ruler import draw_ruler  # noqa: E402
@@ -59,56 +56,6 @@ from .ui.panel import UiFields, UiRequests, clear_of_panel, draw_overlay, draw_p
 
 STILL_AFTER = 0.2  # seconds without interaction before rendering at full scale
 ORBIT_STEP = 1.0  # degrees per frame with --orbit
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """``"WxH"`` -> (W, H)."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--size: expected WxH, e.g. 1024x768, got {text!r}") from None
-    if not (16 <= w <= 8192 and 16 <= h <= 8192):
-        raise argparse.ArgumentTypeError(f"--size: width and height must be in [16, 8192], got {text!r}")
-    return w, h
-
-
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="particlesplat-viewer",
-        description="View and edit ParticleSplat scenes: orbit, select and drag particles, segment, screenshot.",
-    )
-    add_source_arguments(
-        p, ply_help=f"open a Gaussian file ({SUFFIX_HELP}) instead of a model scene (no particle editing)"
-    )
-    p.add_argument("--frames", type=int, help="run N frames, print the median frame time and exit")
-    p.add_argument("--screenshot", help="with --frames: save the last render (no UI) to this PNG")
-    p.add_argument("--size", type=parse_size, default=(1280, 800), help="window size WxH (default: 1280x800)")
-    p.add_argument(
-        "--orbit",
-        action="store_true",
-        help="with --frames: turn the camera a little every frame, as a drag does (frames at the moving "
-        "render scale), then draw the still full-scale frame",
-    )
-    p.add_argument("--look", help="camera AZ,EL,DIST (degrees, degrees, metres) about the default target")
-    p.add_argument(
-        "--fov", type=float, help=f"vertical field of view in degrees (default: the scene's, or {DEFAULT_FOV:g})"
-    )
-    p.add_argument(
-        "--primitive",
-        choices=("auto", "quads", "points"),
-        default="auto",
-        help="splat primitive: auto = point sprites when every splat fits 255 px, else oriented quads "
-        "(both exact; the default); points = always sprites (large splats clipped)",
-    )
-    p.add_argument("--compositing", choices=COMPOSITING, default="auto", help=COMPOSITING_HELP)
-    p.add_argument(
-        "--output-dir",
-        help="folder for screenshots, .ply exports and edit files (default: ~/.local/share/particlesplat, or "
-        "$XDG_DATA_HOME/particlesplat; printed at start); unsaved edits are autosaved in "
-        "~/.local/state/particlesplat/autosave ($XDG_STATE_HOME)",
-    )
-    p.add_argument("--no-ui", action="store_true", help="start with the panel hidden (H toggles)")
-    return p
 
 
 def window_address(window) -> int:
@@ -166,6 +113,8 @@ class App:
         self.gizmo = ObjectGizmo()  # world-space handles and outline of the selected object
         self.particle_overlay = ParticleOverlay()  # keypoints / boxes segmentation modes
         self.frame_times: list[float] = []
+        self.opening: Opening | None = None  # a scene being opened on a thread (viewer.opening)
+        self.background_open = True  # open scenes on a thread (run with frames: at once)
         self.swatches = particle_swatches(session)
         self._swatched = session.num_owners()  # the particle count the swatches are of
         self.redraw = RedrawSchedule()
@@ -210,6 +159,7 @@ class App:
         from imgui_bundle.imgui import backends
 
         self.grace.flush()  # presses held for a Ctrl that did not come within their time go on now
+        self.poll_opening()
         backends.opengl3_new_frame()
         backends.glfw_new_frame()
         imgui.new_frame()
@@ -302,6 +252,8 @@ class App:
     def next_wake(self, scale: float) -> float | None:
         """When to draw without input: the full-scale frame once a motion stops, the cursor of an
         active text field; None when nothing changes by itself."""
+        if self.opening is not None:  # the progress line of a scene being opened
+            return time.perf_counter() + PROGRESS_EVERY
         if scale < 1.0:
             return self.controls.last_move + STILL_AFTER
         if imgui.get_io().want_text_input:
@@ -376,16 +328,49 @@ class App:
 
     def open(self, path: str) -> None:
         """Open a scene folder or a Gaussian file (.ply, .compressed.ply, .splat, .spz, .sog; replaces the
-        session). Unsaved edits of the old scene are autosaved first; autosaved edits of the new one are offered (the
-        edits path is set: Load restores them)."""
+        session), now. Unsaved edits of the old scene are autosaved first; autosaved edits of the new one are offered
+        (the edits path is set: Load restores them)."""
+        # a bad path (or scene.json) changes nothing
+        new, view = load_opened(open_arguments(self.args, path), lambda _: None, lambda s: initial_view(s, None, None))
+        self.adopt(path, new, view)
+
+    def open_in_background(self, path: str) -> None:
+        """Open ``path`` on a thread while the window goes on (:mod:`viewer.opening`): the status line shows its
+        progress, :meth:`poll_opening` puts it in place once ready. Run with ``frames`` (benchmarks, tests), it is
+        opened now (:meth:`open`)."""
+        if not self.background_open:
+            self.open(path)
+            return
+        if self.opening is not None:
+            self.fields.status = f"{self.opening.line()}: wait for it before opening {path}"
+            return
+        self.opening = start_opening(self.args, path, lambda s: initial_view(s, None, None))
+        self.fields.status = self.opening.line()
+
+    def poll_opening(self) -> None:
+        """Once a frame: the progress of a scene being opened on the status line, or, once it is ready, the scene in
+        place (:meth:`adopt`); what went wrong instead as an error, the scene shown staying as it is."""
+        opening = self.opening
+        if opening is None:
+            return
+        if not opening.done:
+            self.fields.status = opening.line()
+            return
+        self.opening = None
+        try:
+            if opening.error is not None:
+                raise opening.error
+            assert opening.result is not None
+            self.adopt(opening.path, *opening.result)
+            self.fields.status += f" ({time.perf_counter() - opening.started:.1f} s)"
+        except Exception as e:  # noqa: BLE001 - a bad path or file must not close the app: show it
+            self.fields.status = f"error: {e}"
+        self.redraw.notify()
+
+    def adopt(self, path: str, new: Scene, view: View) -> None:
+        """Show ``new`` (opened from ``path``) from ``view`` in place of the scene shown, its unsaved edits autosaved
+        first (OutputError, nothing changed, when they cannot be)."""
         p = Path(path)
-        args = argparse.Namespace(**vars(self.args))
-        is_file = p.is_file() or (not p.exists() and p.name.lower().endswith(SUFFIXES))  # missing: say which
-        args.scene, args.ply, args.edits, args.context = (
-            (None, str(p), None, None) if is_file else (str(p), None, None, None)
-        )
-        new = load_session(args)  # a bad path leaves the current scene as it is
-        view = initial_view(new, None, None)  # (so does a bad scene.json)
         try:
             kept = self.keep_unsaved()
         except OutputError as e:  # the scene stays open with its edits: nothing is lost
@@ -450,6 +435,7 @@ class App:
         Without ``frames`` the loop draws only when :attr:`redraw` says so, and sleeps in
         ``glfw.wait_events`` in between."""
         times = self.frame_times
+        self.background_open = frames is None  # frames drawn at once: a scene opens at once too
         n = 0
         end = None if seconds is None else time.perf_counter() + seconds
         while not glfw.window_should_close(self.window) and (frames is None or n < frames) and not self.stopped:
@@ -514,18 +500,6 @@ def _x11_sync_function():
     return lambda: xsync(display, 0)
 
 
-class NoDisplay(UserError):
-    """No display to open a window on: the viewer ends with one line naming DISPLAY and xvfb-run."""
-
-
-def check_display() -> None:
-    """NoDisplay (one line) on Linux when neither DISPLAY nor WAYLAND_DISPLAY is set: before the scene loads."""
-    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        raise NoDisplay(
-            "no display: DISPLAY is not set; on a machine without a screen run xvfb-run -a particlesplat-viewer"
-        )
-
-
 def create_window(size: tuple[int, int], title: str = "ParticleSplat Studio"):
     """A glfw window with a GL 3.3 core context (current) and imgui's native backends."""
     from imgui_bundle.imgui import backends
@@ -573,34 +547,13 @@ def destroy_window(window) -> None:
     glfw.terminate()
 
 
-def main(argv: list[str] | None = None) -> int:
-    """The viewer under the error policy (:func:`particlesplat.core.errors.run_command`): a bad file or argument is
-    one line and exit code 2, Ctrl-C one line and 130 (the process then ends at once, its edits autosaved); a bug
-    keeps its traceback."""
-    from particlesplat.core.errors import end_at_once_if_interrupted, run_command
-
-    return end_at_once_if_interrupted(run_command("particlesplat-viewer", lambda: _main(argv)))
-
-
-def _main(argv: list[str] | None = None) -> int:
-    raise_on_stop_signals()  # until the window is up: Ctrl-C, SIGTERM, SIGHUP end with one line
-    args = build_parser().parse_args(attach_option_values(list(sys.argv[1:] if argv is None else argv)))
+def run_viewer(args: argparse.Namespace) -> int:
+    """The viewer for options :func:`viewer.launch.parse_options` checked: the scene loaded, the window, the loop;
+    an exit code."""
     # per-particle decodes are tiny: one torch thread is ~15x faster than two fighting llvmpipe's
     torch.set_num_threads(1)
-    if args.screenshot and args.frames is None:
-        print("particlesplat-viewer: --screenshot needs --frames", file=sys.stderr)
-        return 2
-    try:
-        check_source_arguments(args)
-    except ValueError as e:
-        print(f"particlesplat-viewer: {e}", file=sys.stderr)
-        return 2
-    if args.frames is not None and args.frames < 1:
-        print("particlesplat-viewer: --frames must be >= 1", file=sys.stderr)
-        return 2
-    if args.screenshot:  # before the display and the scene: never over what the viewer reads, nor into a live run
+    if args.screenshot:  # before the scene: never over what the viewer reads, nor into a live run
         guard_outputs([("--screenshot", args.screenshot)], [*source_inputs(args), ("--edits", args.edits)])
-    check_display()  # before the scene is encoded
     try:
         session = load_session(args)
         view = initial_view(session, args.look, args.fov)
@@ -675,7 +628,3 @@ def _run_app(app: App, args: argparse.Namespace) -> int:
             return 2
         print(f"saved {path}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -31,7 +31,7 @@ class CommandHost(Protocol):
     fields: UiFields
     scene_view: SceneView
 
-    def open(self, path: str) -> None: ...
+    def open_in_background(self, path: str) -> None: ...
 
     def screenshot_numbered(self) -> Path: ...
 
@@ -55,7 +55,7 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
             index = host.orbit.step_camera(cams, req.step_camera)
             fields.status = f"input camera {index} of {len(cams)} (0 .. {len(cams) - 1})"
         if req.open_path:
-            host.open(req.open_path)
+            host.open_in_background(req.open_path)
         editable = host.session if isinstance(host.session, EditableScene) else None
         if req.save_edits and editable is not None:
             save_edits(editable, fields)

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from particlesplat.core.sh import SH_C0
 from particlesplat.core.vectors import float3
@@ -11,6 +14,9 @@ from particlesplat.data.scene_meta import default_checkpoint
 from particlesplat.editing.open_scene import demo_scenes, load_model_scene, load_ply_checked
 
 from .session import EditableScene, PlyScene, Scene
+
+if TYPE_CHECKING:
+    from particlesplat.model import ParticleSplat
 
 
 def source_inputs(args: argparse.Namespace) -> list[tuple[str, str]]:
@@ -22,17 +28,43 @@ def source_inputs(args: argparse.Namespace) -> list[tuple[str, str]]:
     return [("--scene", str(scene or "")), ("--checkpoint", str(args.checkpoint or default_checkpoint(scene)))]
 
 
-def load_session(args: argparse.Namespace) -> Scene:
+_MODELS: dict[tuple[str, int, int], ParticleSplat] = {}  # the models loaded, by resolved path, mtime and size
+
+
+def cached_model(path: str | Path) -> ParticleSplat:
+    """The model of checkpoint ``path``, loaded once a viewer process (:func:`particlesplat.model.load_model`):
+    switching between two families' scenes reloads neither model. A checkpoint whose file changed loads again."""
+    from particlesplat.data.families import shipped_model_named
+    from particlesplat.model import load_model
+
+    found = shipped_model_named(path) or Path(path)  # a shipped model's name opens it from anywhere
+    try:
+        stat = found.stat()
+        key = (str(found.resolve()), stat.st_mtime_ns, stat.st_size)
+    except OSError:
+        return load_model(path)  # the loader names what is missing
+    if key not in _MODELS:
+        _MODELS[key] = load_model(path)
+    return _MODELS[key]
+
+
+def load_session(args: argparse.Namespace, progress: Callable[[str], None] | None = None) -> Scene:
     """A session from ``--ply`` or ``--checkpoint`` + ``--scene`` (defaults: the shipped model
-    and the first demo scene), with ``--edits`` applied."""
+    and the first demo scene), with ``--edits`` applied. ``progress`` hears each stage as it starts (loading the
+    model, encoding the scene, applying the edits)."""
+    say = progress or (lambda _: None)
     if getattr(args, "ply", None):
+        say(f"reading {Path(args.ply).name}")
         return PlyScene(load_ply_checked(args.ply), source=str(args.ply))
-    model, encoded, name = load_model_scene(args.checkpoint, args.scene, getattr(args, "context", None))
+    model, encoded, name = load_model_scene(
+        args.checkpoint, args.scene, getattr(args, "context", None), progress, cached_model
+    )
     checkpoint = str(args.checkpoint or default_checkpoint(encoded.path))
     session = EditableScene(model, encoded, model_name=name, source=str(encoded.path), checkpoint=checkpoint)
     for warning in encoded.warnings:
         print(f"particlesplat-viewer: warning: {warning}", file=sys.stderr)
     if getattr(args, "edits", None):
+        say(f"applying the edits of {Path(args.edits).name}")
         warning = session.load_edits(args.edits)
         if warning:
             print(f"particlesplat-viewer: warning: {args.edits}: {warning}", file=sys.stderr)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -109,9 +110,17 @@ def encode_scene(
     return EncodedScene(particles, scene, list(raw.cameras), ctx, Path(raw.path), notes, read_support(raw.path))
 
 
-def load_model_scene(checkpoint: str | None, scene: str | PathLike | None, context: str | None = None):
+def load_model_scene(
+    checkpoint: str | None,
+    scene: str | PathLike | None,
+    context: str | None = None,
+    progress: Callable[[str], None] | None = None,
+    load: Callable[[str | Path], ParticleSplat] | None = None,
+):
     """Load a model (None = the shipped model of the scene's family) and encode ``scene`` (None = the first demo
-    scene).
+    scene). ``progress`` hears what is being done as it starts ("loading the model assets/model.pt", "encoding
+    scene_00000 from frames 4, 16"); ``load`` loads a checkpoint (default :func:`particlesplat.model.load_model`;
+    the viewer's keeps the models it loaded).
 
     Returns (model, EncodedScene, model name for PNG/YAML metadata).
     """
@@ -126,8 +135,12 @@ def load_model_scene(checkpoint: str | None, scene: str | PathLike | None, conte
             raise FileNotFoundError(f"no demo scenes in {where}; pass --scene DIR (or --ply FILE)")
         scene = scenes[0]
     path = checkpoint or default_checkpoint(scene)  # the shipped model of the scene's family
-    model = load_model(path)
-    return model, encode_scene(model, scene, parse_context(context)), shipped_model_name(path)
+    say = progress or (lambda _: None)
+    say(f"loading the model {shipped_model_name(path)}")
+    model = (load or load_model)(path)
+    frames = parse_context(context)
+    say(f"encoding {Path(scene).name}" + (f" from frames {', '.join(map(str, frames))}" if frames else ""))
+    return model, encode_scene(model, scene, frames), shipped_model_name(path)
 
 
 def load_ply_checked(path: str | PathLike):

@@ -18,9 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from particlesplat.rendering.projection import ALPHA_MAX, ALPHA_MIN
-from particlesplat.rendering.rasterize import T_MIN
-
 Compositing = Literal["auto", "fetch", "blend"]
 COMPOSITING: tuple[str, ...] = get_args(Compositing)
 FETCH_EXTENSION = "GL_EXT_shader_framebuffer_fetch"
@@ -98,5 +95,9 @@ def probe(ctx) -> GLCaps:
 def shader_constants() -> dict[str, str]:
     """The compositing rules of :func:`particlesplat.render` as GLSL ``#define`` values: footprint
     alpha >= ALPHA_MIN, alpha clamped at ALPHA_MAX, a pixel stops before the splat that would take its
-    transmittance to <= T_MIN."""
+    transmittance to <= T_MIN. (The renderer's modules load torch: imported here, so the viewer's options, which
+    name the compositing paths, are answered without it.)"""
+    from particlesplat.rendering.projection import ALPHA_MAX, ALPHA_MIN
+    from particlesplat.rendering.rasterize import T_MIN
+
     return {"ALPHA_MIN": repr(float(ALPHA_MIN)), "ALPHA_MAX": repr(float(ALPHA_MAX)), "T_MIN": repr(float(T_MIN))}
