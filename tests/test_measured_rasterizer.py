@@ -112,7 +112,7 @@ def test_time_rasterizers_times_both_kinds_of_both(mode):
 def test_a_command_says_what_it_measured_once(tmp_path):
     """A fresh cache: the first command prints the one line; the second reads the cache and prints nothing of it."""
     code = (
-        "import torch; from particlesplat.rendering.measured import measured_choice; "
+        "import particlesplat.rendering.api; from particlesplat.rendering.measured import measured_choice; "
         "print(measured_choice(False), measured_choice(True))"
     )
     env = {"XDG_CACHE_HOME": str(tmp_path), "PATH": "/usr/bin:/bin"}

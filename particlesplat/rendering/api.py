@@ -15,6 +15,7 @@ from particlesplat.rendering.budget import check_pass
 from particlesplat.rendering.choice import resolve_rasterizer
 from particlesplat.rendering.fused import rasterize_fused
 from particlesplat.rendering.fused_projection import project_views_fused
+from particlesplat.rendering.measured import set_workload_renderer
 from particlesplat.rendering.projection import footprint_extents, project_views
 from particlesplat.rendering.rasterize import RasterizeFunction, bin_gaussians, pair_inputs, tiles_to_images
 
@@ -244,3 +245,6 @@ def render_batch(
             result.background_weight = maps[..., 0].contiguous()
         results.append(result)
     return results
+
+
+set_workload_renderer(render_batch)  # the rasterizer measurement times this renderer (rendering.measured)

@@ -23,6 +23,7 @@ import os
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -44,6 +45,19 @@ TIMING_REPEATS = 3
 MAX_CACHE_ENTRIES = 32  # fingerprints kept (a shared home folder seen from several machines)
 
 _chosen: dict[str, dict[str, str]] = {}  # fingerprint key -> {"forward": ..., "training": ...}, this process
+_renderer: list[Callable[..., list]] = []  # render_batch, registered by rendering.api (which imports this module)
+
+
+def set_workload_renderer(render_batch: Callable[..., list]) -> None:
+    """Register the batch renderer the timing workload draws with (:func:`particlesplat.rendering.api.render_batch`,
+    registered as that module loads: the renderer calls this module to choose, so this one cannot import it)."""
+    _renderer[:] = [render_batch]
+
+
+def _workload_renderer() -> Callable[..., list]:
+    if not _renderer:
+        raise RuntimeError("the rasterizer measurement runs once particlesplat.rendering.api is loaded")
+    return _renderer[0]
 
 
 def timing_scene(n: int, size: int, seed: int = 0) -> tuple[Gaussians, Camera]:
@@ -99,8 +113,8 @@ def time_rasterizers(
 
     from particlesplat.core.camera import Camera
     from particlesplat.core.gaussians import Gaussians
-    from particlesplat.rendering.api import render_batch
 
+    render_batch = _workload_renderer()
     with torch.inference_mode(False):
         g, _ = timing_scene(n, size)
     cams = [Camera.orbit((0.0, 0.0, 0.0), 20.0 + 40.0 * i, 30.0, 3.0, width=size, height=size) for i in range(views)]
