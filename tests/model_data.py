@@ -43,6 +43,18 @@ def tiny_dataset(tmp_path_factory) -> Path:
     return root
 
 
+def untrained_tiny_checkpoint(folder: Path) -> Path:
+    """``folder/m.pt``: the tiny model at step 0, from torch's seed 0 (the same weights every call)."""
+    import torch
+
+    from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
+
+    torch.manual_seed(0)
+    path = folder / "m.pt"
+    save_checkpoint(path, ParticleSplat(ModelConfig(**TINY_MODEL)), step=0)
+    return path
+
+
 def tiny_config(path: Path, **train) -> Path:
     """Write a tiny model + train YAML to ``path``."""
     cfg = {

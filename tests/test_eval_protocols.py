@@ -10,16 +10,16 @@ import shutil
 
 import pytest
 import torch
-from model_data import TINY_MODEL, tiny_dataset
+from model_data import tiny_dataset, untrained_tiny_checkpoint
 
 from particlesplat.analysis.eval_summary import summary_line
+from particlesplat.analysis.evaluate import SCALARS
 from particlesplat.analysis.metrics import OBJECT_HELD, object_pixels_held, region_psnr
 from particlesplat.cli.main import main
 from particlesplat.core.choices import PAPER_CONTEXT_FRAMES, PAPER_TARGET_FRAMES
 from particlesplat.core.errors import EXIT_USER, run_command
 from particlesplat.data import SceneDataset
 from particlesplat.data.views import protocol_views
-from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
 
 
 def test_protocol_views_choose_the_papers_frames_or_the_context_itself():
@@ -72,10 +72,7 @@ def test_region_psnr_leaves_out_views_without_pixels_and_object_pixels_held_coun
 
 @pytest.fixture(scope="module")
 def tiny_checkpoint(tmp_path_factory):
-    torch.manual_seed(0)
-    path = tmp_path_factory.mktemp("protocols") / "m.pt"
-    save_checkpoint(path, ParticleSplat(ModelConfig(**TINY_MODEL)), step=0)
-    return path
+    return untrained_tiny_checkpoint(tmp_path_factory.mktemp("protocols"))
 
 
 def test_eval_inputs_protocol_scores_pixels_the_context_sees(tmp_path_factory, tmp_path, tiny_checkpoint, capsys):
@@ -137,26 +134,7 @@ def test_eval_short_scene_error_names_the_scene_and_the_protocol(tmp_path, tiny_
 
 
 def test_summary_line_says_no_pixels_for_an_empty_region():
-    mean = dict.fromkeys(
-        (
-            "psnr",
-            "ssim",
-            "depth_abs_rel",
-            "fg_ari",
-            "miou",
-            "fg_ari_particles",
-            "miou_particles",
-            "active_particles",
-            "objects",
-            "gaussians",
-            "below_support",
-            "encode_ms",
-            "fit_ms",
-            "decode_ms",
-            "render_ms",
-        ),
-        1.0,
-    )
+    mean = dict.fromkeys(SCALARS, 1.0)
     mean |= {"psnr_seen": 25.0, "psnr_unseen": float("nan"), "object_held": float("nan")}
     line = summary_line({"scenes": [{}], "mean": mean, "protocol": "inputs"}, 2, False)
     assert "25.00 dB on the pixels a context view sees, no pixels on those none does" in line

@@ -10,14 +10,12 @@ import sys
 from pathlib import Path
 
 import pytest
-import torch
-from model_data import TINY_MODEL, tiny_dataset
+from model_data import tiny_dataset, untrained_tiny_checkpoint
 
 from particlesplat.cli.main import main
 from particlesplat.core.errors import EXIT_USER, OptionError, run_command
 from particlesplat.data.folders import choose_splits, dataset_splits
 from particlesplat.data.synth import scene_name, write_scene
-from particlesplat.model import ModelConfig, ParticleSplat, save_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 TIMES = {"encode_ms", "fit_ms", "decode_ms", "render_ms"}  # wall-clock times: they differ from run to run
@@ -25,10 +23,7 @@ TIMES = {"encode_ms", "fit_ms", "decode_ms", "render_ms"}  # wall-clock times: t
 
 @pytest.fixture(scope="module")
 def tiny_ckpt(tmp_path_factory):
-    torch.manual_seed(0)
-    path = tmp_path_factory.mktemp("ckpt") / "m.pt"
-    save_checkpoint(path, ParticleSplat(ModelConfig(**TINY_MODEL)), step=0)
-    return path
+    return untrained_tiny_checkpoint(tmp_path_factory.mktemp("ckpt"))
 
 
 @pytest.fixture(scope="module")
