@@ -19,6 +19,7 @@ import torch
 
 from particlesplat.core.gaussians import Gaussians
 from particlesplat.core.outputs import guard_outputs
+from particlesplat.editing.crop_box import CropBox, workspace_box
 from particlesplat.editing.editor import EditsError, SceneEditor, load_edit_file, same_scene, scene_mismatch
 from particlesplat.editing.scene_id import resolved, scene_digest, scene_file_key
 
@@ -253,6 +254,8 @@ class EditableScene(SceneFiles):
         self.checkpoint = checkpoint  # the model's file ("" when it was built in memory)
         self.editor = SceneEditor(model, encoded.particles, encoded.all_cameras, encoded.context, world=encoded.support)
         self.encoded = encoded
+        self._workspace: CropBox | None = None
+        self._workspace_read = False
         self._saved_token = self._history_token()
 
     # ------------------------------------------------------------------ what is drawn
@@ -285,8 +288,24 @@ class EditableScene(SceneFiles):
         return list(range(self.editor.num_particles))
 
     def gaussians(self) -> Gaussians:
-        """All Gaussians of the current state (particles with edits, plus background)."""
-        return self.editor.decode()
+        """All Gaussians of the current state (particles with edits, plus background) inside the crop box the edits
+        set (:meth:`SceneEditor.crop_box`): what the view draws and picks, screenshots show and the viewer exports."""
+        return self._cropped(self.editor.decode())
+
+    def _cropped(self, g: Gaussians) -> Gaussians:
+        """``g`` without the Gaussians outside the edits' crop box (all of it without one)."""
+        box = self.editor.crop_box
+        return g if box is None else box.crop(g)
+
+    @property
+    def workspace(self) -> CropBox | None:
+        """The box about a robot scene's table and arm (:func:`particlesplat.editing.crop_box.workspace_box`, what
+        ``particlesplat export`` crops to when the edits set no box), read once; None for a tabletop scene or one
+        opened from no folder."""
+        if not self._workspace_read:
+            self._workspace_read = True
+            self._workspace = workspace_box(self.source) if self.source and Path(self.source).is_dir() else None
+        return self._workspace
 
     def objects(self) -> torch.Tensor:
         """(num_particles,) int64 object label per particle (:meth:`SceneEditor.objects`)."""
@@ -296,9 +315,11 @@ class EditableScene(SceneFiles):
         return self.editor.take_changes()
 
     def particle_gaussians(self, index: int) -> Gaussians:
-        """The Gaussians of one particle (owner = index), decoded alone (none if it is inactive)."""
+        """The Gaussians of one particle (owner = index), decoded alone (none if it is inactive), inside the crop
+        box as :meth:`gaussians` keeps them."""
         ed = self.editor
-        return ed.model.decode(ed.scene.particles, torch.tensor([index]), background=False).detach().to("cpu")
+        g = ed.model.decode(ed.scene.particles, torch.tensor([index]), background=False).detach().to("cpu")
+        return self._cropped(g)
 
     # ------------------------------------------------------------------ files
     def inputs(self) -> list[tuple[str, str]]:
