@@ -10,18 +10,35 @@ import torch
 import yaml
 from viewer_helpers import egl_context, small_model
 
-from particlesplat.editing.crop_box import CropBox
+from particlesplat.data.scene_meta import default_checkpoint
+from particlesplat.editing.crop_box import CropBox, workspace_box
 from particlesplat.editing.open_scene import demo_scenes, encode_scene
+from particlesplat.model import load_model
+from viewer.actions import ActionTarget, run
 from viewer.gl.renderer import SplatRenderer
 from viewer.scene_view import SceneView
 from viewer.session import EditableScene
 from viewer.state import ViewState
+from viewer.tools.crop_box import EDGES, applied_box, corners, edge_segments, set_bound, shown_box
+from viewer.ui.fields import UiRequests
 
 
 @pytest.fixture(scope="module")
 def encoded():
     model = small_model()
     return model, encode_scene(model, demo_scenes()[0])
+
+
+@pytest.fixture(scope="module")
+def robot():
+    scene = next(p for p in demo_scenes() if "robot" in str(p))
+    model = load_model(default_checkpoint(scene))
+    return model, encode_scene(model, scene), scene
+
+
+def target(scene) -> tuple[ActionTarget, list[str]]:
+    said: list[str] = []
+    return ActionTarget(scene, ViewState(), UiRequests(), said.append, (0.3, 0.0, 0.0)), said
 
 
 def _inside(means: np.ndarray, lo, hi) -> np.ndarray:
@@ -87,3 +104,68 @@ def test_the_view_uploads_and_exports_only_what_is_inside(encoded, tmp_path):
         view.renderer.replace_owner(owner, scene.particle_gaussians(owner))
     moved = scene.editor.decode()
     assert view.renderer.num == int(_inside(moved.means.detach().numpy(), lo, hi).sum()) == scene.gaussians().num
+
+
+def test_the_switch_and_the_fields_edit_through_the_editor_one_step_each(encoded):
+    model, enc = encoded
+    scene = EditableScene(model, enc)
+    ctx, said = target(scene)
+    ed, everything = scene.editor, scene.editor.decode()
+    assert shown_box(scene) is None  # a tabletop scene: no box until one is set
+    assert run("crop", ctx) and len(ed.history.undo) == 1
+    box = applied_box(scene)
+    assert box is not None and said[-1] == f"cropped to {box.text()}"
+    assert scene.gaussians().num == everything.num  # the box about every mean hides nothing yet
+    # a field's drag of three steps is one edit; its box is the last step's, min kept below max
+    lo = list(box.lo)
+    for step in (0.1, 0.2, 0.3):
+        set_bound(scene, "min", [lo[0] + step, lo[1], lo[2]], gesture="crop min")
+    ed.end_gesture()
+    assert len(ed.history.undo) == 2 and applied_box(scene) == CropBox((lo[0] + 0.3, lo[1], lo[2]), box.hi)
+    want = int(_inside(everything.means.detach().numpy(), (lo[0] + 0.3, lo[1], lo[2]), box.hi).sum())
+    assert 0 < want < everything.num and scene.gaussians().num == want
+    set_bound(scene, "max", [box.hi[0], lo[1] - 5.0, box.hi[2]])  # past min: stops a centimetre above it
+    dragged = applied_box(scene)
+    assert dragged is not None and dragged.hi[1] == pytest.approx(lo[1] + 0.01) and len(ed.history.undo) == 3
+    ed.undo()
+    # off shows everything; on again brings back the box switched off, not the default
+    assert run("crop", ctx) and applied_box(scene) is None and scene.gaussians().num == everything.num
+    assert run("crop", ctx) and applied_box(scene) == CropBox((lo[0] + 0.3, lo[1], lo[2]), box.hi)
+    assert [op.kind for op in ed.history.undo] == ["crop"] * 4
+
+
+def test_a_robot_scene_shows_its_workspace_and_saves_no_box_until_one_is_set(robot, tmp_path):
+    model, enc, folder = robot
+    scene = EditableScene(model, enc, source=str(folder))
+    ctx, said = target(scene)
+    workspace = workspace_box(folder)
+    assert workspace is not None and scene.workspace == workspace
+    assert shown_box(scene) == (workspace, False)  # outlined, hiding nothing
+    everything = scene.editor.decode()
+    assert scene.gaussians().num == everything.num and not scene.unsaved
+    saved = yaml.safe_load(scene.save_edits(tmp_path / "none.edits.yaml").read_text())
+    assert "crop" not in str(saved.get("operations"))  # a box the user did not set is not in their file
+    assert run("crop", ctx) and shown_box(scene) == (workspace, True) and scene.unsaved
+    inside = _inside(everything.means.detach().numpy(), workspace.lo, workspace.hi)
+    assert 0 < inside.sum() < everything.num and scene.gaussians().num == int(inside.sum())
+    saved = yaml.safe_load(scene.save_edits(tmp_path / "set.edits.yaml").read_text())
+    assert saved["operations"][-1] == {
+        "crop": {"min": pytest.approx(list(workspace.lo), abs=1e-3), "max": pytest.approx(list(workspace.hi), abs=1e-3)}
+    }
+
+
+def test_the_wireframe_is_the_boxs_twelve_edges_cut_at_the_camera(encoded):
+    model, enc = encoded
+    cam = enc.all_cameras[0]
+    box = CropBox((-0.2, -0.2, 0.0), (0.2, 0.2, 0.3))
+    c = corners(box)
+    assert len(EDGES) == 12 and all(np.count_nonzero(c[i] != c[j]) == 1 for i, j in EDGES)
+    seg = edge_segments(box, cam)
+    uv, _ = cam.project(torch.tensor(c, dtype=torch.float64).to(cam.K.dtype))
+    ends = {tuple(np.round(p, 3)) for p in seg.reshape(-1, 2)}
+    assert len(seg) == 12 and ends == {tuple(np.round(p, 3)) for p in uv.double().numpy()}
+    # the camera inside a box: the edges behind it are cut or left out, none drawn mirrored or infinite
+    eye = cam.c2w[:3, 3].double().tolist()
+    around = CropBox(tuple(v - 0.5 for v in eye), tuple(v + 0.5 for v in eye))
+    inner = edge_segments(around, cam)
+    assert 0 < len(inner) < 12 and np.isfinite(inner).all()

@@ -260,6 +260,13 @@ def _next_mode(ctx: ActionContext) -> None:
     ctx.status(ctx.state.mode_note() or f"mode: {ctx.state.seg_mode.value}")
 
 
+def _crop(ctx: ActionContext) -> None:
+    """Switch the crop box on or off (:func:`viewer.tools.crop_box.toggle_crop`: one edit)."""
+    from .tools.crop_box import toggle_crop
+
+    ctx.status(toggle_crop(ctx.session))
+
+
 def _deselect(ctx: ActionContext) -> None:
     ctx.state.selected = None
 
@@ -331,6 +338,14 @@ ACTIONS: tuple[Action, ...] = (
         "ruler on / off: clicks pick two surface points, the distance in metres",
         (Chord("l"),),
         _ruler,
+    ),
+    Action(
+        "crop",
+        "Crop box",
+        "crop box on / off: hide the Gaussians outside it (a robot scene's workspace until one is set)",
+        (Chord("c"),),
+        _crop,
+        _editable,
     ),
     Action("reset_view", "Reset view", "reset the view", (Chord("r"),), _request("reset_view")),
     Action("screenshot", "Screenshot", "screenshot (no UI)", (Chord("p"), Chord("f12")), _request("screenshot")),

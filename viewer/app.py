@@ -49,6 +49,7 @@ from .session import EditableScene, Scene, session_particles  # noqa: E402
 from .settings import load_settings, save_settings  # noqa: E402
 from .signals import SignalStop  # noqa: E402
 from .state import ViewState  # noqa: E402
+from .tools.crop_box import draw_crop_box  # noqa: E402
 from .tools.object_tools import ObjectGizmo  # noqa: E402
 from .tools.ruler import draw_ruler  # noqa: E402
 from .ui.objects import copy_step  # noqa: E402
@@ -169,6 +170,7 @@ class App:
             )
             self.particle_overlay.draw(self.session, self.state.seg_mode, self.view_camera(1.0), self.pixel_ratio())
             draw_ruler(self.state, self.view_camera(1.0), self.pixel_ratio())
+            draw_crop_box(self.session, self.view_camera(1.0), self.pixel_ratio())
             if message:
                 self.fields.status = message
             self._frame_chords = self.chords.take()

@@ -1,6 +1,6 @@
 """The ImGui panel and overlay. They read the session, view state and UI requests, and change
 them only through their methods and fields; they never touch GL or the renderer. Each section of the panel is a
-module of :mod:`viewer.ui` (scene, view, particles, selected, edits, insert, output)."""
+module of :mod:`viewer.ui` (scene, view, particles, selected, edits, crop, insert, output)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from ..actions import ActionTarget, help_rows
 from ..session import Scene
 from ..settings import PANEL_WIDTH, clamp_width
 from ..state import ViewState
+from .crop import draw_crop_section
 from .edits import draw_edits_section
 from .fields import UiFields, UiRequests
 from .insert import draw_insert_section
@@ -88,6 +89,7 @@ def draw_panel(
         draw_particles_section(editor, state, swatches)
         draw_selected_section(editor, ctx, fields)
         draw_edits_section(editor, ctx, fields)
+        draw_crop_section(ctx)
         req.insert = draw_insert_section(fields.insert) or req.insert
     draw_output_section(ctx, fields, editor is not None and state.selected is not None)
     if imgui.collapsing_header("Shortcuts"):
