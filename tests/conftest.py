@@ -47,6 +47,7 @@ def _measured_rasterizer(tmp_path_factory: pytest.TempPathFactory) -> None:
     every test and the commands they start read (``$XDG_CACHE_HOME`` is inherited): no test measures again or
     prints the measurement's line, and the user's own cache is never touched."""
     os.environ["XDG_CACHE_HOME"] = str(tmp_path_factory.mktemp("xdg_cache"))
+    import particlesplat.rendering.api  # noqa: F401  (registers the renderer the measurement times)
     from particlesplat.rendering.measured import measured_choice
 
     with contextlib.redirect_stderr(io.StringIO()):

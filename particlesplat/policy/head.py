@@ -22,7 +22,7 @@ import torch
 from torch import Tensor, nn
 
 from .features import ACTION_DIMS, OBJECT_DIMS, ROBOT_DIMS
-from .options import INPUT_NAMES
+from .options import INPUT_NAMES, ROBOT_ALONE
 
 INPUTS = INPUT_NAMES
 WIDTH, LAYERS, HEADS = 128, 3, 4
@@ -101,7 +101,7 @@ class ImageTokens(TokenSource):
 
 def token_source(kind: str, particle_dims: int = PARTICLE_DIMS) -> TokenSource:
     """The token source of input ``kind`` (one of :data:`INPUTS`)."""
-    if kind == "robot":
+    if kind == ROBOT_ALONE:
         return NoTokens()
     if kind == "state":
         return SetTokens("state", "objects", OBJECT_DIMS)

@@ -25,6 +25,7 @@ from particlesplat.core.errors import UserError
 
 from .features import Step, image_features, keypose_target, object_features, robot_features
 from .head import INPUTS, KeyposePolicy, SetTokens, token_source
+from .options import ROBOT_ALONE
 
 POSITION_WEIGHT = 10.0
 POLICY_FORMAT = "particlesplat-keypose-policy"
@@ -84,7 +85,7 @@ def make_batch(kind: str, steps: Sequence[Step], particles: Sequence[tuple] | No
         batch["particles"] = torch.from_numpy(feats)
         batch["particles_view"] = torch.from_numpy(views)
         batch["particles_mask"] = torch.from_numpy(mask)
-    elif kind != "robot":
+    elif kind != ROBOT_ALONE:
         raise ValueError(f"unknown input {kind!r}")
     return batch
 

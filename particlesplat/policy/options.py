@@ -9,7 +9,8 @@ TASK_NAMES = ("place", "stack")
 DEFAULT_TASK = "place"
 SPLITS = ("train", "heldout")  # the held-out split: held-out object colours and one more distractor
 MAX_EPISODES = 100_000
-INPUT_NAMES = ("particles", "images", "state", "robot")  # what --input takes (the head's token sources)
+ROBOT_ALONE = "robot"  # the input of the robot's own state alone, the floor (an input's name, not the family's)
+INPUT_NAMES = ("particles", "images", "state", ROBOT_ALONE)  # what --input takes (the head's token sources)
 MAX_STEPS, MAX_BATCH, MAX_ROLLOUTS = 10_000_000, 4096, 100_000
 
 
