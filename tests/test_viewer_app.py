@@ -868,3 +868,29 @@ def test_switching_scenes_shows_its_progress_while_the_window_draws(app):
     assert progress and all(line.endswith(" s)") for line in progress), lines
     assert frames > 1  # the window kept drawing while it loaded
     assert app.fields.status.startswith(f"opened {scene}") and app.fields.status.endswith(" s)")
+
+
+def test_a_robot_scene_outlines_its_workspace_and_c_crops_to_it(window, tmp_path):
+    """A robot demo scene opens with every Gaussian drawn and its workspace box outlined, not an edit; C makes the
+    box an edit: the view uploads only the Gaussians inside it (the panel's Crop box section drawn each frame), a
+    screenshot's edit file carries it, and Ctrl+Z draws everything again."""
+    from particlesplat.editing.open_scene import demo_scenes
+    from viewer.tools.crop_box import shown_box
+
+    app = _demo_app(window, tmp_path, next(p for p in demo_scenes() if "robot" in str(p)), size=(400, 300))
+    try:
+        s = app.session
+        app.run(2)
+        total = s.editor.decode().num
+        assert app.scene_view.renderer.num == total and not s.editor.history.undo and not s.unsaved
+        assert s.workspace is not None and shown_box(s) == (s.workspace, False)
+        press(app, imgui.Key.c)
+        assert shown_box(s) == (s.workspace, True) and app.fields.status.startswith("cropped to")
+        inside = int(s.workspace.inside(s.editor.decode().means).sum())
+        assert 0 < inside < total and app.scene_view.renderer.num == inside
+        app.fields.shot_size = [128, 96]
+        assert "crop:" in Image.open(app.screenshot_numbered()).text["edits"]
+        chord(app, "z")
+        assert app.scene_view.renderer.num == total and app.fields.status.startswith("undid: crop to")
+    finally:
+        app.scene_view.renderer.release()
