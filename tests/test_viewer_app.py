@@ -871,9 +871,10 @@ def test_switching_scenes_shows_its_progress_while_the_window_draws(app):
 
 
 def test_a_robot_scene_outlines_its_workspace_and_c_crops_to_it(window, tmp_path):
-    """A robot demo scene opens with every Gaussian drawn and its workspace box outlined, not an edit; C makes the
-    box an edit: the view uploads only the Gaussians inside it (the panel's Crop box section drawn each frame), a
-    screenshot's edit file carries it, and Ctrl+Z draws everything again."""
+    """A robot demo scene opens with every Gaussian drawn and its workspace box outlined, not an edit, and exports
+    only what is inside it (as ``particlesplat export``); C makes the box an edit: the view uploads only the
+    Gaussians inside it (the panel's Crop box section drawn each frame), a screenshot's edit file carries it, Ctrl+Z
+    draws everything again, and the box switched off exports everything."""
     from particlesplat.editing.open_scene import demo_scenes
     from viewer.tools.crop_box import shown_box
 
@@ -884,13 +885,27 @@ def test_a_robot_scene_outlines_its_workspace_and_c_crops_to_it(window, tmp_path
         total = s.editor.decode().num
         assert app.scene_view.renderer.num == total and not s.editor.history.undo and not s.unsaved
         assert s.workspace is not None and shown_box(s) == (s.workspace, False)
+        inside = int(s.workspace.inside(s.editor.decode().means).sum())
+        # the export of a scene whose edits set no box: its workspace, as particlesplat export writes it
+        app.fields.output_dir, app.fields.export_format = str(tmp_path), ".ply"
+        drawn = app.scene_view.visible_gaussians(s, app.state)
+        app.req.export_ply = True
+        app.run(1)
+        (ply,) = tmp_path.glob("particlesplat_*.ply")
+        want = int(s.workspace.inside(drawn.means).sum())
+        assert Gaussians.load_ply(ply).num == want < drawn.num and "the workspace box" in app.fields.status
         press(app, imgui.Key.c)
         assert shown_box(s) == (s.workspace, True) and app.fields.status.startswith("cropped to")
-        inside = int(s.workspace.inside(s.editor.decode().means).sum())
         assert 0 < inside < total and app.scene_view.renderer.num == inside
         app.fields.shot_size = [128, 96]
         assert "crop:" in Image.open(app.screenshot_numbered()).text["edits"]
         chord(app, "z")
         assert app.scene_view.renderer.num == total and app.fields.status.startswith("undid: crop to")
+        chord(app, "z", shift=True)
+        press(app, imgui.Key.c)  # switched off (crop: false): the export writes every Gaussian drawn
+        app.req.export_ply = True
+        app.run(1)
+        last = sorted(tmp_path.glob("particlesplat_*.ply"))[-1]
+        assert last != ply and Gaussians.load_ply(last).num == drawn.num, app.fields.status
     finally:
         app.scene_view.renderer.release()

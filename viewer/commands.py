@@ -13,6 +13,7 @@ import torch
 
 from .screenshot import BUNDLE, export_bundle, export_ply
 from .session import EditableScene
+from .tools.crop_box import export_crop
 
 if TYPE_CHECKING:
     from .orbit import OrbitCamera
@@ -70,11 +71,12 @@ def carry_out(host: CommandHost, req: UiRequests) -> None:
         guard = lambda p: host.session.guard_output("export", p)  # noqa: E731
         if req.export_ply:
             g = host.scene_view.visible_gaussians(host.session, host.state)
+            g, note = export_crop(host.session, g)  # a robot scene with no box set: its workspace, as export does
             if fields.export_format == BUNDLE:
                 path = export_bundle(fields.output_dir, g, host.session)
             else:
                 path = export_ply(fields.output_dir, g, fields.export_format, guard)
-            fields.status = f"exported {Path(path).resolve()}"
+            fields.status = f"exported {Path(path).resolve()}" + (f"; {note}" if note else "")
         editor = host.session.editor
         if req.insert and editor is not None:
             from .ui.insert import insert_from_fields

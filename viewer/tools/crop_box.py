@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from particlesplat.core.camera import Camera
+from particlesplat.core.gaussians import Gaussians
 from particlesplat.editing.crop_box import CropBox
 from particlesplat.editing.operations import Crop
 
@@ -161,3 +162,19 @@ def set_bound(scene: Scene, which: str, values: list[float], gesture: str | None
     new = with_bound(box, which, values)
     editor.set_crop(new, gesture)
     return new
+
+
+def export_crop(scene: Scene, drawn: Gaussians) -> tuple[Gaussians, str]:
+    """(what the viewer's export writes of the ``drawn`` Gaussians, a note for the status line or ""), as
+    ``particlesplat export`` writes the scene: a robot scene whose edits never set a box is cropped to its
+    workspace (:attr:`viewer.session.EditableScene.workspace`), so another viewer frames the table and the arm
+    rather than the room; a box the edits set (the drawn Gaussians are inside it already) or switched off
+    (``crop: false``) leaves them as drawn."""
+    workspace = getattr(scene, "workspace", None)
+    if scene.editor is None or scene.editor.crop_box is not None or workspace is None:
+        return drawn, ""
+    kept = workspace.crop(drawn)
+    return kept, (
+        f"cropped to the workspace box, {workspace.text()}: {drawn.num - kept.num} of {drawn.num} Gaussians outside "
+        "left out (C then C again: every Gaussian)"
+    )
