@@ -909,3 +909,56 @@ def test_a_robot_scene_outlines_its_workspace_and_c_crops_to_it(window, tmp_path
         assert last != ply and Gaussians.load_ply(last).num == drawn.num, app.fields.status
     finally:
         app.scene_view.renderer.release()
+
+
+def test_dragging_a_crop_box_handle_moves_its_face_in_one_step(window, tmp_path):
+    """With the box on, a press on the handle of the box's +x face and a drag along x move that face only (no orbit,
+    no pick), as one undo step; the view draws what lies inside the new box."""
+    import glfw
+
+    from particlesplat.editing.open_scene import demo_scenes
+    from viewer.tools.crop_box import applied_box
+    from viewer.tools.crop_handles import face_centres
+
+    app = _demo_app(window, tmp_path, next(p for p in demo_scenes() if "robot" in str(p)), size=(400, 300))
+    io = imgui.get_io()
+    start = glfw.get_cursor_pos(app.window)
+    try:
+        s = app.session
+        app.state.panel = False
+        app.run(2)
+        press(app, imgui.Key.c)
+        box = applied_box(s)
+        assert box is not None
+        sx, sy = app.pixel_ratio()
+        cam = app.view_camera(1.0).to("cpu", torch.float64)
+        face = face_centres(box)[1]
+        further = face + np.array([0.2, 0.0, 0.0])
+        (u0, v0), (u1, v1) = cam.project(torch.tensor(np.stack([face, further]), dtype=torch.float64))[0]
+        x0, y0 = float(u0) / sx, float(v0) / sy
+        step = np.array([float(u1 - u0) / sx, float(v1 - v0) / sy])
+        step *= 25.0 / np.linalg.norm(step)  # 25 window points along the x axis as seen
+        view, undo = app.orbit.view, len(s.editor.history.undo)
+        _point_at(app, round(x0), round(y0))
+        io.add_mouse_button_event(0, True)
+        app.run(1)
+        for k in range(1, 6):
+            x, y = round(x0 + step[0] * k / 5), round(y0 + step[1] * k / 5)
+            glfw.set_cursor_pos(app.window, x, y)
+            _wait_for_cursor(app.window, x, y)
+            io.add_mouse_pos_event(x, y)
+            app.redraw.notify()
+            app.run(1)
+        io.add_mouse_button_event(0, False)
+        app.run(2)
+        moved = applied_box(s)
+        assert moved is not None and moved.hi[0] > box.hi[0] + 0.02, app.fields.status
+        assert moved.lo == box.lo and moved.hi[1:] == box.hi[1:]
+        assert len(s.editor.history.undo) == undo + 1 and app.orbit.view == view and app.state.selected is None
+        assert app.scene_view.renderer.num == int(moved.inside(s.editor.decode().means).sum())
+        assert app.fields.status.startswith("crop to")
+    finally:
+        io.add_mouse_button_event(0, False)
+        app.run(1)
+        glfw.set_cursor_pos(app.window, *start)
+        app.scene_view.renderer.release()

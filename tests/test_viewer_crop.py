@@ -169,3 +169,25 @@ def test_the_wireframe_is_the_boxs_twelve_edges_cut_at_the_camera(encoded):
     around = CropBox(tuple(v - 0.5 for v in eye), tuple(v + 0.5 for v in eye))
     inner = edge_segments(around, cam)
     assert 0 < len(inner) < 12 and np.isfinite(inner).all()
+
+
+def test_a_handle_is_found_at_its_face_and_follows_the_mouse_along_its_axis(encoded):
+    from viewer.tools.crop_handles import axis_value, face_centres, handle_at, projected_faces
+
+    model, enc = encoded
+    cam = enc.all_cameras[0].to("cpu", torch.float64)
+    box = CropBox((-0.3, -0.2, 0.0), (0.4, 0.3, 0.5))
+    faces = face_centres(box)
+    assert faces[1] == pytest.approx([0.4, 0.05, 0.25]) and faces[4] == pytest.approx([0.05, 0.05, 0.0])
+    uv, front = projected_faces(box, cam)
+    assert front.all()
+    for face in range(6):
+        assert handle_at(box, cam, uv[face, 0] + 1.0, uv[face, 1] - 1.0, 3.0) == face
+    assert handle_at(box, cam, -500.0, -500.0, 3.0) is None
+    # the mouse on the projection of a point 0.15 m further along x: the x face's value is that point's x
+    for axis in range(3):
+        moved = faces[2 * axis + 1].copy()
+        moved[axis] += 0.15
+        (u, v), _ = cam.project(torch.tensor(moved, dtype=torch.float64))
+        value = axis_value(cam, faces[2 * axis + 1], axis, float(u), float(v))
+        assert value == pytest.approx(moved[axis], abs=1e-6)

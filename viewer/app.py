@@ -50,6 +50,7 @@ from .settings import load_settings, save_settings  # noqa: E402
 from .signals import SignalStop  # noqa: E402
 from .state import ViewState  # noqa: E402
 from .tools.crop_box import draw_crop_box  # noqa: E402
+from .tools.crop_handles import CropHandles  # noqa: E402
 from .tools.object_tools import ObjectGizmo  # noqa: E402
 from .tools.ruler import draw_ruler  # noqa: E402
 from .ui.objects import copy_step  # noqa: E402
@@ -112,6 +113,7 @@ class App:
         self._mode_note: str | None = None  # what note_mode last said
         self.controls = ViewportControls()
         self.gizmo = ObjectGizmo()  # world-space handles and outline of the selected object
+        self.crop_handles = CropHandles()  # the crop box's face handles
         self.particle_overlay = ParticleOverlay()  # keypoints / boxes segmentation modes
         self.frame_times: list[float] = []
         self.opening: Opening | None = None  # a scene being opened on a thread (viewer.opening)
@@ -171,6 +173,10 @@ class App:
             self.particle_overlay.draw(self.session, self.state.seg_mode, self.view_camera(1.0), self.pixel_ratio())
             draw_ruler(self.state, self.view_camera(1.0), self.pixel_ratio())
             draw_crop_box(self.session, self.view_camera(1.0), self.pixel_ratio())
+            message = (
+                self.crop_handles.draw(self.session, self.view_camera(1.0), self.pixel_ratio(), self.gizmo.capturing)
+                or message
+            )
             if message:
                 self.fields.status = message
             self._frame_chords = self.chords.take()
@@ -301,7 +307,7 @@ class App:
             pixel_ratio=self.pixel_ratio(),
             height=self.framebuffer_size()[1],
             copy_offset=self.fields.objects.copy_offset,
-            gizmo_capturing=self.gizmo.capturing,
+            gizmo_capturing=self.gizmo.capturing or self.crop_handles.capturing,
             chords=self._frame_chords,
         )
 
