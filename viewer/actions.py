@@ -399,6 +399,7 @@ MOUSE_HELP = (
     ("Shift + left drag", "slide the selected object on the floor from anywhere"),
     ("Ctrl + left drag", "lift or lower the selected object (world Z)"),
     ("gizmo arrows / planes", "move the selected object along world X, Y or Z, or in a plane"),
+    ("drag a crop box handle (a dot on a face)", "move that face of the box along its axis"),
 )
 
 
