@@ -244,7 +244,7 @@ def test_gripper_opens_and_closes_by_its_actuators():
 def test_cli_refuses_heldout_outside_the_wide_world(tmp_path):
     from particlesplat.core.errors import OptionError
 
-    for family in (["--family", "tabletop"], ["--family", "robot"]):
+    for family in (["--family", "tabletop"], ["--family", "robot", "--world", "narrow"]):
         with pytest.raises(OptionError, match="--heldout: only the robot family's wide world"):
             main(["synth", str(tmp_path / "t"), *family, "--train", "0", "--test", "0", "--heldout", "1"])
     assert not (tmp_path / "t").exists()
