@@ -58,7 +58,7 @@ def _child(case: dict, out_fd: int, err_fd: int) -> None:
             sys.argv = ["particlesplat", *case["argv"]]
             code = console_main()
         else:
-            from viewer.app import main
+            from viewer.launch import main
 
             sys.argv = ["particlesplat-viewer", *case["argv"]]
             code = main(case["argv"])
