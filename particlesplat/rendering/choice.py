@@ -2,7 +2,7 @@
 
 ``auto`` (the default) takes the torch twin off the CPU (CUDA: the twin is the reference and the GPU path) and, on
 the CPU, the one measured faster on this machine, for renders with gradients and without
-(:mod:`particlesplat.rendering.measured`: timed once, then cached per CPU, threads, torch and numba). The process
+(:mod:`particlesplat.rendering.measured`: timed once, then cached per CPU model, cores, torch and numba). The process
 default can be set once (the CLI's ``--rasterizer``), for a block of code (:func:`use_rasterizer`), or by the
 environment (``PARTICLESPLAT_RASTERIZER=torch|fused|auto``); a render's own ``rasterizer=`` argument wins over all of
 them.
