@@ -10,6 +10,7 @@ import numpy as np
 
 from viewer import app as A
 from viewer.commands import carry_out
+from viewer.launch import build_parser
 from viewer.ui.panel import UiFields, UiRequests
 
 
@@ -25,7 +26,7 @@ class HeadlessApp(A.App):
     ``App.__init__`` sets them."""
 
     def __init__(self, argv: list[str]) -> None:  # no window: App.__init__ would create its GL context
-        self.args = A.build_parser().parse_args(argv)
+        self.args = build_parser().parse_args(argv)
         self.session = A.load_session(self.args)
         self.orbit = A.OrbitCamera.from_view(A.initial_view(self.session, None, None))
         self.state = A.ViewState(panel=True, background=A.scene_background(self.session.model))
@@ -35,6 +36,8 @@ class HeadlessApp(A.App):
         self.fields.shot_size = [32, 24]
         self.swatches, self._swatched = A.particle_swatches(self.session), self.session.num_owners()
         self.scene_view = _Drawn()
+        self.opening = None
+        self.background_open = False  # a scene opens at once, as with frames drawn at once
 
     def screenshot_image(self, camera):
         return np.zeros((camera.height, camera.width, 3), np.float32)
