@@ -182,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
         if proc.returncode != 0:
             print(f"case N={n} size={size} rasterizer={rasterizer} failed:\n{proc.stderr}", file=sys.stderr)
             return 1
-        row = json.loads(proc.stdout.strip().splitlines()[-1])
+        row = json.loads(proc.stdout.strip().splitlines()[-1])  # checked: our own child process's last line
         rows.append(row)
         print(
             f"| {n} | {size}² | {row['rasterizer']} | {row['fwd_ms']:.1f} | {row['fwd_bwd_ms']:.1f} | "

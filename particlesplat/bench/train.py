@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"particlesplat bench train: case threads={n} rasterizer={rasterizer} failed: {text}", file=sys.stderr
             )
             return proc.returncode if proc.returncode == 2 else 1
-        row = json.loads(proc.stdout.strip().splitlines()[-1])
+        row = json.loads(proc.stdout.strip().splitlines()[-1])  # checked: our own child process's last line
         rows.append(row)
         step = row["step_s"]
         left = (row["recipe_steps"] - row["start_step"]) * step / 3600

@@ -50,7 +50,7 @@ class LogReader:
 
     def _parse(self, raw: bytes, number: int, last: bool) -> dict | None:
         try:
-            rec = json.loads(raw)
+            rec = json.loads(raw)  # checked: one bounded line of the run's own log
             if not isinstance(rec, dict):
                 raise ValueError(f"a JSON {type(rec).__name__}, not an object")
         except (ValueError, RecursionError) as e:
