@@ -31,6 +31,22 @@ def test_a_negative_look_value_is_attached_to_its_option():
     assert parse_look(p.parse_args(attach_option_values(["--look", "-30.5,20,3"])).look).azimuth == -30.5
 
 
+def test_negative_numbers_after_any_long_option_are_its_value():
+    """``--at -0.1,0.2`` (an object spot left of the table's centre) reaches ``--at``; a ``--`` ends the rewriting
+    and a word that only starts with a dash is left alone."""
+    assert attach_option_values(["--at", "-0.1,0.2", "--out", "x"]) == ["--at=-0.1,0.2", "--out", "x"]
+    assert attach_option_values(["--scale", "-.5"]) == ["--scale=-.5"]
+    assert attach_option_values(["--at", "-1e-3,2"]) == ["--at=-1e-3,2"]
+    assert attach_option_values(["--at", "-x"]) == ["--at", "-x"]
+    assert attach_option_values(["--", "--at", "-1,2"]) == ["--", "--at", "-1,2"]
+    assert attach_option_values(["--at=-1,2"]) == ["--at=-1,2"]
+    import argparse
+
+    p = argparse.ArgumentParser()
+    p.add_argument("--at")
+    assert p.parse_args(attach_option_values(["--at", "-0.25,-0.1"])).at == "-0.25,-0.1"
+
+
 def test_render_reproduces_a_png_camera(tmp_path):
     from particlesplat.cli.main import main
 

@@ -3,23 +3,33 @@
 from __future__ import annotations
 
 import argparse
+import re
 from typing import Any
 
 from particlesplat.core.errors import OptionError
 from particlesplat.core.yamlsafe import YamlError, load_yaml
 
 
-def attach_option_values(argv: list[str], options: tuple[str, ...] = ("--look",)) -> list[str]:
-    """``["--look", "-30,20,3"]`` -> ``["--look=-30,20,3"]``: argparse takes a value that starts with ``-``
-    (a negative azimuth) for an option, so the value is attached to its option first."""
+_NEGATIVE_NUMBERS = re.compile(r"^-(\d|\.\d)[\d.,eE+-]*$")
+
+
+def attach_option_values(argv: list[str]) -> list[str]:
+    """``["--look", "-30,20,3"]`` -> ``["--look=-30,20,3"]``: argparse takes a value that starts with ``-`` (a
+    negative azimuth, an ``--at -0.1,0.2`` spot) for an option, so a negative number or comma list of numbers that
+    follows a long option is attached to it first. Other tokens, and values after ``--``, are left as they are."""
     out: list[str] = []
     i = 0
     while i < len(argv):
-        if argv[i] in options and i + 1 < len(argv) and argv[i + 1][:1] == "-" and argv[i + 1][1:2].isdigit():
-            out.append(f"{argv[i]}={argv[i + 1]}")
+        token = argv[i]
+        if token == "--":
+            out.extend(argv[i:])
+            break
+        takes = token.startswith("--") and "=" not in token and len(token) > 2
+        if takes and i + 1 < len(argv) and _NEGATIVE_NUMBERS.match(argv[i + 1]):
+            out.append(f"{token}={argv[i + 1]}")
             i += 2
             continue
-        out.append(argv[i])
+        out.append(token)
         i += 1
     return out
 
