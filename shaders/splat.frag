@@ -27,6 +27,9 @@ flat in vec3 v_conic;
 flat in float v_opacity;
 flat in vec3 v_color;
 flat in float v_owner;
+#ifdef QUADS
+smooth in vec2 v_w;
+#endif
 
 uniform vec2 size;
 uniform int owner_base;
@@ -49,8 +52,12 @@ void main() {
     OUT(0) = vec4(v_color, 1.0);
     return;
 #endif
+#ifdef QUADS
+    float q = dot(v_w, v_w);  // (interpolated: the pixel centre in the ellipse's scaled axes)
+#else
     vec2 d = vec2(gl_FragCoord.x, size.y - gl_FragCoord.y) - v_center;
     float q = v_conic.x * d.x * d.x + 2.0 * v_conic.y * d.x * d.y + v_conic.z * d.y * d.y;
+#endif
     float a = min(ALPHA_MAX, v_opacity * exp(-0.5 * q));
 #ifdef COMPOSITE_FETCH
 #ifdef UNORM_T

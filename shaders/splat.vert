@@ -20,6 +20,9 @@ flat out vec3 v_conic;
 flat out float v_opacity;
 flat out vec3 v_color;
 flat out float v_owner;
+#ifdef QUADS
+smooth out vec2 v_w;  // the pixel in the ellipse's axes scaled by sqrt(conic eigenvalue): q = |v_w|^2
+#endif
 
 // particlesplat.core.palette: the PALETTE_* values are injected as #defines
 vec3 owner_color(float owner) {
@@ -58,12 +61,18 @@ void main() {
                                                : (q.x <= q.z ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
     vec2 e2 = vec2(-e1.y, e1.x);
     vec2 s = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1)) * 2.0 - 1.0;
-    // half a pixel of margin keeps pixel centres on the ellipse boundary inside
-    vec2 p = c.xy + e1 * (s.x * (c.z + 0.5)) + e2 * (s.y * (c.w + 0.5));
+    // SPLAT_MARGIN (pixels) keeps pixel centres that round onto the ellipse boundary inside
+    vec2 t = s * (c.zw + SPLAT_MARGIN);  // the corner along e1, e2 (pixels)
+    vec2 p = c.xy + e1 * t.x + e2 * t.y;
+    // q = d^T conic d for d = e1 t.x + e2 t.y is lambda1 t.x^2 + lambda2 t.y^2 (e1, e2 its eigenvectors), affine
+    // in the pixel across the rectangle once scaled by the square roots: the fragments interpolate it
+    float l1 = q.x * e1.x * e1.x + 2.0 * q.y * e1.x * e1.y + q.z * e1.y * e1.y;
+    float l2 = q.x * e2.x * e2.x + 2.0 * q.y * e2.x * e2.y + q.z * e2.y * e2.y;
+    v_w = t * sqrt(max(vec2(l1, l2), 0.0));
     gl_Position = vec4(p.x / size.x * 2.0 - 1.0, 1.0 - p.y / size.y * 2.0, 0.0, 1.0);  // guard is 0
 #else
     vec2 ext = size + 2.0 * guard;
     gl_Position = vec4((c.x + guard) / ext.x * 2.0 - 1.0, 1.0 - (c.y + guard) / ext.y * 2.0, 0.0, 1.0);
-    gl_PointSize = 2.0 * c.z + 1.0;
+    gl_PointSize = 2.0 * (c.z + SPLAT_MARGIN);
 #endif
 }

@@ -31,13 +31,14 @@ PASSES = ("sort", "upload", "projection", "choose", "clear", "splat", "geometry"
 
 def _flat_program(renderer):
     """The renderer's splat program for its current primitive with FLAT_FRAGMENT: geometry only."""
-    from ..gl.renderer import MAX_KEYED
+    from ..gl.renderer import MAX_KEYED, SPLAT_MARGIN
     from ..gl.shaders import load_shader
 
     kind = renderer.kind
     progs = renderer._progs[kind]
     if "flat" not in progs:
-        vert = load_shader("splat.vert", {"MAX_KEYED": MAX_KEYED, **({"QUADS": 1} if kind == "quads" else {})})
+        shape = {"QUADS": 1} if kind == "quads" else {}
+        vert = load_shader("splat.vert", {"MAX_KEYED": MAX_KEYED, "SPLAT_MARGIN": repr(SPLAT_MARGIN), **shape})
         progs["flat"] = renderer.ctx.program(
             vertex_shader=vert, fragment_shader=load_shader("splat.frag", {"FLAT_FRAGMENT": 1})
         )

@@ -82,7 +82,9 @@ def sprite_floor_ms(ctx, renderer: SplatRenderer, width: int, height: int, frame
     s = s[s[:, 2] > 0]
     if not len(s):
         return 0.0
-    data = np.stack([s[:, 0], s[:, 1], 2.0 * s[:, 2] + 1.0], 1).astype(np.float32)
+    from ..gl.renderer import SPLAT_MARGIN
+
+    data = np.stack([s[:, 0], s[:, 1], 2.0 * (s[:, 2] + SPLAT_MARGIN)], 1).astype(np.float32)
     prog = ctx.program(vertex_shader=FLOOR_VERTEX, fragment_shader=FLOOR_FRAGMENT)
     prog["size"] = (float(width), float(height))
     buf = ctx.buffer(data.tobytes())
@@ -414,7 +416,11 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    ctx = moderngl.create_standalone_context(430, **EGL) if args.peer else moderngl.create_standalone_context(**EGL)
+    ctx = (
+        moderngl.create_standalone_context(require=430, **EGL)
+        if args.peer
+        else moderngl.create_standalone_context(**EGL)
+    )
     renderers: dict[str, SplatRenderer] = {}
     peer = None
     try:

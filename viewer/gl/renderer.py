@@ -68,6 +68,9 @@ COLOR_DTYPES: tuple[ColorDtype, ...] = ("nu2", "f4", "f2")  # colour targets: 16
 COLOR_SCALE = 8.0
 MAX_KEYED = 64  # owners 0 .. MAX_KEYED - 1 can take another owner's colour (colour by object)
 POINT_GUARD = 128  # viewport margin (pixels) of the point pass: sprites up to 2 * POINT_GUARD - 1 px stay whole
+# pixels a splat's primitive reaches beyond its alpha >= ALPHA_MIN ellipse on each side (the radii are exact in float32
+# to far less: 0.1 px only keeps pixel centres that round onto the ellipse inside; 0.5 cost 2-7 % more fill)
+SPLAT_MARGIN = 0.1
 # ``auto`` cost model (ms per splat, ms per rasterised pixel), fitted on llvmpipe (Mesa 22.3, 2
 # cores): sprites have cheaper vertices and pixels but cover the whole square of the major axis
 POINT_COST = (1.35e-3, 7.7e-6)
@@ -75,9 +78,9 @@ QUAD_COST = (2.07e-3, 11.0e-6)
 
 
 def point_max_radius(caps: GLCaps) -> float:
-    """Largest splat radius (pixels) drawn whole as a point sprite (side 2 r + 1): the driver's point
+    """Largest splat radius (pixels) drawn whole as a point sprite (side 2 (r + SPLAT_MARGIN)): the driver's point
     size limit, and the guard band that keeps sprites with off-screen centres."""
-    return min((caps.max_point_size - 1.0) / 2.0, POINT_GUARD - 1.0)
+    return min(caps.max_point_size / 2.0 - SPLAT_MARGIN, POINT_GUARD - 1.0)
 
 
 @dataclass
@@ -161,13 +164,17 @@ class SplatRenderer:
         self._weigh_primitives = primitive == "auto" and self.caps.software
         kinds = ("quads", "points") if self._weigh_primitives else ("quads",) if primitive == "auto" else (primitive,)
         for kind in kinds:
-            vert = load_shader("splat.vert", {"MAX_KEYED": MAX_KEYED, **({"QUADS": 1} if kind == "quads" else {})})
+            shape = {"QUADS": 1} if kind == "quads" else {}
+            vert = load_shader("splat.vert", {"MAX_KEYED": MAX_KEYED, "SPLAT_MARGIN": repr(SPLAT_MARGIN), **shape})
             progs: dict[str | int, moderngl.Program] = {
-                "splat": ctx.program(vertex_shader=vert, fragment_shader=load_shader("splat.frag", {**mode, **encode}))
+                "splat": ctx.program(
+                    vertex_shader=vert, fragment_shader=load_shader("splat.frag", {**mode, **encode, **shape})
+                )
             }
             for n in (1, ID_ATTACHMENTS):
                 progs[n] = ctx.program(
-                    vertex_shader=vert, fragment_shader=load_shader("splat.frag", {**mode, "ID_PASS": 1, "ATTACH": n})
+                    vertex_shader=vert,
+                    fragment_shader=load_shader("splat.frag", {**mode, "ID_PASS": 1, "ATTACH": n, **shape}),
                 )
             self._progs[kind] = progs
         self.kind = "quads" if primitive == "auto" else primitive  # the primitive of the current sort
@@ -414,8 +421,8 @@ class SplatRenderer:
         live = r[:, 0] > 0
         if not live.any():
             return "quads"
-        major, minor = 2.0 * r[live, 0] + 1.0, 2.0 * r[live, 1] + 1.0
-        if float(major.max()) > 2.0 * self._point_max_radius + 1.0:
+        major, minor = 2.0 * (r[live, 0] + SPLAT_MARGIN), 2.0 * (r[live, 1] + SPLAT_MARGIN)
+        if float(r[live, 0].max()) > self._point_max_radius:
             return "quads"
         n = int(live.sum())
         points = POINT_COST[0] * n + POINT_COST[1] * float((major * major).sum())
@@ -623,7 +630,7 @@ class SplatRenderer:
         r = self._radii()
         r = r[r[:, 0] > 0]
         minor = r[:, 0] if self.kind == "points" else r[:, 1]
-        return float(((2.0 * r[:, 0] + 1.0) * (2.0 * minor + 1.0)).sum())
+        return float((4.0 * (r[:, 0] + SPLAT_MARGIN) * (minor + SPLAT_MARGIN)).sum())
 
     # ------------------------------------------------------------------ output
     def read_rgba(self) -> np.ndarray:
