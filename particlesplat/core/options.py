@@ -9,7 +9,6 @@ from typing import Any
 from particlesplat.core.errors import OptionError
 from particlesplat.core.yamlsafe import YamlError, load_yaml
 
-
 _NEGATIVE_NUMBERS = re.compile(r"^-(\d|\.\d)[\d.,eE+-]*$")
 
 
