@@ -2,7 +2,9 @@
 policy file.
 
 A training sample is one decision of a successful demonstration: what the input sees then (:mod:`.features`)
-and the keypose the expert took. The loss is EC-Diffuser's L1 on the action, the position's term weighted by
+and the keypose the expert took. Each batch's colours are turned by one random hue rotation (:func:`turn_hues`):
+which object is the target is told by colours matching, never by which colour, and a few hundred decisions
+show only a few hundred colours. The loss is EC-Diffuser's L1 on the action, the position's term weighted by
 :data:`POSITION_WEIGHT` (centimetres matter as much as the rotation's unit columns). Every input trains with the
 same sizes, steps, batch and learning-rate schedule; only the tokens differ.
 
@@ -23,13 +25,13 @@ import torch
 
 from particlesplat.core.errors import UserError
 
-from .features import Step, image_features, keypose_target, object_features, robot_features
+from .features import Step, image_features, image_points, keypose_target, object_features, robot_features
 from .head import INPUTS, KeyposePolicy, SetTokens, token_source
 from .options import ROBOT_ALONE
 
 POSITION_WEIGHT = 10.0
 POLICY_FORMAT = "particlesplat-keypose-policy"
-POLICY_VERSION = 1
+POLICY_VERSION = 2  # 2: the position is pointed at (head.KeyposePolicy)
 
 
 class PolicyFileError(UserError):
@@ -73,6 +75,7 @@ def make_batch(kind: str, steps: Sequence[Step], particles: Sequence[tuple] | No
         batch["objects_mask"][:, 0] |= ~batch["objects_mask"].any(1)  # an empty set keeps one (zero) row
     elif kind == "images":
         batch["images"] = torch.from_numpy(np.stack([image_features(s) for s in steps]))
+        batch["images_points"] = torch.from_numpy(np.stack([image_points(s) for s in steps]))
     elif kind == "particles":
         if particles is None:
             raise ValueError("the particles input needs each step's particle rows")
@@ -113,6 +116,31 @@ def demo_samples(folder: Path, task: str, episodes: int | None = None) -> tuple[
             samples.append((step, keypose))
             keys.append((int(ep.meta["index"]), t))
     return samples, keys
+
+
+def hue_turn(angle: float) -> torch.Tensor:
+    """(3, 3) the rotation of RGB by ``angle`` radians about the grey axis (greys and colour distances kept)."""
+    axis = torch.full((3,), 1.0 / math.sqrt(3.0))
+    K = torch.tensor([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return torch.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+
+
+def turn_hues(kind: str, batch: dict[str, torch.Tensor], angles: np.ndarray) -> None:
+    """Turn every colour sample ``i`` of ``batch`` carries by ``angles[i]`` radians in place (the same turn for all
+    of a sample's objects, particles or pixels; views' RGB clipped to [0, 1])."""
+    from .features import OBJECT_COLOUR
+    from .particles import PARTICLE_COLOUR
+
+    turns = torch.stack([hue_turn(float(a)) for a in angles])  # (B, 3, 3)
+    if kind == "state":
+        rows = batch["objects"][..., OBJECT_COLOUR]
+        batch["objects"][..., OBJECT_COLOUR] = torch.einsum("bij,bnj->bni", turns, rows)
+    elif kind == "particles":
+        rows = batch["particles"][..., PARTICLE_COLOUR]
+        batch["particles"][..., PARTICLE_COLOUR] = torch.einsum("bij,bnj->bni", turns, rows)
+    elif kind == "images":
+        rgb = batch["images"][:, :, :3]
+        batch["images"][:, :, :3] = torch.einsum("bij,bvjhw->bvihw", turns, rgb).clamp(0.0, 1.0)
 
 
 def action_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -165,6 +193,7 @@ def train(
         batch = make_batch(
             kind, [samples[i][0] for i in idx], None if particles is None else [particles[i] for i in idx]
         )
+        turn_hues(kind, batch, rng.uniform(0.0, 2.0 * math.pi, len(idx)))
         loss = action_loss(model(batch), torch.from_numpy(targets[idx]))
         opt.zero_grad(set_to_none=True)
         loss.backward()

@@ -21,6 +21,7 @@ from .features import Step
 
 CONTEXT = [0, 1]
 STAT_DIMS = 3 + 3 + 3 + 1 + 1  # centroid, extent, colour, z_t, robot
+PARTICLE_COLOUR = slice(6, 9)  # a particle row's RGB
 
 
 def write_decision_scene(folder: Path, step: Step) -> None:
