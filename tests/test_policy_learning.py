@@ -104,25 +104,27 @@ def test_images_make_tokens_per_cell():
     source = token_source("images")
     batch = make_batch("images", [_viewed(_step(rng)), _viewed(_step(rng))])
     tokens, padding, points = source(batch)
-    assert tokens.shape == (2, 2 * 8 * 8, 128) and not padding.any() and points.shape == (2, 2 * 8 * 8, 3)
+    assert tokens.shape == (2, 2 * 4 * 4, 128) and not padding.any() and points.shape == (2, 2 * 4 * 4, 3)
     assert make_batch("images", [_viewed(_step(rng))])["robot"].shape == (1, ROBOT_DIMS)
 
 
-def test_an_image_cells_point_is_its_pixels_mean_world_point():
+@pytest.mark.parametrize("cell", [16, 32])
+def test_an_image_cells_point_is_its_pixels_mean_world_point(cell):
     """Analytic: a camera 1 m straight above the table (focal = width, so the view spans 1 m at the table), depth
-    1 m everywhere: cell (row r, column c) of 16 px is centred at x = (16 c + 8 - 64) / 128, y = -(16 r + 8 - 64)
-    / 128, z = 0; a cell without depth takes the camera's centre."""
+    1 m everywhere: cell (row r, column c) of ``cell`` px is centred at x = (cell c + cell / 2 - 64) / 128,
+    y = -(cell r + cell / 2 - 64) / 128, z = 0; a cell without depth takes the camera's centre."""
     from particlesplat.policy.features import image_points
 
     step = _viewed(_step(np.random.default_rng(5)))
-    step.depth[1, :16, :16] = 0.0  # view 1's first cell: no depth
-    pts = image_points(step)
-    assert pts.shape == (2 * 64, 3)
-    r, c = np.divmod(np.arange(64), 8)
-    expected = np.stack([(16 * c + 8 - 64) / 128, -(16 * r + 8 - 64) / 128, np.zeros(64)], 1)
-    np.testing.assert_allclose(pts[:64], expected, atol=1e-6)
-    np.testing.assert_allclose(pts[64], (0.0, 0.0, 1.0), atol=1e-6)
-    np.testing.assert_allclose(pts[65:], expected[1:], atol=1e-6)
+    step.depth[1, :cell, :cell] = 0.0  # view 1's first cell: no depth
+    pts = image_points(step, cell)
+    n = (128 // cell) ** 2
+    assert pts.shape == (2 * n, 3)
+    r, c = np.divmod(np.arange(n), 128 // cell)
+    expected = np.stack([(cell * c + cell / 2 - 64) / 128, -(cell * r + cell / 2 - 64) / 128, np.zeros(n)], 1)
+    np.testing.assert_allclose(pts[:n], expected, atol=1e-6)
+    np.testing.assert_allclose(pts[n], (0.0, 0.0, 1.0), atol=1e-6)
+    np.testing.assert_allclose(pts[n + 1 :], expected[1:], atol=1e-6)
 
 
 def test_state_head_learns_where_the_goal_is():
@@ -137,7 +139,7 @@ def test_state_head_learns_where_the_goal_is():
         return step, np.array([*step.goal, *q, 1.0])
 
     data = [sample() for _ in range(256)]
-    model, log = train("state", data, TrainSettings(steps=300, batch=32, lr=1e-3, seed=0))
+    model, log = train("state", data, TrainSettings(steps=500, batch=32, lr=1e-3, seed=0))
     assert log.losses[-1] < log.losses[0] / 4
     test = [sample() for _ in range(32)]
     with torch.no_grad():
@@ -192,6 +194,7 @@ def test_train_and_evaluate_on_tiny_data(tmp_path, capsys):
     assert runs[0]["rollouts"] == 1 and runs[0]["input"] == "state" and runs[0]["task"] == "place"
     assert runs[0]["success"] == runs[1]["success"] and runs[0]["decisions"] == runs[1]["decisions"]  # by seed
     assert 1 <= runs[0]["decisions"][0] <= 10
+    assert 0 < runs[0]["decision_seconds"][0] < runs[0]["wall_seconds"][0]  # the controller's motion not counted
     with pytest.raises(UserError, match="task 'place', not 'stack'"):
         main(["policy", "train", "--task", "stack", "--input", "robot", "--demos", str(demos), "--out", str(out)])
 
@@ -274,3 +277,49 @@ def test_a_hue_turn_keeps_greys_and_colour_distances_and_turns_red_to_green():
     torch.testing.assert_close(batch["objects"][0, :, colour], before[0, :, colour] @ R.T, atol=1e-6, rtol=0)
     torch.testing.assert_close(batch["objects"][1], before[1], atol=1e-6, rtol=0)
     torch.testing.assert_close(batch["objects"][..., :9], before[..., :9])
+
+
+@needs_sim
+@pytest.mark.parametrize("kind", ["state", "particles", "robot"])
+def test_the_shipped_place_policies_load_and_act_from_a_seed(kind, tmp_path):
+    """assets/policies holds the place task's policies (the table's first task, training seed 0): each loads as
+    its input and task, was trained on 100 demonstrations at the default budget, and ``policy eval`` runs one
+    rollout of it without training, the same twice from one seed."""
+    from pathlib import Path
+
+    from particlesplat.cli.main import main
+    from particlesplat.policy.learn import load_policy
+    from particlesplat.policy.options import TRAIN_STEPS
+
+    path = Path(__file__).resolve().parents[1] / "assets" / "policies" / f"place-{kind}.pt"
+    _, info = load_policy(path)
+    assert info["input"] == kind and info["task"] == "place"
+    assert info["settings"]["steps"] == TRAIN_STEPS and info["info"]["episodes"] == 100
+    if kind == "particles":
+        return  # its rollout encodes every decision (seconds each): the tiny-data test covers the loop
+    runs = []
+    for n in range(2):
+        js = tmp_path / f"{n}.json"
+        argv = ["policy", "eval", "--policy", str(path), "--rollouts", "1", "--seed", "1000", "--json", str(js)]
+        assert main([*argv, "--quiet"]) == 0
+        runs.append(json.loads(js.read_text()))
+    assert runs[0]["success"] == runs[1]["success"] and runs[0]["decisions"] == runs[1]["decisions"]
+
+
+def test_a_particles_policy_finds_its_encoder_on_another_machine(tmp_path):
+    """A recorded encoder path that is not here is the shipped robot model when the SHA-256 matches (a policy
+    trained in another clone), None recorded is the shipped model, and another model's hash is one clear error."""
+    from particlesplat.analysis.particle_arrays import file_sha256
+    from particlesplat.core.errors import UserError
+    from particlesplat.data.families import get_family
+    from particlesplat.policy.runs import trained_encoder
+
+    sha = file_sha256(get_family("robot").shipped_model_path())
+    elsewhere = str(tmp_path / "gone" / "model.pt")
+    assert trained_encoder(tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": elsewhere, "sha256": sha}}}) is None
+    assert trained_encoder(tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": None, "sha256": sha}}}) is None
+    here = tmp_path / "mine.pt"
+    here.write_bytes(b"x")
+    assert trained_encoder(tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": str(here)}}}) == str(here)
+    with pytest.raises(UserError, match=r"p\.pt: key 'info.encoder.checkpoint': .* is not here"):
+        trained_encoder(tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": elsewhere, "sha256": "0" * 64}}})

@@ -11,6 +11,7 @@ from particlesplat.policy.options import (
     INPUT_NAMES,
     SPLITS,
     TASK_NAMES,
+    TRAIN_STEPS,
     check_collect_options,
     check_eval_options,
     check_train_options,
@@ -66,7 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     tr.add_argument("--demos", type=Path, required=True, help="a folder written by 'policy collect'")
     tr.add_argument("--out", type=Path, required=True, help="the policy file to write (.pt)")
     tr.add_argument("--episodes", type=int, help="learn from the first N successful demonstrations (default: all)")
-    tr.add_argument("--steps", type=int, default=2000, help="training steps")
+    tr.add_argument("--steps", type=int, default=TRAIN_STEPS, help="training steps")
     tr.add_argument("--batch", type=int, default=32, help="decisions a step")
     tr.add_argument("--lr", type=float, default=3e-4, help="AdamW's learning rate (cosine to zero)")
     tr.add_argument("--seed", type=int, default=0, help="training seed (>= 0)")
@@ -189,9 +190,11 @@ def _eval(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     seconds = sum(result.wall_seconds) / len(result.wall_seconds)
+    decision = sum(result.decision_seconds) / len(result.decision_seconds)
     print(
         f"{args.policy}: {result.input} on {result.task} ({result.split}, seed {result.seed}): success "
-        f"{100 * result.success_rate:.1f} % of {len(result.success)} rollouts, {seconds:.1f} s a rollout"
+        f"{100 * result.success_rate:.1f} % of {len(result.success)} rollouts, {seconds:.1f} s a rollout, "
+        f"{decision:.2f} s a decision (the views rendered, encoded, acted on)"
     )
     if args.json is not None:
         write_json(args.json, result.to_json())

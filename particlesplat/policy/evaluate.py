@@ -29,7 +29,8 @@ MAX_POLICY_DECISIONS = 10  # a clean expert episode takes 6
 
 @dataclass
 class EvalResult:
-    """Per rollout: ``success``, ``decisions`` taken and ``wall_seconds``; and the settings."""
+    """Per rollout: ``success``, ``decisions`` taken, ``wall_seconds`` and ``decision_seconds`` (the mean of its
+    decisions': render the views, encode, act; the controller's motion not counted); and the settings."""
 
     task: str
     input: str
@@ -38,6 +39,7 @@ class EvalResult:
     success: list[bool] = field(default_factory=list)
     decisions: list[int] = field(default_factory=list)
     wall_seconds: list[float] = field(default_factory=list)
+    decision_seconds: list[float] = field(default_factory=list)
 
     @property
     def success_rate(self) -> float:
@@ -54,6 +56,7 @@ class EvalResult:
             "success": self.success,
             "decisions": self.decisions,
             "wall_seconds": [round(s, 3) for s in self.wall_seconds],
+            "decision_seconds": [round(s, 4) for s in self.decision_seconds],
         }
 
 
@@ -98,6 +101,7 @@ def evaluate(
         result.success.append(bool(episode.success))
         result.decisions.append(len(episode.steps))
         result.wall_seconds.append(time.perf_counter() - start)
+        result.decision_seconds.append(float(np.mean(episode.decision_seconds)) if episode.decision_seconds else 0.0)
         if progress is not None:
             progress(i, bool(episode.success))
     return result

@@ -30,6 +30,7 @@ OBJECT_DIMS = 3 + 3 + 3 + 3 + 1 + 1 + len(SHAPES) + 1
 OBJECT_COLOUR = slice(9, 12)  # an object row's RGB
 ACTION_DIMS = 10
 DEPTH_SCALE = 3.0  # metres: depth is read as depth / DEPTH_SCALE, clipped to [0, 1]
+IMAGE_CELL = 32  # pixels: the images input has a token per IMAGE_CELL x IMAGE_CELL block of a view
 
 
 @dataclass
@@ -116,7 +117,7 @@ def image_features(step: Step) -> np.ndarray:
     return np.concatenate([rgb, depth], 1)
 
 
-def image_points(step: Step, cell: int = 16) -> np.ndarray:
+def image_points(step: Step, cell: int = IMAGE_CELL) -> np.ndarray:
     """(V * (H / cell) * (W / cell), 3) float32: the mean world point (metres) of each ``cell`` x ``cell`` block of
     each view's pixels, from planar depth and the OpenCV cameras, in the order the image input's tokens take
     (view, then row-major cells); a block without finite positive depth takes its camera's centre."""

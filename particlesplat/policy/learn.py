@@ -27,7 +27,7 @@ from particlesplat.core.errors import UserError
 
 from .features import Step, image_features, image_points, keypose_target, object_features, robot_features
 from .head import INPUTS, KeyposePolicy, SetTokens, token_source
-from .options import ROBOT_ALONE
+from .options import ROBOT_ALONE, TRAIN_STEPS
 
 POSITION_WEIGHT = 10.0
 POLICY_FORMAT = "particlesplat-keypose-policy"
@@ -43,7 +43,7 @@ class TrainSettings:
     """The training budget, the same for every input: ``steps`` of ``batch`` decisions, AdamW at ``lr`` with a
     cosine to zero and ``weight_decay``, from ``seed``."""
 
-    steps: int = 2000
+    steps: int = TRAIN_STEPS
     batch: int = 32
     lr: float = 3e-4
     weight_decay: float = 1e-4
@@ -64,9 +64,15 @@ def _pad(rows: Sequence[np.ndarray], dims: int) -> tuple[np.ndarray, np.ndarray]
     return out, mask
 
 
-def make_batch(kind: str, steps: Sequence[Step], particles: Sequence[tuple] | None = None) -> dict[str, torch.Tensor]:
+def make_batch(
+    kind: str,
+    steps: Sequence[Step],
+    particles: Sequence[tuple] | None = None,
+    points: Sequence[np.ndarray] | None = None,
+) -> dict[str, torch.Tensor]:
     """The tensors input ``kind`` reads for ``steps`` (``particles``: each step's particle rows, for
-    ``particles``)."""
+    ``particles``; ``points``: each step's :func:`.features.image_points` when already computed, for
+    ``images``)."""
     batch = {"robot": torch.from_numpy(np.stack([robot_features(s) for s in steps]))}
     if kind == "state":
         rows = [object_features(s) for s in steps]
@@ -75,7 +81,8 @@ def make_batch(kind: str, steps: Sequence[Step], particles: Sequence[tuple] | No
         batch["objects_mask"][:, 0] |= ~batch["objects_mask"].any(1)  # an empty set keeps one (zero) row
     elif kind == "images":
         batch["images"] = torch.from_numpy(np.stack([image_features(s) for s in steps]))
-        batch["images_points"] = torch.from_numpy(np.stack([image_points(s) for s in steps]))
+        cells = [image_points(s) for s in steps] if points is None else points
+        batch["images_points"] = torch.from_numpy(np.stack(cells))
     elif kind == "particles":
         if particles is None:
             raise ValueError("the particles input needs each step's particle rows")
@@ -177,6 +184,7 @@ def train(
     model = KeyposePolicy(token_source(kind, particle_dims) if kind == "particles" else token_source(kind))
     opt = torch.optim.AdamW(model.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
     targets = np.stack([keypose_target(k) for _, k in samples])
+    points = [image_points(s) for s, _ in samples] if kind == "images" else None  # once, not every batch
     log = TrainLog([], [], [])
     start = time.perf_counter()
     model.train()
@@ -191,7 +199,10 @@ def train(
             g["lr"] = lr
         idx = rng.choice(len(samples), size=min(settings.batch, len(samples)), replace=len(samples) < settings.batch)
         batch = make_batch(
-            kind, [samples[i][0] for i in idx], None if particles is None else [particles[i] for i in idx]
+            kind,
+            [samples[i][0] for i in idx],
+            None if particles is None else [particles[i] for i in idx],
+            None if points is None else [points[i] for i in idx],
         )
         turn_hues(kind, batch, rng.uniform(0.0, 2.0 * math.pi, len(idx)))
         loss = action_loss(model(batch), torch.from_numpy(targets[idx]))

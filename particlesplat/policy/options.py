@@ -12,6 +12,7 @@ MAX_EPISODES = 100_000
 ROBOT_ALONE = "robot"  # the input of the robot's own state alone, the floor (an input's name, not the family's)
 INPUT_NAMES = ("particles", "images", "state", ROBOT_ALONE)  # what --input takes (the head's token sources)
 MAX_STEPS, MAX_BATCH, MAX_ROLLOUTS = 10_000_000, 4096, 100_000
+TRAIN_STEPS = 6000  # the training budget of every input: at 2,000 the particles policy had not fit its own data
 
 
 def check_collect_options(task: str, episodes: int, seed: int, split: str) -> None:

@@ -54,7 +54,9 @@ class Observation:
 @dataclass
 class EpisodeResult:
     """An episode: ``steps`` (observation, keypose taken) per decision, the ``final`` state (no views),
-    ``success``, whether every keypose was ``reached``, and seconds of wall and simulated time."""
+    ``success``, whether every keypose was ``reached``, seconds of wall and simulated time, and per decision the
+    wall seconds from the observation to the keypose (rendering the views when asked, the decider's work): what a
+    policy costs a decision, without the controller's motion."""
 
     steps: list[tuple[Observation, Keypose]] = field(default_factory=list)
     final: Observation | None = None
@@ -62,6 +64,7 @@ class EpisodeResult:
     reached: bool = True
     wall_seconds: float = 0.0
     sim_seconds: float = 0.0
+    decision_seconds: list[float] = field(default_factory=list)
 
 
 Decider = Callable[[TaskWorld, Observation], Keypose | None]
@@ -118,8 +121,10 @@ def run_episode(
     start_sim = float(world.comp.data.time)
     try:
         for _ in range(max_decisions):
+            decision_start = time.perf_counter()
             obs = observe(world, controller, renderer)
             keypose = decide(world, obs)
+            result.decision_seconds.append(time.perf_counter() - decision_start)
             if keypose is None:
                 break
             result.steps.append((obs, keypose))

@@ -39,13 +39,15 @@ def train_run(
         from .particles import DecisionEncoder
 
         encoder = DecisionEncoder(model)
+        shipped = model is None
         rows = []
         for n, ((step, _), (index, decision)) in enumerate(zip(samples, keys, strict=True)):
             rows.append(encoder.rows(step, particle_cache(particles, index, decision)))
             if progress is not None:
                 progress("encode", n + 1, len(samples))
         dims = encoder.dims
-        info["encoder"] = {"checkpoint": encoder.checkpoint, "sha256": encoder.sha256}
+        # None: the shipped robot model, wherever this copy of the program keeps it
+        info["encoder"] = {"checkpoint": None if shipped else encoder.checkpoint, "sha256": encoder.sha256}
 
     def report(step: int, loss: float) -> None:
         if progress is not None:
@@ -78,9 +80,27 @@ def eval_run(
     if kind == "particles":
         from .particles import DecisionEncoder
 
-        encoder = DecisionEncoder(model or meta.get("info", {}).get("encoder", {}).get("checkpoint"))
+        encoder = DecisionEncoder(model or trained_encoder(path, meta))
         rows = encoder.rows
     return evaluate(task, kind, policy, rollouts, seed, split, rows, progress)
+
+
+def trained_encoder(path: Path, meta: dict) -> str | None:
+    """The model that encoded a particles policy's demonstrations (None: the shipped robot model). A recorded path
+    that is not on this machine is the shipped model when its SHA-256 matches, else a UserError naming ``path``."""
+    from particlesplat.analysis.particle_arrays import file_sha256
+    from particlesplat.data.families import get_family
+
+    recorded = meta.get("info", {}).get("encoder", {})
+    checkpoint, sha = recorded.get("checkpoint"), recorded.get("sha256")
+    if checkpoint is None or Path(str(checkpoint)).is_file():
+        return None if checkpoint is None else str(checkpoint)
+    if sha is not None and sha == file_sha256(get_family("robot").shipped_model_path()):
+        return None
+    raise UserError(
+        f"{path}: key 'info.encoder.checkpoint': the model its particles came from, {checkpoint}, is not here "
+        "(give it with --checkpoint)"
+    )
 
 
 def write_json(path: Path, data: dict) -> None:
