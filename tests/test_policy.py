@@ -167,3 +167,25 @@ def test_grasp_yaw_spans_the_narrow_side():
         body = yaw_of(world.poses()[1][k])
         axis = np.array([math.cos(body), math.sin(body)]) if hx <= hy else np.array([-math.sin(body), math.cos(body)])
         assert abs(abs(axis @ [math.cos(yaw), math.sin(yaw)]) - 1.0) < 1e-6
+
+
+@pytest.mark.parametrize("task,split", [("place", "train"), ("stack", "heldout")])
+def test_the_rig_never_sees_the_sky(task, split):
+    """The rig's views skip drawing the sky: on several worlds of each task and split they are the same, pixel for
+    pixel, as with the sky drawn, and no pixel is left without depth."""
+    from particlesplat.data.families.robot_assets import import_mujoco
+    from particlesplat.data.families.robot_render import SceneRenderer
+    from particlesplat.policy.world import RESOLUTION, RigRenderer
+
+    for index in range(3):
+        world = _world(task, index, split)
+        rig = RigRenderer(world)
+        sky = SceneRenderer(import_mujoco(), world.comp, RESOLUTION, RESOLUTION, skybox=True)
+        try:
+            a, b = rig.render(), sky.render(world.comp.camera_ids)
+        finally:
+            rig.close()
+            sky.close()
+        assert not rig.renderer.skybox
+        assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.depth, b.depth) and np.array_equal(a.masks, b.masks)
+        assert (a.depth > 0).all()

@@ -213,11 +213,19 @@ def test_a_decisions_particles_sit_on_its_objects(tmp_path):
     assert main(["policy", "collect", "--task", "stack", "--episodes", "1", "--out", str(demos), "--quiet"]) == 0
     _, (episode,) = read_episodes(demos)
     step, _ = episode_steps(episode)[0]
-    arrays = DecisionEncoder().arrays(step)
+    encoder = DecisionEncoder()
+    arrays = encoder.arrays(step)
     centres = step.boxes.mean(1)
     found = arrays.object_centroid
     near = [np.linalg.norm(found[:, :2] - c[:2], axis=1).min() < 0.05 for c in centres]
     assert np.mean(near) >= 0.66, (centres, found)
+    # a closed-loop decision's rows skip the background and the grouping, and are the arrays' rows exactly
+    from particlesplat.policy.particles import particle_rows
+
+    live, cached = encoder.live_rows(step), particle_rows(arrays, encoder.d_obj)
+    for a, b in zip(live, cached, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert cached[2].any() and (cached[0][~cached[2]] == 0).all()
 
 
 @pytest.mark.parametrize("kind", ["state", "particles", "images", "robot"])
@@ -323,3 +331,21 @@ def test_a_particles_policy_finds_its_encoder_on_another_machine(tmp_path):
     assert trained_encoder(tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": str(here)}}}) == str(here)
     with pytest.raises(UserError, match=r"p\.pt: key 'info.encoder.checkpoint': .* is not here"):
         trained_encoder(tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": elsewhere, "sha256": "0" * 64}}})
+
+
+def test_a_decision_scene_holds_the_arm_within_its_limits(tmp_path):
+    """The simulator's joint limits are soft (a joint pressed against one overshot it by 0.8 mrad in a rollout):
+    a decision's scene holds the joints within the Panda's limits, which every scene reader checks, and keeps
+    the others as they are."""
+    from particlesplat.data.pose_ranges import PANDA_JOINT_LIMITS, check_limits
+    from particlesplat.data.scene_meta import read_scene_json
+    from particlesplat.policy.particles import write_decision_scene
+
+    step = _viewed(_step(np.random.default_rng(4)))
+    step.robot_base = np.eye(4)
+    step.joints = np.array([0.0, 0.2, 0.0, -2.0, 0.0, PANDA_JOINT_LIMITS[5][1] + 8e-4, PANDA_JOINT_LIMITS[6][0] - 1e-3])
+    write_decision_scene(tmp_path / "scene", step)
+    joints = read_scene_json(tmp_path / "scene" / "scene.json")["arm_joints_rad"]
+    check_limits(joints, "arm_joints_rad", "scene.json")
+    assert joints[5] == PANDA_JOINT_LIMITS[5][1] and joints[6] == PANDA_JOINT_LIMITS[6][0]
+    assert joints[:5] == [0.0, 0.2, 0.0, -2.0, 0.0]

@@ -236,6 +236,26 @@ def file_sha256(path: str | PathLike) -> str:
     return h.hexdigest()
 
 
+def particle_stats(
+    model: ParticleSplat, particles: Particles, gaussians: Gaussians
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """Per particle (P of ``particles``, on the CPU): centroid (P, 3) and extent (P, 3) of its Gaussians, their
+    colour (P, 3) (opacity-weighted, float64), whether it draws (P,) and whether it draws the robot (P,) bool.
+    ``gaussians``: their decode on the CPU; only the particles' own Gaussians count, so a decode without the
+    background gives the same numbers."""
+    g, p, P = gaussians, particles, particles.num
+    centroid, extent, _ = weighted_stats(g.means, g.opacities, g.owner, P)
+    dc = (SH_C0 * g.sh[:, 0, :].double() + 0.5).clamp(0.0, 1.0)  # (M, 3) view-independent colour
+    fg = (g.owner >= 0) & (g.owner < P)
+    w = g.opacities.double()[fg]
+    total = torch.zeros(P, dtype=torch.float64).index_add_(0, g.owner[fg], w)
+    colour = torch.zeros(P, 3, dtype=torch.float64).index_add_(0, g.owner[fg], w[:, None] * dc[fg])
+    colour = torch.where(total[:, None] > 0, colour / torch.where(total > 0, total, 1.0)[:, None], 0.0)
+    active = drawing_particles(p, g, model.config.bg_mask_threshold)
+    robot = robot_particles(p, g, arm_state(model, p)) & active
+    return centroid, extent, colour, active, robot
+
+
 def particle_arrays(
     model: ParticleSplat,
     particles: Particles,
@@ -253,15 +273,7 @@ def particle_arrays(
     g = gaussians.detach().to("cpu")
     p = particles.detach().to("cpu")
     P = p.num
-    centroid, extent, _ = weighted_stats(g.means, g.opacities, g.owner, P)
-    dc = (SH_C0 * g.sh[:, 0, :].double() + 0.5).clamp(0.0, 1.0)  # (M, 3) view-independent colour
-    fg = (g.owner >= 0) & (g.owner < P)
-    w = g.opacities.double()[fg]
-    total = torch.zeros(P, dtype=torch.float64).index_add_(0, g.owner[fg], w)
-    colour = torch.zeros(P, 3, dtype=torch.float64).index_add_(0, g.owner[fg], w[:, None] * dc[fg])
-    colour = torch.where(total[:, None] > 0, colour / torch.where(total > 0, total, 1.0)[:, None], 0.0)
-    active = drawing_particles(p, g, model.config.bg_mask_threshold)
-    robot = robot_particles(p, g, arm_state(model, p)) & active
+    centroid, extent, colour, active, robot = particle_stats(model, p, g)
     if objects is None:
         labels = SceneObjects.group(p, g, model.config.bg_mask_threshold, arm=arm_state(model, p)).labels
     else:  # a particle that draws nothing (a removed object's) is in none

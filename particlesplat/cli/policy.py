@@ -194,7 +194,7 @@ def _eval(args: argparse.Namespace) -> int:
     print(
         f"{args.policy}: {result.input} on {result.task} ({result.split}, seed {result.seed}): success "
         f"{100 * result.success_rate:.1f} % of {len(result.success)} rollouts, {seconds:.1f} s a rollout, "
-        f"{decision:.2f} s a decision (the views rendered, encoded, acted on)"
+        f"{1000 * decision:.0f} ms a decision (observed, encoded, acted on)"
     )
     if args.json is not None:
         write_json(args.json, result.to_json())

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import tempfile
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -45,13 +46,21 @@ def write_decision_scene(folder: Path, step: Step) -> None:
         "world": "wide",
         "world_frame": "robosuite",
         "support_z": 0.0,
-        "arm_joints_rad": [float(v) for v in step.joints],
+        "arm_joints_rad": held_to_limits(step.joints),
         "robot_base": np.asarray(step.robot_base, dtype=np.float64).tolist(),
         "gripper": "panda",
     }
     folder.mkdir()
     masks = np.zeros(step.depth.shape, np.uint8)
     write_scene_files(folder, cams, step.rgb, step.depth, masks, meta)
+
+
+def held_to_limits(joints) -> list[float]:
+    """The arm's joint angles (7,) clipped to the Panda's limits: the simulator's limits are soft, and a joint
+    pressed against one overshoots it by a milliradian, which a scene's reader refuses as no pose of the robot."""
+    from particlesplat.data.pose_ranges import PANDA_JOINT_LIMITS
+
+    return [min(max(float(v), lo), hi) for v, (lo, hi) in zip(joints, PANDA_JOINT_LIMITS, strict=True)]
 
 
 class DecisionEncoder:
@@ -85,25 +94,60 @@ class DecisionEncoder:
             with torch.no_grad():
                 return encode_scene_arrays(self.model, folder, CONTEXT)
 
+    def live_rows(self, step: Step) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`particle_rows` of the decision, the same numbers as its arrays' but without what rows do not
+        read (the background's Gaussians, the objects' grouping and centres): a closed-loop decision's path."""
+        import torch
+
+        from particlesplat.analysis.particle_arrays import particle_stats
+        from particlesplat.editing.open_scene import encode_scene
+
+        with tempfile.TemporaryDirectory(prefix="particlesplat-decision-") as tmp:
+            folder = Path(tmp) / "scene"
+            write_decision_scene(folder, step)
+            with torch.no_grad():
+                p = encode_scene(self.model, folder, CONTEXT).particles
+                g = self.model.decode(p, background=False)
+        p, g = p.detach().to("cpu"), g.detach().to("cpu")
+        centroid, extent, colour, active, robot = particle_stats(self.model, p, g)
+
+        def f32(t) -> np.ndarray:
+            return t.detach().cpu().to(torch.float32).numpy()
+
+        stats = SimpleNamespace(
+            centroid=f32(centroid),
+            extent=f32(extent),
+            colour=f32(colour),
+            z_t=f32(p.z_t),
+            robot=robot.numpy().astype(bool),
+            z_f=f32(p.z_f),
+            active=active.numpy().astype(bool),
+            view=p.view.cpu().to(torch.int64).numpy(),
+        )
+        return particle_rows(stats, self.d_obj)
+
     def rows(self, step: Step, cache: Path | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:func:`particle_rows` of the decision's arrays; with ``cache`` (an ``.npz`` path), read from there when
-        it holds this model's encoding (its meta's checkpoint SHA-256), else encoded and written there."""
+        it holds this model's encoding (its meta's checkpoint SHA-256), else encoded and written there; without,
+        :meth:`live_rows`."""
         from particlesplat.analysis.particle_arrays import ParticleArrays
 
-        if cache is not None and cache.is_file():
+        if cache is None:
+            return self.live_rows(step)
+        if cache.is_file():
             arrays = ParticleArrays.load(cache)
             if arrays.meta.get("checkpoint_sha256") == self.sha256:
                 return particle_rows(arrays, self.d_obj)
         arrays = self.arrays(step)
-        if cache is not None:
-            arrays.meta["checkpoint_sha256"] = self.sha256
-            cache.parent.mkdir(parents=True, exist_ok=True)
-            arrays.save(cache)
+        arrays.meta["checkpoint_sha256"] = self.sha256
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        arrays.save(cache)
         return particle_rows(arrays, self.d_obj)
 
 
 def particle_rows(arrays, d_obj: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A policy's rows of particle arrays (``particlesplat encode``'s, or :meth:`DecisionEncoder.arrays`):
+    """A policy's rows of particle arrays (``particlesplat encode``'s, :meth:`DecisionEncoder.arrays`, or anything
+    with their ``centroid extent colour z_t robot z_f active view``):
     features (P, 11 + d_obj) float32 (centroid, extent and colour of its Gaussians, ``z_t``, the robot flag, then
     ``z_f[:, :d_obj]``), views (P,) int64 and active (P,) bool."""
     feats = np.concatenate(

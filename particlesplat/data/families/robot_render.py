@@ -26,10 +26,12 @@ class Views:
 
 
 class SceneRenderer:
-    """A GL context and MuJoCo render context for one compiled model (``width`` x ``height`` pixels)."""
+    """A GL context and MuJoCo render context for one compiled model (``width`` x ``height`` pixels).
+    ``skybox`` False skips drawing the sky, for cameras that never see it (a full-screen pass on llvmpipe)."""
 
-    def __init__(self, mujoco, comp: Composition, width: int, height: int) -> None:
+    def __init__(self, mujoco, comp: Composition, width: int, height: int, skybox: bool = True) -> None:
         self.mujoco, self.comp, self.width, self.height = mujoco, comp, width, height
+        self.skybox = skybox
         try:
             self.gl = mujoco.GLContext(width, height)
             self.gl.make_current()
@@ -57,6 +59,7 @@ class SceneRenderer:
         self.scene.flags[mj.mjtRndFlag.mjRND_REFLECTION] = False  # the floor's 1 % mirror: a second scene pass
         self.scene.flags[mj.mjtRndFlag.mjRND_SEGMENT] = segment
         self.scene.flags[mj.mjtRndFlag.mjRND_IDCOLOR] = segment
+        self.scene.flags[mj.mjtRndFlag.mjRND_SKYBOX] = self.skybox
         mj.mjr_render(self.rect, self.scene, self.ctx)
 
     def render(self, camera_ids: list[int]) -> Views:
