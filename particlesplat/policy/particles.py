@@ -60,7 +60,8 @@ def held_to_limits(joints) -> list[float]:
     pressed against one overshoots it by a milliradian, which a scene's reader refuses as no pose of the robot."""
     from particlesplat.data.pose_ranges import PANDA_JOINT_LIMITS
 
-    return [min(max(float(v), lo), hi) for v, (lo, hi) in zip(joints, PANDA_JOINT_LIMITS, strict=True)]
+    lo, hi = np.array(PANDA_JOINT_LIMITS).T
+    return np.clip(np.asarray(joints, np.float64), lo, hi).tolist()
 
 
 class DecisionEncoder:
@@ -84,15 +85,19 @@ class DecisionEncoder:
 
     def arrays(self, step: Step):
         """The decision's particle arrays (:class:`~particlesplat.analysis.particle_arrays.ParticleArrays`)."""
-        import torch
-
         from particlesplat.analysis.particle_arrays import encode_scene_arrays
+
+        return self._in_scene(step, lambda folder: encode_scene_arrays(self.model, folder, CONTEXT))
+
+    def _in_scene(self, step: Step, encode):
+        """``encode(folder)`` without gradients, ``folder`` the decision written as a temporary scene folder."""
+        import torch
 
         with tempfile.TemporaryDirectory(prefix="particlesplat-decision-") as tmp:
             folder = Path(tmp) / "scene"
             write_decision_scene(folder, step)
             with torch.no_grad():
-                return encode_scene_arrays(self.model, folder, CONTEXT)
+                return encode(folder)
 
     def live_rows(self, step: Step) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:func:`particle_rows` of the decision, the same numbers as its arrays' but without what rows do not
@@ -102,12 +107,11 @@ class DecisionEncoder:
         from particlesplat.analysis.particle_arrays import particle_stats
         from particlesplat.editing.open_scene import encode_scene
 
-        with tempfile.TemporaryDirectory(prefix="particlesplat-decision-") as tmp:
-            folder = Path(tmp) / "scene"
-            write_decision_scene(folder, step)
-            with torch.no_grad():
-                p = encode_scene(self.model, folder, CONTEXT).particles
-                g = self.model.decode(p, background=False)
+        def encode(folder: Path):
+            p = encode_scene(self.model, folder, CONTEXT).particles
+            return p, self.model.decode(p, background=False)
+
+        p, g = self._in_scene(step, encode)
         p, g = p.detach().to("cpu"), g.detach().to("cpu")
         centroid, extent, colour, active, robot = particle_stats(self.model, p, g)
 

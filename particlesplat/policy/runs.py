@@ -93,8 +93,10 @@ def trained_encoder(path: Path, meta: dict) -> str | None:
 
     recorded = meta.get("info", {}).get("encoder", {})
     checkpoint, sha = recorded.get("checkpoint"), recorded.get("sha256")
-    if checkpoint is None or Path(str(checkpoint)).is_file():
-        return None if checkpoint is None else str(checkpoint)
+    if checkpoint is None:
+        return None
+    if Path(str(checkpoint)).is_file():
+        return str(checkpoint)
     if sha is not None and sha == file_sha256(get_family("robot").shipped_model_path()):
         return None
     raise UserError(

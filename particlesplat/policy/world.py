@@ -234,8 +234,8 @@ class RigRenderer:
 
     def __init__(self, world: TaskWorld) -> None:
         self.world = world
-        # the rig's cameras look down at the table inside the room's walls and never see the sky: drawing it cost
-        # 20 of a view's 63 ms on llvmpipe and changed no pixel (tested)
+        # the rig's cameras look down at the table inside the room's walls and never see the sky: skipping it
+        # changes no pixel (tested) and took a particles decision from 0.285 to 0.272 s on llvmpipe
         self.renderer = SceneRenderer(import_mujoco(), world.comp, RESOLUTION, RESOLUTION, skybox=False)
 
     def render(self) -> Views:
