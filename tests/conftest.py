@@ -2,7 +2,9 @@
 path (default ``fetch,blend``: both forced; ``auto`` takes fetch where the driver has it).
 
 The ``rasterizer`` fixture runs a test once with the fused CPU kernels and once with their pure-torch twin (the
-rendering test modules use it for every test: ``pytestmark = pytest.mark.usefixtures("rasterizer")``)."""
+rendering test modules use it for every test: ``pytestmark = pytest.mark.usefixtures("rasterizer")``).
+
+The ``window`` fixture is the one real window the in-process app tests share."""
 
 from __future__ import annotations
 
@@ -52,6 +54,21 @@ def _measured_rasterizer(tmp_path_factory: pytest.TempPathFactory) -> None:
 
     with contextlib.redirect_stderr(io.StringIO()):
         measured_choice(False)
+
+
+@pytest.fixture(scope="session")
+def window():
+    """One glfw window and its moderngl context for every in-process app test of the run (moderngl detects a
+    window's context once, and a process cannot open a GL window again after closing one on EGL)."""
+    import moderngl
+
+    from viewer import app
+
+    if not os.environ.get("DISPLAY"):
+        pytest.fail("no DISPLAY: run the tests under xvfb-run (see the README's test command)")
+    w = app.create_window((160, 120))
+    yield w, moderngl.create_context()
+    app.destroy_window(w)
 
 
 @pytest.fixture(autouse=True)

@@ -8,19 +8,16 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from viewer_helpers import egl_context, small_model
+from viewer_helpers import egl_context, encoded_robot_demo, recording_target, small_model
 
-from particlesplat.data.scene_meta import default_checkpoint
 from particlesplat.editing.crop_box import CropBox, workspace_box
 from particlesplat.editing.open_scene import demo_scenes, encode_scene
-from particlesplat.model import load_model
-from viewer.actions import ActionTarget, run
+from viewer.actions import run
 from viewer.gl.renderer import SplatRenderer
 from viewer.scene_view import SceneView
 from viewer.session import EditableScene
 from viewer.state import ViewState
 from viewer.tools.crop_box import EDGES, applied_box, corners, edge_segments, set_bound, shown_box
-from viewer.ui.fields import UiRequests
 
 
 @pytest.fixture(scope="module")
@@ -31,14 +28,7 @@ def encoded():
 
 @pytest.fixture(scope="module")
 def robot():
-    scene = next(p for p in demo_scenes() if "robot" in str(p))
-    model = load_model(default_checkpoint(scene))
-    return model, encode_scene(model, scene), scene
-
-
-def target(scene) -> tuple[ActionTarget, list[str]]:
-    said: list[str] = []
-    return ActionTarget(scene, ViewState(), UiRequests(), said.append, (0.3, 0.0, 0.0)), said
+    return encoded_robot_demo()
 
 
 def _inside(means: np.ndarray, lo, hi) -> np.ndarray:
@@ -109,7 +99,7 @@ def test_the_view_uploads_and_exports_only_what_is_inside(encoded, tmp_path):
 def test_the_switch_and_the_fields_edit_through_the_editor_one_step_each(encoded):
     model, enc = encoded
     scene = EditableScene(model, enc)
-    ctx, said = target(scene)
+    ctx, said = recording_target(scene)
     ed, everything = scene.editor, scene.editor.decode()
     assert shown_box(scene) is None  # a tabletop scene: no box until one is set
     assert run("crop", ctx) and len(ed.history.undo) == 1
@@ -137,7 +127,7 @@ def test_the_switch_and_the_fields_edit_through_the_editor_one_step_each(encoded
 def test_a_robot_scene_shows_its_workspace_and_saves_no_box_until_one_is_set(robot, tmp_path):
     model, enc, folder = robot
     scene = EditableScene(model, enc, source=str(folder))
-    ctx, said = target(scene)
+    ctx, said = recording_target(scene)
     workspace = workspace_box(folder)
     assert workspace is not None and scene.workspace == workspace
     assert shown_box(scene) == (workspace, False)  # outlined, hiding nothing

@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import pytest
 import torch
-from viewer_helpers import small_model
+from viewer_helpers import encoded_robot_demo, recording_target, small_model
 
 from particlesplat.core.panda_arm import arm_points
-from particlesplat.data.scene_meta import default_checkpoint, read_arm_state
+from particlesplat.data.scene_meta import read_arm_state
 from particlesplat.editing.open_scene import demo_scenes, encode_scene
-from particlesplat.model import load_model
-from viewer.actions import BY_NAME, ActionTarget, Chord, run
+from viewer.actions import BY_NAME, Chord, run
 from viewer.app import initial_view
 from viewer.commands import carry_out
 from viewer.controls import ROBOT_CLICK, click_selection
@@ -33,14 +32,7 @@ def tabletop():
 
 @pytest.fixture(scope="module")
 def robot():
-    scene = next(p for p in demo_scenes() if "robot" in str(p))
-    model = load_model(default_checkpoint(scene))
-    return model, encode_scene(model, scene), scene
-
-
-def target(scene) -> tuple[ActionTarget, list[str]]:
-    said: list[str] = []
-    return ActionTarget(scene, ViewState(), UiRequests(), said.append, (0.3, 0.0, 0.0)), said
+    return encoded_robot_demo()
 
 
 def first_object(scene: EditableScene) -> int:
@@ -49,7 +41,7 @@ def first_object(scene: EditableScene) -> int:
 
 def test_undo_and_redo_name_what_they_did(tabletop):
     scene = EditableScene(*tabletop)
-    ctx, said = target(scene)
+    ctx, said = recording_target(scene)
     assert run("undo", ctx) and said[-1] == "nothing to undo"
     ctx.state.selected = first_object(scene)
     members = ", ".join(map(str, scene.editor.object_members(ctx.state.selected)))
@@ -77,7 +69,7 @@ def test_the_scale_field_follows_every_scale(tabletop):
     a drag of the scale handles multiplies in, another object stays at 1."""
     scene = EditableScene(*tabletop)
     ed = scene.editor
-    ctx, _ = target(scene)
+    ctx, _ = recording_target(scene)
     index = ctx.state.selected = first_object(scene)
     assert ed.object_scale(index) == pytest.approx(1.0, abs=1e-9)
     for _ in range(3):
@@ -117,7 +109,7 @@ def test_the_current_camera_is_marked_and_every_camera_is_reached(tabletop):
     fresh = OrbitCamera.from_view(orbit.home)
     assert fresh.step_camera(cams, 1) == 0 and OrbitCamera.from_view(orbit.home).step_camera(cams, -1) == 20
 
-    ctx, _ = target(scene)
+    ctx, _ = recording_target(scene)
     assert BY_NAME["next_camera"].keys[0] == Chord("page_down") and Chord("page_up").label() == "PageUp"
     assert run("next_camera", ctx) and ctx.requests.step_camera == 1
     assert run("previous_camera", ctx) and ctx.requests.step_camera == -1
@@ -145,7 +137,7 @@ def test_the_current_camera_is_marked_and_every_camera_is_reached(tabletop):
 
 def test_mask_of_selected_with_nothing_selected_says_so(tabletop):
     scene = EditableScene(*tabletop)
-    ctx, said = target(scene)
+    ctx, said = recording_target(scene)
     assert ctx.state.seg_mode is SegMode.NORMAL  # M steps through the modes to "mask of selected"
     while ctx.state.seg_mode is not SegMode.MASK_SELECTED:
         run("next_mode", ctx)

@@ -1,4 +1,5 @@
-"""Shared helpers of the GL and viewer tests: a headless EGL context, a small random model."""
+"""Shared helpers of the GL and viewer tests: a headless EGL context, a small random model, the robot demo scene
+encoded by its shipped model, and an action target that records what the actions say."""
 
 from __future__ import annotations
 
@@ -30,3 +31,24 @@ def small_model(seed: int = 0) -> ParticleSplat:
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
     mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
     return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
+
+
+def encoded_robot_demo():
+    """The bundled robot demo scene encoded by its shipped model: ``(model, encoded, scene folder)``."""
+    from particlesplat.data.scene_meta import default_checkpoint
+    from particlesplat.editing.open_scene import demo_scenes, encode_scene
+    from particlesplat.model import load_model
+
+    scene = next(p for p in demo_scenes() if "robot" in str(p))
+    model = load_model(default_checkpoint(scene))
+    return model, encode_scene(model, scene), scene
+
+
+def recording_target(scene):
+    """An ``ActionTarget`` on ``scene`` (a fresh view state and requests) and the list its messages go to."""
+    from viewer.actions import ActionTarget
+    from viewer.state import ViewState
+    from viewer.ui.fields import UiRequests
+
+    said: list[str] = []
+    return ActionTarget(scene, ViewState(), UiRequests(), said.append, (0.3, 0.0, 0.0)), said
