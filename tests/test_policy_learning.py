@@ -195,8 +195,23 @@ def test_train_and_evaluate_on_tiny_data(tmp_path, capsys):
     assert runs[0]["success"] == runs[1]["success"] and runs[0]["decisions"] == runs[1]["decisions"]  # by seed
     assert 1 <= runs[0]["decisions"][0] <= 10
     assert 0 < runs[0]["decision_seconds"][0] < runs[0]["wall_seconds"][0]  # the controller's motion not counted
+    low, high = runs[0]["success_interval_95"]
+    assert (low, high) == ((0.0, 0.7935) if runs[0]["success"] == [False] else (0.2065, 1.0))  # Wilson, 1 trial
     with pytest.raises(UserError, match="task 'place', not 'stack'"):
         main(["policy", "train", "--task", "stack", "--input", "robot", "--demos", str(demos), "--out", str(out)])
+
+
+@pytest.mark.parametrize("successes,trials", [(0, 50), (1, 50), (13, 50), (25, 50), (49, 50), (50, 50), (3, 7)])
+def test_the_success_interval_is_the_set_of_rates_the_score_test_keeps(successes, trials):
+    """Wilson's interval against its definition, by brute force in float64: the rates p on a fine grid where
+    |k / n - p| <= z sqrt(p (1 - p) / n)."""
+    from particlesplat.policy.evaluate import wilson_interval
+
+    p = np.linspace(0.0, 1.0, 2_000_001)
+    kept = p[np.abs(successes / trials - p) <= 1.959964 * np.sqrt(p * (1 - p) / trials)]
+    low, high = wilson_interval(successes, trials)
+    assert abs(low - kept.min()) <= 1e-6 and abs(high - kept.max()) <= 1e-6
+    assert wilson_interval(0, 0) == (0.0, 1.0)
 
 
 @needs_sim

@@ -191,9 +191,11 @@ def _eval(args: argparse.Namespace) -> int:
         bar.close()
     seconds = sum(result.wall_seconds) / len(result.wall_seconds)
     decision = sum(result.decision_seconds) / len(result.decision_seconds)
+    low, high = result.success_interval
     print(
         f"{args.policy}: {result.input} on {result.task} ({result.split}, seed {result.seed}): success "
-        f"{100 * result.success_rate:.1f} % of {len(result.success)} rollouts, {seconds:.1f} s a rollout, "
+        f"{100 * result.success_rate:.1f} % of {len(result.success)} rollouts (95 % interval {100 * low:.0f}-"
+        f"{100 * high:.0f} %), {seconds:.1f} s a rollout, "
         f"{1000 * decision:.0f} ms a decision (observed, encoded, acted on)"
     )
     if args.json is not None:

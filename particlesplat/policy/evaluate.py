@@ -45,6 +45,12 @@ class EvalResult:
     def success_rate(self) -> float:
         return float(np.mean(self.success)) if self.success else 0.0
 
+    @property
+    def success_interval(self) -> tuple[float, float]:
+        """The success rate's 95 % Wilson score interval over these rollouts (fractions): where another set of
+        rollouts of the same policy is expected to land."""
+        return wilson_interval(sum(self.success), len(self.success))
+
     def to_json(self) -> dict:
         return {
             "task": self.task,
@@ -53,11 +59,24 @@ class EvalResult:
             "split": self.split,
             "rollouts": len(self.success),
             "success_rate": self.success_rate,
+            "success_interval_95": [round(x, 4) for x in self.success_interval],
             "success": self.success,
             "decisions": self.decisions,
             "wall_seconds": [round(s, 3) for s in self.wall_seconds],
             "decision_seconds": [round(s, 4) for s in self.decision_seconds],
         }
+
+
+def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson's score interval of a binomial proportion (95 % at the default ``z``): the success rates ``p`` whose
+    normal test ``|successes / trials - p| <= z sqrt(p (1 - p) / trials)`` passes. ``(0, 1)`` for no trials."""
+    if trials <= 0:
+        return 0.0, 1.0
+    phat = successes / trials
+    z2 = z * z / trials
+    centre = (phat + z2 / 2) / (1 + z2)
+    half = z * np.sqrt(phat * (1 - phat) / trials + z2 / trials / 4) / (1 + z2)
+    return max(0.0, float(centre - half)), min(1.0, float(centre + half))
 
 
 def policy_decider(model: KeyposePolicy, kind: str, particle_rows: Callable[[Step], tuple] | None = None) -> Decider:
