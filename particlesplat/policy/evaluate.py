@@ -47,8 +47,8 @@ class EvalResult:
 
     @property
     def success_interval(self) -> tuple[float, float]:
-        """The success rate's 95 % Wilson score interval over these rollouts (fractions): where another set of
-        rollouts of the same policy is expected to land."""
+        """The 95 % Wilson score interval (fractions) of the policy's true success rate on the task's episodes,
+        from these rollouts."""
         return wilson_interval(sum(self.success), len(self.success))
 
     def to_json(self) -> dict:
