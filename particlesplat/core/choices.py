@@ -34,6 +34,9 @@ INFERENCE_KEYS: dict[str, str] = {
     "support surface its view shows (with fg_evidence) instead of the colour its latent guesses",
     "background.support_map": "where no Gaussian draws the support surface, a render shows a top-down map of it "
     "read from each scene's context views (with colour_from_views' colour around it) instead of one colour",
+    "background.opaque_under_objects": "a per-view background block under an object (within 4 pixels of its "
+    "evidence) that no particle's box covers any longer draws the support surface, opaque (with hidden_from_views): "
+    "the table where an edit moved or removed the object; an unedited scene renders as without it",
     "support.cut": "metres below the support surface under which a particle Gaussian does not draw (< 0: off)",
 }
 

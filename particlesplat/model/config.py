@@ -52,6 +52,8 @@ MODEL_GROUPS: dict[str, dict[str, str]] = {
         "colour_from_views": "bg_colour_from_views",
         "hidden_from_views": "bg_hidden_from_views",
         "support_map": "bg_support_map",
+        "opaque_under_objects": "bg_opaque_under_objects",
+        "min_width": "bg_min_width",
     },
     "patch": {
         "gaussians": "patch_gaussians",
@@ -192,6 +194,8 @@ class ModelConfig:
     bg_colour_from_views: bool = False
     bg_hidden_from_views: bool = False
     bg_support_map: bool = False
+    bg_opaque_under_objects: bool = False
+    bg_min_width: float = 0.0
     # patch:
     patch_gaussians: int = 16
     patch_base: int = 4
@@ -273,6 +277,17 @@ class ModelConfig:
             "background.block (its anchors are per block)",
         )
         need(
+            not self.bg_opaque_under_objects or (self.fg_evidence and self.bg_hidden_from_views),
+            "bg_opaque_under_objects",
+            "needs fg_evidence and background.hidden_from_views (it draws the table under an object in the colour "
+            "hidden_from_views gives it)",
+        )
+        need(
+            self.bg_min_width == 0.0 or self.fg_evidence,
+            "bg_min_width",
+            "bounds the anchored background's Gaussians: it needs fg_evidence",
+        )
+        need(
             self.bg_per_view or self.has_static_background,
             "bg_per_view",
             "false needs a static background layer (background.static_grid or background.static_points > 0): "
@@ -316,6 +331,11 @@ class ModelConfig:
         need(0.0 < self.d_min < self.d_max, "d_min", "need 0 < d_min < d_max")
         need(0.0 < self.s_min < self.s_max, "s_min", "need 0 < s_min < s_max")
         need(0.0 <= self.bg_mask_threshold <= 1.0, "bg_mask_threshold", "must be in [0, 1]")
+        need(
+            self.bg_min_width == 0.0 or self.s_min <= self.bg_min_width < self.s_max,
+            "bg_min_width",
+            f"must be 0 (off) or in [s_min, s_max) = [{self.s_min}, {self.s_max})",
+        )
         for key in ("prior_scale_mean", "prior_extent_mean"):
             need(0.0 < getattr(self, key) < 1.0, key, "is a sigmoid-space mean, must be in (0, 1)")
         for key in (

@@ -335,36 +335,49 @@ def background_rays(K: Tensor, c2w: Tensor, cfg: ModelConfig) -> Tensor:
     return plucker_at(pix, K, c2w).transpose(1, 2).reshape(K.shape[0], 6, n, n)
 
 
-ANCHOR_CHANNELS = 5
-"""Per-block anchors of an anchored background (``fg_evidence``): colour (3, [0, 1]), planar depth (1, metres) and
+ANCHOR_CHANNELS = 6
+"""Per-block anchors of an anchored background (``fg_evidence``): colour (3, [0, 1]), planar depth (1, metres),
 the share of the block's pixels they were taken from (1, in [0, 1]; 0 = none: the block shows an object or has
-no depth)."""
+no depth) and the share of its pixels under an object (1, in [0, 1]: within :data:`UNDER_OBJECT_PIXELS` of an
+object's evidence and inside an active particle's box). Anchors of five channels (particles encoded before the last
+one) read as no block under an object."""
 ANCHOR_DEPTH_RANGE = 0.05
 """How far an anchored background Gaussian may move off its anchor depth: ± this fraction of it."""
+UNDER_OBJECT_PIXELS = 4
+"""Pixels by which an object's evidence is grown to find the blocks under it (``background.opaque_under_objects``):
+its foot and the rim a particle's edge leaves."""
+UNDER_OBJECT_OPACITY = 0.99
+"""The opacity of a block under an object (``background.opaque_under_objects``)."""
+UNDER_OBJECT_WIDTH = 0.7
+"""The least in-surface width of a block under an object, as a fraction of the step to the next block: wide enough
+that the table it draws where an object stood has no gaps."""
 
 
-def block_anchors(rgb: Tensor, depth: Tensor | None, hidden: Tensor, k: int) -> Tensor:
+def block_anchors(rgb: Tensor, depth: Tensor | None, hidden: Tensor, k: int, under: Tensor | None = None) -> Tensor:
     """The anchors of an anchored background: each k×k block's mean colour and depth over its pixels that are
-    neither hidden nor without depth.
+    neither hidden nor without depth, and the share of its pixels under an object.
 
     rgb: (M, 3, H, W); depth: (M, 1, H, W) planar metres (0 = missing) or None; hidden: (M, 1, H, W) in [0, 1]
-    (1 = an object's pixel). Returns (M, :data:`ANCHOR_CHANNELS`, H/k, W/k).
+    (1 = an object's pixel); under: (M, 1, H, W) in [0, 1] (1 = under an object, :data:`ANCHOR_CHANNELS`) or None
+    (none). Returns (M, :data:`ANCHOR_CHANNELS`, H/k, W/k).
     """
     keep = 1.0 - hidden
     if depth is not None:
         keep = keep * (depth > 0).to(rgb.dtype)
     colour, w = masked_block_mean(rgb, keep, k)
     d = masked_block_mean(depth, keep, k)[0] if depth is not None else torch.zeros_like(w)
-    return torch.cat([colour, d, w], dim=1)
+    share = F.avg_pool2d(under, k) if under is not None else torch.zeros_like(w)
+    return torch.cat([colour, d, w, share], dim=1)
 
 
 def _anchored_depth(
     zeta_free: Tensor, dd: Tensor, anchor: Tensor, pix: Tensor, K: Tensor, c2w: Tensor
-) -> tuple[Tensor, Tensor]:
+) -> tuple[Tensor, Tensor, Tensor]:
     """Planar depths of anchored background Gaussians (M, N): within ± :data:`ANCHOR_DEPTH_RANGE` of the block's
     own depth where more than half its pixels gave one; else of where the block's ray meets the support surface
-    (the table behind an object); else ``zeta_free`` (the latent's own depth). anchor: (M, N, 5); dd: (M, N).
-    Also returns (M, N) bool: the blocks placed on the support surface (not seen, their ray meets it)."""
+    (the table behind an object); else ``zeta_free`` (the latent's own depth). anchor: (M, N, 5 or 6); dd: (M, N).
+    Also returns (M, N) bool: the blocks placed on the support surface (not seen, their ray meets it), and (M, N)
+    the planar depth where each block's ray meets the support surface (inf where it does not)."""
     dirs = ray_dirs(pix[..., None, :], K, c2w)[..., 0, :]
     plane = clamp_to_support(torch.full_like(zeta_free, float("inf")), c2w[..., 2, 3], dirs[..., 2])
     seen = anchor[..., 4] > 0.5
@@ -372,7 +385,7 @@ def _anchored_depth(
     on_support = ~seen & torch.isfinite(plane)
     usable = seen | on_support
     base = torch.where(usable, base, torch.ones_like(base))
-    return torch.where(usable, base * (1.0 + ANCHOR_DEPTH_RANGE * torch.tanh(dd)), zeta_free), on_support
+    return torch.where(usable, base * (1.0 + ANCHOR_DEPTH_RANGE * torch.tanh(dd)), zeta_free), on_support, plane
 
 
 MIN_SUPPORT_BLOCKS = 20
@@ -398,7 +411,13 @@ def support_colours(anchor: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig) ->
 
 
 def background_gaussians(
-    raw: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig, anchor: Tensor | None = None
+    raw: Tensor,
+    K: Tensor,
+    c2w: Tensor,
+    cfg: ModelConfig,
+    anchor: Tensor | None = None,
+    covered: Tensor | None = None,
+    fill_colour: Tensor | None = None,
 ) -> dict[str, Tensor]:
     """raw: (M, Hb*Wb, C) per-block parameters; K: (M, 3, 3); c2w: (M, 4, 4) -> fields with dims (M, Hb*Wb).
 
@@ -407,7 +426,12 @@ def background_gaussians(
     (:func:`block_anchors`, ``fg_evidence``) the depth is a residual about the block's own depth
     (:func:`_anchored_depth`) and the colour one about its own colour, weighted by the share it was taken from;
     with ``bg_hidden_from_views`` a block an object hides (one placed where its ray meets the support surface)
-    takes the colour of the support surface its view shows (:func:`support_colours`).
+    takes the colour of the support surface its view shows (:func:`support_colours`); with
+    ``bg_opaque_under_objects`` and ``covered`` (M, Hb*Wb), the share of each block inside its view's active
+    particles' boxes (:func:`~particlesplat.model.encoder.covered_blocks`), such a block under an object (anchor
+    channel 5) that no box covers any longer (an edit moved or removed the object) lies on the support surface,
+    opaque and wide enough to leave no gaps, in ``fill_colour`` (M, Hb*Wb, 3) where given (the scene's support map
+    there), else the support surface's colour: the table where the object stood.
     """
     k = cfg.bg_block
     p = split_gaussian_params(raw, cfg.sh_degree)
@@ -421,16 +445,24 @@ def background_gaussians(
     if anchor is None:
         zeta, means, opacity = _place(pix, zeta, Kn, cn, opacity)
         return _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg)
-    zeta, behind = _anchored_depth(zeta, p["dd"][..., 0], anchor, pix, Kn, cn)
+    zeta, behind, plane = _anchored_depth(zeta, p["dd"][..., 0], anchor, pix, Kn, cn)
     dc = p["sh"][..., 0, :] + anchor[..., 4:5] * (anchor[..., :3] - 0.5) / SH_C0
+    under = torch.zeros_like(behind)
     if cfg.bg_hidden_from_views:
         surface, found = support_colours(anchor, K, c2w, cfg)  # (M, 3), (M,)
         hidden = behind & found[:, None]  # (M, N): placed on the table behind an object
         dc = torch.where(hidden[..., None], ((surface - 0.5) / SH_C0)[:, None, :].expand_as(dc), dc)
+        if cfg.bg_opaque_under_objects and anchor.shape[-1] > 5 and covered is not None:
+            # the table under an object that a particle's box no longer covers (an edit moved it): on it, opaque
+            under = hidden & (anchor[..., 5] > 0.5) & (covered <= 0.5)
+            zeta = torch.where(under, plane, zeta)
+            opacity = torch.where(under, torch.full_like(opacity, UNDER_OBJECT_OPACITY), opacity)
+            if fill_colour is not None:
+                dc = torch.where(under[..., None], (fill_colour.to(dc) - 0.5) / SH_C0, dc)
     p = {**p, "sh": torch.cat([dc[..., None, :], p["sh"][..., 1:, :]], dim=-2)}
     zeta, means, opacity = _place(pix, zeta, Kn, cn, opacity)
     fields = _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg)
-    quats, scales = _surface_shapes(p["scale"], anchor, zeta, K, c2w, cfg)
+    quats, scales = _surface_shapes(p["scale"], anchor, zeta, K, c2w, cfg, under)
     return {**fields, "quats": quats, "scales": scales}
 
 
@@ -442,14 +474,23 @@ camera-facing width is used instead."""
 
 
 def _surface_shapes(
-    scale_raw: Tensor, anchor: Tensor, zeta: Tensor, K: Tensor, c2w: Tensor, cfg: ModelConfig
+    scale_raw: Tensor,
+    anchor: Tensor,
+    zeta: Tensor,
+    K: Tensor,
+    c2w: Tensor,
+    cfg: ModelConfig,
+    under: Tensor | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Shapes of anchored background Gaussians that lie flat on the surface their blocks see, spanning the steps
     to the neighbouring blocks' anchors, so a view from another side sees the surface without gaps.
 
     scale_raw: (M, N, 3) the head's scale channels (in-surface x, y and thickness factors in [s_min, s_max]);
-    anchor: (M, N, 5) (:func:`block_anchors`); zeta: (M, N) the Gaussians' planar depths, metres; K (M, 3, 3),
-    c2w (M, 4, 4). Returns quats (M, N, 4), scales (M, N, 3).
+    anchor: (M, N, 5 or 6) (:func:`block_anchors`); zeta: (M, N) the Gaussians' planar depths, metres; K (M, 3, 3),
+    c2w (M, 4, 4); under: (M, N) bool, the blocks under an object (``background.opaque_under_objects``), which
+    lie flat on the support surface, span the steps to their neighbours there and have in-surface factors of at
+    least :data:`UNDER_OBJECT_WIDTH`; or None. With ``background.min_width`` the in-surface factors span
+    [min_width, s_max] instead of [s_min, s_max]. Returns quats (M, N, 4), scales (M, N, 3).
     The two in-surface axes are the half-steps to the next block's anchor point along x and y (the shorter of the
     steps forward and back, so that a depth edge is not bridged; a step over :data:`SURFACE_STEP_LIMIT` block
     widths, or from a block without an anchor, falls back to the camera-facing block width).
@@ -460,6 +501,9 @@ def _surface_shapes(
     pix = block_centres(cfg, anchor.device, anchor.dtype)[None].expand(M, -1, -1)
     dirs = ray_dirs(pix, K, c2w)  # (M, N, 3), camera z = 1
     depth = torch.where(anchor[..., 4] > 0.5, anchor[..., 3], torch.full_like(anchor[..., 3], float("nan")))
+    if under is not None:  # a block under an object spans the steps to its neighbours on the support surface
+        plane = clamp_to_support(torch.full_like(depth, float("inf")), c2w[:, None, 2, 3], dirs[..., 2])
+        depth = torch.where(under, plane, depth)
     pts = (c2w[:, None, :3, 3] + depth[..., None] * dirs).reshape(M, n, n, 3)
     width = (zeta.detach() * k / K[:, None, 0, 0]).reshape(M, n, n, 1)  # metres a block spans, facing the camera
 
@@ -481,7 +525,11 @@ def _surface_shapes(
     normal = torch.linalg.cross(u, v)
     normal = normal / normal.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     thick = SURFACE_THICKNESS * torch.maximum(u.norm(dim=-1, keepdim=True), v.norm(dim=-1, keepdim=True))
-    s = cfg.s_min + (cfg.s_max - cfg.s_min) * torch.sigmoid(scale_raw)  # (M, N, 3)
+    lo = torch.tensor([max(cfg.bg_min_width, cfg.s_min)] * 2 + [cfg.s_min], dtype=scale_raw.dtype)
+    lo = lo.to(scale_raw.device)
+    s = lo + (cfg.s_max - lo) * torch.sigmoid(scale_raw)  # (M, N, 3)
+    if under is not None:
+        s = torch.where(under[..., None] & (torch.arange(3, device=s.device) < 2), s.clamp_min(UNDER_OBJECT_WIDTH), s)
     cols = torch.stack(
         [
             u.reshape(M, -1, 3) * s[..., 0:1],

@@ -255,6 +255,19 @@ def box_mask(z_p: Tensor, scale: Tensor, active: Tensor, size: int) -> Tensor:
     return box.any(1, keepdim=True).to(z_p.dtype)
 
 
+def covered_blocks(z_p: Tensor, z_s: Tensor, active: Tensor, view: Tensor, V: int, cfg: ModelConfig) -> Tensor:
+    """The share of each per-view background block inside its view's active particles' boxes (the boxes
+    :func:`box_mask` hides from the background encoder).
+
+    z_p: (N, 2) in [-1, 1]; z_s: (N, 2) pre-sigmoid half-extents; active: (N,) bool; view: (N,) each particle's
+    view in [0, V). Returns (V, Hb*Wb) in [0, 1]."""
+    on = view[None, :] == torch.arange(V, device=view.device)[:, None]  # (V, N)
+    boxes = box_mask(
+        z_p[None].expand(V, -1, -1), torch.sigmoid(z_s)[None].expand(V, -1, -1), on & active[None], cfg.resolution
+    )
+    return F.avg_pool2d(boxes, cfg.bg_block).flatten(1)
+
+
 class BackgroundEncoder(nn.Module):
     """q(z_bg | view): masked RGB-D + rays -> latent map (d_bg, H/stride, W/stride) (mean, logvar)."""
 

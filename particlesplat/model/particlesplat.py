@@ -15,6 +15,7 @@ from particlesplat.core.sh import SH_C0
 from particlesplat.model.backdrop import views_backdrop
 from particlesplat.model.config import ModelConfig, config_to_dict
 from particlesplat.model.decoder import (
+    UNDER_OBJECT_PIXELS,
     BackgroundDecoder,
     ForegroundDecoder,
     background_gaussians,
@@ -25,7 +26,7 @@ from particlesplat.model.decoder import (
     masked_block_mean,
     split_gaussian_params,
 )
-from particlesplat.model.encoder import BackgroundEncoder, ParticleEncoder, box_mask, depth_input
+from particlesplat.model.encoder import BackgroundEncoder, ParticleEncoder, box_mask, covered_blocks, depth_input
 from particlesplat.model.evidence import canonical_turn, dilate, foreground_evidence
 from particlesplat.model.geometry import plucker_map, stack_cameras
 from particlesplat.model.particles import Particles
@@ -33,7 +34,7 @@ from particlesplat.model.posterior import ParticlePosterior, Posterior
 from particlesplat.model.refiner import BOX_MARGIN, Refiner, box_glimpses, latent_vector
 from particlesplat.model.static_background import StaticBackground, WorkspaceBackground
 from particlesplat.model.support_map import CELLS as SUPPORT_CELLS
-from particlesplat.model.support_map import support_map_image, views_support_map
+from particlesplat.model.support_map import support_at, support_map_image, views_support_map
 from particlesplat.rendering.api import render_batch
 from particlesplat.rendering.layers import composite_over, pool_layer, render_layer
 
@@ -111,13 +112,38 @@ class ParticleSplat(nn.Module):
             return colour
         return support_map_image(particles.support_map.to(colour.device), colour, camera)
 
-    def views_support_map(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Tensor | None:
+    def _table_fill(self, particles: Particles) -> tuple[Tensor, Tensor | None]:
+        """Where ``background.opaque_under_objects`` draws no table, and in what colour it draws it: (V, Hb*Wb) in
+        [0, 1] per background block, the share inside its view's active particles' boxes
+        (:func:`~particlesplat.model.encoder.covered_blocks`), or 1 where the block's ray meets the support plane
+        off the support (the floor past the table's edge, by the scene's support map); and (V, Hb*Wb, 3) the
+        support map's colour where its ray meets the plane, or None without a map (the table's median colour)."""
+        p, cfg = particles, self.config
+        covered = covered_blocks(p.z_p, p.z_s, p.z_t[:, 0] > cfg.bg_mask_threshold, p.view, len(p.cameras), cfg)
+        if p.support_map is None:
+            return covered, None
+        maps = p.support_map.to(covered)
+        rgb, on = zip(*(support_at(maps, cam) for cam in p.cameras), strict=True)  # (H, W, 3), (H, W) a view
+        off = F.avg_pool2d((torch.stack(on) <= 0.5).to(covered)[:, None], cfg.bg_block).flatten(1)
+        colour = F.avg_pool2d(torch.stack(rgb).permute(0, 3, 1, 2), cfg.bg_block).flatten(2).transpose(1, 2)
+        return torch.maximum(covered, off), colour
+
+    def views_support_map(
+        self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, pose: Tensor | None = None
+    ) -> Tensor | None:
         """What :attr:`Particles.support_map` holds for one scene's context views (shapes as in
-        :meth:`views_backdrop`): :func:`~particlesplat.model.support_map.views_support_map` with
-        ``background.support_map``, else None."""
-        if not self.config.bg_support_map:
+        :meth:`views_backdrop`; pose (D,) the scene's robot state or None): with ``background.support_map``,
+        :func:`~particlesplat.model.support_map.views_support_map`, which with ``background.opaque_under_objects``
+        leaves out the pixels within :data:`EVIDENCE_DILATION` of an object's evidence (its foot and shadow would
+        colour the table an edit uncovers); else None."""
+        cfg = self.config
+        if not cfg.bg_support_map:
             return None
-        return views_support_map(rgb, depth, K, c2w)
+        hidden = None
+        if cfg.bg_opaque_under_objects and depth is not None:
+            arm = None if pose is None else pose[None].expand(depth.shape[0], -1)
+            hidden = dilate(foreground_evidence(depth.to(K.dtype), K, c2w, arm), EVIDENCE_DILATION)
+        return views_support_map(rgb, depth, K, c2w, hidden)
 
     def views_backdrop(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Tensor | None:
         """What :attr:`Particles.backdrop` holds for one scene's context views (rgb (V, 3, H, W), depth
@@ -181,17 +207,20 @@ class ParticleSplat(nn.Module):
         att, h = self.encoder.attributes(x, dep, rays, residual)
         with torch.no_grad():
             t_mean = att.t_mean()
-            mask = box_mask(
+            boxes = box_mask(
                 att.kp + att.mu_o,
                 torch.sigmoid(att.mu_s),
                 t_mean[..., 0] > cfg.bg_mask_threshold,
                 cfg.resolution,
             )
+            mask = boxes
             if evidence is not None:  # the background never sees an object, whether a particle took it or not
                 mask = torch.maximum(mask, dilate(evidence, EVIDENCE_DILATION))
         mu_bg, lv_bg, bg_feats = self.bg_encoder(x, dep, rays, mask)
         part = self.encoder.interact(att, h, Kf, cn, bg_feats, V)
-        anchor = None if evidence is None else block_anchors(x, d, mask, cfg.bg_block)
+        anchor = None
+        if evidence is not None:  # under an object: near its evidence, in a particle's box
+            anchor = block_anchors(x, d, mask, cfg.bg_block, dilate(evidence, UNDER_OBJECT_PIXELS) * boxes)
         return Posterior(
             **{f.name: getattr(part, f.name) for f in fields(ParticlePosterior)},
             mu_bg=mu_bg.reshape(B, V, *mu_bg.shape[1:]),
@@ -414,16 +443,26 @@ class ParticleSplat(nn.Module):
         raw = self.fg_decoder(z_f[:, :d])
         return foreground_gaussians(raw, z_p, z_s, z_d, z_e, z_t, K, c2w, self.config, keep, anchor, support)
 
-    def background(self, bg: Tensor, K: Tensor, c2w: Tensor, c2w_net: Tensor | None = None) -> dict[str, Tensor]:
-        """bg: (M, d_bg, h, w) latents of M views (with ``fg_evidence``, (M, d_bg + 5, h, w): the latents, then the
+    def background(
+        self,
+        bg: Tensor,
+        K: Tensor,
+        c2w: Tensor,
+        c2w_net: Tensor | None = None,
+        covered: Tensor | None = None,
+        fill_colour: Tensor | None = None,
+    ) -> dict[str, Tensor]:
+        """bg: (M, d_bg, h, w) latents of M views (with ``fg_evidence``, (M, d_bg + 6, h, w): the latents, then the
         blocks' anchors); K (M, 3, 3), c2w (M, 4, 4); c2w_net (M, 4, 4): the cameras as the network reads them
-        (``canonical_frame``; default c2w) -> fields (M, Hb*Wb, ·)."""
+        (``canonical_frame``; default c2w); covered (M, Hb*Wb): the share of each block inside its view's active
+        particles' boxes (:func:`~particlesplat.model.encoder.covered_blocks`, ``background.opaque_under_objects``)
+        or None; fill_colour (M, Hb*Wb, 3) the table's colour under each block or None -> fields (M, Hb*Wb, ·)."""
         cfg = self.config
         anchor = None
         if cfg.fg_evidence:
             bg, anchor = bg[:, : cfg.d_bg], bg[:, cfg.d_bg :].flatten(2).transpose(1, 2)
         raw = self._bg_decoder()(bg, background_rays(K, c2w if c2w_net is None else c2w_net, cfg))
-        return background_gaussians(raw, K, c2w, cfg, anchor)
+        return background_gaussians(raw, K, c2w, cfg, anchor, covered, fill_colour)
 
     def batch_pose(self, poses: list[Tensor | None], device: torch.device) -> Tensor | None:
         """The scenes' poses (each (D,) or None: the layer's mean pose) as the batch (B, D) the layer reads, on
@@ -460,15 +499,31 @@ class ParticleSplat(nn.Module):
             return self.static_bg(pose)
         return {k: v[None].expand(B, *v.shape) for k, v in self.static_bg().items()}
 
-    def background_fields(self, bg: Tensor, K: Tensor, c2w: Tensor, pose: Tensor | None = None) -> dict[str, Tensor]:
+    def background_fields(
+        self,
+        bg: Tensor,
+        K: Tensor,
+        c2w: Tensor,
+        pose: Tensor | None = None,
+        fill: tuple[Tensor, Tensor | None] | None = None,
+    ) -> dict[str, Tensor]:
         """Background Gaussians of B scenes: the per-view background (``bg_per_view``) then the static layer
         (``bg_static_grid``, ``bg_static_points``). bg: (B, V, C, h, w) latents; K: (B, V, 3, 3); c2w: (B, V, 4, 4);
-        pose: (B, D) or None (:meth:`static_fields`) -> fields (B, N_bg, ·)."""
+        pose: (B, D) or None (:meth:`static_fields`); fill: where and in what colour the table under a moved
+        object is drawn (``background.opaque_under_objects``: (B, V, Hb*Wb) and (B, V, Hb*Wb, 3) or None,
+        :meth:`_table_fill`), or None -> fields (B, N_bg, ·)."""
         B, V = K.shape[:2]
         parts = []
         if self.config.bg_per_view:
             net = (canonical_turn(c2w)[:, None] @ c2w).reshape(B * V, 4, 4) if self.config.canonical_frame else None
-            f = self.background(bg.reshape(B * V, *bg.shape[2:]), K.reshape(B * V, 3, 3), c2w.reshape(B * V, 4, 4), net)
+            f = self.background(
+                bg.reshape(B * V, *bg.shape[2:]),
+                K.reshape(B * V, 3, 3),
+                c2w.reshape(B * V, 4, 4),
+                net,
+                None if fill is None else fill[0].reshape(B * V, -1),
+                None if fill is None or fill[1] is None else fill[1].reshape(B * V, -1, 3),
+            )
             parts.append({k: v.reshape(B, -1, *v.shape[2:]) for k, v in f.items()})
         if self.static_bg is not None:
             parts.append(self.static_fields(B, pose))
@@ -531,7 +586,8 @@ class ParticleSplat(nn.Module):
             z["backdrop"] = torch.stack([z["bg_color"] if c is None else c.to(z["bg_color"]) for c in read])
         if self.config.bg_support_map:
             depths = [None if depth is None else depth[b] for b in range(len(rgb))]
-            maps = [self.views_support_map(rgb[b], depths[b], K[b], c2w[b]) for b in range(len(rgb))]
+            poses = [None if post.pose is None else post.pose[b] for b in range(len(rgb))]
+            maps = [self.views_support_map(rgb[b], depths[b], K[b], c2w[b], poses[b]) for b in range(len(rgb))]
             empty = z["bg_color"].new_zeros(4, SUPPORT_CELLS, SUPPORT_CELLS)
             z["support_map"] = torch.stack([empty if m is None else m.to(empty) for m in maps])
         return post, z, self.decode_batch(z, post.view, K, c2w, background, pose=post.pose)
@@ -575,7 +631,9 @@ class ParticleSplat(nn.Module):
             cameras=[c.to(dev) for c in cameras],
             pose=None if pose_b is None else pose_b[0],
             backdrop=self.views_backdrop(rgb_b[0], None if depth_b is None else depth_b[0], K, c2w),
-            support_map=self.views_support_map(rgb_b[0], None if depth_b is None else depth_b[0], K, c2w),
+            support_map=self.views_support_map(
+                rgb_b[0], None if depth_b is None else depth_b[0], K, c2w, None if pose_b is None else pose_b[0]
+            ),
         )
 
     @torch.no_grad()
@@ -634,7 +692,12 @@ class ParticleSplat(nn.Module):
             parts.append(_gaussians(fg, idx.repeat_interleave(fg["opacities"].shape[1])))
         if background:
             pose = self.batch_pose([p.pose], dev)
-            bgf = {k: v[0] for k, v in self.background_fields(p.background[None], K[None], c2w[None], pose).items()}
+            fill = None
+            if self.config.bg_opaque_under_objects:  # the table shows where no particle's box is any longer
+                covered, colour = self._table_fill(p)
+                fill = (covered[None], None if colour is None else colour[None])
+            fields = self.background_fields(p.background[None], K[None], c2w[None], pose, fill)
+            bgf = {k: v[0] for k, v in fields.items()}
             parts.append(_gaussians(bgf, torch.full((bgf["means"].shape[0],), BACKGROUND_OWNER, device=dev)))
         if not parts:
             return Gaussians.empty(self.config.sh_degree, device=dev)

@@ -60,7 +60,7 @@ class Posterior(ParticlePosterior):
     per ``bg_block``² block; static_layer: (B, V, 5, H, W) the static layer alone rendered into the context views
     (colour over the background colour, depth in metres, alpha: :mod:`particlesplat.rendering.layers`), or None
     (no static layer); pose: (B, D) the scenes' poses the workspace layer follows (``bg_static_pose``), or None;
-    bg_anchor: (B, V, 5, Hb, Wb) the anchored background's per-block colour, depth and weight (``fg_evidence``:
+    bg_anchor: (B, V, 6, Hb, Wb) the anchored background's per-block anchors (``fg_evidence``:
     :func:`particlesplat.model.decoder.block_anchors`), or None; colour_anchor: (B, N, 2*S*S*3) the colours of
     the context views under each particle's cells (``patch.colour_anchor``: :meth:`ParticleSplat.with_colour_anchors`),
     or None.

@@ -70,19 +70,24 @@ def push_pull(values: Tensor, weight: Tensor, levels: int | None = None) -> Tens
     return w * own + (1 - w) * up
 
 
-def views_support_map(rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Tensor | None:
+def views_support_map(
+    rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, hidden: Tensor | None = None
+) -> Tensor | None:
     """The support map of one scene's context views.
 
     rgb: (V, 3, H, W) in [0, 1]; depth: (V, 1, H, W) planar metres (0 = missing) or None; K: (V, 3, 3);
-    c2w: (V, 4, 4) OpenCV camera-to-world. Returns (4, CELLS, CELLS) float32 on rgb's device: RGB and the share of
-    support evidence per cell (rows along world y, columns along x, cell (0, 0) at (-HALF_EXTENT, -HALF_EXTENT)),
-    or None without depth or without a context pixel on the support surface.
+    c2w: (V, 4, 4) OpenCV camera-to-world; hidden: (V, 1, H, W) in [0, 1], pixels that count for nothing (over one
+    half: an object's and those around its foot), or None. Returns (4, CELLS, CELLS) float32 on rgb's
+    device: RGB and the share of support evidence per cell (rows along world y, columns along x, cell (0, 0) at
+    (-HALF_EXTENT, -HALF_EXTENT)), or None without depth or without a context pixel on the support surface.
     """
     if depth is None:
         return None
     points = world_points(depth.to(K.dtype), K, c2w).reshape(-1, 3)  # (N, 3)
     origins = c2w[:, None, None, :3, 3].expand(-1, depth.shape[2], depth.shape[3], -1).reshape(-1, 3)
     valid = depth.reshape(-1) > 0
+    if hidden is not None:
+        valid = valid & (hidden.reshape(-1) <= 0.5)
     colours = rgb.permute(0, 2, 3, 1).reshape(-1, 3).to(points)
     on = valid & ((points[:, 2] - SUPPORT_Z).abs() <= ON_SUPPORT)
     if not bool(on.any()):
@@ -99,13 +104,10 @@ def views_support_map(rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor)
     return torch.cat([colour, share[None]]).to(torch.float32)
 
 
-def support_map_image(support_map: Tensor, backdrop: Tensor, camera: Camera) -> Tensor:
-    """The colour behind the Gaussians per pixel of ``camera``: where a pixel's ray meets the support plane inside
-    the map at a cell whose support share is over one half, the map's colour, elsewhere ``backdrop``.
-
-    support_map: (4, CELLS, CELLS) from :func:`views_support_map`; backdrop: (3,) RGB. Returns (H, W, 3) in the
-    dtype and on the device of ``support_map``.
-    """
+def _sample(support_map: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
+    """The map's colour (H, W, 3) where each pixel's ray of ``camera`` meets the support plane, and the weight (H, W)
+    in [0, 1] with which it stands for what the pixel sees there (the support share ramped about one half, 0 for a
+    ray that misses the plane or the map)."""
     cam = camera.to(device=support_map.device, dtype=support_map.dtype)
     origins, dirs = cam.rays()  # (H, W, 3)
     t = clamp_to_support(torch.full_like(dirs[..., 2], float("inf")), origins[..., 2], dirs[..., 2])
@@ -114,5 +116,23 @@ def support_map_image(support_map: Tensor, backdrop: Tensor, camera: Camera) -> 
     sample = F.grid_sample(support_map[None], xy[None], mode="bilinear", padding_mode="border", align_corners=False)
     rgb, share = sample[0, :3].permute(1, 2, 0), sample[0, 3]
     weight = ((share - 0.5) / EDGE_SOFTNESS + 0.5).clamp(0, 1) * down * (xy.abs() < 1).all(-1)
+    return rgb, weight
+
+
+def support_at(support_map: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
+    """Where each pixel's ray of ``camera`` meets the support plane: the map's colour there (H, W, 3) and how surely
+    the point lies on the support (H, W) in [0, 1] (the table, not the floor past its edge; the map's support share
+    there, :func:`views_support_map`)."""
+    return _sample(support_map, camera)
+
+
+def support_map_image(support_map: Tensor, backdrop: Tensor, camera: Camera) -> Tensor:
+    """The colour behind the Gaussians per pixel of ``camera``: where a pixel's ray meets the support plane inside
+    the map at a cell whose support share is over one half, the map's colour, elsewhere ``backdrop``.
+
+    support_map: (4, CELLS, CELLS) from :func:`views_support_map`; backdrop: (3,) RGB. Returns (H, W, 3) in the
+    dtype and on the device of ``support_map``.
+    """
+    rgb, weight = _sample(support_map, camera)
     bg = backdrop.to(support_map).reshape(1, 1, 3)
     return weight[..., None] * rgb + (1 - weight[..., None]) * bg
