@@ -35,8 +35,9 @@ INFERENCE_KEYS: dict[str, str] = {
     "background.support_map": "where no Gaussian draws the support surface, a render shows a top-down map of it "
     "read from each scene's context views (with colour_from_views' colour around it) instead of one colour",
     "background.opaque_under_objects": "a per-view background block under an object (within 4 pixels of its "
-    "evidence) that no particle's box covers any longer draws the support surface, opaque (with hidden_from_views): "
-    "the table where an edit moved or removed the object; an unedited scene renders as without it",
+    "evidence) that no particle's box covers any longer draws the support surface, opaque, in the support map's "
+    "colour (with hidden_from_views): the table where an edit moved or removed the object; the map then leaves out "
+    "the objects' feet, and an unedited scene renders as before but for that",
     "support.cut": "metres below the support surface under which a particle Gaussian does not draw (< 0: off)",
 }
 

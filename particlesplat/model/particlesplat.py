@@ -134,7 +134,7 @@ class ParticleSplat(nn.Module):
         """What :attr:`Particles.support_map` holds for one scene's context views (shapes as in
         :meth:`views_backdrop`; pose (D,) the scene's robot state or None): with ``background.support_map``,
         :func:`~particlesplat.model.support_map.views_support_map`, which with ``background.opaque_under_objects``
-        leaves out the pixels within :data:`EVIDENCE_DILATION` of an object's evidence (its foot and shadow would
+        leaves out the pixels within :data:`EVIDENCE_DILATION` of an object's evidence (its foot would
         colour the table an edit uncovers); else None."""
         cfg = self.config
         if not cfg.bg_support_map:
