@@ -447,7 +447,7 @@ def background_gaussians(
         return _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg)
     zeta, behind, plane = _anchored_depth(zeta, p["dd"][..., 0], anchor, pix, Kn, cn)
     dc = p["sh"][..., 0, :] + anchor[..., 4:5] * (anchor[..., :3] - 0.5) / SH_C0
-    under = torch.zeros_like(behind)
+    under = None  # the blocks drawn as the table where an object stood (bg_opaque_under_objects)
     if cfg.bg_hidden_from_views:
         surface, found = support_colours(anchor, K, c2w, cfg)  # (M, 3), (M,)
         hidden = behind & found[:, None]  # (M, N): placed on the table behind an object
