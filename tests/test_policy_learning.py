@@ -331,7 +331,8 @@ def test_the_shipped_place_policies_load_and_act_from_a_seed(kind, tmp_path):
 
 def test_a_particles_policy_finds_its_encoder_on_another_machine(tmp_path):
     """A recorded encoder path that is not here is the shipped robot model when the SHA-256 matches (a policy
-    trained in another clone), None recorded is the shipped model, and another model's hash is one clear error."""
+    trained in another clone), None recorded is the shipped model while its hash matches, and another model's hash
+    is one clear error."""
     from particlesplat.analysis.particle_arrays import file_sha256
     from particlesplat.core.errors import UserError
     from particlesplat.data.families import get_family
@@ -346,6 +347,15 @@ def test_a_particles_policy_finds_its_encoder_on_another_machine(tmp_path):
     assert trained_encoder(tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": str(here)}}}) == str(here)
     with pytest.raises(UserError, match=r"p\.pt: key 'info.encoder.checkpoint': .* is not here"):
         trained_encoder(tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": elsewhere, "sha256": "0" * 64}}})
+    # the shipped model replaced since the policy learnt (a recorded hash that is not the shipped model's), or the
+    # recorded file changed: an error, not a run on another model's particles
+    with pytest.raises(UserError, match=r"p\.pt: key 'info.encoder.sha256': .* not the shipped"):
+        trained_encoder(tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": None, "sha256": "0" * 64}}})
+    assert trained_encoder(
+        tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": str(here), "sha256": file_sha256(here)}}}
+    ) == str(here)
+    with pytest.raises(UserError, match=r"p\.pt: key 'info.encoder.sha256': .*mine\.pt changed"):
+        trained_encoder(tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": str(here), "sha256": "0" * 64}}})
 
 
 def test_a_decision_scene_holds_the_arm_within_its_limits(tmp_path):

@@ -278,6 +278,41 @@ def test_an_unedited_scene_draws_alike_and_a_removed_object_uncovers_the_table()
     assert torch.equal(again.opacities[again.owner < 0], bg_after)
 
 
+def test_the_editor_decodes_the_background_again_only_when_its_table_fill_changes():
+    """A drag that keeps every block under the object inside a box leaves the background as it was decoded (no new
+    decode, equal to a fresh one); a removal changes which blocks draw the table and decodes it again. A model
+    without the key has no fill key."""
+    from particlesplat.editing.decoded import DecodedParticles
+
+    rgb, depth, cams = _object_scene()
+    plain, keyed = _evidence_model(), _evidence_model(bg_opaque_under_objects=True)
+    particles = keyed.encode(rgb, depth, cams)
+    assert plain.table_fill_key(particles) is None
+    key = keyed.table_fill_key(particles)
+    assert key is not None and key.shape == (2, 32 * 32) and not bool(key.any())  # every under block is covered
+    kept = DecodedParticles(keyed)
+
+    def background(g: Gaussians) -> Gaussians:
+        return g.subset(g.owner < 0)
+
+    kept.gaussians(particles)
+    nudged = particles
+    for i in range(particles.num):  # every box 1e-4 of the image to the right: no block changes side
+        nudged = nudged.with_attribute(i, "z_p", particles.z_p[i] + torch.tensor([1e-4, 0.0]))
+    assert torch.equal(keyed.table_fill_key(nudged), key)
+    g = kept.gaussians(nudged)
+    assert kept.backgrounds_decoded == 1
+    fresh = background(keyed.decode(nudged))
+    assert torch.allclose(background(g).means, fresh.means) and torch.equal(background(g).opacities, fresh.opacities)
+    gone = nudged
+    for i in range(particles.num):
+        gone = gone.with_attribute(i, "z_t", torch.zeros(1))
+    assert bool(keyed.table_fill_key(gone).any())
+    g = kept.gaussians(gone)
+    assert kept.backgrounds_decoded == 2
+    assert torch.equal(background(g).opacities, background(keyed.decode(gone)).opacities)
+
+
 def test_the_table_is_filled_from_the_support_map_and_only_on_the_support():
     """With a support map, the table drawn where an object stood takes the map's colour where each block's ray
     meets the plane; where the map says the plane there is no support (the floor past the table's edge), no block

@@ -45,8 +45,10 @@ class DecodedParticles:
         self._rows: dict[str, Tensor] = {}  # field -> (N, G, ...) per particle row
         self._stale: set[int] = set()
         self.rows_decoded = 0  # particles decoded so far (each edit decodes only the particles it changed)
+        self.backgrounds_decoded = 0  # times the background was decoded (once, or again when its table fill changed)
         self._background: Gaussians | None = None
-        self._background_boxes: Tensor | None = None  # the particles' boxes the background was decoded for
+        # the blocks drawn as the table where an object stood when the background was decoded (None: no such blocks)
+        self._background_fill: Tensor | None = None
         self._boxes: dict[int, Tensor] = {}  # camera key -> (N, 4) x0, y0, x1, y1 footprint box per row (pixels)
         self._boxed: dict[int, Tensor] = {}  # camera key -> (N,) bool: the row's box is current
 
@@ -76,13 +78,14 @@ class DecodedParticles:
         return {k: getattr(g, k).reshape(n, per, *getattr(g, k).shape[1:]) for k in _FIELDS}
 
     def _refresh(self, particles: Particles) -> None:
-        """Decode the background once (again when the particles' boxes move, for a model that draws the table
-        where an object stood: ``background.opaque_under_objects``), and the rows of particles that changed or are
-        new."""
-        boxes = self._box_key(particles)
-        if self._background is None or (boxes is not None and not _same(boxes, self._background_boxes)):
+        """Decode the background once (again when the blocks it draws as the table where an object stood change, for
+        a model with ``background.opaque_under_objects``: :meth:`ParticleSplat.table_fill_key`), and the rows of
+        particles that changed or are new."""
+        fill = self.model.table_fill_key(particles)
+        if self._background is None or (fill is not None and not _same(fill, self._background_fill)):
             self._background = self.model.decode(particles, torch.zeros(0, dtype=torch.long)).detach().to("cpu")
-            self._background_boxes = boxes
+            self._background_fill = fill
+            self.backgrounds_decoded += 1
         num = particles.num
         self.truncate(num)
         fresh = sorted(self._stale.union(range(self.num_rows, num)))
@@ -100,15 +103,6 @@ class DecodedParticles:
             for k in _FIELDS:
                 self._rows[k][idx] = rows[k]
         self._stale.clear()
-
-    def _box_key(self, particles: Particles) -> Tensor | None:
-        """What the background depends on of the particles: (N, 6) position, scale, view and whether active of
-        every particle, for a model with ``background.opaque_under_objects``; else None."""
-        if not self.model.config.bg_opaque_under_objects:
-            return None
-        active = (particles.z_t[:, :1] > self.model.config.bg_mask_threshold).to(particles.z_p.dtype)
-        view = particles.view[:, None].to(particles.z_p.dtype)
-        return torch.cat([particles.z_p, particles.z_s, view, active], dim=1).detach().cpu()
 
     def _assemble(self, particles: Particles, rows: Tensor) -> Gaussians:
         """The Gaussians of particle rows ``rows`` (ascending) that draw, then the background."""

@@ -178,10 +178,15 @@ def _finish(
     c2w: Tensor,
     cfg: ModelConfig,
     depth_cell: Tensor | None = None,
+    shapes: bool = True,
 ) -> dict[str, Tensor]:
     """The fields of Gaussians placed by :func:`_place` (its zeta, means and opacity), with their world rotation,
     scales and SH. jac_px: (..., 2) pixels per canonical unit; depth_cell: (...) metres per canonical unit along
-    the camera axis, at least a pixel's width (default: a pixel's width)."""
+    the camera axis, at least a pixel's width (default: a pixel's width). ``shapes`` False leaves out "quats" and
+    "scales" (a caller that shapes the Gaussians itself: a float64 eigendecomposition a Gaussian not paid for)."""
+    sh = rotate_sh_to_world(p["sh"], c2w[..., :3, :3])  # c2w already broadcasts over the Gaussians
+    if not shapes:
+        return {"means": means, "opacities": opacity, "sh": sh}
     fx = K[..., 0, 0]
     fy = K[..., 1, 1]
     jac_z = zeta / fx if depth_cell is None else torch.maximum(zeta / fx, depth_cell)
@@ -190,7 +195,6 @@ def _finish(
     M = camera_covariance_factor(p["quat"], s, jac)
     M_world = c2w[..., :3, :3] @ M
     quats, scales = covariance_to_quat_scale(M_world)
-    sh = rotate_sh_to_world(p["sh"], c2w[..., :3, :3])  # c2w already broadcasts over the Gaussians
     return {"means": means, "quats": quats, "scales": scales, "opacities": opacity, "sh": sh}
 
 
@@ -461,7 +465,7 @@ def background_gaussians(
                 dc = torch.where(under[..., None], (fill_colour.to(dc) - 0.5) / SH_C0, dc)
     p = {**p, "sh": torch.cat([dc[..., None, :], p["sh"][..., 1:, :]], dim=-2)}
     zeta, means, opacity = _place(pix, zeta, Kn, cn, opacity)
-    fields = _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg)
+    fields = _finish(p, zeta, means, opacity, jac_px, Kn, cn, cfg, shapes=False)
     quats, scales = _surface_shapes(p["scale"], anchor, zeta, K, c2w, cfg, under)
     return {**fields, "quats": quats, "scales": scales}
 

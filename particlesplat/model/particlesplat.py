@@ -128,6 +128,20 @@ class ParticleSplat(nn.Module):
         colour = F.avg_pool2d(torch.stack(rgb).permute(0, 3, 1, 2), cfg.bg_block).flatten(2).transpose(1, 2)
         return torch.maximum(covered, off), colour
 
+    def table_fill_key(self, particles: Particles) -> Tensor | None:
+        """What of the particles the background's decode depends on (``background.opaque_under_objects``): (V,
+        Hb*Wb) bool, the blocks under an object (anchor channel 5) that no active particle's box covers any longer,
+        which :meth:`_table_fill` draws as the table; None for a model without the key (its background does not
+        depend on the particles). Two decodes with equal keys give the same background, however far the boxes moved
+        (an editor decodes it again only when the key changes)."""
+        cfg = self.config
+        p = particles
+        if not cfg.bg_opaque_under_objects or int(p.background.shape[1]) < cfg.d_bg + 6:
+            return None
+        covered = covered_blocks(p.z_p, p.z_s, p.z_t[:, 0] > cfg.bg_mask_threshold, p.view, len(p.cameras), cfg)
+        under = p.background[:, cfg.d_bg + 5].flatten(1).to(covered) > 0.5
+        return (under & (covered <= 0.5)).detach().cpu()
+
     def views_support_map(
         self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, pose: Tensor | None = None
     ) -> Tensor | None:

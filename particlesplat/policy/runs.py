@@ -86,18 +86,33 @@ def eval_run(
 
 
 def trained_encoder(path: Path, meta: dict) -> str | None:
-    """The model that encoded a particles policy's demonstrations (None: the shipped robot model). A recorded path
-    that is not on this machine is the shipped model when its SHA-256 matches, else a UserError naming ``path``."""
+    """The model that encoded a particles policy's demonstrations (None: the shipped robot model). The recorded
+    model is checked against its recorded SHA-256: a path that is not on this machine is the shipped model when the
+    hashes match; a model that is not the one the policy learnt from (the shipped model replaced since, or the file
+    at the recorded path changed) is a UserError naming ``path`` and the key, never a silent run on other
+    particles."""
     from particlesplat.analysis.particle_arrays import file_sha256
     from particlesplat.data.families import get_family
 
     recorded = meta.get("info", {}).get("encoder", {})
     checkpoint, sha = recorded.get("checkpoint"), recorded.get("sha256")
+    shipped = get_family("robot").shipped_model_path()
     if checkpoint is None:
+        if sha is not None and sha != file_sha256(shipped):
+            raise UserError(
+                f"{path}: key 'info.encoder.sha256': the policy learnt from the particles of a robot model that is not "
+                f"the shipped {shipped} any longer (SHA-256 {sha[:12]}...); give that model with --checkpoint, or "
+                "train the policy again"
+            )
         return None
     if Path(str(checkpoint)).is_file():
+        if sha is not None and sha != file_sha256(checkpoint):
+            raise UserError(
+                f"{path}: key 'info.encoder.sha256': {checkpoint} changed since the policy learnt from its particles "
+                f"(SHA-256 {sha[:12]}...); give the model it learnt from with --checkpoint"
+            )
         return str(checkpoint)
-    if sha is not None and sha == file_sha256(get_family("robot").shipped_model_path()):
+    if sha is not None and sha == file_sha256(shipped):
         return None
     raise UserError(
         f"{path}: key 'info.encoder.checkpoint': the model its particles came from, {checkpoint}, is not here "
