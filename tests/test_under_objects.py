@@ -313,6 +313,60 @@ def test_the_editor_decodes_the_background_again_only_when_its_table_fill_change
     assert torch.equal(background(g).opacities, background(keyed.decode(gone)).opacities)
 
 
+def test_a_drag_keeps_the_background_until_it_ends_then_draws_the_table():
+    """While a drag is under way the editor keeps the background it decoded (a whole decode a step would slow every
+    step of it); once the drag ends, the next decode equals a fresh one, with the table drawn where the object was."""
+    from particlesplat.editing.editor import SceneEditor
+
+    rgb, depth, cams = _object_scene()
+    keyed = _evidence_model(bg_opaque_under_objects=True)
+    particles = keyed.encode(rgb, depth, cams)
+    editor = SceneEditor(keyed, particles)
+    before = editor.decode()
+    before_bg = before.opacities[before.owner < 0]
+    for i in range(particles.num):  # a drag of each particle's z_t slider to 0, one gesture id throughout
+        editor.set_attribute(i, "z_t", [0.0], gesture="drag")
+        during = editor.decode()
+        assert torch.equal(during.opacities[during.owner < 0], before_bg)
+    fresh = keyed.decode(editor.scene.particles)
+    fresh_bg = fresh.opacities[fresh.owner < 0]
+    assert not torch.equal(fresh_bg, before_bg)  # the table under the object now draws
+    editor.end_gesture()
+    after = editor.decode()
+    assert torch.equal(after.opacities[after.owner < 0], fresh_bg)
+    assert torch.equal(after.means[after.owner < 0], fresh.means[fresh.owner < 0])
+
+
+def test_the_editor_reports_the_background_when_the_table_it_draws_changes():
+    """A viewer uploads only what take_changes reports: an edit that uncovers the table reports the background
+    (owner -1), and the background then handed out is a fresh decode's; during a drag nothing is reported until the
+    drag ends, which counts as a change (the version moves) and reports it."""
+    from particlesplat.core.gaussians import BACKGROUND_OWNER
+    from particlesplat.editing.editor import SceneEditor
+
+    rgb, depth, cams = _object_scene()
+    keyed = _evidence_model(bg_opaque_under_objects=True)
+    particles = keyed.encode(rgb, depth, cams)
+    fresh = keyed.decode(particles.with_attribute(0, "z_t", torch.zeros(1)))
+    for gesture in (None, "drag"):
+        editor = SceneEditor(keyed, particles)
+        assert editor.take_changes() is None  # the first upload: everything
+        reported = set()
+        for i in range(particles.num):
+            editor.set_attribute(i, "z_t", [0.0], gesture=gesture)
+            reported |= editor.take_changes() or set()
+        assert (BACKGROUND_OWNER in reported) == (gesture is None)
+        if gesture is not None:
+            version = editor.version
+            editor.end_gesture()
+            assert editor.version > version and BACKGROUND_OWNER in editor.take_changes()
+        assert editor.take_changes() == set()  # reported once
+        fresh = keyed.decode(editor.scene.particles)
+        background = editor.background()
+        assert torch.equal(background.opacities, fresh.opacities[fresh.owner < 0])
+        assert bool((background.owner == BACKGROUND_OWNER).all())
+
+
 def test_the_table_is_filled_from_the_support_map_and_only_on_the_support():
     """With a support map, the table drawn where an object stood takes the map's colour where each block's ray
     meets the plane; where the map says the plane there is no support (the floor past the table's edge), no block

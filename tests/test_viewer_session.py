@@ -22,6 +22,27 @@ def encoded():
     return model, encode_scene(model, demo_scenes()[0])
 
 
+def test_the_background_is_an_owner_the_renderer_can_replace(encoded):
+    """particle_gaussians(-1) hands out the background as gaussians() holds it (what take_changes reports when an
+    edit uncovered the table under an object), and replacing it in the renderer leaves the picture as it was."""
+    model, enc = encoded
+    s = EditableScene(model, enc)
+    g = s.gaussians()
+    bg = s.particle_gaussians(-1)
+    assert torch.equal(bg.means, g.means[g.owner < 0]) and bool((bg.owner == -1).all())
+    from particlesplat.core.viewpoints import default_view
+
+    r = SplatRenderer(egl_context())
+    r.set_gaussians(g)
+    cam = default_view(enc.all_cameras).camera(64, 64)
+    r.render(cam, finish=True)
+    before = r.read_rgb().copy()
+    r.replace_owner(-1, bg)
+    r.render(cam, finish=True)
+    assert np.array_equal(r.read_rgb(), before)
+    r.release()
+
+
 def test_edit_undo_redo(encoded):
     model, enc = encoded
     s = EditableScene(model, enc)

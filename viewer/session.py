@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import torch
 
-from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.gaussians import BACKGROUND_OWNER, Gaussians
 from particlesplat.core.outputs import guard_outputs
 from particlesplat.editing.crop_box import CropBox, workspace_box
 from particlesplat.editing.editor import EditsError, SceneEditor, load_edit_file, same_scene, scene_mismatch
@@ -315,9 +315,12 @@ class EditableScene(SceneFiles):
         return self.editor.take_changes()
 
     def particle_gaussians(self, index: int) -> Gaussians:
-        """The Gaussians of one particle (owner = index), decoded alone (none if it is inactive), inside the crop
-        box as :meth:`gaussians` keeps them."""
+        """The Gaussians of one particle (owner = index), decoded alone (none if it is inactive), or of the
+        background (index -1, which :meth:`take_changes` reports when an edit uncovered the table under an object),
+        inside the crop box as :meth:`gaussians` keeps them."""
         ed = self.editor
+        if index == BACKGROUND_OWNER:
+            return self._cropped(ed.background())
         g = ed.model.decode(ed.scene.particles, torch.tensor([index]), background=False).detach().to("cpu")
         return self._cropped(g)
 

@@ -46,6 +46,9 @@ class DecodedParticles:
         self._stale: set[int] = set()
         self.rows_decoded = 0  # particles decoded so far (each edit decodes only the particles it changed)
         self.backgrounds_decoded = 0  # times the background was decoded (once, or again when its table fill changed)
+        # while True (a drag under way: SceneEditor sets it), the background is not decoded again when the table fill
+        # changes; the first decode after it is cleared is exact again
+        self.hold_table_fill = False
         self._background: Gaussians | None = None
         # the blocks drawn as the table where an object stood when the background was decoded (None: no such blocks)
         self._background_fill: Tensor | None = None
@@ -77,15 +80,21 @@ class DecodedParticles:
         n = int(indices.numel())
         return {k: getattr(g, k).reshape(n, per, *getattr(g, k).shape[1:]) for k in _FIELDS}
 
-    def _refresh(self, particles: Particles) -> None:
-        """Decode the background once (again when the blocks it draws as the table where an object stood change, for
-        a model with ``background.opaque_under_objects``: :meth:`ParticleSplat.table_fill_key`), and the rows of
-        particles that changed or are new."""
-        fill = self.model.table_fill_key(particles)
+    def background(self, particles: Particles) -> Gaussians:
+        """The background Gaussians of ``particles`` (owner -1): decoded once, and again when the blocks it draws as
+        the table where an object stood change (a model with ``background.opaque_under_objects``:
+        :meth:`ParticleSplat.table_fill_key`), but not while :attr:`hold_table_fill`."""
+        held = self._background is not None and self.hold_table_fill
+        fill = self._background_fill if held else self.model.table_fill_key(particles)
         if self._background is None or (fill is not None and not _same(fill, self._background_fill)):
             self._background = self.model.decode(particles, torch.zeros(0, dtype=torch.long)).detach().to("cpu")
             self._background_fill = fill
             self.backgrounds_decoded += 1
+        return self._background
+
+    def _refresh(self, particles: Particles) -> None:
+        """Bring the background (:meth:`background`) and the rows of particles that changed or are new up to date."""
+        self.background(particles)
         num = particles.num
         self.truncate(num)
         fresh = sorted(self._stale.union(range(self.num_rows, num)))

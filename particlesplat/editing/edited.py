@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import Tensor
 
-from particlesplat.core.gaussians import Gaussians
+from particlesplat.core.gaussians import BACKGROUND_OWNER, Gaussians
 from particlesplat.core.vectors import float3
 from particlesplat.core.world import SUPPORT_Z, Support
 from particlesplat.editing.crop_box import CropBox
@@ -88,6 +88,8 @@ class EditedParticles:
         self._labels: Tensor | None = None  # object labels of the rows (grouped once, on the original)
         self._changed: set[int] = set()
         self._all_changed = True
+        self._fill_stale = False  # the particles changed since the table fill (under moved objects) was last compared
+        self._shown_fill: Tensor | None = None  # that fill, as take_changes last reported the background
         self.version = 0  # bumps on every change of the Gaussians
         self.crop: CropBox | None = None  # the crop box an edit set (None: none set; render and export apply it)
 
@@ -250,7 +252,28 @@ class EditedParticles:
             self._labels = self.objects().labels[: particles.num]
             self._all_changed = True
         self.particles = particles
+        self._fill_stale = True
         self.version += 1
+
+    def hold_table_fill(self, hold: bool) -> None:
+        """Keep the background as decoded while a drag is under way (``hold``), or draw again the table the edits
+        uncovered (``background.opaque_under_objects``, :attr:`DecodedParticles.hold_table_fill`): releasing the hold
+        of such a model counts as a change, so a viewer asks :meth:`take_changes` again."""
+        if self.decoded.hold_table_fill and not hold and self.model.config.bg_opaque_under_objects:
+            self.version += 1
+        self.decoded.hold_table_fill = hold
+
+    def _table_fill_changed(self) -> bool:
+        """Whether the blocks the background draws as the table where an object stood changed since the last
+        report (never while held, nor for a model without ``background.opaque_under_objects``)."""
+        if not self._fill_stale or self.decoded.hold_table_fill:
+            return False
+        self._fill_stale = False
+        fill = self.model.table_fill_key(self.particles)
+        if fill is None or (self._shown_fill is not None and torch.equal(fill, self._shown_fill)):
+            return False
+        self._shown_fill = fill
+        return True
 
     def set_crop(self, box: CropBox | None) -> None:
         """Set the crop box (None: as if none was ever set); what is drawn changes, the particles do not."""
@@ -267,12 +290,17 @@ class EditedParticles:
         self.version += 1
 
     def take_changes(self) -> set[int] | None:
-        """Particles whose Gaussians changed since the last call; None = everything (or the count) changed."""
+        """Particles whose Gaussians changed since the last call, with ``BACKGROUND_OWNER`` (-1) where the
+        background did (the table under a moved object, ``background.opaque_under_objects``); None = everything (or
+        the count) changed."""
+        background = self._table_fill_changed()
         if self._all_changed:
             self._all_changed, self._changed = False, set()
+            if self._shown_fill is None:
+                self._shown_fill = self.model.table_fill_key(self.particles)
             return None
         out, self._changed = self._changed, set()
-        return out
+        return (out | {BACKGROUND_OWNER}) if background else out
 
 
 def _size(particles: Particles, i: int, config: ModelConfig) -> float:

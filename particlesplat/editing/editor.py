@@ -163,6 +163,11 @@ class SceneEditor:
         from the Gaussians kept up to date edit by edit (:class:`particlesplat.editing.decoded.DecodedParticles`)."""
         return self.scene.decode(particles)
 
+    def background(self) -> Gaussians:
+        """The background Gaussians of the current particles (owner -1) on the CPU, as :meth:`decode` holds them
+        (:meth:`particlesplat.editing.decoded.DecodedParticles.background`)."""
+        return self._decoded.background(self.scene.particles)
+
     def objects(self) -> Tensor:
         """(num_particles,) int64 object number per particle, the numbering ``particlesplat encode`` writes
         (:class:`particlesplat.editing.scene_objects.SceneObjects`). Grouped once on the scene as encoded, so an
@@ -265,10 +270,15 @@ class SceneEditor:
             self.history.add(op)
         else:
             self.history.gesture = Gesture(key, op)
+            # a drag keeps the background as it was decoded until it ends (the table under a moved object,
+            # ``background.opaque_under_objects``, is a whole background decode: at the drag's end, not every step)
+            self.scene.hold_table_fill(True)
 
     def end_gesture(self) -> None:
-        """End the drag under way, if any: it enters the history as one operation."""
+        """End the drag under way, if any: it enters the history as one operation, and the next decode draws the
+        table its objects uncovered (:meth:`EditedScene.hold_table_fill`)."""
         self.history.end_gesture()
+        self.scene.hold_table_fill(False)
 
     def _check_editable(self, index: int) -> None:
         num = self.scene.num
