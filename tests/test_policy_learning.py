@@ -319,6 +319,11 @@ def test_the_shipped_place_policies_load_and_act_from_a_seed(kind, tmp_path):
     assert info["input"] == kind and info["task"] == "place"
     assert info["settings"]["steps"] == TRAIN_STEPS and info["info"]["episodes"] == 100
     if kind == "particles":
+        from particlesplat.policy.runs import trained_encoder
+
+        # the model its particles came from is here (the shipped robot model, by its hash): a new robot model ships
+        # with this policy trained again on its particles, or with the model it learnt from
+        trained_encoder(path, info)
         return  # its rollout encodes every decision (seconds each): the tiny-data test covers the loop
     runs = []
     for n in range(2):

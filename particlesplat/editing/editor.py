@@ -276,7 +276,7 @@ class SceneEditor:
 
     def end_gesture(self) -> None:
         """End the drag under way, if any: it enters the history as one operation, and the next decode draws the
-        table its objects uncovered (:meth:`EditedScene.hold_table_fill`)."""
+        table its objects uncovered (:meth:`EditedParticles.hold_table_fill`)."""
         self.history.end_gesture()
         self.scene.hold_table_fill(False)
 
