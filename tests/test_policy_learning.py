@@ -359,6 +359,9 @@ def test_a_particles_policy_finds_its_encoder_on_another_machine(tmp_path):
     assert trained_encoder(
         tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": str(here), "sha256": file_sha256(here)}}}
     ) == str(here)
+    # a relative path is beside the policy (a shipped policy keeps the model it learnt from next to it)
+    beside = {"info": {"encoder": {"checkpoint": "mine.pt", "sha256": file_sha256(here)}}}
+    assert trained_encoder(tmp_path / "p.pt", beside) == str(here)
     with pytest.raises(UserError, match=r"p\.pt: key 'info.encoder.sha256': .*mine\.pt changed"):
         trained_encoder(tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": str(here), "sha256": "0" * 64}}})
 

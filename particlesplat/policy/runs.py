@@ -87,8 +87,8 @@ def eval_run(
 
 def trained_encoder(path: Path, meta: dict) -> str | None:
     """The model that encoded a particles policy's demonstrations (None: the shipped robot model). The recorded
-    model is checked against its recorded SHA-256: a path that is not on this machine is the shipped model when the
-    hashes match; a model that is not the one the policy learnt from (the shipped model replaced since, or the file
+    model is checked against its recorded SHA-256: a relative path is the policy file's folder's; a path that is not
+    on this machine is the shipped model when the hashes match; a model that is not the one the policy learnt from (the shipped model replaced since, or the file
     at the recorded path changed) is a UserError naming ``path`` and the key, never a silent run on other
     particles."""
     from particlesplat.analysis.particle_arrays import file_sha256
@@ -105,6 +105,8 @@ def trained_encoder(path: Path, meta: dict) -> str | None:
                 "train the policy again"
             )
         return None
+    if not Path(str(checkpoint)).is_absolute():  # a model kept beside the policy (a shipped policy's own encoder)
+        checkpoint = str(path.parent / str(checkpoint))
     if Path(str(checkpoint)).is_file():
         if sha is not None and sha != file_sha256(checkpoint):
             raise UserError(
