@@ -130,7 +130,8 @@ class DecodedParticles:
 
     def gaussians(self, particles: Particles) -> Gaussians:
         """The Gaussians of ``particles`` (the drawing particles', owner = particle index, then the background,
-        owner -1), as :meth:`ParticleSplat.decode` gives them."""
+        owner -1), as :meth:`ParticleSplat.decode` gives them (while :attr:`hold_table_fill`, with the background as
+        last decoded)."""
         self._refresh(particles)
         return self._assemble(particles, torch.arange(particles.num))
 
