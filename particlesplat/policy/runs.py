@@ -86,11 +86,11 @@ def eval_run(
 
 
 def trained_encoder(path: Path, meta: dict) -> str | None:
-    """The model that encoded a particles policy's demonstrations (None: the shipped robot model). The recorded
-    model is checked against its recorded SHA-256: a relative path is the policy file's folder's; a path that is not
-    on this machine is the shipped model when the hashes match; a model that is not the one the policy learnt from (the shipped model replaced since, or the file
-    at the recorded path changed) is a UserError naming ``path`` and the key, never a silent run on other
-    particles."""
+    """The model that encoded a particles policy's demonstrations (None: the shipped robot model), checked against
+    its recorded SHA-256. A relative path is in the policy file's folder; a path that is not on this machine is the
+    shipped model when the hashes match; a model that is not the one the policy learnt from (the shipped model
+    replaced since, or the file at the recorded path changed) is a UserError naming ``path`` and the key, never a
+    silent run on other particles."""
     from particlesplat.analysis.particle_arrays import file_sha256
     from particlesplat.data.families import get_family
 
