@@ -68,9 +68,11 @@ def eval_run(
     split: str,
     model: str | None = None,
     progress: Callable[[int, bool], None] | None = None,
+    started: Callable[[], None] | None = None,
 ) -> EvalResult:
     """Evaluate the policy in ``path`` on ``rollouts`` episodes of ``task`` (None: the policy's own) drawn from
-    ``seed`` and ``split``; the particles input encodes with ``model`` (None: the encoder it was trained with)."""
+    ``seed`` and ``split``; the particles input encodes with ``model`` (None: the encoder it was trained with).
+    ``started`` is called once the policy and its encoder are loaded and checked, before the first rollout."""
     policy, meta = load_policy(path)
     kind = str(meta["input"])
     task = task or str(meta["task"])
@@ -82,6 +84,8 @@ def eval_run(
 
         encoder = DecisionEncoder(model or trained_encoder(path, meta))
         rows = encoder.rows
+    if started is not None:
+        started()
     return evaluate(task, kind, policy, rollouts, seed, split, rows, progress)
 
 
