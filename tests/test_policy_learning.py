@@ -366,6 +366,27 @@ def test_a_particles_policy_finds_its_encoder_on_another_machine(tmp_path):
         trained_encoder(tmp_path / "p.pt", {"info": {"encoder": {"checkpoint": str(here), "sha256": "0" * 64}}})
 
 
+@needs_sim
+def test_policy_eval_with_another_model_than_it_learnt_from_is_one_line(tmp_path, capsys):
+    """A particles policy whose recorded encoder hash is not the shipped model's: ``policy eval`` ends with one line
+    naming the file and the key, exit 2, before any rollout and without a progress bar."""
+    from pathlib import Path
+
+    from particlesplat.cli.main import main
+    from particlesplat.core.errors import run_command
+
+    shipped = Path(__file__).resolve().parents[1] / "assets" / "policies" / "place-particles.pt"
+    payload = torch.load(shipped, weights_only=False)
+    payload["info"]["encoder"] = {"checkpoint": None, "sha256": "0" * 64}
+    bad = tmp_path / "bad.pt"
+    torch.save(payload, bad)
+    argv = ["policy", "eval", "--policy", str(bad), "--rollouts", "1", "--seed", "1000"]
+    assert run_command("particlesplat policy", lambda: main(argv)) == 2
+    err = capsys.readouterr().err
+    assert "bad.pt: key 'info.encoder.sha256'" in err and "Traceback" not in err and "rollout" not in err
+    assert len(err.strip().splitlines()) == 1
+
+
 def test_a_decision_scene_holds_the_arm_within_its_limits(tmp_path):
     """The simulator's joint limits are soft (a joint pressed against one overshot it by 0.8 mrad in a rollout):
     a decision's scene holds the joints within the Panda's limits, which every scene reader checks, and keeps
