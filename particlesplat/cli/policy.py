@@ -176,24 +176,26 @@ def _eval(args: argparse.Namespace) -> int:
 
     from particlesplat.policy.runs import eval_run, write_json
 
-    bars: list = []  # the bar, once the policy and its encoder are loaded (a bad file is one line, no bar)
+    bar = None  # started once the policy and its encoder are loaded (a bad file is one line, no bar)
     wins = 0
 
     def start() -> None:
-        bars.append(tqdm(total=args.rollouts, desc="eval", unit="rollout", disable=args.quiet))
+        nonlocal bar
+        bar = tqdm(total=args.rollouts, desc="eval", unit="rollout", disable=args.quiet)
 
     def progress(i: int, success: bool) -> None:
         nonlocal wins
         wins += success
-        bars[0].set_postfix(success=f"{wins}/{i + 1}")
-        bars[0].update(1)
+        assert bar is not None  # eval_run starts before the first rollout
+        bar.set_postfix(success=f"{wins}/{i + 1}")
+        bar.update(1)
 
     try:
         result = eval_run(
             args.policy, args.task, args.rollouts, args.seed, args.split, args.checkpoint, progress, start
         )
     finally:
-        for bar in bars:
+        if bar is not None:
             bar.close()
     seconds = sum(result.wall_seconds) / len(result.wall_seconds)
     decision = sum(result.decision_seconds) / len(result.decision_seconds)

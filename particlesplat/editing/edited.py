@@ -88,8 +88,8 @@ class EditedParticles:
         self._labels: Tensor | None = None  # object labels of the rows (grouped once, on the original)
         self._changed: set[int] = set()
         self._all_changed = True
-        self._fill_stale = False  # the particles changed since the table fill (under moved objects) was last compared
-        self._shown_fill: Tensor | None = None  # that fill, as take_changes last reported the background
+        self._fill_stale = False  # the particles changed since take_changes last brought the background up to date
+        self._reported_backgrounds = 0  # the background's decode (DecodedParticles.backgrounds_decoded) last reported
         self.version = 0  # bumps on every change of the Gaussians
         self.crop: CropBox | None = None  # the crop box an edit set (None: none set; render and export apply it)
 
@@ -263,17 +263,15 @@ class EditedParticles:
             self.version += 1
         self.decoded.hold_table_fill = hold
 
-    def _table_fill_changed(self) -> bool:
-        """Whether the blocks the background draws as the table where an object stood changed since the last
-        report (never while held, nor for a model without ``background.opaque_under_objects``)."""
-        if not self._fill_stale or self.decoded.hold_table_fill:
-            return False
-        self._fill_stale = False
-        fill = self.model.table_fill_key(self.particles)
-        if fill is None or (self._shown_fill is not None and torch.equal(fill, self._shown_fill)):
-            return False
-        self._shown_fill = fill
-        return True
+    def _background_changed(self) -> bool:
+        """Whether the background was decoded again since the last report (the table under a moved object,
+        ``background.opaque_under_objects``): brought up to date when the particles changed, never while held."""
+        if self._fill_stale and not self.decoded.hold_table_fill:
+            self._fill_stale = False
+            self.decoded.background(self.particles)
+        changed = self.decoded.backgrounds_decoded != self._reported_backgrounds
+        self._reported_backgrounds = self.decoded.backgrounds_decoded
+        return changed
 
     def set_crop(self, box: CropBox | None) -> None:
         """Set the crop box (None: as if none was ever set); what is drawn changes, the particles do not."""
@@ -293,12 +291,12 @@ class EditedParticles:
         """Particles whose Gaussians changed since the last call, with ``BACKGROUND_OWNER`` (-1) where the
         background did (the table under a moved object, ``background.opaque_under_objects``); None = everything (or
         the count) changed."""
-        background = self._table_fill_changed()
         if self._all_changed:
             self._all_changed, self._changed = False, set()
-            if self._shown_fill is None:
-                self._shown_fill = self.model.table_fill_key(self.particles)
+            self._fill_stale = True  # the upload reads the background as it is now
+            self._background_changed()
             return None
+        background = self._background_changed()
         out, self._changed = self._changed, set()
         return (out | {BACKGROUND_OWNER}) if background else out
 

@@ -119,7 +119,7 @@ class ParticleSplat(nn.Module):
         off the support (the floor past the table's edge, by the scene's support map); and (V, Hb*Wb, 3) the
         support map's colour where its ray meets the plane, or None without a map (the table's median colour)."""
         p, cfg = particles, self.config
-        covered = covered_blocks(p.z_p, p.z_s, p.z_t[:, 0] > cfg.bg_mask_threshold, p.view, len(p.cameras), cfg)
+        covered = self._covered_blocks(p)
         if p.support_map is None:
             return covered, None
         maps = p.support_map.to(covered)
@@ -135,12 +135,17 @@ class ParticleSplat(nn.Module):
         depend on the particles). Two decodes with equal keys give the same background, however far the boxes moved
         (an editor decodes it again only when the key changes)."""
         cfg = self.config
-        p = particles
-        if not cfg.bg_opaque_under_objects or int(p.background.shape[1]) < cfg.d_bg + 6:
+        if not cfg.bg_opaque_under_objects or int(particles.background.shape[1]) < cfg.d_bg + 6:
             return None
-        covered = covered_blocks(p.z_p, p.z_s, p.z_t[:, 0] > cfg.bg_mask_threshold, p.view, len(p.cameras), cfg)
-        under = p.background[:, cfg.d_bg + 5].flatten(1).to(covered) > 0.5
+        covered = self._covered_blocks(particles)
+        under = particles.background[:, cfg.d_bg + 5].flatten(1).to(covered) > 0.5
         return (under & (covered <= 0.5)).detach().cpu()
+
+    def _covered_blocks(self, p: Particles) -> Tensor:
+        """(V, Hb*Wb) the share of each background block inside its view's active particles' boxes
+        (:func:`~particlesplat.model.encoder.covered_blocks`)."""
+        cfg = self.config
+        return covered_blocks(p.z_p, p.z_s, p.z_t[:, 0] > cfg.bg_mask_threshold, p.view, len(p.cameras), cfg)
 
     def views_support_map(
         self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, pose: Tensor | None = None
