@@ -110,7 +110,12 @@ def encode_batch(model: ParticleSplat, scenes: list[Scene]) -> list[Particles]:
             cameras=[c.to(dev) for c in s.cameras],
             backdrop=model.views_backdrop(rgb[b], None if depth is None else depth[b], K[b], c2w[b]),
             support_map=model.views_support_map(
-                rgb[b], None if depth is None else depth[b], K[b], c2w[b], None if pose is None else pose[b]
+                rgb[b],
+                None if depth is None else depth[b],
+                K[b],
+                c2w[b],
+                None if pose is None else pose[b],
+                model.views_evidence(post, b),
             ),
         )
         for b, s in enumerate(scenes)

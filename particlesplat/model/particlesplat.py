@@ -148,21 +148,35 @@ class ParticleSplat(nn.Module):
         return covered_blocks(p.z_p, p.z_s, p.z_t[:, 0] > cfg.bg_mask_threshold, p.view, len(p.cameras), cfg)
 
     def views_support_map(
-        self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor, pose: Tensor | None = None
+        self,
+        rgb: Tensor,
+        depth: Tensor | None,
+        K: Tensor,
+        c2w: Tensor,
+        pose: Tensor | None = None,
+        evidence: Tensor | None = None,
     ) -> Tensor | None:
         """What :attr:`Particles.support_map` holds for one scene's context views (shapes as in
         :meth:`views_backdrop`; pose (D,) the scene's robot state or None): with ``background.support_map``,
         :func:`~particlesplat.model.support_map.views_support_map`, which with ``background.opaque_under_objects``
         leaves out the pixels within :data:`EVIDENCE_DILATION` of an object's evidence (its foot would
-        colour the table an edit uncovers); else None."""
+        colour the table an edit uncovers); else None. ``evidence``: the views' object evidence (V, 1, H, W) where
+        the encoder has computed it already (:meth:`views_evidence`), else computed here."""
         cfg = self.config
         if not cfg.bg_support_map:
             return None
         hidden = None
         if cfg.bg_opaque_under_objects and depth is not None:
-            arm = None if pose is None else pose[None].expand(depth.shape[0], -1)
-            hidden = dilate(foreground_evidence(depth.to(K.dtype), K, c2w, arm), EVIDENCE_DILATION)
+            if evidence is None:
+                arm = None if pose is None else pose[None].expand(depth.shape[0], -1)
+                evidence = foreground_evidence(depth.to(K.dtype), K, c2w, arm)
+            hidden = dilate(evidence.to(K.dtype), EVIDENCE_DILATION)
         return views_support_map(rgb, depth, K, c2w, hidden)
+
+    def views_evidence(self, post: Posterior, b: int) -> Tensor | None:
+        """Scene ``b``'s context views' object evidence (V, 1, H, W) as :meth:`posterior` computed it (its
+        ``bg_error`` with ``fg_evidence``), to carry into :meth:`views_support_map`; None without it."""
+        return post.bg_error[b] if self.config.fg_evidence else None
 
     def views_backdrop(self, rgb: Tensor, depth: Tensor | None, K: Tensor, c2w: Tensor) -> Tensor | None:
         """What :attr:`Particles.backdrop` holds for one scene's context views (rgb (V, 3, H, W), depth
@@ -606,7 +620,10 @@ class ParticleSplat(nn.Module):
         if self.config.bg_support_map:
             depths = [None if depth is None else depth[b] for b in range(len(rgb))]
             poses = [None if post.pose is None else post.pose[b] for b in range(len(rgb))]
-            maps = [self.views_support_map(rgb[b], depths[b], K[b], c2w[b], poses[b]) for b in range(len(rgb))]
+            maps = [
+                self.views_support_map(rgb[b], depths[b], K[b], c2w[b], poses[b], self.views_evidence(post, b))
+                for b in range(len(rgb))
+            ]
             empty = z["bg_color"].new_zeros(4, SUPPORT_CELLS, SUPPORT_CELLS)
             z["support_map"] = torch.stack([empty if m is None else m.to(empty) for m in maps])
         return post, z, self.decode_batch(z, post.view, K, c2w, background, pose=post.pose)
@@ -651,7 +668,12 @@ class ParticleSplat(nn.Module):
             pose=None if pose_b is None else pose_b[0],
             backdrop=self.views_backdrop(rgb_b[0], None if depth_b is None else depth_b[0], K, c2w),
             support_map=self.views_support_map(
-                rgb_b[0], None if depth_b is None else depth_b[0], K, c2w, None if pose_b is None else pose_b[0]
+                rgb_b[0],
+                None if depth_b is None else depth_b[0],
+                K,
+                c2w,
+                None if pose_b is None else pose_b[0],
+                self.views_evidence(post, 0),
             ),
         )
 

@@ -77,7 +77,6 @@ def bin_fused(
     from particlesplat.rendering import fused_kernels as k
 
     grids, origin, per_view = _tile_layout(tuple(sizes))
-    order = torch.sort(depths.detach(), stable=True).indices
     gauss, tile_start = k.bin_tiles(
         _numpy(means2d.double()),
         _numpy(radius.double()),
@@ -85,7 +84,7 @@ def bin_fused(
         np.ascontiguousarray(per_view[:, :2]),
         np.ascontiguousarray(per_view[:, 2]),
         np.ascontiguousarray(per_view[:, 3]),
-        _numpy(order),
+        _numpy(depths),
         _numpy(conics),
         _numpy(log_o),
         origin,
@@ -137,8 +136,8 @@ class FusedRasterize(torch.autograd.Function):
         if bins.gauss.shape[0]:
             grad = _numpy(grad_out.to(con.dtype))
             k.rasterize_backward(*_kernel_inputs(bins, m2, con, log_o, feats, out, last), grad, d_pair.numpy())
-        rows = torch.from_numpy(bins.gauss)
-        d_rows = torch.zeros(m2.shape[0], 6 + C, dtype=con.dtype).index_add_(0, rows, d_pair)
+        d_rows = torch.zeros(m2.shape[0], 6 + C, dtype=con.dtype)
+        k.scatter_add_rows(bins.gauss, d_pair.numpy(), d_rows.numpy())
         d_means = d_rows[:, :2].to(ctx.means_dtype)
         d_conics = d_rows[:, 2:5]
         # ln o is clamped at 1e-30: no gradient below it (as in the twin)

@@ -28,6 +28,8 @@ import numba
 import numpy as np
 from numba import prange
 
+from particlesplat.rendering.depth_order import depth_order
+
 TILE = 4
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -147,11 +149,25 @@ def _candidate_boxes(means2d, radius, view, view_sizes, view_tiles_x, view_first
     return corner, nx, ny
 
 
+@jit
+def _max_exponent(mx: float, my: float, a: float, b: float, c: float, lo: float) -> float:
+    """The largest of :func:`_exponents`' 16 values, computed alike (bit for bit), without storing them."""
+    best = -np.inf
+    for p in range(TILE * TILE):
+        dx, dy = PIXEL_X[p] - mx, PIXEL_Y[p] - my
+        best = max(best, lo - 0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy))
+    return best
+
+
 @parallel_kernel
 def _test_candidates(order, corner, nx, ny, start, view, view_tiles_x, means2d, conics, log_o, tile_origin, hit):
     """hit[start[k] + j] = the j-th candidate tile of the k-th Gaussian in depth order if it passes the exact
-    test, else -1 (parallel over Gaussians: each writes only its own segment)."""
+    test, else -1 (parallel over Gaussians: each writes only its own segment).
+
+    The pixel centre nearest the mean is tried first (the same arithmetic as the 16-pixel test): nine candidates in
+    ten pass there, and only the others pay for all 16 pixels."""
     thresh = math.log(ALPHA_MIN) - HIT_MARGIN
+    edge = TILE / 2 - 0.5  # the outermost pixel centre's offset from the tile centre
     for k in prange(order.shape[0]):
         i = order[k]
         n_x = nx[i]
@@ -160,13 +176,28 @@ def _test_candidates(order, corner, nx, ny, start, view, view_tiles_x, means2d, 
         a, b, c = conics[i, 0], conics[i, 1], conics[i, 2]
         lo = log_o[i]
         tx = view_tiles_x[view[i]]
-        e = np.empty(TILE * TILE, np.float64)
         for j in range(n_x * ny[i]):
             row, col = j // n_x, j % n_x
             tile = corner[i] + row * tx + col
             mx = means2d[i, 0] - tile_origin[tile, 0]
             my = means2d[i, 1] - tile_origin[tile, 1]
-            hit[start[k] + j] = tile if _exponents(mx, my, a, b, c, lo, e) >= thresh else -1
+            dx = min(max(math.floor(mx + TILE / 2) + 0.5 - TILE / 2, -edge), edge) - mx
+            dy = min(max(math.floor(my + TILE / 2) + 0.5 - TILE / 2, -edge), edge) - my
+            if lo - 0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy) >= thresh:
+                hit[start[k] + j] = tile
+            else:
+                hit[start[k] + j] = tile if _max_exponent(mx, my, a, b, c, lo) >= thresh else -1
+
+
+@jit
+def scatter_add_rows(index, values, out):
+    """out[index[s]] += values[s] for s = 0, 1, ... in turn: torch's ``index_add_`` along dim 0, the same sums in
+    the same order (bit for bit), serial; 3-4x faster here on a training step's 1.3 M pairs (out: (N, C), values:
+    (S, C) of one dtype, index: (S,) int64)."""
+    for s in range(index.shape[0]):
+        i = index[s]
+        for c in range(values.shape[1]):
+            out[i, c] += values[s, c]
 
 
 @jit
@@ -192,12 +223,15 @@ def _sort_pairs(order, start, nx, ny, hit, num_tiles):
     return gauss, tile_start
 
 
-def bin_tiles(means2d, radius, view, view_sizes, view_tiles_x, view_first, order, conics, log_o, tile_origin):
+def bin_tiles(means2d, radius, view, view_sizes, view_tiles_x, view_first, depths, conics, log_o, tile_origin):
     """Tile lists of all views: gauss (P,) int64 rows grouped by tile, front to back; tile_start (T + 1,) int64.
 
-    order: (M,) int64 rows sorted by depth (stable); tile_origin: (T, 2) float64 tile centres in pixels.
+    depths: (M,) camera z (front to back, ties by row; only rows with a footprint are sorted);
+    tile_origin: (T, 2) float64 tile centres in pixels.
     """
     corner, nx, ny = _candidate_boxes(means2d, radius, view, view_sizes, view_tiles_x, view_first)
+    rows = np.flatnonzero(nx)
+    order = depth_order(depths[rows], rows)
     per = (nx * ny)[order]
     start = np.zeros(order.shape[0] + 1, np.int64)
     np.cumsum(per, out=start[1:])

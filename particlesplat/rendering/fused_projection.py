@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from particlesplat.rendering.fused_kernels import jit, parallel_kernel
+from particlesplat.rendering.fused_kernels import jit, parallel_kernel, scatter_add_rows
 from particlesplat.rendering.projection import DILATION, FOV_MARGIN, Projected
 
 
@@ -241,9 +241,10 @@ class FusedProjection(torch.autograd.Function):
                 d_scale,
             )
         N = means.shape[0]
-        dm = torch.zeros(N, 3, dtype=torch.float64).index_add_(0, rows, torch.from_numpy(d_mean))
-        dr = torch.zeros(N, 3, 3, dtype=torch.float64).index_add_(0, rows, torch.from_numpy(d_rot))
-        ds = torch.zeros(N, 3, dtype=torch.float64).index_add_(0, rows, torch.from_numpy(d_scale))
+        dm, dr, ds = (torch.zeros(N, *a.shape[1:], dtype=torch.float64) for a in (d_mean, d_rot, d_scale))
+        for summed, per_instance in ((dm, d_mean), (dr, d_rot), (ds, d_scale)):
+            if M:  # per instance -> per Gaussian: index_add_ along rows, bit for bit
+                scatter_add_rows(rows.numpy(), per_instance.reshape(M, -1), summed.numpy().reshape(N, -1))
         tm, tr, ts = ctx.dtypes
         return dm.to(tm), dr.to(tr), ds.to(ts), None, None, None, None, None
 

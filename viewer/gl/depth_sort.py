@@ -13,22 +13,17 @@ from typing import Literal, get_args
 import numpy as np
 import torch
 
+from particlesplat.rendering.depth_order import depth_order as sort_by_depth
+
 SortDevice = Literal["auto", "cpu", "cuda"]
 SORT_DEVICES: tuple[str, ...] = get_args(SortDevice)
 
 
 def depth_order(index: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """Sort Gaussians front to back: index (M,) int, z (M,) float32 camera depths -> (M,) int32
-    indices by increasing z, ties by increasing index.
-
-    Positive float32 values order like their bit patterns, so one uint64 key (z bits << 32 |
-    index) sorted with numpy's default sort is ~10x faster than a stable argsort of z.
-    """
-    z = np.ascontiguousarray(z, np.float32)
-    if z.size and float(z.min()) <= 0.0:
-        return index[np.lexsort((index, z))].astype(np.int32)
-    key = (z.view(np.uint32).astype(np.uint64) << np.uint64(32)) | index.astype(np.uint64)
-    return (np.sort(key) & np.uint64(0xFFFFFFFF)).astype(np.int32)
+    """Sort Gaussians front to back: index (M,) int, z (M,) float32 camera depths -> (M,) int32 indices by
+    increasing z, ties by increasing index (:func:`particlesplat.rendering.depth_order.depth_order`: one packed
+    int64 key a Gaussian, ~10x faster than a stable argsort of z)."""
+    return sort_by_depth(np.ascontiguousarray(z, np.float32), np.asarray(index, np.int64)).astype(np.int32)
 
 
 def resolve_sort_device(choice: SortDevice) -> torch.device | None:
