@@ -120,3 +120,18 @@ def test_a_command_says_what_it_measured_once(tmp_path):
     assert first.returncode == 0 and first.stderr.count("rasterizer auto:") == 1
     second = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert second.returncode == 0 and "rasterizer auto" not in second.stderr and second.stdout == first.stdout
+
+
+def test_a_change_to_the_kernels_measures_again(fresh_cache, monkeypatch):
+    """Same machine and package version, other rasterizer code (an install from a newer commit): measured again."""
+    monkeypatch.setattr(measured, "time_rasterizers", lambda: XEON_LIKE)
+    assert measured.measured_choice(True) == "torch"
+    before = measured.fingerprint()
+    assert len(before["kernels"]) == 16
+    amd = {"fused": {"forward": 40.0, "training": 80.0}, "torch": {"forward": 55.0, "training": 100.0}}
+    monkeypatch.setattr(measured, "time_rasterizers", lambda: amd)
+    monkeypatch.setattr(measured, "kernels_digest", lambda: "0123456789abcdef")
+    measured.forget_choices()
+    assert measured.measured_choice(True) == "fused"
+    prints = [e["fingerprint"] for e in json.loads(fresh_cache.read_text())["entries"]]
+    assert prints == [before, {**before, "kernels": "0123456789abcdef"}]

@@ -10,14 +10,16 @@ and forward + backward, and keeps the faster of each:
 - renders that carry gradients (training, fitting) take the faster forward + backward.
 
 The choice is cached in ``$XDG_CACHE_HOME/particlesplat/rasterizer.json`` under a fingerprint of what decides it
-(the CPU's model, its core count, torch's and numba's versions, this package's version; the threads it was measured
-at are recorded beside it); a new
+(the CPU's model, its core count, torch's and numba's versions, this package's version and a digest of its
+rasterizers' source; the threads it was measured at are recorded beside it); a new
 fingerprint measures again. Measuring takes a few seconds and prints one line on stderr naming the choice, the
 times and the cache file.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 import os
 import statistics
@@ -79,9 +81,31 @@ def timing_scene(n: int, size: int, seed: int = 0) -> tuple[Gaussians, Camera]:
     return Gaussians(means, quats, scales, opacities, sh, owner), cam
 
 
+KERNEL_SOURCES = (
+    "fused.py",
+    "fused_kernels.py",
+    "fused_projection.py",
+    "depth_order.py",
+    "rasterize.py",
+    "projection.py",
+)
+"""The modules of ``particlesplat.rendering`` whose code decides the two rasterizers' speed."""
+
+
+@functools.cache
+def kernels_digest() -> str:
+    """The first 16 hex digits of the SHA-256 of :data:`KERNEL_SOURCES`: an install from a newer commit with the
+    same package version still measures its own kernels again."""
+    digest = hashlib.sha256()
+    for name in KERNEL_SOURCES:
+        digest.update((Path(__file__).parent / name).read_bytes())
+    return digest.hexdigest()[:16]
+
+
 def fingerprint() -> dict[str, object]:
-    """What the choice depends on: the CPU's model, its cores, torch, numba and this package. Torch's threads are
-    not in it: the measured order of the two was the same at 1 and 2 threads on both CPUs this project runs on."""
+    """What the choice depends on: the CPU's model, its cores, torch, numba, this package and its rasterizers' code
+    (:func:`kernels_digest`). Torch's threads are not in it: the measured order of the two was the same at 1 and 2
+    threads on both CPUs this project runs on."""
     import torch
 
     def version(name: str) -> str:
@@ -96,6 +120,7 @@ def fingerprint() -> dict[str, object]:
         "torch": torch.__version__,
         "numba": version("numba"),
         "particlesplat": version("particlesplat"),
+        "kernels": kernels_digest(),
     }
 
 
