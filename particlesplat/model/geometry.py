@@ -74,12 +74,17 @@ class _SafeEigh(torch.autograd.Function):
         return 0.5 * (G + G.transpose(-1, -2))
 
 
-def covariance_to_quat_scale(M: Tensor) -> tuple[Tensor, Tensor]:
+def covariance_to_quat_scale(M: Tensor, fused: bool | None = None) -> tuple[Tensor, Tensor]:
     """Factor Σ = M Mᵀ as R(q) diag(s²) R(q)ᵀ.
 
     M: (..., 3, 3) -> quats (..., 4) wxyz, scales (..., 3) (standard deviations).
-    Differentiable; the eigendecomposition runs in float64.
+    Differentiable; the eigendecomposition runs in float64. ``fused`` (default: on the CPU) runs it in the numba
+    kernels of :mod:`.shape_kernels`, the same formulas per Gaussian; False: the torch ops below, their twin.
     """
+    if M.device.type == "cpu" if fused is None else fused:
+        from particlesplat.model.shape_kernels import FusedShapes
+
+        return FusedShapes.apply(M)
     dtype = M.dtype
     M64 = M.to(torch.float64)
     cov = M64 @ M64.transpose(-1, -2)
