@@ -81,7 +81,7 @@ def covariance_to_quat_scale(M: Tensor, fused: bool | None = None) -> tuple[Tens
     Differentiable; the eigendecomposition runs in float64. ``fused`` (default: on the CPU) runs it in the numba
     kernels of :mod:`.shape_kernels`, the same formulas per Gaussian; False: the torch ops below, their twin.
     """
-    if M.device.type == "cpu" if fused is None else fused:
+    if (M.device.type == "cpu") if fused is None else fused:
         from particlesplat.model.shape_kernels import FusedShapes
 
         return FusedShapes.apply(M)
