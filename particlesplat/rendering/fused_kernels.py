@@ -106,13 +106,18 @@ PIXEL_Y = np.array([(p // TILE) + 0.5 - TILE / 2 for p in range(TILE * TILE)])
 
 
 @jit
+def _exponent(dx: float, dy: float, a: float, b: float, c: float, lo: float) -> float:
+    """ln o − ½ dᵀCd at one pixel, d = (dx, dy) = pixel − mean: every test and composite computes it so."""
+    return lo - 0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy)
+
+
+@jit
 def _exponents(mx: float, my: float, a: float, b: float, c: float, lo: float, e: np.ndarray) -> float:
-    """e[p] = ln o − ½ dᵀCd at the 16 pixels (d = pixel − mean, tile-centred), branch-free so that it
-    vectorises; returns the largest."""
+    """e[p] = :func:`_exponent` at the 16 pixels (tile-centred mean mx, my), branch-free so that it vectorises;
+    returns the largest."""
     best = -np.inf
     for p in range(TILE * TILE):
-        dx, dy = PIXEL_X[p] - mx, PIXEL_Y[p] - my
-        e[p] = lo - 0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy)
+        e[p] = _exponent(PIXEL_X[p] - mx, PIXEL_Y[p] - my, a, b, c, lo)
         best = max(best, e[p])
     return best
 
@@ -151,11 +156,10 @@ def _candidate_boxes(means2d, radius, view, view_sizes, view_tiles_x, view_first
 
 @jit
 def _max_exponent(mx: float, my: float, a: float, b: float, c: float, lo: float) -> float:
-    """The largest of :func:`_exponents`' 16 values, computed alike (bit for bit), without storing them."""
+    """The largest of :func:`_exponents`' 16 values, without storing them."""
     best = -np.inf
     for p in range(TILE * TILE):
-        dx, dy = PIXEL_X[p] - mx, PIXEL_Y[p] - my
-        best = max(best, lo - 0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy))
+        best = max(best, _exponent(PIXEL_X[p] - mx, PIXEL_Y[p] - my, a, b, c, lo))
     return best
 
 
@@ -183,7 +187,7 @@ def _test_candidates(order, corner, nx, ny, start, view, view_tiles_x, means2d, 
             my = means2d[i, 1] - tile_origin[tile, 1]
             dx = min(max(math.floor(mx + TILE / 2) + 0.5 - TILE / 2, -edge), edge) - mx
             dy = min(max(math.floor(my + TILE / 2) + 0.5 - TILE / 2, -edge), edge) - my
-            if lo - 0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy) >= thresh:
+            if _exponent(dx, dy, a, b, c, lo) >= thresh:
                 hit[start[k] + j] = tile
             else:
                 hit[start[k] + j] = tile if _max_exponent(mx, my, a, b, c, lo) >= thresh else -1
